@@ -1,0 +1,337 @@
+"""Meshing: gmsh geometry (or a ready-made mesh) -> a checked tetrahedral mesh.
+
+The pipeline needs three things from a mesh: tetrahedra, and two named
+surface groups, ``top`` (where hail can land) and ``clamp`` (zero
+displacement). :class:`TetMesh` holds exactly that. It is produced by
+
+* :func:`mesh_default_seat` - the saddle in ``meshes/saddle.geo``;
+* :func:`mesh_geometry` - any gmsh-readable geometry (``.geo``, ``.step``,
+  ``.brep``...) carrying the physical groups ``top`` and ``clamp``;
+* :func:`read_mesh` - a tetrahedral mesh in any format meshio reads, with the
+  same group names (gmsh ``.msh`` physical names, or meshio cell sets);
+* :func:`box_mesh` - a box, for tests and analytic comparisons.
+
+Every constructor returns a mesh that passed :func:`check_mesh`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+
+REQUIRED_GROUPS = ("clamp",)
+
+
+class MeshError(ValueError):
+    """A geometry or mesh cannot be used (missing file or group, bad elements)."""
+
+
+@dataclass(eq=False)
+class TetMesh:
+    """A linear tetrahedral mesh with named boundary groups.
+
+    Attributes
+    ----------
+    points : (N, 3) float ndarray
+        Node coordinates [m].
+    tets : (T, 4) int ndarray
+        Positively oriented tetrahedra.
+    groups : dict of str -> (k, 3) int ndarray
+        Named boundary triangles (node indices), e.g. ``"top"``, ``"clamp"``.
+    source : str
+        Where the mesh came from (for the manifest).
+    """
+
+    points: np.ndarray
+    tets: np.ndarray
+    groups: dict[str, np.ndarray] = field(default_factory=dict)
+    source: str = ""
+
+    def content_hash(self) -> str:
+        """SHA-256 of points, tets and groups: the mesh part of the cache key."""
+        h = hashlib.sha256()
+        for a in (self.points, self.tets):
+            a = np.ascontiguousarray(a)
+            h.update(a.dtype.str.encode() + str(a.shape).encode() + a.tobytes())
+        for name in sorted(self.groups):
+            g = np.ascontiguousarray(np.sort(self.groups[name], axis=1), dtype=np.int64)
+            h.update(name.encode() + g.tobytes())
+        return h.hexdigest()
+
+    def group_vertices(self, name: str) -> np.ndarray:
+        """Sorted unique node indices of a boundary group."""
+        if name not in self.groups:
+            raise MeshError(f"mesh has no group {name!r} (it has: {sorted(self.groups)})")
+        return np.unique(self.groups[name])
+
+
+def tet_volumes(points: np.ndarray, tets: np.ndarray) -> np.ndarray:
+    """Signed volumes of tetrahedra (positive for the right-handed orientation)."""
+    p = points[tets]
+    return np.einsum("ij,ij->i", np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), p[:, 3] - p[:, 0]) / 6.0
+
+
+def check_mesh(mesh: TetMesh, required=REQUIRED_GROUPS) -> TetMesh:
+    """Validate a mesh; raise :class:`MeshError` naming the problem.
+
+    Checks finite coordinates, index ranges, the required groups, and that no
+    tetrahedron is inverted or degenerate (volume <= 1e-9 of the mean edge
+    length cubed).
+    """
+    pts, tets = mesh.points, mesh.tets
+    if pts.ndim != 2 or pts.shape[1] != 3 or not np.all(np.isfinite(pts)):
+        raise MeshError(f"{mesh.source}: points must be a finite (N, 3) array")
+    if tets.ndim != 2 or tets.shape[1] != 4 or tets.shape[0] == 0:
+        raise MeshError(f"{mesh.source}: the mesh has no tetrahedra (got cells of shape {tets.shape})")
+    if tets.min() < 0 or tets.max() >= pts.shape[0]:
+        raise MeshError(f"{mesh.source}: tetrahedra reference nodes outside 0..{pts.shape[0] - 1}")
+    for name in required:
+        if name not in mesh.groups or len(mesh.groups[name]) == 0:
+            raise MeshError(
+                f"{mesh.source}: the mesh has no {name!r} surface group; name the clamped patch "
+                f"'clamp' (a gmsh Physical Surface). Groups present: {sorted(mesh.groups) or 'none'}"
+            )
+    vol = tet_volumes(pts, tets)
+    edge = np.linalg.norm(pts[tets[:, 1]] - pts[tets[:, 0]], axis=1).mean()
+    bad = vol <= 1e-9 * edge**3
+    if bad.any():
+        idx = np.flatnonzero(bad)
+        kinds = []
+        if np.any(vol[idx] < -1e-9 * edge**3):
+            kinds.append(f"{int(np.sum(vol < -1e-9 * edge**3))} inverted")
+        n_degen = int(np.sum(np.abs(vol) <= 1e-9 * edge**3))
+        if n_degen:
+            kinds.append(f"{n_degen} degenerate (zero-volume)")
+        raise MeshError(
+            f"{mesh.source}: {' and '.join(kinds)} tetrahedra, e.g. tet {idx[0]} with nodes "
+            f"{tets[idx[0]].tolist()} (volume {vol[idx[0]]:.3g} m^3); fix the mesh orientation/quality"
+        )
+    surf = boundary_triangles(tets)
+    surf_keys = set(map(tuple, np.sort(surf, axis=1).tolist()))
+    for name, tris in mesh.groups.items():
+        missing = [t for t in map(tuple, np.sort(tris, axis=1).tolist()) if t not in surf_keys]
+        if missing:
+            raise MeshError(f"{mesh.source}: {len(missing)} triangles of group {name!r} are not on the boundary of the tetrahedra")
+    return mesh
+
+
+def boundary_triangles(tets: np.ndarray) -> np.ndarray:
+    """Outward-oriented boundary faces of a positively oriented tet mesh, (k, 3)."""
+    # faces opposite each vertex, ordered so the normal points away from it
+    faces = np.concatenate([tets[:, [1, 2, 3]], tets[:, [0, 3, 2]], tets[:, [0, 1, 3]], tets[:, [0, 2, 1]]])
+    key = np.sort(faces, axis=1)
+    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    return faces[counts[inv.ravel()] == 1]
+
+
+def default_seat_path() -> Path:
+    """Path of the default saddle geometry shipped with the package."""
+    return Path(str(resources.files("precompute.meshes").joinpath("saddle.geo")))
+
+
+def _gmsh_session():
+    import gmsh
+
+    if gmsh.isInitialized():
+        gmsh.finalize()
+    gmsh.initialize(interruptible=False)
+    gmsh.option.setNumber("General.Terminal", 0)
+    gmsh.option.setNumber("General.Verbosity", 2)
+    # determinism: one thread, fixed seed, a sequential 3D algorithm
+    gmsh.option.setNumber("General.NumThreads", 1)
+    gmsh.option.setNumber("Mesh.MaxNumThreads1D", 1)
+    gmsh.option.setNumber("Mesh.MaxNumThreads2D", 1)
+    gmsh.option.setNumber("Mesh.MaxNumThreads3D", 1)
+    gmsh.option.setNumber("Mesh.RandomSeed", 1)
+    gmsh.option.setNumber("Mesh.Algorithm3D", 1)
+    return gmsh
+
+
+def mesh_geometry(path: str | os.PathLike, mesh_size: float, *, coarsening: float = 2.5) -> TetMesh:
+    """Mesh a gmsh-readable geometry with linear tetrahedra.
+
+    Parameters
+    ----------
+    path
+        ``.geo``, ``.step``/``.stp``, ``.brep``... with physical groups
+        ``top`` and ``clamp`` (Physical Surface) and one or more volumes.
+    mesh_size
+        Element size on ``top`` [m] (the hail-facing surface).
+    coarsening
+        Elements grow to ``coarsening * mesh_size`` away from ``top``.
+
+    Returns
+    -------
+    TetMesh
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise MeshError(f"geometry file {path} does not exist")
+    if not (np.isfinite(mesh_size) and mesh_size > 0):
+        raise MeshError(f"mesh size must be a positive length in metres, got {mesh_size!r}")
+    gmsh = _gmsh_session()
+    try:
+        try:
+            gmsh.open(str(path))
+        except Exception as exc:  # gmsh raises bare Exception
+            raise MeshError(f"gmsh could not read {path}: {exc}") from exc
+        names = {gmsh.model.getPhysicalName(d, t): (d, t) for d, t in gmsh.model.getPhysicalGroups()}
+        if "clamp" not in names:
+            raise MeshError(
+                f"{path}: no physical group named 'clamp'; the clamped patch must be a "
+                f"Physical Surface called 'clamp' (found: {sorted(names) or 'none'})"
+            )
+        if not gmsh.model.getEntities(3):
+            raise MeshError(f"{path}: the geometry has no volume to mesh")
+        fine = []
+        if "top" in names:
+            fine = list(gmsh.model.getEntitiesForPhysicalGroup(*names["top"]))
+        gmsh.option.setNumber("Mesh.MeshSizeFromPoints", 0)
+        gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", 0)
+        gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 0)
+        gmsh.option.setNumber("Mesh.MeshSizeMax", coarsening * mesh_size)
+        gmsh.option.setNumber("Mesh.MeshSizeMin", 0.25 * mesh_size)
+        if fine:
+            f_dist = gmsh.model.mesh.field.add("Distance")
+            gmsh.model.mesh.field.setNumbers(f_dist, "SurfacesList", fine)
+            f_thr = gmsh.model.mesh.field.add("Threshold")
+            gmsh.model.mesh.field.setNumber(f_thr, "InField", f_dist)
+            gmsh.model.mesh.field.setNumber(f_thr, "SizeMin", mesh_size)
+            gmsh.model.mesh.field.setNumber(f_thr, "SizeMax", coarsening * mesh_size)
+            gmsh.model.mesh.field.setNumber(f_thr, "DistMin", 0.5 * mesh_size)
+            gmsh.model.mesh.field.setNumber(f_thr, "DistMax", 3.0 * mesh_size)
+            gmsh.model.mesh.field.setAsBackgroundMesh(f_thr)
+        else:
+            gmsh.option.setNumber("Mesh.MeshSizeMax", mesh_size)
+        gmsh.option.setNumber("Mesh.ElementOrder", 1)
+        try:
+            gmsh.model.mesh.generate(3)
+        except Exception as exc:
+            raise MeshError(f"gmsh failed to mesh {path} at mesh size {mesh_size}: {exc}") from exc
+        return _mesh_from_gmsh(gmsh, names, source=f"{path.name}@h={mesh_size:g}")
+    finally:
+        gmsh.finalize()
+
+
+def _mesh_from_gmsh(gmsh, names: dict, source: str) -> TetMesh:
+    tags, coords, _ = gmsh.model.mesh.getNodes()
+    order = np.argsort(tags)
+    tags = tags[order]
+    points = coords.reshape(-1, 3)[order]
+    index = np.full(int(tags.max()) + 1, -1, dtype=np.int64)
+    index[tags] = np.arange(tags.size)
+
+    etypes, _, enodes = gmsh.model.mesh.getElements(3)
+    tet_nodes = [n for t, n in zip(etypes, enodes) if t == 4]  # 4 = 4-node tetrahedron
+    if not tet_nodes:
+        raise MeshError(f"{source}: meshing produced no tetrahedra")
+    tets = index[np.concatenate(tet_nodes).astype(np.int64)].reshape(-1, 4)
+    groups = {}
+    for name, (dim, tag) in names.items():
+        if dim != 2:
+            continue
+        tris = []
+        for ent in gmsh.model.getEntitiesForPhysicalGroup(dim, tag):
+            et, _, en = gmsh.model.mesh.getElements(2, ent)
+            tris += [index[n.astype(np.int64)].reshape(-1, 3) for t, n in zip(et, en) if t == 2]
+        groups[name] = np.concatenate(tris) if tris else np.zeros((0, 3), np.int64)
+    # keep only nodes used by tetrahedra (drop geometry-only points)
+    used = np.unique(tets)
+    remap = np.full(points.shape[0], -1, dtype=np.int64)
+    remap[used] = np.arange(used.size)
+    mesh = TetMesh(points[used], remap[tets], {k: remap[v] for k, v in groups.items()}, source)
+    return check_mesh(mesh)
+
+
+def mesh_default_seat(mesh_size: float = 0.01) -> TetMesh:
+    """Mesh the default saddle (``meshes/saddle.geo``) at ``mesh_size`` on top [m]."""
+    return mesh_geometry(default_seat_path(), mesh_size)
+
+
+def read_mesh(path: str | os.PathLike) -> TetMesh:
+    """Read a tetrahedral mesh with meshio, taking groups from its physical names.
+
+    Groups come from gmsh physical names (``field_data`` + ``gmsh:physical``)
+    or from meshio ``cell_sets`` of triangles.
+    """
+    import meshio
+
+    path = Path(path)
+    if not path.is_file():
+        raise MeshError(f"mesh file {path} does not exist")
+    try:
+        m = meshio.read(path)
+    except Exception as exc:
+        raise MeshError(f"meshio could not read {path}: {exc}") from exc
+    tets = [c.data for c in m.cells if c.type == "tetra"]
+    if not tets:
+        kinds = sorted({c.type for c in m.cells})
+        raise MeshError(f"{path}: no linear tetrahedra ('tetra' cells) in the mesh (found {kinds})")
+    points = np.asarray(m.points, dtype=np.float64)
+    if points.shape[1] == 2:
+        raise MeshError(f"{path}: the mesh is 2-D; a solid needs 3-D points")
+    groups: dict[str, list[np.ndarray]] = {}
+    phys = m.cell_data.get("gmsh:physical")
+    if phys is not None and m.field_data:
+        by_tag = {int(v[0]): k for k, v in m.field_data.items() if int(v[1]) == 2}
+        for block, tags in zip(m.cells, phys):
+            if block.type != "triangle":
+                continue
+            for tag in np.unique(tags):
+                if int(tag) in by_tag:
+                    groups.setdefault(by_tag[int(tag)], []).append(block.data[tags == tag])
+    for name, per_block in (m.cell_sets or {}).items():
+        for block, ids in zip(m.cells, per_block):
+            if block.type == "triangle" and ids is not None and len(ids):
+                groups.setdefault(name, []).append(block.data[np.asarray(ids)])
+    mesh = TetMesh(
+        points,
+        np.concatenate(tets).astype(np.int64),
+        {k: np.concatenate(v).astype(np.int64) for k, v in groups.items()},
+        source=path.name,
+    )
+    return check_mesh(mesh)
+
+
+def load_seat(geometry: str | os.PathLike | None, mesh_size: float) -> TetMesh:
+    """The mesh for a precompute run: default seat, a geometry file or a mesh file."""
+    if geometry is None:
+        return mesh_default_seat(mesh_size)
+    path = Path(geometry)
+    if not path.exists():
+        raise MeshError(f"geometry file {path} does not exist")
+    if path.suffix.lower() in {".geo", ".step", ".stp", ".brep", ".iges", ".igs", ".xao"}:
+        return mesh_geometry(path, mesh_size)
+    return read_mesh(path)
+
+
+def box_mesh(size=(1.0, 1.0, 1.0), mesh_size: float = 0.25, *, clamp: str = "z0") -> TetMesh:
+    """A structured tetrahedral box [0,Lx]x[0,Ly]x[0,Lz] (6 tets per cube).
+
+    Groups: ``clamp`` is the face ``x=0`` (``clamp="x0"``) or ``z=0``
+    (``clamp="z0"``); ``top`` is every other face. Deterministic, no gmsh.
+    """
+    size = np.asarray(size, dtype=float)
+    n = np.maximum(1, np.round(size / mesh_size).astype(int))
+    axes = [np.linspace(0.0, size[i], n[i] + 1) for i in range(3)]
+    X, Y, Z = np.meshgrid(*axes, indexing="ij")
+    points = np.column_stack([X.ravel(), Y.ravel(), Z.ravel()])
+    idx = np.arange(points.shape[0]).reshape(n + 1)
+    c = [idx[i:n[0] + i, j:n[1] + j, k:n[2] + k].ravel() for i in (0, 1) for j in (0, 1) for k in (0, 1)]
+    v000, v001, v010, v011, v100, v101, v110, v111 = c
+    # Kuhn subdivision of each cube along the main diagonal v000-v111
+    paths = [(v100, v110), (v100, v101), (v010, v110), (v010, v011), (v001, v101), (v001, v011)]
+    tets = np.concatenate([np.column_stack([v000, a, b, v111]) for a, b in paths])
+    vol = tet_volumes(points, tets)
+    tets[vol < 0] = tets[vol < 0][:, [0, 2, 1, 3]]
+    bnd = boundary_triangles(tets)
+    cen = points[bnd].mean(axis=1)
+    axis = {"x0": 0, "z0": 2}[clamp]
+    on_clamp = np.isclose(cen[:, axis], 0.0)
+    groups = {"clamp": bnd[on_clamp], "top": bnd[~on_clamp]}
+    return check_mesh(TetMesh(points, tets, groups, source=f"box{tuple(size.tolist())}@h={mesh_size:g}"))

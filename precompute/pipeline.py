@@ -1,0 +1,259 @@
+"""The offline stage end to end: mesh -> FEM -> compliance D -> bundle on disk.
+
+:func:`build_bundle` is the one entry point (the CLI's ``hailstorm
+precompute`` calls it). Its cache key covers everything that changes D - the
+mesh itself (hashed after meshing, so a different gmsh that meshes
+differently also misses), element order, material, contactable selection,
+solver and tolerance, and the bundle format - so asking again for the same
+seat reuses the bundle and asking for a different one never returns the old.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from precompute.fem import (
+    DEFAULT_POISSON,
+    DEFAULT_YOUNG,
+    check_material,
+    clamp_dofs,
+    elasticity_basis,
+    rigid_body_modes,
+    stiffness_matrix,
+    vertex_dofs,
+)
+from precompute.geometry import TetMesh, boundary_triangles, load_seat
+from precompute.greens import SOLVERS, compliance_matrix, lumped_areas
+from runtime.bundle import FORMAT_VERSION, is_bundle, read_manifest, write_bundle
+
+log = logging.getLogger(__name__)
+
+DEFAULT_MESH_SIZE = 0.01
+
+
+@dataclass(frozen=True)
+class Surface:
+    """The boundary of a tet mesh as a P1 triangle surface on the corner vertices.
+
+    Attributes
+    ----------
+    nodes : (n,) int
+        Volume node of each surface vertex (``surface_nodes`` in the bundle).
+    triangles : (m, 3) int
+        Outward triangles in surface-vertex numbering.
+    fixed, contactable : (n,) bool
+    areas : (n,) float
+        Lumped vertex areas.
+    """
+
+    nodes: np.ndarray
+    triangles: np.ndarray
+    fixed: np.ndarray
+    contactable: np.ndarray
+    areas: np.ndarray
+
+
+def extract_surface(mesh: TetMesh, contact_group: str = "top") -> Surface:
+    """Surface vertices, triangles, areas and the fixed/contactable masks.
+
+    Contactable vertices are those of ``contact_group`` that are not clamped
+    (``contact_group="all"``: every unclamped surface vertex).
+    """
+    tris = boundary_triangles(mesh.tets)
+    nodes, local = np.unique(tris, return_inverse=True)
+    triangles = local.reshape(-1, 3)
+    fixed = np.isin(nodes, mesh.group_vertices("clamp"))
+    if contact_group == "all":
+        contactable = ~fixed
+    else:
+        contactable = np.isin(nodes, mesh.group_vertices(contact_group)) & ~fixed
+    if not contactable.any():
+        raise ValueError(f"no contactable vertices: group {contact_group!r} lies entirely on the clamp")
+    areas = lumped_areas(mesh.points[nodes], triangles)
+    return Surface(nodes, triangles, fixed, contactable, areas)
+
+
+def cache_key(mesh: TetMesh, options: dict) -> str:
+    """SHA-256 over the mesh content and every option that changes D."""
+    payload = json.dumps({"format_version": FORMAT_VERSION, "mesh": mesh.content_hash(), **options}, sort_keys=True)
+    return hashlib.sha256(payload.encode()).hexdigest()
+
+
+def default_cache_dir() -> Path:
+    """Where bundles built on demand live (``$HAILSTORM_CACHE`` or the XDG cache)."""
+    env = os.environ.get("HAILSTORM_CACHE")
+    if env:
+        return Path(env)
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(Path.home(), ".cache")
+    return Path(base) / "hailstorm"
+
+
+def _code_version() -> str:
+    try:
+        from importlib.metadata import version
+
+        return version("hailstorm")
+    except Exception:  # running from a source tree that is not installed
+        return "unknown"
+
+
+def build_bundle(
+    out: str | os.PathLike | None = None,
+    *,
+    mesh: TetMesh | None = None,
+    geometry: str | os.PathLike | None = None,
+    mesh_size: float = DEFAULT_MESH_SIZE,
+    order: int = 1,
+    young: float = DEFAULT_YOUNG,
+    poisson: float = DEFAULT_POISSON,
+    contact_group: str = "top",
+    solver: str = "cholmod",
+    tol: float = 1e-10,
+    reuse: bool = True,
+    progress: bool = False,
+) -> Path:
+    """Compute the Green's functions of a seat and write them as a bundle.
+
+    Parameters
+    ----------
+    out
+        Bundle directory. ``None``: ``default_cache_dir() / <key>``.
+    mesh
+        A ready :class:`TetMesh` (tests, studies). Otherwise ``geometry`` is
+        meshed at ``mesh_size`` (``None``: the default saddle).
+    mesh_size
+        Element size on the hail-facing surface [m].
+    order
+        1 or 2: P1 or P2 tetrahedra. The bundle always lives on the corner
+        vertices.
+    young, poisson
+        Material [Pa], [-].
+    contact_group
+        Surface group whose (unclamped) vertices get columns of D.
+    solver, tol
+        ``"cholmod"`` (default), ``"splu"`` or ``"amg"`` with relative
+        residual ``tol``.
+    reuse
+        Return an existing bundle at ``out`` whose key matches, without
+        recomputing.
+    progress
+        Show a progress bar over the columns of D.
+
+    Returns
+    -------
+    pathlib.Path
+        The bundle directory; ``runtime.load`` reads it.
+    """
+    young, poisson = check_material(young, poisson)
+    if order not in (1, 2):
+        raise ValueError(f"element order must be 1 or 2, got {order!r}")
+    if solver not in SOLVERS:
+        raise ValueError(f"unknown solver {solver!r}; choose one of {SOLVERS}")
+    if not (np.isfinite(tol) and 0 < tol < 1):
+        raise ValueError(f"solver tolerance must be in (0, 1), got {tol!r}")
+    t0 = time.perf_counter()
+    if mesh is None:
+        mesh = load_seat(geometry, mesh_size)
+    t_mesh = time.perf_counter() - t0
+
+    options = {
+        "order": int(order),
+        "young": young,
+        "poisson": poisson,
+        "contact_group": contact_group,
+        "solver": solver,
+        "tol": tol if solver == "amg" else None,
+    }
+    key = cache_key(mesh, options)
+    if out is None:
+        out = default_cache_dir() / key[:16]
+    out = Path(out)
+    if reuse and is_bundle(out):
+        try:
+            if read_manifest(out).get("key") == key:
+                log.info("bundle %s is up to date (key %s); reusing it", out, key[:12])
+                return out
+        except ValueError:
+            pass
+        log.info("bundle %s was built for other inputs; recomputing", out)
+
+    surface = extract_surface(mesh, contact_group)
+    t1 = time.perf_counter()
+    basis = elasticity_basis(mesh, order)
+    K = stiffness_matrix(basis, young, poisson)
+    fixed = clamp_dofs(basis, mesh)
+    contact_nodes = surface.nodes[surface.contactable]
+    load = vertex_dofs(basis, contact_nodes).ravel()
+    read = vertex_dofs(basis, surface.nodes).ravel()
+    near_null = None
+    if solver == "amg":
+        near_null = _rigid_modes_on_dofs(basis)
+    t_assemble = time.perf_counter() - t1
+
+    t2 = time.perf_counter()
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=load.size, desc=f"Green's functions (P{order}, {solver})", unit="col")
+    try:
+        D = compliance_matrix(
+            K, fixed, load, read, solver=solver, near_null=near_null, tol=tol,
+            progress=None if bar is None else bar.update,
+        )
+    finally:
+        if bar is not None:
+            bar.close()
+    t_solve = time.perf_counter() - t2
+
+    manifest = {
+        "key": key,
+        "code_version": _code_version(),
+        "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "options": {**options, "mesh_size": float(mesh_size), "geometry": None if geometry is None else str(geometry)},
+        "material": {"young": young, "poisson": poisson},
+        "mesh": {
+            "source": mesh.source,
+            "hash": mesh.content_hash(),
+            "n_points": int(mesh.points.shape[0]),
+            "n_tets": int(mesh.tets.shape[0]),
+            "n_dofs": int(K.shape[0]),
+            "n_surface_vertices": int(surface.nodes.size),
+            "n_contactable": int(surface.contactable.sum()),
+        },
+        "timings_s": {"mesh": t_mesh, "assemble": t_assemble, "solve": t_solve},
+    }
+    arrays = {
+        "vertices": mesh.points[surface.nodes],
+        "triangles": surface.triangles.astype(np.int64),
+        "areas": surface.areas,
+        "fixed": surface.fixed,
+        "contactable": surface.contactable,
+        "volume_points": mesh.points,
+        "volume_tets": mesh.tets.astype(np.int64),
+        "surface_nodes": surface.nodes.astype(np.int64),
+        "compliance": D,
+    }
+    path = write_bundle(out, arrays, manifest)
+    log.info("wrote bundle %s (%d x %d compliance) in %.1f s", path, *D.shape, time.perf_counter() - t0)
+    return path
+
+
+def _rigid_modes_on_dofs(basis) -> np.ndarray:
+    """Rigid-body modes evaluated at every dof location in scikit-fem's dof order."""
+    locs = basis.doflocs.T  # (n_dofs, 3)
+    comp = np.empty(locs.shape[0], dtype=np.int64)
+    for d in range(3):
+        comp[basis.nodal_dofs[d]] = d
+        if basis.edge_dofs.size:
+            comp[basis.edge_dofs[d]] = d
+    modes = rigid_body_modes(locs)  # (3 n_dofs, 6): rows 3k+c = component c at location k
+    return modes.reshape(-1, 3, 6)[np.arange(locs.shape[0]), comp]
