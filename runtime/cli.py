@@ -1,1 +1,181 @@
-def main(): pass
+"""The ``hailstorm`` command line.
+
+``hailstorm``                      run the default storm on the default seat
+``hailstorm storm [options]``      run a storm (bundle built and cached on first use)
+``hailstorm precompute [options]`` compute a Green's-function bundle
+``hailstorm info DIR``             describe and verify a bundle
+
+All printing and exit codes live here; the library raises exceptions.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+import time
+from pathlib import Path
+
+EXIT_USAGE = 2
+EXIT_INPUT = 3
+COMMANDS = ("precompute", "storm", "info")
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not value > 0 or value != value or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a positive finite number, got {text}")
+    return value
+
+
+def _float(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+
+
+def _parser() -> argparse.ArgumentParser:
+    from precompute.fem import DEFAULT_POISSON, DEFAULT_YOUNG  # noqa: PLC0415 (cheap module)
+    from precompute.pipeline import DEFAULT_MESH_SIZE
+
+    p = argparse.ArgumentParser(
+        prog="hailstorm",
+        description="A hail storm on a bicycle seat: point contacts on a linear elastic solid "
+        "through precomputed Green's functions. With no command, runs the default storm.",
+    )
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("-q", "--quiet", action="store_true", help="no progress bars or info messages")
+    sub = p.add_subparsers(dest="command")
+
+    pre = sub.add_parser("precompute", parents=[common], help="compute a Green's-function bundle for a seat")
+    pre.add_argument("--mesh-size", type=_positive_float, default=DEFAULT_MESH_SIZE,
+                     help=f"element size on the hail-facing surface in metres (default {DEFAULT_MESH_SIZE})")
+    pre.add_argument("--order", type=int, choices=(1, 2), default=1, help="P1 or P2 tetrahedra (default 1)")
+    pre.add_argument("--young", type=_float, default=DEFAULT_YOUNG, help=f"Young's modulus in Pa (default {DEFAULT_YOUNG:g})")
+    pre.add_argument("--poisson", type=_float, default=DEFAULT_POISSON, help=f"Poisson's ratio (default {DEFAULT_POISSON})")
+    pre.add_argument("--geometry", type=Path, default=None,
+                     help="geometry (.geo/.step/.brep) or tetrahedral mesh (any meshio format) with "
+                     "surface groups 'top' and 'clamp' (default: the built-in saddle)")
+    pre.add_argument("--solver", choices=("cholmod", "splu", "amg"), default="cholmod",
+                     help="sparse Cholesky (default), SuperLU, or AMG-preconditioned CG for huge meshes")
+    pre.add_argument("--tol", type=_positive_float, default=1e-10, help="relative residual of the AMG solver")
+    pre.add_argument("--out", type=Path, required=True, help="bundle directory to write")
+    pre.add_argument("--force", action="store_true", help="recompute even if --out holds an up-to-date bundle")
+
+    storm = sub.add_parser("storm", parents=[common], help="run a hail storm and write an animation, a ParaView series and summary.json")
+    _storm_args(storm)
+
+    info = sub.add_parser("info", parents=[common], help="describe and verify a bundle")
+    info.add_argument("bundle", type=Path)
+    return p
+
+
+def _storm_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--duration", type=_positive_float, default=None, help="simulated time in seconds")
+    p.add_argument("--stones", type=int, default=None, help="number of hailstones")
+    p.add_argument("--seed", type=int, default=None, help="random seed (runs are reproducible from it)")
+    p.add_argument("--gf", type=Path, default=None, help="bundle directory (default: build/cache the default seat)")
+    p.add_argument("--scene", type=Path, default=None, help="TOML scene file holding every storm setting")
+    p.add_argument("--out", type=Path, default=Path("hailstorm-out"), help="output directory (default ./hailstorm-out)")
+    p.add_argument("--no-video", action="store_true", help="skip the animation")
+
+
+def _run_precompute(args: argparse.Namespace) -> int:
+    from precompute.pipeline import build_bundle
+
+    t0 = time.perf_counter()
+    path = build_bundle(
+        args.out, geometry=args.geometry, mesh_size=args.mesh_size, order=args.order,
+        young=args.young, poisson=args.poisson, solver=args.solver, tol=args.tol,
+        reuse=not args.force, progress=not args.quiet,
+    )
+    _print_bundle(path)
+    if not args.quiet:
+        print(f"done in {time.perf_counter() - t0:.1f} s")
+    return 0
+
+
+def _print_bundle(path: Path) -> None:
+    from runtime.bundle import load
+
+    gf = load(path)
+    m = gf.manifest
+    mesh = m.get("mesh", {})
+    print(f"bundle   {path}")
+    print(f"key      {m['key'][:16]}  (format {m['format_version']}, hailstorm {m.get('code_version')})")
+    print(f"mesh     {mesh.get('source')}: {mesh.get('n_points')} nodes, {mesh.get('n_tets')} tets, "
+          f"P{gf.order}, {mesh.get('n_dofs')} dofs")
+    print(f"surface  {gf.n_vertices} vertices, {len(gf.triangles)} triangles, "
+          f"{int(gf.contactable.sum())} contactable, {int(gf.fixed.sum())} clamped")
+    print(f"material E = {gf.young:g} Pa, nu = {gf.poisson:g}")
+    print(f"D        {gf.D.shape[0]} x {gf.D.shape[1]} float64 ({gf.D.nbytes / 2**20:.1f} MiB)")
+    t = m.get("timings_s", {})
+    if t:
+        print("timings  " + ", ".join(f"{k} {v:.2f} s" for k, v in t.items()))
+
+
+def _run_storm(args: argparse.Namespace) -> int:
+    from runtime.bundle import load
+    from runtime.output import write_animation, write_paraview, write_summary
+    from runtime.storm import Scene, run_storm
+
+    scene = Scene.from_toml(args.scene) if args.scene is not None else Scene.default()
+    overrides = {k: getattr(args, k) for k in ("duration", "stones", "seed") if getattr(args, k) is not None}
+    if overrides:
+        scene = scene.replace(**overrides)
+    if args.gf is not None:
+        gf_path = args.gf
+    else:
+        from precompute.pipeline import build_bundle
+
+        if not args.quiet:
+            print(f"default seat: building or reusing the cached bundle (mesh size {scene.mesh_size} m)...")
+        gf_path = build_bundle(None, mesh_size=scene.mesh_size, order=scene.order, progress=not args.quiet)
+    gf = load(gf_path)
+    out = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    result = run_storm(gf, scene, progress=not args.quiet)
+    summary = write_summary(result, out / "summary.json")
+    write_paraview(result, gf, out)
+    if not args.no_video:
+        video = write_animation(result, gf, out / "storm.mp4")
+    if not args.quiet:
+        print(json.dumps(summary, indent=2))
+        print(f"outputs in {out}/" + ("" if args.no_video else f" (animation: {Path(video).name})"))
+    return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``hailstorm`` console script."""
+    argv = sys.argv[1:] if argv is None else argv
+    parser = _parser()
+    if not argv or argv[0] not in (*COMMANDS, "-h", "--help"):
+        argv = ["storm", *argv]  # plain `hailstorm [storm options]` runs the storm
+    args = parser.parse_args(argv)
+    logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO, format="%(message)s")
+    logging.getLogger("skfem").setLevel(logging.WARNING)
+    from precompute.geometry import MeshError
+    from runtime.bundle import BundleError
+
+    try:
+        if args.command == "precompute":
+            return _run_precompute(args)
+        if args.command == "info":
+            _print_bundle(args.bundle)
+            return 0
+        return _run_storm(args)
+    except (MeshError, BundleError, ValueError, FileNotFoundError) as exc:
+        print(f"hailstorm: error: {exc}", file=sys.stderr)
+        return EXIT_INPUT
+    except KeyboardInterrupt:
+        print("hailstorm: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,29 @@
+"""Shared fixtures: small meshes and bundles, built once per session."""
+
+import numpy as np
+import pytest
+
+from precompute import box_mesh, build_bundle
+
+
+@pytest.fixture(scope="session")
+def small_box():
+    """A 0.1 x 0.1 x 0.05 m box clamped at z = 0 (216 nodes)."""
+    return box_mesh((0.1, 0.1, 0.05), 0.02)
+
+
+@pytest.fixture(scope="session")
+def box_bundle(tmp_path_factory, small_box):
+    """A P1 bundle of :func:`small_box` (E = 1 MPa, nu = 0.3)."""
+    return build_bundle(tmp_path_factory.mktemp("gf") / "box", mesh=small_box, order=1, young=1e6, poisson=0.3)
+
+
+@pytest.fixture(scope="session")
+def seat_bundle(tmp_path_factory):
+    """The default saddle at a coarse 15 mm mesh (P1)."""
+    return build_bundle(tmp_path_factory.mktemp("gf") / "seat", mesh_size=0.015, order=1)
+
+
+@pytest.fixture
+def rng():
+    return np.random.default_rng(12345)

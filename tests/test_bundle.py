@@ -1,0 +1,155 @@
+"""Bundle round trip, refusal of damaged bundles, atomic writes, the cache key."""
+
+import json
+import shutil
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import runtime
+from precompute import build_bundle
+from runtime.bundle import ARRAY_SPECS, MANIFEST, BundleError, load, write_bundle
+
+
+def _copy(src, dst):
+    shutil.copytree(src, dst)
+    return dst
+
+
+def test_round_trip_preserves_every_array(box_bundle, small_box):
+    gf = load(box_bundle)
+    assert gf.vertices.shape == (gf.n_vertices, 3)
+    assert np.array_equal(gf.volume_points, small_box.points)
+    assert np.array_equal(gf.volume_tets, small_box.tets)
+    assert np.array_equal(gf.vertices, small_box.points[gf.surface_nodes])
+    assert gf.young == 1e6 and gf.poisson == 0.3 and gf.order == 1
+    # rewrite what we read and read it again: identical arrays and hashes
+    arrays = {name: np.asarray(getattr(gf, name if name != "compliance" else "D")) for name in ARRAY_SPECS}
+    again = load(write_bundle(box_bundle.parent / "again", arrays, {"key": "x", "options": gf.manifest["options"],
+                                                                    "material": gf.manifest["material"]}))
+    for name in ARRAY_SPECS:
+        a = getattr(gf, name if name != "compliance" else "D")
+        b = getattr(again, name if name != "compliance" else "D")
+        assert np.array_equal(a, b), name
+    assert again.manifest["arrays"] == gf.manifest["arrays"]
+
+
+def test_compliance_is_memory_mapped(box_bundle):
+    assert isinstance(load(box_bundle).D, np.memmap)
+
+
+def test_corrupted_array_is_refused(box_bundle, tmp_path):
+    b = _copy(box_bundle, tmp_path / "b")
+    raw = bytearray((b / "compliance.npy").read_bytes())
+    raw[-8] ^= 0xFF
+    (b / "compliance.npy").write_bytes(bytes(raw))
+    with pytest.raises(BundleError, match="hash"):
+        load(b)
+
+
+def test_truncated_array_is_refused(box_bundle, tmp_path):
+    b = _copy(box_bundle, tmp_path / "b")
+    raw = (b / "compliance.npy").read_bytes()
+    (b / "compliance.npy").write_bytes(raw[: len(raw) // 2])
+    with pytest.raises(BundleError, match="truncated|corrupted"):
+        load(b)
+
+
+def test_missing_array_and_manifest_are_refused(box_bundle, tmp_path):
+    b = _copy(box_bundle, tmp_path / "b")
+    (b / "areas.npy").unlink()
+    with pytest.raises(BundleError, match="areas.npy is missing"):
+        load(b)
+    (b / MANIFEST).unlink()
+    with pytest.raises(BundleError, match="manifest.json is missing"):
+        load(b)
+    with pytest.raises(BundleError, match="does not exist"):
+        load(tmp_path / "nowhere")
+
+
+def test_mismatched_bundle_is_refused(box_bundle, seat_bundle, tmp_path):
+    b = _copy(box_bundle, tmp_path / "b")
+    # an array from another bundle, with its manifest entry: hashes pass, consistency does not
+    shutil.copy(seat_bundle / "compliance.npy", b / "compliance.npy")
+    m = json.loads((b / MANIFEST).read_text())
+    m["arrays"]["compliance"] = json.loads((seat_bundle / MANIFEST).read_text())["arrays"]["compliance"]
+    (b / MANIFEST).write_text(json.dumps(m))
+    with pytest.raises(BundleError, match="inconsistent"):
+        load(b)
+
+
+def test_other_format_version_is_refused(box_bundle, tmp_path):
+    b = _copy(box_bundle, tmp_path / "b")
+    m = json.loads((b / MANIFEST).read_text())
+    m["format_version"] = 99
+    (b / MANIFEST).write_text(json.dumps(m))
+    with pytest.raises(BundleError, match="version 99"):
+        load(b)
+
+
+def test_non_bundle_directory_is_never_overwritten(small_box, tmp_path):
+    target = tmp_path / "precious"
+    target.mkdir()
+    (target / "thesis.tex").write_text("years of work")
+    with pytest.raises(BundleError, match="not a hailstorm bundle"):
+        build_bundle(target, mesh=small_box)
+    assert (target / "thesis.tex").read_text() == "years of work"
+
+
+def test_failed_write_leaves_old_bundle_intact(box_bundle, tmp_path, monkeypatch):
+    b = _copy(box_bundle, tmp_path / "b")
+    before = {p.name: p.read_bytes() for p in b.iterdir()}
+    gf = load(b)
+    arrays = {name: np.asarray(getattr(gf, name if name != "compliance" else "D")) for name in ARRAY_SPECS}
+    calls = {"n": 0}
+    real_save = np.save
+
+    def failing_save(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == 5:
+            raise OSError("disk full")
+        return real_save(*args, **kwargs)
+
+    monkeypatch.setattr(np, "save", failing_save)
+    with pytest.raises(OSError, match="disk full"):
+        write_bundle(b, arrays, {"key": "new"})
+    assert {p.name: p.read_bytes() for p in b.iterdir()} == before
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]  # no temp litter
+    load(b)
+
+
+def test_cache_key_reuses_same_and_recomputes_different(small_box, tmp_path):
+    out = tmp_path / "b"
+    build_bundle(out, mesh=small_box, young=1e6)
+    stamp = (out / MANIFEST).stat().st_mtime_ns
+    key = load(out).manifest["key"]
+    build_bundle(out, mesh=small_box, young=1e6)
+    assert (out / MANIFEST).stat().st_mtime_ns == stamp  # reused, not rewritten
+    build_bundle(out, mesh=small_box, young=2e6)  # different material: never the old D
+    gf = load(out)
+    assert gf.manifest["key"] != key and gf.young == 2e6
+    moved = small_box.points.copy()
+    moved[:, 0] *= 1.01
+    from precompute.geometry import TetMesh
+
+    build_bundle(out, mesh=TetMesh(moved, small_box.tets, small_box.groups, "moved"), young=2e6)
+    assert not np.array_equal(load(out).vertices, gf.vertices)  # a different mesh is recomputed
+
+
+def test_runtime_imports_no_meshing_or_fem(box_bundle):
+    code = (
+        "import sys, runtime; gf = runtime.load(sys.argv[1]); gf.compliance([0], gf.contact_vertices[:2]);"
+        "bad = [m for m in ('gmsh', 'skfem', 'meshio', 'precompute') if m in sys.modules];"
+        "assert not bad, bad"
+    )
+    subprocess.run([sys.executable, "-c", code, str(box_bundle)], check=True)
+
+
+def test_compliance_argument_errors(box_bundle):
+    gf = runtime.load(box_bundle)
+    with pytest.raises(IndexError):
+        gf.compliance([gf.n_vertices], [int(gf.contact_vertices[0])])
+    with pytest.raises(ValueError, match="vertex indices"):
+        gf.compliance([0.5], [0])

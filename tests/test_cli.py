@@ -1,0 +1,67 @@
+"""The command line, end to end, as a user runs it."""
+
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from skfem import condense, solve
+
+import runtime
+from precompute import mesh_default_seat
+from precompute.fem import clamp_dofs, elasticity_basis, stiffness_matrix, vertex_dofs
+
+
+def hailstorm(*args, check=True):
+    return subprocess.run([sys.executable, "-m", "runtime.cli", *map(str, args)],
+                          capture_output=True, text=True, check=check, timeout=600)
+
+
+def test_precompute_then_load_agrees_with_independent_fem(tmp_path):
+    out = tmp_path / "gf"
+    run = hailstorm("precompute", "--mesh-size", 0.01, "--order", 1, "--out", out, "-q")
+    assert run.returncode == 0, run.stderr
+    gf = runtime.load(out)
+    # an independent solve: mesh again, assemble, scikit-fem's own condense/solve
+    mesh = mesh_default_seat(0.01)
+    assert np.array_equal(mesh.points, gf.volume_points)
+    basis = elasticity_basis(mesh, 1)
+    K = stiffness_matrix(basis, gf.young, gf.poisson)
+    rng = np.random.default_rng(7)
+    cols = rng.choice(gf.contact_vertices, size=3, replace=False)
+    rows = np.arange(gf.n_vertices)
+    block = gf.compliance(rows, cols)
+    for k, j in enumerate(cols):
+        f = np.zeros(K.shape[0])
+        f[vertex_dofs(basis, [gf.surface_nodes[j]])[0, 1]] = 1.0
+        u = solve(*condense(K, f, D=clamp_dofs(basis, mesh)))
+        expected = u[vertex_dofs(basis, gf.surface_nodes).ravel()]
+        assert np.linalg.norm(block[:, 3 * k + 1] - expected) <= 1e-6 * np.linalg.norm(expected)
+
+
+def test_info_describes_a_bundle(box_bundle):
+    run = hailstorm("info", box_bundle)
+    assert "contactable" in run.stdout and "D " in run.stdout
+
+
+@pytest.mark.parametrize("args, message", [
+    (["precompute", "--poisson", "0.5"], "Poisson"),
+    (["precompute", "--young", "-3"], "Young"),
+    (["precompute", "--geometry", "/no/such/seat.step"], "does not exist"),
+    (["info", "/no/such/bundle"], "does not exist"),
+])
+def test_bad_input_gives_clear_error(tmp_path, args, message):
+    if args[0] == "precompute":
+        args = [*args, "--out", tmp_path / "b"]
+    run = hailstorm(*args, check=False)
+    assert run.returncode != 0
+    assert message in run.stderr
+    assert "Traceback" not in run.stderr
+    assert not (tmp_path / "b").exists()
+
+
+def test_usage_errors_exit_2(tmp_path):
+    run = hailstorm("precompute", "--order", "3", "--out", tmp_path / "b", check=False)
+    assert run.returncode == 2 and "invalid choice" in run.stderr
+    run = hailstorm("precompute", "--mesh-size", "-1", "--out", tmp_path / "b", check=False)
+    assert run.returncode == 2 and "positive" in run.stderr

@@ -1,0 +1,103 @@
+"""Finite-element checks against exact and analytic solutions."""
+
+import numpy as np
+import pytest
+import scipy.sparse.linalg as spla
+
+from precompute.fem import (
+    check_material,
+    clamp_dofs,
+    elasticity_basis,
+    free_dofs,
+    lame_parameters,
+    stiffness_matrix,
+    vertex_dofs,
+)
+from precompute.geometry import box_mesh
+
+
+@pytest.mark.parametrize("order", [1, 2])
+def test_patch_test_uniform_stretch_is_exact(order):
+    """Dirichlet data from an affine field: the interior reproduces it exactly."""
+    mesh = box_mesh((0.3, 0.2, 0.1), 0.05)
+    basis = elasticity_basis(mesh, order)
+    K = stiffness_matrix(basis, 1e6, 0.3)
+    G = np.array([[1e-3, 2e-4, 0.0], [0.0, -3e-4, 1e-4], [5e-4, 0.0, 2e-3]])
+    c = np.array([1e-4, -2e-4, 3e-4])
+    x = basis.doflocs.T  # (ndofs, 3); component of each dof from the nodal/edge tables
+    comp = np.empty(x.shape[0], dtype=int)
+    for d in range(3):
+        comp[basis.nodal_dofs[d]] = d
+        if basis.edge_dofs.size:
+            comp[basis.edge_dofs[d]] = d
+    exact = (x @ G.T + c)[np.arange(x.shape[0]), comp]
+    bnd = basis.get_dofs().all()
+    free = free_dofs(K.shape[0], bnd)
+    u = exact.copy()
+    u[free] = 0.0
+    rhs = -(K @ u)
+    u[free] = spla.spsolve(K[free][:, free].tocsc(), rhs[free])
+    assert free.size > 0
+    assert np.max(np.abs(u - exact)) <= 1e-10 * np.max(np.abs(exact))
+
+
+def _cantilever_tip(order, poisson=0.3, h=0.1, L=1.0, size=0.05):
+    E, P = 1e7, 1.0
+    mesh = box_mesh((L, h, h), size, clamp="x0")
+    basis = elasticity_basis(mesh, order)
+    K = stiffness_matrix(basis, E, poisson)
+    fixed = clamp_dofs(basis, mesh)
+    from skfem import FacetBasis, LinearForm
+
+    end = basis.mesh.facets_satisfying(lambda x: np.isclose(x[0], L))
+    fb = FacetBasis(basis.mesh, basis.elem, facets=end)
+
+    @LinearForm
+    def shear(v, w):
+        return -P / h**2 * v[2]
+
+    f = shear.assemble(fb)
+    free = free_dofs(K.shape[0], fixed)
+    u = np.zeros(K.shape[0])
+    u[free] = spla.spsolve(K[free][:, free].tocsc(), f[free])
+    tip = np.flatnonzero(np.isclose(mesh.points[:, 0], L))
+    w = -u[vertex_dofs(basis, tip)[:, 2]].mean()
+    I = h**4 / 12
+    G = E / (2 * (1 + poisson))
+    timoshenko = P * L**3 / (3 * E * I) + P * L / (5 / 6 * G * h**2)
+    return w, timoshenko
+
+
+def test_cantilever_p2_matches_timoshenko_and_p1_locks():
+    w2, ref = _cantilever_tip(order=2)
+    w1, _ = _cantilever_tip(order=1)
+    assert abs(w2 - ref) / ref < 0.03
+    # P1 tetrahedra lock in bending: measurably stiffer than P2 and the beam
+    assert w1 < 0.8 * w2
+
+
+def test_stiffness_is_symmetric_with_six_rigid_modes():
+    mesh = box_mesh((0.2, 0.1, 0.1), 0.05)
+    basis = elasticity_basis(mesh, 1)
+    K = stiffness_matrix(basis, 1e6, 0.3)
+    assert abs(K - K.T).max() <= 1e-12 * abs(K).max()
+    from precompute.fem import rigid_body_modes
+
+    R = rigid_body_modes(mesh.points)  # nodal order x,y,z per node
+    perm = vertex_dofs(basis, np.arange(mesh.points.shape[0])).ravel()
+    Rd = np.zeros_like(R)
+    Rd[perm] = R
+    assert np.abs(K @ Rd).max() <= 1e-9 * abs(K).max() * np.abs(Rd).max()
+
+
+@pytest.mark.parametrize("E, nu, word", [(0.0, 0.3, "Young"), (-1.0, 0.3, "Young"), (1e6, 0.5, "Poisson"),
+                                         (1e6, 0.7, "Poisson"), (np.nan, 0.3, "Young"), (1e6, -1.0, "Poisson")])
+def test_bad_material_is_refused(E, nu, word):
+    with pytest.raises(ValueError, match=word):
+        check_material(E, nu)
+
+
+def test_lame_parameters():
+    lam, mu = lame_parameters(2.0, 0.25)
+    assert mu == pytest.approx(0.8)
+    assert lam == pytest.approx(0.8)

@@ -1,0 +1,113 @@
+"""Meshing: the default seat, user meshes and geometry, and bad input."""
+
+import meshio
+import numpy as np
+import pytest
+
+from precompute import MeshError, box_mesh, build_bundle, mesh_default_seat, mesh_geometry, read_mesh
+from precompute.geometry import TetMesh, boundary_triangles, check_mesh, tet_volumes
+
+
+@pytest.fixture(scope="module")
+def seat():
+    return mesh_default_seat(0.015)
+
+
+def test_default_seat_is_a_saddle(seat):
+    lo, hi = seat.points.min(axis=0), seat.points.max(axis=0)
+    length, width, thick = hi - lo
+    assert 0.26 <= length <= 0.28
+    assert 0.13 <= width <= 0.155
+    assert 0.03 <= thick <= 0.05
+    top = seat.points[seat.group_vertices("top")]
+    nose = top[top[:, 0] < 0.05]
+    assert np.ptp(nose[:, 1]) <= 0.045  # narrow nose
+    clamp = seat.points[seat.group_vertices("clamp")]
+    assert np.allclose(clamp[:, 2], 0.0)  # the clamp is on the underside
+    assert (tet_volumes(seat.points, seat.tets) > 0).all()
+
+
+def test_meshing_is_deterministic_and_refines_with_size(seat):
+    again = mesh_default_seat(0.015)
+    assert again.content_hash() == seat.content_hash()
+    fine = mesh_default_seat(0.01)
+    assert fine.group_vertices("top").size > 1.5 * seat.group_vertices("top").size
+
+
+def test_user_mesh_file_round_trip(tmp_path, small_box):
+    """A tetrahedral .msh with physical names gives the same bundle as the in-memory mesh."""
+    m = small_box
+    tags = {"top": 1, "clamp": 2}
+    tris = np.concatenate([m.groups["top"], m.groups["clamp"]])
+    phys = np.concatenate([np.full(len(m.groups["top"]), 1), np.full(len(m.groups["clamp"]), 2)])
+    mesh = meshio.Mesh(
+        m.points, [("triangle", tris), ("tetra", m.tets)],
+        cell_data={"gmsh:physical": [phys, np.full(len(m.tets), 3)],
+                   "gmsh:geometrical": [phys, np.full(len(m.tets), 3)]},
+        field_data={"top": np.array([1, 2]), "clamp": np.array([2, 2]), "solid": np.array([3, 3])},
+    )
+    path = tmp_path / "box.msh"
+    meshio.write(path, mesh, file_format="gmsh22", binary=False)
+    back = read_mesh(path)
+    assert np.allclose(back.points, m.points)
+    assert np.array_equal(back.tets, m.tets)
+    for name in tags:
+        assert np.array_equal(np.unique(back.groups[name]), np.unique(m.groups[name]))
+    import runtime
+
+    a = runtime.load(build_bundle(tmp_path / "a", geometry=path))
+    b = runtime.load(build_bundle(tmp_path / "b", mesh=m))
+    assert np.allclose(a.D, b.D, rtol=0, atol=1e-14 * np.abs(b.D).max())
+
+
+def test_user_geometry_file(tmp_path):
+    geo = tmp_path / "block.geo"
+    geo.write_text(
+        'SetFactory("OpenCASCADE");\nBox(1) = {0, 0, 0, 0.1, 0.06, 0.04};\n'
+        'Physical Volume("solid") = {1};\nPhysical Surface("clamp") = {5};\n'
+        'Physical Surface("top") = {6};\n'
+    )
+    mesh = mesh_geometry(geo, 0.02)
+    assert set(mesh.groups) == {"clamp", "top"}
+    assert np.allclose(mesh.points[mesh.group_vertices("top")][:, 2], 0.04)
+
+
+def test_missing_clamp_group_is_named(tmp_path):
+    geo = tmp_path / "noclamp.geo"
+    geo.write_text('SetFactory("OpenCASCADE");\nBox(1) = {0, 0, 0, 1, 1, 1};\nPhysical Surface("top") = {6};\n')
+    with pytest.raises(MeshError, match="'clamp'"):
+        mesh_geometry(geo, 0.5)
+    m = box_mesh((1, 1, 1), 0.5)
+    with pytest.raises(MeshError, match="'clamp'"):
+        check_mesh(TetMesh(m.points, m.tets, {"top": m.groups["top"]}, "no-clamp"))
+
+
+def test_missing_file_is_named(tmp_path):
+    with pytest.raises(MeshError, match="does not exist"):
+        build_bundle(tmp_path / "b", geometry=tmp_path / "missing.step")
+    with pytest.raises(MeshError, match="does not exist"):
+        read_mesh(tmp_path / "missing.vtu")
+
+
+def test_inverted_and_degenerate_tets_are_refused():
+    m = box_mesh((1, 1, 1), 0.5)
+    tets = m.tets.copy()
+    tets[3] = tets[3][[1, 0, 2, 3]]
+    with pytest.raises(MeshError, match="1 inverted"):
+        check_mesh(TetMesh(m.points, tets, m.groups, "flipped"))
+    pts = m.points.copy()
+    tets = m.tets.copy()
+    tets[0, 3] = tets[0, 2]  # a flat tet
+    with pytest.raises(MeshError, match="degenerate"):
+        check_mesh(TetMesh(pts, tets, m.groups, "flat"))
+
+
+def test_boundary_triangles_point_outward(small_box):
+    tris = boundary_triangles(small_box.tets)
+    p = small_box.points[tris]
+    n = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
+    out = p.mean(axis=1) - small_box.points.mean(axis=0)
+    assert (np.einsum("ij,ij->i", n, out) > 0).all()
+    # divergence theorem: the closed surface encloses the box volume
+    vol = np.einsum("ij,ij->i", p[:, 0], n).sum() / 6
+    assert vol == pytest.approx(0.1 * 0.1 * 0.05, rel=1e-12)

@@ -1,0 +1,112 @@
+"""The compliance D against independent direct solves, reciprocity, equilibrium."""
+
+import numpy as np
+import pytest
+from skfem import condense, solve
+
+import runtime
+from precompute.fem import clamp_dofs, elasticity_basis, stiffness_matrix, vertex_dofs
+from precompute.geometry import box_mesh
+from precompute.greens import area_matrix, compliance_matrix, traction_greens_function
+from precompute.pipeline import _rigid_modes_on_dofs, build_bundle, extract_surface
+
+
+def _direct_column(mesh, order, E, nu, node, direction):
+    """Displacement (all dofs) under a unit nodal force, by scikit-fem's own solve."""
+    basis = elasticity_basis(mesh, order)
+    K = stiffness_matrix(basis, E, nu)
+    f = np.zeros(K.shape[0])
+    f[vertex_dofs(basis, [node])[0, direction]] = 1.0
+    u = solve(*condense(K, f, D=clamp_dofs(basis, mesh)))
+    return basis, K, f, u
+
+
+@pytest.mark.parametrize("order", [1, 2])
+def test_columns_equal_direct_fem(tmp_path, small_box, rng, order):
+    gf = runtime.load(build_bundle(tmp_path / "b", mesh=small_box, order=order, young=1e6, poisson=0.3))
+    cv = gf.contact_vertices
+    rows = np.arange(gf.n_vertices)
+    for j in rng.choice(cv, size=4, replace=False):
+        d = int(rng.integers(3))
+        basis, K, f, u = _direct_column(small_box, order, 1e6, 0.3, gf.surface_nodes[j], d)
+        expected = u[vertex_dofs(basis, gf.surface_nodes[rows]).ravel()]
+        got = gf.compliance(rows, [j])[:, d]
+        assert np.linalg.norm(got - expected) <= 1e-10 * np.linalg.norm(expected)
+
+
+def test_reciprocity_contactable_block_is_symmetric(seat_bundle):
+    gf = runtime.load(seat_bundle)
+    cv = gf.contact_vertices
+    Dcc = gf.compliance(cv, cv)
+    assert np.abs(Dcc - Dcc.T).max() <= 1e-10 * np.abs(Dcc).max()
+    # and positive definite: a compliance stores energy
+    assert np.linalg.eigvalsh(0.5 * (Dcc + Dcc.T)).min() > 0
+
+
+def test_traction_greens_function_is_D_times_A(box_bundle, rng):
+    gf = runtime.load(box_bundle)
+    cv = gf.contact_vertices
+    rows = np.arange(gf.n_vertices)
+    p = rng.normal(size=3 * cv.size)  # tractions [Pa] at the contactable vertices
+    Xi = gf.traction_greens(rows, cv)
+    D = gf.compliance(rows, cv)
+    A = area_matrix(gf.areas[cv])
+    assert np.allclose(Xi @ p, D @ (A @ p), rtol=1e-12, atol=0)
+    assert np.allclose(traction_greens_function(D, gf.areas[cv]), Xi, rtol=1e-14, atol=0)
+
+
+def test_lumped_areas_sum_to_surface_area(box_bundle):
+    gf = runtime.load(box_bundle)
+    total = 2 * (0.1 * 0.1 + 0.1 * 0.05 + 0.1 * 0.05)
+    assert gf.areas.sum() == pytest.approx(total, rel=1e-12)
+
+
+def test_clamp_reactions_balance_applied_force(small_box):
+    node = np.flatnonzero(np.isclose(small_box.points[:, 2], 0.05))[5]
+    basis, K, f, u = _direct_column(small_box, 1, 1e6, 0.3, node, 2)
+    reaction = K @ u - f  # nonzero only on the clamp
+    fixed = clamp_dofs(basis, small_box)
+    free = np.setdiff1d(np.arange(K.shape[0]), fixed)
+    assert np.abs(reaction[free]).max() <= 1e-9
+    per_node = reaction[vertex_dofs(basis, np.arange(small_box.points.shape[0]))]  # (N, 3)
+    assert np.allclose(per_node.sum(axis=0), [0.0, 0.0, -1.0], atol=1e-9)  # the clamp pushes back with -f
+    # moments balance too: sum x × r + x_load × e_z = 0
+    moment = np.cross(small_box.points, per_node).sum(axis=0) + np.cross(small_box.points[node], [0, 0, 1.0])
+    assert np.allclose(moment, 0.0, atol=1e-9)
+
+
+def test_amg_path_matches_direct(small_box):
+    basis = elasticity_basis(small_box, 1)
+    K = stiffness_matrix(basis, 1e6, 0.3)
+    fixed = clamp_dofs(basis, small_box)
+    surf = extract_surface(small_box)
+    load = vertex_dofs(basis, surf.nodes[surf.contactable][:10]).ravel()
+    read = vertex_dofs(basis, surf.nodes).ravel()
+    D_direct = compliance_matrix(K, fixed, load, read, solver="cholmod")
+    D_splu = compliance_matrix(K, fixed, load, read, solver="splu")
+    D_amg = compliance_matrix(K, fixed, load, read, solver="amg", near_null=_rigid_modes_on_dofs(basis), tol=1e-10)
+    scale = np.linalg.norm(D_direct)
+    assert np.linalg.norm(D_splu - D_direct) <= 1e-12 * scale
+    assert np.linalg.norm(D_amg - D_direct) <= 1e-7 * scale
+
+
+def test_blocked_solves_match_one_block(small_box):
+    basis = elasticity_basis(small_box, 1)
+    K = stiffness_matrix(basis, 1e6, 0.3)
+    fixed = clamp_dofs(basis, small_box)
+    surf = extract_surface(small_box)
+    load = vertex_dofs(basis, surf.nodes[surf.contactable]).ravel()
+    read = vertex_dofs(basis, surf.nodes).ravel()
+    big = compliance_matrix(K, fixed, load, read)
+    tiny = compliance_matrix(K, fixed, load, read, block_bytes=1)  # one column per block
+    assert np.array_equal(big.shape, tiny.shape)
+    assert np.abs(big - tiny).max() <= 1e-14 * np.abs(big).max()
+
+
+def test_clamped_columns_are_zero_and_unknown_columns_refused(box_bundle):
+    gf = runtime.load(box_bundle)
+    fixed = np.flatnonzero(gf.fixed)[:3]
+    block = gf.compliance(np.arange(5), fixed)
+    assert block.shape == (15, 9) and not block.any()
+    mesh = box_mesh((0.1, 0.1, 0.05), 0.02)
+    assert mesh.points.shape[0] == gf.volume_points.shape[0]
