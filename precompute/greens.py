@@ -18,6 +18,7 @@ K_ff u = e_(j,d), read at the output dofs. Three solvers share one interface
 
 from __future__ import annotations
 
+import os
 from typing import Callable
 
 import numpy as np
@@ -27,8 +28,12 @@ from precompute.fem import free_dofs
 
 SOLVERS = ("cholmod", "splu", "amg")
 
-#: Bytes of dense right-hand-side/solution blocks held at once.
+#: Bytes of dense right-hand-side/solution blocks held at once (memory bound).
 DEFAULT_BLOCK_BYTES = 256 * 2**20
+#: Right-hand sides per block: measured fastest per column for CHOLMOD's
+#: supernodal solve on the default seat (blocks of 8-32 stay in cache; 1 is
+#: 2x slower, 1024 is 1.8x slower).
+DEFAULT_BLOCK_COLUMNS = 32
 
 
 class _Cholmod:
@@ -56,7 +61,9 @@ class _SuperLU:
         self._lu = splu(A.tocsc(), permc_spec="COLAMD")
 
     def solve(self, B: np.ndarray) -> np.ndarray:
-        return self._lu.solve(np.asarray(B, dtype=np.float64))
+        # SuperLU's multi-column solve is slower per column than one at a time
+        B = np.asarray(B, dtype=np.float64)
+        return np.column_stack([self._lu.solve(B[:, k]) for k in range(B.shape[1])])
 
 
 class _AMG:
@@ -113,6 +120,8 @@ def compliance_matrix(
     near_null: np.ndarray | None = None,
     tol: float = 1e-10,
     block_bytes: int = DEFAULT_BLOCK_BYTES,
+    block_columns: int = DEFAULT_BLOCK_COLUMNS,
+    workers: int | None = None,
     progress: Callable[[int], None] | None = None,
 ) -> np.ndarray:
     """The compliance D: ``D[:, k]`` = displacement at ``read_dofs`` for a unit
@@ -130,8 +139,11 @@ def compliance_matrix(
         Dofs read out, one row each (clamped ones read zero).
     solver, near_null, tol
         See :func:`factorize`. ``near_null`` is (n_dofs, 6) over *all* dofs.
-    block_bytes
-        Memory bound for one block of dense right-hand sides.
+    block_bytes, block_columns
+        Memory bound and column count of one block of dense right-hand sides.
+    workers
+        Processes solving blocks in parallel, each with its own factorization
+        (``None``: :func:`default_workers`). Results do not depend on it.
     progress
         Called with the number of columns finished after every block.
 
@@ -152,20 +164,78 @@ def compliance_matrix(
     K = sp.csr_matrix(K)
     Kff = K[free][:, free]
     nn = None if near_null is None else near_null[free]
-    fact = factorize(Kff, solver, near_null=nn, tol=tol)
-
     ncols = load_pos.size
     D = np.zeros((len(read_dofs), ncols))
-    block = int(max(1, min(ncols, block_bytes // (16 * max(free.size, 1)))))
-    for start in range(0, ncols, block):
-        cols = np.arange(start, min(start + block, ncols))
-        rhs = np.zeros((free.size, cols.size))
-        rhs[load_pos[cols], np.arange(cols.size)] = 1.0
-        X = fact.solve(rhs)
-        D[read_live[:, None], cols[None, :]] = X[read_pos[read_live]]
-        if progress is not None:
-            progress(cols.size)
+    block = int(max(1, min(ncols, block_columns, block_bytes // (16 * max(free.size, 1)))))
+    blocks = [np.arange(s, min(s + block, ncols)) for s in range(0, ncols, block)]
+    if workers is None:
+        workers = default_workers(ncols, solver)
+    task = _BlockSolver(Kff, solver, nn, tol, load_pos, read_pos[read_live])
+    if workers <= 1:
+        results = map(task, blocks)
+        pool = None
+    else:
+        import multiprocessing as mp
+
+        # spawn: a fresh interpreter per worker (fork after BLAS threads start is unsafe)
+        pool = mp.get_context("spawn").Pool(workers, initializer=_init_worker, initargs=(task,))
+        results = pool.imap(_run_worker, blocks)
+    try:
+        for cols, values in zip(blocks, results):
+            D[read_live[:, None], cols[None, :]] = values
+            if progress is not None:
+                progress(cols.size)
+    finally:
+        if pool is not None:
+            pool.terminate()
     return D
+
+
+def default_workers(ncols: int, solver: str) -> int:
+    """Worker processes for ``ncols`` right-hand sides.
+
+    ``HAILSTORM_WORKERS`` if set, else one: on the 2-core reference machine a
+    second process did not pay for its start-up (~1 s) and its own
+    factorization at the default seat's size (see the README's benchmark).
+    """
+    env = os.environ.get("HAILSTORM_WORKERS")
+    if env:
+        return max(1, int(env))
+    return 1
+
+
+class _BlockSolver:
+    """Factor once (lazily, in whichever process runs it), then solve column blocks."""
+
+    def __init__(self, Kff, solver, near_null, tol, load_pos, read_rows):
+        self.Kff, self.solver, self.near_null, self.tol = Kff, solver, near_null, tol
+        self.load_pos, self.read_rows = load_pos, read_rows
+        self._fact = None
+
+    def __getstate__(self):
+        state = dict(self.__dict__)
+        state["_fact"] = None
+        return state
+
+    def __call__(self, cols: np.ndarray) -> np.ndarray:
+        if self._fact is None:
+            self._fact = factorize(self.Kff, self.solver, near_null=self.near_null, tol=self.tol)
+        rhs = np.zeros((self.Kff.shape[0], cols.size))
+        rhs[self.load_pos[cols], np.arange(cols.size)] = 1.0
+        return self._fact.solve(rhs)[self.read_rows]
+
+
+_WORKER_TASK: _BlockSolver | None = None
+
+
+def _init_worker(task: _BlockSolver) -> None:
+    global _WORKER_TASK
+    _WORKER_TASK = task
+
+
+def _run_worker(cols: np.ndarray) -> np.ndarray:
+    assert _WORKER_TASK is not None
+    return _WORKER_TASK(cols)
 
 
 def lumped_areas(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:

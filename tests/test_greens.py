@@ -110,3 +110,15 @@ def test_clamped_columns_are_zero_and_unknown_columns_refused(box_bundle):
     assert block.shape == (15, 9) and not block.any()
     mesh = box_mesh((0.1, 0.1, 0.05), 0.02)
     assert mesh.points.shape[0] == gf.volume_points.shape[0]
+
+
+def test_parallel_workers_give_identical_columns(small_box):
+    basis = elasticity_basis(small_box, 1)
+    K = stiffness_matrix(basis, 1e6, 0.3)
+    fixed = clamp_dofs(basis, small_box)
+    surf = extract_surface(small_box)
+    load = vertex_dofs(basis, surf.nodes[surf.contactable]).ravel()
+    read = vertex_dofs(basis, surf.nodes).ravel()
+    serial = compliance_matrix(K, fixed, load, read, workers=1, block_columns=16)
+    parallel = compliance_matrix(K, fixed, load, read, workers=2, block_columns=16)
+    assert np.array_equal(serial, parallel)
