@@ -5,3 +5,10 @@ Imports numpy and scipy only (no gmsh, no scikit-fem): a bundle written by
 """
 
 from runtime.bundle import BundleError, GreensFunctions, load
+from runtime.contact import (  # noqa: E402
+    Capacitance,
+    ContactSolution,
+    barycentric_matrix,
+    capacitance,
+    solve_contacts,
+)

@@ -11,7 +11,6 @@ All printing and exit codes live here; the library raises exceptions.
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import sys
 import time
@@ -127,7 +126,8 @@ def _run_storm(args: argparse.Namespace) -> int:
     scene = Scene.from_toml(args.scene) if args.scene is not None else Scene.default()
     overrides = {k: getattr(args, k) for k in ("duration", "stones", "seed") if getattr(args, k) is not None}
     if overrides:
-        scene = scene.replace(**overrides)
+        scene = Scene.from_dict({**scene.to_dict(), "storm": {**scene.to_dict()["storm"], **overrides}},
+                                source="command line")
     if args.gf is not None:
         gf_path = args.gf
     else:
@@ -135,17 +135,26 @@ def _run_storm(args: argparse.Namespace) -> int:
 
         if not args.quiet:
             print(f"default seat: building or reusing the cached bundle (mesh size {scene.mesh_size} m)...")
-        gf_path = build_bundle(None, mesh_size=scene.mesh_size, order=scene.order, progress=not args.quiet)
+        gf_path = build_bundle(None, mesh_size=scene.mesh_size, order=scene.order, young=scene.young,
+                               poisson=scene.poisson, progress=not args.quiet)
     gf = load(gf_path)
     out = args.out
     out.mkdir(parents=True, exist_ok=True)
     result = run_storm(gf, scene, progress=not args.quiet)
-    summary = write_summary(result, out / "summary.json")
+    summary_path = write_summary(result, out / "summary.json")
     write_paraview(result, gf, out)
     if not args.no_video:
-        video = write_animation(result, gf, out / "storm.mp4")
+        video = write_animation(result, gf, out / "storm.mp4", progress=not args.quiet)
     if not args.quiet:
-        print(json.dumps(summary, indent=2))
+        import json
+
+        s = json.loads(summary_path.read_text())
+        keys = ("hailstones", "impacts", "max_contact_force", "max_indentation_m", "max_simultaneous_contacts",
+                "steps", "sim_time_s", "wall_time_s", "real_time_factor")
+        width = max(map(len, keys))
+        for k in keys:
+            v = s.get(k)
+            print(f"{k:<{width}}  {v:.4g}" if isinstance(v, float) else f"{k:<{width}}  {v}")
         print(f"outputs in {out}/" + ("" if args.no_video else f" (animation: {Path(video).name})"))
     return 0
 
@@ -154,9 +163,13 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``hailstorm`` console script."""
     argv = sys.argv[1:] if argv is None else argv
     parser = _parser()
+    leading = []
+    while argv and argv[0] in ("-q", "--quiet"):  # `hailstorm -q storm ...`
+        leading.append(argv[0])
+        argv = argv[1:]
     if not argv or argv[0] not in (*COMMANDS, "-h", "--help"):
         argv = ["storm", *argv]  # plain `hailstorm [storm options]` runs the storm
-    args = parser.parse_args(argv)
+    args = parser.parse_args(argv[:1] + leading + argv[1:])
     logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO, format="%(message)s")
     logging.getLogger("skfem").setLevel(logging.WARNING)
     from precompute.geometry import MeshError

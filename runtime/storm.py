@@ -1,0 +1,827 @@
+"""The hail storm driver: stones falling on the seat, contacts through the capacitance.
+
+Use::
+
+    from runtime.bundle import load
+    from runtime.storm import Scene, run_storm
+    gf = load("bundle/")
+    scene = Scene.from_toml("scene.toml")      # or Scene.default(), Scene(duration=0.2, ...)
+    result = run_storm(gf, scene, progress=True)
+
+Algorithm of one step (``dt`` = :attr:`Scene.dt`)
+-------------------------------------------------
+1. Spawn the stones due in this step.
+2. Broad phase: stones whose bounding box (grown by what they can travel in
+   the step and by the largest surface displacement) overlaps the seat's
+   bounding box are *near*; the others fly freely (exact ballistic update plus
+   drag), never collision-tested.
+3. Near stones are advanced in sub-steps (adaptive, see below). Each sub-step:
+
+   a. the deformed surface ``x = X + u`` (``u`` from the current contact forces);
+   b. closest point of every near stone on the deformed surface (k-d tree on
+      triangle centroids + exact point-triangle distance); a stone within its
+      radius opens a contact at that point ``(t, beta)``; an open contact
+      keeps its ``(t, beta)`` while the stone stays over the same triangle;
+   c. contacts on triangles that cannot deform (all clamped, or without
+      compliance columns) are a hard wall (projection + restitution);
+   d. the other contacts share one capacitance (``runtime.contact``), rebuilt
+      only when the set of (stone, triangle) pairs changes; the stones are
+      advanced by :func:`runtime.hail.contact_step` (implicit backward Euler by
+      default) with unilateral release;
+   e. the seat's displacement follows: ``u = D[:, V] B f``.
+4. Retire stones that left the seat's region; record a frame if one is due.
+
+Adaptive sub-steps (``adaptive = true``): the sub-step is limited so that a
+stone approaching the surface travels at most ``approach_fraction * r`` per
+sub-step (bounded overshoot before the contact opens) and so that
+``omega dt <= omega_dt`` for contacts that are still moving (``|v_n| >
+rest_speed``; ``omega = sqrt(K_kk / m)``). Resting contacts do not limit the
+step under the implicit integrator (backward Euler is exact at equilibrium);
+under the symplectic one every contact does (stability).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+import tomllib
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any, Callable, Mapping
+
+import numpy as np
+
+from runtime import contact as _contact
+from runtime.collide import SurfaceIndex
+from runtime.hail import (
+    GRAVITY,
+    SizeDistribution,
+    contact_step,
+    damping_coefficients,
+    drag_acceleration,
+    free_flight,
+    stone_mass,
+    terminal_velocity,
+)
+
+__all__ = ["Frame", "Scene", "SceneError", "Storm", "StormResult", "run_storm"]
+
+
+class SceneError(ValueError):
+    """A scene file or value is invalid."""
+
+
+#: TOML section of every Scene field.
+_SECTIONS: dict[str, tuple[str, ...]] = {
+    "storm": ("duration", "rate", "stones", "seed", "spawn_height", "margin", "wind"),
+    "hail": ("distribution", "r_min", "r_max", "scale", "density", "drag", "cd", "rho_air"),
+    "contact": ("mode", "unilateral", "restitution"),
+    "time": ("dt", "integrator", "adaptive", "omega_dt", "approach_fraction", "max_substeps", "rest_speed"),
+    "output": ("fps",),
+    "seat": ("mesh_size", "order", "young", "poisson"),
+}
+
+
+@dataclass
+class Scene:
+    """Storm settings (all SI units). Load with :meth:`from_toml` / :meth:`default`.
+
+    Attributes
+    ----------
+    duration : float
+        Simulated time [s].
+    rate : float
+        Stones spawned per second over the seat's footprint (Poisson process).
+    stones : int or None
+        If given, exactly this many stones are spawned, uniformly over the
+        duration (overrides ``rate``).
+    seed : int
+        Random seed: the storm is reproducible from it.
+    spawn_height : float
+        Stones appear this far above the seat's highest point [m].
+    margin : float
+        The spawn footprint is the seat's xy bounding box grown by this [m];
+        stones that leave it (or fall below the seat) are retired.
+    wind : (3,) float
+        Air velocity [m/s] (drag acts on the velocity relative to it; stones
+        start with its horizontal part and are spawned upwind so they land
+        on the seat).
+    distribution, r_min, r_max, scale
+        Radius distribution (:class:`runtime.hail.SizeDistribution`) [m].
+    density : float
+        Ice density [kg/m^3].
+    drag : bool
+        Quadratic air drag in flight (stones start at terminal velocity either way).
+    cd, rho_air : float
+        Drag coefficient and air density.
+    mode : {"frictionless", "sticky"}
+        Contact model: normal force only, or all three components.
+    unilateral : bool
+        Release contacts that would pull.
+    restitution : float
+        Target coefficient of restitution of an impact (0..1), realised by a
+        contact damping (see :func:`runtime.hail.damping_coefficients`).
+    dt : float
+        Step [s] (frame/broad-phase step; near stones may be sub-stepped).
+    integrator : {"implicit", "symplectic"}
+    adaptive : bool
+        Sub-step near stones (see the module notes). ``False``: fixed ``dt``.
+    omega_dt : float
+        Target ``omega dt`` for moving contacts.
+    approach_fraction : float
+        Largest travel per sub-step of an approaching stone, in radii.
+    max_substeps : int
+        Cap on sub-steps per step.
+    rest_speed : float
+        Normal speed below which a contact counts as resting [m/s].
+    fps : float
+        Recorded frames per simulated second.
+    mesh_size, order, young, poisson
+        The default seat's Green's functions when no bundle is given
+        (``hailstorm storm`` without ``--gf``): element size on the top [m],
+        element order, material [Pa], [-].
+    """
+
+    duration: float = 0.2
+    rate: float = 200.0
+    stones: int | None = None
+    seed: int = 0
+    spawn_height: float = 0.05
+    margin: float = 0.01
+    wind: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    distribution: str = "exponential"
+    r_min: float = 0.0025
+    r_max: float = 0.0125
+    scale: float = 0.002
+    density: float = 917.0
+    drag: bool = True
+    cd: float = 0.6
+    rho_air: float = 1.2
+    mode: str = "frictionless"
+    unilateral: bool = True
+    restitution: float = 0.5
+    dt: float = 2e-4
+    integrator: str = "implicit"
+    adaptive: bool = True
+    omega_dt: float = 0.2
+    approach_fraction: float = 0.1
+    max_substeps: int = 64
+    rest_speed: float = 0.05
+    fps: float = 250.0
+    mesh_size: float = 0.006
+    order: int = 1
+    young: float = 2.0e6
+    poisson: float = 0.35
+
+    def __post_init__(self) -> None:
+        def positive(name: str, allow_zero: bool = False) -> None:
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or (v < 0 or (v == 0 and not allow_zero)):
+                raise SceneError(f"{name} must be a {'non-negative' if allow_zero else 'positive'} number, got {v!r}")
+
+        for name in ("duration", "dt", "spawn_height", "omega_dt", "approach_fraction", "fps", "density", "cd", "rho_air",
+                     "mesh_size", "young"):
+            positive(name)
+        for name in ("rate", "margin", "rest_speed"):
+            positive(name, allow_zero=True)
+        for name in ("drag", "unilateral", "adaptive"):
+            if not isinstance(getattr(self, name), bool):
+                raise SceneError(f"{name} must be true or false, got {getattr(self, name)!r}")
+        if self.stones is not None and (isinstance(self.stones, bool) or not isinstance(self.stones, int) or self.stones < 0):
+            raise SceneError(f"stones must be a non-negative integer, got {self.stones!r}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise SceneError(f"seed must be a non-negative integer, got {self.seed!r}")
+        if isinstance(self.max_substeps, bool) or not isinstance(self.max_substeps, int) or self.max_substeps < 1:
+            raise SceneError(f"max_substeps must be a positive integer, got {self.max_substeps!r}")
+        if self.order not in (1, 2) or isinstance(self.order, bool):
+            raise SceneError(f"order must be 1 or 2, got {self.order!r}")
+        if isinstance(self.poisson, bool) or not isinstance(self.poisson, (int, float)) or not -1.0 < self.poisson < 0.5:
+            raise SceneError(f"poisson must satisfy -1 < poisson < 0.5, got {self.poisson!r}")
+        if self.mode not in ("frictionless", "sticky"):
+            raise SceneError(f"mode must be 'frictionless' or 'sticky', got {self.mode!r}")
+        if self.integrator not in ("implicit", "symplectic"):
+            raise SceneError(f"integrator must be 'implicit' or 'symplectic', got {self.integrator!r}")
+        if isinstance(self.restitution, bool) or not isinstance(self.restitution, (int, float)) or not 0.0 <= self.restitution <= 1.0:
+            raise SceneError(f"restitution must lie in [0, 1], got {self.restitution!r}")
+        try:
+            w = tuple(float(x) for x in self.wind)
+        except (TypeError, ValueError):
+            raise SceneError(f"wind must be three numbers [m/s], got {self.wind!r}") from None
+        if len(w) != 3 or not all(math.isfinite(x) for x in w):
+            raise SceneError(f"wind must be three finite numbers [m/s], got {self.wind!r}")
+        self.wind = w
+        try:
+            self.size_distribution()
+        except ValueError as exc:
+            raise SceneError(str(exc)) from None
+
+    # -- helpers ---------------------------------------------------------------
+    def size_distribution(self) -> SizeDistribution:
+        """The radius distribution of this scene."""
+        return SizeDistribution(kind=self.distribution, r_min=float(self.r_min), r_max=float(self.r_max), scale=float(self.scale))
+
+    def to_dict(self) -> dict[str, dict[str, Any]]:
+        """Nested ``{section: {key: value}}`` as in the TOML file (``stones`` omitted if None)."""
+        out: dict[str, dict[str, Any]] = {}
+        for sec, keys in _SECTIONS.items():
+            d = {}
+            for k in keys:
+                v = getattr(self, k)
+                if v is None:
+                    continue
+                d[k] = list(v) if isinstance(v, tuple) else v
+            out[sec] = d
+        return out
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], *, source: str = "scene") -> "Scene":
+        """Build from a nested ``{section: {key: value}}`` mapping (TOML layout).
+
+        Raises
+        ------
+        SceneError
+            On an unknown section or key, or a bad value.
+        """
+        kwargs: dict[str, Any] = {}
+        for sec, body in data.items():
+            if sec not in _SECTIONS:
+                raise SceneError(f"{source}: unknown section [{sec}]; known sections: {', '.join(_SECTIONS)}")
+            if not isinstance(body, Mapping):
+                raise SceneError(f"{source}: [{sec}] must be a table")
+            for k, v in body.items():
+                if k not in _SECTIONS[sec]:
+                    raise SceneError(f"{source}: unknown key {k!r} in [{sec}]; known keys: {', '.join(_SECTIONS[sec])}")
+                kwargs[k] = v
+        # TOML has no ints-as-floats distinction issue for floats, but users write 1 for 1.0
+        for f in dataclasses.fields(cls):
+            if f.name in kwargs and f.type in ("float",) and isinstance(kwargs[f.name], int) and not isinstance(kwargs[f.name], bool):
+                kwargs[f.name] = float(kwargs[f.name])
+        try:
+            return cls(**kwargs)
+        except SceneError as exc:
+            raise SceneError(f"{source}: {exc}") from None
+
+    @classmethod
+    def from_toml(cls, path: str | Path, *, base: "Scene | None" = None) -> "Scene":
+        """Load a scene TOML file. Keys it does not set take the values of ``base``
+        (default: :meth:`default`, the packaged ``default_scene.toml``)."""
+        path = Path(path)
+        try:
+            data = tomllib.loads(path.read_text())
+        except OSError as exc:
+            raise SceneError(f"cannot read scene file {path}: {exc}") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise SceneError(f"{path} is not valid TOML: {exc}") from None
+        merged = (base or cls.default()).to_dict()
+        for sec, body in data.items():
+            if isinstance(body, Mapping) and sec in merged:
+                merged[sec] = {**merged[sec], **body}
+            else:
+                merged[sec] = body
+        if "stones" not in data.get("storm", {}) and (base is None or base.stones is None):
+            merged["storm"].pop("stones", None)
+        return cls.from_dict(merged, source=str(path))
+
+    @classmethod
+    def default(cls) -> "Scene":
+        """The packaged default scene (``precompute.meshes/default_scene.toml``)."""
+        text = resources.files("precompute.meshes").joinpath("default_scene.toml").read_text()
+        return cls.from_dict(tomllib.loads(text), source="default_scene.toml")
+
+    def to_toml(self, path: str | Path | None = None) -> str:
+        """TOML text of this scene (written to ``path`` if given)."""
+
+        def fmt(v: Any) -> str:
+            if isinstance(v, bool):
+                return "true" if v else "false"
+            if isinstance(v, str):
+                return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+            if isinstance(v, (list, tuple)):
+                return "[" + ", ".join(fmt(x) for x in v) + "]"
+            if isinstance(v, float):
+                return repr(v)
+            return str(v)
+
+        lines = []
+        for sec, body in self.to_dict().items():
+            lines.append(f"[{sec}]")
+            lines += [f"{k} = {fmt(v)}" for k, v in body.items()]
+            lines.append("")
+        text = "\n".join(lines)
+        if path is not None:
+            Path(path).write_text(text)
+        return text
+
+
+@dataclass
+class Frame:
+    """One recorded instant.
+
+    Attributes
+    ----------
+    t : float
+        Time [s].
+    displacement : (n, 3) float32 ndarray
+        Surface displacement [m].
+    positions : (k, 3) ndarray
+        Centres of the live stones [m].
+    radii : (k,) ndarray
+    ids : (k,) int ndarray
+        Stone ids (spawn order).
+    contacts : int
+        Open contacts.
+    """
+
+    t: float
+    displacement: np.ndarray
+    positions: np.ndarray
+    radii: np.ndarray
+    ids: np.ndarray
+    contacts: int
+
+
+@dataclass
+class StormResult:
+    """What :func:`run_storm` returns: the scene, the frames and the statistics."""
+
+    scene: Scene
+    frames: list[Frame]
+    stats: dict[str, Any]
+    #: contact-force history: (time, total normal force on the seat [N], open contacts) per step
+    history: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+
+
+@dataclass
+class _ContactCache:
+    key: tuple
+    W: np.ndarray
+    K: np.ndarray
+    Gu: np.ndarray  # (3n, m) surface displacement per unit constrained force
+    stones: np.ndarray
+    tris: np.ndarray
+    bary: np.ndarray
+    normals: np.ndarray
+    X: np.ndarray  # undeformed contact points (s, 3)
+
+
+class Storm:
+    """A running storm (stateful). :func:`run_storm` drives one from start to end.
+
+    Parameters
+    ----------
+    gf : GreensFunctions
+        The bundle (:func:`runtime.bundle.load`).
+    scene : Scene
+    spawn : bool
+        Spawn the scene's random stones (``False``: only stones added with
+        :meth:`add_stones`, e.g. for a single drop).
+    """
+
+    def __init__(self, gf: Any, scene: Scene, *, spawn: bool = True) -> None:
+        self.gf = gf
+        self.scene = scene
+        self.index = SurfaceIndex(gf.vertices, gf.triangles)
+        self.X = np.asarray(gf.vertices, dtype=np.float64)
+        self.n = self.X.shape[0]
+        tri = np.asarray(gf.triangles)
+        has_col = np.asarray(gf.contactable) | np.asarray(gf.fixed)
+        #: triangles that deform under a contact (others are a hard wall)
+        self.soft = has_col[tri].all(axis=1) & ~np.asarray(gf.fixed)[tri].all(axis=1)
+        lo, hi = self.index.bbox
+        self.lo, self.hi = lo, hi
+        self.g = np.array([0.0, 0.0, -GRAVITY])
+        self.wind = np.asarray(scene.wind, dtype=np.float64)
+        self.rng = np.random.default_rng(scene.seed)
+        # stones (growable arrays)
+        self.pos = np.zeros((0, 3))
+        self.vel = np.zeros((0, 3))
+        self.radius = np.zeros(0)
+        self.mass = np.zeros(0)
+        self.alive = np.zeros(0, dtype=bool)
+        self.ctri = np.zeros(0, dtype=np.intp)  # contact triangle, -1 none
+        self.cbary = np.zeros((0, 3))
+        self.gap = np.zeros(0)  # last known distance to the surface minus radius
+        self.hit = np.zeros(0, dtype=bool)
+        self.near_tri = np.zeros(0, dtype=np.intp)  # closest triangle at the last query
+        self._k_tri: dict[int, float] = {}
+        # seat state
+        self.u = np.zeros((self.n, 3))
+        self.umax = 0.0
+        self.cache: _ContactCache | None = None
+        self.lam = np.zeros(0)
+        self.t = 0.0
+        self.stats: dict[str, Any] = dict(
+            hailstones=0, impacts=0, stones_hit=0, max_contact_force=0.0, max_indentation_m=0.0,
+            max_simultaneous_contacts=0, max_penetration_m=0.0, steps=0, substeps=0,
+            capacitance_rebuilds=0, wall_contacts=0, retired=0,
+        )
+        self._pending = self._plan_spawns() if spawn else np.zeros((0, 8))
+        self._next_pending = 0
+
+    # -- stones ------------------------------------------------------------------
+    def _plan_spawns(self) -> np.ndarray:
+        """All random stones of the storm: rows (t, x, y, z, vx, vy, vz, r)."""
+        sc, rng = self.scene, self.rng
+        n = sc.stones if sc.stones is not None else int(rng.poisson(sc.rate * sc.duration))
+        t = np.sort(rng.random(n) * sc.duration)
+        r = sc.size_distribution().sample(rng, n)
+        xy = np.stack([rng.uniform(self.lo[0] - sc.margin, self.hi[0] + sc.margin, n),
+                       rng.uniform(self.lo[1] - sc.margin, self.hi[1] + sc.margin, n)], axis=1)
+        vt = terminal_velocity(r, cd=sc.cd, rho_air=sc.rho_air, density=sc.density)
+        z0 = self.hi[2] + sc.spawn_height + r
+        t_fall = (z0 - 0.5 * (self.lo[2] + self.hi[2])) / np.maximum(vt, 1e-9)
+        xy = xy - self.wind[None, :2] * t_fall[:, None]  # upwind, so they land on the seat
+        vel = np.column_stack([np.broadcast_to(self.wind[:2], (n, 2)), -vt])
+        return np.column_stack([t, xy, z0, vel, r])
+
+    def add_stones(self, pos: np.ndarray, vel: np.ndarray, radius: np.ndarray) -> np.ndarray:
+        """Add stones now; returns their ids."""
+        pos = np.atleast_2d(np.asarray(pos, dtype=np.float64))
+        vel = np.broadcast_to(np.asarray(vel, dtype=np.float64), pos.shape)
+        radius = np.broadcast_to(np.asarray(radius, dtype=np.float64), (pos.shape[0],))
+        k = pos.shape[0]
+        ids = np.arange(self.pos.shape[0], self.pos.shape[0] + k)
+        self.pos = np.vstack([self.pos, pos])
+        self.vel = np.vstack([self.vel, vel])
+        self.radius = np.concatenate([self.radius, radius])
+        self.mass = np.concatenate([self.mass, stone_mass(radius, self.scene.density)])
+        self.alive = np.concatenate([self.alive, np.ones(k, dtype=bool)])
+        self.ctri = np.concatenate([self.ctri, np.full(k, -1, dtype=np.intp)])
+        self.cbary = np.vstack([self.cbary, np.zeros((k, 3))])
+        self.gap = np.concatenate([self.gap, np.full(k, np.inf)])
+        self.hit = np.concatenate([self.hit, np.zeros(k, dtype=bool)])
+        self.near_tri = np.concatenate([self.near_tri, np.full(k, -1, dtype=np.intp)])
+        self.stats["hailstones"] += k
+        return ids
+
+    def _spawn_until(self, t_end: float) -> None:
+        p = self._pending
+        j = self._next_pending
+        k = int(np.searchsorted(p[:, 0], t_end, side="left")) if p.shape[0] else 0
+        if k > j:
+            self.add_stones(p[j:k, 1:4], p[j:k, 4:7], p[j:k, 7])
+            self._next_pending = k
+
+    def _accel(self, idx: np.ndarray) -> np.ndarray:
+        """Non-contact acceleration (gravity + drag) of stones ``idx``."""
+        a = np.broadcast_to(self.g, (idx.size, 3)).copy()
+        if self.scene.drag and idx.size:
+            a += drag_acceleration(self.vel[idx], self.radius[idx], wind=self.wind, cd=self.scene.cd,
+                                   rho_air=self.scene.rho_air, density=self.scene.density)
+        return a
+
+    # -- contacts ----------------------------------------------------------------
+    def _build_cache(self, stones: np.ndarray, tris: np.ndarray, bary: np.ndarray) -> _ContactCache:
+        normals = self.index.normals[tris]
+        cap = _contact.capacitance(self.gf, tris, bary, normals=normals, mode=self.scene.mode)
+        W = np.asarray(cap.W)
+        if np.any(cap.rigid):
+            raise RuntimeError("rigid contacts must be filtered before the capacitance")  # pragma: no cover
+        Gu = self.gf.compliance(np.arange(self.n), cap.V) @ cap.G
+        from runtime.hail import _inv_spd
+
+        K = _inv_spd(W)
+        X = np.einsum("kj,kjd->kd", bary, self.X[self.gf.triangles[tris]])
+        self.stats["capacitance_rebuilds"] += 1
+        key = tuple(zip(stones.tolist(), tris.tolist()))
+        return _ContactCache(key=key, W=W, K=K, Gu=Gu, stones=stones, tris=tris, bary=bary, normals=normals, X=X)
+
+    def _triangle_stiffness(self, tris: np.ndarray) -> np.ndarray:
+        """Normal contact stiffness at the centroid of triangles (cached), [N/m].
+
+        Used to size the sub-step *before* a contact opens (so the first
+        impact step is already resolved). Hard triangles give 0.
+        """
+        out = np.zeros(tris.size)
+        for i, t in enumerate(tris.tolist()):
+            k = self._k_tri.get(t)
+            if k is None:
+                k = 0.0
+                if t >= 0 and self.soft[t]:
+                    v = np.asarray(self.gf.triangles[t])
+                    n = self.index.normals[t]
+                    Bn = np.kron(np.full(3, 1.0 / 3.0), n)  # (9,)
+                    w = float(Bn @ self.gf.compliance(v, v) @ Bn)
+                    k = 1.0 / w if w > 0 else 0.0
+                self._k_tri[t] = k
+            out[i] = k
+        return out
+
+    def _reproject(self, stones: np.ndarray) -> np.ndarray:
+        """True for open contacts whose stone is still over its triangle."""
+        t = self.ctri[stones]
+        P = self.X[self.gf.triangles[t]]
+        n = self.index.normals[t]
+        c = self.pos[stones]
+        # barycentric coordinates of the centre projected on the triangle plane
+        v0, v1 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
+        w = c - P[:, 0]
+        w = w - np.einsum("ij,ij->i", w, n)[:, None] * n
+        d00 = np.einsum("ij,ij->i", v0, v0)
+        d01 = np.einsum("ij,ij->i", v0, v1)
+        d11 = np.einsum("ij,ij->i", v1, v1)
+        d20 = np.einsum("ij,ij->i", w, v0)
+        d21 = np.einsum("ij,ij->i", w, v1)
+        den = d00 * d11 - d01 * d01
+        b1 = (d11 * d20 - d01 * d21) / den
+        b2 = (d00 * d21 - d01 * d20) / den
+        tol = 1e-3
+        return (b1 >= -tol) & (b2 >= -tol) & (b1 + b2 <= 1 + tol)
+
+    def _substep(self, near: np.ndarray, h: float) -> None:
+        sc = self.scene
+        deformed = self.X + self.u
+        k = near.size
+        in_contact = self.ctri[near] >= 0
+        was_open = in_contact.copy()
+        # open contacts keep (t, beta) while their stone stays over the triangle
+        keep = np.zeros(k, dtype=bool)
+        if in_contact.any():
+            keep[in_contact] = self._reproject(near[in_contact])
+        dist = np.full(k, np.inf)
+        tri = np.full(k, -1, dtype=np.intp)
+        bary = np.zeros((k, 3))
+        point = np.full((k, 3), np.nan)
+        # (b) closest points on the deformed surface, for stones without a kept contact
+        qi = np.flatnonzero(~in_contact)
+        if qi.size:
+            j = near[qi]
+            pad = np.linalg.norm(self.vel[j], axis=1) * h
+            hq = self.index.query(self.pos[j], self.radius[j] + pad + 1e-3, deformed=deformed,
+                                  max_displacement=self.umax)
+            dist[qi], tri[qi], bary[qi], point[qi] = hq.distance, hq.triangle, hq.bary, hq.point
+            self.near_tri[j] = hq.triangle
+        self.gap[near] = np.where(in_contact, 0.0, dist - self.radius[near])
+        # a contact whose stone slid off its triangle moves to the closest point of the
+        # undeformed surface (the contact stays open: no spurious release and spring-back)
+        moved = np.flatnonzero(in_contact & ~keep)
+        if moved.size:
+            j = near[moved]
+            hm = self.index.query(self.pos[j], 2.0 * self.radius[j] + self.umax + 1e-3)
+            ok = hm.triangle >= 0
+            self.ctri[j] = np.where(ok, hm.triangle, -1)
+            self.cbary[j[ok]] = hm.bary[ok]
+            tri[moved], bary[moved], point[moved] = hm.triangle, hm.bary, hm.point
+            dist[moved] = hm.distance
+        new = ~in_contact & (dist < self.radius[near]) & (tri >= 0)
+        self.ctri[near[new]] = tri[new]
+        self.cbary[near[new]] = bary[new]
+        # time-of-impact correction: a stone that opens a contact while approaching is put
+        # back onto the deformed surface (it overshot by at most one sub-step's travel)
+        if new.any():
+            j = near[new]
+            nrm = self.index.normals[self.ctri[j]]
+            approaching = np.einsum("ij,ij->i", self.vel[j], nrm) < 0
+            depth = np.clip(-self.gap[j], 0.0, None) * approaching
+            self.pos[j] += depth[:, None] * nrm
+        # (c) hard walls
+        opened = near[(self.ctri[near] >= 0)]
+        wall = opened[~self.soft[self.ctri[opened]]]
+        if wall.size:
+            j = np.searchsorted(near, wall)
+            dvec = self.pos[wall] - point[j]
+            dist = np.linalg.norm(dvec, axis=1, keepdims=True)
+            nrm = np.where(dist > 1e-12, dvec / np.maximum(dist, 1e-300), self.index.normals[self.ctri[wall]])
+            self.pos[wall] += np.clip(self.radius[wall][:, None] - dist, 0.0, None) * nrm
+            vn = np.einsum("ij,ij->i", self.vel[wall], nrm)
+            imp = vn < 0
+            self.vel[wall] -= ((1.0 + sc.restitution) * np.minimum(vn, 0.0))[:, None] * nrm
+            self.stats["wall_contacts"] += int(imp.sum())
+            self.ctri[wall] = -1
+        soft = near[self.ctri[near] >= 0]
+        # (d) soft contacts through the capacitance
+        free = np.setdiff1d(near, soft, assume_unique=True)
+        if soft.size:
+            tris = self.ctri[soft]
+            key = tuple(zip(soft.tolist(), tris.tolist()))
+            if self.cache is None or self.cache.key != key:
+                self.cache = self._build_cache(soft, tris, self.cbary[soft].copy())
+            cc = self.cache
+            s = soft.size
+            acc = self._accel(soft)
+            m = self.mass[soft]
+            if sc.mode == "frictionless":
+                nk = cc.normals
+                q = np.einsum("ij,ij->i", nk, self.pos[soft])
+                a = np.einsum("ij,ij->i", nk, cc.X) + self.radius[soft]
+                vq = np.einsum("ij,ij->i", nk, self.vel[soft])
+                gq = np.einsum("ij,ij->i", nk, acc)
+                mq, group, wts = m, np.arange(s), None
+            else:
+                nk = cc.normals
+                q = self.pos[soft].ravel()
+                a = (cc.X + self.radius[soft][:, None] * nk).ravel()
+                vq = self.vel[soft].ravel()
+                gq = acc.ravel()
+                mq, group, wts = np.repeat(m, 3), np.repeat(np.arange(s), 3), nk.ravel()
+            C = damping_coefficients(cc.K, mq, sc.restitution, dt=h, integrator=sc.integrator)
+            res = contact_step(q, vq, a, mq, gq, h, K=cc.K, W=cc.W, damping=C, integrator=sc.integrator,
+                               unilateral=sc.unilateral, group=group, normal_of=wts)
+            if sc.mode == "frictionless":
+                vfree = self.vel[soft] + h * acc
+                vnew = vfree + (res.v - np.einsum("ij,ij->i", nk, vfree))[:, None] * nk
+                fvec = res.seat_force[:, None] * nk
+                active_c = res.active
+                ubar_n = res.q - a
+            else:
+                vnew = res.v.reshape(s, 3)
+                fvec = res.seat_force.reshape(s, 3)
+                active_c = res.active.reshape(s, 3).all(axis=1)
+                ubar_n = np.einsum("ij,ij->i", (res.q - a).reshape(s, 3), nk)
+            # impacts: contacts that opened in this sub-step and push
+            fresh = active_c & ~was_open[np.searchsorted(near, soft)]
+            if fresh.any():
+                vn_in = np.einsum("ij,ij->i", self.vel[soft[fresh]], nk[fresh])
+                self.stats["impacts"] += int((vn_in < -sc.rest_speed).sum())
+                self.hit[soft[fresh]] = True
+            self.vel[soft] = vnew
+            self.pos[soft] += h * vnew
+            self.ctri[soft[~active_c]] = -1
+            self.lam = res.seat_force
+            self.u = (cc.Gu @ res.seat_force).reshape(self.n, 3)
+            fmag = np.linalg.norm(fvec, axis=1)
+            self.stats["max_contact_force"] = max(self.stats["max_contact_force"], float(fmag.max()))
+            if active_c.any():
+                self.stats["max_indentation_m"] = max(self.stats["max_indentation_m"], float(-ubar_n[active_c].min()))
+            self.stats["max_simultaneous_contacts"] = max(self.stats["max_simultaneous_contacts"], int(active_c.sum()))
+        else:
+            self.cache = None
+            self.lam = np.zeros(0)
+            self.u[:] = 0.0
+        self.umax = float(np.sqrt((self.u**2).sum(axis=1).max())) if self.n else 0.0
+        if free.size:
+            self.pos[free], self.vel[free] = free_flight(self.pos[free], self.vel[free], h,
+                                                         accel=self._accel(free) - self.g, g=GRAVITY)
+        self.stats["substeps"] += 1
+
+    def _substep_size(self, near: np.ndarray, h_left: float) -> float:
+        sc = self.scene
+        h = h_left
+        if not sc.adaptive:
+            return h
+        hmin = sc.dt / sc.max_substeps
+        speed = np.linalg.norm(self.vel[near], axis=1)
+        # gap unknown (inf: just became near) counts as close
+        close = ~(self.gap[near] >= speed * h + 1e-3)
+        close |= ~np.isfinite(self.gap[near])
+        if close.any():
+            cl = near[close]
+            lim = sc.approach_fraction * self.radius[cl] / np.maximum(speed[close], 1e-9)
+            h = min(h, float(lim.min()))
+            # resolve the coming impact from its first step (1.5: the stiffness varies over a triangle)
+            k = self._triangle_stiffness(self.near_tri[cl])
+            fast = (speed[close] > sc.rest_speed) | (sc.integrator == "symplectic")
+            if np.any(fast & (k > 0)):
+                omega = 1.5 * np.sqrt(k[fast] / self.mass[cl][fast])
+                h = min(h, float(sc.omega_dt / omega.max()))
+        cc = self.cache
+        if cc is not None and cc.stones.size:
+            st = cc.stones
+            open_ = self.ctri[st] >= 0
+            if open_.any():
+                k = np.clip(np.diag(cc.K), 0.0, None)
+                if sc.mode == "sticky":
+                    k = k.reshape(-1, 3).max(axis=1)
+                omega = np.sqrt(k / self.mass[st])
+                vn = np.einsum("ij,ij->i", self.vel[st], cc.normals)
+                # oscillation amplitude about the static equilibrium, in velocity units
+                ubar = np.einsum("ij,ij->i", self.pos[st] - cc.X, cc.normals) - self.radius[st]
+                u_eq = np.einsum("j,ij->i", self.g, cc.normals) * self.mass[st] / np.maximum(k, 1e-300)
+                amp = np.hypot(vn, omega * (ubar - u_eq))
+                moving = open_ & ((amp > sc.rest_speed) | (sc.integrator == "symplectic"))
+                if moving.any():
+                    h = min(h, float(sc.omega_dt / omega[moving].max()))
+        return float(min(max(h, hmin), h_left))
+
+    # -- the step ------------------------------------------------------------------
+    def step(self) -> None:
+        """Advance the storm by one step ``dt``."""
+        sc = self.scene
+        dt = sc.dt
+        self._spawn_until(self.t + dt)
+        live = np.flatnonzero(self.alive)
+        if live.size:
+            speed = np.linalg.norm(self.vel[live], axis=1)
+            grow = self.radius[live] + speed * dt + self.umax + 1e-3
+            p = self.pos[live]
+            near_mask = np.all((p + grow[:, None] >= self.lo) & (p - grow[:, None] <= self.hi), axis=1)
+            near_mask |= self.ctri[live] >= 0
+            near, far = live[near_mask], live[~near_mask]
+        else:
+            near = far = live
+        if far.size:
+            self.pos[far], self.vel[far] = free_flight(self.pos[far], self.vel[far], dt,
+                                                       accel=self._accel(far) - self.g, g=GRAVITY)
+            self.gap[far] = np.inf
+        if near.size:
+            t_left = dt
+            while t_left > 1e-15 * dt:
+                h = self._substep_size(near, t_left)
+                self._substep(near, h)
+                t_left -= h
+        else:
+            self.cache = None
+            self.u[:] = 0.0
+            self.umax = 0.0
+        if near.size:
+            # penetration of the deformed surface (sphere vs surface), for the record
+            q = self.index.query(self.pos[near], self.radius[near], deformed=self.X + self.u, max_displacement=self.umax)
+            pen = self.radius[near] - q.distance
+            if np.isfinite(pen).any():
+                self.stats["max_penetration_m"] = max(self.stats["max_penetration_m"], float(np.nanmax(np.where(np.isfinite(pen), pen, -np.inf))))
+        # retire stones that left the seat's region
+        if live.size:
+            p = self.pos[live]
+            gone = (p[:, 2] < self.lo[2] - sc.margin) | np.any(
+                (p[:, :2] < self.lo[:2] - 2 * sc.margin - self.radius[live][:, None])
+                | (p[:, :2] > self.hi[:2] + 2 * sc.margin + self.radius[live][:, None]), axis=1) & (p[:, 2] < self.hi[2])
+            if gone.any():
+                g = live[gone]
+                self.alive[g] = False
+                self.ctri[g] = -1
+                self.stats["retired"] += int(gone.sum())
+        self.t += dt
+        self.stats["steps"] += 1
+
+    def frame(self) -> Frame:
+        """The current state as a :class:`Frame`."""
+        live = np.flatnonzero(self.alive)
+        return Frame(t=self.t, displacement=self.u.astype(np.float32), positions=self.pos[live].copy(),
+                     radii=self.radius[live].copy(), ids=live.copy(), contacts=int((self.ctri[live] >= 0).sum()))
+
+    def contact_forces(self) -> tuple[np.ndarray, np.ndarray]:
+        """Stone ids in soft contact and the forces they apply to the seat, (s,), (s, 3)."""
+        if self.cache is None or self.lam.size == 0:
+            return np.zeros(0, dtype=np.intp), np.zeros((0, 3))
+        cc = self.cache
+        if self.scene.mode == "frictionless":
+            f = self.lam[:, None] * cc.normals
+        else:
+            f = self.lam.reshape(-1, 3)
+        keep = self.ctri[cc.stones] >= 0
+        return cc.stones[keep], f[keep]
+
+
+def run_storm(
+    gf: Any,
+    scene: Scene | None = None,
+    *,
+    progress: bool | Callable[[float, float], None] = True,
+) -> StormResult:
+    """Run a hail storm on the seat.
+
+    Parameters
+    ----------
+    gf : GreensFunctions
+        The bundle (:func:`runtime.bundle.load`).
+    scene : Scene, optional
+        Default: :meth:`Scene.default`.
+    progress : bool or callable
+        ``True``: a tqdm progress bar (on stderr); a callable is called as
+        ``progress(t, duration)`` after every step.
+
+    Returns
+    -------
+    StormResult
+        Frames at ``scene.fps`` (plus the first and last instants) and
+        statistics (see :func:`runtime.output.write_summary`).
+    """
+    scene = Scene.default() if scene is None else scene
+    storm = Storm(gf, scene)
+    n_steps = max(1, int(round(scene.duration / scene.dt)))
+    frame_dt = 1.0 / scene.fps
+    frames = [storm.frame()]
+    next_frame = frame_dt
+    history = np.zeros((n_steps, 3))
+    bar = None
+    if progress is True:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=n_steps, desc="hail storm", unit="step", leave=False)
+    wall0 = time.perf_counter()
+    for i in range(n_steps):
+        storm.step()
+        _, f = storm.contact_forces()
+        history[i] = (storm.t, float(np.linalg.norm(f, axis=1).sum()) if f.size else 0.0, f.shape[0])
+        if storm.t >= next_frame - 1e-12 or i == n_steps - 1:
+            frames.append(storm.frame())
+            next_frame += frame_dt
+        if bar is not None:
+            bar.update(1)
+        elif callable(progress):
+            progress(storm.t, scene.duration)
+    wall = time.perf_counter() - wall0
+    if bar is not None:
+        bar.close()
+    st = storm.stats
+    st["stones_hit"] = int(storm.hit.sum())
+    st.update(
+        sim_time_s=float(storm.t), wall_time_s=float(wall),
+        real_time_factor=float(storm.t / wall) if wall > 0 else float("inf"),
+        seed=scene.seed, dt=scene.dt, integrator=scene.integrator, mode=scene.mode,
+        restitution=scene.restitution, n_vertices=int(storm.n), n_triangles=int(len(gf.triangles)),
+        resting_at_end=int((storm.ctri[storm.alive] >= 0).sum()), frames=len(frames),
+    )
+    return StormResult(scene=scene, frames=frames, stats=st, history=history)

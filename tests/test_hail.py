@@ -1,0 +1,202 @@
+"""Hail physics: size distribution, restitution model, contact integrators, a drop.
+
+The seat is replaced by a synthetic flat plate (Boussinesq-like compliance) so
+the tests run in well under a second each and do not need a bundle.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from runtime.bundle import GreensFunctions
+from runtime.hail import (
+    GRAVITY,
+    SizeDistribution,
+    contact_step,
+    damping_ratio_for_restitution,
+    drag_acceleration,
+    restitution_for_damping_ratio,
+    stone_mass,
+    terminal_velocity,
+)
+
+
+def plate_gf(n: int = 13, size: float = 0.12, young: float = 2e6, poisson: float = 0.35,
+             thickness: float | None = None) -> GreensFunctions:
+    """A flat square plate at z = 0 (normal +z) with a Boussinesq-like compliance.
+
+    ``D_ij = (1 - nu^2) / (pi E r_ij) I3`` between distinct vertices and
+    ``1 / (E h)`` on the diagonal (``h`` the grid spacing); the boundary ring
+    is clamped, the interior contactable.
+    """
+    x = np.linspace(0.0, size, n)
+    X, Y = np.meshgrid(x, x - size / 2, indexing="ij")
+    V = np.column_stack([X.ravel(), Y.ravel(), np.zeros(n * n)])
+    tris = []
+    for i in range(n - 1):
+        for j in range(n - 1):
+            a, b, c, d = i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1
+            tris += [(a, b, c), (a, c, d)]
+    T = np.array(tris)
+    ii, jj = np.divmod(np.arange(n * n), n)
+    fixed = (ii == 0) | (jj == 0) | (ii == n - 1) | (jj == n - 1)
+    contactable = ~fixed
+    h = size / (n - 1)
+    r = np.linalg.norm(V[:, None] - V[None], axis=2)
+    S = np.where(r > 0, (1 - poisson**2) / (np.pi * young * np.where(r > 0, r, 1.0)), 1.0 / (young * h))
+    S[fixed, :] = 0.0
+    S[:, fixed] = 0.0
+    D = np.kron(S, np.eye(3))[:, np.repeat(contactable, 3)]
+    column_of = np.full(n * n, -1)
+    column_of[contactable] = np.arange(contactable.sum())
+    areas = np.full(n * n, h * h)
+    return GreensFunctions(
+        path=Path("."), manifest={"material": {"young": young, "poisson": poisson}, "options": {"order": 1}},
+        vertices=V, triangles=T, fixed=fixed, contactable=contactable, areas=areas,
+        volume_points=V, volume_tets=np.zeros((0, 4), dtype=np.intp), surface_nodes=np.arange(n * n),
+        D=D, column_of=column_of,
+    )
+
+
+def test_plate_compliance_is_spd():
+    gf = plate_gf()
+    c = gf.contact_vertices
+    Dcc = gf.compliance(c, c)
+    assert np.allclose(Dcc, Dcc.T)
+    assert np.linalg.eigvalsh(Dcc).min() > 0
+
+
+def test_size_distribution_bounds_and_reproducible():
+    d = SizeDistribution("exponential", 0.0025, 0.0125, 0.002)
+    r1 = d.sample(np.random.default_rng(3), 5000)
+    r2 = d.sample(np.random.default_rng(3), 5000)
+    assert np.array_equal(r1, r2)
+    assert r1.min() >= 0.0025 and r1.max() <= 0.0125
+    assert abs(r1.mean() - d.mean()) < 1e-4
+    assert np.median(r1) < 0.5 * (0.0025 + 0.0125)  # skewed to small stones
+    with pytest.raises(ValueError):
+        SizeDistribution("lognormal")
+    with pytest.raises(ValueError):
+        SizeDistribution("uniform", 0.01, 0.005)
+
+
+def test_terminal_velocity_balances_drag():
+    r = np.array([0.0025, 0.005, 0.0125])
+    vt = terminal_velocity(r)
+    assert 8 < vt[0] < 10 and 19 < vt[2] < 22  # ~9 m/s for 5 mm hail, ~20 m/s for 25 mm
+    a = drag_acceleration(np.column_stack([0 * r, 0 * r, -vt]), r)
+    assert np.allclose(a[:, 2], GRAVITY)
+    assert np.isclose(stone_mass(0.005), 917 * 4 / 3 * np.pi * 0.005**3)
+
+
+@pytest.mark.parametrize("e", [0.1, 0.5, 0.9])
+def test_restitution_damping_round_trip(e):
+    z = damping_ratio_for_restitution(e)
+    assert np.isclose(restitution_for_damping_ratio(z), e, atol=1e-8)
+
+
+def _bounce(e: float, integrator: str, omega_dt: float, k: float = 1e4, m: float = 1e-3, v0: float = 1.0) -> float:
+    """Exit speed of one unilateral spring-dashpot impact (no gravity)."""
+    from runtime.hail import damping_coefficients
+
+    omega = np.sqrt(k / m)
+    dt = omega_dt / omega
+    K = np.array([[k]])
+    C = damping_coefficients(K, np.array([m]), e, dt=dt, integrator=integrator)
+    q, v = np.zeros(1), np.array([-v0])
+    for _ in range(10000):
+        res = contact_step(q, v, np.zeros(1), np.array([m]), np.zeros(1), dt, K=K, damping=C, integrator=integrator)
+        q, v = res.q, res.v
+        if not res.active[0]:
+            break
+    return float(v[0] / v0)
+
+
+@pytest.mark.parametrize("integrator", ["implicit", "symplectic"])
+@pytest.mark.parametrize("e", [0.3, 0.7])
+def test_integrators_realise_restitution(integrator, e):
+    # at omega*dt = 0.05 the discrete restitution is within 0.06 of the target
+    assert abs(_bounce(e, integrator, 0.05) - e) < 0.06
+
+
+def _oscillate(integrator: str, dt: float, k: float, m: float, steps: int = 400) -> float:
+    """Max |q| of an undamped bilateral spring released from q = 1e-3."""
+    q, v = np.array([1e-3]), np.zeros(1)
+    K = np.array([[k]])
+    peak = 0.0
+    for _ in range(steps):
+        res = contact_step(q, v, np.zeros(1), np.array([m]), np.zeros(1), dt, K=K, integrator=integrator,
+                           unilateral=False)
+        q, v = res.q, res.v
+        peak = max(peak, float(abs(q[0])))
+        if not np.isfinite(peak) or peak > 1.0:
+            return np.inf
+    return peak
+
+
+def test_stability_limit_on_a_seat_contact():
+    """Symplectic Euler diverges above dt = 2/omega and is bounded below it;
+    backward Euler is bounded at 10x that. k is a real contact's capacitance."""
+    from runtime.contact import capacitance
+
+    gf = plate_gf()
+    cap = capacitance(gf, np.array([100]), np.array([[0.2, 0.3, 0.5]]), mode="frictionless")
+    k = float(cap.K[0, 0])
+    m = float(stone_mass(0.005))
+    omega = np.sqrt(k / m)
+    limit = 2.0 / omega
+    assert _oscillate("symplectic", 0.95 * limit, k, m) < 1e-2
+    assert _oscillate("symplectic", 1.05 * limit, k, m) == np.inf
+    peak = _oscillate("implicit", 10 * limit, k, m)
+    assert peak <= 1e-3 + 1e-12
+
+
+def test_active_set_releases_pulling_contact():
+    # two coupled contacts, one pressed in, one barely touching: the coupling pulls the second
+    W = np.array([[1.0, 0.8], [0.8, 1.0]]) * 1e-4
+    m = np.array([1e-3, 1e-3])
+    res = contact_step(np.array([-1e-5, -1e-9]), np.zeros(2), np.zeros(2), m, np.zeros(2), 1e-5, W=W)
+    assert res.active.tolist() == [True, False]
+    assert res.force[0] > 0 and res.force[1] == 0
+
+
+def _drop(e: float, h0: float, r: float = 0.005, integrator: str = "implicit", t_end: float = 0.6):
+    from runtime.storm import Scene, Storm
+
+    gf = plate_gf()
+    sc = Scene(duration=t_end, dt=5e-4, restitution=e, drag=False, integrator=integrator, stones=0)
+    st = Storm(gf, sc, spawn=False)
+    x0 = np.array([0.061, 0.003, r + h0])
+    st.add_stones(x0, np.zeros(3), r)
+    zs, ts = [], []
+    while st.t < t_end - 1e-12:
+        st.step()
+        zs.append(st.pos[0, 2])
+        ts.append(st.t)
+    return st, np.array(ts), np.array(zs)
+
+
+def test_drop_rebound_bounded_by_restitution_and_rest_force():
+    e, h0, r = 0.5, 0.02, 0.005
+    st, t, z = _drop(e, h0, r)
+    assert np.all(np.isfinite(z))
+    # first contact, then the first apex after it
+    i_hit = int(np.argmax(z < r + 1e-4))
+    after = z[i_hit:]
+    rising = np.flatnonzero(np.diff(after) > 0)
+    assert rising.size
+    i0 = rising[0]
+    apex = after[i0:][: np.argmax(np.diff(after[i0:]) < 0) + 1].max()
+    rebound = apex - r
+    assert rebound <= e**2 * h0 * 1.1 + 1e-4
+    assert rebound >= 0.3 * e**2 * h0  # it does bounce
+    # at rest: the contact force equals m g within 1%
+    ids, f = st.contact_forces()
+    assert ids.tolist() == [0]
+    mg = float(st.mass[0]) * GRAVITY
+    assert abs(np.linalg.norm(f[0]) - mg) < 0.01 * mg
+    assert f[0, 2] < 0  # pushes the seat down
+    assert abs(st.vel[0, 2]) < 1e-3
