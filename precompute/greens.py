@@ -149,7 +149,7 @@ def compliance_matrix(
 
     Returns
     -------
-    ndarray, shape (len(read_dofs), len(load_dofs))
+    ndarray, shape (len(read_dofs), len(load_dofs)), Fortran order
     """
     n = K.shape[0]
     free = free_dofs(n, fixed_dofs)
@@ -165,7 +165,7 @@ def compliance_matrix(
     Kff = K[free][:, free]
     nn = None if near_null is None else near_null[free]
     ncols = load_pos.size
-    D = np.zeros((len(read_dofs), ncols))
+    D = np.zeros((len(read_dofs), ncols), order="F")  # column-major: blocks of columns are contiguous
     block = int(max(1, min(ncols, block_columns, block_bytes // (16 * max(free.size, 1)))))
     blocks = [np.arange(s, min(s + block, ncols)) for s in range(0, ncols, block)]
     if workers is None:

@@ -16,7 +16,7 @@ Layout (format version 1)::
     volume_points.npy        (N, 3)   volume mesh points [m]
     volume_tets.npy          (T, 4)   tetrahedra (corner connectivity)
     surface_nodes.npy        (n,)     index of each surface vertex in volume_points
-    compliance.npy           (3n, 3c) D: displacement of every surface vertex
+    compliance.npy           (3n, 3c) D, column-major: displacement of every surface vertex
                                       per unit force at each contactable vertex
                                       (vertex-major, x, y, z per vertex) [m/N]
 
@@ -60,11 +60,20 @@ class BundleError(ValueError):
 
 
 def array_hash(a: np.ndarray) -> str:
-    """SHA-256 of an array's dtype, shape and bytes (C order)."""
+    """SHA-256 of an array's dtype, shape, memory order and bytes.
+
+    A Fortran-ordered array (the compliance D is stored column-major so that
+    gathering the columns of a contact set is a contiguous copy) is hashed in
+    its own order, without a copy.
+    """
     h = hashlib.sha256()
-    a = np.ascontiguousarray(a)
+    order = "F" if (a.flags.f_contiguous and not a.flags.c_contiguous) else "C"
     h.update(str(a.dtype.str).encode())
     h.update(str(a.shape).encode())
+    if order == "F":
+        h.update(b"F")
+        a = a.T
+    a = np.ascontiguousarray(a)
     # hash in slabs so a memory-mapped D is not pulled into memory at once
     flat = a.reshape(-1).view(np.uint8) if a.size else np.zeros(0, np.uint8)
     step = 1 << 26
@@ -156,7 +165,9 @@ def write_bundle(
     try:
         entries = {}
         for name in ARRAY_SPECS:
-            a = np.ascontiguousarray(arrays[name])
+            a = np.asarray(arrays[name])
+            if not (a.flags.c_contiguous or a.flags.f_contiguous):
+                a = np.ascontiguousarray(a)
             fname = f"{name}.npy"
             with open(tmp / fname, "wb") as fh:
                 np.save(fh, a, allow_pickle=False)

@@ -153,3 +153,9 @@ def test_compliance_argument_errors(box_bundle):
         gf.compliance([gf.n_vertices], [int(gf.contact_vertices[0])])
     with pytest.raises(ValueError, match="vertex indices"):
         gf.compliance([0.5], [0])
+
+
+def test_compliance_is_stored_column_major(box_bundle):
+    """Gathering the columns of a contact set must be a contiguous read."""
+    D = load(box_bundle).D
+    assert D.flags.f_contiguous and not D.flags.c_contiguous
