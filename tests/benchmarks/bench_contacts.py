@@ -2,9 +2,9 @@
 
 Usage::
 
-    python benchmarks/bench_contacts.py                 # default seat, h = 0.01 (built/cached)
-    python benchmarks/bench_contacts.py --gf DIR        # an existing bundle
-    python benchmarks/bench_contacts.py --mesh-size 0.007 --repeat 200
+    python tests/benchmarks/bench_contacts.py                 # default seat, h = 0.01 (built/cached)
+    python tests/benchmarks/bench_contacts.py --gf DIR        # an existing bundle
+    python tests/benchmarks/bench_contacts.py --mesh-size 0.007 --repeat 200
 
 For s in {1, 10, 100} random contacts on contactable triangles it times
 ``runtime.solve_contacts`` with full-surface deformation (min / median / max
