@@ -65,3 +65,49 @@ def test_usage_errors_exit_2(tmp_path):
     assert run.returncode == 2 and "invalid choice" in run.stderr
     run = hailstorm("precompute", "--mesh-size", "-1", "--out", tmp_path / "b", check=False)
     assert run.returncode == 2 and "positive" in run.stderr
+
+
+SUMMARY_KEYS = {"hailstones", "impacts", "max_contact_force", "sim_time_s", "wall_time_s",
+                "max_indentation_m", "max_simultaneous_contacts", "steps", "real_time_factor"}
+
+
+def test_storm_writes_animation_paraview_and_summary(seat_bundle, tmp_path):
+    import json
+
+    out = tmp_path / "run"
+    run = hailstorm("storm", "--duration", 0.06, "--stones", 8, "--seed", 3, "--gf", seat_bundle, "--out", out, "-q")
+    assert run.returncode == 0, run.stderr
+    summary = json.loads((out / "summary.json").read_text())
+    assert SUMMARY_KEYS <= set(summary)
+    assert summary["hailstones"] == 8 and summary["sim_time_s"] == pytest.approx(0.06)
+    assert (out / "storm.mp4").stat().st_size > 1000 or (out / "storm.gif").exists()
+    assert (out / "storm.pvd").exists() and list((out / "frames").glob("surface_*.vtu"))
+    # reproducible from the seed
+    again = tmp_path / "again"
+    hailstorm("storm", "--duration", 0.06, "--stones", 8, "--seed", 3, "--gf", seat_bundle, "--out", again,
+              "-q", "--no-video")
+    s2 = json.loads((again / "summary.json").read_text())
+    for key in ("impacts", "max_contact_force", "max_indentation_m", "steps"):
+        assert s2[key] == summary[key], key
+
+
+def test_bare_hailstorm_runs_the_default_storm(tmp_path, monkeypatch):
+    """`hailstorm` alone: builds and caches the default seat, runs the default storm."""
+    import json
+    import os
+
+    env = {**os.environ, "HAILSTORM_CACHE": str(tmp_path / "cache"), "MPLBACKEND": "Agg"}
+    run = subprocess.run([sys.executable, "-m", "runtime.cli", "--out", str(tmp_path / "out"), "--no-video"],
+                         capture_output=True, text=True, env=env, cwd=tmp_path, timeout=900)
+    assert run.returncode == 0, run.stderr[-2000:]
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["hailstones"] > 0 and summary["impacts"] > 0
+    assert len(list((tmp_path / "cache").iterdir())) == 1  # one cached bundle
+    assert "real_time_factor" in run.stdout
+
+
+def test_bad_scene_file_gives_clear_error(tmp_path):
+    scene = tmp_path / "scene.toml"
+    scene.write_text("[storm]\nduraton = 1.0\n")
+    run = hailstorm("storm", "--scene", scene, "--out", tmp_path / "o", check=False)
+    assert run.returncode == 3 and "duraton" in run.stderr and "Traceback" not in run.stderr
