@@ -86,8 +86,8 @@ def stiffness_matrix(basis, young: float, poisson: float) -> sp.csr_matrix:
 
 def _facet_ids(basis, triangles: np.ndarray) -> np.ndarray:
     """Indices into ``basis.mesh.facets`` of the given boundary triangles."""
-    facets = np.sort(basis.mesh.facets.T, axis=1)
-    tris = np.sort(np.asarray(triangles), axis=1)
+    facets = np.sort(basis.mesh.facets.T, axis=1).astype(np.int64)  # int64: the keys below reach n^3
+    tris = np.sort(np.asarray(triangles), axis=1).astype(np.int64)
     n = basis.mesh.p.shape[1]
     key_f = (facets[:, 0] * n + facets[:, 1]) * n + facets[:, 2]
     key_t = (tris[:, 0] * n + tris[:, 1]) * n + tris[:, 2]

@@ -148,3 +148,12 @@ def test_convergence_rate_manufactured_solution(order, rate, h):
     e_fine = _manufactured_l2_error(order, h / 2)
     observed = np.log2(e_coarse / e_fine)
     assert observed == pytest.approx(rate, abs=0.3)
+
+
+def test_clamp_dofs_on_a_mesh_with_many_nodes():
+    """Regression: facet keys reach n^3 and overflowed int32 beyond ~1300 nodes."""
+    mesh = box_mesh((0.2, 0.1, 0.05), 0.008)
+    assert mesh.points.shape[0] > 2000
+    basis = elasticity_basis(mesh, 1)
+    n_bottom = int(np.isclose(mesh.points[:, 2], 0.0).sum())
+    assert clamp_dofs(basis, mesh).size == 3 * n_bottom
