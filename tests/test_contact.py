@@ -19,6 +19,10 @@ from runtime.contact import (
     ContactSolution,
     barycentric_matrix,
     capacitance,
+    contact_points,
+    hertz_radius,
+    patch_matrix,
+    patch_weights,
     solve_contacts,
     triangle_normals,
 )
@@ -56,32 +60,37 @@ def box(tmp_path_factory):
                 unclamped=unclamped)
 
 
-def direct_fem(box, tri, bary, ubar, mode="sticky", normals=None):
+def direct_fem(box, tri, bary, ubar, mode="sticky", normals=None, *, verts=None, weights=None):
     """Forces on the seat and surface displacement from the saddle-point FEM solve.
 
     [[K, C^T], [C, 0]] [u; mu] = [0; ubar_c], clamp dofs eliminated. The
     multipliers are minus the nodal forces applied to the body: K u = -C^T mu,
     so the force on the seat at contact k is -mu_k (times n_k if frictionless).
+    Constraint row (k, d) is ``sum_a w_ka u_d(v_ka)`` with ``v_k`` the
+    contacted triangle's vertices and ``w_k`` its barycentric coordinates, or
+    the given patch ``verts`` / ``weights`` (s, P) (patch contacts).
     """
     gf, basis = box["gf"], box["basis"]
     s = len(tri)
     if normals is None:
         normals = triangle_normals(gf.vertices, gf.triangles[tri])
-    nodes = gf.surface_nodes[gf.triangles[tri]]
+    if verts is None:
+        verts, weights = gf.triangles[tri], bary
+    nodes = gf.surface_nodes[np.asarray(verts)]
     rows, cols, vals, rhs = [], [], [], []
     r = 0
     for k in range(s):
-        dofs = fem.vertex_dofs(basis, nodes[k])  # (3 vertices, 3 components)
+        dofs = fem.vertex_dofs(basis, nodes[k])  # (P vertices, 3 components)
         if mode == "sticky":
             for d in range(3):
-                for a in range(3):
-                    rows.append(r), cols.append(dofs[a, d]), vals.append(bary[k, a])
+                for a in range(dofs.shape[0]):
+                    rows.append(r), cols.append(dofs[a, d]), vals.append(weights[k, a])
                 rhs.append(ubar[k, d])
                 r += 1
         else:
             for d in range(3):
-                for a in range(3):
-                    rows.append(r), cols.append(dofs[a, d]), vals.append(bary[k, a] * normals[k, d])
+                for a in range(dofs.shape[0]):
+                    rows.append(r), cols.append(dofs[a, d]), vals.append(weights[k, a] * normals[k, d])
             rhs.append(ubar[k] @ normals[k])
             r += 1
     C = sp.coo_matrix((vals, (rows, cols)), shape=(r, box["ndof"])).tocsr()[:, box["free"]]
@@ -426,8 +435,8 @@ def test_add_remove_equal_fresh_build(box, mode):
 
 @pytest.mark.parametrize("pos", [[0, 1, 2, 6, 7, 8], [3, 4, 5, 9, 10, 11, 12, 13, 14], [1, 2, 3], [0, 2, 4, 6]])
 def test_embed_block_copies(pos, monkeypatch):
-    import runtime.contact as rc
-    from runtime.contact import _embed
+    import runtime.contact_capacitance as rc
+    from runtime.contact_capacitance import _embed
 
     monkeypatch.setattr(rc, "EMBED_BLOCKS_FROM", 0)
     pos = np.array(pos)
@@ -438,7 +447,7 @@ def test_embed_block_copies(pos, monkeypatch):
 
 def test_add_remove_block_copy_path(box, monkeypatch):
     """Same as a fresh build when D_VV is grown by block copies and W by the sparse path."""
-    import runtime.contact as rc
+    import runtime.contact_capacitance as rc
 
     monkeypatch.setattr(rc, "EMBED_BLOCKS_FROM", 0)
     monkeypatch.setattr(rc, "SPARSE_FROM", 1)
@@ -552,3 +561,192 @@ def test_add_remove_validation(box):
         cap.add(int(box["touchable"][3]), [0.5, 0.5, 0.5])
     with pytest.raises(ValueError, match="shape"):
         cap.forces(np.zeros((3, 3)))
+
+
+# ---------------------------------------------------------------------------
+# patch contacts
+# ---------------------------------------------------------------------------
+def _top_contacts(box, s, rng):
+    """s random contacts on the upper face z = 0.05 (flat, away from the clamp)."""
+    gf = box["gf"]
+    z = gf.vertices[gf.triangles[box["unclamped"]], 2]
+    top = box["unclamped"][np.all(np.isclose(z, 0.05), axis=1)]
+    tri = rng.choice(top, s, replace=False)
+    return tri, rng.dirichlet([1.0, 1.0, 1.0], s)
+
+
+@pytest.mark.parametrize("mode", ["sticky", "frictionless"])
+@pytest.mark.parametrize("s, radius", [(1, 0.03), (3, 0.025), (7, "mixed")])
+def test_patch_matches_direct_fem(box, mode, s, radius):
+    """Patch contacts = the FEM saddle point with the patch weights as constraint rows."""
+    gf = box["gf"]
+    rng = np.random.default_rng(200 + s + (mode == "frictionless"))
+    tri, bary = random_contacts(box, s, rng, same_triangle=False)
+    if radius == "mixed":  # point contacts, patches of several sizes, one reaching the clamp
+        radius = np.array([0.0, 0.015, 0.03, 0.045, 0.0, 0.02, 0.06])
+    ubar = rng.normal(scale=1e-3, size=(s, 3))
+    sol = solve_contacts(gf, tri, bary, ubar, mode=mode, patch_radius=radius)
+    cap = capacitance(gf, tri, bary, mode=mode, patch_radius=radius)
+    verts, w = patch_weights(gf, tri, bary, radius)
+    assert verts.shape[1] > 3  # the patches really cover more than a triangle
+    np.testing.assert_array_equal(cap.V[cap.loc], verts)
+    np.testing.assert_array_equal(cap.weights, w)
+    f_ref, u_ref = direct_fem(box, tri, bary, ubar, mode, verts=verts, weights=w)
+    assert rel(sol.forces, f_ref) < 1e-8
+    assert rel(sol.surface_displacement, u_ref) < 1e-8
+    # the patch-mean displacement is the prescription (normal part if frictionless)
+    nrm = triangle_normals(gf.vertices, gf.triangles[tri])
+    u_patch = np.einsum("kp,kpd->kd", w, sol.surface_displacement[verts])
+    np.testing.assert_allclose(sol.contact_displacement, u_patch, atol=1e-12 * np.abs(ubar).max())
+    if mode == "sticky":
+        np.testing.assert_allclose(u_patch, ubar, atol=1e-10 * np.abs(ubar).max())
+    else:
+        np.testing.assert_allclose(np.einsum("ki,ki->k", u_patch, nrm), np.einsum("ki,ki->k", ubar, nrm),
+                                   atol=1e-10 * np.abs(ubar).max())
+    # B of the capacitance is the patch matrix
+    V, B = patch_matrix(gf, tri, bary, radius)
+    np.testing.assert_array_equal(V, cap.V)
+    np.testing.assert_array_equal(B, cap.B)
+
+
+@pytest.mark.parametrize("mode", ["sticky", "frictionless"])
+def test_patch_unilateral_matches_direct_fem(box, mode):
+    gf = box["gf"]
+    rng = np.random.default_rng(17)
+    tri, bary = random_contacts(box, 5, rng, same_triangle=False)
+    n = triangle_normals(gf.vertices, gf.triangles[tri])
+    ubar = -1e-3 * n
+    ubar[2] = 2e-3 * n[2]  # pulled out: released
+    sol = solve_contacts(gf, tri, bary, ubar, mode=mode, unilateral=True, patch_radius=0.02)
+    assert not sol.active[2] and sol.active.sum() == 4
+    keep = np.arange(5) != 2
+    verts, w = patch_weights(gf, tri[keep], bary[keep], 0.02)
+    f_ref, u_ref = direct_fem(box, tri[keep], bary[keep], ubar[keep], mode, verts=verts, weights=w)
+    assert rel(sol.forces[keep], f_ref) < 1e-8
+    assert rel(sol.surface_displacement, u_ref) < 1e-8
+
+
+def test_patch_radius_zero_is_point_contact(box):
+    gf = box["gf"]
+    rng = np.random.default_rng(5)
+    tri, bary = random_contacts(box, 7, rng)
+    ubar = rng.normal(scale=1e-3, size=(7, 3))
+    ref = solve_contacts(gf, tri, bary, ubar)
+    for radius in (0.0, np.zeros(7)):
+        sol = solve_contacts(gf, tri, bary, ubar, patch_radius=radius)
+        np.testing.assert_array_equal(sol.forces, ref.forces)
+        np.testing.assert_array_equal(sol.surface_displacement, ref.surface_displacement)
+    # a patch much smaller than a triangle: the weights tend to beta (continuity at a -> 0)
+    tri1, bary1 = _top_contacts(box, 4, rng)
+    bary1 = 0.8 * bary1 + 0.2 / 3  # keep the tiny disc inside the triangle
+    verts, w = patch_weights(gf, tri1, bary1, 1e-6)
+    dense = np.zeros((4, gf.n_vertices))
+    np.add.at(dense, (np.repeat(np.arange(4), verts.shape[1]), verts.ravel()), w.ravel())
+    point = np.zeros((4, gf.n_vertices))
+    np.add.at(point, (np.repeat(np.arange(4), 3), gf.triangles[tri1].ravel()), bary1.ravel())
+    np.testing.assert_allclose(dense, point, atol=1e-9)
+    small = solve_contacts(gf, tri1, bary1, ubar[:4], patch_radius=1e-6)
+    assert rel(small.forces, solve_contacts(gf, tri1, bary1, ubar[:4]).forces) < 1e-7
+
+
+def test_patch_weights_properties(box):
+    gf = box["gf"]
+    rng = np.random.default_rng(8)
+    tri, bary = _top_contacts(box, 6, rng)
+    x = contact_points(gf.vertices, gf.triangles, tri, bary)
+    a = 0.012
+    verts, w = patch_weights(gf, tri, bary, a)
+    assert np.all(w >= 0)
+    np.testing.assert_allclose(w.sum(axis=1), 1.0, rtol=1e-13)
+    # only vertices of triangles the disc touches (h = 0.02: within a + h)
+    dist = np.linalg.norm(gf.vertices[verts] - x[:, None, :], axis=2)
+    assert np.all(dist[w > 0] <= a + 0.02 * np.sqrt(2) + 1e-12)
+    # linear reproduction on the flat top: the weights' first moment is the centre
+    # (exact for discs inside the top face, truncated ones are pulled inward)
+    inside = np.all((x[:, :2] > a) & (x[:, :2] < 0.1 - a), axis=1)
+    mom = np.einsum("kp,kpd->kd", w, gf.vertices[verts])
+    np.testing.assert_allclose(mom[inside], x[inside], atol=2e-3 * a)
+    # continuity: a small move of the centre changes the weights a little
+    b2 = bary + 1e-4 * np.array([1.0, -1.0, 0.0])
+    b2 = np.clip(b2, 0, None) / np.clip(b2, 0, None).sum(axis=1, keepdims=True)
+    v2, w2 = patch_weights(gf, tri, b2, a)
+    d1 = np.zeros((6, gf.n_vertices))
+    d2 = np.zeros((6, gf.n_vertices))
+    np.add.at(d1, (np.repeat(np.arange(6), verts.shape[1]), verts.ravel()), w.ravel())
+    np.add.at(d2, (np.repeat(np.arange(6), v2.shape[1]), v2.ravel()), w2.ravel())
+    assert np.abs(d1 - d2).max() < 0.02
+    # uniform profile: also normalised, flatter than Hertz (less weight on the nearest vertex)
+    vu, wu = patch_weights(gf, tri, bary, a, profile="uniform")
+    np.testing.assert_allclose(wu.sum(axis=1), 1.0, rtol=1e-13)
+
+
+def test_patch_on_clamp_is_rigid(box):
+    gf = box["gf"]
+    t = int(box["rigid_tris"][0])
+    sol = solve_contacts(gf, [t], [[1 / 3] * 3], [[0.0, 0.0, 1e-3]], patch_radius=0.02)
+    assert sol.rigid[0] and not sol.forces.any() and not sol.surface_displacement.any()
+
+
+@pytest.mark.parametrize("mode", ["sticky", "frictionless"])
+def test_patch_add_remove_equal_fresh_build(box, mode):
+    gf = box["gf"]
+    rng = np.random.default_rng(43)
+    tri, bary = random_contacts(box, 9, rng)
+    radii = np.array([0.02, 0.0, 0.03, 0.02, 0.05, 0.0, 0.01, 0.02, 0.04])
+    cap = capacitance(gf, tri[:3], bary[:3], mode=mode, patch_radius=radii[:3])
+    for k in range(3, 9):
+        cap.add(int(tri[k]), bary[k], patch_radius=radii[k])
+        fresh = capacitance(gf, tri[: k + 1], bary[: k + 1], mode=mode, patch_radius=radii[: k + 1])
+        _assert_same_capacitance(cap, fresh)
+        np.testing.assert_array_equal(cap.patch_radius, radii[: k + 1])
+    keep = list(range(9))
+    for k in (4, 0, 2):
+        cap.remove(k)
+        del keep[k]
+        _assert_same_capacitance(cap, capacitance(gf, tri[keep], bary[keep], mode=mode, patch_radius=radii[keep]))
+    # a scalar radius at build is the default of add
+    cap2 = capacitance(gf, tri[:2], bary[:2], mode=mode, patch_radius=0.02)
+    cap2.add(int(tri[2]), bary[2])
+    _assert_same_capacitance(cap2, capacitance(gf, tri[:3], bary[:3], mode=mode, patch_radius=0.02))
+    ubar = rng.normal(scale=1e-3, size=(len(keep), 3))
+    fresh = solve_contacts(gf, tri[keep], bary[keep], ubar, mode=mode, patch_radius=radii[keep])
+    assert rel(cap.forces(ubar), fresh.forces) < 1e-10
+    assert rel(cap.surface_displacement(cap.forces(ubar)), fresh.surface_displacement) < 1e-10
+    R = cap.surface_response()
+    np.testing.assert_allclose(R, gf.compliance(np.arange(gf.n_vertices), cap.V) @ cap.G, rtol=1e-12, atol=1e-20)
+
+
+def test_patch_is_stiffer_than_point(box):
+    """Spreading the force over a patch raises the contact stiffness (W shrinks)."""
+    gf = box["gf"]
+    rng = np.random.default_rng(9)
+    tri, bary = _top_contacts(box, 3, rng)
+    k = [capacitance(gf, tri, bary, mode="frictionless", patch_radius=a).K.diagonal() for a in (0.0, 0.01, 0.03)]
+    assert np.all(k[0] < k[1]) and np.all(k[1] < k[2])
+
+
+def test_hertz_radius():
+    E, nu, R, F = 2e6, 0.35, 0.01, 5.0
+    a = hertz_radius(F, R, E, nu)
+    assert a == pytest.approx((3 * F * R * (1 - nu**2) / (4 * E)) ** (1 / 3), rel=1e-14)
+    np.testing.assert_allclose(hertz_radius([F, -8 * F], R, E, nu), [a, 2 * a], rtol=1e-14)  # a ~ F^(1/3)
+    assert hertz_radius(0.0, R, E, nu, a_min=1e-3) == 1e-3
+    assert hertz_radius(1e6, R, E, nu, a_max=R) == R
+    with pytest.raises(ValueError):
+        hertz_radius(F, R, E, 0.5)
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(patch_radius=-0.01), "non-negative"),
+        (dict(patch_radius=[0.01, 0.02]), "shape"),
+        (dict(patch_radius=np.nan), "finite"),
+        (dict(patch_radius=0.01, patch_profile="gaussian"), "profile"),
+    ],
+)
+def test_patch_validation(box, kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        solve_contacts(box["gf"], [int(box["touchable"][0])], [[0.2, 0.3, 0.5]], [[0.0, 0.0, -1e-3]], **kwargs)
+    with pytest.raises(ValueError, match=match):
+        capacitance(box["gf"], [int(box["touchable"][0])], [[0.2, 0.3, 0.5]], **kwargs)

@@ -1,0 +1,101 @@
+"""Access to the compliance D of a bundle: column dofs, block gathers, column products.
+
+Split out of :mod:`runtime.contact` (which re-exports nothing private from
+here; import these helpers from this module). Everything here is about
+reading blocks of the (possibly memory-mapped, C- or Fortran-ordered)
+compliance ``D`` fast; nothing knows about contacts.
+
+* ``_dof3(V)`` -- vertex-major x, y, z dof indices of vertices;
+* ``_column_dofs(gf, V)`` -- column dofs of D for surface vertices (-1 at clamped ones);
+* ``_gather(gf, rows, cols)`` -- ``D[rows, cols]`` with zero clamped columns;
+* ``_apply_columns(gf, cols, g, rows)`` -- ``D[rows, cols] @ g``;
+* :func:`columns_times` -- blocked ``D[:, cols] @ x`` for a column-major D.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+__all__ = ["COLUMN_BLOCK", "GATHER_FRACTION", "columns_times"]
+
+#: Full-surface displacement: gather columns of a C-ordered D below this
+#: fraction of its columns, else one gemv with the whole D (memory-bound).
+GATHER_FRACTION: float = 0.12
+
+
+def _dof3(idx: np.ndarray) -> np.ndarray:
+    """Vertex-major x, y, z dof indices of vertex (or block) indices."""
+    idx = np.asarray(idx, dtype=np.intp)
+    return (3 * idx[:, None] + np.arange(3)).ravel()
+
+
+
+def _column_dofs(gf: Any, V: np.ndarray) -> np.ndarray:
+    """Column dofs of D for the vertices V (vertex-major), -1 at clamped vertices."""
+    cb = gf.column_of[V]
+    cols = _dof3(np.maximum(cb, 0))
+    cols[np.repeat(cb < 0, 3)] = -1
+    return cols
+
+
+#: Columns of D multiplied per block in :func:`columns_times` (a 4671 x 32 block
+#: stays in cache; measured 2.5 ms vs 4.0 ms for one big gather at s = 100).
+COLUMN_BLOCK = 32
+
+
+def columns_times(D: np.ndarray, cols: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """``D[:, cols] @ x`` for a column-major D, in cache-sized column blocks."""
+    out = np.zeros(D.shape[0])
+    for i in range(0, cols.size, COLUMN_BLOCK):
+        out += D[:, cols[i:i + COLUMN_BLOCK]] @ x[i:i + COLUMN_BLOCK]
+    return out
+
+
+def _gather(gf: Any, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """D[rows, cols] with zero columns where ``cols == -1`` (clamped vertices)."""
+    D = gf.D
+    dead = cols < 0
+    cc = np.where(dead, 0, cols)
+    if rows.size == 0 or cols.size == 0:
+        return np.zeros((rows.size, cols.size))
+    if D.flags.c_contiguous:
+        out = np.take(D.reshape(-1), (rows[:, None] * D.shape[1] + cc[None, :]).ravel()).reshape(rows.size, cols.size)
+        out = np.asarray(out)
+    else:  # e.g. Fortran order: contiguous column take first, then the rows
+        # Gather through the C-ordered transpose so the inner loop walks down one
+        # contiguous column (measured 2x faster than D[np.ix_(rows, cc)] at s = 100;
+        # np.take would first copy all of D to C order).
+        out = np.asarray(D.T[np.ix_(cc, rows)]).T
+    if dead.any():
+        out[:, dead] = 0.0
+    return out
+
+
+def _apply_columns(gf: Any, cols: np.ndarray, g: np.ndarray, rows: np.ndarray | None) -> np.ndarray:
+    """``D[rows, cols] @ g`` as (r, 3) (all rows if ``rows`` is None), skipping clamped columns."""
+    live = cols >= 0
+    c, gl = cols[live], g[live]
+    D = gf.D
+    n = gf.vertices.shape[0]
+    if rows is None:
+        if c.size == 0:
+            return np.zeros((n, 3))
+        if D.flags.f_contiguous:
+            return columns_times(D, c, gl).reshape(-1, 3)
+        if c.size > GATHER_FRACTION * D.shape[1]:
+            full = np.zeros(D.shape[1])
+            full[c] = gl
+            return np.asarray(D @ full).reshape(-1, 3)
+        cv = c[::3] // 3  # whole 3-column blocks (a vertex's x, y, z are consecutive)
+        return np.asarray(np.take(D.reshape(D.shape[0], -1, 3), cv, axis=1).reshape(D.shape[0], -1) @ gl).reshape(-1, 3)
+    rows = np.asarray(rows)
+    if rows.ndim != 1 or (rows.size and not np.issubdtype(rows.dtype, np.integer)):
+        raise ValueError(f"rows must be a 1-D array of vertex indices, got shape {rows.shape} dtype {rows.dtype}")
+    if rows.size and (rows.min() < 0 or rows.max() >= n):
+        raise IndexError(f"rows hold vertex indices outside 0..{n - 1}")
+    if c.size == 0 or rows.size == 0:
+        return np.zeros((rows.size, 3))
+    return (_gather(gf, _dof3(rows), c) @ gl).reshape(-1, 3)
+
