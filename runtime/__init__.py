@@ -1,14 +1,40 @@
-"""Runtime stage: load a Green's-function bundle and resolve contacts on it.
+"""Runtime stage: load a Green's-function bundle, resolve contacts, run the storm.
 
 Imports numpy and scipy only (no gmsh, no scikit-fem): a bundle written by
 ``hailstorm precompute`` is all it needs.
+
+* :func:`load` -> :class:`GreensFunctions` (D, surface, ``compliance(rows, cols)``);
+* :func:`barycentric_matrix` (B), :func:`patch_weights`, :func:`hertz_radius`;
+* :func:`capacitance` -> :class:`Capacitance` (W = Bᵀ D B, K = W⁻¹, low-rank updates);
+* :func:`solve_contacts` -> :class:`ContactSolution`;
+* :class:`Scene`, :func:`run_storm` -> :class:`StormResult` (the hail storm).
 """
 
 from runtime.bundle import BundleError, GreensFunctions, load
-from runtime.contact import (  # noqa: E402
+from runtime.contact import (
     Capacitance,
     ContactSolution,
     barycentric_matrix,
     capacitance,
+    hertz_radius,
+    patch_weights,
     solve_contacts,
 )
+from runtime.storm import Scene, SceneError, StormResult, run_storm
+
+__all__ = [
+    "BundleError",
+    "Capacitance",
+    "ContactSolution",
+    "GreensFunctions",
+    "Scene",
+    "SceneError",
+    "StormResult",
+    "barycentric_matrix",
+    "capacitance",
+    "hertz_radius",
+    "load",
+    "patch_weights",
+    "run_storm",
+    "solve_contacts",
+]
