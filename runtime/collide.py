@@ -1,9 +1,12 @@
 """Closest points on a (deformed) triangle surface, with a spatial index.
 
-The index is a :class:`scipy.spatial.cKDTree` over the *undeformed* triangle
-centroids, built once. A query at a stone centre gathers the triangles whose
-centroid lies within ``reach + circumradius_max + displacement_max`` (so no
-triangle within ``reach`` of the point on the *deformed* surface is missed),
+The index is a :class:`scipy.spatial.cKDTree` over sample points of the
+*undeformed* triangles (centroids of a regular subdivision, so every point of
+a triangle is within ``sample_radius`` of one of its samples), built once. A
+query at a stone centre gathers the triangles with a sample within
+``min(reach, d0 + displacement_max) + displacement_max + sample_radius`` (``d0`` the nearest
+sample: so no triangle within ``reach`` of the point on the *deformed* surface
+is missed),
 then computes exact point-triangle distances on the deformed triangles,
 vectorised over all (point, candidate) pairs.
 """
@@ -11,6 +14,7 @@ vectorised over all (point, candidate) pairs.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -38,50 +42,44 @@ def closest_point_on_triangles(
         Their barycentric coordinates (non-negative, summing to one).
     """
     p, a, b, c = (np.asarray(x, dtype=np.float64) for x in (p, a, b, c))
-    ab, ac, ap = b - a, c - a, p - a
-    d1 = np.einsum("ij,ij->i", ab, ap)
-    d2 = np.einsum("ij,ij->i", ac, ap)
-    bp = p - b
-    d3 = np.einsum("ij,ij->i", ab, bp)
-    d4 = np.einsum("ij,ij->i", ac, bp)
-    cp = p - c
-    d5 = np.einsum("ij,ij->i", ab, cp)
-    d6 = np.einsum("ij,ij->i", ac, cp)
+    k = p.shape[0]
+    E = np.stack([b - a, c - a])  # ab, ac
+    ap = p - a
+    # d1 = ab.ap, d2 = ac.ap and the Gram entries; bp = ap - ab and cp = ap - ac give the rest
+    d1, d2 = np.einsum("eki,ki->ek", E, ap)
+    g = np.einsum("eki,fki->efk", E, E)
+    gaa, gab, gbb = g[0, 0], g[0, 1], g[1, 1]
+    d3, d4 = d1 - gaa, d2 - gab
+    d5, d6 = d1 - gab, d2 - gbb
     va = d3 * d6 - d5 * d4
     vb = d5 * d2 - d1 * d6
     vc = d1 * d4 - d3 * d2
-    k = p.shape[0]
-    bary = np.empty((k, 3))
+    e1, e2 = d4 - d3, d5 - d6
+    # Voronoi regions in Ericson's order (the first that holds wins; 6 = interior)
+    conds = np.stack([
+        (d1 <= 0) & (d2 <= 0),  # vertex A
+        (d3 >= 0) & (d4 <= d3),  # vertex B
+        (vc <= 0) & (d1 >= 0) & (d3 <= 0),  # edge AB
+        (d6 >= 0) & (d5 <= d6),  # vertex C
+        (vb <= 0) & (d2 >= 0) & (d6 <= 0),  # edge AC
+        (va <= 0) & (e1 >= 0) & (e2 >= 0),  # edge BC
+        np.ones(k, dtype=bool),  # interior
+    ])
+    reg = np.argmax(conds, axis=0)
     with np.errstate(divide="ignore", invalid="ignore"):
-        # interior (lowest priority; overwritten by the region tests below)
-        den = va + vb + vc
-        den = np.where(den != 0, den, 1.0)
-        v = vb / den
-        w = vc / den
-        bary[:] = np.stack([1 - v - w, v, w], axis=1)
-        # edge BC
-        e1 = d4 - d3
-        e2 = d5 - d6
-        m = (va <= 0) & (e1 >= 0) & (e2 >= 0)
-        t = np.where(m, e1 / np.where(e1 + e2 != 0, e1 + e2, 1.0), 0.0)
-        bary[m] = np.stack([np.zeros(m.sum()), 1 - t[m], t[m]], axis=1)
-        # edge AC
-        m = (vb <= 0) & (d2 >= 0) & (d6 <= 0)
-        t = np.where(m, d2 / np.where(d2 - d6 != 0, d2 - d6, 1.0), 0.0)
-        bary[m] = np.stack([1 - t[m], np.zeros(m.sum()), t[m]], axis=1)
-        # vertex C
-        m = (d6 >= 0) & (d5 <= d6)
-        bary[m] = (0.0, 0.0, 1.0)
-        # edge AB
-        m = (vc <= 0) & (d1 >= 0) & (d3 <= 0)
-        t = np.where(m, d1 / np.where(d1 - d3 != 0, d1 - d3, 1.0), 0.0)
-        bary[m] = np.stack([1 - t[m], t[m], np.zeros(m.sum())], axis=1)
-        # vertex B
-        m = (d3 >= 0) & (d4 <= d3)
-        bary[m] = (0.0, 1.0, 0.0)
-        # vertex A
-        m = (d1 <= 0) & (d2 <= 0)
-        bary[m] = (1.0, 0.0, 0.0)
+        num = np.stack([d1, d2, e1, vb, vc])
+        den = np.stack([d1 - d3, d2 - d6, e1 + e2, va + vb + vc, va + vb + vc])
+        t = num / np.where(den != 0, den, 1.0)  # tab, tac, tbc, v_in, w_in
+    zero, one = np.zeros(k), np.ones(k)
+    vw = np.stack([
+        np.stack([zero, one, t[0], zero, zero, 1.0 - t[2], t[3]]),  # v per region
+        np.stack([zero, zero, zero, one, t[1], t[2], t[4]]),  # w per region
+    ])
+    ar = np.arange(k)
+    bary = np.empty((k, 3))
+    bary[:, 1] = vw[0, reg, ar]
+    bary[:, 2] = vw[1, reg, ar]
+    bary[:, 0] = 1.0 - bary[:, 1] - bary[:, 2]
     bary = np.clip(bary, 0.0, 1.0)
     bary /= bary.sum(axis=1, keepdims=True)
     point = bary[:, :1] * a + bary[:, 1:2] * b + bary[:, 2:] * c
@@ -105,12 +103,17 @@ class Closest:
 class SurfaceIndex:
     """Spatial index over a triangle surface for closest-point queries.
 
+    ``KNN``: samples fetched per query point in one dense k-d tree call
+    (a ball query is the fallback when more lie within reach).
+
     Parameters
     ----------
     vertices : (n, 3) ndarray
         Undeformed vertex positions.
     triangles : (m, 3) int ndarray
     """
+
+    KNN = 48
 
     def __init__(self, vertices: np.ndarray, triangles: np.ndarray) -> None:
         self.vertices = np.asarray(vertices, dtype=np.float64)
@@ -119,7 +122,32 @@ class SurfaceIndex:
         self.centroids = p.mean(axis=1)
         #: largest centroid-to-corner distance over all triangles
         self.circumradius = float(np.linalg.norm(p - self.centroids[:, None, :], axis=2).max()) if len(p) else 0.0
-        self.tree = cKDTree(self.centroids)
+        # the k-d tree holds sample points of every triangle (centroids of a regular
+        # subdivision) so that every point of a triangle lies within `sample_radius` of one
+        # of its samples: large triangles (underside) no longer widen every query
+        cr = np.linalg.norm(p - self.centroids[:, None, :], axis=2).max(axis=1) if len(p) else np.zeros(0)
+        rho = float(np.median(cr)) if len(p) else 0.0
+        level = np.maximum(1, np.ceil(cr / max(rho, 1e-300))).astype(np.intp) if len(p) else np.zeros(0, np.intp)
+        samples, owners, srad = [], [], np.zeros(len(p))
+        for L in np.unique(level):
+            ts = np.flatnonzero(level == L)
+            # barycentric centroids of the L^2 sub-triangles
+            bc = []
+            for i in range(L):
+                for j in range(L - i):
+                    bc.append(((i + 1 / 3) / L, (j + 1 / 3) / L))  # upward sub-triangles
+                    if i + j < L - 1:
+                        bc.append(((i + 2 / 3) / L, (j + 2 / 3) / L))  # downward ones
+            bc = np.array(bc)
+            w = np.column_stack([1 - bc.sum(axis=1), bc])  # (L^2, 3)
+            pts = np.einsum("sk,tkd->tsd", w, p[ts]).reshape(-1, 3)
+            samples.append(pts)
+            owners.append(np.repeat(ts, w.shape[0]))
+            srad[ts] = cr[ts] / L
+        self._sample_tri = np.concatenate(owners) if owners else np.zeros(0, np.intp)
+        #: every point of a triangle lies within this of one of its samples
+        self.sample_radius = float(srad.max()) if len(p) else 0.0
+        self.tree = cKDTree(np.concatenate(samples) if samples else np.zeros((0, 3)))
         fn = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
         ln = np.linalg.norm(fn, axis=1, keepdims=True)
         #: outward unit normals of the undeformed triangles
@@ -132,6 +160,7 @@ class SurfaceIndex:
         reach: np.ndarray | float,
         *,
         deformed: np.ndarray | None = None,
+        displacement: "Callable[[np.ndarray], np.ndarray] | None" = None,
         max_displacement: float = 0.0,
     ) -> Closest:
         """Closest point on the (deformed) surface to each point, within ``reach``.
@@ -143,6 +172,10 @@ class SurfaceIndex:
             Search radius per point [m]; farther surfaces are not reported.
         deformed : (n, 3) ndarray, optional
             Deformed vertex positions ``X + u``; default the undeformed ones.
+        displacement : callable, optional
+            ``displacement(vertices) -> (k, 3)``: the displacement of the
+            given vertices. Evaluated only at the candidate triangles'
+            vertices (the surface is never deformed as a whole).
         max_displacement : float
             Upper bound of ``|u|`` over the surface (widens the candidate
             search so that moved triangles are not missed).
@@ -162,19 +195,55 @@ class SurfaceIndex:
         )
         if k == 0:
             return out
-        X = self.vertices if deformed is None else np.asarray(deformed, dtype=np.float64)
-        lists = self.tree.query_ball_point(pts, reach + self.circumradius + max_displacement)
-        counts = np.fromiter((len(x) for x in lists), dtype=np.intp, count=k)
-        if counts.sum() == 0:
+        # the closest surface point is no farther than the nearest centroid (d0): triangles
+        # that can hold it have their centroid within min(reach, d0) + circumradius (+ |u|)
+        # d0 (distance to the nearest sample, a point of the undeformed surface) bounds the
+        # distance to the closest point: candidates lie within min(reach, d0) + sample radius
+        md = float(max_displacement)
+        # one k-d tree call: the KNN nearest samples within the widest bound; the first is
+        # d0 (when none is within the bound, nothing is within reach)
+        kk = max(2, min(self.KNN, self.tree.n))
+        bound = float(reach.max()) + 2.0 * md + self.sample_radius
+        dd, ii = self.tree.query(pts, k=kk, distance_upper_bound=bound)
+        d0 = dd[:, 0]
+        lim = np.minimum(reach, d0 + md) + md + self.sample_radius
+        inside = dd <= lim[:, None]
+        inside[d0 - self.sample_radius - md > reach] = False
+        # rows whose KNN-th sample is still within lim may miss some: ball query for those
+        full = inside[:, -1].copy()
+        inside[full] = False
+        owner = np.broadcast_to(np.arange(k)[:, None], inside.shape)[inside]
+        smp = ii[inside]
+        if full.any():
+            sel = np.flatnonzero(full)
+            lists = self.tree.query_ball_point(pts[sel], lim[sel])
+            counts = np.fromiter((len(x) for x in lists), dtype=np.intp, count=sel.size)
+            owner = np.concatenate([owner, np.repeat(sel, counts)])
+            smp = np.concatenate([smp, np.fromiter((t for x in lists for t in x), dtype=np.intp,
+                                                   count=int(counts.sum()))])
+            order = np.argsort(owner, kind="stable")
+            owner, smp = owner[order], smp[order]
+        if smp.size == 0:
             return out
-        owner = np.repeat(np.arange(k), counts)
-        tri = np.fromiter((t for x in lists for t in x), dtype=np.intp, count=int(counts.sum()))
+        # (owner, triangle) pairs sorted by owner; a triangle seen through several of its
+        # samples is tested several times (harmless: cheaper than de-duplicating)
+        tri = self._sample_tri[smp]
         corners = self.triangles[tri]
-        cp, bary = closest_point_on_triangles(pts[owner], X[corners[:, 0]], X[corners[:, 1]], X[corners[:, 2]])
-        d = np.linalg.norm(pts[owner] - cp, axis=1)
-        # the minimum per owner: sort by (owner, d), take the first of each owner
-        order = np.lexsort((d, owner))
-        first = order[np.r_[True, owner[order][1:] != owner[order][:-1]]]
+        if displacement is not None:
+            verts, inv = np.unique(corners, return_inverse=True)
+            Xl = self.vertices[verts] + displacement(verts)
+            corners = inv.reshape(corners.shape)
+        else:
+            Xl = self.vertices if deformed is None else np.asarray(deformed, dtype=np.float64)
+        cp, bary = closest_point_on_triangles(pts[owner], Xl[corners[:, 0]], Xl[corners[:, 1]], Xl[corners[:, 2]])
+        dv = pts[owner] - cp
+        d = np.sqrt(np.einsum("ij,ij->i", dv, dv))
+        # the minimum per owner (pairs are sorted by owner)
+        starts = np.flatnonzero(np.r_[True, owner[1:] != owner[:-1]])
+        dmin = np.minimum.reduceat(d, starts)
+        grp = np.cumsum(np.r_[False, owner[1:] != owner[:-1]])
+        hit = np.flatnonzero(d == dmin[grp])
+        first = hit[np.r_[True, grp[hit][1:] != grp[hit][:-1]]]
         o = owner[first]
         ok = d[first] <= reach[o]
         first, o = first[ok], o[ok]

@@ -26,7 +26,21 @@ step with either
 
       v+ = v + dt (g - M^-1 (K (q - a) + C v)),   q+ = q + dt v+
 
-  stable only for ``omega dt < 2`` (``omega = sqrt(k/m)``).
+  stable only for ``omega dt < 2`` (``omega = sqrt(k/m)``);
+* ``"exact"`` (the damped linear system solved in closed form)::
+
+      z(t) = Re(V exp(Lambda t) V^-1 z0),   z = (q - q_eq, v),
+      A = [[0, I], [-M^-1 K, -M^-1 C]] = V Lambda V^-1,   K (q_eq - a) = M g
+
+  While the active set and the dashpot pattern do not change, the contact
+  dynamics is linear with constant coefficients, so the modal solution is
+  exact for any ``dt``: no numerical damping, no stability limit. The step
+  is split at the instants the pattern changes (a contact reaches maximum
+  compression: its dashpot switches off; a contact's normal force reaches
+  zero: it is released), located on the exact trajectory (grid + bisection,
+  relative accuracy ~1e-4 of the step). The external acceleration is
+  constant over the step. It therefore realises the restitution of
+  :func:`restitution_for_damping_ratio` at any ``omega dt``.
 
 The dashpot ``C`` acts in compression only (normal velocity < 0), so it never
 pulls and a contact opens exactly when its spring relaxes; its size comes
@@ -39,6 +53,7 @@ would pull it towards the seat is released and the step is re-solved
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Literal
 
@@ -67,7 +82,8 @@ RHO_AIR: float = 1.2
 #: Gravitational acceleration [m/s^2] (along -z).
 GRAVITY: float = 9.81
 
-Integrator = Literal["implicit", "symplectic"]
+Integrator = Literal["implicit", "symplectic", "exact"]
+INTEGRATORS: tuple[str, ...] = ("implicit", "symplectic", "exact")
 
 
 def stone_mass(radius: np.ndarray | float, density: float = RHO_ICE) -> np.ndarray:
@@ -243,6 +259,9 @@ def damping_coefficients(
 ) -> np.ndarray:
     """Diagonal compression damping ``c_i = 2 zeta_i sqrt(K_ii m_i)`` realising a restitution.
 
+    For ``"exact"`` (and without ``dt``) the dashpot is the model's: the exact
+    integrator realises exactly :func:`restitution_for_damping_ratio` (for a
+    single contact; coupled contacts use the diagonal of ``K``).
     For the implicit integrator the numerical damping of backward Euler (an
     effective damping ratio ``zeta_num ~ omega dt / 2`` throughout the contact)
     is compensated: the physical dashpot is chosen so that the *total*
@@ -317,6 +336,7 @@ def contact_step(
     unilateral: bool = True,
     group: np.ndarray | None = None,
     normal_of: np.ndarray | None = None,
+    always_damped: np.ndarray | None = None,
 ) -> ContactStep:
     """Advance stones in contact by one step (constrained coordinates).
 
@@ -336,7 +356,7 @@ def contact_step(
         Contact compliance ``K^-1``.
     damping : (m,) ndarray or float
         Diagonal contact damping ``C`` [N s/m].
-    integrator : {"implicit", "symplectic"}
+    integrator : {"implicit", "symplectic", "exact"}
     unilateral : bool
         Release contacts whose force on the stone would pull it in.
     group : (m,) int ndarray, optional
@@ -347,6 +367,9 @@ def contact_step(
         ``sum over its components i of w_i force_i`` (sticky contacts: the
         components of the contact normal; frictionless: 1, the default). Used
         for the unilateral test and to apply the dashpot in compression only.
+    always_damped : (m,) bool ndarray, optional
+        ``"exact"`` only: components whose dashpot acts in both directions
+        (resting contacts: no switching events, the oscillation decays).
 
     Returns
     -------
@@ -361,10 +384,13 @@ def contact_step(
     C = np.broadcast_to(np.asarray(damping, dtype=np.float64), (n,))
     if K is None and W is None:
         raise ValueError("give the capacitance K or the contact compliance W")
-    if integrator not in ("implicit", "symplectic"):
-        raise ValueError(f"integrator must be 'implicit' or 'symplectic', got {integrator!r}")
+    if integrator not in INTEGRATORS:
+        raise ValueError(f"integrator must be one of {', '.join(INTEGRATORS)}, got {integrator!r}")
     group = np.arange(n) if group is None else np.asarray(group)
     wts = np.ones(n) if normal_of is None else np.asarray(normal_of, dtype=np.float64)
+    if integrator == "exact":
+        return _exact_step(q, v, np.asarray(anchor, dtype=np.float64), m, g, float(dt), K, W, C, unilateral,
+                           group, wts, always_damped)
     # the dashpot acts in compression only (normal velocity of the contact < 0)
     vn_g = np.zeros(group.max() + 1 if n else 0)
     np.add.at(vn_g, group, wts * v)
@@ -411,3 +437,272 @@ def contact_step(
         seat[idx] = Ka @ (q_new[idx] - a[idx])
     force[~active] = 0.0
     return ContactStep(q=q_new, v=v_new, active=active, force=force, seat_force=seat)
+
+
+# --------------------------------------------------------------------------
+# the exact (modal) integrator
+# --------------------------------------------------------------------------
+_GRID = 32  # samples per bracket when locating an event
+_REFINE = 2  # bracket refinements: event time to dt / 32**(_REFINE + 1)
+_MAX_SEGMENTS = 12
+
+
+class _Modal:
+    """Closed-form solution of ``M y'' + C y' + K y = 0``, ``z = (y, y')``."""
+
+    __slots__ = ("lam", "V", "Vi", "A", "n", "real")
+
+    def __init__(self, K: np.ndarray, m: np.ndarray, c: np.ndarray) -> None:
+        n = m.size
+        A = np.zeros((2 * n, 2 * n))
+        A[:n, n:] = np.eye(n)
+        A[n:, :n] = -K / m[:, None]
+        A[n:, n:] = np.diag(-c / m)
+        self.n, self.A = n, A
+        lam, V = np.linalg.eig(A)
+        self.lam, self.V = lam, V
+        try:
+            Vi = np.linalg.inv(V)
+            ok = np.isfinite(Vi).all() and np.abs(V).max() * np.abs(Vi).max() < 1e7
+        except np.linalg.LinAlgError:
+            ok = False
+        self.Vi = Vi if ok else None  # None: (nearly) defective, use expm
+
+    def at(self, z0: np.ndarray, t: np.ndarray) -> np.ndarray:
+        """States (2n, len(t)) at times ``t`` from ``z0``."""
+        if self.Vi is not None:
+            c = self.Vi @ z0
+            return (self.V @ (np.exp(np.multiply.outer(self.lam, t)) * c[:, None])).real
+        from scipy.linalg import expm
+
+        return np.stack([expm(self.A * ti) @ z0 for ti in np.atleast_1d(t)], axis=1)
+
+
+def _scalar_exact(q: float, v: float, a: float, m: float, g: float, dt: float, k: float, c: float,
+                  unilateral: bool, always: bool):
+    """One frictionless contact, closed form (pure Python floats). Returns (q, v, active) or
+    None when the case is not covered (overdamped, or release from an always-damped state)."""
+    t = 0.0
+    damp = always or v < 0.0
+    if unilateral and not damp and -k * (q - a) < 0.0 and v >= 0.0:
+        return None  # pulls at the start: let the general path release it
+    w2 = k / m
+    if w2 <= 0.0:
+        return None
+    off = a + g / w2  # equilibrium q_eq
+    for _ in range(6):
+        h = dt - t
+        if h <= 0.0:
+            break
+        ce = c if damp else 0.0
+        sig = 0.5 * ce / m
+        wd2 = w2 - sig * sig
+        if wd2 <= 1e-6 * w2:
+            return None
+        wd = math.sqrt(wd2)
+        y0 = q - off
+        A, B = y0, (v + sig * y0) / wd
+        P, Q = v, A * wd + sig * B  # v(t) = e^{-sig t} (P cos wd t - Q sin wd t)
+        te = h
+        kind = 0
+        if c > 0.0 and not always:
+            # v(t) = 0: wd t = atan2(P, Q) mod pi (first positive root)
+            th = math.atan2(P, Q) % math.pi
+            if th <= 1e-12:
+                th += math.pi
+            tv = th / wd
+            if tv < te:
+                te, kind = tv, 1
+        if unilateral and ce == 0.0:
+            # release: q = a while moving out (undamped: y = R cos(wd t - phi))
+            R = math.hypot(A, B)
+            ystar = a - off
+            if R > abs(ystar) and R > 0.0:
+                phi = math.atan2(B, A)
+                al = math.acos(max(-1.0, min(1.0, ystar / R)))
+                # y = ystar with v >= 0 (y increasing): wd t - phi = -al (mod 2 pi)
+                tr = ((-al + phi) % (2.0 * math.pi)) / wd
+                if tr <= 1e-15 * dt:
+                    tr += 2.0 * math.pi / wd
+                if tr < te:
+                    te, kind = tr, 2
+        e = math.exp(-sig * te)
+        cs, sn = math.cos(wd * te), math.sin(wd * te)
+        q = off + e * (A * cs + B * sn)
+        v = e * (P * cs - Q * sn)
+        t += te
+        if kind == 1:
+            damp = False
+        elif kind == 2:
+            # released: free flight for the rest of the step
+            h = dt - t
+            q += h * v + 0.5 * h * h * g
+            v += h * g
+            return q, v, False
+        else:
+            break
+    else:
+        return None
+    if unilateral and always and -k * (q - a) - c * v < 0.0 and v >= 0.0:
+        return None
+    return q, v, True
+
+
+def _exact_step(q, v, a, m, g, dt, K, W, C, unilateral, group, wts, always_damped) -> ContactStep:
+    n = q.size
+    if n == 1 and group[0] == 0 and wts[0] == 1.0:
+        k = float((_inv_spd(W) if K is None else np.asarray(K, dtype=np.float64))[0, 0])
+        al = bool(always_damped[0]) if always_damped is not None else False
+        r = _scalar_exact(float(q[0]), float(v[0]), float(a[0]), float(m[0]), float(g[0]), dt, k,
+                          float(np.asarray(C)[0]), unilateral, al)
+        if r is not None:
+            qn, vn, act = r
+            force = m * ((vn - v) / dt - g) if act else np.zeros(1)
+            seat = np.array([k * (qn - a[0])]) if act else np.zeros(1)
+            return ContactStep(q=np.array([qn]), v=np.array([vn]), active=np.array([act]), force=force,
+                               seat_force=seat)
+    ng = int(group.max()) + 1 if n else 0
+    K_full = _inv_spd(W) if K is None else np.asarray(K, dtype=np.float64)
+    Cn = np.asarray(C, dtype=np.float64).copy()  # nominal dashpot per component
+    always = np.zeros(n, bool) if always_damped is None else np.asarray(always_damped, bool)
+    v0 = v
+    q, v = q.copy(), v.copy()
+    active = np.ones(n, dtype=bool)
+
+    ident = ng == n and np.array_equal(group, np.arange(n)) and np.all(wts == 1.0)
+
+    def gsum(x: np.ndarray) -> np.ndarray:  # (n, ...) -> (ng, ...) normal sums per group
+        if ident:
+            return x
+        out = np.zeros((ng,) + x.shape[1:])
+        np.add.at(out, group, wts.reshape((-1,) + (1,) * (x.ndim - 1)) * x)
+        return out
+
+    def vn_of(vv):
+        return gsum(vv)
+
+    # dashpot on at the start where the contact is compressing (or always for resting ones)
+    damp_g = vn_of(v) < 0.0
+    t = 0.0
+    Ka = K_full
+    for _seg in range(_MAX_SEGMENTS):
+        # unilateral: release contacts that pull now and do not approach (active-set iteration)
+        while True:
+            idx = np.flatnonzero(active)
+            if W is not None and idx.size < n:
+                Ka = _inv_spd(W[np.ix_(idx, idx)])
+            else:
+                Ka = K_full[np.ix_(idx, idx)]
+            if not unilateral or idx.size == 0:
+                break
+            ce = np.where(damp_g[group] | always, Cn, 0.0)[idx]
+            f = np.zeros(n)
+            f[idx] = -(Ka @ (q[idx] - a[idx])) - ce * v[idx]
+            fn = gsum(f)
+            vn = vn_of(v)
+            pull = (fn < 0.0) & (vn >= 0.0) & np.bincount(group, active, minlength=ng).astype(bool)
+            if not pull.any():
+                break
+            active &= ~pull[group]
+        h = dt - t
+        if h <= 1e-12 * dt:
+            break
+        idx = np.flatnonzero(active)
+        free = np.flatnonzero(~active)
+        if idx.size == 0:
+            q[free] += h * v[free] + 0.5 * h * h * g[free]
+            v[free] += h * g[free]
+            t = dt
+            break
+        ma, ga, aa = m[idx], g[idx], a[idx]
+        ce = np.where(damp_g[group] | always, Cn, 0.0)[idx]
+        q_eq = aa + np.linalg.solve(Ka, ma * ga)
+        modal = _Modal(Ka, ma, ce)
+        z0 = np.concatenate([q[idx] - q_eq, v[idx]])
+        na = idx.size
+        gi = group[idx]
+        wi = wts[idx]
+        # event functions on the group level, evaluated on times tau (columns)
+        sw_on = np.zeros(ng, bool)
+        sw_on[gi] = True
+
+        switchable = sw_on & np.bincount(gi, (Cn[idx] > 0) & ~always[idx], minlength=ng).astype(bool)
+        off_mask = (switchable & damp_g)[:, None]
+        on_mask = (switchable & ~damp_g)[:, None]
+        ident_a = ident and na == n
+        off_eq = (q_eq - aa)[:, None]
+
+        def gsum_a(x: np.ndarray) -> np.ndarray:
+            if ident_a:
+                return x
+            out = np.zeros((ng, x.shape[1]))
+            np.add.at(out, gi, wi[:, None] * x)
+            return out
+
+        def events(tau: np.ndarray):
+            Z = modal.at(z0, tau)
+            y, vv = Z[:na], Z[na:]
+            vng = gsum_a(vv)
+            fng = gsum_a(-(Ka @ (y + off_eq)) - ce[:, None] * vv)
+            ev = np.zeros((ng, tau.size), bool)
+            ev |= off_mask & (vng >= 0.0)  # maximum compression: dashpot off
+            ev |= on_mask & (vng < 0.0)  # compresses again: dashpot on
+            if unilateral:
+                ev |= sw_on[:, None] & (fng < 0.0) & (vng >= 0.0)  # released
+            return Z, ev
+
+        lo, hi = 0.0, h
+        tau = h * np.arange(1, _GRID + 1) / _GRID
+        Z, ev = events(tau)
+        anyev = ev.any(axis=0)
+        if not anyev.any():
+            t_e, ze, evg = h, Z[:, -1], None
+        else:
+            j = int(np.argmax(anyev))
+            lo, hi = (tau[j - 1] if j else 0.0), tau[j]
+            ze, evg = Z[:, j], ev[:, j]
+            for _ in range(_REFINE):
+                tau = lo + (hi - lo) * np.arange(1, _GRID + 1) / _GRID
+                Z, ev = events(tau)
+                anyev = ev.any(axis=0)
+                j = int(np.argmax(anyev))  # the bracket's right end has an event
+                lo, hi = (tau[j - 1] if j else lo), tau[j]
+                ze, evg = Z[:, j], ev[:, j]
+            t_e = hi
+        # advance to t_e
+        q[idx] = ze[:na] + q_eq
+        v[idx] = ze[na:]
+        if free.size:
+            q[free] += t_e * v[free] + 0.5 * t_e * t_e * g[free]
+            v[free] += t_e * g[free]
+        t += t_e
+        if evg is None:
+            break
+        vng = vn_of(v)
+        ea = evg & sw_on
+        f = np.zeros(n)
+        f[idx] = -(Ka @ (q[idx] - aa)) - ce * v[idx]
+        fng = gsum(f)
+        rel = ea & (fng < 0.0) & (vng >= 0.0) if unilateral else np.zeros(ng, bool)
+        damp_g = np.where(ea & ~rel, vng < 0.0, damp_g)
+        if rel.any():
+            active &= ~rel[group]
+    else:
+        # too many events in one step: finish it with the pattern frozen (rare)
+        h = dt - t
+        if h > 0:
+            idx = np.flatnonzero(active)
+            free = np.flatnonzero(~active)
+            if idx.size:
+                ce = np.where(damp_g[group] | always, Cn, 0.0)[idx]
+                q_eq = a[idx] + np.linalg.solve(Ka, m[idx] * g[idx])
+                ze = _Modal(Ka, m[idx], ce).at(np.concatenate([q[idx] - q_eq, v[idx]]), np.array([h]))[:, 0]
+                q[idx], v[idx] = ze[:idx.size] + q_eq, ze[idx.size:]
+            q[free] += h * v[free] + 0.5 * h * h * g[free]
+            v[free] += h * g[free]
+    force = np.where(active, m * ((v - v0) / dt - g), 0.0)
+    seat = np.zeros(n)
+    idx = np.flatnonzero(active)
+    if idx.size:
+        seat[idx] = Ka @ (q[idx] - a[idx])
+    return ContactStep(q=q, v=v, active=active, force=force, seat_force=seat)

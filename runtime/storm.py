@@ -11,33 +11,60 @@ Use::
 Algorithm of one step (``dt`` = :attr:`Scene.dt`)
 -------------------------------------------------
 1. Spawn the stones due in this step.
-2. Broad phase: stones whose bounding box (grown by what they can travel in
-   the step and by the largest surface displacement) overlaps the seat's
-   bounding box are *near*; the others fly freely (exact ballistic update plus
-   drag), never collision-tested.
-3. Near stones are advanced in sub-steps (adaptive, see below). Each sub-step:
+2. Broad phase by *conservative advancement*: every flying stone carries a
+   lower bound of its distance to the deformed seat (``budget``: nearest
+   k-d tree sample minus the sample radius, the stone radius and 1.5x the
+   peak seat displacement). It is spent by what the stone can travel; only
+   when it runs out is it re-measured (one vectorised k-d query for all such
+   stones). Stones with budget left fly freely (vectorised ballistic + drag
+   update) and are never collision-tested.
+3. Near stones (budget exhausted, or in contact): one narrow-phase query per
+   step on the *locally* deformed surface (k-d tree on triangle samples;
+   the displacement is evaluated only at the candidate triangles' vertices,
+   ``u = D[rows, cols(V)] B f``); it also records the penetration. Then
+   sub-steps:
 
-   a. the deformed surface ``x = X + u`` (``u`` from the current contact forces);
-   b. closest point of every near stone on the deformed surface (k-d tree on
-      triangle centroids + exact point-triangle distance); a stone within its
-      radius opens a contact at that point ``(t, beta)``; an open contact
-      keeps its ``(t, beta)`` while the stone stays over the same triangle;
+   a. closest points (reused from the step's query, or predicted from the
+      previous sub-step for stones that cannot touch before the step ends);
+   b. time of impact (``adaptive = true``): the sub-step ends when the first
+      approaching stone reaches the tangent plane at its closest point
+      (constant acceleration); the contact opens when the gap is below 1% of
+      the radius and the stone is put on the surface;
+      an open contact keeps its ``(t, beta)`` while the stone stays over
+      the same triangle;
    c. contacts on triangles that cannot deform (all clamped, or without
       compliance columns) are a hard wall (projection + restitution);
    d. the other contacts share one capacitance (``runtime.contact``), rebuilt
       only when the set of (stone, triangle) pairs changes; the stones are
-      advanced by :func:`runtime.hail.contact_step` (implicit backward Euler by
-      default) with unilateral release;
-   e. the seat's displacement follows: ``u = D[:, V] B f``.
+      advanced by :func:`runtime.hail.contact_step` with unilateral release.
+      ``integrator = "exact"`` solves the damped linear contact dynamics in
+      closed form over the whole sub-step (maximum compression and release
+      located inside it), so one sub-step per step suffices whatever
+      ``omega dt``; ``"implicit"``/``"symplectic"`` sub-step to ``omega_dt``
+      when adaptive;
+   e. the seat's state is the vertex-force vector ``B f``; the full-surface
+      displacement ``u = D[:, V] B f`` is formed only for frames (:attr:`Storm.u`).
 4. Retire stones that left the seat's region; record a frame if one is due.
 
-Adaptive sub-steps (``adaptive = true``): the sub-step is limited so that a
-stone approaching the surface travels at most ``approach_fraction * r`` per
-sub-step (bounded overshoot before the contact opens) and so that
-``omega dt <= omega_dt`` for contacts that are still moving (``|v_n| >
-rest_speed``; ``omega = sqrt(K_kk / m)``). Resting contacts do not limit the
-step under the implicit integrator (backward Euler is exact at equilibrium);
-under the symplectic one every contact does (stability).
+Adaptive sub-steps for ``"implicit"``/``"symplectic"`` (``adaptive = true``):
+the sub-step is also limited so that a stone approaching the surface travels
+at most ``approach_fraction * r`` per sub-step and so that ``omega dt <=
+omega_dt`` for contacts that are still moving (``|v_n| > rest_speed``;
+``omega = sqrt(K_kk / m)``). Resting contacts do not limit the step under the
+implicit integrator (backward Euler is exact at equilibrium); under the
+symplectic one every contact does (stability). The exact integrator treats a
+resting contact's dashpot as acting both ways (no switching events).
+
+Penetration: a flying stone never enters the deformed surface by more than
+the contact-opening gap (1% of its radius) when ``adaptive = true``
+(``max_penetration_free_m``). A stone *in contact* overlaps the piecewise-linear
+dent around its point load (``max_penetration_contact_m``): the contact point
+follows the stone exactly, but the dent's triangles tilt into the sphere's cap;
+this is a property of the point-contact model (see DESIGN: vertex pressure
+masks), not of the time integration.
+
+BLAS runs single-threaded inside :func:`run_storm` (``threadpoolctl``): the
+dense solves are tiny and threaded BLAS on a shared machine only adds latency.
 """
 
 from __future__ import annotations
@@ -125,7 +152,11 @@ class Scene:
         contact damping (see :func:`runtime.hail.damping_coefficients`).
     dt : float
         Step [s] (frame/broad-phase step; near stones may be sub-stepped).
-    integrator : {"implicit", "symplectic"}
+    integrator : {"implicit", "symplectic", "exact"}
+        Contact integrator (:func:`runtime.hail.contact_step`). ``"exact"``
+        solves the damped linear contact dynamics in closed form over the step
+        (no numerical damping, no stability limit, events located inside the
+        step), so it needs no ``omega_dt`` sub-steps.
     adaptive : bool
         Sub-step near stones (see the module notes). ``False``: fixed ``dt``.
     omega_dt : float
@@ -201,8 +232,8 @@ class Scene:
             raise SceneError(f"poisson must satisfy -1 < poisson < 0.5, got {self.poisson!r}")
         if self.mode not in ("frictionless", "sticky"):
             raise SceneError(f"mode must be 'frictionless' or 'sticky', got {self.mode!r}")
-        if self.integrator not in ("implicit", "symplectic"):
-            raise SceneError(f"integrator must be 'implicit' or 'symplectic', got {self.integrator!r}")
+        if self.integrator not in ("implicit", "symplectic", "exact"):
+            raise SceneError(f"integrator must be 'implicit', 'symplectic' or 'exact', got {self.integrator!r}")
         if isinstance(self.restitution, bool) or not isinstance(self.restitution, (int, float)) or not 0.0 <= self.restitution <= 1.0:
             raise SceneError(f"restitution must lie in [0, 1], got {self.restitution!r}")
         try:
@@ -358,12 +389,15 @@ class _ContactCache:
     key: tuple
     W: np.ndarray
     K: np.ndarray
-    Gu: np.ndarray  # (3n, m) surface displacement per unit constrained force
+    G: np.ndarray  # (c, m) forces at the loaded (non-clamped) dofs of V per unit multiplier
+    cols: np.ndarray  # (c,) their columns of D
+    DVV: np.ndarray  # (3|V|, m) displacement of V per unit multiplier
     stones: np.ndarray
     tris: np.ndarray
     bary: np.ndarray
     normals: np.ndarray
     X: np.ndarray  # undeformed contact points (s, 3)
+    C: np.ndarray | None = None  # exact-integrator dashpot (cached)
 
 
 class Storm:
@@ -406,16 +440,40 @@ class Storm:
         self.hit = np.zeros(0, dtype=bool)
         self.near_tri = np.zeros(0, dtype=np.intp)  # closest triangle at the last query
         self._k_tri: dict[int, float] = {}
-        # seat state
-        self.u = np.zeros((self.n, 3))
+        # seat state: the contact forces at the loaded vertices; the displacement is
+        # evaluated only where needed (candidate triangles, frames)
+        D = gf.D
+        if isinstance(D, np.memmap) and not D.flags.f_contiguous and D.nbytes <= (1 << 30):
+            # column gathers D[:, cols] from a row-major memmap read the whole file each time:
+            # hold a column-major copy (a no-op once bundles store D column-major)
+            D = np.asfortranarray(D)
+        self._D = D
+        self._fv: np.ndarray | None = None
+        self._fcols: np.ndarray | None = None
+        self._u_version = 0
+        self._u_cache: tuple[int, np.ndarray] = (-1, np.zeros((self.n, 3)))
         self.umax = 0.0
+        self._umax_seen = 0.0
+        self.budget = np.zeros(0)  # lower bound of each stone's distance to the seat [m]
+        self._bud_u = np.zeros(0)  # the displacement bound each budget allows for [m]
+        self._pgap = np.zeros(0)  # gap lower bound predicted for the next sub-step [m]
+        self._pstamp = np.zeros(0, dtype=np.int64)  # sub-step the prediction is valid for
+        self._pred_umax = 0.0
+        self._umax_step = 0.0  # largest umax in the current step
+        self._live: np.ndarray | None = None
+        #: time-of-impact sub-steps (adaptive) and the gap within which a contact opens [radii]
+        self._toi = bool(scene.adaptive)
+        self._toi_tol = 0.01
+        self._hmin = scene.dt / scene.max_substeps
+        self._last_query: tuple | None = None
         self.cache: _ContactCache | None = None
         self.lam = np.zeros(0)
         self.t = 0.0
         self.stats: dict[str, Any] = dict(
             hailstones=0, impacts=0, stones_hit=0, max_contact_force=0.0, max_indentation_m=0.0,
             max_simultaneous_contacts=0, max_penetration_m=0.0, steps=0, substeps=0,
-            capacitance_rebuilds=0, wall_contacts=0, retired=0,
+            capacitance_rebuilds=0, wall_contacts=0, retired=0, queries_reused=0, queries_predicted=0,
+            max_penetration_contact_m=0.0, max_penetration_free_m=0.0,
         )
         self._pending = self._plan_spawns() if spawn else np.zeros((0, 8))
         self._next_pending = 0
@@ -453,6 +511,11 @@ class Storm:
         self.gap = np.concatenate([self.gap, np.full(k, np.inf)])
         self.hit = np.concatenate([self.hit, np.zeros(k, dtype=bool)])
         self.near_tri = np.concatenate([self.near_tri, np.full(k, -1, dtype=np.intp)])
+        self.budget = np.concatenate([self.budget, np.zeros(k)])
+        self._bud_u = np.concatenate([self._bud_u, np.zeros(k)])
+        self._pgap = np.concatenate([self._pgap, np.zeros(k)])
+        self._pstamp = np.concatenate([self._pstamp, np.full(k, -1, dtype=np.int64)])
+        self._live = None
         self.stats["hailstones"] += k
         return ids
 
@@ -479,14 +542,53 @@ class Storm:
         W = np.asarray(cap.W)
         if np.any(cap.rigid):
             raise RuntimeError("rigid contacts must be filtered before the capacitance")  # pragma: no cover
-        Gu = self.gf.compliance(np.arange(self.n), cap.V) @ cap.G
         from runtime.hail import _inv_spd
 
         K = _inv_spd(W)
+        G = np.asarray(cap.G)  # (3|V|, m) vertex forces per unit multiplier
+        cb = np.asarray(self.gf.column_of)[cap.V]
+        live = np.repeat(cb >= 0, 3)
+        cols = (3 * cb[:, None] + np.arange(3)).ravel()[live]  # D columns of the loaded dofs
         X = np.einsum("kj,kjd->kd", bary, self.X[self.gf.triangles[tris]])
         self.stats["capacitance_rebuilds"] += 1
         key = tuple(zip(stones.tolist(), tris.tolist()))
-        return _ContactCache(key=key, W=W, K=K, Gu=Gu, stones=stones, tris=tris, bary=bary, normals=normals, X=X)
+        return _ContactCache(key=key, W=W, K=K, G=G[live], cols=cols, DVV=np.asarray(cap.D_VV) @ G, stones=stones,
+                             tris=tris, bary=bary, normals=normals, X=X)
+
+    # -- the seat's displacement (only where it is needed) ---------------------------
+    def _set_forces(self, cc: _ContactCache | None, lam: np.ndarray) -> None:
+        """Contact multipliers -> vertex forces; displacement bound ``umax``."""
+        self._u_version += 1
+        if cc is None or lam.size == 0 or not np.any(lam):
+            self._fv = None
+            self._fcols = None
+            self.umax = 0.0
+            return
+        self._fv = cc.G @ lam
+        self._fcols = cc.cols
+        uV = (cc.DVV @ lam).reshape(-1, 3)
+        # |u| peaks under the loads; 1.5x covers superposition between nearby loads
+        self.umax = 1.5 * float(np.sqrt((uV**2).sum(axis=1).max())) if uV.size else 0.0
+        self._umax_seen = max(self._umax_seen, self.umax)
+        self._umax_step = max(self._umax_step, self.umax)
+
+    def _u_at(self, verts: np.ndarray) -> np.ndarray:
+        """Displacement (k, 3) of surface vertices ``verts`` under the current contact forces."""
+        if self._fv is None or verts.size == 0:
+            return np.zeros((verts.size, 3))
+        rows = (3 * verts[:, None] + np.arange(3)).ravel()
+        return (self._D[np.ix_(rows, self._fcols)] @ self._fv).reshape(-1, 3)
+
+    @property
+    def u(self) -> np.ndarray:
+        """Displacement (n, 3) of the whole surface (computed on demand, e.g. for frames)."""
+        if self._u_cache[0] != self._u_version:
+            if self._fv is None:
+                u = np.zeros((self.n, 3))
+            else:
+                u = (self._D[:, self._fcols] @ self._fv).reshape(self.n, 3)
+            self._u_cache = (self._u_version, u)
+        return self._u_cache[1]
 
     def _triangle_stiffness(self, tris: np.ndarray) -> np.ndarray:
         """Normal contact stiffness at the centroid of triangles (cached), [N/m].
@@ -530,9 +632,15 @@ class Storm:
         tol = 1e-3
         return (b1 >= -tol) & (b2 >= -tol) & (b1 + b2 <= 1 + tol)
 
-    def _substep(self, near: np.ndarray, h: float) -> None:
+    def _query(self, stones: np.ndarray, reach: np.ndarray, deformed: bool = True):
+        deformed = deformed and self._fv is not None
+        return self.index.query(self.pos[stones], reach, displacement=self._u_at if deformed else None,
+                                max_displacement=self.umax if deformed else 0.0)
+
+    def _substep(self, near: np.ndarray, h: float) -> float:
+        """Advance the near stones by at most ``h``; returns the time actually taken
+        (shorter when a stone is about to touch the seat: time of impact)."""
         sc = self.scene
-        deformed = self.X + self.u
         k = near.size
         in_contact = self.ctri[near] >= 0
         was_open = in_contact.copy()
@@ -548,43 +656,123 @@ class Storm:
         qi = np.flatnonzero(~in_contact)
         if qi.size:
             j = near[qi]
-            pad = np.linalg.norm(self.vel[j], axis=1) * h
-            hq = self.index.query(self.pos[j], self.radius[j] + pad + 1e-3, deformed=deformed,
-                                  max_displacement=self.umax)
-            dist[qi], tri[qi], bary[qi], point[qi] = hq.distance, hq.triangle, hq.bary, hq.point
-            self.near_tri[j] = hq.triangle
-        self.gap[near] = np.where(in_contact, 0.0, dist - self.radius[near])
+            pad = np.sqrt(np.einsum("ij,ij->i", self.vel[j], self.vel[j])) * h
+            reach = self.radius[j] + pad + 1e-3
+            qreach = np.full(k, np.nan)
+            qreach[qi] = reach
+            # reuse the end-of-step query where nothing moved since (same stamp, enough reach)
+            lq = self._last_query
+            fresh = np.zeros(j.size, bool)
+            if lq is not None and lq[0] == self.stats["substeps"]:
+                pos_in = np.searchsorted(lq[1], j)
+                pos_in = np.minimum(pos_in, max(lq[1].size - 1, 0))
+                if lq[1].size:
+                    fresh = (lq[1][pos_in] == j) & (lq[2][pos_in] >= reach)
+            if fresh.any():
+                hq0 = lq[3]
+                f_i = pos_in[fresh]
+                dist[qi[fresh]], tri[qi[fresh]] = hq0.distance[f_i], hq0.triangle[f_i]
+                bary[qi[fresh]], point[qi[fresh]] = hq0.bary[f_i], hq0.point[f_i]
+                self.stats["queries_reused"] += int(fresh.sum())
+            # stones whose gap was predicted by the previous sub-step of this step (they
+            # could not touch in it): no query, the prediction is a lower bound
+            # (only stones that cannot touch within the rest of the step; the bound shrinks
+            # by the change of the seat's peak displacement since)
+            pg = self._pgap[j] - abs(self.umax - self._pred_umax)
+            sp = np.sqrt(np.einsum("ij,ij->i", self.vel[j], self.vel[j]))
+            pred = ~fresh & (self._pstamp[j] == self.stats["substeps"]) & (pg > sp * h + GRAVITY * h * h + 1e-4)
+            if pred.any():
+                pj = j[pred]
+                dist[qi[pred]] = pg[pred] + self.radius[pj]
+                self.stats["queries_predicted"] += int(pred.sum())
+            if not (fresh | pred).all():
+                sub = ~(fresh | pred)
+                hq = self._query(j[sub], reach[sub])
+                dist[qi[sub]], tri[qi[sub]], bary[qi[sub]], point[qi[sub]] = hq.distance, hq.triangle, hq.bary, hq.point
+            self.near_tri[j] = tri[qi]
+        gap = np.where(in_contact, 0.0, dist - self.radius[near])
+        self.gap[near] = gap
         # a contact whose stone slid off its triangle moves to the closest point of the
         # undeformed surface (the contact stays open: no spurious release and spring-back)
         moved = np.flatnonzero(in_contact & ~keep)
         if moved.size:
             j = near[moved]
-            hm = self.index.query(self.pos[j], 2.0 * self.radius[j] + self.umax + 1e-3)
+            hm = self._query(j, 2.0 * self.radius[j] + self.umax + 1e-3, deformed=False)
             ok = hm.triangle >= 0
             self.ctri[j] = np.where(ok, hm.triangle, -1)
             self.cbary[j[ok]] = hm.bary[ok]
             tri[moved], bary[moved], point[moved] = hm.triangle, hm.bary, hm.point
             dist[moved] = hm.distance
-        new = ~in_contact & (dist < self.radius[near]) & (tri >= 0)
+        eps = self._toi_tol * self.radius[near]
+        if self._toi and qi.size:
+            # time of impact: end the sub-step when the first approaching stone touches the
+            # tangent plane at its closest point (exact on a plane, conservative on convex
+            # parts; a concave overshoot is put back onto the surface when the contact opens)
+            fin = np.isfinite(gap) & ~in_contact & (gap > eps)
+            if fin.any():
+                fi = np.flatnonzero(fin)
+                j = near[fi]
+                dvec = self.pos[j] - point[fi]
+                nrm = dvec / np.maximum(np.sqrt(np.einsum("ij,ij->i", dvec, dvec)), 1e-300)[:, None]
+                w = -np.einsum("ij,ij->i", self.vel[j], nrm)  # approach speed
+                an = -np.einsum("ij,ij->i", self._accel(j), nrm)
+                hits = (w > 0) & (gap[fi] < w * h + 0.5 * np.abs(an) * h * h)
+                if hits.any():
+                    wh, gh, ah = w[hits], gap[fi][hits], an[hits]
+                    # gap = w t + a t^2 / 2 (smallest positive root)
+                    disc = np.sqrt(np.maximum(wh * wh + 2.0 * ah * gh, 0.0))
+                    t_hit = 2.0 * gh / np.maximum(wh + disc, 1e-12)
+                    h = float(min(h, max(t_hit.min(), self._hmin)))
+            new = ~in_contact & (tri >= 0) & (gap < eps)
+            if new.any():
+                # open only stones that approach the (local) surface or overlap it
+                nn = np.flatnonzero(new)
+                dvec = self.pos[near[nn]] - point[nn]
+                nrm = dvec / np.maximum(np.linalg.norm(dvec, axis=1, keepdims=True), 1e-300)
+                vn = np.einsum("ij,ij->i", self.vel[near[nn]], nrm)
+                new[nn] = (vn < 0) | (gap[nn] < -eps[nn])
+        else:
+            new = ~in_contact & (dist < self.radius[near]) & (tri >= 0)
+        if self._toi and qi.size:
+            # gap predictions for the next sub-step of this step (free stones that stay free)
+            # (nothing within the query's reach: the gap is at least reach - r)
+            gap_lb = np.where(np.isfinite(gap), gap, qreach - self.radius[near])
+            keepf = ~in_contact & ~new & np.isfinite(gap_lb)
+            fi = np.flatnonzero(keepf)
+            if fi.size:
+                j = near[fi]
+                okp = np.isfinite(point[fi]).all(axis=1)
+                dvec = self.pos[j] - np.where(okp[:, None], point[fi], self.pos[j])
+                nrm = dvec / np.maximum(np.sqrt(np.einsum("ij,ij->i", dvec, dvec)), 1e-300)[:, None]
+                w = np.maximum(-np.einsum("ij,ij->i", self.vel[j], nrm), 0.0)
+                sp = np.sqrt(np.einsum("ij,ij->i", self.vel[j], self.vel[j]))
+                w = np.where(okp, w, sp)  # predicted stones: no closest point, use |v|
+                self._pgap[j] = gap_lb[fi] - w * h - GRAVITY * h * h
+                self._pstamp[j] = self.stats["substeps"] + 1
+                self._pred_umax = self.umax
         self.ctri[near[new]] = tri[new]
         self.cbary[near[new]] = bary[new]
-        # time-of-impact correction: a stone that opens a contact while approaching is put
-        # back onto the deformed surface (it overshot by at most one sub-step's travel)
         if new.any():
             j = near[new]
             nrm = self.index.normals[self.ctri[j]]
-            approaching = np.einsum("ij,ij->i", self.vel[j], nrm) < 0
-            depth = np.clip(-self.gap[j], 0.0, None) * approaching
-            self.pos[j] += depth[:, None] * nrm
+            if self._toi:
+                # put the stone on the deformed surface (it is within eps of it)
+                self.pos[j] -= gap[new][:, None] * nrm
+            else:
+                # a stone that opens a contact while approaching is put back onto the deformed
+                # surface (it overshot by at most one sub-step's travel)
+                approaching = np.einsum("ij,ij->i", self.vel[j], nrm) < 0
+                depth = np.clip(-gap[new], 0.0, None) * approaching
+                self.pos[j] += depth[:, None] * nrm
         # (c) hard walls
         opened = near[(self.ctri[near] >= 0)]
         wall = opened[~self.soft[self.ctri[opened]]]
         if wall.size:
             j = np.searchsorted(near, wall)
             dvec = self.pos[wall] - point[j]
-            dist = np.linalg.norm(dvec, axis=1, keepdims=True)
-            nrm = np.where(dist > 1e-12, dvec / np.maximum(dist, 1e-300), self.index.normals[self.ctri[wall]])
-            self.pos[wall] += np.clip(self.radius[wall][:, None] - dist, 0.0, None) * nrm
+            dw = np.linalg.norm(dvec, axis=1, keepdims=True)
+            nrm = np.where(dw > 1e-12, dvec / np.maximum(dw, 1e-300), self.index.normals[self.ctri[wall]])
+            self.pos[wall] += np.clip(self.radius[wall][:, None] - dw, 0.0, None) * nrm
             vn = np.einsum("ij,ij->i", self.vel[wall], nrm)
             imp = vn < 0
             self.vel[wall] -= ((1.0 + sc.restitution) * np.minimum(vn, 0.0))[:, None] * nrm
@@ -592,7 +780,10 @@ class Storm:
             self.ctri[wall] = -1
         soft = near[self.ctri[near] >= 0]
         # (d) soft contacts through the capacitance
-        free = np.setdiff1d(near, soft, assume_unique=True)
+        if soft.size < near.size:
+            free = near[self.ctri[near] < 0] if soft.size else near
+        else:
+            free = near[:0]
         if soft.size:
             tris = self.ctri[soft]
             key = tuple(zip(soft.tolist(), tris.tolist()))
@@ -602,34 +793,54 @@ class Storm:
             s = soft.size
             acc = self._accel(soft)
             m = self.mass[soft]
+            nk = cc.normals
             if sc.mode == "frictionless":
-                nk = cc.normals
                 q = np.einsum("ij,ij->i", nk, self.pos[soft])
                 a = np.einsum("ij,ij->i", nk, cc.X) + self.radius[soft]
                 vq = np.einsum("ij,ij->i", nk, self.vel[soft])
                 gq = np.einsum("ij,ij->i", nk, acc)
-                mq, group, wts = m, np.arange(s), None
+                mq, group, wts = m, None, None
             else:
-                nk = cc.normals
                 q = self.pos[soft].ravel()
                 a = (cc.X + self.radius[soft][:, None] * nk).ravel()
                 vq = self.vel[soft].ravel()
                 gq = acc.ravel()
                 mq, group, wts = np.repeat(m, 3), np.repeat(np.arange(s), 3), nk.ravel()
-            C = damping_coefficients(cc.K, mq, sc.restitution, dt=h, integrator=sc.integrator)
+            always = None
+            if sc.integrator == "exact":
+                C = self._damping(cc, mq)
+                # resting contacts (oscillation amplitude below rest_speed): the dashpot acts
+                # both ways, no switching events; the residual oscillation decays
+                kd = np.clip(np.diag(cc.K), 0.0, None)
+                if sc.mode == "sticky":
+                    kd = kd.reshape(-1, 3).max(axis=1)
+                om = np.sqrt(kd / m)
+                vn = np.einsum("ij,ij->i", self.vel[soft], nk)
+                ubar = np.einsum("ij,ij->i", self.pos[soft] - cc.X, nk) - self.radius[soft]
+                u_eq = np.einsum("ij,ij->i", acc, nk) * m / np.maximum(kd, 1e-300)
+                rest = np.hypot(vn, om * (ubar - u_eq)) < sc.rest_speed
+                always = rest if sc.mode == "frictionless" else np.repeat(rest, 3)
+            else:
+                C = damping_coefficients(cc.K, mq, sc.restitution, dt=h, integrator=sc.integrator)
             res = contact_step(q, vq, a, mq, gq, h, K=cc.K, W=cc.W, damping=C, integrator=sc.integrator,
-                               unilateral=sc.unilateral, group=group, normal_of=wts)
+                               unilateral=sc.unilateral, group=group, normal_of=wts, always_damped=always)
             if sc.mode == "frictionless":
-                vfree = self.vel[soft] + h * acc
-                vnew = vfree + (res.v - np.einsum("ij,ij->i", nk, vfree))[:, None] * nk
+                # tangential motion: free (constant acceleration); normal: the contact step
+                vt0 = self.vel[soft] - vq[:, None] * nk
+                at = acc - gq[:, None] * nk
+                vnew = vt0 + h * at + res.v[:, None] * nk
+                pnew = (self.pos[soft] - q[:, None] * nk + h * vt0 + 0.5 * h * h * at + res.q[:, None] * nk)
                 fvec = res.seat_force[:, None] * nk
                 active_c = res.active
                 ubar_n = res.q - a
             else:
                 vnew = res.v.reshape(s, 3)
+                pnew = res.q.reshape(s, 3)
                 fvec = res.seat_force.reshape(s, 3)
                 active_c = res.active.reshape(s, 3).all(axis=1)
                 ubar_n = np.einsum("ij,ij->i", (res.q - a).reshape(s, 3), nk)
+            if sc.integrator != "exact":
+                pnew = self.pos[soft] + h * vnew  # (semi-)implicit position update
             # impacts: contacts that opened in this sub-step and push
             fresh = active_c & ~was_open[np.searchsorted(near, soft)]
             if fresh.any():
@@ -637,11 +848,11 @@ class Storm:
                 self.stats["impacts"] += int((vn_in < -sc.rest_speed).sum())
                 self.hit[soft[fresh]] = True
             self.vel[soft] = vnew
-            self.pos[soft] += h * vnew
+            self.pos[soft] = pnew
             self.ctri[soft[~active_c]] = -1
             self.lam = res.seat_force
-            self.u = (cc.Gu @ res.seat_force).reshape(self.n, 3)
-            fmag = np.linalg.norm(fvec, axis=1)
+            self._set_forces(cc, res.seat_force)
+            fmag = np.sqrt(np.einsum("ij,ij->i", fvec, fvec))
             self.stats["max_contact_force"] = max(self.stats["max_contact_force"], float(fmag.max()))
             if active_c.any():
                 self.stats["max_indentation_m"] = max(self.stats["max_indentation_m"], float(-ubar_n[active_c].min()))
@@ -649,18 +860,24 @@ class Storm:
         else:
             self.cache = None
             self.lam = np.zeros(0)
-            self.u[:] = 0.0
-        self.umax = float(np.sqrt((self.u**2).sum(axis=1).max())) if self.n else 0.0
+            self._set_forces(None, self.lam)
         if free.size:
             self.pos[free], self.vel[free] = free_flight(self.pos[free], self.vel[free], h,
                                                          accel=self._accel(free) - self.g, g=GRAVITY)
         self.stats["substeps"] += 1
+        return h
+
+    def _damping(self, cc: _ContactCache, mq: np.ndarray) -> np.ndarray:
+        """Exact-integrator dashpot of a contact set (cached with the set)."""
+        if cc.C is None or cc.C.shape != mq.shape:
+            cc.C = damping_coefficients(cc.K, mq, self.scene.restitution, integrator="exact")
+        return cc.C
 
     def _substep_size(self, near: np.ndarray, h_left: float) -> float:
         sc = self.scene
         h = h_left
-        if not sc.adaptive:
-            return h
+        if not sc.adaptive or sc.integrator == "exact":
+            return h  # exact: no stability/accuracy limit; impacts are caught by time of impact
         hmin = sc.dt / sc.max_substeps
         speed = np.linalg.norm(self.vel[near], axis=1)
         # gap unknown (inf: just became near) counts as close
@@ -696,52 +913,113 @@ class Storm:
         return float(min(max(h, hmin), h_left))
 
     # -- the step ------------------------------------------------------------------
+    def _near_set(self, live: np.ndarray, dt: float) -> np.ndarray:
+        """Stones that may touch the seat within this step (conservative advancement).
+
+        Every stone carries a ``budget``: a lower bound of its distance to the
+        deformed surface, valid while ``|u| <= umax_i`` (the displacement bound
+        it was measured with; if the seat's ``umax`` grows beyond it the budget
+        shrinks by the difference). Flying stones spend it by what they can
+        travel in a step; only when it runs out is the distance re-measured (a
+        k-d tree query). Stones with budget left are not collision-tested.
+        """
+        v = self.vel[live]
+        travel = np.sqrt(np.einsum("ij,ij->i", v, v)) * dt + GRAVITY * dt * dt + 1e-4
+        U = 1.5 * self._umax_step
+        inc = U - self._bud_u[live]
+        if np.any(inc > 0):
+            self.budget[live] -= np.clip(inc, 0.0, None)
+            self._bud_u[live] = np.maximum(self._bud_u[live], U)
+        b = self.budget[live]
+        incontact = self.ctri[live] >= 0
+        chk = (b <= travel) | incontact
+        if chk.any():
+            check = live[chk]
+            d, _ = self.index.tree.query(self.pos[check], k=1)
+            lb = d - self.index.sample_radius - self.radius[check] - U - 1e-4
+            self.budget[check] = lb
+            self._bud_u[check] = U
+            b = self.budget[live]
+        near_m = (b <= travel) | incontact
+        # flying stones spend their budget
+        self.budget[live[~near_m]] -= travel[~near_m]
+        return live[near_m]
+
     def step(self) -> None:
         """Advance the storm by one step ``dt``."""
         sc = self.scene
         dt = sc.dt
         self._spawn_until(self.t + dt)
-        live = np.flatnonzero(self.alive)
+        live = self._live
+        if live is None:
+            live = self._live = np.flatnonzero(self.alive)
         if live.size:
-            speed = np.linalg.norm(self.vel[live], axis=1)
-            grow = self.radius[live] + speed * dt + self.umax + 1e-3
-            p = self.pos[live]
-            near_mask = np.all((p + grow[:, None] >= self.lo) & (p - grow[:, None] <= self.hi), axis=1)
-            near_mask |= self.ctri[live] >= 0
-            near, far = live[near_mask], live[~near_mask]
+            near = self._near_set(live, dt)
+            if near.size == live.size:
+                far = live[:0]
+            elif near.size:
+                far = live[~np.isin(live, near, assume_unique=True)]
+            else:
+                far = live
         else:
             near = far = live
         if far.size:
+            self._pstamp[far] = -1  # gap predictions are for near stones that stay near
             self.pos[far], self.vel[far] = free_flight(self.pos[far], self.vel[far], dt,
                                                        accel=self._accel(far) - self.g, g=GRAVITY)
             self.gap[far] = np.inf
         if near.size:
+            # one query per step for every near stone: the penetration of the deformed
+            # surface (sphere vs surface) for the record, reused by the first sub-step
+            # (free stones, with this step's reach; contact stones within r)
+            # (free stones whose predicted gap shows they cannot touch in this step are skipped)
+            vv = self.vel[near]
+            sp = np.sqrt(np.einsum("ij,ij->i", vv, vv))
+            free_m = self.ctri[near] < 0
+            pg = self._pgap[near] - abs(self.umax - self._pred_umax)
+            skip = free_m & (self._pstamp[near] == self.stats["substeps"]) & (pg > sp * dt + GRAVITY * dt * dt + 1e-4)
+            qs = near[~skip] if skip.any() else near
+            free_m = free_m[~skip] if skip.any() else free_m
+            reach = self.radius[qs] + np.where(free_m, sp[~skip] * dt + 1e-3, 0.0)
+            qf = self._query(qs, reach)
+            self._last_query = (self.stats["substeps"], qs, np.where(free_m, reach, -1.0), qf)
+            pen = self.radius[qs] - qf.distance
+            fin = np.isfinite(pen)
+            if fin.any():
+                self.stats["max_penetration_m"] = max(self.stats["max_penetration_m"], float(pen[fin].max()))
+                inc = ~free_m & fin
+                if inc.any():
+                    key = "max_penetration_contact_m"
+                    self.stats[key] = max(self.stats[key], float(pen[inc].max()))
+                if (fin & free_m).any():
+                    key = "max_penetration_free_m"
+                    self.stats[key] = max(self.stats[key], float(pen[fin & free_m].max()))
             t_left = dt
-            while t_left > 1e-15 * dt:
+            n_sub = 0
+            while t_left > 1e-12 * dt:
                 h = self._substep_size(near, t_left)
-                self._substep(near, h)
+                if n_sub >= 4 * self.scene.max_substeps:
+                    h = t_left  # safety net: never stall
+                h = self._substep(near, h)
                 t_left -= h
-        else:
+                n_sub += 1
+        elif self._fv is not None:
             self.cache = None
-            self.u[:] = 0.0
-            self.umax = 0.0
-        if near.size:
-            # penetration of the deformed surface (sphere vs surface), for the record
-            q = self.index.query(self.pos[near], self.radius[near], deformed=self.X + self.u, max_displacement=self.umax)
-            pen = self.radius[near] - q.distance
-            if np.isfinite(pen).any():
-                self.stats["max_penetration_m"] = max(self.stats["max_penetration_m"], float(np.nanmax(np.where(np.isfinite(pen), pen, -np.inf))))
+            self._set_forces(None, np.zeros(0))
         # retire stones that left the seat's region
         if live.size:
             p = self.pos[live]
+            r = self.radius[live][:, None]
             gone = (p[:, 2] < self.lo[2] - sc.margin) | np.any(
-                (p[:, :2] < self.lo[:2] - 2 * sc.margin - self.radius[live][:, None])
-                | (p[:, :2] > self.hi[:2] + 2 * sc.margin + self.radius[live][:, None]), axis=1) & (p[:, 2] < self.hi[2])
+                (p[:, :2] < self.lo[:2] - 2 * sc.margin - r)
+                | (p[:, :2] > self.hi[:2] + 2 * sc.margin + r), axis=1) & (p[:, 2] < self.hi[2])
             if gone.any():
                 g = live[gone]
                 self.alive[g] = False
                 self.ctri[g] = -1
+                self._live = None
                 self.stats["retired"] += int(gone.sum())
+        self._umax_step = self.umax
         self.t += dt
         self.stats["steps"] += 1
 
@@ -800,6 +1078,9 @@ def run_storm(
         from tqdm.auto import tqdm
 
         bar = tqdm(total=n_steps, desc="hail storm", unit="step", leave=False)
+    from threadpoolctl import threadpool_limits
+
+    limiter = threadpool_limits(1)  # small dense solves: threaded BLAS only adds overhead
     wall0 = time.perf_counter()
     for i in range(n_steps):
         storm.step()
@@ -813,6 +1094,7 @@ def run_storm(
         elif callable(progress):
             progress(storm.t, scene.duration)
     wall = time.perf_counter() - wall0
+    limiter.restore_original_limits()
     if bar is not None:
         bar.close()
     st = storm.stats

@@ -76,6 +76,48 @@ def test_storm_reproducible(gf, short_storm):
     assert np.array_equal(again.frames[-1].positions, short_storm.frames[-1].positions)
 
 
+@pytest.fixture(scope="module")
+def exact_storm(gf):
+    sc = Scene(duration=0.1, stones=12, seed=7, spawn_height=0.02, r_min=0.003, r_max=0.008, fps=100.0,
+               integrator="exact", dt=5e-4)
+    return run_storm(gf, sc, progress=False)
+
+
+def test_exact_storm_no_nan_bounded_penetration_reproducible(gf, exact_storm):
+    st = exact_storm.stats
+    assert st["hailstones"] == 12 and st["impacts"] >= 5
+    for f in exact_storm.frames:
+        assert np.all(np.isfinite(f.displacement)) and np.all(np.isfinite(f.positions))
+    assert st["max_penetration_m"] < 0.05 * 0.003  # same tolerance as the implicit storm
+    assert st["substeps"] < 2 * st["steps"]  # no omega-dt sub-steps: only time-of-impact splits
+    again = run_storm(gf, exact_storm.scene, progress=False)
+    assert np.array_equal(again.frames[-1].positions, exact_storm.frames[-1].positions)
+    assert np.array_equal(again.frames[-1].displacement, exact_storm.frames[-1].displacement)
+
+
+def test_frame_displacement_is_the_full_surface_response(gf, exact_storm):
+    """Only candidate vertices are deformed in the loop; the recorded frame is the
+    full-surface response D[:, V] B f of the contact forces at that instant."""
+    sc = exact_storm.scene
+    st = Storm(gf, sc)
+    while st.t < 0.1 - 1e-12:
+        st.step()
+        ids, f = st.contact_forces()
+        if ids.size:
+            break
+    assert ids.size
+    cc = st.cache
+    keep = st.ctri[cc.stones] >= 0
+    u_ref = np.zeros((st.n, 3))
+    for k in np.flatnonzero(keep):  # superpose the point-force responses
+        fk = f[np.flatnonzero(ids == cc.stones[k])[0]]  # force on the seat
+        u_ref += gf.displacement(gf.triangles[cc.tris[k]], np.outer(cc.bary[k], fk))
+    assert np.allclose(st.frame().displacement, u_ref, rtol=1e-4, atol=1e-9)
+    # and a local evaluation agrees with the full one
+    v = np.arange(0, st.n, 7)
+    assert np.allclose(st._u_at(v), st.u[v])
+
+
 def test_storm_sticky_symplectic_runs(gf):
     sc = Scene(duration=0.03, stones=4, seed=1, spawn_height=0.01, mode="sticky", integrator="symplectic", r_min=0.004)
     res = run_storm(gf, sc, progress=False)
@@ -126,3 +168,42 @@ def test_short_storm_on_the_seat(seat_bundle):
     assert all(np.all(np.isfinite(f.displacement)) for f in res.frames)
     assert st["max_penetration_m"] < 0.25 * sc.r_min  # curved seat, coarse dents: looser than the plate
     assert np.isfinite(st["max_contact_force"]) and st["max_contact_force"] > 0
+
+
+def test_closest_point_and_index_match_brute_force(gf):
+    """Narrow phase: the vectorised closest point (against dense sampling of each
+    triangle) and the sampled k-d index query (against all triangles), including the
+    ball-query fallback and a local displacement callback."""
+    from runtime.collide import SurfaceIndex, closest_point_on_triangles
+
+    rng = np.random.default_rng(0)
+    A, B, C, P = (rng.normal(size=(300, 3)) for _ in range(4))
+    cp, bc = closest_point_on_triangles(P, A, B, C)
+    assert np.all(bc >= 0) and np.allclose(bc.sum(axis=1), 1.0)
+    uv = rng.random((4000, 2))
+    uv = np.where(uv.sum(axis=1, keepdims=True) > 1, 1 - uv, uv)
+    for i in range(300):
+        S = A[i] + uv[:, :1] * (B[i] - A[i]) + uv[:, 1:] * (C[i] - A[i])
+        assert np.linalg.norm(cp[i] - P[i]) <= np.linalg.norm(S - P[i], axis=1).min() + 1e-12
+    # a lifted, bumpy copy of the plate (a non-flat surface) and brute force over all triangles
+    V = gf.vertices.copy()
+    V[:, 2] = 0.01 * np.sin(40 * V[:, 0]) * np.cos(30 * V[:, 1])
+    T = np.asarray(gf.triangles)
+    u = np.zeros_like(V)
+    u[:, 2] = -0.002 * np.exp(-((V[:, 0] - 0.06) ** 2 + V[:, 1] ** 2) / 2e-4)
+    Q = rng.uniform(V.min(axis=0) - 0.01, V.max(axis=0) + 0.01, (200, 3))
+    reach = rng.uniform(0.001, 0.03, 200)
+    for knn in (48, 3):  # 3: every query takes the ball-query fallback
+        idx = SurfaceIndex(V, T)
+        idx.KNN = knn
+        for disp in (None, lambda v: u[v]):
+            q = idx.query(Q, reach, displacement=disp, max_displacement=0.002 if disp else 0.0)
+            X = V + (u if disp else 0.0)
+            assert np.isfinite(q.distance).sum() > 30  # the test sees hits and misses
+            for i in range(200):
+                cpi, _ = closest_point_on_triangles(np.repeat(Q[i:i + 1], len(T), 0), X[T[:, 0]], X[T[:, 1]], X[T[:, 2]])
+                d = np.linalg.norm(cpi - Q[i], axis=1).min()
+                if d <= reach[i]:
+                    assert q.distance[i] == pytest.approx(d, rel=1e-9, abs=1e-12)
+                else:
+                    assert q.triangle[i] == -1 and np.isinf(q.distance[i])
