@@ -35,7 +35,7 @@ Algorithm of one step (``dt`` = :attr:`Scene.dt`)
    c. contacts on triangles that cannot deform (all clamped, or without
       compliance columns) are a hard wall (projection + restitution);
    d. the other contacts share one capacitance (``runtime.contact``), rebuilt
-      only when the set of (stone, triangle) pairs changes; the stones are
+      only when the set of (stone, triangle[, patch radius]) changes; the stones are
       advanced by :func:`runtime.hail.contact_step` with unilateral release.
       ``integrator = "exact"`` solves the damped linear contact dynamics in
       closed form over the whole sub-step (maximum compression and release
@@ -45,6 +45,37 @@ Algorithm of one step (``dt`` = :attr:`Scene.dt`)
    e. the seat's state is the vertex-force vector ``B f``; the full-surface
       displacement ``u = D[:, V] B f`` is formed only for frames (:attr:`Storm.u`).
 4. Retire stones that left the seat's region; record a frame if one is due.
+
+Patch contacts (``patch = "hertz"``, the default)
+-------------------------------------------------
+Each soft contact spreads its force over a disc of radius ``a`` around the
+contact point, with the Hertz pressure profile (consistent P1 nodal loads,
+:func:`runtime.weights.patch_weights`); the contact prescribes the
+pressure-weighted mean normal displacement of the surface under the disc
+(measured from the tangent plane at the contact point), which the stone's
+lowest point follows. ``patch = "none"`` gives the point contacts of the
+course hint (barycentric weights on one triangle).
+
+* Radius: ``a = hertz_radius(F_peak, R, E, nu)`` clipped to
+  ``[patch_min_radius, R]``, with ``F_peak`` the peak force of the contact's
+  current oscillation about its static equilibrium,
+  ``F_eq + sqrt((F - F_eq)^2 + k m v_n^2)`` (``F`` the previous sub-step's
+  force, ``k`` the contact's stiffness). For a new contact (``F = 0``) this is
+  the impact's expected peak force, with the stiffness of the patch itself
+  (one fixed-point iteration from the triangle's point stiffness). The
+  estimate is nearly constant during an impact, so the disc is sized for the
+  deepest dent and the contact keeps one set of weights for the whole impact.
+* Rebuilds: a contact is re-weighted (and the capacitance rebuilt) only when
+  its target radius grows by more than ``patch_tolerance`` (20%), or shrinks
+  by more than that *once the stone rests* (oscillation amplitude below
+  ``rest_speed``): re-weighting during a rebound would change the stiffness
+  that the damping was tuned for (the restitution), while the damping itself
+  halves the amplitude within one impact.
+* Caching: a contact keeps ``(triangle, beta)`` while its stone stays over
+  the triangle, so its weights are cached per stone (``_patch_weights``) and
+  only recomputed when the contact moves to another triangle or is resized;
+  a capacitance rebuild (set change) reuses the cached weights of every other
+  contact.
 
 Adaptive sub-steps for ``"implicit"``/``"symplectic"`` (``adaptive = true``):
 the sub-step is also limited so that a stone approaching the surface travels
@@ -58,10 +89,13 @@ resting contact's dashpot as acting both ways (no switching events).
 Penetration: a flying stone never enters the deformed surface by more than
 the contact-opening gap (1% of its radius) when ``adaptive = true``
 (``max_penetration_free_m``). A stone *in contact* overlaps the piecewise-linear
-dent around its point load (``max_penetration_contact_m``): the contact point
-follows the stone exactly, but the dent's triangles tilt into the sphere's cap;
-this is a property of the point-contact model (see DESIGN: vertex pressure
-masks), not of the time integration.
+dent around its load (``max_penetration_contact_m``, also relative to the
+stone's radius and as a mean over contact steps): with point contacts the
+contact point follows the stone exactly, but the dent is a one-vertex spike
+whose triangles tilt into the sphere's cap; a patch contact spreads the load
+over the disc and the dent follows the sphere much more closely. This is a
+property of the contact model (see DESIGN: vertex pressure masks), not of the
+time integration.
 
 BLAS runs single-threaded inside :func:`run_storm` (``threadpoolctl``): the
 dense solves are tiny and threaded BLAS on a shared machine only adds latency.
@@ -104,7 +138,7 @@ class SceneError(ValueError):
 _SECTIONS: dict[str, tuple[str, ...]] = {
     "storm": ("duration", "rate", "stones", "seed", "spawn_height", "margin", "wind"),
     "hail": ("distribution", "r_min", "r_max", "scale", "density", "drag", "cd", "rho_air"),
-    "contact": ("mode", "unilateral", "restitution"),
+    "contact": ("mode", "unilateral", "restitution", "patch", "patch_min_radius", "patch_tolerance"),
     "time": ("dt", "integrator", "adaptive", "omega_dt", "approach_fraction", "max_substeps", "rest_speed"),
     "output": ("fps",),
     "seat": ("mesh_size", "order", "young", "poisson"),
@@ -150,6 +184,24 @@ class Scene:
     restitution : float
         Target coefficient of restitution of an impact (0..1), realised by a
         contact damping (see :func:`runtime.hail.damping_coefficients`).
+    patch : {"hertz", "none"}
+        Force distribution of a soft contact. ``"hertz"`` (default): a patch
+        contact, the stone's force spread over a disc with the Hertz pressure
+        profile (:func:`runtime.weights.patch_weights`), of radius
+        :func:`runtime.weights.hertz_radius` of the contact's *peak* force
+        (see the module notes); ``"none"``: a point contact (barycentric
+        weights on the contacted triangle; the dent is a one-vertex spike).
+    patch_min_radius : float
+        Floor of the patch radius [m] (default 1 mm: the Hertz radius of the
+        smallest default stone, 2.5 mm, resting under its own weight on the
+        2 MPa seat is 0.8 mm, so the floor only acts on contacts that are
+        opening or closing). A length, not a fraction of the mesh size: the
+        contact model must not change with the mesh.
+    patch_tolerance : float
+        Relative change of a contact's target radius that re-weights it
+        (default 0.2: 20%). Within it the contact keeps its weights and the
+        capacitance is not rebuilt (a 20% radius error changes the patch's
+        stiffness by ~20% but the radius itself only as ``F^(1/3)``).
     dt : float
         Step [s] (frame/broad-phase step; near stones may be sub-stepped).
     integrator : {"implicit", "symplectic", "exact"}
@@ -193,6 +245,9 @@ class Scene:
     mode: str = "frictionless"
     unilateral: bool = True
     restitution: float = 0.5
+    patch: str = "hertz"
+    patch_min_radius: float = 1e-3
+    patch_tolerance: float = 0.2
     dt: float = 2e-4
     integrator: str = "implicit"
     adaptive: bool = True
@@ -215,7 +270,7 @@ class Scene:
         for name in ("duration", "dt", "spawn_height", "omega_dt", "approach_fraction", "fps", "density", "cd", "rho_air",
                      "mesh_size", "young"):
             positive(name)
-        for name in ("rate", "margin", "rest_speed"):
+        for name in ("rate", "margin", "rest_speed", "patch_min_radius", "patch_tolerance"):
             positive(name, allow_zero=True)
         for name in ("drag", "unilateral", "adaptive"):
             if not isinstance(getattr(self, name), bool):
@@ -232,6 +287,8 @@ class Scene:
             raise SceneError(f"poisson must satisfy -1 < poisson < 0.5, got {self.poisson!r}")
         if self.mode not in ("frictionless", "sticky"):
             raise SceneError(f"mode must be 'frictionless' or 'sticky', got {self.mode!r}")
+        if self.patch not in ("hertz", "none"):
+            raise SceneError(f"patch must be 'hertz' or 'none', got {self.patch!r}")
         if self.integrator not in ("implicit", "symplectic", "exact"):
             raise SceneError(f"integrator must be 'implicit', 'symplectic' or 'exact', got {self.integrator!r}")
         if isinstance(self.restitution, bool) or not isinstance(self.restitution, (int, float)) or not 0.0 <= self.restitution <= 1.0:
@@ -396,7 +453,11 @@ class _ContactCache:
     tris: np.ndarray
     bary: np.ndarray
     normals: np.ndarray
-    X: np.ndarray  # undeformed contact points (s, 3)
+    X: np.ndarray  # undeformed contact points (s, 3) (the patch centres)
+    rest: np.ndarray  # (s,) distance along the normal from the reference point to the stone's centre at contact
+    patch_radius: np.ndarray  # (s,) patch radius [m] (0: point contact)
+    verts: np.ndarray  # (s, P) vertices carrying each contact's force
+    weights: np.ndarray  # (s, P) their weights (B: block (verts[k, p], k) = weights[k, p] I3)
     C: np.ndarray | None = None  # exact-integrator dashpot (cached)
 
 
@@ -439,6 +500,10 @@ class Storm:
         self.gap = np.zeros(0)  # last known distance to the surface minus radius
         self.hit = np.zeros(0, dtype=bool)
         self.near_tri = np.zeros(0, dtype=np.intp)  # closest triangle at the last query
+        # patch contacts: radius of each stone's contact (0: none yet) and its cached weights
+        self._patch = scene.patch != "none"
+        self.crad = np.zeros(0)
+        self._wcache: dict[int, tuple[int, bytes, float, np.ndarray, np.ndarray]] = {}
         self._k_tri: dict[int, float] = {}
         # seat state: the contact forces at the loaded vertices; the displacement is
         # evaluated only where needed (candidate triangles, frames)
@@ -473,7 +538,10 @@ class Storm:
             hailstones=0, impacts=0, stones_hit=0, max_contact_force=0.0, max_indentation_m=0.0,
             max_simultaneous_contacts=0, max_penetration_m=0.0, steps=0, substeps=0,
             capacitance_rebuilds=0, wall_contacts=0, retired=0, queries_reused=0, queries_predicted=0,
-            max_penetration_contact_m=0.0, max_penetration_free_m=0.0,
+            max_penetration_contact_m=0.0, max_penetration_free_m=0.0, max_penetration_contact_rel=0.0,
+            _pen_contact_sum=0.0, _pen_contact_n=0,
+            patch=scene.patch, patch_weights_computed=0, patch_weights_reused=0, patch_resizes=0,
+            max_patch_radius_m=0.0,
         )
         self._pending = self._plan_spawns() if spawn else np.zeros((0, 8))
         self._next_pending = 0
@@ -511,6 +579,7 @@ class Storm:
         self.gap = np.concatenate([self.gap, np.full(k, np.inf)])
         self.hit = np.concatenate([self.hit, np.zeros(k, dtype=bool)])
         self.near_tri = np.concatenate([self.near_tri, np.full(k, -1, dtype=np.intp)])
+        self.crad = np.concatenate([self.crad, np.zeros(k)])
         self.budget = np.concatenate([self.budget, np.zeros(k)])
         self._bud_u = np.concatenate([self._bud_u, np.zeros(k)])
         self._pgap = np.concatenate([self._pgap, np.zeros(k)])
@@ -536,24 +605,178 @@ class Storm:
         return a
 
     # -- contacts ----------------------------------------------------------------
-    def _build_cache(self, stones: np.ndarray, tris: np.ndarray, bary: np.ndarray) -> _ContactCache:
-        normals = self.index.normals[tris]
-        cap = _contact.capacitance(self.gf, tris, bary, normals=normals, mode=self.scene.mode)
-        W = np.asarray(cap.W)
-        if np.any(cap.rigid):
-            raise RuntimeError("rigid contacts must be filtered before the capacitance")  # pragma: no cover
+    def _build_cache(self, stones: np.ndarray, tris: np.ndarray, bary: np.ndarray, key: tuple,
+                     radius: np.ndarray | None = None) -> _ContactCache:
+        """The capacitance of the soft contacts ``stones`` (point contacts, or patches of ``radius``)."""
+        from runtime.contact_capacitance import _contact_compliance, _rigid
+        from runtime.gather import _column_dofs, _dof3, _gather
         from runtime.hail import _inv_spd
+        from runtime.weights import _dense_B, _locate_lists
 
+        gf, mode = self.gf, self.scene.mode
+        normals = self.index.normals[tris]
+        s = stones.size
+        if radius is None:
+            verts, w = np.asarray(gf.triangles)[tris], bary
+            radius = np.zeros(s)
+        else:
+            verts, w = self._patch_weights(stones, tris, bary, radius, normals)
+        V, loc = _locate_lists(verts)
+        D_VV = _gather(gf, _dof3(V), _column_dofs(gf, V))
+        W = _contact_compliance(D_VV, loc, w, normals, mode)
+        if np.any(_rigid(gf, verts, w)):
+            raise RuntimeError("rigid contacts must be filtered before the capacitance")  # pragma: no cover
         K = _inv_spd(W)
-        G = np.asarray(cap.G)  # (3|V|, m) vertex forces per unit multiplier
-        cb = np.asarray(self.gf.column_of)[cap.V]
+        B = _dense_B(V.size, loc, w)
+        G = B if mode == "sticky" else np.einsum("rkj,kj->rk", B.reshape(B.shape[0], s, 3), normals)
+        cb = np.asarray(gf.column_of)[V]
         live = np.repeat(cb >= 0, 3)
         cols = (3 * cb[:, None] + np.arange(3)).ravel()[live]  # D columns of the loaded dofs
-        X = np.einsum("kj,kjd->kd", bary, self.X[self.gf.triangles[tris]])
+        # reference point: the contact point (the patch centre). A patch contact prescribes the
+        # pressure-weighted mean normal displacement of the surface under the disc, measured from
+        # the tangent plane at the contact point (the plane of the disc): the stone's lowest point
+        # follows it. (Measuring from the weighted mean undeformed surface point sum_p w_p X_p
+        # instead, which lies below the tangent plane on the convex seat, opens every contact with
+        # a small gap: measured restitution 0.488 instead of 0.499 for the single drop.)
+        X = np.einsum("kj,kjd->kd", bary, self.X[gf.triangles[tris]])
         self.stats["capacitance_rebuilds"] += 1
-        key = tuple(zip(stones.tolist(), tris.tolist()))
-        return _ContactCache(key=key, W=W, K=K, G=G[live], cols=cols, DVV=np.asarray(cap.D_VV) @ G, stones=stones,
-                             tris=tris, bary=bary, normals=normals, X=X)
+        return _ContactCache(key=key, W=W, K=K, G=G[live], cols=cols, DVV=D_VV @ G, stones=stones,
+                             tris=tris, bary=bary, normals=normals, X=X, rest=self.radius[stones].copy(),
+                             patch_radius=np.asarray(radius, dtype=np.float64).copy(), verts=verts, weights=w)
+
+    # -- patch contacts ------------------------------------------------------------
+    def _patch_radii(self, stones: np.ndarray, tris: np.ndarray) -> np.ndarray:
+        """Patch radius of each soft contact ``stones`` (updated in :attr:`crad`).
+
+        The radius is the Hertz radius of the contact's *peak* force, estimated
+        from its current state as a linear oscillator about its static
+        equilibrium: ``F_peak = F_eq + sqrt((F - F_eq)^2 + k m v_n^2)``
+        (``F``: the previous sub-step's force on that contact, ``F_eq``: the
+        stone's weight along the normal, ``k``: its stiffness, the diagonal of
+        the current capacitance, or the point stiffness of the triangle for a
+        contact that just opened, whose ``F = 0``: the impact's expected
+        peak). The estimate is (nearly) constant over one impact and tends to
+        the resting force afterwards, so the patch is sized for the deepest
+        dent of the impact and is not re-weighted while the force rises and
+        falls. A contact keeps its radius until the target leaves the band
+        ``[a / (1 + tol), a (1 + tol)]`` (``tol = patch_tolerance``).
+        """
+        sc = self.scene
+        from runtime.weights import hertz_radius
+
+        m, R = self.mass[stones], self.radius[stones]
+        n = self.index.normals[tris]
+        vn = np.einsum("ij,ij->i", self.vel[stones], n)
+        gn = np.einsum("ij,ij->i", self._accel(stones), n)
+        f_eq = m * np.clip(-gn, 0.0, None)
+        k = np.zeros(stones.size)
+        f = np.zeros(stones.size)
+        known = np.zeros(stones.size, dtype=bool)
+        cc = self.cache
+        if cc is not None and cc.stones.size and self.lam.size:
+            order = np.argsort(cc.stones)
+            pos = np.minimum(np.searchsorted(cc.stones[order], stones), cc.stones.size - 1)
+            idx = order[pos]
+            known = cc.stones[idx] == stones
+            if known.any():
+                ik = idx[known]
+                if sc.mode == "frictionless":
+                    k[known] = np.diag(cc.K)[ik]
+                    f[known] = np.abs(self.lam[ik])
+                else:
+                    Kd = np.diag(cc.K).reshape(-1, 3)[ik]
+                    k[known] = np.einsum("ij,ij->i", Kd, n[known] ** 2)
+                    f[known] = np.abs(np.einsum("ij,ij->i", self.lam.reshape(-1, 3)[ik], n[known]))
+        def radius_for(kk: np.ndarray, sel: np.ndarray | slice = slice(None)) -> np.ndarray:
+            kk = np.clip(kk, 0.0, None)
+            fp = f_eq[sel] + np.sqrt((f[sel] - f_eq[sel]) ** 2 + kk * m[sel] * vn[sel] ** 2)
+            a_t = hertz_radius(fp, R[sel], float(self.gf.young), float(self.gf.poisson),
+                               a_min=sc.patch_min_radius, a_max=R[sel])
+            return np.maximum(a_t, sc.patch_min_radius)  # (a stone smaller than the floor: the floor)
+
+        target = np.zeros(stones.size)
+        if known.any():
+            target[known] = radius_for(k[known], known)
+        if (~known).any():
+            # a new contact: the impact's expected peak force with the point stiffness of the
+            # triangle, then once more with the stiffness of that patch alone (the patch is
+            # stiffer than the point; a ~ k^(1/6), so one fixed-point iteration suffices and
+            # the contact is not re-weighted in its second sub-step)
+            nw = ~known
+            a0 = radius_for(self._triangle_stiffness(tris[nw]), nw)
+            k1 = self._patch_stiffness(stones[nw], tris[nw], a0, n[nw])
+            a1 = radius_for(k1, nw)
+            # within the tolerance: keep a0, whose weights are already cached
+            target[nw] = np.where((a1 > a0 * (1.0 + sc.patch_tolerance)) | (a1 * (1.0 + sc.patch_tolerance) < a0), a1, a0)
+        cur = np.where(known, self.crad[stones], 0.0)
+        tol = 1.0 + sc.patch_tolerance
+        # grow at once; shrink only once the stone rests: the contact
+        # damping removes most of an impact's energy while it lasts, and re-weighting during
+        # the rebound would change the stiffness the restitution was tuned for
+        # (resting: the oscillation amplitude about equilibrium, in velocity units, below rest_speed)
+        amp = np.sqrt((f - f_eq) ** 2 / np.maximum(np.clip(k, 0.0, None) * m, 1e-300) + vn * vn)
+        resting = known & (amp < sc.rest_speed)
+        resize = (cur <= 0.0) | (target > cur * tol) | ((target * tol < cur) & resting)
+        self.stats["patch_resizes"] += int((resize & (cur > 0.0)).sum())
+        a = np.where(resize, target, cur)
+        self.crad[stones] = a
+        if a.size:
+            self.stats["max_patch_radius_m"] = max(self.stats["max_patch_radius_m"], float(a.max()))
+        return a
+
+    def _patch_stiffness(self, stones: np.ndarray, tris: np.ndarray, radius: np.ndarray,
+                         normals: np.ndarray) -> np.ndarray:
+        """Normal stiffness ``1 / (g^T D g)`` of each patch contact alone, (s,) [N/m]."""
+        from runtime.gather import _column_dofs, _dof3, _gather
+
+        verts, w = self._patch_weights(stones, tris, self.cbary[stones], radius, normals)
+        k = np.zeros(stones.size)
+        for i in range(stones.size):
+            keep = w[i] > 0.0
+            v, wi = verts[i][keep], w[i][keep]
+            g = (wi[:, None] * normals[i][None, :]).ravel()
+            Dv = _gather(self.gf, _dof3(v), _column_dofs(self.gf, v))
+            c = float(g @ Dv @ g)
+            k[i] = 1.0 / c if c > 0 else 0.0
+        return k
+
+    def _patch_weights(self, stones: np.ndarray, tris: np.ndarray, bary: np.ndarray, radius: np.ndarray,
+                       normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Padded (s, P) vertex lists and weights of patch contacts, cached per stone.
+
+        A contact keeps its ``(triangle, beta)`` while its stone stays over the
+        triangle and its radius while the force stays within the tolerance, so
+        the weights are reused until one of them changes.
+        """
+        from runtime.weights import _pad, patch_weights
+
+        out: list[tuple[np.ndarray, np.ndarray] | None] = [None] * stones.size
+        todo = []
+        for i, (j, t, a) in enumerate(zip(stones.tolist(), tris.tolist(), radius.tolist())):
+            c = self._wcache.get(j)
+            if c is not None and c[0] == t and c[2] == a and c[1] == bary[i].tobytes():
+                out[i] = (c[3], c[4])
+            else:
+                todo.append(i)
+        self.stats["patch_weights_reused"] += stones.size - len(todo)
+        if todo:
+            ti = np.asarray(todo, dtype=np.intp)
+            pv, pw = patch_weights(self.gf, tris[ti], bary[ti], radius[ti], normals[ti], profile="hertz")
+            self.stats["patch_weights_computed"] += ti.size
+            for r, i in enumerate(todo):
+                keep = pw[r] > 0.0
+                v, w = pv[r][keep], pw[r][keep]
+                if v.size == 0:  # pragma: no cover (weights sum to one)
+                    v, w = pv[r][:1], np.ones(1)
+                self._wcache[int(stones[i])] = (int(tris[i]), bary[i].tobytes(), float(radius[i]), v, w)
+                out[i] = (v, w)
+        P = max(3, max(o[0].size for o in out))
+        verts = np.empty((stones.size, P), dtype=np.intp)
+        w = np.zeros((stones.size, P))
+        for i, (v, wi) in enumerate(out):
+            vv, ww = _pad(v[None, :], wi[None, :], P)
+            verts[i], w[i] = vv[0], ww[0]
+        return verts, w
 
     # -- the seat's displacement (only where it is needed) ---------------------------
     def _set_forces(self, cc: _ContactCache | None, lam: np.ndarray) -> None:
@@ -786,9 +1009,14 @@ class Storm:
             free = near[:0]
         if soft.size:
             tris = self.ctri[soft]
-            key = tuple(zip(soft.tolist(), tris.tolist()))
+            if self._patch:
+                rad = self._patch_radii(soft, tris)
+                key = tuple(zip(soft.tolist(), tris.tolist(), rad.tolist()))
+            else:
+                rad = None
+                key = tuple(zip(soft.tolist(), tris.tolist()))
             if self.cache is None or self.cache.key != key:
-                self.cache = self._build_cache(soft, tris, self.cbary[soft].copy())
+                self.cache = self._build_cache(soft, tris, self.cbary[soft].copy(), key, rad)
             cc = self.cache
             s = soft.size
             acc = self._accel(soft)
@@ -796,13 +1024,13 @@ class Storm:
             nk = cc.normals
             if sc.mode == "frictionless":
                 q = np.einsum("ij,ij->i", nk, self.pos[soft])
-                a = np.einsum("ij,ij->i", nk, cc.X) + self.radius[soft]
+                a = np.einsum("ij,ij->i", nk, cc.X) + cc.rest
                 vq = np.einsum("ij,ij->i", nk, self.vel[soft])
                 gq = np.einsum("ij,ij->i", nk, acc)
                 mq, group, wts = m, None, None
             else:
                 q = self.pos[soft].ravel()
-                a = (cc.X + self.radius[soft][:, None] * nk).ravel()
+                a = (cc.X + cc.rest[:, None] * nk).ravel()
                 vq = self.vel[soft].ravel()
                 gq = acc.ravel()
                 mq, group, wts = np.repeat(m, 3), np.repeat(np.arange(s), 3), nk.ravel()
@@ -816,7 +1044,7 @@ class Storm:
                     kd = kd.reshape(-1, 3).max(axis=1)
                 om = np.sqrt(kd / m)
                 vn = np.einsum("ij,ij->i", self.vel[soft], nk)
-                ubar = np.einsum("ij,ij->i", self.pos[soft] - cc.X, nk) - self.radius[soft]
+                ubar = np.einsum("ij,ij->i", self.pos[soft] - cc.X, nk) - cc.rest
                 u_eq = np.einsum("ij,ij->i", acc, nk) * m / np.maximum(kd, 1e-300)
                 rest = np.hypot(vn, om * (ubar - u_eq)) < sc.rest_speed
                 always = rest if sc.mode == "frictionless" else np.repeat(rest, 3)
@@ -904,7 +1132,7 @@ class Storm:
                 omega = np.sqrt(k / self.mass[st])
                 vn = np.einsum("ij,ij->i", self.vel[st], cc.normals)
                 # oscillation amplitude about the static equilibrium, in velocity units
-                ubar = np.einsum("ij,ij->i", self.pos[st] - cc.X, cc.normals) - self.radius[st]
+                ubar = np.einsum("ij,ij->i", self.pos[st] - cc.X, cc.normals) - cc.rest
                 u_eq = np.einsum("j,ij->i", self.g, cc.normals) * self.mass[st] / np.maximum(k, 1e-300)
                 amp = np.hypot(vn, omega * (ubar - u_eq))
                 moving = open_ & ((amp > sc.rest_speed) | (sc.integrator == "symplectic"))
@@ -991,6 +1219,11 @@ class Storm:
                 if inc.any():
                     key = "max_penetration_contact_m"
                     self.stats[key] = max(self.stats[key], float(pen[inc].max()))
+                    rel = pen[inc] / self.radius[qs[inc]]
+                    self.stats["max_penetration_contact_rel"] = max(self.stats["max_penetration_contact_rel"],
+                                                                    float(rel.max()))
+                    self.stats["_pen_contact_sum"] += float(np.clip(pen[inc], 0.0, None).sum())
+                    self.stats["_pen_contact_n"] += int(inc.sum())
                 if (fin & free_m).any():
                     key = "max_penetration_free_m"
                     self.stats[key] = max(self.stats[key], float(pen[fin & free_m].max()))
@@ -1016,6 +1249,8 @@ class Storm:
             if gone.any():
                 g = live[gone]
                 self.alive[g] = False
+                for j in g.tolist():
+                    self._wcache.pop(j, None)
                 self.ctri[g] = -1
                 self._live = None
                 self.stats["retired"] += int(gone.sum())
@@ -1099,6 +1334,8 @@ def run_storm(
         bar.close()
     st = storm.stats
     st["stones_hit"] = int(storm.hit.sum())
+    n_pen = st.pop("_pen_contact_n")
+    st["mean_penetration_contact_m"] = st.pop("_pen_contact_sum") / n_pen if n_pen else 0.0
     st.update(
         sim_time_s=float(storm.t), wall_time_s=float(wall),
         real_time_factor=float(storm.t / wall) if wall > 0 else float("inf"),

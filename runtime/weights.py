@@ -43,6 +43,7 @@ radius ``R`` pressed with force ``F`` on the seat.
 
 from __future__ import annotations
 
+import functools
 import weakref
 from typing import Any
 
@@ -297,8 +298,12 @@ def _triangle_index(gf: Any) -> _TriangleIndex:
     return idx
 
 
+@functools.lru_cache(maxsize=256)
 def _disc_rule(n_r: int, n_t: int, profile: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Unit-disc product rule for ``int f p dA``: (x, y, weight), weights summing to 1."""
+    """Unit-disc product rule for ``int f p dA``: (x, y, weight), weights summing to 1.
+
+    Cached (a handful of ``n_r`` values occur); the arrays are read-only.
+    """
     t, wt = np.polynomial.legendre.leggauss(n_r)
     t = 0.5 * (t + 1.0)
     wt = 0.5 * wt
@@ -309,14 +314,21 @@ def _disc_rule(n_r: int, n_t: int, profile: str) -> tuple[np.ndarray, np.ndarray
     x = (r[:, None] * np.cos(th)[None, :]).ravel()
     y = (r[:, None] * np.sin(th)[None, :]).ravel()
     w = np.repeat(wt, n_t) / (wt.sum() * n_t)
+    for arr in (x, y, w):
+        arr.flags.writeable = False
     return x, y, w
+
+
+def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Cross product of two 3-vectors (np.cross has a large per-call overhead)."""
+    return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
 
 
 def _tangents(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     a = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-    e1 = np.cross(n, a)
-    e1 /= np.linalg.norm(e1)
-    return e1, np.cross(n, e1)
+    e1 = _cross(n, a)
+    e1 /= np.sqrt(e1 @ e1)
+    return e1, _cross(n, e1)
 
 
 def _one_patch(idx: _TriangleIndex, gf: Any, x: np.ndarray, n: np.ndarray, a: float, h: float,

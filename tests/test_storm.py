@@ -25,6 +25,14 @@ def short_storm(gf):
 def test_scene_default_and_round_trip(tmp_path):
     sc = Scene.default()
     assert sc.integrator == "implicit" and sc.mode == "frictionless"
+    # patch contact is the default for hail, in the packaged scene and the dataclass alike
+    assert sc.patch == Scene().patch == "hertz"
+    assert sc.patch_min_radius == Scene().patch_min_radius == 1e-3
+    assert sc.patch_tolerance == Scene().patch_tolerance == 0.2
+    pt = Scene(patch="none", patch_min_radius=5e-4, patch_tolerance=0.5)
+    pp = tmp_path / "point.toml"
+    pt.to_toml(pp)
+    assert Scene.from_toml(pp) == pt
     custom = Scene(duration=0.05, stones=3, seed=11, wind=(1.0, 0.0, 0.0), mode="sticky", integrator="symplectic")
     p = tmp_path / "scene.toml"
     custom.to_toml(p)
@@ -45,6 +53,9 @@ def test_scene_default_and_round_trip(tmp_path):
         ("[time]\nintegrator = 'rk4'\n", "integrator"),
         ("[hail]\nr_min = 0.01\nr_max = 0.005\n", "r_max"),
         ("[storm]\nduration = \n", "not valid TOML"),
+        ("[contact]\npatch = 'point'\n", "patch must be 'hertz' or 'none'"),
+        ("[contact]\npatch_min_radius = -0.001\n", "patch_min_radius"),
+        ("[contact]\npatch_tolerance = -0.1\n", "patch_tolerance"),
     ],
 )
 def test_scene_bad_values(tmp_path, text, match):
@@ -95,10 +106,14 @@ def test_exact_storm_no_nan_bounded_penetration_reproducible(gf, exact_storm):
     assert np.array_equal(again.frames[-1].displacement, exact_storm.frames[-1].displacement)
 
 
-def test_frame_displacement_is_the_full_surface_response(gf, exact_storm):
+@pytest.mark.parametrize("patch", ["hertz", "none"])
+def test_frame_displacement_is_the_full_surface_response(gf, exact_storm, patch):
     """Only candidate vertices are deformed in the loop; the recorded frame is the
-    full-surface response D[:, V] B f of the contact forces at that instant."""
-    sc = exact_storm.scene
+    full-surface response D[:, V] B f of the contact forces at that instant
+    (B: the patch weights, or the barycentric ones of a point contact)."""
+    import dataclasses
+
+    sc = dataclasses.replace(exact_storm.scene, patch=patch)
     st = Storm(gf, sc)
     while st.t < 0.1 - 1e-12:
         st.step()
@@ -109,9 +124,16 @@ def test_frame_displacement_is_the_full_surface_response(gf, exact_storm):
     cc = st.cache
     keep = st.ctri[cc.stones] >= 0
     u_ref = np.zeros((st.n, 3))
-    for k in np.flatnonzero(keep):  # superpose the point-force responses
+    for k in np.flatnonzero(keep):  # superpose the vertex-force responses
         fk = f[np.flatnonzero(ids == cc.stones[k])[0]]  # force on the seat
-        u_ref += gf.displacement(gf.triangles[cc.tris[k]], np.outer(cc.bary[k], fk))
+        if patch == "none":
+            assert cc.patch_radius[k] == 0.0
+            u_ref += gf.displacement(gf.triangles[cc.tris[k]], np.outer(cc.bary[k], fk))
+        else:
+            assert cc.patch_radius[k] >= sc.patch_min_radius
+            w = cc.weights[k]
+            assert w.sum() == pytest.approx(1.0) and (w > 0).sum() > 3  # a real patch on this plate
+            u_ref += gf.displacement(cc.verts[k][w > 0], np.outer(w[w > 0], fk))
     assert np.allclose(st.frame().displacement, u_ref, rtol=1e-4, atol=1e-9)
     # and a local evaluation agrees with the full one
     v = np.arange(0, st.n, 7)
@@ -207,3 +229,121 @@ def test_closest_point_and_index_match_brute_force(gf):
                     assert q.distance[i] == pytest.approx(d, rel=1e-9, abs=1e-12)
                 else:
                     assert q.triangle[i] == -1 and np.isinf(q.distance[i])
+
+
+# --------------------------------------------------------------------------
+# patch contacts (the default for hail) vs point contacts
+# --------------------------------------------------------------------------
+def _drop(gf, patch, r=0.005, v0=9.0, integrator="exact", dt=5e-4, at_vertex=True):
+    """One stone (no drag) onto the seat's top: (storm, restitution)."""
+    sc = Scene(duration=0.05, stones=0, drag=False, dt=dt, integrator=integrator, restitution=0.5, patch=patch)
+    st = Storm(gf, sc, spawn=False)
+    soft_v = np.unique(gf.triangles[st.soft])
+    top = soft_v[np.argmax(gf.vertices[soft_v, 2])]
+    if at_vertex:
+        x, nrm = gf.vertices[top], gf.vertex_normals()[top]
+    else:
+        t = int(np.flatnonzero(st.soft & (gf.triangles == top).any(axis=1))[0])
+        x, nrm = gf.vertices[gf.triangles[t]].mean(axis=0), st.index.normals[t]
+    st.add_stones(x + (r + 2e-3) * nrm, -v0 * nrm, r)
+    v_in = v_out = None
+    was = False
+    for _ in range(int(0.03 / dt)):
+        vb = st.vel[0].copy()
+        st.step()
+        now = st.ctri[0] >= 0
+        if now and not was and v_in is None:
+            v_in = float(-vb @ nrm)
+        if was and not now and v_in is not None:
+            v_out = float(st.vel[0] @ nrm)
+            break
+        was = now
+    assert v_in is not None and v_out is not None, "the stone did not bounce"
+    return st, v_out / v_in
+
+
+@pytest.mark.parametrize("integrator, dt, tol", [("exact", 5e-4, 0.01), ("implicit", 2e-4, 0.02)])
+def test_patch_drop_on_the_seat_restitution_and_one_weighting(seat_bundle, integrator, dt, tol):
+    """A single impact with patch contact: restitution on target, the disc is sized once
+    (expected peak force) and kept for the whole impact (one capacitance, <= 2 weightings)."""
+    from runtime.bundle import load
+
+    gf = load(seat_bundle)
+    st, e = _drop(gf, "hertz", integrator=integrator, dt=dt)
+    assert e == pytest.approx(0.5, abs=tol)
+    S = st.stats
+    assert S["capacitance_rebuilds"] == 1 and S["patch_resizes"] == 0
+    assert 1 <= S["patch_weights_computed"] <= 2
+    # Hertz radius of the impact's peak force: between the floor and the stone radius
+    assert 1e-3 < S["max_patch_radius_m"] < 0.005
+    pt, e_pt = _drop(gf, "none", integrator=integrator, dt=dt)
+    assert e_pt == pytest.approx(0.5, abs=tol)
+    # the in-contact overlap with the deformed surface (stated tolerance: 1% of r) and no worse than a point's
+    assert S["max_penetration_contact_m"] < 0.01 * 0.005
+    assert S["max_penetration_contact_m"] <= pt.stats["max_penetration_contact_m"] + 1e-6
+    assert np.isfinite(st.pos).all() and np.isfinite(st.u).all()
+
+
+def test_patch_weights_are_cached_per_contact(gf):
+    """On the plate the patch disc covers several vertices (weights summing to one, a
+    stiffness of its own); the same contact again reuses the cached weights."""
+    sc = Scene(duration=0.05, stones=0, drag=False, dt=5e-4, integrator="exact")
+    st = Storm(gf, sc, spawn=False)
+    t = np.flatnonzero(st.soft)[len(np.flatnonzero(st.soft)) // 2]
+    st.add_stones(gf.vertices[gf.triangles[t]].mean(axis=0) + [0, 0, 0.01], [0, 0, -5.0], 0.006)
+    st.ctri[0], st.cbary[0] = t, 1.0 / 3.0
+    k_patch = st._patch_stiffness(np.array([0]), np.array([t]), np.array([0.004]), st.index.normals[[t]])[0]
+    assert np.isfinite(k_patch) and k_patch > 0
+    verts, w = st._patch_weights(np.array([0]), np.array([t]), st.cbary[[0]], np.array([0.004]), st.index.normals[[t]])
+    assert (w > 0).sum() > 3 and w.sum() == pytest.approx(1.0)
+    # cached: the same contact again costs nothing
+    n0 = st.stats["patch_weights_computed"]
+    st._patch_weights(np.array([0]), np.array([t]), st.cbary[[0]], np.array([0.004]), st.index.normals[[t]])
+    assert st.stats["patch_weights_computed"] == n0 and st.stats["patch_weights_reused"] >= 1
+
+
+def test_resting_stone_reuses_its_patch(gf):
+    """A stone that comes to rest keeps its contact: its weights are computed a few times
+    (impact, then one shrink to the resting force) and kept for every later sub-step."""
+    sc = Scene(duration=0.2, stones=0, drag=False, dt=5e-4, integrator="exact", restitution=0.0)
+    st = Storm(gf, sc, spawn=False)
+    c = gf.vertices[~gf.fixed].mean(axis=0)
+    c[2] = gf.vertices[:, 2].max()
+    st.add_stones(c + [0, 0, 0.006], [0, 0, -2.0], 0.005)
+    for _ in range(300):
+        st.step()
+    assert st.ctri[0] >= 0  # resting
+    S = st.stats
+    assert S["patch_weights_computed"] <= 4  # 300 steps in contact: the weights are not recomputed
+    assert S["capacitance_rebuilds"] <= 4  # nor the capacitance (the key does not change)
+    # at rest the radius is the Hertz radius of the stone's weight (floored)
+    from runtime.weights import hertz_radius
+
+    a_rest = float(hertz_radius(st.mass[0] * 9.81, 0.005, gf.young, gf.poisson, a_min=sc.patch_min_radius))
+    assert st.crad[0] == pytest.approx(a_rest, rel=sc.patch_tolerance + 0.01)
+
+
+def test_patch_and_point_storms_on_the_seat(seat_bundle):
+    """The real (coarse) seat: patch and point storms both run, stay finite and bounded; the
+    patch storm is reproducible, and its in-contact overlap is within a stated tolerance."""
+    from runtime.bundle import load
+
+    gf = load(seat_bundle)
+    out = {}
+    for patch in ("hertz", "none"):
+        sc = Scene(duration=0.1, stones=30, seed=5, spawn_height=0.01, integrator="exact", dt=5e-4, patch=patch)
+        res = run_storm(gf, sc, progress=False)
+        st = res.stats
+        assert st["patch"] == patch
+        assert st["impacts"] >= 5
+        assert all(np.all(np.isfinite(f.displacement)) and np.all(np.isfinite(f.positions)) for f in res.frames)
+        assert np.isfinite(st["max_contact_force"]) and st["max_contact_force"] > 0
+        out[patch] = res
+    ph, pn = out["hertz"].stats, out["none"].stats
+    assert ph["patch_weights_computed"] > 0 and pn["patch_weights_computed"] == 0
+    # stated tolerance: in contact, no stone overlaps the deformed surface by more than 1% of its radius
+    assert ph["max_penetration_contact_rel"] < 0.01
+    assert ph["max_penetration_contact_m"] <= pn["max_penetration_contact_m"] + 1e-6
+    again = run_storm(gf, out["hertz"].scene, progress=False)
+    assert np.array_equal(again.frames[-1].positions, out["hertz"].frames[-1].positions)
+    assert np.array_equal(again.frames[-1].displacement, out["hertz"].frames[-1].displacement)

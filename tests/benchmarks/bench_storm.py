@@ -5,6 +5,7 @@ Usage::
     python tests/benchmarks/bench_storm.py                       # 2000 stones, 2 s, dt 0.5 ms, 3 repeats
     python tests/benchmarks/bench_storm.py --stones 400 --duration 0.4 --repeat 1
     python tests/benchmarks/bench_storm.py --gf DIR --configs exact,implicit,baseline
+    python tests/benchmarks/bench_storm.py --configs exact-point,exact    # patch vs point contact
 
 Each configuration runs the same storm (same seed) ``--repeat`` times and
 prints RTF (simulated / wall time, video excluded) min / median / max, steps,
@@ -17,6 +18,14 @@ run on a shorter storm (``--baseline-duration``, same stone rate) because it
 is ~50x slower; RTF is a rate, so the ratio is fair.
 
 Target (issue): 2000 stones / 2 s / dt <= 0.5 ms at RTF >= 1 on 2 cores.
+
+Contact model: every configuration uses the scene default ``patch = "hertz"``
+(patch contacts) unless its name ends in ``-point`` (``patch = "none"``: the
+previous point contacts); compare e.g. ``exact`` with ``exact-point``. The
+``xpoint`` column is the median RTF of a patch configuration over its
+``-point`` twin in the same run. ``pen cont`` is the largest overlap of a
+stone *in contact* with the deformed surface: the dent of a point load is a
+one-vertex spike whose triangles tilt into the sphere; a patch load spreads it.
 """
 
 from __future__ import annotations
@@ -28,7 +37,7 @@ import statistics
 import numpy as np
 
 CONFIGS = {
-    # name: (integrator, adaptive)
+    # name: (integrator, adaptive); a "-point" suffix selects point contacts (patch = "none")
     "exact": ("exact", True),
     "implicit": ("implicit", False),
     "implicit-toi": ("implicit", True),
@@ -36,12 +45,21 @@ CONFIGS = {
 }
 
 
-def seat_drop(gf, integrator: str, adaptive: bool, dt: float, r: float = 0.005, v0: float = 9.0) -> dict:
+def config(name: str) -> tuple[str, bool, str]:
+    """(integrator, adaptive, patch) of a configuration name."""
+    base, point = (name[:-6], True) if name.endswith("-point") else (name, False)
+    integ, adaptive = CONFIGS[base]
+    return integ, adaptive, "none" if point else "hertz"
+
+
+def seat_drop(gf, integrator: str, adaptive: bool, dt: float, r: float = 0.005, v0: float = 9.0,
+              patch: str = "hertz") -> dict:
     """One stone (no drag) hits the seat's top at v0: achieved restitution (normal exit /
     impact speed, target 0.5) and the largest penetration of that impact."""
     from runtime.storm import Scene, Storm
 
-    sc = Scene(duration=0.05, stones=0, drag=False, dt=dt, integrator=integrator, adaptive=adaptive, restitution=0.5)
+    sc = Scene(duration=0.05, stones=0, drag=False, dt=dt, integrator=integrator, adaptive=adaptive, restitution=0.5,
+               patch=patch)
     st = Storm(gf, sc, spawn=False)
     soft_v = np.unique(gf.triangles[st.soft])
     top = soft_v[np.argmax(gf.vertices[soft_v, 2])]
@@ -71,7 +89,7 @@ def main() -> None:
     ap.add_argument("--dt", type=float, default=5e-4)
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--configs", default="exact,implicit,baseline")
+    ap.add_argument("--configs", default="exact-point,exact,baseline-point,baseline")
     ap.add_argument("--baseline-duration", type=float, default=0.2)
     args = ap.parse_args()
 
@@ -88,39 +106,43 @@ def main() -> None:
     rows = []
     base_rtf = None
     for name in args.configs.split(","):
-        integ, adaptive = CONFIGS[name]
+        integ, adaptive, patch = config(name)
+        base = name[:-6] if name.endswith("-point") else name
         d = Scene.default().to_dict()
         dur, stones, dt = args.duration, args.stones, args.dt
-        if name == "baseline":
+        if base == "baseline":
             dur = min(dur, args.baseline_duration)
             stones = max(1, int(round(args.stones * dur / args.duration)))
             dt = 2e-4  # the previous default scene's step
         d["storm"].update(stones=stones, duration=dur, seed=args.seed)
         d["time"].update(dt=dt, adaptive=adaptive, integrator=integ)
+        d["contact"].update(patch=patch)
         sc = Scene.from_dict(d)
         rtf, st = [], None
-        for _ in range(args.repeat if name != "baseline" else 1):
+        for _ in range(args.repeat if base != "baseline" else 1):
             res = run_storm(gf, sc, progress=False)
             st = res.stats
             rtf.append(st["real_time_factor"])
             assert all(np.isfinite(f.displacement).all() and np.isfinite(f.positions).all() for f in res.frames)
-        drop = seat_drop(gf, integ, adaptive, dt)
+        drop = seat_drop(gf, integ, adaptive, dt, patch=patch)
         st = dict(st, drop_e=drop["e"], drop_pen=drop["pen"])
         med = statistics.median(rtf)
-        if name == "baseline":
-            base_rtf = med
-        rows.append((name, integ, adaptive, stones, dur, dt, min(rtf), med, max(rtf), st))
+        if base == "baseline" and (base_rtf is None or patch == "none"):
+            base_rtf = med  # the previous default: implicit, point contacts (if run)
+        rows.append((name, integ, adaptive, patch, stones, dur, dt, min(rtf), med, max(rtf), st))
     r_min = Scene.default().r_min
     print(f"bundle {path}: {gf.n_vertices} surface vertices, D {gf.D.shape}")
-    hdr = (f"{'config':13s} {'integr.':10s} {'adapt':5s} {'stones':>6s} {'T[s]':>5s} {'dt[ms]':>6s} "
-           f"{'RTF min':>8s} {'median':>8s} {'max':>8s} {'xbase':>7s} {'steps':>6s} {'substeps':>8s} "
+    point_rtf = {r[0][:-6]: r[8] for r in rows if r[0].endswith("-point")}
+    hdr = (f"{'config':19s} {'integr.':10s} {'adapt':5s} {'patch':5s} {'stones':>6s} {'T[s]':>5s} {'dt[ms]':>6s} "
+           f"{'RTF min':>8s} {'median':>8s} {'max':>8s} {'xbase':>7s} {'xpoint':>7s} {'steps':>6s} {'substeps':>8s} "
            f"{'impacts':>7s} {'hit':>5s} {'pen[mm]':>8s} {'pen/rmin':>8s} {'indent[mm]':>10s} "
            f"{'pen free':>8s} {'pen cont':>8s} {'drop e':>7s} {'drop pen[mm]':>12s}")
     print(hdr)
-    for name, integ, adaptive, stones, dur, dt, lo, med, hi, st in rows:
+    for name, integ, adaptive, patch, stones, dur, dt, lo, med, hi, st in rows:
         ratio = f"{med / base_rtf:7.1f}" if base_rtf else "    n/a"
-        print(f"{name:13s} {integ:10s} {str(adaptive):5s} {stones:6d} {dur:5.2f} {dt * 1e3:6.2f} "
-              f"{lo:8.3f} {med:8.3f} {hi:8.3f} {ratio} {st['steps']:6d} {st['substeps']:8d} "
+        pr = f"{med / point_rtf[name]:7.2f}" if name in point_rtf and point_rtf[name] else "    n/a"
+        print(f"{name:19s} {integ:10s} {str(adaptive):5s} {patch:5s} {stones:6d} {dur:5.2f} {dt * 1e3:6.2f} "
+              f"{lo:8.3f} {med:8.3f} {hi:8.3f} {ratio} {pr} {st['steps']:6d} {st['substeps']:8d} "
               f"{st['impacts']:7d} {st['stones_hit']:5d} {st['max_penetration_m'] * 1e3:8.3f} "
               f"{st['max_penetration_m'] / r_min:8.1%} {st['max_indentation_m'] * 1e3:10.3f} "
               f"{st.get('max_penetration_free_m', float('nan')) * 1e3:8.3f} "
@@ -128,6 +150,12 @@ def main() -> None:
               f"{st['drop_e']:7.3f} {st['drop_pen'] * 1e3:12.4f}")
     print("pen: max overlap of a sphere with the deformed surface [mm]; 'pen free' for flying stones,")
     print("     'pen cont' for stones in contact (the dent around a point load tilts into the sphere)")
+    print("patch: 'hertz' = patch contacts (Hertz disc), 'none' = point contacts; xpoint = median RTF / '-point' twin")
+    for name, *_, st in rows:
+        if st.get("patch", "none") != "none":
+            print(f"  {name}: capacitance rebuilds {st['capacitance_rebuilds']}, patch weights computed "
+                  f"{st['patch_weights_computed']} / reused {st['patch_weights_reused']}, resizes {st['patch_resizes']}, "
+                  f"largest patch radius {st['max_patch_radius_m'] * 1e3:.2f} mm")
     print("drop: one 5 mm stone at 9 m/s onto the seat's top, no drag; restitution target 0.5")
     print(f"load average during the run: {os.getloadavg()[0]:.2f} (2-core machine; RTF is wall-clock)")
 
