@@ -37,6 +37,8 @@ from typing import Any, Mapping
 
 import numpy as np
 
+from runtime.gather import _apply_columns, _column_dofs, _dof3, _gather
+
 FORMAT_NAME = "hailstorm-greens-bundle"
 FORMAT_VERSION = 1
 MANIFEST = "manifest.json"
@@ -298,14 +300,7 @@ class GreensFunctions:
                 f"vertices {cols[bad][:5].tolist()} are neither contactable nor fixed: "
                 "the bundle holds no column of D for them"
             )
-        r = (3 * rows[:, None] + np.arange(3)).ravel()
-        out = np.zeros((r.size, 3 * cols.size), dtype=np.float64)
-        live = np.flatnonzero(cblock >= 0)
-        if live.size:
-            c = (3 * cblock[live][:, None] + np.arange(3)).ravel()
-            lc = (3 * live[:, None] + np.arange(3)).ravel()
-            out[:, lc] = self.D[np.ix_(r, c)] if r.size else 0.0
-        return out
+        return _gather(self, _dof3(rows), _column_dofs(self, cols))
 
     def traction_greens(self, rows, cols) -> np.ndarray:
         """The block Ξ[rows, cols] = D[rows, cols] A[cols] (traction Green's function).
@@ -334,17 +329,9 @@ class GreensFunctions:
         """
         vertices = self._check_vertices(vertices, "vertices")
         forces = np.asarray(forces, dtype=np.float64).reshape(vertices.size, 3)
-        rows = np.arange(self.n_vertices) if rows is None else self._check_vertices(rows, "rows")
-        if vertices.size == 0:
-            return np.zeros((rows.size, 3))
-        if rows.size == self.n_vertices and np.array_equal(rows, np.arange(self.n_vertices)):
-            cblock = self.column_of[vertices]
-            keep = cblock >= 0
-            if not np.all(keep | self.fixed[vertices]):
-                self.compliance(rows[:1], vertices)  # raises the clear error
-            c = (3 * cblock[keep][:, None] + np.arange(3)).ravel()
-            return (self.D[:, c] @ forces[keep].ravel()).reshape(-1, 3)
-        return (self.compliance(rows, vertices) @ forces.ravel()).reshape(-1, 3)
+        self.compliance(vertices[:0], vertices)  # raises the clear error for columns D lacks
+        rows = None if rows is None else self._check_vertices(rows, "rows")
+        return _apply_columns(self, _column_dofs(self, vertices), forces.ravel(), rows)
 
 
 def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:

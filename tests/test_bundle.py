@@ -159,3 +159,15 @@ def test_compliance_is_stored_column_major(box_bundle):
     """Gathering the columns of a contact set must be a contiguous read."""
     D = load(box_bundle).D
     assert D.flags.f_contiguous and not D.flags.c_contiguous
+
+
+def test_displacement_is_compliance_times_forces(seat_bundle, rng):
+    gf = load(seat_bundle)
+    verts = np.concatenate([rng.choice(gf.contact_vertices, 4, replace=False), np.flatnonzero(gf.fixed)[:1]])
+    f = rng.normal(size=(verts.size, 3))
+    expected = (gf.compliance(np.arange(gf.n_vertices), verts) @ f.ravel()).reshape(-1, 3)
+    assert np.allclose(gf.displacement(verts, f), expected, rtol=1e-13, atol=0)
+    rows = np.array([3, 1, 4])
+    assert np.allclose(gf.displacement(verts, f, rows=rows), expected[rows], rtol=1e-13, atol=0)
+    with pytest.raises(ValueError, match="neither contactable nor fixed"):
+        gf.displacement([int(np.flatnonzero(~gf.contactable & ~gf.fixed)[0])], [[0, 0, 1.0]])
