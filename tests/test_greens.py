@@ -122,3 +122,17 @@ def test_parallel_workers_give_identical_columns(small_box):
     serial = compliance_matrix(K, fixed, load, read, workers=1, block_columns=16)
     parallel = compliance_matrix(K, fixed, load, read, workers=2, block_columns=16)
     assert np.array_equal(serial, parallel)
+
+
+@pytest.mark.slow
+def test_default_seat_p2_columns_equal_direct_fem(tmp_path):
+    """The full-size path: P2 on the default seat at 6 mm (~36k dofs)."""
+    from precompute import mesh_default_seat
+
+    mesh = mesh_default_seat(0.006)
+    gf = runtime.load(build_bundle(tmp_path / "p2", mesh=mesh, order=2))
+    rows = np.arange(gf.n_vertices)
+    for j in gf.contact_vertices[[0, gf.contact_vertices.size // 2]]:
+        basis, K, f, u = _direct_column(mesh, 2, gf.young, gf.poisson, gf.surface_nodes[j], 2)
+        expected = u[vertex_dofs(basis, gf.surface_nodes).ravel()]
+        assert np.linalg.norm(gf.compliance(rows, [j])[:, 2] - expected) <= 1e-9 * np.linalg.norm(expected)
