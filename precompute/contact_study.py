@@ -19,11 +19,21 @@ in ``notebooks/mesh_dependence.ipynb``):
     Tip deflection of a cantilever with P1 and P2 tetrahedra as
     ``nu -> 0.5``: P1 locks (volumetric and in bending), P2 much less.
 
-The committed figure is regenerated with::
+and the stability study (charted in ``notebooks/stability.ipynb``):
+
+:func:`stability_map`
+    One stone in contact, advanced by :func:`runtime.hail.contact_step`
+    exactly as the storm does, for every (stiffness, mass, time step):
+    bounded or diverged (energy growth), against the predicted explicit
+    limit :func:`predicted_dt_limit` ``dt = 2 / omega``;
+    :func:`measure_dt_limit` finds the measured limit by bisection.
+
+The committed figures are regenerated with::
 
     python -m precompute.contact_study --out notebooks/figures/mesh_dependence.png
+    python -m precompute.contact_study stability --out notebooks/figures/stability.png
 
-(``--small`` for the coarse levels only). Bundles are cached under
+(``--small`` for the coarse levels / a small grid only). Bundles are cached under
 ``<hailstorm cache>/contact_study`` (see :func:`precompute.default_cache_dir`),
 so a second run only re-reads them. Scripts that call these functions must be
 guarded by ``if __name__ == "__main__":`` (the offline stage may spawn worker
@@ -52,8 +62,14 @@ __all__ = [
     "degenerate_contacts",
     "locate_points",
     "locking_vs_poisson",
+    "measure_dt_limit",
+    "plot_stability_map",
     "plot_stiffness_vs_mesh",
+    "predicted_dt_limit",
+    "seat_contact_stiffness",
     "separation_sweep",
+    "StabilityMap",
+    "stability_map",
 ]
 
 #: Fixed probe points (x, y) on the default saddle's top [m]: the saddle's
@@ -491,13 +507,438 @@ def locking_vs_poisson(poissons: Sequence[float] = (0.3, 0.4, 0.45, 0.49, 0.499)
 
 
 # --------------------------------------------------------------------------
+# stability of the contact integrators
+# --------------------------------------------------------------------------
+#: Stone radii of the stability study [m] (ice, 2.5-12.5 mm).
+STABILITY_RADII = (0.0025, 0.005, 0.0075, 0.01, 0.0125)
+#: Energy growth (second half of a run over the first half) above which a run counts as diverged.
+GROWTH_LIMIT = 10.0
+
+
+def predicted_dt_limit(k: Any, m: Any) -> np.ndarray | float:
+    """Explicit (symplectic Euler) stability limit ``dt = 2 / omega``, ``omega = sqrt(k / m)`` [s]."""
+    dt = 2.0 / np.sqrt(np.asarray(k, dtype=np.float64) / np.asarray(m, dtype=np.float64))
+    return float(dt) if np.ndim(dt) == 0 else dt
+
+
+def seat_contact_stiffness(gf: Any, points: Mapping[str, Sequence[float]] | None = None, *,
+                           patch_radius: float | None = None, mode: str = "frictionless") -> dict[str, float]:
+    """Normal stiffness [N/m] of one stone at named points (x, y) of the seat (default :data:`SEAT_POINTS`)."""
+    points = dict(SEAT_POINTS if points is None else points)
+    tri, bary = locate_points(gf, list(points.values()))
+    k = contact_stiffness(gf, tri, bary, patch_radius=patch_radius, mode=mode)
+    return {name: float(kk) for name, kk in zip(points, k)}
+
+
+def _energy(q, v, k, m, gn):
+    """Mechanical energy of a stone on a (bilateral) contact spring, anchor 0, relative to its equilibrium."""
+    u_eq = m * gn / k
+    return 0.5 * m * v * v + 0.5 * k * (q - u_eq) ** 2
+
+
+def _growth(k: float, m: float, dt: float, integrator: str, *, steps: int, restitution: float | None,
+            gravity: float, impact_speed: float, blowup: float = 1e20) -> float:
+    """Energy growth of one stone in contact over ``steps`` steps of :func:`runtime.hail.contact_step`.
+
+    The stone touches the seat (``q = anchor = 0``) moving in at ``impact_speed``
+    and stays in contact (bilateral: the contact holds, as for a stone resting
+    on the seat); frictionless coordinates (the normal component, as the storm
+    uses them).
+    Returns ``max E over the second half / max E over the first half`` (``inf``
+    once the energy exceeds ``blowup`` times its start or stops being finite).
+    """
+    from runtime.hail import contact_step, damping_coefficients
+
+    K = np.array([[float(k)]])
+    M = np.array([float(m)])
+    a = np.zeros(1)
+    g = np.array([-float(gravity)])
+    q, v = np.zeros(1), np.array([-float(impact_speed)])
+    if restitution is None:
+        C = 0.0
+    elif integrator == "exact":
+        C = damping_coefficients(K, M, restitution, integrator="exact")  # as the storm does
+    else:
+        C = damping_coefficients(K, M, restitution, dt=dt, integrator=integrator)
+    e0 = float(_energy(q[0], v[0], k, m, g[0]))
+    half = steps // 2
+    e1 = e2 = 0.0
+    with np.errstate(all="ignore"):
+        for n in range(steps):
+            res = contact_step(q, v, a, M, g, dt, K=K, damping=C, integrator=integrator, unilateral=False)
+            q, v = res.q, res.v
+            e = float(_energy(q[0], v[0], k, m, g[0]))
+            if not np.isfinite(e) or e > blowup * e0:
+                return float("inf")
+            if n < half:
+                e1 = max(e1, e)
+            else:
+                e2 = max(e2, e)
+    return e2 / e1 if e1 > 0 else (float("inf") if e2 > 0 else 1.0)
+
+
+@dataclass
+class StabilityMap:
+    """Result of :func:`stability_map`.
+
+    Attributes
+    ----------
+    integrator : str
+    stiffness : (nk,) ndarray
+        Contact stiffness [N/m].
+    masses : (nm,) ndarray
+        Stone masses [kg].
+    dt : (nk, nm, nd) ndarray
+        Time steps [s] (the same for every (k, m) unless the grid was relative).
+    growth : (nk, nm, nd) ndarray
+        Energy growth factor (max energy over the second half of the run over
+        the first half; ``inf``: blew up).
+    diverged : (nk, nm, nd) bool ndarray
+        ``growth > growth_limit``.
+    steps, growth_limit, restitution
+        The run's settings (``restitution=None``: no dashpot).
+    limit : (nk, nm) ndarray or None
+        Measured limit by bisection (:func:`measure_dt_limit`; ``inf``: none
+        found up to ``span`` times ``2/omega``), if the map was made with
+        ``bisect=True``.
+    """
+
+    integrator: str
+    stiffness: np.ndarray
+    masses: np.ndarray
+    dt: np.ndarray
+    growth: np.ndarray
+    diverged: np.ndarray
+    steps: int
+    growth_limit: float
+    restitution: float | None = None
+    limit: np.ndarray | None = None
+
+    @property
+    def omega(self) -> np.ndarray:
+        """``sqrt(k / m)``, (nk, nm) [rad/s]."""
+        return np.sqrt(self.stiffness[:, None] / self.masses[None, :])
+
+    @property
+    def predicted(self) -> np.ndarray:
+        """Predicted explicit limit ``2 / omega``, (nk, nm) [s]."""
+        return 2.0 / self.omega
+
+    def measured_bracket(self) -> tuple[np.ndarray, np.ndarray]:
+        """Measured limit bracket per (k, m), each (nk, nm) [s].
+
+        ``hi`` is the smallest diverged step (``inf`` if none diverged), ``lo``
+        the largest bounded step below it (``0`` if none).
+        """
+        hi = np.where(self.diverged, self.dt, np.inf).min(axis=2)
+        lo = np.where(~self.diverged & (self.dt < hi[..., None]), self.dt, 0.0).max(axis=2)
+        return lo, hi
+
+    def table(self) -> str:
+        """Plain text: per (k, m) omega, predicted 2/omega, measured bracket, bracket / predicted."""
+        lo, hi = self.measured_bracket()
+        pred = self.predicted
+        damp = "no damping" if self.restitution is None else f"dashpot for e = {self.restitution:g}"
+        lines = [f"{self.integrator}: {self.steps} steps, {damp}; diverged if energy growth > {self.growth_limit:g}",
+                 f"{'k [N/m]':>10} {'m [g]':>8} {'omega':>9} {'2/omega [s]':>12} {'bounded <= dt':>14} "
+                 f"{'diverged >= dt':>15} {'ratio lo..hi':>14}" + (f" {'bisected/pred':>14}" if self.limit is not None
+                                                                  else "")]
+        for i, k in enumerate(self.stiffness):
+            for j, m in enumerate(self.masses):
+                p = pred[i, j]
+                rng = f"{lo[i, j] / p:.3g}..{hi[i, j] / p:.3g}" if np.isfinite(hi[i, j]) else f">= {lo[i, j] / p:.3g}"
+                lines.append(f"{k:10.4g} {m * 1e3:8.3g} {self.omega[i, j]:9.4g} {p:12.4g} {lo[i, j]:14.4g} "
+                             f"{hi[i, j]:15.4g} {rng:>14}"
+                             + (f" {self.limit[i, j] / p:14.4g}" if self.limit is not None else ""))
+        return "\n".join(lines)
+
+
+def stability_map(
+    stiffness: Sequence[float],
+    masses: Sequence[float],
+    dts: Sequence[float],
+    integrator: str,
+    *,
+    steps: int = 300,
+    relative: bool = False,
+    restitution: float | None = None,
+    gravity: float | None = None,
+    impact_speed: float = 1.0,
+    growth_limit: float = GROWTH_LIMIT,
+    bisect: bool = False,
+    rtol: float = 1e-3,
+) -> StabilityMap:
+    """Bounded or diverged: one stone in contact for every (stiffness, mass, time step).
+
+    Each run advances one stone in a frictionless contact (its normal
+    coordinate, as :class:`runtime.storm` does) with
+    :func:`runtime.hail.contact_step` for ``steps`` steps, starting as it
+    touches the seat moving in at ``impact_speed``, under gravity, and the
+    contact holds (bilateral, the stone stays on the seat). The energy
+    (kinetic + spring + gravity, relative to the static equilibrium) is
+    recorded; the run *diverged* when the maximum over the second half of the
+    run exceeds ``growth_limit`` times the maximum over the first half (a
+    bounded orbit gives ~1 however eccentric the discrete orbit is near the
+    limit, a decaying one < 1, a diverging one ``|lambda|^steps``).
+
+    Parameters
+    ----------
+    stiffness : (nk,)
+        Contact stiffness ``k`` [N/m] (e.g. :func:`seat_contact_stiffness`).
+    masses : (nm,)
+        Stone masses [kg] (e.g. :func:`runtime.hail.stone_mass`).
+    dts : (nd,)
+        Time steps [s]; with ``relative=True`` multiples of ``2 / omega`` for
+        each (k, m).
+    integrator : {"symplectic", "implicit", "exact"}
+    steps : int
+    restitution : float, optional
+        ``None`` (default): no dashpot, the pure stability question. A
+        number: the storm's compression-only dashpot for that restitution
+        (:func:`runtime.hail.damping_coefficients`, with ``dt`` for the
+        stepping integrators, as the storm calls it).
+    gravity : float, optional
+        Default :data:`runtime.hail.GRAVITY` (along the inward normal).
+    bisect : bool
+        Also measure the limit of every (k, m) by bisection
+        (:func:`measure_dt_limit`, relative tolerance ``rtol``): ``limit``.
+
+    Notes
+    -----
+    Unilateral contact (the stone may bounce off) is not a stability
+    question: a stone that leaves the seat gets at most one or two contact
+    steps, and the energy error of an explicit step at impact (where in the
+    step the stone arrives) is an accuracy question of its own.
+    """
+    from runtime.hail import GRAVITY
+
+    k = np.asarray(stiffness, dtype=np.float64).reshape(-1)
+    m = np.asarray(masses, dtype=np.float64).reshape(-1)
+    d = np.asarray(dts, dtype=np.float64).reshape(-1)
+    if np.any(k <= 0) or np.any(m <= 0) or np.any(d <= 0):
+        raise ValueError("stiffness, masses and time steps must be positive")
+    pred = predicted_dt_limit(k[:, None], m[None, :])
+    dt = np.broadcast_to(d * pred[..., None] if relative else d, (k.size, m.size, d.size)).copy()
+    growth = np.empty_like(dt)
+    g = GRAVITY if gravity is None else float(gravity)
+    for i in range(k.size):
+        for j in range(m.size):
+            for n in range(d.size):
+                growth[i, j, n] = _growth(k[i], m[j], dt[i, j, n], integrator, steps=steps, restitution=restitution,
+                                          gravity=g, impact_speed=impact_speed)
+    limit = None
+    if bisect:
+        limit = np.array([[measure_dt_limit(ki, mj, integrator, rtol=rtol, steps=steps, restitution=restitution,
+                                            growth_limit=growth_limit, gravity=g, impact_speed=impact_speed)
+                           for mj in m] for ki in k])
+    return StabilityMap(integrator, k, m, dt, growth, growth > growth_limit, int(steps), float(growth_limit),
+                        restitution, limit)
+
+
+def measure_dt_limit(k: float, m: float, integrator: str = "symplectic", *, rtol: float = 1e-3,
+                     span: float = 20.0, steps: int = 300, restitution: float | None = None,
+                     growth_limit: float = GROWTH_LIMIT, gravity: float | None = None,
+                     impact_speed: float = 1.0) -> float:
+    """Measured stability limit [s] of one stone in contact, by bisection in ``dt``.
+
+    Searches ``[2/omega / span, 2/omega * span]``; returns ``inf`` if the run
+    is bounded at the top of it (the implicit and exact integrators), ``0``
+    if it diverges already at the bottom. Other arguments as
+    :func:`stability_map`.
+    """
+    from runtime.hail import GRAVITY
+
+    g = GRAVITY if gravity is None else float(gravity)
+
+    def bad(dt: float) -> bool:
+        return _growth(k, m, dt, integrator, steps=steps, restitution=restitution, gravity=g,
+                       impact_speed=impact_speed) > growth_limit
+
+    p = predicted_dt_limit(k, m)
+    lo, hi = p / span, p * span
+    if not bad(hi):
+        return float("inf")
+    if bad(lo):
+        return 0.0
+    while hi / lo - 1.0 > rtol:
+        mid = np.sqrt(lo * hi)
+        lo, hi = (lo, mid) if bad(mid) else (mid, hi)
+    return float(np.sqrt(lo * hi))
+
+
+def format_degenerate(rows: Sequence[Mapping[str, Any]]) -> str:
+    """Plain-text table of :func:`degenerate_contacts` rows."""
+    lines = [f"{'case':<32}{'cond(BtDB)':>11}{'path':>8}  {'rigid':<15}{'normal forces [N]':<26}{'total/single':>12}"]
+    for r in rows:
+        fn = ", ".join(f"{f:.3g}" for f in r["fn"])
+        lines.append(f"{r['case']:<32}{r['cond_W']:>11.3g}{'exact' if r['exact'] else 'pinv':>8}  {str(r['rigid']):<15}"
+                     f"{fn:<26}{r['fn_total'] / r['fn_ref'] + 0.0:>12.4g}")
+    return "\n".join(lines)
+
+
+def format_locking(rows: Sequence[Mapping[str, Any]]) -> str:
+    """Plain-text table of :func:`locking_vs_poisson` rows."""
+    lines = [f"{'nu':>6}{'P1/beam':>10}{'P2/beam':>10}{'P2/P1':>8}"]
+    for r in rows:
+        lines.append(f"{r['poisson']:>6}{r['p1_ratio']:>10.3f}{r['p2_ratio']:>10.3f}{r['w_p2'] / r['w_p1']:>8.2f}")
+    return "\n".join(lines)
+
+
+def plot_stability_map(maps: StabilityMap | Sequence[StabilityMap], path: str | os.PathLike | None = None, *,
+                       degenerate: Sequence[Mapping[str, Any]] | None = None,
+                       locking: Sequence[Mapping[str, Any]] | None = None, dpi: int = 80):
+    """Chart: one panel per integrator, time step against omega, bounded (o) / diverged (x),
+    the predicted limit ``dt = 2/omega`` drawn over it; optional second row with
+    the degenerate contacts (condition number of ``B^T D B`` per case, exact vs
+    pseudo-inverse) and P1/P2 locking. Returns the figure; saves a PNG if ``path``.
+    """
+    import matplotlib
+
+    if path is not None:
+        matplotlib.use("Agg", force=False)
+    import matplotlib.pyplot as plt
+
+    maps = [maps] if isinstance(maps, StabilityMap) else list(maps)
+    extra = [x for x in (degenerate, locking) if x is not None]
+    nrow = 2 if extra else 1
+    ncol = max(len(maps), 1)
+    fig = plt.figure(figsize=(3.6 * ncol, 3.1 * nrow))
+    gs = fig.add_gridspec(nrow, 2 * ncol)
+    axes = [fig.add_subplot(gs[0, 2 * c:2 * c + 2]) for c in range(len(maps))]
+    for c, (ax, sm) in enumerate(zip(axes, maps)):
+        om = np.broadcast_to(sm.omega[..., None], sm.dt.shape).ravel()
+        dt = sm.dt.ravel()
+        dv = sm.diverged.ravel()
+        ax.scatter(om[~dv], dt[~dv], s=9, marker="o", facecolors="none", edgecolors="tab:green", lw=0.7,
+                   label="bounded")
+        ax.scatter(om[dv], dt[dv], s=12, marker="x", color="tab:red", lw=0.8, label="diverged")
+        w = np.geomspace(om.min() / 1.5, om.max() * 1.5, 50)
+        ax.plot(w, 2.0 / w, "k-", lw=1.2, label="predicted 2/ω")
+        if sm.limit is not None:
+            fin = np.isfinite(sm.limit) & (sm.limit > 0)
+            meas = sm.limit
+        else:
+            lo, hi = sm.measured_bracket()
+            fin = np.isfinite(hi) & (lo > 0)
+            meas = np.sqrt(np.where(fin, lo * hi, 1.0))
+        if fin.any():
+            ax.plot(sm.omega[fin], meas[fin], "s", ms=3.5, color="tab:blue",
+                    label="measured limit" + (" (bisection)" if sm.limit is not None else ""))
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_ylim(dt.min() / 1.5, dt.max() * 1.5)
+        n_div = int(dv.sum())
+        ax.set_title(f"{sm.integrator}: {n_div}/{dv.size} diverged", fontsize=9)
+        ax.set_xlabel("ω = √(k/m) [rad/s]")
+        ax.grid(True, alpha=0.3, which="both", lw=0.4)
+        if c == 0:
+            ax.set_ylabel("time step dt [s]")
+            ax.legend(fontsize=7, loc="lower left")
+    if extra:
+        ncells = 2 * ncol // len(extra)
+        k = 0
+        if degenerate is not None:
+            ax = fig.add_subplot(gs[1, k:k + ncells])
+            k += ncells
+            names = [r["case"] for r in degenerate]
+            cond = np.array([r["cond_W"] for r in degenerate], dtype=float)
+            top = 18.0
+            bar = np.where(np.isnan(cond), 0.0, np.log10(np.clip(np.nan_to_num(cond, posinf=10**top), 1.0, None)))
+            col = ["tab:blue" if r["exact"] else "tab:orange" for r in degenerate]
+            y = np.arange(len(names))
+            ax.barh(y, bar, color=col)
+            for yi, b, c, r in zip(y, bar, cond, degenerate):
+                what = ("rigid: no live W" if np.isnan(c) else "singular" if np.isinf(c) else f"{c:.2g}")
+                tot = r["fn_total"] / r["fn_ref"] if r["fn_ref"] else float("nan")
+                txt = f"{what}; {'Cholesky' if r['exact'] else 'pinv'}; Σf/f₁ = {tot + 0.0:.3g}"
+                inside = b > top / 2
+                ax.text(b - 0.3 if inside else b + 0.3, yi, txt, va="center", ha="right" if inside else "left",
+                        fontsize=6.5, color="w" if inside else "k")
+            ax.set_xlim(0, top)
+            ax.set_yticks(y, names, fontsize=7)
+            ax.invert_yaxis()
+            ax.axvline(10, color="k", ls=":", lw=0.8)
+            ax.set_xlabel("log10 cond(Bᵀ D B)  (dotted: pseudo-inverse above)", fontsize=8)
+            ax.set_title("degenerate contacts (blue: Cholesky, orange: pseudo-inverse)", fontsize=9)
+        if locking is not None:
+            ax = fig.add_subplot(gs[1, k:k + ncells])
+            nu = np.array([r["poisson"] for r in locking])
+            x = -np.log10(0.5 - nu)
+            ax.plot(x, [r["p1_ratio"] for r in locking], "o-", label="P1")
+            ax.plot(x, [r["p2_ratio"] for r in locking], "s-", label="P2")
+            ax.axhline(1.0, color="k", lw=0.8, ls=":")
+            ax.set_xticks(x, [f"{v:g}" for v in nu], fontsize=7)
+            ax.set_xlabel("Poisson's ratio ν (→ 0.5)")
+            ax.set_ylabel("tip deflection / beam theory")
+            ax.set_ylim(0, max(1.1, max(r["p2_ratio"] for r in locking) * 1.1))
+            ax.set_title("locking: cantilever, P1 vs P2", fontsize=9)
+            ax.legend(fontsize=7)
+            ax.grid(True, alpha=0.3)
+    fig.tight_layout()
+    if path is not None:
+        _save_small_png(fig, path, dpi)
+    return fig
+
+
+def _save_small_png(fig: Any, path: str | os.PathLike, dpi: int) -> None:
+    """Save a figure as a 256-colour palette PNG (a third of the RGBA size; Pillow ships with matplotlib)."""
+    import io
+
+    from PIL import Image
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    buf = io.BytesIO()
+    fig.savefig(buf, dpi=dpi, format="png", facecolor="white")
+    buf.seek(0)
+    with Image.open(buf) as im:
+        im.convert("RGB").quantize(256).save(path, format="PNG", optimize=True)
+
+
+def stability_study(*, small: bool = False, cache_dir: str | os.PathLike | None = None,
+                    restitution: float | None = None) -> dict[str, Any]:
+    """The stability figure's data: seat stiffness, maps for the three integrators, degenerate contacts, locking.
+
+    Stiffness: the point-contact stiffness of one stone at :data:`SEAT_POINTS`
+    on the default saddle (P1, 15 mm mesh; bundle cached under
+    :func:`study_cache_dir`) and the bounds 1e3 and 1e5 N/m; masses: ice
+    stones of :data:`STABILITY_RADII`. ``small``: fewer masses, steps and
+    time steps (seconds).
+    """
+    from runtime.hail import stone_mass
+
+    h = 0.015
+    cache = Path(cache_dir) if cache_dir is not None else study_cache_dir()
+    gf = load_bundle(build_bundle(cache / f"seat-P1-h{h * 1e3:g}mm", mesh_size=h, order=1))
+    seat_k = seat_contact_stiffness(gf)
+    stiffness = np.unique(np.concatenate([[1e3, 1e5], list(seat_k.values())]))
+    radii = STABILITY_RADII[::2] if small else STABILITY_RADII
+    masses = stone_mass(np.asarray(radii))
+    om = np.sqrt(stiffness[:, None] / masses[None, :])
+    lo, hi = 2.0 / om.max() / 8, 2.0 / om.min() * 8
+    dts = np.geomspace(lo, hi, 14 if small else 36)
+    steps = 120 if small else 300
+    maps = [stability_map(stiffness, masses, dts, integ, steps=steps, restitution=restitution, bisect=True,
+                          rtol=1e-2 if small else 1e-3)
+            for integ in ("symplectic", "implicit", "exact")]
+    return dict(seat_stiffness=seat_k, stiffness=stiffness, radii=np.asarray(radii), masses=masses, maps=maps,
+                degenerate=degenerate_contacts(gf),
+                locking=locking_vs_poisson((0.3, 0.4, 0.45, 0.49, 0.499), length=0.5 if small else 1.0))
+
+
+# --------------------------------------------------------------------------
 # command line
 # --------------------------------------------------------------------------
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m precompute.contact_study [--small] [--order 1 2] [--out PNG]``: table and chart."""
     import argparse
+    import sys
 
-    ap = argparse.ArgumentParser(prog="python -m precompute.contact_study", description=main.__doc__)
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv[:1] == ["stability"]:
+        return main_stability(argv[1:])
+    ap = argparse.ArgumentParser(prog="python -m precompute.contact_study", description=main.__doc__,
+                                 epilog="python -m precompute.contact_study stability --help: the stability study")
     ap.add_argument("--small", action="store_true", help="coarse levels only (seconds)")
     ap.add_argument("--order", type=int, nargs="+", default=[1, 2], help="element orders (default 1 2)")
     ap.add_argument("--out", type=Path, default=None, help="write the chart to this PNG")
@@ -509,6 +950,36 @@ def main(argv: Sequence[str] | None = None) -> int:
         print()
     if args.out is not None:
         plot_stiffness_vs_mesh(studies, args.out)
+        print(f"wrote {args.out} ({args.out.stat().st_size / 1024:.0f} KB)")
+    return 0
+
+
+def main_stability(argv: Sequence[str] | None = None) -> int:
+    """``python -m precompute.contact_study stability [--small] [--restitution E] [--out PNG]``:
+    stability tables (three integrators), measured vs predicted limit, degenerate contacts, locking, chart."""
+    import argparse
+
+    ap = argparse.ArgumentParser(prog="python -m precompute.contact_study stability", description=main_stability.__doc__)
+    ap.add_argument("--small", action="store_true", help="small grid (seconds)")
+    ap.add_argument("--restitution", type=float, default=None,
+                    help="use the storm's dashpot for this restitution (default: no damping)")
+    ap.add_argument("--out", type=Path, default=None, help="write the chart to this PNG")
+    args = ap.parse_args(argv)
+    res = stability_study(small=args.small, restitution=args.restitution)
+    print("seat point-contact stiffness [N/m]:", {k: round(v) for k, v in res["seat_stiffness"].items()})
+    for sm in res["maps"]:
+        print(sm.table())
+        print()
+    sym = res["maps"][0]
+    ratio = sym.limit / sym.predicted
+    print(f"symplectic: measured (bisection) / predicted 2/omega = {ratio.min():.4f} .. {ratio.max():.4f} "
+          f"over {ratio.size} (k, m)")
+    print()
+    print(format_degenerate(res["degenerate"]))
+    print()
+    print(format_locking(res["locking"]))
+    if args.out is not None:
+        plot_stability_map(res["maps"], args.out, degenerate=res["degenerate"], locking=res["locking"])
         print(f"wrote {args.out} ({args.out.stat().st_size / 1024:.0f} KB)")
     return 0
 

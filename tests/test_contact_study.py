@@ -14,9 +14,17 @@ from precompute.contact_study import (
     contact_stiffness_vs_mesh,
     degenerate_contacts,
     locate_points,
+    StabilityMap,
+    format_degenerate,
+    format_locking,
     locking_vs_poisson,
+    measure_dt_limit,
+    plot_stability_map,
     plot_stiffness_vs_mesh,
+    predicted_dt_limit,
+    seat_contact_stiffness,
     separation_sweep,
+    stability_map,
 )
 from runtime import load
 
@@ -154,3 +162,113 @@ def test_notebook_runs_small(tmp_path, monkeypatch):
     client.execute()
     text = "".join(o.get("text", "") for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", []))
     assert "SMALL = True" in text
+
+
+# --------------------------------------------------------------------------
+# stability of the contact integrators
+# --------------------------------------------------------------------------
+def test_predicted_dt_limit():
+    assert predicted_dt_limit(1e4, 1e-2) == pytest.approx(2.0 / 1e3)
+    np.testing.assert_allclose(predicted_dt_limit(np.array([1e4, 4e4]), 1e-2), [2e-3, 1e-3])
+
+
+@pytest.fixture(scope="module")
+def small_maps(box_bundle):
+    """Stability maps on a small grid: real box-bundle stiffness and a bound, two stone sizes,
+    time steps 0.3..30 x 2/omega (dense around 1)."""
+    from runtime.hail import stone_mass
+
+    gf = load(box_bundle)
+    k_box = seat_contact_stiffness(gf, {"centre": (0.047, 0.052)})["centre"]
+    stiffness = [k_box, 1e5]
+    masses = stone_mass(np.array([0.0025, 0.01]))
+    rel = [0.3, 0.8, 0.93, 0.97, 1.03, 1.07, 1.2, 3.0, 30.0]
+    return {integ: stability_map(stiffness, masses, rel, integ, relative=True, steps=200)
+            for integ in ("symplectic", "implicit", "exact")}
+
+
+def test_symplectic_boundary_matches_prediction(small_maps):
+    sm = small_maps["symplectic"]
+    assert isinstance(sm, StabilityMap) and sm.diverged.shape == (2, 2, 9)
+    assert 1e3 < sm.stiffness[0] < 1e6  # a real contact stiffness
+    lo, hi = sm.measured_bracket()
+    pred = sm.predicted
+    # the measured boundary lies within the grid's +-3 % bracket around 2/omega
+    assert np.all(lo >= 0.9 * pred) and np.all(lo < pred)
+    assert np.all(hi <= 1.1 * pred) and np.all(hi > pred)
+    # and is sharp: every step below is bounded, every step above diverged
+    below = sm.dt < pred[..., None]
+    assert not sm.diverged[below].any() and sm.diverged[~below].all()
+    assert np.all(sm.growth[below] < 2.0)
+    assert "symplectic" in sm.table()
+
+
+def test_implicit_and_exact_bounded_everywhere(small_maps):
+    for name in ("implicit", "exact"):
+        sm = small_maps[name]
+        assert not sm.diverged.any(), name
+        assert np.all(np.isfinite(sm.growth))
+        lo, hi = sm.measured_bracket()
+        assert np.all(np.isinf(hi))
+    # backward Euler dissipates, the exact integrator conserves the energy
+    assert np.all(small_maps["implicit"].growth[..., -1] < 0.5)
+    np.testing.assert_allclose(small_maps["exact"].growth, 1.0, atol=1e-3)
+
+
+def test_measure_dt_limit_bisection_and_damping():
+    from runtime.hail import stone_mass
+
+    k, m = 2e4, float(stone_mass(0.005))
+    pred = predicted_dt_limit(k, m)
+    assert measure_dt_limit(k, m, "symplectic", rtol=1e-2, steps=200) == pytest.approx(pred, rel=0.02)
+    assert measure_dt_limit(k, m, "implicit", steps=100) == np.inf
+    assert measure_dt_limit(k, m, "exact", steps=100) == np.inf
+    # the storm's (compression-only) dashpot lowers the explicit limit, but not below the two-way bound
+    z = 0.597  # restitution 0.5
+    damped = measure_dt_limit(k, m, "symplectic", restitution=0.5, rtol=1e-2, steps=200)
+    assert (np.sqrt(1 + z * z) - z) * pred < damped < 0.9 * pred
+    # stability_map with bisection stores the limit
+    sm = stability_map([k], [m], [0.5, 2.0], "symplectic", relative=True, steps=100, bisect=True, rtol=1e-2)
+    assert sm.limit.shape == (1, 1) and sm.limit[0, 0] == pytest.approx(pred, rel=0.02)
+    with pytest.raises(ValueError):
+        stability_map([k], [m], [0.0], "symplectic")
+
+
+def test_plot_stability_map(small_maps, box_bundle, tmp_path):
+    gf = load(box_bundle)
+    deg = degenerate_contacts(gf)
+    lock = [dict(poisson=0.3, w_p1=0.5, w_p2=0.97, w_beam=1.0, p1_ratio=0.5, p2_ratio=0.97),
+            dict(poisson=0.49, w_p1=0.1, w_p2=0.95, w_beam=1.0, p1_ratio=0.1, p2_ratio=0.95)]
+    assert "cond(BtDB)" in format_degenerate(deg) and "pinv" in format_degenerate(deg)
+    assert "P2/P1" in format_locking(lock)
+    out = tmp_path / "stab.png"
+    plot_stability_map(list(small_maps.values()), out, degenerate=deg, locking=lock)
+    assert 0 < out.stat().st_size < 150_000
+
+
+def test_committed_stability_figure_is_small():
+    fig = ROOT / "notebooks" / "figures" / "stability.png"
+    if not fig.exists():
+        pytest.skip("figure not generated")
+    assert fig.stat().st_size <= 150 * 1024
+
+
+def test_stability_notebook_runs_small(tmp_path, monkeypatch):
+    import time
+
+    nbformat = pytest.importorskip("nbformat")
+    nbclient = pytest.importorskip("nbclient")
+    path = ROOT / "notebooks" / "stability.ipynb"
+    nb = nbformat.read(path, as_version=4)
+    assert all(c.get("outputs", []) == [] for c in nb.cells if c.cell_type == "code"), "commit without outputs"
+    monkeypatch.setenv("HAILSTORM_NOTEBOOK_SMALL", "1")
+    monkeypatch.setenv("HAILSTORM_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setenv("MPLBACKEND", "Agg")
+    client = nbclient.NotebookClient(nb, timeout=300, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}})
+    t0 = time.perf_counter()
+    client.execute()
+    elapsed = time.perf_counter() - t0
+    text = "".join(o.get("text", "") for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", []))
+    assert "SMALL = True" in text
+    assert text.count("Interpretation:") >= 4
+    assert elapsed < 120, f"small notebook took {elapsed:.0f} s (budget ~60 s)"
