@@ -20,6 +20,8 @@ from __future__ import annotations
 
 import argparse
 import multiprocessing as mp
+import os
+import tempfile
 import resource
 import statistics
 import time
@@ -76,7 +78,7 @@ def _one(method: str, mesh_size: float, order: int, queue) -> None:
                               workers=int(workers) if workers else None)
     dt = time.perf_counter() - t0
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024  # MiB on Linux
-    np.save(f"/tmp/hailstorm-bench-D-{method}.npy", D[:, :: max(1, D.shape[1] // 50)])
+    np.save(os.path.join(tempfile.gettempdir(), f"hailstorm-bench-D-{method}.npy"), D[:, :: max(1, D.shape[1] // 50)])
     queue.put((dt, rss, K.shape[0], D.shape))
 
 
@@ -102,12 +104,13 @@ def main() -> None:
     print(f"default seat, mesh size {args.mesh_size} m, P{args.order}: {n_dofs} dofs, D {shape[0]} x {shape[1]}, "
           f"{args.repeat} runs each")
     base = statistics.median(r[0] for r in results.get("baseline", results[methods[0]]))
-    ref = np.load(f"/tmp/hailstorm-bench-D-{methods[0]}.npy")
+    tmp = tempfile.gettempdir()
+    ref = np.load(os.path.join(tmp, f"hailstorm-bench-D-{methods[0]}.npy"))
     print(f"{'method':10s} {'min s':>8s} {'median s':>9s} {'max s':>8s} {'speed-up':>9s} {'peak MiB':>9s} {'rel. diff':>10s}")
     for method in methods:
         t = [r[0] for r in results[method]]
         mem = max(r[1] for r in results[method])
-        D = np.load(f"/tmp/hailstorm-bench-D-{method}.npy")
+        D = np.load(os.path.join(tmp, f"hailstorm-bench-D-{method}.npy"))
         diff = np.linalg.norm(D - ref) / np.linalg.norm(ref)
         print(f"{method:10s} {min(t):8.3f} {statistics.median(t):9.3f} {max(t):8.3f} "
               f"{base / statistics.median(t):8.1f}x {mem:9.0f} {diff:10.1e}")

@@ -83,7 +83,7 @@ def seat_drop(gf, integrator: str, adaptive: bool, dt: float, r: float = 0.005, 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--gf", help="bundle directory (default: build/reuse /tmp/hcache/seat006)")
+    ap.add_argument("--gf", help="bundle directory (default: the default seat, P1 6 mm, built or reused from the hailstorm cache)")
     ap.add_argument("--stones", type=int, default=2000)
     ap.add_argument("--duration", type=float, default=2.0)
     ap.add_argument("--dt", type=float, default=5e-4)
@@ -101,7 +101,7 @@ def main() -> None:
     else:
         from precompute import build_bundle
 
-        path = build_bundle("/tmp/hcache/seat006", mesh_size=0.006)
+        path = build_bundle(None, mesh_size=0.006)
     gf = runtime.load(path)
     rows = []
     base_rtf = None
