@@ -114,7 +114,6 @@ from typing import Any, Callable, Mapping
 
 import numpy as np
 
-from runtime import contact as _contact
 from runtime.collide import SurfaceIndex
 from runtime.hail import (
     GRAVITY,

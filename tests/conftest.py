@@ -27,3 +27,29 @@ def seat_bundle(tmp_path_factory):
 @pytest.fixture
 def rng():
     return np.random.default_rng(12345)
+
+
+@pytest.fixture
+def run_notebook(tmp_path, monkeypatch):
+    """Execute ``notebooks/<name>`` on small settings; return the text it printed.
+
+    Checks that the notebook is committed without outputs; runs it with
+    ``HAILSTORM_NOTEBOOK_SMALL=1``, a private cache and the Agg backend.
+    """
+    from pathlib import Path
+
+    nbformat = pytest.importorskip("nbformat")
+    nbclient = pytest.importorskip("nbclient")
+
+    def run(name: str) -> str:
+        path = Path(__file__).resolve().parents[1] / "notebooks" / name
+        nb = nbformat.read(path, as_version=4)
+        assert all(not c.get("outputs") for c in nb.cells if c.cell_type == "code"), "commit without outputs"
+        monkeypatch.setenv("HAILSTORM_NOTEBOOK_SMALL", "1")
+        monkeypatch.setenv("HAILSTORM_CACHE", str(tmp_path / "cache"))
+        monkeypatch.setenv("MPLBACKEND", "Agg")
+        nbclient.NotebookClient(nb, timeout=600, kernel_name="python3",
+                                resources={"metadata": {"path": str(tmp_path)}}).execute()
+        return "".join(o.get("text", "") for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", []))
+
+    return run

@@ -149,18 +149,8 @@ def test_committed_figure_is_small():
     assert fig.stat().st_size <= 150 * 1024
 
 
-def test_notebook_runs_small(tmp_path, monkeypatch):
-    nbformat = pytest.importorskip("nbformat")
-    nbclient = pytest.importorskip("nbclient")
-    path = ROOT / "notebooks" / "mesh_dependence.ipynb"
-    nb = nbformat.read(path, as_version=4)
-    assert all(c.get("outputs", []) == [] for c in nb.cells if c.cell_type == "code"), "commit without outputs"
-    monkeypatch.setenv("HAILSTORM_NOTEBOOK_SMALL", "1")
-    monkeypatch.setenv("HAILSTORM_CACHE", str(tmp_path / "cache"))
-    monkeypatch.setenv("MPLBACKEND", "Agg")
-    client = nbclient.NotebookClient(nb, timeout=300, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}})
-    client.execute()
-    text = "".join(o.get("text", "") for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", []))
+def test_notebook_runs_small(run_notebook):
+    text = run_notebook("mesh_dependence.ipynb")
     assert "SMALL = True" in text
 
 
@@ -253,22 +243,7 @@ def test_committed_stability_figure_is_small():
     assert fig.stat().st_size <= 150 * 1024
 
 
-def test_stability_notebook_runs_small(tmp_path, monkeypatch):
-    import time
-
-    nbformat = pytest.importorskip("nbformat")
-    nbclient = pytest.importorskip("nbclient")
-    path = ROOT / "notebooks" / "stability.ipynb"
-    nb = nbformat.read(path, as_version=4)
-    assert all(c.get("outputs", []) == [] for c in nb.cells if c.cell_type == "code"), "commit without outputs"
-    monkeypatch.setenv("HAILSTORM_NOTEBOOK_SMALL", "1")
-    monkeypatch.setenv("HAILSTORM_CACHE", str(tmp_path / "cache"))
-    monkeypatch.setenv("MPLBACKEND", "Agg")
-    client = nbclient.NotebookClient(nb, timeout=300, kernel_name="python3", resources={"metadata": {"path": str(tmp_path)}})
-    t0 = time.perf_counter()
-    client.execute()
-    elapsed = time.perf_counter() - t0
-    text = "".join(o.get("text", "") for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", []))
+def test_stability_notebook_runs_small(run_notebook):
+    text = run_notebook("stability.ipynb")
     assert "SMALL = True" in text
     assert text.count("Interpretation:") >= 4
-    assert elapsed < 120, f"small notebook took {elapsed:.0f} s (budget ~60 s)"
