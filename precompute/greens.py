@@ -122,6 +122,7 @@ def compliance_matrix(
     block_bytes: int = DEFAULT_BLOCK_BYTES,
     block_columns: int = DEFAULT_BLOCK_COLUMNS,
     workers: int | None = None,
+    loads: sp.spmatrix | None = None,
     progress: Callable[[int], None] | None = None,
 ) -> np.ndarray:
     """The compliance D: ``D[:, k]`` = displacement at ``read_dofs`` for a unit
@@ -135,12 +136,17 @@ def compliance_matrix(
         Clamped dofs (their rows/columns are removed).
     load_dofs
         Dofs that receive a unit force, one column each. Must be free.
+        Ignored when ``loads`` is given.
     read_dofs
         Dofs read out, one row each (clamped ones read zero).
     solver, near_null, tol
         See :func:`factorize`. ``near_null`` is (n_dofs, 6) over *all* dofs.
     block_bytes, block_columns
         Memory bound and column count of one block of dense right-hand sides.
+    loads
+        (n_dofs, ncols) sparse load vectors, one column each, instead of
+        unit forces (e.g. :func:`hat_load_matrix`); entries on clamped dofs
+        are dropped (they go straight into the support).
     workers
         Processes solving blocks in parallel, each with its own factorization
         (``None``: :func:`default_workers`). Results do not depend on it.
@@ -155,22 +161,28 @@ def compliance_matrix(
     free = free_dofs(n, fixed_dofs)
     where = np.full(n, -1, dtype=np.int64)
     where[free] = np.arange(free.size)
-    load_pos = where[np.asarray(load_dofs)]
-    if np.any(load_pos < 0):
-        raise ValueError("a load dof is clamped: forces on the clamp never deform the solid")
+    if loads is None:
+        load_pos = where[np.asarray(load_dofs)]
+        if np.any(load_pos < 0):
+            raise ValueError("a load dof is clamped: forces on the clamp never deform the solid")
+        ncols = load_pos.size
+        free_loads = None
+    else:
+        free_loads = sp.csc_matrix(loads)[free]
+        load_pos = None
+        ncols = free_loads.shape[1]
     read_pos = where[np.asarray(read_dofs)]
     read_live = np.flatnonzero(read_pos >= 0)
 
     K = sp.csr_matrix(K)
     Kff = K[free][:, free]
     nn = None if near_null is None else near_null[free]
-    ncols = load_pos.size
     D = np.zeros((len(read_dofs), ncols), order="F")  # column-major: blocks of columns are contiguous
     block = int(max(1, min(ncols, block_columns, block_bytes // (16 * max(free.size, 1)))))
     blocks = [np.arange(s, min(s + block, ncols)) for s in range(0, ncols, block)]
     if workers is None:
         workers = default_workers(ncols, solver)
-    task = _BlockSolver(Kff, solver, nn, tol, load_pos, read_pos[read_live])
+    task = _BlockSolver(Kff, solver, nn, tol, load_pos, read_pos[read_live], free_loads)
     if workers <= 1:
         results = map(task, blocks)
         pool = None
@@ -207,9 +219,9 @@ def default_workers(ncols: int, solver: str) -> int:
 class _BlockSolver:
     """Factor once (lazily, in whichever process runs it), then solve column blocks."""
 
-    def __init__(self, Kff, solver, near_null, tol, load_pos, read_rows):
+    def __init__(self, Kff, solver, near_null, tol, load_pos, read_rows, loads=None):
         self.Kff, self.solver, self.near_null, self.tol = Kff, solver, near_null, tol
-        self.load_pos, self.read_rows = load_pos, read_rows
+        self.load_pos, self.read_rows, self.loads = load_pos, read_rows, loads
         self._fact = None
 
     def __getstate__(self):
@@ -220,8 +232,11 @@ class _BlockSolver:
     def __call__(self, cols: np.ndarray) -> np.ndarray:
         if self._fact is None:
             self._fact = factorize(self.Kff, self.solver, near_null=self.near_null, tol=self.tol)
-        rhs = np.zeros((self.Kff.shape[0], cols.size))
-        rhs[self.load_pos[cols], np.arange(cols.size)] = 1.0
+        if self.loads is not None:
+            rhs = self.loads[:, cols].toarray()
+        else:
+            rhs = np.zeros((self.Kff.shape[0], cols.size))
+            rhs[self.load_pos[cols], np.arange(cols.size)] = 1.0
         return self._fact.solve(rhs)[self.read_rows]
 
 
@@ -236,6 +251,37 @@ def _init_worker(task: _BlockSolver) -> None:
 def _run_worker(cols: np.ndarray) -> np.ndarray:
     assert _WORKER_TASK is not None
     return _WORKER_TASK(cols)
+
+
+def hat_load_matrix(basis, nodes: np.ndarray, areas: np.ndarray) -> sp.csc_matrix:
+    """Consistent loads of unit "vertex pressure masks" (James & Pai), one column per (vertex, direction).
+
+    Column (k, d) is the load vector of the traction e_d φ_j / a_j on the
+    boundary, with φ_j the P1 hat function of surface vertex j = ``nodes[k]``
+    (a volume node) and a_j = ∫ φ_j its lumped area: one newton in total,
+    spread over the vertex's patch and integrated consistently for the
+    basis's element order. For P2 this is the load a corner point force
+    should have been (a point force on a P2 corner node converges poorly for
+    distributed loads; see the README's speed-vs-accuracy study).
+
+    Returns
+    -------
+    scipy.sparse.csc_matrix, shape (basis.N, 3 len(nodes))
+    """
+    from skfem import BilinearForm, ElementTetP1, ElementVector, FacetBasis
+    from skfem.helpers import dot
+
+    facets = basis.mesh.boundary_facets()
+    test = FacetBasis(basis.mesh, basis.elem, facets=facets, intorder=4)
+    trial = FacetBasis(basis.mesh, ElementVector(ElementTetP1()), facets=facets, intorder=4)
+
+    @BilinearForm
+    def surface_mass(u, v, w):
+        return dot(u, v)
+
+    M = surface_mass.assemble(trial, test).tocsc()  # (test dofs, P1 vector dofs)
+    cols = np.asarray(trial.nodal_dofs[:, np.asarray(nodes)].T).ravel()  # vertex-major x, y, z
+    return (M[:, cols] @ sp.diags(1.0 / np.repeat(areas, 3))).tocsc()
 
 
 def lumped_areas(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:

@@ -31,12 +31,13 @@ from precompute.fem import (
     vertex_dofs,
 )
 from precompute.geometry import TetMesh, boundary_triangles, load_seat
-from precompute.greens import SOLVERS, compliance_matrix, lumped_areas
+from precompute.greens import SOLVERS, compliance_matrix, hat_load_matrix, lumped_areas
 from runtime.bundle import FORMAT_VERSION, is_bundle, read_manifest, write_bundle
 
 log = logging.getLogger(__name__)
 
 DEFAULT_MESH_SIZE = 0.01
+LOADS = ("point", "hat")
 
 
 @dataclass(frozen=True)
@@ -117,6 +118,7 @@ def build_bundle(
     contact_group: str = "top",
     solver: str = "cholmod",
     tol: float = 1e-10,
+    load: str = "point",
     reuse: bool = True,
     progress: bool = False,
 ) -> Path:
@@ -141,6 +143,12 @@ def build_bundle(
     solver, tol
         ``"cholmod"`` (default), ``"splu"`` or ``"amg"`` with relative
         residual ``tol``.
+    load
+        What a column of D responds to: ``"point"`` (default), a unit nodal
+        force at the vertex; ``"hat"``, one newton spread as a traction over
+        the vertex's hat function (:func:`precompute.greens.hat_load_matrix`),
+        the consistent choice for P2 (measured: 12 % instead of 37 % error
+        under distributed loads at 6 mm).
     reuse
         Return an existing bundle at ``out`` whose key matches, without
         recomputing.
@@ -155,6 +163,8 @@ def build_bundle(
     young, poisson = check_material(young, poisson)
     if order not in (1, 2):
         raise ValueError(f"element order must be 1 or 2, got {order!r}")
+    if load not in LOADS:
+        raise ValueError(f"unknown load {load!r}; choose one of {LOADS}")
     if solver not in SOLVERS:
         raise ValueError(f"unknown solver {solver!r}; choose one of {SOLVERS}")
     if not (np.isfinite(tol) and 0 < tol < 1):
@@ -171,6 +181,7 @@ def build_bundle(
         "contact_group": contact_group,
         "solver": solver,
         "tol": tol if solver == "amg" else None,
+        "load": load,
     }
     key = cache_key(mesh, options)
     if out is None:
@@ -191,8 +202,9 @@ def build_bundle(
     K = stiffness_matrix(basis, young, poisson)
     fixed = clamp_dofs(basis, mesh)
     contact_nodes = surface.nodes[surface.contactable]
-    load = vertex_dofs(basis, contact_nodes).ravel()
+    load_dofs = vertex_dofs(basis, contact_nodes).ravel()
     read = vertex_dofs(basis, surface.nodes).ravel()
+    loads = hat_load_matrix(basis, contact_nodes, surface.areas[surface.contactable]) if load == "hat" else None
     near_null = None
     if solver == "amg":
         near_null = _rigid_modes_on_dofs(basis)
@@ -203,10 +215,10 @@ def build_bundle(
     if progress:
         from tqdm.auto import tqdm
 
-        bar = tqdm(total=load.size, desc=f"Green's functions (P{order}, {solver})", unit="col")
+        bar = tqdm(total=load_dofs.size, desc=f"Green's functions (P{order}, {solver})", unit="col")
     try:
         D = compliance_matrix(
-            K, fixed, load, read, solver=solver, near_null=near_null, tol=tol,
+            K, fixed, load_dofs, read, solver=solver, near_null=near_null, tol=tol, loads=loads,
             progress=None if bar is None else bar.update,
         )
     finally:

@@ -55,12 +55,14 @@ import scipy.sparse as sp
 from precompute.fem import (
     DEFAULT_POISSON,
     DEFAULT_YOUNG,
+    clamp_dofs,
     elasticity_basis,
     free_dofs,
     stiffness_matrix,
+    vertex_dofs,
 )
 from precompute.geometry import TetMesh, boundary_triangles, mesh_default_seat
-from precompute.greens import factorize
+from precompute.greens import compliance_matrix, factorize
 from precompute.pipeline import build_bundle, default_cache_dir
 
 #: Bump when the meaning of cached study results changes.
@@ -315,21 +317,6 @@ def work_error(qoi: QoI, ref: QoI) -> float:
     return float(np.max(np.abs(qoi.work - ref.work) / np.abs(ref.work)))
 
 
-def _clamp_dofs(basis, mesh: TetMesh) -> np.ndarray:
-    """Clamp dofs with an int64 facet lookup (``fem.clamp_dofs`` keys facets in
-    int32, which overflows beyond ~1290 mesh nodes)."""
-    facets = np.sort(np.asarray(basis.mesh.facets.T, dtype=np.int64), axis=1)
-    tris = np.sort(np.asarray(mesh.groups["clamp"], dtype=np.int64), axis=1)
-    n = np.int64(basis.mesh.p.shape[1])
-    kf = (facets[:, 0] * n + facets[:, 1]) * n + facets[:, 2]
-    kt = (tris[:, 0] * n + tris[:, 1]) * n + tris[:, 2]
-    order = np.argsort(kf)
-    pos = np.minimum(np.searchsorted(kf[order], kt), kf.size - 1)
-    if not np.all(kf[order][pos] == kt):
-        raise ValueError("clamp triangles are not facets of the mesh")
-    return np.asarray(basis.get_dofs(order[pos]).all(), dtype=np.int64)
-
-
 def _trace_nodes(basis, triangles: np.ndarray, order: int) -> tuple[np.ndarray, np.ndarray]:
     """Per-triangle node numbers for :func:`trace_shape` and the (n_nodes, 3) dof table."""
     nv = basis.mesh.p.shape[1]
@@ -383,7 +370,7 @@ def direct_qoi(
     t0 = time.perf_counter()
     basis = elasticity_basis(mesh, order)
     K = stiffness_matrix(basis, young, poisson)
-    fixed = _clamp_dofs(basis, mesh)
+    fixed = clamp_dofs(basis, mesh)
     tris = boundary_triangles(mesh.tets)
     nodes, table = _trace_nodes(basis, tris, order)
     F = np.zeros((K.shape[0], len(scenario.loads)))
@@ -443,15 +430,6 @@ class _SurfaceScenario:
         return QoI(u, work)
 
 
-#: Dunavant's 6-point rule, exact to degree 4 (barycentrics, weights summing to 1).
-_A, _B = 0.445948490915965, 0.091576213509771
-_DUNAVANT4 = (
-    np.array([[1 - 2 * _A, _A, _A], [_A, 1 - 2 * _A, _A], [_A, _A, 1 - 2 * _A],
-              [1 - 2 * _B, _B, _B], [_B, 1 - 2 * _B, _B], [_B, _B, 1 - 2 * _B]]),
-    np.array([0.223381589678011] * 3 + [0.109951743655322] * 3),
-)
-
-
 @dataclass
 class HatCompliance:
     """A compliance D whose column (j, d) answers a *traction* spread over the
@@ -490,46 +468,18 @@ def hat_traction_compliance(
     time of the whole computation (surface, assembly, factorization, solves),
     without meshing.
     """
+    from precompute.greens import hat_load_matrix
     from precompute.pipeline import extract_surface
 
     t0 = time.perf_counter()
     surface = extract_surface(mesh, contact_group)
     basis = elasticity_basis(mesh, order)
     K = stiffness_matrix(basis, young, poisson)
-    fixed = _clamp_dofs(basis, mesh)
-    tris = surface.triangles
-    nodes, table = _trace_nodes(basis, surface.nodes[tris], order)
-    lam, w = _DUNAVANT4
-    mloc = np.einsum("q,qj,qa->ja", w, lam, trace_shape(lam, order))  # (3 corners, n shape) per unit area
-    _, tri_area = _normals(mesh.points[surface.nodes], tris)
-    nsurf = surface.nodes.size
-    col = np.full(nsurf, -1, dtype=np.int64)
-    col[surface.contactable] = np.arange(int(surface.contactable.sum()))
-    na = nodes.shape[1]
-    r = np.repeat(nodes[:, None, :], 3, axis=1)  # (m, j, a)
-    c = np.repeat(tris[:, :, None], na, axis=2)
-    v = tri_area[:, None, None] * mloc[None] / surface.areas[tris][:, :, None]
-    keep = col[c] >= 0
-    G = sp.csc_matrix((v[keep], (r[keep], col[c[keep]])), shape=(table.shape[0], int(surface.contactable.sum())))
-    free = free_dofs(K.shape[0], fixed)
-    where = np.full(K.shape[0], -1, dtype=np.int64)
-    where[free] = np.arange(free.size)
-    fact = factorize(sp.csr_matrix(K)[free][:, free], "cholmod")
-    read = where[table[surface.nodes].ravel()]  # (3 nsurf,) vertex-major x, y, z
-    live = np.flatnonzero(read >= 0)
-    ncol = 3 * G.shape[1]
-    D = np.zeros((3 * nsurf, ncol))
-    for s0 in range(0, ncol, block):
-        cols = np.arange(s0, min(s0 + block, ncol))
-        rhs = np.zeros((free.size, cols.size))
-        for k, cc in enumerate(cols):
-            j, d = divmod(int(cc), 3)
-            lo, hi = G.indptr[j], G.indptr[j + 1]
-            dof = where[table[G.indices[lo:hi], d]]
-            ok = dof >= 0
-            rhs[dof[ok], k] = G.data[lo:hi][ok]
-        D[live[:, None], cols[None, :]] = fact.solve(rhs)[read[live]]
-    return HatCompliance(D, mesh.points[surface.nodes], tris, surface.contactable,
+    contact_nodes = surface.nodes[surface.contactable]
+    loads = hat_load_matrix(basis, contact_nodes, surface.areas[surface.contactable])
+    D = compliance_matrix(K, clamp_dofs(basis, mesh), vertex_dofs(basis, contact_nodes).ravel(),
+                          vertex_dofs(basis, surface.nodes).ravel(), loads=loads, block_columns=block)
+    return HatCompliance(D, mesh.points[surface.nodes], surface.triangles, surface.contactable,
                          time.perf_counter() - t0, int(K.shape[0]))
 
 

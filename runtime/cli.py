@@ -63,6 +63,9 @@ def _parser() -> argparse.ArgumentParser:
     pre.add_argument("--solver", choices=("cholmod", "splu", "amg"), default="cholmod",
                      help="sparse Cholesky (default), SuperLU, or AMG-preconditioned CG for huge meshes")
     pre.add_argument("--tol", type=_positive_float, default=1e-10, help="relative residual of the AMG solver")
+    pre.add_argument("--load", choices=("point", "hat"), default="point",
+                     help="a column of D responds to a unit nodal force (point, default) or to one newton "
+                     "spread over the vertex's hat function (hat: the consistent choice for --order 2)")
     pre.add_argument("--out", type=Path, required=True, help="bundle directory to write")
     pre.add_argument("--force", action="store_true", help="recompute even if --out holds an up-to-date bundle")
 
@@ -90,7 +93,7 @@ def _run_precompute(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     path = build_bundle(
         args.out, geometry=args.geometry, mesh_size=args.mesh_size, order=args.order,
-        young=args.young, poisson=args.poisson, solver=args.solver, tol=args.tol,
+        young=args.young, poisson=args.poisson, solver=args.solver, tol=args.tol, load=args.load,
         reuse=not args.force, progress=not args.quiet,
     )
     _print_bundle(path)

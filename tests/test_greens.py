@@ -136,3 +136,46 @@ def test_default_seat_p2_columns_equal_direct_fem(tmp_path):
         basis, K, f, u = _direct_column(mesh, 2, gf.young, gf.poisson, gf.surface_nodes[j], 2)
         expected = u[vertex_dofs(basis, gf.surface_nodes).ravel()]
         assert np.linalg.norm(gf.compliance(rows, [j])[:, 2] - expected) <= 1e-9 * np.linalg.norm(expected)
+
+
+@pytest.mark.parametrize("order", [1, 2])
+def test_hat_columns_equal_direct_fem_with_a_hat_traction(tmp_path, small_box, order):
+    """load="hat": column (j, d) is the response to the traction e_d φ_j / a_j,
+    checked against scikit-fem's own assembly of that traction (a LinearForm on
+    the boundary with φ_j interpolated from a scalar P1 field)."""
+    from skfem import ElementTetP1, FacetBasis, LinearForm
+
+    gf = runtime.load(build_bundle(tmp_path / "hat", mesh=small_box, order=order, young=1e6, poisson=0.3, load="hat"))
+    assert gf.manifest["options"]["load"] == "hat"
+    basis = elasticity_basis(small_box, order)
+    K = stiffness_matrix(basis, 1e6, 0.3)
+    facets = basis.mesh.boundary_facets()
+    fb = FacetBasis(basis.mesh, basis.elem, facets=facets, intorder=4)
+    fb_scalar = FacetBasis(basis.mesh, ElementTetP1(), facets=facets, intorder=4)
+    rows = np.arange(gf.n_vertices)
+    for j, d in [(int(gf.contact_vertices[3]), 2), (int(gf.contact_vertices[-1]), 0)]:
+        indicator = np.zeros(fb_scalar.N)
+        indicator[gf.surface_nodes[j]] = 1.0
+
+        @LinearForm
+        def traction(v, w):
+            return w["phi"] * v[d] / gf.areas[j]
+
+        f = traction.assemble(fb, phi=fb_scalar.interpolate(indicator))
+        total = f[vertex_dofs(basis, np.arange(small_box.points.shape[0]))[:, d]].sum()
+        if order == 2:
+            total += f[basis.edge_dofs[d]].sum()
+        assert total == pytest.approx(1.0, rel=1e-12)  # one newton in all
+        u = solve(*condense(K, f, D=clamp_dofs(basis, small_box)))
+        expected = u[vertex_dofs(basis, gf.surface_nodes).ravel()]
+        got = gf.compliance(rows, [j])[:, d]
+        assert np.linalg.norm(got - expected) <= 1e-10 * np.linalg.norm(expected)
+
+
+def test_hat_and_point_bundles_have_different_keys(tmp_path, small_box):
+    a = runtime.load(build_bundle(tmp_path / "a", mesh=small_box, load="point"))
+    b = runtime.load(build_bundle(tmp_path / "b", mesh=small_box, load="hat"))
+    assert a.manifest["key"] != b.manifest["key"]
+    assert not np.allclose(a.D, b.D)
+    with pytest.raises(ValueError, match="unknown load"):
+        build_bundle(tmp_path / "c", mesh=small_box, load="smeared")
