@@ -42,46 +42,47 @@ def closest_point_on_triangles(
         Their barycentric coordinates (non-negative, summing to one).
     """
     p, a, b, c = (np.asarray(x, dtype=np.float64) for x in (p, a, b, c))
-    k = p.shape[0]
-    E = np.stack([b - a, c - a])  # ab, ac
+    # (written for few numpy calls: the arrays are short, the cost is per call)
+    ab = b - a
+    ac = c - a
     ap = p - a
-    # d1 = ab.ap, d2 = ac.ap and the Gram entries; bp = ap - ab and cp = ap - ac give the rest
-    d1, d2 = np.einsum("eki,ki->ek", E, ap)
-    g = np.einsum("eki,fki->efk", E, E)
-    gaa, gab, gbb = g[0, 0], g[0, 1], g[1, 1]
-    d3, d4 = d1 - gaa, d2 - gab
-    d5, d6 = d1 - gab, d2 - gbb
+    d1 = np.einsum("ki,ki->k", ab, ap)
+    d2 = np.einsum("ki,ki->k", ac, ap)
+    gaa = np.einsum("ki,ki->k", ab, ab)
+    gab = np.einsum("ki,ki->k", ab, ac)
+    gbb = np.einsum("ki,ki->k", ac, ac)
+    d3 = d1 - gaa; d4 = d2 - gab
+    d5 = d1 - gab; d6 = d2 - gbb
     va = d3 * d6 - d5 * d4
     vb = d5 * d2 - d1 * d6
     vc = d1 * d4 - d3 * d2
-    e1, e2 = d4 - d3, d5 - d6
-    # Voronoi regions in Ericson's order (the first that holds wins; 6 = interior)
-    conds = np.stack([
-        (d1 <= 0) & (d2 <= 0),  # vertex A
-        (d3 >= 0) & (d4 <= d3),  # vertex B
-        (vc <= 0) & (d1 >= 0) & (d3 <= 0),  # edge AB
-        (d6 >= 0) & (d5 <= d6),  # vertex C
-        (vb <= 0) & (d2 >= 0) & (d6 <= 0),  # edge AC
-        (va <= 0) & (e1 >= 0) & (e2 >= 0),  # edge BC
-        np.ones(k, dtype=bool),  # interior
-    ])
-    reg = np.argmax(conds, axis=0)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        num = np.stack([d1, d2, e1, vb, vc])
-        den = np.stack([d1 - d3, d2 - d6, e1 + e2, va + vb + vc, va + vb + vc])
-        t = num / np.where(den != 0, den, 1.0)  # tab, tac, tbc, v_in, w_in
-    zero, one = np.zeros(k), np.ones(k)
-    vw = np.stack([
-        np.stack([zero, one, t[0], zero, zero, 1.0 - t[2], t[3]]),  # v per region
-        np.stack([zero, zero, zero, one, t[1], t[2], t[4]]),  # w per region
-    ])
-    ar = np.arange(k)
+    e1 = d4 - d3; e2 = d5 - d6
+    k = d1.size
+    num = np.empty((5, k)); den = np.empty((5, k))
+    num[0] = d1; num[1] = d2; num[2] = e1; num[3] = vb; num[4] = vc
+    den[0] = d1 - d3; den[1] = d2 - d6; den[2] = e1 + e2
+    np.add(va + vb, vc, out=den[3]); den[4] = den[3]
+    den[den == 0] = 1.0
+    t = num / den
+    # Voronoi regions in Ericson's order, applied last to first (the first true one wins)
+    m = (va <= 0) & (e1 >= 0) & (e2 >= 0)  # edge BC
+    v = np.where(m, 1.0 - t[2], t[3]); w = np.where(m, t[2], t[4])
+    m = (vb <= 0) & (d2 >= 0) & (d6 <= 0)  # edge AC
+    v = np.where(m, 0.0, v); w = np.where(m, t[1], w)
+    m = (d6 >= 0) & (d5 <= d6)  # vertex C
+    v = np.where(m, 0.0, v); w = np.where(m, 1.0, w)
+    m = (vc <= 0) & (d1 >= 0) & (d3 <= 0)  # edge AB
+    v = np.where(m, t[0], v); w = np.where(m, 0.0, w)
+    m = (d3 >= 0) & (d4 <= d3)  # vertex B
+    v = np.where(m, 1.0, v); w = np.where(m, 0.0, w)
+    m = (d1 <= 0) & (d2 <= 0)  # vertex A
+    v = np.where(m, 0.0, v); w = np.where(m, 0.0, w)
     bary = np.empty((k, 3))
-    bary[:, 1] = vw[0, reg, ar]
-    bary[:, 2] = vw[1, reg, ar]
-    bary[:, 0] = 1.0 - bary[:, 1] - bary[:, 2]
-    bary = np.clip(bary, 0.0, 1.0)
-    bary /= bary.sum(axis=1, keepdims=True)
+    bary[:, 1] = v
+    bary[:, 2] = w
+    bary[:, 0] = 1.0 - v - w
+    np.minimum(np.maximum(bary, 0.0, out=bary), 1.0, out=bary)  # np.clip, without its overhead
+    bary /= np.add.reduce(bary, axis=1, keepdims=True)
     point = bary[:, :1] * a + bary[:, 1:2] * b + bary[:, 2:] * c
     return point, bary
 
@@ -186,7 +187,9 @@ class SurfaceIndex:
         """
         pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         k = pts.shape[0]
-        reach = np.broadcast_to(np.asarray(reach, dtype=np.float64), (k,))
+        reach = np.asarray(reach, dtype=np.float64)
+        if reach.shape != (k,):
+            reach = np.broadcast_to(reach, (k,))
         out = Closest(
             triangle=np.full(k, -1, dtype=np.intp),
             bary=np.zeros((k, 3)),
@@ -212,8 +215,8 @@ class SurfaceIndex:
         # rows whose KNN-th sample is still within lim may miss some: ball query for those
         full = inside[:, -1].copy()
         inside[full] = False
-        owner = np.broadcast_to(np.arange(k)[:, None], inside.shape)[inside]
-        smp = ii[inside]
+        owner, col = np.nonzero(inside)
+        smp = ii[owner, col]
         if full.any():
             sel = np.flatnonzero(full)
             lists = self.tree.query_ball_point(pts[sel], lim[sel])
@@ -230,21 +233,30 @@ class SurfaceIndex:
         tri = self._sample_tri[smp]
         corners = self.triangles[tri]
         if displacement is not None:
-            verts, inv = np.unique(corners, return_inverse=True)
+            # np.unique(corners, return_inverse=True) through a mark array (same result, cheaper)
+            mark = np.zeros(self.vertices.shape[0], dtype=bool)
+            mark[corners] = True
+            verts = np.flatnonzero(mark)
+            pos = np.empty(mark.size, dtype=np.intp)
+            pos[verts] = np.arange(verts.size)
+            inv = pos[corners]
             Xl = self.vertices[verts] + displacement(verts)
             corners = inv.reshape(corners.shape)
         else:
             Xl = self.vertices if deformed is None else np.asarray(deformed, dtype=np.float64)
-        cp, bary = closest_point_on_triangles(pts[owner], Xl[corners[:, 0]], Xl[corners[:, 1]], Xl[corners[:, 2]])
-        dv = pts[owner] - cp
+        po = pts[owner]
+        T = Xl[corners]  # (pairs, 3, 3): one gather for the three corners
+        cp, bary = closest_point_on_triangles(po, T[:, 0], T[:, 1], T[:, 2])
+        dv = po - cp
         d = np.sqrt(np.einsum("ij,ij->i", dv, dv))
-        # the minimum per owner (pairs are sorted by owner)
-        starts = np.flatnonzero(np.r_[True, owner[1:] != owner[:-1]])
-        dmin = np.minimum.reduceat(d, starts)
-        grp = np.cumsum(np.r_[False, owner[1:] != owner[:-1]])
-        hit = np.flatnonzero(d == dmin[grp])
-        first = hit[np.r_[True, grp[hit][1:] != grp[hit][:-1]]]
-        o = owner[first]
+        # the minimum per owner (the first pair among equal distances: stable sort)
+        order = np.lexsort((d, owner))
+        so = owner[order]
+        head = np.empty(so.size, dtype=bool)
+        head[0] = True
+        np.not_equal(so[1:], so[:-1], out=head[1:])
+        first = order[head]
+        o = so[head]
         ok = d[first] <= reach[o]
         first, o = first[ok], o[ok]
         out.triangle[o] = tri[first]

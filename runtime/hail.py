@@ -237,6 +237,7 @@ def restitution_for_damping_ratio(zeta: np.ndarray | float) -> np.ndarray | floa
 
 _Z_GRID = np.concatenate([[0.0], np.logspace(-6, 3, 4000)])
 _E_GRID = restitution_for_damping_ratio(_Z_GRID)  # decreasing from 1
+_X_GRID = -np.log(np.clip(_E_GRID, 1e-300, 1.0))  # the look-up's abscissae (increasing), computed once
 
 
 def damping_ratio_for_restitution(e: np.ndarray | float) -> np.ndarray | float:
@@ -245,7 +246,7 @@ def damping_ratio_for_restitution(e: np.ndarray | float) -> np.ndarray | float:
     ea = np.asarray(e, dtype=np.float64)
     if np.any((ea < 0) | (ea > 1)):
         raise ValueError(f"restitution must lie in [0, 1], got {e!r}")
-    z = np.interp(-np.log(np.clip(ea, 1e-300, 1.0)), -np.log(np.clip(_E_GRID, 1e-300, 1.0)), _Z_GRID)
+    z = np.interp(-np.log(np.clip(ea, 1e-300, 1.0)), _X_GRID, _Z_GRID)
     return float(z) if z.ndim == 0 else z
 
 

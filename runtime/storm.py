@@ -103,6 +103,7 @@ dense solves are tiny and threaded BLAS on a shared machine only adds latency.
 
 from __future__ import annotations
 
+import bisect
 import dataclasses
 import math
 import time
@@ -110,6 +111,7 @@ import tomllib
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any, Callable, Mapping
 
 import numpy as np
@@ -503,7 +505,7 @@ class Storm:
         self._patch = scene.patch != "none"
         self.crad = np.zeros(0)
         self._wcache: dict[int, tuple[int, bytes, float, np.ndarray, np.ndarray]] = {}
-        self._k_tri: dict[int, float] = {}
+        self._k_tri_all: np.ndarray | None = None  # normal stiffness per triangle (lazy)
         # seat state: the contact forces at the loaded vertices; the displacement is
         # evaluated only where needed (candidate triangles, frames)
         D = gf.D
@@ -511,7 +513,11 @@ class Storm:
             # column gathers D[:, cols] from a row-major memmap read the whole file each time:
             # hold a column-major copy (a no-op once bundles store D column-major)
             D = np.asfortranarray(D)
-        self._D = D
+        # a plain ndarray view of a memmap (no copy): numpy.memmap's per-index overhead
+        # (subclass wrapping) dominates the small gathers of the loop
+        self._D = np.asarray(D)
+        #: the bundle as the D-gather helpers see it, reading through that view
+        self._gfD = SimpleNamespace(D=self._D, column_of=np.asarray(gf.column_of))
         self._fv: np.ndarray | None = None
         self._fcols: np.ndarray | None = None
         self._u_version = 0
@@ -525,6 +531,7 @@ class Storm:
         self._pred_umax = 0.0
         self._umax_step = 0.0  # largest umax in the current step
         self._live: np.ndarray | None = None
+        self._far = np.zeros(0, dtype=np.intp)  # live stones that are not near (set by _near_set)
         #: time-of-impact sub-steps (adaptive) and the gap within which a contact opens [radii]
         self._toi = bool(scene.adaptive)
         self._toi_tol = 0.01
@@ -544,6 +551,8 @@ class Storm:
         )
         self._pending = self._plan_spawns() if spawn else np.zeros((0, 8))
         self._next_pending = 0
+        #: spawn times as a plain list (one float comparison per step when nothing is due)
+        self._pending_t = self._pending[:, 0].tolist()
 
     # -- stones ------------------------------------------------------------------
     def _plan_spawns(self) -> np.ndarray:
@@ -588,19 +597,27 @@ class Storm:
         return ids
 
     def _spawn_until(self, t_end: float) -> None:
-        p = self._pending
         j = self._next_pending
-        k = int(np.searchsorted(p[:, 0], t_end, side="left")) if p.shape[0] else 0
+        pt = self._pending_t
+        if j >= len(pt) or not pt[j] < t_end:
+            return  # nothing due (the times are sorted)
+        p = self._pending
+        k = bisect.bisect_left(pt, t_end, j)  # = np.searchsorted(p[:, 0], t_end, side="left")
         if k > j:
             self.add_stones(p[j:k, 1:4], p[j:k, 4:7], p[j:k, 7])
             self._next_pending = k
 
     def _accel(self, idx: np.ndarray) -> np.ndarray:
         """Non-contact acceleration (gravity + drag) of stones ``idx``."""
-        a = np.broadcast_to(self.g, (idx.size, 3)).copy()
+        a = np.empty((idx.size, 3))
+        a[:] = self.g
         if self.scene.drag and idx.size:
-            a += drag_acceleration(self.vel[idx], self.radius[idx], wind=self.wind, cd=self.scene.cd,
-                                   rho_air=self.scene.rho_air, density=self.scene.density)
+            # drag_acceleration inlined (same arithmetic, fewer numpy calls: the arrays are short)
+            sc = self.scene
+            w = self.vel[idx] - self.wind
+            speed = np.sqrt(np.add.reduce(w * w, axis=1, keepdims=True))
+            coef = 3.0 * sc.cd * sc.rho_air / (8.0 * sc.density * self.radius[idx])
+            a += -coef[:, None] * speed * w
         return a
 
     # -- contacts ----------------------------------------------------------------
@@ -610,7 +627,7 @@ class Storm:
         from runtime.contact_capacitance import _contact_compliance, _rigid
         from runtime.gather import _column_dofs, _dof3, _gather
         from runtime.hail import _inv_spd
-        from runtime.weights import _dense_B, _locate_lists
+        from runtime.weights import _dense_B, _dense_Bs, _locate_lists
 
         gf, mode = self.gf, self.scene.mode
         normals = self.index.normals[tris]
@@ -621,13 +638,16 @@ class Storm:
         else:
             verts, w = self._patch_weights(stones, tris, bary, radius, normals)
         V, loc = _locate_lists(verts)
-        D_VV = _gather(gf, _dof3(V), _column_dofs(gf, V))
+        D_VV = _gather(self._gfD, _dof3(V), _column_dofs(gf, V))
         W = _contact_compliance(D_VV, loc, w, normals, mode)
         if np.any(_rigid(gf, verts, w)):
             raise RuntimeError("rigid contacts must be filtered before the capacitance")  # pragma: no cover
         K = _inv_spd(W)
-        B = _dense_B(V.size, loc, w)
-        G = B if mode == "sticky" else np.einsum("rkj,kj->rk", B.reshape(B.shape[0], s, 3), normals)
+        if mode == "sticky":
+            G = _dense_B(V.size, loc, w)
+        else:
+            # G = B N: row (i, d), column k = Bs[i, k] n_k[d] (B = Bs kron I3, without forming it)
+            G = (_dense_Bs(V.size, loc, w)[:, None, :] * normals.T[None, :, :]).reshape(3 * V.size, s)
         cb = np.asarray(gf.column_of)[V]
         live = np.repeat(cb >= 0, 3)
         cols = (3 * cb[:, None] + np.arange(3)).ravel()[live]  # D columns of the loaded dofs
@@ -734,7 +754,7 @@ class Storm:
             keep = w[i] > 0.0
             v, wi = verts[i][keep], w[i][keep]
             g = (wi[:, None] * normals[i][None, :]).ravel()
-            Dv = _gather(self.gf, _dof3(v), _column_dofs(self.gf, v))
+            Dv = _gather(self._gfD, _dof3(v), _column_dofs(self.gf, v))
             c = float(g @ Dv @ g)
             k[i] = 1.0 / c if c > 0 else 0.0
         return k
@@ -813,24 +833,38 @@ class Storm:
         return self._u_cache[1]
 
     def _triangle_stiffness(self, tris: np.ndarray) -> np.ndarray:
-        """Normal contact stiffness at the centroid of triangles (cached), [N/m].
+        """Normal contact stiffness at the centroid of triangles, [N/m].
 
         Used to size the sub-step *before* a contact opens (so the first
-        impact step is already resolved). Hard triangles give 0.
+        impact step is already resolved). Hard triangles give 0. Computed for
+        every soft triangle at once on first use (batched 9 x 9 blocks of D:
+        one gather instead of one per triangle), then looked up.
         """
-        out = np.zeros(tris.size)
-        for i, t in enumerate(tris.tolist()):
-            k = self._k_tri.get(t)
-            if k is None:
-                k = 0.0
-                if t >= 0 and self.soft[t]:
-                    v = np.asarray(self.gf.triangles[t])
-                    n = self.index.normals[t]
-                    Bn = np.kron(np.full(3, 1.0 / 3.0), n)  # (9,)
-                    w = float(Bn @ self.gf.compliance(v, v) @ Bn)
-                    k = 1.0 / w if w > 0 else 0.0
-                self._k_tri[t] = k
-            out[i] = k
+        if self._k_tri_all is None:
+            self._k_tri_all = self._all_triangle_stiffness()
+        tris = np.asarray(tris, dtype=np.intp)
+        return np.where(tris >= 0, self._k_tri_all[tris], 0.0)
+
+    def _all_triangle_stiffness(self, chunk: int = 4096) -> np.ndarray:
+        """``1 / (b^T D_tt b)`` per soft triangle, ``b = (1/3, 1/3, 1/3) kron n`` (0 elsewhere)."""
+        tri = np.asarray(self.gf.triangles, dtype=np.intp)
+        out = np.zeros(tri.shape[0])
+        soft = np.flatnonzero(self.soft)
+        col_of = self._gfD.column_of
+        third = np.full(3, 1.0 / 3.0)
+        for s0 in range(0, soft.size, chunk):
+            t = soft[s0:s0 + chunk]
+            V = tri[t]
+            cb = col_of[V]
+            rows = (3 * V[:, :, None] + np.arange(3)).reshape(-1, 9)
+            cols = (3 * np.maximum(cb, 0)[:, :, None] + np.arange(3)).reshape(-1, 9)
+            # (T, 9, 9) blocks, each column-major like gf.compliance's (same gemv sums)
+            blk = np.ascontiguousarray(self._D[rows[:, None, :], cols[:, :, None]])  # (T, col, row)
+            blk[np.repeat(cb < 0, 3, axis=1)] = 0.0  # clamped columns
+            blk = blk.transpose(0, 2, 1)
+            Bn = (third[None, :, None] * self.index.normals[t][:, None, :]).reshape(-1, 9)  # kron(1/3, n)
+            w = np.matmul(np.matmul(Bn[:, None, :], blk), Bn[:, :, None])[:, 0, 0]
+            out[t] = np.where(w > 0, 1.0 / np.where(w > 0, w, 1.0), 0.0)
         return out
 
     def _reproject(self, stones: np.ndarray) -> np.ndarray:
@@ -1159,17 +1193,34 @@ class Storm:
             self._bud_u[live] = np.maximum(self._bud_u[live], U)
         b = self.budget[live]
         incontact = self.ctri[live] >= 0
-        chk = (b <= travel) | incontact
+        # stones in contact are near whatever their budget: no k-d query for them; their
+        # budget is spent (-inf), so they are re-measured in the first step after release
+        # (a measured budget of a touching stone is <= 0 < travel: the same decision)
+        chk = (b <= travel) & ~incontact
+        if incontact.any():
+            self.budget[live[incontact]] = -np.inf
         if chk.any():
             check = live[chk]
-            d, _ = self.index.tree.query(self.pos[check], k=1)
-            lb = d - self.index.sample_radius - self.radius[check] - U - 1e-4
+            # the distance to the seat's bounding box bounds the distance to its nearest sample
+            # from below, so where the box alone leaves budget past this step's travel the k-d
+            # query would too: those stones take the box bound and are not queried. (A stone is
+            # near exactly when a k-d bound says so, whichever bounds were taken before.)
+            p = self.pos[check]
+            out = np.maximum(np.maximum(self.lo - p, p - self.hi), 0.0)
+            lb = (np.sqrt(np.einsum("ij,ij->i", out, out)) - self.index.sample_radius - self.radius[check]
+                  - U - 1e-4)
+            kd = lb <= travel[chk]
+            if kd.any():
+                d, _ = self.index.tree.query(p[kd], k=1)
+                lb[kd] = d - self.index.sample_radius - self.radius[check[kd]] - U - 1e-4
             self.budget[check] = lb
             self._bud_u[check] = U
             b = self.budget[live]
         near_m = (b <= travel) | incontact
         # flying stones spend their budget
-        self.budget[live[~near_m]] -= travel[~near_m]
+        far = live[~near_m]
+        self.budget[far] -= travel[~near_m]
+        self._far = far  # the complement, for step() (saves an np.isin)
         return live[near_m]
 
     def step(self) -> None:
@@ -1182,12 +1233,7 @@ class Storm:
             live = self._live = np.flatnonzero(self.alive)
         if live.size:
             near = self._near_set(live, dt)
-            if near.size == live.size:
-                far = live[:0]
-            elif near.size:
-                far = live[~np.isin(live, near, assume_unique=True)]
-            else:
-                far = live
+            far = self._far
         else:
             near = far = live
         if far.size:
@@ -1207,7 +1253,9 @@ class Storm:
             skip = free_m & (self._pstamp[near] == self.stats["substeps"]) & (pg > sp * dt + GRAVITY * dt * dt + 1e-4)
             qs = near[~skip] if skip.any() else near
             free_m = free_m[~skip] if skip.any() else free_m
-            reach = self.radius[qs] + np.where(free_m, sp[~skip] * dt + 1e-3, 0.0)
+            # (free stones: the same expression, in the same order, as the first sub-step's reach,
+            # so that the sub-step reuses this query instead of missing it by a rounding error)
+            reach = np.where(free_m, self.radius[qs] + sp[~skip] * dt + 1e-3, self.radius[qs])
             qf = self._query(qs, reach)
             self._last_query = (self.stats["substeps"], qs, np.where(free_m, reach, -1.0), qf)
             pen = self.radius[qs] - qf.distance
