@@ -57,6 +57,10 @@ def write_summary(result: Any, path: str | os.PathLike) -> Path:
     return path
 
 
+_SKY = "#c9d3dd"  # background: a stormy grey-blue, so that the white stones show
+_ICE = "#f4f8fc"  # hailstones
+
+
 def _shown(frame: Any) -> np.ndarray:
     """What a picture of a frame shows: the peak displacement since the previous
     frame when the storm recorded it (impacts last ~1 ms, shorter than a frame
@@ -173,10 +177,14 @@ def write_animation(
     fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
     show = fn[:, 2] > -0.5 if len(fn) else np.zeros(0, bool)
     tri_s = tri[show]
-    umax = max((float(np.linalg.norm(_shown(frames[i]), axis=1).max()) for i in idx), default=0.0)
+    peaks = np.array([float(np.linalg.norm(_shown(frames[i]), axis=1).max()) for i in idx] or [0.0])
+    umax = float(peaks.max())
     if exaggeration is None:
         exaggeration = 1.0 if umax <= 0 else max(1.0, 0.005 / umax)
-    norm = colors.Normalize(vmin=0.0, vmax=max(umax * 1e3, 1e-6))
+    # colour scale: the median of the frames' maxima (where something is pressed), so that an
+    # ordinary impact shows; the few larger ones saturate (the colour bar says so)
+    vmax = float(np.median(peaks[peaks > 0])) if np.any(peaks > 0) else 0.0
+    norm = colors.Normalize(vmin=0.0, vmax=max(vmax * 1e3, 1e-6))
     cmap = cm.viridis
     lo, hi = X.min(axis=0), X.max(axis=0)
     span = hi - lo
@@ -187,11 +195,12 @@ def write_animation(
     uu, vv = np.meshgrid(np.linspace(0, 2 * np.pi, 10), np.linspace(0, np.pi, 6))
     sph = np.stack([np.cos(uu) * np.sin(vv), np.sin(uu) * np.sin(vv), np.cos(vv)], axis=-1)
 
-    fig = plt.figure(figsize=(6.4, 4.8), dpi=dpi)
-    ax = fig.add_subplot(111, projection="3d")
+    fig = plt.figure(figsize=(6.4, 4.8), dpi=dpi, facecolor=_SKY)
+    ax = fig.add_subplot(111, projection="3d", facecolor=_SKY)
+    fig.subplots_adjust(left=0.0, right=0.95, bottom=0.0, top=1.0)
     sm = cm.ScalarMappable(norm=norm, cmap=cmap)
     peak_shown = any(getattr(frames[i], "peak_displacement", None) is not None for i in idx)
-    fig.colorbar(sm, ax=ax, shrink=0.6, pad=0.02,
+    fig.colorbar(sm, ax=ax, shrink=0.6, pad=0.02, extend="max" if umax > vmax else "neither",
                  label="peak |u| since the previous frame [mm]" if peak_shown else "|u| [mm]")
     images = []
     it = idx
@@ -218,11 +227,11 @@ def write_animation(
         for c, r in zip(f.positions, f.radii):
             if np.all(c >= lo - 0.01) and np.all(c[:2] <= hi[:2] + 0.01) and c[2] <= ztop:
                 s = c + r * sph
-                ax.plot_surface(s[..., 0], s[..., 1], s[..., 2], color="lightsteelblue", linewidth=0, shade=True)
+                ax.plot_surface(s[..., 0], s[..., 1], s[..., 2], color=_ICE, linewidth=0, shade=True)
         ax.set_xlim(lo[0] - 0.01, hi[0] + 0.01)
         ax.set_ylim(lo[1] - 0.01, hi[1] + 0.01)
         ax.set_zlim(lo[2], ztop)
-        ax.set_box_aspect((span[0] + 0.02, span[1] + 0.02, ztop - lo[2]))
+        ax.set_box_aspect((span[0] + 0.02, span[1] + 0.02, ztop - lo[2]), zoom=1.15)
         ax.view_init(elev=28, azim=-55)
         ax.set_axis_off()
         ax.set_title(f"t = {f.t * 1e3:6.1f} ms   stones {len(f.radii)}   contacts {f.contacts}"

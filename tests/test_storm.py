@@ -347,3 +347,41 @@ def test_patch_and_point_storms_on_the_seat(seat_bundle):
     again = run_storm(gf, out["hertz"].scene, progress=False)
     assert np.array_equal(again.frames[-1].positions, out["hertz"].frames[-1].positions)
     assert np.array_equal(again.frames[-1].displacement, out["hertz"].frames[-1].displacement)
+
+
+def test_frame_peak_displacement_keeps_the_dent_of_a_finished_impact(gf):
+    """An impact (~1 ms) ends between two frames: the frame's displacement is back to
+    zero, but its peak_displacement holds the dent, equal per vertex to the largest
+    full-surface response sampled at every step (finer than the frame interval)."""
+    sc = Scene(duration=0.05, stones=0, drag=False, dt=5e-5, integrator="implicit", restitution=0.5)
+    st = Storm(gf, sc, spawn=False)
+    top = int(np.argmax(gf.vertices[:, 2] - 1e3 * np.abs(gf.vertices[:, :2] - gf.vertices[:, :2].mean(0)).sum(1)))
+    st.add_stones(gf.vertices[top] + [0.0, 0.0, 0.006], [0.0, 0.0, -5.0], 0.005)
+    st.frame()  # starts the interval
+    u_max = np.zeros(st.n)
+    touched = False
+    for _ in range(400):
+        st.step()
+        u_max = np.maximum(u_max, np.linalg.norm(st.u, axis=1))
+        touched |= st.ctri[0] >= 0
+        if touched and st.ctri[0] < 0:
+            break
+    assert touched and st.ctri[0] < 0, "the stone did not bounce off"
+    fr = st.frame()
+    assert np.abs(fr.displacement).max() == 0.0  # nothing pressed now
+    peak = np.linalg.norm(fr.peak_displacement.astype(np.float64), axis=1)
+    assert u_max.max() > 0
+    # at least what every step saw, and no more than the sub-step peak between two steps
+    assert np.all(peak >= u_max * (1 - 1e-5) - 1e-12)
+    assert peak.max() <= 1.02 * u_max.max()
+    assert np.allclose(peak, u_max, rtol=0.0, atol=0.02 * u_max.max())
+    # the next interval starts empty
+    st.step()
+    assert np.abs(st.frame().peak_displacement).max() == 0.0
+
+
+@pytest.mark.parametrize("stones", [0, 12])
+def test_summary_has_no_internal_counters(gf, short_storm, stones):
+    res = short_storm if stones else run_storm(gf, Scene(duration=0.01, stones=0), progress=False)
+    assert not [k for k in res.stats if k.startswith("_")]
+    assert res.stats["mean_penetration_contact_m"] >= 0.0
