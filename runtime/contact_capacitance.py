@@ -56,14 +56,21 @@ SPARSE_FROM: int = 16
 
 
 def _contact_compliance(D_VV: np.ndarray, loc, bary, normals, mode) -> np.ndarray:
-    """``W = G^T D_VV G`` (symmetrised)."""
+    """``W = G^T D_VV G`` (symmetrised).
+
+    ``G^T D_VV^T G = (G^T D_VV G)^T``, so the symmetrised W is the same (up to
+    rounding) from ``D_VV`` or its transpose: use whichever is C-contiguous
+    (the gathers of a column-major D return an F-ordered ``D_VV``), so that
+    neither product copies ``D_VV``.
+    """
+    M = D_VV.T if D_VV.flags.f_contiguous and not D_VV.flags.c_contiguous else D_VV
     if loc.shape[0] >= SPARSE_FROM:
-        GT = _gT_csr(D_VV.shape[0] // 3, loc, bary, normals, mode)
-        L = np.asarray(GT @ D_VV)  # G^T D_VV, (m, 3|V|)
-        W = np.asarray(GT @ L.T).T
+        GT = _gT_csr(M.shape[0] // 3, loc, bary, normals, mode)
+        L = np.asarray(GT @ M)  # G^T M, (m, 3|V|)
+        W = np.asarray(GT @ np.ascontiguousarray(L.T))
     else:
-        L = _gT(D_VV, loc, bary, normals, mode)
-        W = _gT(np.ascontiguousarray(L.T), loc, bary, normals, mode).T
+        L = _gT(M, loc, bary, normals, mode)
+        W = _gT(np.ascontiguousarray(L.T), loc, bary, normals, mode)
     return 0.5 * (W + W.T)
 
 

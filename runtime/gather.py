@@ -53,8 +53,42 @@ def columns_times(D: np.ndarray, cols: np.ndarray, x: np.ndarray) -> np.ndarray:
     return out
 
 
+#: Vertex chunks gathered per block in :func:`_gather_vertex_rows` (bounds its index temporaries).
+GATHER_BLOCK = 16384
+
+
+def _vertex_triples(rows: np.ndarray) -> np.ndarray | None:
+    """Vertices ``v`` if ``rows`` is exactly ``_dof3(v)`` (whole x, y, z triples), else None."""
+    if rows.size % 3:
+        return None
+    v = rows[::3] // 3
+    return v if np.array_equal(rows, _dof3(v)) else None
+
+
+def _gather_vertex_rows(D: np.ndarray, V: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """``D[_dof3(V), cols]`` for a column-major D, as an F-ordered (3|V|, c) array.
+
+    In a Fortran-ordered D with a multiple of 3 rows, a vertex's x, y, z rows
+    of one column are three adjacent doubles, so the gather takes 24-byte
+    chunks (one index per vertex and column instead of three; measured 1.7x
+    faster than the element-wise gather at s = 100). ``cols`` must be valid
+    column indices.
+    """
+    nv = D.shape[0] // 3
+    chunks = D.T.reshape(-1, 3)  # row c * nv + v: D[3v:3v+3, c]
+    Mt = np.empty((cols.size, V.size, 3))
+    # in column blocks: the index array stays small (a large temporary costs page faults)
+    step = max(1, GATHER_BLOCK // max(V.size, 1))
+    for i in range(0, cols.size, step):
+        np.take(chunks, cols[i:i + step, None] * nv + V[None, :], axis=0, out=Mt[i:i + step])
+    return Mt.reshape(cols.size, 3 * V.size).T
+
+
 def _gather(gf: Any, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-    """D[rows, cols] with zero columns where ``cols == -1`` (clamped vertices)."""
+    """D[rows, cols] with zero columns where ``cols == -1`` (clamped vertices).
+
+    For a column-major D the result is F-ordered (its transpose is C-contiguous).
+    """
     D = gf.D
     dead = cols < 0
     cc = np.where(dead, 0, cols)
@@ -63,6 +97,8 @@ def _gather(gf: Any, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
     if D.flags.c_contiguous:
         out = np.take(D.reshape(-1), (rows[:, None] * D.shape[1] + cc[None, :]).ravel()).reshape(rows.size, cols.size)
         out = np.asarray(out)
+    elif D.flags.f_contiguous and D.shape[0] % 3 == 0 and (V := _vertex_triples(rows)) is not None:
+        out = _gather_vertex_rows(D, V, cc)
     else:  # e.g. Fortran order: contiguous column take first, then the rows
         # Gather through the C-ordered transpose so the inner loop walks down one
         # contiguous column (measured 2x faster than D[np.ix_(rows, cc)] at s = 100;
