@@ -16,7 +16,7 @@ from typing import Any, Literal, Sequence
 import numpy as np
 import scipy.linalg as sla
 
-from runtime.gather import _apply_columns, _column_dofs, _dof3, _gather
+from runtime.gather import _apply_columns, _column_dofs, _dof3, _gather, _gather_vertices
 from runtime.weights import (
     _dense_B,
     _gT,
@@ -708,7 +708,7 @@ def _build(gf: Any, t: np.ndarray, b: np.ndarray, n: np.ndarray, mode: str,
     pv, w = _contact_weights(gf, t, b, n, a, profile)
     V, loc = _locate_lists(pv)
     cols = _column_dofs(gf, V)
-    D_VV = _gather(gf, _dof3(V), cols)
+    D_VV = _gather_vertices(gf, V, cols)
     W = _contact_compliance(D_VV, loc, w, n, mode)
     rigid = _rigid(gf, pv, w)
     p = 3 if mode == "sticky" else 1

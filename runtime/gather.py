@@ -84,6 +84,19 @@ def _gather_vertex_rows(D: np.ndarray, V: np.ndarray, cols: np.ndarray) -> np.nd
     return Mt.reshape(cols.size, 3 * V.size).T
 
 
+def _gather_vertices(gf: Any, V: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """``D[_dof3(V), cols]`` with zero columns where ``cols == -1``: :func:`_gather`
+    for whole vertex rows, without checking that the rows are vertex triples."""
+    D = gf.D
+    if V.size and cols.size and D.flags.f_contiguous and not D.flags.c_contiguous and D.shape[0] % 3 == 0:
+        dead = cols < 0
+        out = _gather_vertex_rows(D, V, np.where(dead, 0, cols))
+        if dead.any():
+            out[:, dead] = 0.0
+        return out
+    return _gather(gf, _dof3(V), cols)
+
+
 def _gather(gf: Any, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
     """D[rows, cols] with zero columns where ``cols == -1`` (clamped vertices).
 

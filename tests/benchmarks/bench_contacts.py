@@ -146,6 +146,10 @@ def main(argv=None) -> int:
             fem_col = f"{np.median(t_fem) * ms:9.2f} {np.median(t_fem) / np.median(t_full):8.0f} {err:8.1e}"
         print(f"{s:4d} {V:4d} | {t_full.min() * ms:9.3f} {np.median(t_full) * ms:10.3f} {t_full.max() * ms:10.3f} | "
               f"{np.median(t_forces) * ms:15.3f} | {fem_col}")
+        floor_case = (s, tri)
+
+    if args.sizes:
+        print_floor(gf, *floor_case, repeat=args.repeat)
 
     # Sherman-Morrison-Woodbury add vs fresh build (both followed by one force solve)
     print()
@@ -176,6 +180,35 @@ def main(argv=None) -> int:
         print(f"{s:4d} | {np.median(t_smw) * ms:19.3f} | {np.median(t_fresh) * ms:23.3f} | "
               f"{np.median(t_fresh) / np.median(t_smw):6.1f} | {diff:14.1e}")
     return 0
+
+
+def print_floor(gf, s: int, tri: np.ndarray, repeat: int) -> None:
+    """Memory-bound floor of the full-surface deformation for the last contact set.
+
+    ``u = D[:, cols] B f`` must read every column of D that a contacted vertex
+    owns (``|cols| x n_rows x 8`` bytes): time a plain numpy ``D[:, cols] @ g``
+    and a plain column copy ``D[:, cols]`` of that size (no solve, no
+    gathers of D_VV), plus one full ``D @ x`` for the streaming bandwidth.
+    """
+    ms = 1e3
+    D = np.asarray(gf.D)
+    cb = np.asarray(gf.column_of)[np.unique(gf.triangles[tri])]
+    cols = (3 * cb[cb >= 0][:, None] + np.arange(3)).ravel()
+    g = np.random.default_rng(1).normal(size=cols.size)
+    x = np.zeros(D.shape[1])
+    x[cols] = g
+    mb = cols.size * D.shape[0] * D.itemsize / 1e6
+    t_mv = timeit(lambda: D[:, cols] @ g, repeat)
+    t_cp = timeit(lambda: D[:, cols], repeat)
+    t_all = timeit(lambda: D @ x, max(repeat // 5, 3))
+    gbs = D.nbytes / 1e9 / np.median(t_all)
+    print()
+    print(f"floor (memory-bound, s = {s}: {cols.size} columns of D x {D.shape[0]} rows = {mb:.1f} MB read; "
+          f"min/med/max [ms]):")
+    print(f"  numpy D[:, cols] @ g  {t_mv.min() * ms:9.3f} {np.median(t_mv) * ms:10.3f} {t_mv.max() * ms:10.3f}")
+    print(f"  column copy D[:, cols] {t_cp.min() * ms:8.3f} {np.median(t_cp) * ms:10.3f} {t_cp.max() * ms:10.3f}")
+    print(f"  full D @ x ({D.nbytes / 1e6:.0f} MB) {t_all.min() * ms:7.3f} {np.median(t_all) * ms:10.3f} "
+          f"{t_all.max() * ms:10.3f}  -> {gbs:.1f} GB/s; {mb:.1f} MB at that rate: {mb / 1e3 / gbs * ms:.3f} ms")
 
 
 def _copy(cap):
