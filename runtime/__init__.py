@@ -20,7 +20,8 @@ from runtime.contact import (
     patch_weights,
     solve_contacts,
 )
-from runtime.storm import Scene, SceneError, StormResult, run_storm
+from runtime.scene import Scene, SceneError
+from runtime.storm import StormResult, run_storm
 
 __all__ = [
     "BundleError",

@@ -124,7 +124,8 @@ def _print_bundle(path: Path) -> None:
 def _run_storm(args: argparse.Namespace) -> int:
     from runtime.bundle import load
     from runtime.output import write_animation, write_paraview, write_summary
-    from runtime.storm import Scene, run_storm
+    from runtime.scene import Scene
+    from runtime.storm import run_storm
 
     scene = Scene.from_toml(args.scene) if args.scene is not None else Scene.default()
     overrides = {k: getattr(args, k) for k in ("duration", "stones", "seed") if getattr(args, k) is not None}

@@ -78,34 +78,21 @@ from typing import Any
 
 import numpy as np
 
-from runtime.contact_capacitance import (  # noqa: F401  (re-exported: runtime.contact's names stay importable)
-    BARY_NEG_TOL,
-    BARY_SUM_TOL,
+from runtime.contact_capacitance import (
     COND_LIMIT,
-    EMBED_BLOCKS_FROM,
     PINV_RCOND,
-    SPARSE_FROM,
     Capacitance,
     Mode,
     _build,
     _check_contacts,
     _check_mode,
     _check_patch,
-    _contact_compliance,
-    _embed,
     _Factor,
-    _rigid,
-    _runs,
     capacitance,
 )
-from runtime.gather import GATHER_FRACTION, _apply_columns, _column_dofs, _dof3, _gather, columns_times  # noqa: F401
-from runtime.weights import (  # noqa: F401
-    _dense_B,
-    _gT,
-    _gT_csr,
+from runtime.gather import _apply_columns
+from runtime.weights import (
     _interpolate,
-    _locate,
-    _locate_lists,
     _vertex_forces,
     barycentric_matrix,
     contact_points,

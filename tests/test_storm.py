@@ -7,7 +7,8 @@ import json
 import numpy as np
 import pytest
 
-from runtime.storm import Scene, SceneError, Storm, run_storm
+from runtime.scene import Scene, SceneError
+from runtime.storm import Storm, run_storm
 from test_hail import plate_gf
 
 
@@ -385,3 +386,14 @@ def test_summary_has_no_internal_counters(gf, short_storm, stones):
     res = short_storm if stones else run_storm(gf, Scene(duration=0.01, stones=0), progress=False)
     assert not [k for k in res.stats if k.startswith("_")]
     assert res.stats["mean_penetration_contact_m"] >= 0.0
+
+
+def test_scene_to_toml_replaces_atomically(tmp_path):
+    p = tmp_path / "scene.toml"
+    p.write_text("old")
+    Scene(duration=0.07).to_toml(p)
+    assert Scene.from_toml(p).duration == 0.07
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["scene.toml"]  # no temporary left behind
+    with pytest.raises(OSError):
+        Scene().to_toml(tmp_path / "missing-dir" / "scene.toml")
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["scene.toml"]

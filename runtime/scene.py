@@ -1,0 +1,315 @@
+"""Storm settings: the :class:`Scene` and its TOML file.
+
+A scene file has the sections ``[storm]``, ``[hail]``, ``[contact]``,
+``[time]``, ``[output]`` and ``[seat]``; every key is optional and takes the
+packaged default (``meshes/default_scene.toml``, installed as
+``precompute.meshes``) when absent. Unknown sections or keys and bad values
+raise :class:`SceneError` naming the file, the key and the problem.
+
+Use::
+
+    from runtime.scene import Scene
+    scene = Scene.from_toml("scene.toml")      # or Scene.default(), Scene(duration=0.2, ...)
+    scene.to_toml("copy.toml")
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import tempfile
+import tomllib
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any, Mapping
+
+from runtime.hail import SizeDistribution
+
+__all__ = ["Scene", "SceneError"]
+
+
+class SceneError(ValueError):
+    """A scene file or value is invalid."""
+
+
+#: TOML section of every Scene field.
+_SECTIONS: dict[str, tuple[str, ...]] = {
+    "storm": ("duration", "rate", "stones", "seed", "spawn_height", "margin", "wind"),
+    "hail": ("distribution", "r_min", "r_max", "scale", "density", "drag", "cd", "rho_air"),
+    "contact": ("mode", "unilateral", "restitution", "patch", "patch_min_radius", "patch_tolerance"),
+    "time": ("dt", "integrator", "adaptive", "omega_dt", "approach_fraction", "max_substeps", "rest_speed"),
+    "output": ("fps",),
+    "seat": ("mesh_size", "order", "young", "poisson"),
+}
+
+
+@dataclass
+class Scene:
+    """Storm settings (all SI units). Load with :meth:`from_toml` / :meth:`default`.
+
+    Attributes
+    ----------
+    duration : float
+        Simulated time [s].
+    rate : float
+        Stones spawned per second over the seat's footprint (Poisson process).
+    stones : int or None
+        If given, exactly this many stones are spawned, uniformly over the
+        duration (overrides ``rate``).
+    seed : int
+        Random seed: the storm is reproducible from it.
+    spawn_height : float
+        Stones appear this far above the seat's highest point [m].
+    margin : float
+        The spawn footprint is the seat's xy bounding box grown by this [m];
+        stones that leave it (or fall below the seat) are retired.
+    wind : (3,) float
+        Air velocity [m/s] (drag acts on the velocity relative to it; stones
+        start with its horizontal part and are spawned upwind so they land
+        on the seat).
+    distribution, r_min, r_max, scale
+        Radius distribution (:class:`runtime.hail.SizeDistribution`) [m].
+    density : float
+        Ice density [kg/m^3].
+    drag : bool
+        Quadratic air drag in flight (stones start at terminal velocity either way).
+    cd, rho_air : float
+        Drag coefficient and air density.
+    mode : {"frictionless", "sticky"}
+        Contact model: normal force only, or all three components.
+    unilateral : bool
+        Release contacts that would pull.
+    restitution : float
+        Target coefficient of restitution of an impact (0..1), realised by a
+        contact damping (see :func:`runtime.hail.damping_coefficients`).
+    patch : {"hertz", "none"}
+        Force distribution of a soft contact. ``"hertz"`` (default): a patch
+        contact, the stone's force spread over a disc with the Hertz pressure
+        profile (:func:`runtime.weights.patch_weights`), of radius
+        :func:`runtime.weights.hertz_radius` of the contact's *peak* force
+        (see the module notes); ``"none"``: a point contact (barycentric
+        weights on the contacted triangle; the dent is a one-vertex spike).
+    patch_min_radius : float
+        Floor of the patch radius [m] (default 1 mm: the Hertz radius of the
+        smallest default stone, 2.5 mm, resting under its own weight on the
+        2 MPa seat is 0.8 mm, so the floor only acts on contacts that are
+        opening or closing). A length, not a fraction of the mesh size: the
+        contact model must not change with the mesh.
+    patch_tolerance : float
+        Relative change of a contact's target radius that re-weights it
+        (default 0.2: 20%). Within it the contact keeps its weights and the
+        capacitance is not rebuilt (a 20% radius error changes the patch's
+        stiffness by ~20% but the radius itself only as ``F^(1/3)``).
+    dt : float
+        Step [s] (frame/broad-phase step; near stones may be sub-stepped).
+    integrator : {"implicit", "symplectic", "exact"}
+        Contact integrator (:func:`runtime.hail.contact_step`). ``"exact"``
+        solves the damped linear contact dynamics in closed form over the step
+        (no numerical damping, no stability limit, events located inside the
+        step), so it needs no ``omega_dt`` sub-steps.
+    adaptive : bool
+        Sub-step near stones (see the module notes). ``False``: fixed ``dt``.
+    omega_dt : float
+        Target ``omega dt`` for moving contacts.
+    approach_fraction : float
+        Largest travel per sub-step of an approaching stone, in radii.
+    max_substeps : int
+        Cap on sub-steps per step.
+    rest_speed : float
+        Normal speed below which a contact counts as resting [m/s].
+    fps : float
+        Recorded frames per simulated second.
+    mesh_size, order, young, poisson
+        The default seat's Green's functions when no bundle is given
+        (``hailstorm storm`` without ``--gf``): element size on the top [m],
+        element order, material [Pa], [-].
+    """
+
+    duration: float = 0.2
+    rate: float = 200.0
+    stones: int | None = None
+    seed: int = 0
+    spawn_height: float = 0.05
+    margin: float = 0.01
+    wind: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    distribution: str = "exponential"
+    r_min: float = 0.0025
+    r_max: float = 0.0125
+    scale: float = 0.002
+    density: float = 917.0
+    drag: bool = True
+    cd: float = 0.6
+    rho_air: float = 1.2
+    mode: str = "frictionless"
+    unilateral: bool = True
+    restitution: float = 0.5
+    patch: str = "hertz"
+    patch_min_radius: float = 1e-3
+    patch_tolerance: float = 0.2
+    dt: float = 2e-4
+    integrator: str = "implicit"
+    adaptive: bool = True
+    omega_dt: float = 0.2
+    approach_fraction: float = 0.1
+    max_substeps: int = 64
+    rest_speed: float = 0.05
+    fps: float = 250.0
+    mesh_size: float = 0.006
+    order: int = 1
+    young: float = 2.0e6
+    poisson: float = 0.35
+
+    def __post_init__(self) -> None:
+        def positive(name: str, allow_zero: bool = False) -> None:
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or (v < 0 or (v == 0 and not allow_zero)):
+                raise SceneError(f"{name} must be a {'non-negative' if allow_zero else 'positive'} number, got {v!r}")
+
+        for name in ("duration", "dt", "spawn_height", "omega_dt", "approach_fraction", "fps", "density", "cd", "rho_air",
+                     "mesh_size", "young"):
+            positive(name)
+        for name in ("rate", "margin", "rest_speed", "patch_min_radius", "patch_tolerance"):
+            positive(name, allow_zero=True)
+        for name in ("drag", "unilateral", "adaptive"):
+            if not isinstance(getattr(self, name), bool):
+                raise SceneError(f"{name} must be true or false, got {getattr(self, name)!r}")
+        if self.stones is not None and (isinstance(self.stones, bool) or not isinstance(self.stones, int) or self.stones < 0):
+            raise SceneError(f"stones must be a non-negative integer, got {self.stones!r}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise SceneError(f"seed must be a non-negative integer, got {self.seed!r}")
+        if isinstance(self.max_substeps, bool) or not isinstance(self.max_substeps, int) or self.max_substeps < 1:
+            raise SceneError(f"max_substeps must be a positive integer, got {self.max_substeps!r}")
+        if self.order not in (1, 2) or isinstance(self.order, bool):
+            raise SceneError(f"order must be 1 or 2, got {self.order!r}")
+        if isinstance(self.poisson, bool) or not isinstance(self.poisson, (int, float)) or not -1.0 < self.poisson < 0.5:
+            raise SceneError(f"poisson must satisfy -1 < poisson < 0.5, got {self.poisson!r}")
+        if self.mode not in ("frictionless", "sticky"):
+            raise SceneError(f"mode must be 'frictionless' or 'sticky', got {self.mode!r}")
+        if self.patch not in ("hertz", "none"):
+            raise SceneError(f"patch must be 'hertz' or 'none', got {self.patch!r}")
+        if self.integrator not in ("implicit", "symplectic", "exact"):
+            raise SceneError(f"integrator must be 'implicit', 'symplectic' or 'exact', got {self.integrator!r}")
+        if isinstance(self.restitution, bool) or not isinstance(self.restitution, (int, float)) or not 0.0 <= self.restitution <= 1.0:
+            raise SceneError(f"restitution must lie in [0, 1], got {self.restitution!r}")
+        try:
+            w = tuple(float(x) for x in self.wind)
+        except (TypeError, ValueError):
+            raise SceneError(f"wind must be three numbers [m/s], got {self.wind!r}") from None
+        if len(w) != 3 or not all(math.isfinite(x) for x in w):
+            raise SceneError(f"wind must be three finite numbers [m/s], got {self.wind!r}")
+        self.wind = w
+        try:
+            self.size_distribution()
+        except ValueError as exc:
+            raise SceneError(str(exc)) from None
+
+    # -- helpers ---------------------------------------------------------------
+    def size_distribution(self) -> SizeDistribution:
+        """The radius distribution of this scene."""
+        return SizeDistribution(kind=self.distribution, r_min=float(self.r_min), r_max=float(self.r_max), scale=float(self.scale))
+
+    def to_dict(self) -> dict[str, dict[str, Any]]:
+        """Nested ``{section: {key: value}}`` as in the TOML file (``stones`` omitted if None)."""
+        out: dict[str, dict[str, Any]] = {}
+        for sec, keys in _SECTIONS.items():
+            d = {}
+            for k in keys:
+                v = getattr(self, k)
+                if v is None:
+                    continue
+                d[k] = list(v) if isinstance(v, tuple) else v
+            out[sec] = d
+        return out
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], *, source: str = "scene") -> "Scene":
+        """Build from a nested ``{section: {key: value}}`` mapping (TOML layout).
+
+        Raises
+        ------
+        SceneError
+            On an unknown section or key, or a bad value.
+        """
+        kwargs: dict[str, Any] = {}
+        for sec, body in data.items():
+            if sec not in _SECTIONS:
+                raise SceneError(f"{source}: unknown section [{sec}]; known sections: {', '.join(_SECTIONS)}")
+            if not isinstance(body, Mapping):
+                raise SceneError(f"{source}: [{sec}] must be a table")
+            for k, v in body.items():
+                if k not in _SECTIONS[sec]:
+                    raise SceneError(f"{source}: unknown key {k!r} in [{sec}]; known keys: {', '.join(_SECTIONS[sec])}")
+                kwargs[k] = v
+        # TOML has no ints-as-floats distinction issue for floats, but users write 1 for 1.0
+        for f in dataclasses.fields(cls):
+            if f.name in kwargs and f.type in ("float",) and isinstance(kwargs[f.name], int) and not isinstance(kwargs[f.name], bool):
+                kwargs[f.name] = float(kwargs[f.name])
+        try:
+            return cls(**kwargs)
+        except SceneError as exc:
+            raise SceneError(f"{source}: {exc}") from None
+
+    @classmethod
+    def from_toml(cls, path: str | Path, *, base: "Scene | None" = None) -> "Scene":
+        """Load a scene TOML file. Keys it does not set take the values of ``base``
+        (default: :meth:`default`, the packaged ``default_scene.toml``)."""
+        path = Path(path)
+        try:
+            data = tomllib.loads(path.read_text())
+        except OSError as exc:
+            raise SceneError(f"cannot read scene file {path}: {exc}") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise SceneError(f"{path} is not valid TOML: {exc}") from None
+        merged = (base or cls.default()).to_dict()
+        for sec, body in data.items():
+            if isinstance(body, Mapping) and sec in merged:
+                merged[sec] = {**merged[sec], **body}
+            else:
+                merged[sec] = body
+        if "stones" not in data.get("storm", {}) and (base is None or base.stones is None):
+            merged["storm"].pop("stones", None)
+        return cls.from_dict(merged, source=str(path))
+
+    @classmethod
+    def default(cls) -> "Scene":
+        """The packaged default scene (``precompute.meshes/default_scene.toml``)."""
+        text = resources.files("precompute.meshes").joinpath("default_scene.toml").read_text()
+        return cls.from_dict(tomllib.loads(text), source="default_scene.toml")
+
+    def to_toml(self, path: str | Path | None = None) -> str:
+        """TOML text of this scene (written to ``path`` if given)."""
+
+        def fmt(v: Any) -> str:
+            if isinstance(v, bool):
+                return "true" if v else "false"
+            if isinstance(v, str):
+                return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+            if isinstance(v, (list, tuple)):
+                return "[" + ", ".join(fmt(x) for x in v) + "]"
+            if isinstance(v, float):
+                return repr(v)
+            return str(v)
+
+        lines = []
+        for sec, body in self.to_dict().items():
+            lines.append(f"[{sec}]")
+            lines += [f"{k} = {fmt(v)}" for k, v in body.items()]
+            lines.append("")
+        text = "\n".join(lines)
+        if path is not None:
+            _write_atomic(Path(path), text)
+        return text
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    """Write ``text`` to ``path`` through a temporary file in the same folder and a rename."""
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent or Path("."))
+    try:
+        with os.fdopen(fd, "w") as fh:
+            fh.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
