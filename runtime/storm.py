@@ -189,6 +189,22 @@ class _ContactCache:
     C: np.ndarray | None = None  # exact-integrator dashpot (cached)
 
 
+@dataclass
+class _Proximity:
+    """The near stones' closest points of one sub-step (see :meth:`Storm._proximity`)."""
+
+    near: np.ndarray  # (k,) the near stones
+    in_contact: np.ndarray  # (k,) open contact at the sub-step's start
+    qi: np.ndarray  # positions (in near) of the stones without a contact
+    dist: np.ndarray  # (k,) distance centre - closest point (inf: nothing within reach)
+    tri: np.ndarray  # (k,) closest triangle (-1: none)
+    bary: np.ndarray  # (k, 3) its barycentric coordinates
+    point: np.ndarray  # (k, 3) the closest point (nan: none or predicted)
+    qreach: np.ndarray  # (k,) the query's reach (nan: no query)
+    gap: np.ndarray  # (k,) dist - radius (0 in contact)
+    eps: np.ndarray  # (k,) gap below which a contact opens
+
+
 class Storm:
     """A running storm (stateful). :func:`run_storm` drives one from start to end.
 
@@ -652,12 +668,47 @@ class Storm:
 
     def _substep(self, near: np.ndarray, h: float) -> float:
         """Advance the near stones by at most ``h``; returns the time actually taken
-        (shorter when a stone is about to touch the seat: time of impact)."""
-        sc = self.scene
-        k = near.size
+        (shorter when a stone is about to touch the seat: time of impact).
+
+        The phases, in order: closest points (:meth:`_proximity`), time of impact
+        and contacts to open (:meth:`_time_of_impact`, :meth:`_contacts_to_open`),
+        gap predictions for the next sub-step (:meth:`_predict_gaps`), opening
+        (:meth:`_open_contacts`), hard walls (:meth:`_hard_walls`), soft contacts
+        through the capacitance (:meth:`_soft_contacts`) and free flight.
+        """
         in_contact = self.ctri[near] >= 0
         was_open = in_contact.copy()
-        # open contacts keep (t, beta) while their stone stays over the triangle
+        px = self._proximity(near, in_contact, h)
+        if self._toi and px.qi.size:
+            h = self._time_of_impact(px, h)
+        new = self._contacts_to_open(px)
+        if self._toi and px.qi.size:
+            self._predict_gaps(px, new, h)
+        self._open_contacts(px, new)
+        self._hard_walls(near, px.point)
+        soft = near[self.ctri[near] >= 0]
+        if soft.size < near.size:
+            free = near[self.ctri[near] < 0] if soft.size else near
+        else:
+            free = near[:0]
+        if soft.size:
+            self._soft_contacts(near, soft, was_open, h)
+        else:
+            self.cache = None
+            self.lam = np.zeros(0)
+            self._set_forces(None, self.lam)
+        if free.size:
+            self.pos[free], self.vel[free] = free_flight(self.pos[free], self.vel[free], h,
+                                                         accel=self._accel(free) - self.g, g=GRAVITY)
+        self.stats["substeps"] += 1
+        return h
+
+    def _proximity(self, near: np.ndarray, in_contact: np.ndarray, h: float) -> _Proximity:
+        """Closest points of the deformed surface to the near stones without a kept contact
+        (reused from the step's query or predicted where possible) and their gaps; an open
+        contact keeps ``(t, beta)`` while its stone stays over the triangle, and one whose
+        stone slid off moves to the closest point of the undeformed surface."""
+        k = near.size
         keep = np.zeros(k, dtype=bool)
         if in_contact.any():
             keep[in_contact] = self._reproject(near[in_contact])
@@ -665,13 +716,12 @@ class Storm:
         tri = np.full(k, -1, dtype=np.intp)
         bary = np.zeros((k, 3))
         point = np.full((k, 3), np.nan)
-        # (b) closest points on the deformed surface, for stones without a kept contact
+        qreach = np.full(k, np.nan)
         qi = np.flatnonzero(~in_contact)
         if qi.size:
             j = near[qi]
             pad = np.sqrt(np.einsum("ij,ij->i", self.vel[j], self.vel[j])) * h
             reach = self.radius[j] + pad + 1e-3
-            qreach = np.full(k, np.nan)
             qreach[qi] = reach
             # reuse the end-of-step query where nothing moved since (same stamp, enough reach)
             lq = self._last_query
@@ -716,53 +766,69 @@ class Storm:
             self.cbary[j[ok]] = hm.bary[ok]
             tri[moved], bary[moved], point[moved] = hm.triangle, hm.bary, hm.point
             dist[moved] = hm.distance
-        eps = self._toi_tol * self.radius[near]
-        if self._toi and qi.size:
-            # time of impact: end the sub-step when the first approaching stone touches the
-            # tangent plane at its closest point (exact on a plane, conservative on convex
-            # parts; a concave overshoot is put back onto the surface when the contact opens)
-            fin = np.isfinite(gap) & ~in_contact & (gap > eps)
-            if fin.any():
-                fi = np.flatnonzero(fin)
-                j = near[fi]
-                dvec = self.pos[j] - point[fi]
-                nrm = dvec / np.maximum(np.sqrt(np.einsum("ij,ij->i", dvec, dvec)), 1e-300)[:, None]
-                w = -np.einsum("ij,ij->i", self.vel[j], nrm)  # approach speed
-                an = -np.einsum("ij,ij->i", self._accel(j), nrm)
-                hits = (w > 0) & (gap[fi] < w * h + 0.5 * np.abs(an) * h * h)
-                if hits.any():
-                    wh, gh, ah = w[hits], gap[fi][hits], an[hits]
-                    # gap = w t + a t^2 / 2 (smallest positive root)
-                    disc = np.sqrt(np.maximum(wh * wh + 2.0 * ah * gh, 0.0))
-                    t_hit = 2.0 * gh / np.maximum(wh + disc, 1e-12)
-                    h = float(min(h, max(t_hit.min(), self._hmin)))
-            new = ~in_contact & (tri >= 0) & (gap < eps)
-            if new.any():
-                # open only stones that approach the (local) surface or overlap it
-                nn = np.flatnonzero(new)
-                dvec = self.pos[near[nn]] - point[nn]
-                nrm = dvec / np.maximum(np.linalg.norm(dvec, axis=1, keepdims=True), 1e-300)
-                vn = np.einsum("ij,ij->i", self.vel[near[nn]], nrm)
-                new[nn] = (vn < 0) | (gap[nn] < -eps[nn])
-        else:
-            new = ~in_contact & (dist < self.radius[near]) & (tri >= 0)
-        if self._toi and qi.size:
-            # gap predictions for the next sub-step of this step (free stones that stay free)
-            # (nothing within the query's reach: the gap is at least reach - r)
-            gap_lb = np.where(np.isfinite(gap), gap, qreach - self.radius[near])
-            keepf = ~in_contact & ~new & np.isfinite(gap_lb)
-            fi = np.flatnonzero(keepf)
-            if fi.size:
-                j = near[fi]
-                okp = np.isfinite(point[fi]).all(axis=1)
-                dvec = self.pos[j] - np.where(okp[:, None], point[fi], self.pos[j])
-                nrm = dvec / np.maximum(np.sqrt(np.einsum("ij,ij->i", dvec, dvec)), 1e-300)[:, None]
-                w = np.maximum(-np.einsum("ij,ij->i", self.vel[j], nrm), 0.0)
-                sp = np.sqrt(np.einsum("ij,ij->i", self.vel[j], self.vel[j]))
-                w = np.where(okp, w, sp)  # predicted stones: no closest point, use |v|
-                self._pgap[j] = gap_lb[fi] - w * h - GRAVITY * h * h
-                self._pstamp[j] = self.stats["substeps"] + 1
-                self._pred_umax = self.umax
+        return _Proximity(near=near, in_contact=in_contact, qi=qi, dist=dist, tri=tri, bary=bary,
+                          point=point, qreach=qreach, gap=gap, eps=self._toi_tol * self.radius[near])
+
+    def _time_of_impact(self, px: _Proximity, h: float) -> float:
+        """End the sub-step when the first approaching stone touches the tangent plane at
+        its closest point (exact on a plane, conservative on convex parts; a concave
+        overshoot is put back onto the surface when the contact opens)."""
+        near, gap, point, eps = px.near, px.gap, px.point, px.eps
+        fin = np.isfinite(gap) & ~px.in_contact & (gap > eps)
+        if fin.any():
+            fi = np.flatnonzero(fin)
+            j = near[fi]
+            dvec = self.pos[j] - point[fi]
+            nrm = dvec / np.maximum(np.sqrt(np.einsum("ij,ij->i", dvec, dvec)), 1e-300)[:, None]
+            w = -np.einsum("ij,ij->i", self.vel[j], nrm)  # approach speed
+            an = -np.einsum("ij,ij->i", self._accel(j), nrm)
+            hits = (w > 0) & (gap[fi] < w * h + 0.5 * np.abs(an) * h * h)
+            if hits.any():
+                wh, gh, ah = w[hits], gap[fi][hits], an[hits]
+                # gap = w t + a t^2 / 2 (smallest positive root)
+                disc = np.sqrt(np.maximum(wh * wh + 2.0 * ah * gh, 0.0))
+                t_hit = 2.0 * gh / np.maximum(wh + disc, 1e-12)
+                h = float(min(h, max(t_hit.min(), self._hmin)))
+        return h
+
+    def _contacts_to_open(self, px: _Proximity) -> np.ndarray:
+        """Mask of the near stones whose contact opens in this sub-step: within the opening
+        gap and approaching (or overlapping) with time of impact, else overlapping."""
+        near, gap, point, eps, tri = px.near, px.gap, px.point, px.eps, px.tri
+        if not (self._toi and px.qi.size):
+            return ~px.in_contact & (px.dist < self.radius[near]) & (tri >= 0)
+        new = ~px.in_contact & (tri >= 0) & (gap < eps)
+        if new.any():
+            # open only stones that approach the (local) surface or overlap it
+            nn = np.flatnonzero(new)
+            dvec = self.pos[near[nn]] - point[nn]
+            nrm = dvec / np.maximum(np.linalg.norm(dvec, axis=1, keepdims=True), 1e-300)
+            vn = np.einsum("ij,ij->i", self.vel[near[nn]], nrm)
+            new[nn] = (vn < 0) | (gap[nn] < -eps[nn])
+        return new
+
+    def _predict_gaps(self, px: _Proximity, new: np.ndarray, h: float) -> None:
+        """Gap lower bounds for the next sub-step of this step (free stones that stay free;
+        nothing within the query's reach: the gap is at least reach - r)."""
+        near, gap, point = px.near, px.gap, px.point
+        gap_lb = np.where(np.isfinite(gap), gap, px.qreach - self.radius[near])
+        keepf = ~px.in_contact & ~new & np.isfinite(gap_lb)
+        fi = np.flatnonzero(keepf)
+        if fi.size:
+            j = near[fi]
+            okp = np.isfinite(point[fi]).all(axis=1)
+            dvec = self.pos[j] - np.where(okp[:, None], point[fi], self.pos[j])
+            nrm = dvec / np.maximum(np.sqrt(np.einsum("ij,ij->i", dvec, dvec)), 1e-300)[:, None]
+            w = np.maximum(-np.einsum("ij,ij->i", self.vel[j], nrm), 0.0)
+            sp = np.sqrt(np.einsum("ij,ij->i", self.vel[j], self.vel[j]))
+            w = np.where(okp, w, sp)  # predicted stones: no closest point, use |v|
+            self._pgap[j] = gap_lb[fi] - w * h - GRAVITY * h * h
+            self._pstamp[j] = self.stats["substeps"] + 1
+            self._pred_umax = self.umax
+
+    def _open_contacts(self, px: _Proximity, new: np.ndarray) -> None:
+        """Open the contacts ``new`` at their closest points; the stone is put on the surface."""
+        near, gap, tri, bary = px.near, px.gap, px.tri, px.bary
         self.ctri[near[new]] = tri[new]
         self.cbary[near[new]] = bary[new]
         if new.any():
@@ -777,7 +843,11 @@ class Storm:
                 approaching = np.einsum("ij,ij->i", self.vel[j], nrm) < 0
                 depth = np.clip(-gap[new], 0.0, None) * approaching
                 self.pos[j] += depth[:, None] * nrm
-        # (c) hard walls
+
+    def _hard_walls(self, near: np.ndarray, point: np.ndarray) -> None:
+        """Contacts on triangles that cannot deform: projection out of the wall and a
+        restitution bounce; the contact closes at once."""
+        sc = self.scene
         opened = near[(self.ctri[near] >= 0)]
         wall = opened[~self.soft[self.ctri[opened]]]
         if wall.size:
@@ -791,99 +861,89 @@ class Storm:
             self.vel[wall] -= ((1.0 + sc.restitution) * np.minimum(vn, 0.0))[:, None] * nrm
             self.stats["wall_contacts"] += int(imp.sum())
             self.ctri[wall] = -1
-        soft = near[self.ctri[near] >= 0]
-        # (d) soft contacts through the capacitance
-        if soft.size < near.size:
-            free = near[self.ctri[near] < 0] if soft.size else near
+
+    def _soft_contacts(self, near: np.ndarray, soft: np.ndarray, was_open: np.ndarray, h: float) -> None:
+        """Advance the stones in soft contact by ``h`` through the capacitance of their
+        contact set (rebuilt when the set of (stone, triangle[, patch radius]) changes),
+        with unilateral release; update the seat's forces and the statistics."""
+        sc = self.scene
+        tris = self.ctri[soft]
+        if self._patch:
+            rad = self._patch_radii(soft, tris)
+            key = tuple(zip(soft.tolist(), tris.tolist(), rad.tolist()))
         else:
-            free = near[:0]
-        if soft.size:
-            tris = self.ctri[soft]
-            if self._patch:
-                rad = self._patch_radii(soft, tris)
-                key = tuple(zip(soft.tolist(), tris.tolist(), rad.tolist()))
-            else:
-                rad = None
-                key = tuple(zip(soft.tolist(), tris.tolist()))
-            if self.cache is None or self.cache.key != key:
-                self.cache = self._build_cache(soft, tris, self.cbary[soft].copy(), key, rad)
-            cc = self.cache
-            s = soft.size
-            acc = self._accel(soft)
-            m = self.mass[soft]
-            nk = cc.normals
-            if sc.mode == "frictionless":
-                q = np.einsum("ij,ij->i", nk, self.pos[soft])
-                a = np.einsum("ij,ij->i", nk, cc.X) + cc.rest
-                vq = np.einsum("ij,ij->i", nk, self.vel[soft])
-                gq = np.einsum("ij,ij->i", nk, acc)
-                mq, group, wts = m, None, None
-            else:
-                q = self.pos[soft].ravel()
-                a = (cc.X + cc.rest[:, None] * nk).ravel()
-                vq = self.vel[soft].ravel()
-                gq = acc.ravel()
-                mq, group, wts = np.repeat(m, 3), np.repeat(np.arange(s), 3), nk.ravel()
-            always = None
-            if sc.integrator == "exact":
-                C = self._damping(cc, mq)
-                # resting contacts (oscillation amplitude below rest_speed): the dashpot acts
-                # both ways, no switching events; the residual oscillation decays
-                kd = np.clip(np.diag(cc.K), 0.0, None)
-                if sc.mode == "sticky":
-                    kd = kd.reshape(-1, 3).max(axis=1)
-                om = np.sqrt(kd / m)
-                vn = np.einsum("ij,ij->i", self.vel[soft], nk)
-                ubar = np.einsum("ij,ij->i", self.pos[soft] - cc.X, nk) - cc.rest
-                u_eq = np.einsum("ij,ij->i", acc, nk) * m / np.maximum(kd, 1e-300)
-                rest = np.hypot(vn, om * (ubar - u_eq)) < sc.rest_speed
-                always = rest if sc.mode == "frictionless" else np.repeat(rest, 3)
-            else:
-                C = damping_coefficients(cc.K, mq, sc.restitution, dt=h, integrator=sc.integrator)
-            res = contact_step(q, vq, a, mq, gq, h, K=cc.K, W=cc.W, damping=C, integrator=sc.integrator,
-                               unilateral=sc.unilateral, group=group, normal_of=wts, always_damped=always)
-            if sc.mode == "frictionless":
-                # tangential motion: free (constant acceleration); normal: the contact step
-                vt0 = self.vel[soft] - vq[:, None] * nk
-                at = acc - gq[:, None] * nk
-                vnew = vt0 + h * at + res.v[:, None] * nk
-                pnew = (self.pos[soft] - q[:, None] * nk + h * vt0 + 0.5 * h * h * at + res.q[:, None] * nk)
-                fvec = res.seat_force[:, None] * nk
-                active_c = res.active
-                ubar_n = res.q - a
-            else:
-                vnew = res.v.reshape(s, 3)
-                pnew = res.q.reshape(s, 3)
-                fvec = res.seat_force.reshape(s, 3)
-                active_c = res.active.reshape(s, 3).all(axis=1)
-                ubar_n = np.einsum("ij,ij->i", (res.q - a).reshape(s, 3), nk)
-            if sc.integrator != "exact":
-                pnew = self.pos[soft] + h * vnew  # (semi-)implicit position update
-            # impacts: contacts that opened in this sub-step and push
-            fresh = active_c & ~was_open[np.searchsorted(near, soft)]
-            if fresh.any():
-                vn_in = np.einsum("ij,ij->i", self.vel[soft[fresh]], nk[fresh])
-                self.stats["impacts"] += int((vn_in < -sc.rest_speed).sum())
-                self.hit[soft[fresh]] = True
-            self.vel[soft] = vnew
-            self.pos[soft] = pnew
-            self.ctri[soft[~active_c]] = -1
-            self.lam = res.seat_force
-            self._set_forces(cc, res.seat_force)
-            fmag = np.sqrt(np.einsum("ij,ij->i", fvec, fvec))
-            self.stats["max_contact_force"] = max(self.stats["max_contact_force"], float(fmag.max()))
-            if active_c.any():
-                self.stats["max_indentation_m"] = max(self.stats["max_indentation_m"], float(-ubar_n[active_c].min()))
-            self.stats["max_simultaneous_contacts"] = max(self.stats["max_simultaneous_contacts"], int(active_c.sum()))
+            rad = None
+            key = tuple(zip(soft.tolist(), tris.tolist()))
+        if self.cache is None or self.cache.key != key:
+            self.cache = self._build_cache(soft, tris, self.cbary[soft].copy(), key, rad)
+        cc = self.cache
+        s = soft.size
+        acc = self._accel(soft)
+        m = self.mass[soft]
+        nk = cc.normals
+        if sc.mode == "frictionless":
+            q = np.einsum("ij,ij->i", nk, self.pos[soft])
+            a = np.einsum("ij,ij->i", nk, cc.X) + cc.rest
+            vq = np.einsum("ij,ij->i", nk, self.vel[soft])
+            gq = np.einsum("ij,ij->i", nk, acc)
+            mq, group, wts = m, None, None
         else:
-            self.cache = None
-            self.lam = np.zeros(0)
-            self._set_forces(None, self.lam)
-        if free.size:
-            self.pos[free], self.vel[free] = free_flight(self.pos[free], self.vel[free], h,
-                                                         accel=self._accel(free) - self.g, g=GRAVITY)
-        self.stats["substeps"] += 1
-        return h
+            q = self.pos[soft].ravel()
+            a = (cc.X + cc.rest[:, None] * nk).ravel()
+            vq = self.vel[soft].ravel()
+            gq = acc.ravel()
+            mq, group, wts = np.repeat(m, 3), np.repeat(np.arange(s), 3), nk.ravel()
+        always = None
+        if sc.integrator == "exact":
+            C = self._damping(cc, mq)
+            # resting contacts (oscillation amplitude below rest_speed): the dashpot acts
+            # both ways, no switching events; the residual oscillation decays
+            kd = np.clip(np.diag(cc.K), 0.0, None)
+            if sc.mode == "sticky":
+                kd = kd.reshape(-1, 3).max(axis=1)
+            om = np.sqrt(kd / m)
+            vn = np.einsum("ij,ij->i", self.vel[soft], nk)
+            ubar = np.einsum("ij,ij->i", self.pos[soft] - cc.X, nk) - cc.rest
+            u_eq = np.einsum("ij,ij->i", acc, nk) * m / np.maximum(kd, 1e-300)
+            rest = np.hypot(vn, om * (ubar - u_eq)) < sc.rest_speed
+            always = rest if sc.mode == "frictionless" else np.repeat(rest, 3)
+        else:
+            C = damping_coefficients(cc.K, mq, sc.restitution, dt=h, integrator=sc.integrator)
+        res = contact_step(q, vq, a, mq, gq, h, K=cc.K, W=cc.W, damping=C, integrator=sc.integrator,
+                           unilateral=sc.unilateral, group=group, normal_of=wts, always_damped=always)
+        if sc.mode == "frictionless":
+            # tangential motion: free (constant acceleration); normal: the contact step
+            vt0 = self.vel[soft] - vq[:, None] * nk
+            at = acc - gq[:, None] * nk
+            vnew = vt0 + h * at + res.v[:, None] * nk
+            pnew = (self.pos[soft] - q[:, None] * nk + h * vt0 + 0.5 * h * h * at + res.q[:, None] * nk)
+            fvec = res.seat_force[:, None] * nk
+            active_c = res.active
+            ubar_n = res.q - a
+        else:
+            vnew = res.v.reshape(s, 3)
+            pnew = res.q.reshape(s, 3)
+            fvec = res.seat_force.reshape(s, 3)
+            active_c = res.active.reshape(s, 3).all(axis=1)
+            ubar_n = np.einsum("ij,ij->i", (res.q - a).reshape(s, 3), nk)
+        if sc.integrator != "exact":
+            pnew = self.pos[soft] + h * vnew  # (semi-)implicit position update
+        # impacts: contacts that opened in this sub-step and push
+        fresh = active_c & ~was_open[np.searchsorted(near, soft)]
+        if fresh.any():
+            vn_in = np.einsum("ij,ij->i", self.vel[soft[fresh]], nk[fresh])
+            self.stats["impacts"] += int((vn_in < -sc.rest_speed).sum())
+            self.hit[soft[fresh]] = True
+        self.vel[soft] = vnew
+        self.pos[soft] = pnew
+        self.ctri[soft[~active_c]] = -1
+        self.lam = res.seat_force
+        self._set_forces(cc, res.seat_force)
+        fmag = np.sqrt(np.einsum("ij,ij->i", fvec, fvec))
+        self.stats["max_contact_force"] = max(self.stats["max_contact_force"], float(fmag.max()))
+        if active_c.any():
+            self.stats["max_indentation_m"] = max(self.stats["max_indentation_m"], float(-ubar_n[active_c].min()))
+        self.stats["max_simultaneous_contacts"] = max(self.stats["max_simultaneous_contacts"], int(active_c.sum()))
 
     def _damping(self, cc: _ContactCache, mq: np.ndarray) -> np.ndarray:
         """Exact-integrator dashpot of a contact set (cached with the set)."""
@@ -980,6 +1040,40 @@ class Storm:
         self._far = far  # the complement, for step() (saves an np.isin)
         return live[near_m]
 
+    def _step_query(self, near: np.ndarray, dt: float) -> None:
+        """One narrow-phase query per step for the near stones: the penetration of the
+        deformed surface (sphere vs surface) for the statistics, kept for the first
+        sub-step to reuse (free stones with this step's reach, contact stones within r;
+        free stones whose predicted gap shows they cannot touch in this step are skipped)."""
+        vv = self.vel[near]
+        sp = np.sqrt(np.einsum("ij,ij->i", vv, vv))
+        free_m = self.ctri[near] < 0
+        pg = self._pgap[near] - abs(self.umax - self._pred_umax)
+        skip = free_m & (self._pstamp[near] == self.stats["substeps"]) & (pg > sp * dt + GRAVITY * dt * dt + 1e-4)
+        qs = near[~skip] if skip.any() else near
+        free_m = free_m[~skip] if skip.any() else free_m
+        # (free stones: the same expression, in the same order, as the first sub-step's reach,
+        # so that the sub-step reuses this query instead of missing it by a rounding error)
+        reach = np.where(free_m, self.radius[qs] + sp[~skip] * dt + 1e-3, self.radius[qs])
+        qf = self._query(qs, reach)
+        self._last_query = (self.stats["substeps"], qs, np.where(free_m, reach, -1.0), qf)
+        pen = self.radius[qs] - qf.distance
+        fin = np.isfinite(pen)
+        if fin.any():
+            self.stats["max_penetration_m"] = max(self.stats["max_penetration_m"], float(pen[fin].max()))
+            inc = ~free_m & fin
+            if inc.any():
+                key = "max_penetration_contact_m"
+                self.stats[key] = max(self.stats[key], float(pen[inc].max()))
+                rel = pen[inc] / self.radius[qs[inc]]
+                self.stats["max_penetration_contact_rel"] = max(self.stats["max_penetration_contact_rel"],
+                                                                float(rel.max()))
+                self.stats["_pen_contact_sum"] += float(np.clip(pen[inc], 0.0, None).sum())
+                self.stats["_pen_contact_n"] += int(inc.sum())
+            if (fin & free_m).any():
+                key = "max_penetration_free_m"
+                self.stats[key] = max(self.stats[key], float(pen[fin & free_m].max()))
+
     def step(self) -> None:
         """Advance the storm by one step ``dt``."""
         sc = self.scene
@@ -999,38 +1093,7 @@ class Storm:
                                                        accel=self._accel(far) - self.g, g=GRAVITY)
             self.gap[far] = np.inf
         if near.size:
-            # one query per step for every near stone: the penetration of the deformed
-            # surface (sphere vs surface) for the record, reused by the first sub-step
-            # (free stones, with this step's reach; contact stones within r)
-            # (free stones whose predicted gap shows they cannot touch in this step are skipped)
-            vv = self.vel[near]
-            sp = np.sqrt(np.einsum("ij,ij->i", vv, vv))
-            free_m = self.ctri[near] < 0
-            pg = self._pgap[near] - abs(self.umax - self._pred_umax)
-            skip = free_m & (self._pstamp[near] == self.stats["substeps"]) & (pg > sp * dt + GRAVITY * dt * dt + 1e-4)
-            qs = near[~skip] if skip.any() else near
-            free_m = free_m[~skip] if skip.any() else free_m
-            # (free stones: the same expression, in the same order, as the first sub-step's reach,
-            # so that the sub-step reuses this query instead of missing it by a rounding error)
-            reach = np.where(free_m, self.radius[qs] + sp[~skip] * dt + 1e-3, self.radius[qs])
-            qf = self._query(qs, reach)
-            self._last_query = (self.stats["substeps"], qs, np.where(free_m, reach, -1.0), qf)
-            pen = self.radius[qs] - qf.distance
-            fin = np.isfinite(pen)
-            if fin.any():
-                self.stats["max_penetration_m"] = max(self.stats["max_penetration_m"], float(pen[fin].max()))
-                inc = ~free_m & fin
-                if inc.any():
-                    key = "max_penetration_contact_m"
-                    self.stats[key] = max(self.stats[key], float(pen[inc].max()))
-                    rel = pen[inc] / self.radius[qs[inc]]
-                    self.stats["max_penetration_contact_rel"] = max(self.stats["max_penetration_contact_rel"],
-                                                                    float(rel.max()))
-                    self.stats["_pen_contact_sum"] += float(np.clip(pen[inc], 0.0, None).sum())
-                    self.stats["_pen_contact_n"] += int(inc.sum())
-                if (fin & free_m).any():
-                    key = "max_penetration_free_m"
-                    self.stats[key] = max(self.stats[key], float(pen[fin & free_m].max()))
+            self._step_query(near, dt)
             t_left = dt
             n_sub = 0
             while t_left > 1e-12 * dt:
