@@ -173,8 +173,15 @@ def test_outputs(tmp_path, gf, short_storm):
     assert pvd.suffix == ".pvd" and pvd.is_file()
     import meshio
 
-    m = meshio.read(next((tmp_path / "pv" / "frames").glob("surface_*.vtu")))
-    assert "displacement" in m.point_data and "|u|" in m.point_data
+    files = sorted((tmp_path / "pv" / "frames").glob("surface_*.vtu"))
+    assert len(files) == len(short_storm.frames)
+    for f, fr in zip(files, short_storm.frames):
+        m = meshio.read(f)
+        assert "displacement" in m.point_data and "|u|" in m.point_data and "peak_displacement" in m.point_data
+        assert np.allclose(m.point_data["peak_displacement"], fr.peak_displacement)
+        # the peak covers the instant itself
+        assert np.all(np.linalg.norm(m.point_data["peak_displacement"], axis=1)
+                      >= np.linalg.norm(m.point_data["displacement"], axis=1) - 1e-9)
     out = write_animation(short_storm, gf, tmp_path / "storm.mp4", max_frames=4, dpi=50)
     assert out.is_file() and out.stat().st_size > 0
 
