@@ -81,6 +81,9 @@ def _storm_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--duration", type=_positive_float, default=None, help="simulated time in seconds")
     p.add_argument("--stones", type=int, default=None, help="number of hailstones")
     p.add_argument("--seed", type=int, default=None, help="random seed (runs are reproducible from it)")
+    p.add_argument("--integrator", choices=("implicit", "symplectic", "exact"), default=None,
+                   help="time integrator of the contacts (default: the scene's, implicit)")
+    p.add_argument("--dt", type=_positive_float, default=None, help="time step in seconds (default: the scene's)")
     p.add_argument("--gf", type=Path, default=None, help="bundle directory (default: build/cache the default seat)")
     p.add_argument("--scene", type=Path, default=None, help="TOML scene file holding every storm setting")
     p.add_argument("--out", type=Path, default=Path("hailstorm-out"), help="output directory (default ./hailstorm-out)")
@@ -128,10 +131,15 @@ def _run_storm(args: argparse.Namespace) -> int:
     from runtime.storm import run_storm
 
     scene = Scene.from_toml(args.scene) if args.scene is not None else Scene.default()
-    overrides = {k: getattr(args, k) for k in ("duration", "stones", "seed") if getattr(args, k) is not None}
-    if overrides:
-        scene = Scene.from_dict({**scene.to_dict(), "storm": {**scene.to_dict()["storm"], **overrides}},
-                                source="command line")
+    data = scene.to_dict()
+    changed = False
+    for section, keys in (("storm", ("duration", "stones", "seed")), ("time", ("integrator", "dt"))):
+        for k in keys:
+            if getattr(args, k) is not None:
+                data[section][k] = getattr(args, k)
+                changed = True
+    if changed:
+        scene = Scene.from_dict(data, source="command line")
     if args.gf is not None:
         gf_path = args.gf
     else:

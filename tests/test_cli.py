@@ -111,3 +111,17 @@ def test_bad_scene_file_gives_clear_error(tmp_path):
     scene.write_text("[storm]\nduraton = 1.0\n")
     run = hailstorm("storm", "--scene", scene, "--out", tmp_path / "o", check=False)
     assert run.returncode == 3 and "duraton" in run.stderr and "Traceback" not in run.stderr
+
+
+def test_storm_integrator_and_dt_from_the_command_line(seat_bundle, tmp_path):
+    import json
+
+    out = tmp_path / "run"
+    run = hailstorm("storm", "--duration", 0.02, "--stones", 3, "--integrator", "exact", "--dt", 5e-4,
+                    "--gf", seat_bundle, "--out", out, "-q", "--no-video")
+    assert run.returncode == 0, run.stderr
+    s = json.loads((out / "summary.json").read_text())
+    assert s["integrator"] == "exact" and s["dt"] == 5e-4 and s["steps"] == 40
+    assert s["scene"]["time"]["integrator"] == "exact"
+    run = hailstorm("storm", "--integrator", "verlet", "--out", tmp_path / "o", check=False)
+    assert run.returncode == 2 and "invalid choice" in run.stderr
