@@ -64,6 +64,7 @@ from precompute.fem import (
 from precompute.geometry import TetMesh, boundary_triangles, mesh_default_seat
 from precompute.greens import compliance_matrix, factorize
 from precompute.pipeline import build_bundle, default_cache_dir
+from runtime.atomic import replacing, write_text_atomic
 
 #: Bump when the meaning of cached study results changes.
 STUDY_VERSION = 1
@@ -580,10 +581,9 @@ def reference(
     ref = Reference(sol.qoi, float(mesh_size), int(order), sol.n_dofs, seconds, self_error)
     if path is not None:
         path.parent.mkdir(parents=True, exist_ok=True)
-        tmp = path.with_suffix(".tmp.npz")
-        np.savez(tmp, u=ref.qoi.u, work=ref.qoi.work, mesh_size=ref.mesh_size, order=ref.order,
-                 n_dofs=ref.n_dofs, seconds=ref.seconds, self_error=np.nan if self_error is None else self_error)
-        os.replace(tmp, path)
+        with replacing(path) as tmp:
+            np.savez(tmp, u=ref.qoi.u, work=ref.qoi.work, mesh_size=ref.mesh_size, order=ref.order,
+                     n_dofs=ref.n_dofs, seconds=ref.seconds, self_error=np.nan if self_error is None else self_error)
     return ref
 
 
@@ -1092,10 +1092,8 @@ def run_study(
         pts += study_low_rank(base, settings.ranks, scenario, ref)
         pts += study_region(h, o, settings.region_radii, scenario, ref, work, mesher=mesher)
     out = StudyResults(pts, {**asdict(ref), "qoi": None}, asdict(settings))
-    tmp = res_path.with_suffix(".tmp")
-    tmp.write_text(json.dumps({"points": [p.to_dict() for p in pts], "reference": out.reference,
-                               "settings": out.settings}, indent=1, default=_json_default))
-    os.replace(tmp, res_path)
+    write_text_atomic(res_path, json.dumps({"points": [p.to_dict() for p in pts], "reference": out.reference,
+                                            "settings": out.settings}, indent=1, default=_json_default))
     return out
 
 

@@ -14,6 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from runtime.atomic import write_text_atomic
+
 __all__ = ["summary", "write_animation", "write_paraview", "write_summary"]
 
 
@@ -53,8 +55,7 @@ def write_summary(result: Any, path: str | os.PathLike) -> Path:
     """Write ``summary.json`` for a :class:`runtime.storm.StormResult`; returns the path."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps(summary(result), indent=2, sort_keys=True) + "\n")
-    return path
+    return write_text_atomic(path, json.dumps(summary(result), indent=2, sort_keys=True) + "\n")
 
 
 _SKY = "#c9d3dd"  # background: a stormy grey-blue, so that the white stones show

@@ -17,14 +17,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
-import tempfile
 import tomllib
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 from typing import Any, Mapping
 
+from runtime.atomic import write_text_atomic
 from runtime.hail import SizeDistribution
 
 __all__ = ["Scene", "SceneError"]
@@ -299,17 +298,5 @@ class Scene:
             lines.append("")
         text = "\n".join(lines)
         if path is not None:
-            _write_atomic(Path(path), text)
+            write_text_atomic(path, text)
         return text
-
-
-def _write_atomic(path: Path, text: str) -> None:
-    """Write ``text`` to ``path`` through a temporary file in the same folder and a rename."""
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", dir=path.parent or Path("."))
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
