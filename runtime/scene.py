@@ -171,6 +171,8 @@ class Scene:
             positive(name)
         for name in ("rate", "margin", "rest_speed", "patch_min_radius", "patch_tolerance"):
             positive(name, allow_zero=True)
+        if self.dt > self.duration:
+            raise SceneError(f"dt ({self.dt!r} s) must not exceed duration ({self.duration!r} s)")
         for name in ("drag", "unilateral", "adaptive"):
             if not isinstance(getattr(self, name), bool):
                 raise SceneError(f"{name} must be true or false, got {getattr(self, name)!r}")

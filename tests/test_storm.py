@@ -50,6 +50,7 @@ def test_scene_default_and_round_trip(tmp_path):
         ("[storm]\ndurration = 1.0\n", "unknown key 'durration' in \\[storm\\]"),
         ("[stormy]\nduration = 1.0\n", "unknown section \\[stormy\\]"),
         ("[time]\ndt = -1e-4\n", "dt must be a positive"),
+        ("[time]\ndt = 1.0\n", "dt .* must not exceed duration"),
         ("[contact]\nrestitution = 1.5\n", "restitution"),
         ("[time]\nintegrator = 'rk4'\n", "integrator"),
         ("[hail]\nr_min = 0.01\nr_max = 0.005\n", "r_max"),
