@@ -19,6 +19,8 @@ from typing import Callable
 import numpy as np
 from scipy.spatial import cKDTree
 
+from runtime.gather import _unique_inverse
+
 __all__ = ["Closest", "SurfaceIndex", "closest_point_on_triangles"]
 
 
@@ -233,15 +235,8 @@ class SurfaceIndex:
         tri = self._sample_tri[smp]
         corners = self.triangles[tri]
         if displacement is not None:
-            # np.unique(corners, return_inverse=True) through a mark array (same result, cheaper)
-            mark = np.zeros(self.vertices.shape[0], dtype=bool)
-            mark[corners] = True
-            verts = np.flatnonzero(mark)
-            pos = np.empty(mark.size, dtype=np.intp)
-            pos[verts] = np.arange(verts.size)
-            inv = pos[corners]
+            verts, corners = _unique_inverse(corners, self.vertices.shape[0])
             Xl = self.vertices[verts] + displacement(verts)
-            corners = inv.reshape(corners.shape)
         else:
             Xl = self.vertices if deformed is None else np.asarray(deformed, dtype=np.float64)
         po = pts[owner]

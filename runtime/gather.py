@@ -32,6 +32,24 @@ def _dof3(idx: np.ndarray) -> np.ndarray:
 
 
 
+def _unique_inverse(idx: np.ndarray, n: int | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """``np.unique(idx, return_inverse=True)`` for non-negative integers below ``n``
+    (default ``idx.max() + 1``), through a mark array: the same (sorted) result at a
+    fraction of the cost for the short index lists of the contact loop. ``inv`` has
+    ``idx``'s shape."""
+    idx = np.asarray(idx, dtype=np.intp)
+    if idx.size == 0 or idx.min() < 0:
+        V, inv = np.unique(idx, return_inverse=True)
+        return V.astype(np.intp), inv.reshape(idx.shape).astype(np.intp)
+    n = int(idx.max()) + 1 if n is None else n
+    mark = np.zeros(n, dtype=bool)
+    mark[idx] = True
+    V = np.flatnonzero(mark)
+    pos = np.empty(n, dtype=np.intp)
+    pos[V] = np.arange(V.size)
+    return V, pos[idx]
+
+
 def _column_dofs(gf: Any, V: np.ndarray) -> np.ndarray:
     """Column dofs of D for the vertices V (vertex-major), -1 at clamped vertices."""
     cb = gf.column_of[V]

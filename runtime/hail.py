@@ -128,7 +128,7 @@ def drag_acceleration(
         Acceleration [m/s^2]. Balances gravity at the terminal velocity.
     """
     w = vel if wind is None else vel - np.asarray(wind, dtype=np.float64)
-    speed = np.linalg.norm(w, axis=1, keepdims=True)
+    speed = np.sqrt(np.add.reduce(w * w, axis=1, keepdims=True))  # |w| (few numpy calls: called every step)
     coef = 3.0 * cd * rho_air / (8.0 * density * np.asarray(radius, dtype=np.float64))
     return -coef[:, None] * speed * w
 

@@ -116,6 +116,7 @@ from runtime.hail import (
     GRAVITY,
     contact_step,
     damping_coefficients,
+    drag_acceleration,
     free_flight,
     stone_mass,
     terminal_velocity,
@@ -358,12 +359,9 @@ class Storm:
         a = np.empty((idx.size, 3))
         a[:] = self.g
         if self.scene.drag and idx.size:
-            # drag_acceleration inlined (same arithmetic, fewer numpy calls: the arrays are short)
             sc = self.scene
-            w = self.vel[idx] - self.wind
-            speed = np.sqrt(np.add.reduce(w * w, axis=1, keepdims=True))
-            coef = 3.0 * sc.cd * sc.rho_air / (8.0 * sc.density * self.radius[idx])
-            a += -coef[:, None] * speed * w
+            a += drag_acceleration(self.vel[idx], self.radius[idx], wind=self.wind, cd=sc.cd,
+                                   rho_air=sc.rho_air, density=sc.density)
         return a
 
     # -- contacts ----------------------------------------------------------------

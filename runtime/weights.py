@@ -51,6 +51,8 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
+from runtime.gather import _unique_inverse
+
 __all__ = [
     "PATCH_PROFILES",
     "barycentric_matrix",
@@ -147,24 +149,6 @@ def hertz_radius(force: Any, stone_radius: Any, young: float, poisson: float, *,
 # --------------------------------------------------------------------------
 # generalised B: padded (s, P) vertex lists and weights
 # --------------------------------------------------------------------------
-def _unique_inverse(idx: np.ndarray, n: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """``np.unique(idx, return_inverse=True)`` for non-negative integers below ``n``
-    (default ``idx.max() + 1``), through a mark array: the same (sorted) result at a
-    fraction of the cost for the short index lists of the contact loop. ``inv`` has
-    ``idx``'s shape."""
-    idx = np.asarray(idx, dtype=np.intp)
-    if idx.size == 0 or idx.min() < 0:
-        V, inv = np.unique(idx, return_inverse=True)
-        return V.astype(np.intp), inv.reshape(idx.shape).astype(np.intp)
-    n = int(idx.max()) + 1 if n is None else n
-    mark = np.zeros(n, dtype=bool)
-    mark[idx] = True
-    V = np.flatnonzero(mark)
-    pos = np.empty(n, dtype=np.intp)
-    pos[V] = np.arange(V.size)
-    return V, pos[idx]
-
-
 def _locate_lists(verts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """V (sorted union of the listed vertices) and loc (s, P): position in V."""
     V, loc = _unique_inverse(verts)
