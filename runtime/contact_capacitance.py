@@ -130,6 +130,22 @@ class _Factor:
         return self._pinv.copy()
 
 
+def _response_columns(gf: Any, cols: np.ndarray, loc: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Full-surface response ``D[:, U] B`` of contacts on the vertex list U, (3n, 3k), F-ordered.
+
+    ``cols``: column dofs of U (``-1`` at clamped vertices); ``loc`` (k, P):
+    positions in U of each contact's vertices, ``weights`` (k, P) theirs.
+    """
+    D = gf.D
+    live = np.flatnonzero(cols >= 0)
+    BT = _gT_csr(cols.size // 3, loc, weights, np.zeros((loc.shape[0], 3)), "sticky")[:, live]
+    if D.flags.f_contiguous:
+        Dt = np.take(D.T, cols[live], axis=0)  # columns of D = contiguous rows of D^T, (c, 3n)
+    else:
+        Dt = np.ascontiguousarray(np.asarray(D[:, cols[live]]).T)
+    return np.asarray(BT @ Dt).T  # (3n, 3k), F-ordered
+
+
 def _runs(idx: np.ndarray) -> list[tuple[int, int, int]]:
     """Maximal runs of consecutive values in an increasing index array: (start, stop, value0)."""
     if idx.size == 0:
@@ -286,6 +302,13 @@ class Capacitance:
     (:meth:`forces` is then two triangular solves); the explicit capacitance
     :attr:`K` is formed on first use and afterwards maintained by the
     low-rank updates of :meth:`add` and :meth:`remove`.
+
+    For a contact set that persists over many solves (a resting stone, a
+    haptic probe held still), :meth:`keep_response` stores the full-surface
+    response ``D[:, V] B`` once; every later :meth:`surface_displacement` of
+    the whole surface is then one matrix-vector product with it instead of a
+    gather of the columns of ``D``, and :meth:`add` / :meth:`remove` update it
+    by columns.
     """
 
     gf: Any
@@ -302,6 +325,7 @@ class Capacitance:
     _cols: np.ndarray = field(repr=False)  # column dofs of D for V (-1 at clamped vertices)
     _factor: _Factor | None = field(default=None, repr=False)
     _K: np.ndarray | None = field(default=None, repr=False)
+    _R: np.ndarray | None = field(default=None, repr=False)  # kept full-surface response D[:, V] B
     weights: np.ndarray | None = None
     patch_radius: np.ndarray | None = None
     #: pressure profile of the patches ("hertz" or "uniform")
@@ -370,6 +394,8 @@ class Capacitance:
         return lam[:, None] * self.normals
 
     def _multipliers(self, c: np.ndarray) -> np.ndarray:
+        if not self.rigid.any():  # every component is live (the common case: no index juggling)
+            return self._K @ c if self._K is not None else self._factor.solve(c)
         live = self.live_dofs
         lam = np.zeros_like(c)
         if live.size:
@@ -422,8 +448,34 @@ class Capacitance:
         -------
         (r, 3) or (n, 3) float ndarray
         """
+        if rows is None and self._R is not None:
+            f = np.asarray(forces, dtype=np.float64).reshape(-1)
+            if f.size != self._R.shape[1]:
+                raise ValueError(f"forces must have shape ({self.s}, 3), got {np.shape(forces)}")
+            return (self._R @ f).reshape(-1, 3)
         g = self.vertex_forces(forces).reshape(-1)
         return _apply_columns(self.gf, self._cols, g, rows)
+
+    def keep_response(self) -> np.ndarray:
+        """Form (once) and keep the full-surface response ``R = D[:, V] B``.
+
+        ``R`` maps contact forces to the displacement of every surface vertex:
+        ``u = R @ forces.ravel()``. Once kept, :meth:`surface_displacement`
+        with ``rows=None`` is that one product (``3n x 3s`` doubles, read in
+        one contiguous pass) instead of gathering the contacted columns of
+        ``D`` on every call; :meth:`add` appends the new contact's columns and
+        :meth:`remove` deletes them. Worth it when one contact set is solved
+        many times (measured in ``tests/benchmarks/bench_contacts.py``).
+
+        Returns
+        -------
+        (3n, 3s) float ndarray
+            Vertex-major rows, contact-major columns (the kept array itself:
+            do not modify it).
+        """
+        if self._R is None:
+            self._R = _response_columns(self.gf, self._cols, self.loc, self.weights)
+        return self._R
 
     def surface_response(self, rows: np.ndarray | None = None) -> np.ndarray:
         """Surface displacement per unit constraint multiplier, ``D[rows, V] G``.
@@ -537,6 +589,9 @@ class Capacitance:
         self.patch_radius = np.append(self.patch_radius, a_new)
         self.V, self.D_VV, self.W, self._cols = V, D_VV, W, cols
         self.rigid = np.append(self.rigid, rigid_new)
+        if self._R is not None:
+            Rn = _response_columns(gf, _column_dofs(gf, tv), np.arange(tv.size)[None, :], pw)
+            self._R = np.asfortranarray(np.hstack([self._R, Rn]))
         if rigid_new:
             return old_s
         if K_old is None:
@@ -602,6 +657,8 @@ class Capacitance:
         self.tri_idx, self.bary, self.normals = self.tri_idx[keep], self.bary[keep], self.normals[keep]
         self.weights, self.patch_radius = self.weights[keep], self.patch_radius[keep]
         self.rigid = self.rigid[keep]
+        if self._R is not None:
+            self._R = np.delete(self._R, np.arange(3 * k, 3 * k + 3), axis=1)
         if was_rigid:
             return
         if K_old is None:

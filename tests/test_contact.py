@@ -716,6 +716,49 @@ def test_patch_add_remove_equal_fresh_build(box, mode):
     np.testing.assert_allclose(R, gf.compliance(np.arange(gf.n_vertices), cap.V) @ cap.G, rtol=1e-12, atol=1e-20)
 
 
+@pytest.mark.parametrize("mode", ["sticky", "frictionless"])
+@pytest.mark.parametrize("patch", [False, True])
+def test_kept_response_follows_add_and_remove(box, mode, patch):
+    """keep_response: surface_displacement is R @ f, and R follows add / remove (with a
+    rigid contact and patches in the mix): equal to the column gather and to direct FEM."""
+    gf = box["gf"]
+    rng = np.random.default_rng(44)
+    tri, bary = random_contacts(box, 8, rng)
+    tri[6] = box["rigid_tris"][0]
+    radii = np.array([0.02, 0.0, 0.03, 0.02, 0.0, 0.01, 0.02, 0.04]) if patch else np.zeros(8)
+    cap = capacitance(gf, tri[:3], bary[:3], mode=mode, patch_radius=radii[:3])
+    R = cap.keep_response()
+    assert R.shape == (3 * gf.n_vertices, 9) and cap.keep_response() is R  # formed once
+    keep = [0, 1, 2]
+    for op in [("add", 3), ("add", 4), ("remove", 1), ("add", 5), ("add", 6), ("remove", 0), ("add", 7)]:
+        if op[0] == "add":
+            cap.add(int(tri[op[1]]), bary[op[1]], patch_radius=radii[op[1]])
+            keep.append(op[1])
+        else:
+            cap.remove(op[1])
+            del keep[op[1]]
+        # arbitrary forces (tangential parts too): R @ f is D[:, V] B f whatever the mode
+        f = rng.normal(size=(len(keep), 3))
+        kept = cap.surface_displacement(f)
+        gathered = gf.displacement(cap.V, cap.vertex_forces(f))
+        assert rel(kept, gathered) < 1e-12
+    assert cap._R.shape[1] == 3 * len(keep)
+    ubar = -1e-3 * triangle_normals(gf.vertices, gf.triangles[tri[keep]]) + rng.normal(scale=1e-4, size=(len(keep), 3))
+    f = cap.forces(ubar)
+    live = ~cap.rigid  # the rigid contact carries no force; FEM constrains the others
+    assert cap.rigid.sum() == 1 and not f[~live].any()
+    verts = weights = None
+    if patch:
+        verts, weights = cap.V[cap.loc][live], cap.weights[live]
+    kl = np.asarray(keep)[live]
+    f_fem, u_fem = direct_fem(box, tri[kl], bary[kl], ubar[live], mode, cap.normals[live], verts=verts,
+                              weights=weights)
+    assert rel(f[live], f_fem) < 1e-8
+    assert rel(cap.surface_displacement(f), u_fem) < 1e-8
+    with pytest.raises(ValueError, match="shape"):
+        cap.surface_displacement(np.zeros((len(keep) + 1, 3)))
+
+
 def test_patch_is_stiffer_than_point(box):
     """Spreading the force over a patch raises the contact stiffness (W shrinks)."""
     gf = box["gf"]

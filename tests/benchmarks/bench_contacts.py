@@ -73,16 +73,21 @@ def direct_fem_setup(gf):
     return dict(basis=basis, Kff=K[free][:, free].tocsr(), free=free, ndof=K.shape[0], fem=fem)
 
 
-def direct_fem_solve(gf, ref, tri, bary, ubar):
-    """Saddle-point [[K, C^T], [C, 0]] solve for sticky contacts; returns seat forces and u."""
+def saddle_matrix(gf, ref, tri, bary):
+    """The FEM saddle-point matrix [[K, C^T], [C, 0]] of sticky contacts (CSC)."""
     fem, basis = ref["fem"], ref["basis"]
     s = len(tri)
     dofs = fem.vertex_dofs(basis, gf.surface_nodes[gf.triangles[tri]].ravel()).reshape(s, 3, 3)
     rows = np.repeat(np.arange(3 * s).reshape(s, 1, 3), 3, axis=1)  # (k, a, d) -> row 3k + d
     vals = np.repeat(bary[:, :, None], 3, axis=2)
     C = sp.csr_matrix((vals.ravel(), (rows.ravel(), dofs.ravel())), shape=(3 * s, ref["ndof"]))[:, ref["free"]]
-    A = sp.bmat([[ref["Kff"], C.T], [C, None]], format="csc")
-    nf = ref["free"].size
+    return sp.bmat([[ref["Kff"], C.T], [C, None]], format="csc")
+
+
+def direct_fem_solve(gf, ref, tri, bary, ubar):
+    """Saddle-point [[K, C^T], [C, 0]] solve for sticky contacts; returns seat forces and u."""
+    A = saddle_matrix(gf, ref, tri, bary)
+    nf, s = ref["free"].size, len(tri)
     sol = spla.spsolve(A, np.concatenate([np.zeros(nf), ubar.ravel()]))
     return -sol[nf:].reshape(s, 3), sol[:nf]
 
@@ -146,10 +151,11 @@ def main(argv=None) -> int:
             fem_col = f"{np.median(t_fem) * ms:9.2f} {np.median(t_fem) / np.median(t_full):8.0f} {err:8.1e}"
         print(f"{s:4d} {V:4d} | {t_full.min() * ms:9.3f} {np.median(t_full) * ms:10.3f} {t_full.max() * ms:10.3f} | "
               f"{np.median(t_forces) * ms:15.3f} | {fem_col}")
-        floor_case = (s, tri)
+        floor_case = (s, tri, bary)
 
     if args.sizes:
         print_floor(gf, *floor_case, repeat=args.repeat)
+        print_steady(gf, ref, tris, args)
 
     # Sherman-Morrison-Woodbury add vs fresh build (both followed by one force solve)
     print()
@@ -182,17 +188,93 @@ def main(argv=None) -> int:
     return 0
 
 
-def print_floor(gf, s: int, tri: np.ndarray, repeat: int) -> None:
-    """Memory-bound floor of the full-surface deformation for the last contact set.
+def print_steady(gf, ref, tris: np.ndarray, args) -> None:
+    """Steady state: one contact set, new prescribed displacements on every call.
 
-    ``u = D[:, cols] B f`` must read every column of D that a contacted vertex
-    owns (``|cols| x n_rows x 8`` bytes): time a plain numpy ``D[:, cols] @ g``
-    and a plain column copy ``D[:, cols]`` of that size (no solve, no
-    gathers of D_VV), plus one full ``D @ x`` for the streaming bandwidth.
+    The capacitance is factorised once and its full-surface response kept
+    (:meth:`Capacitance.keep_response`, timed as ``setup``); each call is then
+    ``forces`` (two triangular solves) and ``surface_displacement`` (one
+    product with the kept response). The FEM counterpart factorises its saddle
+    point matrix once (SuperLU) and back-substitutes per call.
     """
     ms = 1e3
+    rng = np.random.default_rng(args.seed + 1)
+    print()
+    print("steady state (contact set unchanged, new displacements each call; min/med/max [ms]):")
+    header = (f"{'s':>4} | {'setup':>7} | {'forces + u(all)':>26} | {'forces only':>26} | "
+              f"{'FEM factor':>10} {'FEM solve':>9} | {'FEM solve / (f+u)':>17} | {'FEM fresh / forces':>18}")
+    print(header)
+    print("-" * len(header))
+    for s in args.sizes:
+        tri = rng.choice(tris, size=s, replace=s > tris.size)
+        bary = rng.dirichlet([1.0, 1.0, 1.0], size=s)
+        nrm = triangle_normals(gf.vertices, gf.triangles[tri])
+        ubars = -1e-3 * nrm + rng.normal(scale=2e-4, size=(16, s, 3))
+        t0 = time.perf_counter()
+        cap = capacitance(gf, tri, bary)
+        cap.keep_response()
+        t_setup = time.perf_counter() - t0
+        it = iter(range(10**9))
+
+        def step():
+            f = cap.forces(ubars[next(it) % 16])
+            return f, cap.surface_displacement(f)
+
+        def forces_only():
+            return cap.forces(ubars[next(it) % 16])
+
+        t_fu = timeit(step, args.repeat)
+        t_f = timeit(forces_only, args.repeat)
+        fem = "-"
+        if ref is not None:
+            A = saddle_matrix(gf, ref, tri, bary)
+            nf = ref["free"].size
+            t_fac = timeit(lambda: spla.splu(A), max(args.fem_repeat, 1), warmup=0)
+            lu = spla.splu(A)
+            rhs = np.zeros(A.shape[0])
+
+            def fem_step():
+                rhs[nf:] = ubars[next(it) % 16].ravel()
+                return lu.solve(rhs)
+
+            t_fs = timeit(fem_step, max(args.repeat // 10, 3), warmup=1)
+            f, u = step()
+            sol = lu.solve(np.concatenate([np.zeros(nf), ubars[(next(it) - 1) % 16].ravel()]))
+            t_fresh = np.median(t_fac) + np.median(t_fs)
+            fem = (f"{np.median(t_fac) * ms:10.2f} {np.median(t_fs) * ms:9.3f} | "
+                   f"{np.median(t_fs) / np.median(t_fu):16.0f}x | {t_fresh / np.median(t_f):17.0f}x")
+            del sol
+        print(f"{s:4d} | {t_setup * ms:7.2f} | {t_fu.min() * ms:8.4f} {np.median(t_fu) * ms:8.4f} {t_fu.max() * ms:8.4f} | "
+              f"{t_f.min() * ms:8.4f} {np.median(t_f) * ms:8.4f} {t_f.max() * ms:8.4f} | {fem}")
+
+
+def print_floor(gf, s: int, tri: np.ndarray, bary: np.ndarray, repeat: int) -> None:
+    """Lower bound of an exact (float64) solve + full-surface deformation for the last contact set.
+
+    Whatever the algorithm, three costs cannot be avoided:
+
+    * the deformation ``u = D[:, cols] B f`` reads every column of D that a
+      contacted vertex owns (``|cols| x n_rows x 8`` bytes). The fastest this
+      machine reads that many bytes of D is one BLAS product over a
+      *contiguous* block of D of the same size, with every BLAS thread and the
+      block warm in cache (as it is when the benchmark repeats one contact set);
+    * the forces need ``W = B^T D_VV B``: its entries lie scattered over the same
+      columns, so at least the cache lines holding ``D_VV`` are read (counted
+      here, at the rate of that contiguous product);
+    * the Cholesky factorisation of W (``3s x 3s``).
+
+    Their sum is printed as the floor, next to a plain numpy ``D[:, cols] @ g``,
+    a column copy ``D[:, cols]`` and the cold streaming bandwidth of a full ``D @ x``.
+    """
+    import os
+
+    import scipy.linalg as sla
+    from threadpoolctl import threadpool_limits
+
+    ms = 1e3
     D = np.asarray(gf.D)
-    cb = np.asarray(gf.column_of)[np.unique(gf.triangles[tri])]
+    V = np.unique(gf.triangles[tri])
+    cb = np.asarray(gf.column_of)[V]
     cols = (3 * cb[cb >= 0][:, None] + np.arange(3)).ravel()
     g = np.random.default_rng(1).normal(size=cols.size)
     x = np.zeros(D.shape[1])
@@ -202,13 +284,36 @@ def print_floor(gf, s: int, tri: np.ndarray, repeat: int) -> None:
     t_cp = timeit(lambda: D[:, cols], repeat)
     t_all = timeit(lambda: D @ x, max(repeat // 5, 3))
     gbs = D.nbytes / 1e9 / np.median(t_all)
+    # the contiguous block of D with the same number of columns (same bytes)
+    f_order = D.flags.f_contiguous
+    block = D[:, :cols.size] if f_order else D[:cols.size, :]
+    gb = g if f_order else np.random.default_rng(1).normal(size=D.shape[1])
+    with threadpool_limits(limits=os.cpu_count() or 1, user_api="blas"):
+        t_blk = timeit(lambda: block @ gb, repeat)
+    # cache lines of D that hold D_VV (the live contacted vertices' rows of those columns)
+    rows = (3 * V[:, None] + np.arange(3)).ravel()
+    if f_order:
+        offs = cols[None, :].astype(np.int64) * D.shape[0] + rows[:, None]
+    else:
+        offs = rows[:, None].astype(np.int64) * D.shape[1] + cols[None, :]
+    lines = np.unique(offs.ravel() * D.itemsize // 64).size
+    rate = block.nbytes / np.median(t_blk)  # bytes/s of the contiguous product
+    t_vv = lines * 64 / rate
+    W = capacitance(gf, tri, bary).W
+    t_chol = timeit(lambda: sla.cho_factor(W, check_finite=False), repeat)
+    floor = np.median(t_blk) + t_vv + np.median(t_chol)
     print()
-    print(f"floor (memory-bound, s = {s}: {cols.size} columns of D x {D.shape[0]} rows = {mb:.1f} MB read; "
-          f"min/med/max [ms]):")
+    print(f"floor (s = {s}: {cols.size} columns of D x {D.shape[0]} rows = {mb:.1f} MB read; min/med/max [ms]):")
     print(f"  numpy D[:, cols] @ g  {t_mv.min() * ms:9.3f} {np.median(t_mv) * ms:10.3f} {t_mv.max() * ms:10.3f}")
     print(f"  column copy D[:, cols] {t_cp.min() * ms:8.3f} {np.median(t_cp) * ms:10.3f} {t_cp.max() * ms:10.3f}")
-    print(f"  full D @ x ({D.nbytes / 1e6:.0f} MB) {t_all.min() * ms:7.3f} {np.median(t_all) * ms:10.3f} "
-          f"{t_all.max() * ms:10.3f}  -> {gbs:.1f} GB/s; {mb:.1f} MB at that rate: {mb / 1e3 / gbs * ms:.3f} ms")
+    print(f"  full D @ x ({D.nbytes / 1e6:.0f} MB, cold) {t_all.min() * ms:7.3f} {np.median(t_all) * ms:10.3f} "
+          f"{t_all.max() * ms:10.3f}  -> {gbs:.1f} GB/s")
+    print(f"  (a) contiguous block of D, same {mb:.1f} MB, {os.cpu_count()} BLAS threads, warm: "
+          f"{t_blk.min() * ms:.3f} {np.median(t_blk) * ms:.3f} {t_blk.max() * ms:.3f}  -> {rate / 1e9:.1f} GB/s")
+    print(f"  (b) D_VV: {lines} cache lines ({lines * 64 / 1e6:.1f} MB) at that rate: {t_vv * ms:.3f}")
+    print(f"  (c) Cholesky of W ({W.shape[0]} x {W.shape[0]}): "
+          f"{t_chol.min() * ms:.3f} {np.median(t_chol) * ms:.3f} {t_chol.max() * ms:.3f}")
+    print(f"  lower bound (a) + (b) + (c), medians: {floor * ms:.3f} ms (exact float64 D on this machine)")
 
 
 def _copy(cap):
