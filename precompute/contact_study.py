@@ -53,6 +53,8 @@ from precompute.geometry import TetMesh, box_mesh
 from precompute.pipeline import build_bundle, default_cache_dir
 from runtime.bundle import load as load_bundle
 from runtime.contact import capacitance, hertz_radius, solve_contacts, triangle_normals
+from runtime.contact_capacitance import Mode
+from runtime.hail import Integrator
 
 __all__ = [
     "SEAT_POINTS",
@@ -142,7 +144,7 @@ def locate_points(gf: Any, xy: Sequence[Sequence[float]], *, min_nz: float = 0.3
     return np.asarray(tris, dtype=np.intp), np.asarray(barys)
 
 
-def contact_stiffness(gf: Any, tri: Any, bary: Any, *, patch_radius: Any = None, mode: str = "frictionless",
+def contact_stiffness(gf: Any, tri: Any, bary: Any, *, patch_radius: Any = None, mode: Mode = "frictionless",
                       profile: str = "hertz") -> np.ndarray:
     """Effective normal stiffness of single contacts (one at a time), [N/m].
 
@@ -205,18 +207,23 @@ class StiffnessStudy:
     def rel_change(self, which: str = "patch") -> np.ndarray:
         """``|k_l - k_{l-1}| / k_l`` between consecutive levels, (L-1, p); which: point, patch, control."""
         k = {"patch": self.k_patch, "point": self.k_point, "control": self.k_control}[which]
+        if k is None:
+            raise ValueError("no control patch in this study (control_radius=None)")
         return np.abs(np.diff(k, axis=0)) / np.abs(k[1:])
 
     def table(self) -> str:
         """A plain-text table (one row per level, point | patch per probe)."""
         ctl = self.k_control is not None
         cols = ["point", "patch"] + (["wide"] if ctl else [])
-        ks = [self.k_point, self.k_patch] + ([self.k_control] if ctl else [])
+        ks = [self.k_point, self.k_patch] + ([self.k_control] if self.k_control is not None else [])
+        wide = ""
+        if ctl:
+            assert self.control_radius is not None  # set together with k_control
+            wide = f", wide patch a = {self.control_radius * 1e3:.0f} mm (control)"
         head = f"{'h [mm]':>7} {'verts':>6} | " + " | ".join(
             " ".join(f"{c:>8}" for c in cols) for _ in self.points)
         title = " | ".join(f"{p:^{9 * len(cols) - 1}}" for p in self.points)
-        lines = [f"P{self.order}: k [kN/m]; point contact, patch a = {self.patch_radius * 1e3:.2f} mm"
-                 + (f", wide patch a = {self.control_radius * 1e3:.0f} mm (control)" if ctl else ""),
+        lines = [f"P{self.order}: k [kN/m]; point contact, patch a = {self.patch_radius * 1e3:.2f} mm" + wide,
                  f"{'':>14} | {title}", head]
         for i, h in enumerate(self.mesh_sizes):
             cells = " | ".join(" ".join(f"{k[i, j] / 1e3:8.4g}" for k in ks) for j in range(len(self.points)))
@@ -240,7 +247,7 @@ def contact_stiffness_vs_mesh(
     young: float | None = None,
     poisson: float | None = None,
     cache_dir: str | os.PathLike | None = None,
-    mode: str = "frictionless",
+    mode: Mode = "frictionless",
     profile: str = "hertz",
     control_radius: float | None = 0.02,
 ) -> StiffnessStudy:
@@ -289,7 +296,7 @@ def contact_stiffness_vs_mesh(
     kp, ka, kc, nv = [], [], [], []
     for h in mesh_sizes:
         out = cache / f"{tag}-P{order}-h{h * 1e3:g}mm"  # reuse is keyed on everything that changes D
-        kw = dict(order=order, young=young, poisson=poisson)
+        kw: dict[str, Any] = dict(order=order, young=young, poisson=poisson)
         path = build_bundle(out, mesh_size=h, **kw) if mesh is None else build_bundle(out, mesh=mesh(h), **kw)
         gf = load_bundle(path)
         tri, bary = locate_points(gf, list(points.values()))
@@ -311,11 +318,7 @@ def plot_stiffness_vs_mesh(studies: StiffnessStudy | Sequence[StiffnessStudy], p
     its study, so all probes share one axis. Returns the figure; saves a
     small PNG (about 9 x 3.6 in at ``dpi``) if ``path`` is given.
     """
-    import matplotlib
-
-    if path is not None:
-        matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # (headless: matplotlib falls back to Agg by itself)
 
     studies = [studies] if isinstance(studies, StiffnessStudy) else list(studies)
     fig, axes = plt.subplots(1, len(studies), figsize=(4.6 * len(studies), 3.6), sharey=True, squeeze=False)
@@ -363,7 +366,7 @@ def _cond(W: np.ndarray) -> float:
     return float("inf") if lam[0] <= 0 else float(lam[-1] / lam[0])
 
 
-def degenerate_contacts(gf: Any, *, depth: float = 1e-3, mode: str = "frictionless",
+def degenerate_contacts(gf: Any, *, depth: float = 1e-3, mode: Mode = "frictionless",
                         patch_radius: float | None = None) -> list[dict]:
     """What the solver does with degenerate contact sets.
 
@@ -389,7 +392,7 @@ def degenerate_contacts(gf: Any, *, depth: float = 1e-3, mode: str = "frictionle
     b = np.array([0.2, 0.5, 0.3])
     n = triangle_normals(gf.vertices, T[[t]])[0]
     u = -depth * n
-    kw = dict(mode=mode, patch_radius=patch_radius)
+    kw: dict[str, Any] = dict(mode=mode, patch_radius=patch_radius)
 
     def run(name, tri, bary, ubar):
         tri = np.asarray(tri, dtype=np.intp)
@@ -426,7 +429,7 @@ def degenerate_contacts(gf: Any, *, depth: float = 1e-3, mode: str = "frictionle
 
 
 def separation_sweep(gf: Any, separations: Sequence[float] = (1e-1, 1e-2, 1e-3, 1e-4, 1e-6, 1e-8, 1e-10, 0.0), *,
-                     mode: str = "frictionless", patch_radius: float | None = None) -> list[dict]:
+                     mode: Mode = "frictionless", patch_radius: float | None = None) -> list[dict]:
     """Condition number of ``W`` and the force split of two contacts ``d`` apart (barycentric units).
 
     Returns rows with ``d``, ``cond_W``, ``exact``, ``split`` (share of the
@@ -438,7 +441,7 @@ def separation_sweep(gf: Any, separations: Sequence[float] = (1e-1, 1e-2, 1e-3, 
     b = np.array([0.2, 0.5, 0.3])
     n = triangle_normals(gf.vertices, T[[t]])[0]
     u = -1e-3 * n
-    kw = dict(mode=mode, patch_radius=patch_radius)
+    kw: dict[str, Any] = dict(mode=mode, patch_radius=patch_radius)
     one = solve_contacts(gf, [t], [b], [u], rows=None, **kw)
     f1 = float(one.forces[0] @ n)
     out = []
@@ -522,7 +525,7 @@ def predicted_dt_limit(k: Any, m: Any) -> np.ndarray | float:
 
 
 def seat_contact_stiffness(gf: Any, points: Mapping[str, Sequence[float]] | None = None, *,
-                           patch_radius: float | None = None, mode: str = "frictionless") -> dict[str, float]:
+                           patch_radius: float | None = None, mode: Mode = "frictionless") -> dict[str, float]:
     """Normal stiffness [N/m] of one stone at named points (x, y) of the seat (default :data:`SEAT_POINTS`)."""
     points = dict(SEAT_POINTS if points is None else points)
     tri, bary = locate_points(gf, list(points.values()))
@@ -536,7 +539,7 @@ def _energy(q, v, k, m, gn):
     return 0.5 * m * v * v + 0.5 * k * (q - u_eq) ** 2
 
 
-def _growth(k: float, m: float, dt: float, integrator: str, *, steps: int, restitution: float | None,
+def _growth(k: float, m: float, dt: float, integrator: Integrator, *, steps: int, restitution: float | None,
             gravity: float, impact_speed: float, blowup: float = 1e20) -> float:
     """Energy growth of one stone in contact over ``steps`` steps of :func:`runtime.hail.contact_step`.
 
@@ -554,6 +557,7 @@ def _growth(k: float, m: float, dt: float, integrator: str, *, steps: int, resti
     a = np.zeros(1)
     g = np.array([-float(gravity)])
     q, v = np.zeros(1), np.array([-float(impact_speed)])
+    C: np.ndarray | float
     if restitution is None:
         C = 0.0
     elif integrator == "exact":
@@ -654,10 +658,10 @@ class StabilityMap:
 
 
 def stability_map(
-    stiffness: Sequence[float],
-    masses: Sequence[float],
-    dts: Sequence[float],
-    integrator: str,
+    stiffness: Sequence[float] | np.ndarray,
+    masses: Sequence[float] | np.ndarray,
+    dts: Sequence[float] | np.ndarray,
+    integrator: Integrator,
     *,
     steps: int = 300,
     relative: bool = False,
@@ -718,6 +722,7 @@ def stability_map(
     if np.any(k <= 0) or np.any(m <= 0) or np.any(d <= 0):
         raise ValueError("stiffness, masses and time steps must be positive")
     pred = predicted_dt_limit(k[:, None], m[None, :])
+    assert isinstance(pred, np.ndarray)  # (nk, nm) inputs
     dt = np.broadcast_to(d * pred[..., None] if relative else d, (k.size, m.size, d.size)).copy()
     growth = np.empty_like(dt)
     g = GRAVITY if gravity is None else float(gravity)
@@ -735,7 +740,7 @@ def stability_map(
                         restitution, limit)
 
 
-def measure_dt_limit(k: float, m: float, integrator: str = "symplectic", *, rtol: float = 1e-3,
+def measure_dt_limit(k: float, m: float, integrator: Integrator = "symplectic", *, rtol: float = 1e-3,
                      span: float = 20.0, steps: int = 300, restitution: float | None = None,
                      growth_limit: float = GROWTH_LIMIT, gravity: float | None = None,
                      impact_speed: float = 1.0) -> float:
@@ -755,6 +760,7 @@ def measure_dt_limit(k: float, m: float, integrator: str = "symplectic", *, rtol
                        impact_speed=impact_speed) > growth_limit
 
     p = predicted_dt_limit(k, m)
+    assert isinstance(p, float)  # scalar k, m
     lo, hi = p / span, p * span
     if not bad(hi):
         return float("inf")
@@ -792,11 +798,7 @@ def plot_stability_map(maps: StabilityMap | Sequence[StabilityMap], path: str | 
     the degenerate contacts (condition number of ``B^T D B`` per case, exact vs
     pseudo-inverse) and P1/P2 locking. Returns the figure; saves a PNG if ``path``.
     """
-    import matplotlib
-
-    if path is not None:
-        matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
+    import matplotlib.pyplot as plt  # (headless: matplotlib falls back to Agg by itself)
 
     maps = [maps] if isinstance(maps, StabilityMap) else list(maps)
     extra = [x for x in (degenerate, locking) if x is not None]
@@ -852,7 +854,7 @@ def plot_stability_map(maps: StabilityMap | Sequence[StabilityMap], path: str | 
                 tot = r["fn_total"] / r["fn_ref"] if r["fn_ref"] else float("nan")
                 txt = f"{what}; {'Cholesky' if r['exact'] else 'pinv'}; Σf/f₁ = {tot + 0.0:.3g}"
                 inside = b > top / 2
-                ax.text(b - 0.3 if inside else b + 0.3, yi, txt, va="center", ha="right" if inside else "left",
+                ax.text(b - 0.3 if inside else b + 0.3, float(yi), txt, va="center", ha="right" if inside else "left",
                         fontsize=6.5, color="w" if inside else "k")
             ax.set_xlim(0, top)
             ax.set_yticks(y, names, fontsize=7)

@@ -19,7 +19,7 @@ K_ff u = e_(j,d), read at the output dofs. Three solvers share one interface
 from __future__ import annotations
 
 import os
-from typing import Callable
+from typing import Callable, Iterator
 
 import numpy as np
 import scipy.sparse as sp
@@ -183,6 +183,7 @@ def compliance_matrix(
     if workers is None:
         workers = default_workers(ncols, solver)
     task = _BlockSolver(Kff, solver, nn, tol, load_pos, read_pos[read_live], free_loads)
+    results: Iterator[np.ndarray]
     if workers <= 1:
         results = map(task, blocks)
         pool = None

@@ -80,7 +80,8 @@ def array_hash(a: np.ndarray) -> str:
     flat = a.reshape(-1).view(np.uint8) if a.size else np.zeros(0, np.uint8)
     step = 1 << 26
     for start in range(0, flat.size, step):
-        h.update(flat[start:start + step])
+        # numpy's stubs declare ndarray.__buffer__ only for Python >= 3.12
+        h.update(flat[start:start + step])  # type: ignore[arg-type]
     return h.hexdigest()
 
 

@@ -133,8 +133,8 @@ def _run_storm(args: argparse.Namespace) -> int:
     scene = Scene.from_toml(args.scene) if args.scene is not None else Scene.default()
     data = scene.to_dict()
     changed = False
-    for section, keys in (("storm", ("duration", "stones", "seed")), ("time", ("integrator", "dt"))):
-        for k in keys:
+    for section, options in (("storm", ("duration", "stones", "seed")), ("time", ("integrator", "dt"))):
+        for k in options:
             if getattr(args, k) is not None:
                 data[section][k] = getattr(args, k)
                 changed = True

@@ -135,13 +135,13 @@ class SurfaceIndex:
         for L in np.unique(level):
             ts = np.flatnonzero(level == L)
             # barycentric centroids of the L^2 sub-triangles
-            bc = []
+            bc_list: list[tuple[float, float]] = []
             for i in range(L):
                 for j in range(L - i):
-                    bc.append(((i + 1 / 3) / L, (j + 1 / 3) / L))  # upward sub-triangles
+                    bc_list.append(((i + 1 / 3) / L, (j + 1 / 3) / L))  # upward sub-triangles
                     if i + j < L - 1:
-                        bc.append(((i + 2 / 3) / L, (j + 2 / 3) / L))  # downward ones
-            bc = np.array(bc)
+                        bc_list.append(((i + 2 / 3) / L, (j + 2 / 3) / L))  # downward ones
+            bc = np.array(bc_list)
             w = np.column_stack([1 - bc.sum(axis=1), bc])  # (L^2, 3)
             pts = np.einsum("sk,tkd->tsd", w, p[ts]).reshape(-1, 3)
             samples.append(pts)

@@ -267,6 +267,7 @@ def solve_contacts(
     active = ~rigid
     lam = cap._multipliers(c)
     if unilateral:
+        assert n is not None  # validated with need_normals=True whenever unilateral
         p = cap.per_contact
         cn = np.einsum("ki,ki->k", ubar, n)
         seen: set[bytes] = set()

@@ -11,7 +11,7 @@ here: set them on this module.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any, Literal, Sequence
+from typing import Any, Literal, Sequence, cast, overload
 
 import numpy as np
 import scipy.linalg as sla
@@ -127,6 +127,8 @@ class _Factor:
             if info != 0:  # pragma: no cover
                 raise np.linalg.LinAlgError(f"LAPACK potri failed (info={info})")
             return np.triu(K) + np.triu(K, 1).T
+        if self._pinv is None:  # pragma: no cover - m > 0: one of the two is always set
+            raise RuntimeError("empty factorisation")
         return self._pinv.copy()
 
 
@@ -181,6 +183,16 @@ def _rigid(gf: Any, verts: np.ndarray, w: np.ndarray) -> np.ndarray:
 # --------------------------------------------------------------------------
 # validation
 # --------------------------------------------------------------------------
+@overload
+def _check_contacts(gf: Any, tri_idx: Any, bary: Any, normals: Any = None,
+                    need_normals: Literal[True] = True) -> tuple[np.ndarray, np.ndarray, np.ndarray]: ...
+
+
+@overload
+def _check_contacts(gf: Any, tri_idx: Any, bary: Any, normals: Any,
+                    need_normals: bool) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]: ...
+
+
 def _check_contacts(
     gf: Any,
     tri_idx: Any,
@@ -244,10 +256,10 @@ def _check_contacts(
     return t, b, n
 
 
-def _check_mode(mode: str) -> str:
+def _check_mode(mode: str) -> Mode:
     if mode not in ("sticky", "frictionless"):
         raise ValueError(f"mode must be 'sticky' or 'frictionless', got {mode!r}")
-    return mode
+    return cast(Mode, mode)
 
 
 # --------------------------------------------------------------------------
@@ -323,21 +335,15 @@ class Capacitance:
     rigid: np.ndarray
     exact: bool
     _cols: np.ndarray = field(repr=False)  # column dofs of D for V (-1 at clamped vertices)
-    _factor: _Factor | None = field(default=None, repr=False)
+    weights: np.ndarray
+    patch_radius: np.ndarray
+    _factor: _Factor | None = field(default=None, repr=False)  # set unless _K is (see _solve_live)
     _K: np.ndarray | None = field(default=None, repr=False)
     _R: np.ndarray | None = field(default=None, repr=False)  # kept full-surface response D[:, V] B
-    weights: np.ndarray | None = None
-    patch_radius: np.ndarray | None = None
     #: pressure profile of the patches ("hertz" or "uniform")
     patch_profile: str = "hertz"
     #: radius :meth:`add` uses when not given (a scalar ``patch_radius`` at build; else 0)
     default_patch_radius: float = 0.0
-
-    def __post_init__(self) -> None:
-        if self.weights is None:
-            self.weights = self.bary
-        if self.patch_radius is None:
-            self.patch_radius = np.zeros(self.tri_idx.size)
 
     # -- sizes and derived matrices ------------------------------------------
     @property
@@ -377,8 +383,18 @@ class Capacitance:
         ``live`` = :attr:`live_dofs`: rigid contacts are excluded.
         """
         if self._K is None:
-            self._K = self._factor.inverse()
+            self._K = self._live_factor().inverse()
         return self._K
+
+    def _live_factor(self) -> _Factor:
+        """The factorisation of ``W[live, live]`` (kept while ``K`` is not formed explicitly)."""
+        if self._factor is None:  # pragma: no cover - invariant: _factor or _K is always set
+            raise RuntimeError("capacitance has neither a factorisation nor an explicit K")
+        return self._factor
+
+    def _solve_live(self, c: np.ndarray) -> np.ndarray:
+        """``K c`` over the live components."""
+        return self._K @ c if self._K is not None else self._live_factor().solve(c)
 
     # -- solves ------------------------------------------------------------
     def _reduce(self, ubar: np.ndarray) -> np.ndarray:
@@ -395,11 +411,11 @@ class Capacitance:
 
     def _multipliers(self, c: np.ndarray) -> np.ndarray:
         if not self.rigid.any():  # every component is live (the common case: no index juggling)
-            return self._K @ c if self._K is not None else self._factor.solve(c)
+            return self._solve_live(c)
         live = self.live_dofs
         lam = np.zeros_like(c)
         if live.size:
-            lam[live] = self._K @ c[live] if self._K is not None else self._factor.solve(c[live])
+            lam[live] = self._solve_live(c[live])
         return lam
 
     def forces(self, ubar: np.ndarray) -> np.ndarray:
@@ -760,8 +776,14 @@ def _contact_weights(gf: Any, t: np.ndarray, b: np.ndarray, n: np.ndarray | None
     return patch_weights(gf, t, b, a, n, profile=profile)
 
 
-def _build(gf: Any, t: np.ndarray, b: np.ndarray, n: np.ndarray, mode: str,
+def _build(gf: Any, t: np.ndarray, b: np.ndarray, n: np.ndarray | None, mode: Mode,
            a: np.ndarray | None = None, profile: str = "hertz") -> Capacitance:
+    """The capacitance of validated contacts. ``n`` may be None only for sticky point
+    contacts (which never look at the normals; they are then stored as zeros)."""
+    if n is None:
+        if mode != "sticky" or a is not None:
+            raise ValueError("normals are needed for frictionless and patch contacts")  # pragma: no cover
+        n = np.zeros((t.size, 3))
     pv, w = _contact_weights(gf, t, b, n, a, profile)
     V, loc = _locate_lists(pv)
     cols = _column_dofs(gf, V)

@@ -398,7 +398,11 @@ def contact_step(
     C = np.where(vn_g[group] < 0.0, C, 0.0)
     active = np.ones(n, dtype=bool)
     ubar = q - a
-    K_full = _inv_spd(W) if K is None else np.asarray(K, dtype=np.float64)
+    if K is None:
+        assert W is not None  # checked above: K or W is given
+        K_full = _inv_spd(W)
+    else:
+        K_full = np.asarray(K, dtype=np.float64)
     while True:
         idx = np.flatnonzero(active)
         if W is not None and idx.size < n:

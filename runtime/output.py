@@ -13,6 +13,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import numpy.typing as npt
 
 from runtime.atomic import write_text_atomic
 
@@ -158,12 +159,10 @@ def write_animation(
     pathlib.Path
         The file written (may be the ``.gif`` fallback).
     """
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
     import imageio.v2 as imageio
-    import matplotlib.pyplot as plt
     from matplotlib import cm, colors
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
     from mpl_toolkits.mplot3d.art3d import Poly3DCollection
 
     path = Path(path)
@@ -196,14 +195,16 @@ def write_animation(
     uu, vv = np.meshgrid(np.linspace(0, 2 * np.pi, 10), np.linspace(0, np.pi, 6))
     sph = np.stack([np.cos(uu) * np.sin(vv), np.sin(uu) * np.sin(vv), np.cos(vv)], axis=-1)
 
-    fig = plt.figure(figsize=(6.4, 4.8), dpi=dpi, facecolor=_SKY)
+    # an off-screen Agg figure of its own: the caller's pyplot state and backend are not touched
+    fig = Figure(figsize=(6.4, 4.8), dpi=dpi, facecolor=_SKY)
+    canvas = FigureCanvasAgg(fig)
     ax = fig.add_subplot(111, projection="3d", facecolor=_SKY)
     fig.subplots_adjust(left=0.0, right=0.95, bottom=0.0, top=1.0)
     sm = cm.ScalarMappable(norm=norm, cmap=cmap)
     peak_shown = any(getattr(frames[i], "peak_displacement", None) is not None for i in idx)
     fig.colorbar(sm, ax=ax, shrink=0.6, pad=0.02, extend="max" if umax > vmax else "neither",
                  label="peak |u| since the previous frame [mm]" if peak_shown else "|u| [mm]")
-    images = []
+    images: list[npt.ArrayLike] = []
     it = idx
     if progress:
         from tqdm.auto import tqdm
@@ -237,9 +238,8 @@ def write_animation(
         ax.set_axis_off()
         ax.set_title(f"t = {f.t * 1e3:6.1f} ms   stones {len(f.radii)}   contacts {f.contacts}"
                      + (f"   (u x{exaggeration:.0f})" if exaggeration != 1 else ""), fontsize=8)
-        fig.canvas.draw()
-        images.append(np.asarray(fig.canvas.buffer_rgba())[..., :3].copy())
-    plt.close(fig)
+        canvas.draw()
+        images.append(np.asarray(canvas.buffer_rgba())[..., :3].copy())
     if path.suffix.lower() == ".gif":
         imageio.mimsave(path, images, duration=1.0 / fps, loop=0)
         return path

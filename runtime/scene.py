@@ -24,7 +24,8 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from runtime.atomic import write_text_atomic
-from runtime.hail import SizeDistribution
+from runtime.contact_capacitance import Mode
+from runtime.hail import Integrator, SizeDistribution
 
 __all__ = ["Scene", "SceneError"]
 
@@ -141,14 +142,14 @@ class Scene:
     drag: bool = True
     cd: float = 0.6
     rho_air: float = 1.2
-    mode: str = "frictionless"
+    mode: Mode = "frictionless"
     unilateral: bool = True
     restitution: float = 0.5
     patch: str = "hertz"
     patch_min_radius: float = 1e-3
     patch_tolerance: float = 0.2
     dt: float = 2e-4
-    integrator: str = "implicit"
+    integrator: Integrator = "implicit"
     adaptive: bool = True
     omega_dt: float = 0.2
     approach_fraction: float = 0.1

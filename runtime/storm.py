@@ -107,11 +107,11 @@ import bisect
 import time
 from dataclasses import dataclass, field
 from types import SimpleNamespace
-from typing import Any, Callable
+from typing import Any, Callable, cast
 
 import numpy as np
 
-from runtime.collide import SurfaceIndex
+from runtime.collide import Closest, SurfaceIndex
 from runtime.hail import (
     GRAVITY,
     contact_step,
@@ -283,7 +283,8 @@ class Storm:
         self._toi = bool(scene.adaptive)
         self._toi_tol = 0.01
         self._hmin = scene.dt / scene.max_substeps
-        self._last_query: tuple | None = None
+        #: the end-of-step query: (sub-step stamp, stones, reach (-1: contact stones), result)
+        self._last_query: tuple[int, np.ndarray, np.ndarray, Closest] | None = None
         self.cache: _ContactCache | None = None
         self.lam = np.zeros(0)
         self.t = 0.0
@@ -533,10 +534,11 @@ class Storm:
                     v, w = pv[r][:1], np.ones(1)
                 self._wcache[int(stones[i])] = (int(tris[i]), bary[i].tobytes(), float(radius[i]), v, w)
                 out[i] = (v, w)
-        P = max(3, max(o[0].size for o in out))
+        done = cast(list[tuple[np.ndarray, np.ndarray]], out)  # every slot is filled above
+        P = max(3, max(o[0].size for o in done))
         verts = np.empty((stones.size, P), dtype=np.intp)
         w = np.zeros((stones.size, P))
-        for i, (v, wi) in enumerate(out):
+        for i, (v, wi) in enumerate(done):
             vv, ww = _pad(v[None, :], wi[None, :], P)
             verts[i], w[i] = vv[0], ww[0]
         return verts, w
@@ -589,6 +591,7 @@ class Storm:
         """Displacement (k, 3) of surface vertices ``verts`` under the current contact forces."""
         if self._fv is None or verts.size == 0:
             return np.zeros((verts.size, 3))
+        assert self._fcols is not None  # set together with _fv (_set_forces)
         rows = (3 * verts[:, None] + np.arange(3)).ravel()
         return (self._D[np.ix_(rows, self._fcols)] @ self._fv).reshape(-1, 3)
 
@@ -730,6 +733,7 @@ class Storm:
                 if lq[1].size:
                     fresh = (lq[1][pos_in] == j) & (lq[2][pos_in] >= reach)
             if fresh.any():
+                assert lq is not None  # fresh is all False without a last query
                 hq0 = lq[3]
                 f_i = pos_in[fresh]
                 dist[qi[fresh]], tri[qi[fresh]] = hq0.distance[f_i], hq0.triangle[f_i]
@@ -866,6 +870,7 @@ class Storm:
         with unilateral release; update the seat's forces and the statistics."""
         sc = self.scene
         tris = self.ctri[soft]
+        key: tuple[tuple[Any, ...], ...]
         if self._patch:
             rad = self._patch_radii(soft, tris)
             key = tuple(zip(soft.tolist(), tris.tolist(), rad.tolist()))
@@ -922,7 +927,8 @@ class Storm:
             vnew = res.v.reshape(s, 3)
             pnew = res.q.reshape(s, 3)
             fvec = res.seat_force.reshape(s, 3)
-            active_c = res.active.reshape(s, 3).all(axis=1)
+            # numpy's stubs cannot tell that all(axis=1) of a 2-d array is an array, not a scalar
+            active_c = res.active.reshape(s, 3).all(axis=1)  # type: ignore[assignment]
             ubar_n = np.einsum("ij,ij->i", (res.q - a).reshape(s, 3), nk)
         if sc.integrator != "exact":
             pnew = self.pos[soft] + h * vnew  # (semi-)implicit position update

@@ -458,10 +458,10 @@ def patch_weights(
         P = np.asarray(gf.vertices, dtype=np.float64)[T[t]]
         E = P - P[:, [2, 0, 1]]  # the edges (np.roll(P, 1, axis=1) without its overhead)
         h = np.sqrt(np.add.reduce(E * E, axis=2)).mean(axis=1)  # mean edge of the contact triangle
-        for k in np.flatnonzero(a > 0):
-            res = _one_patch(idx, gf, X[k], n[k], float(a[k]), float(h[k]), profile, resolution)
+        for j in np.flatnonzero(a > 0):
+            res = _one_patch(idx, gf, X[j], n[j], float(a[j]), float(h[j]), profile, resolution)
             if res is not None:
-                verts_list[k], w_list[k] = res
+                verts_list[j], w_list[j] = res
     Pm = max([3] + [v.size for v in verts_list])
     verts = np.empty((s, Pm), dtype=np.intp)
     w = np.zeros((s, Pm))

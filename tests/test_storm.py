@@ -183,7 +183,16 @@ def test_outputs(tmp_path, gf, short_storm):
         # the peak covers the instant itself
         assert np.all(np.linalg.norm(m.point_data["peak_displacement"], axis=1)
                       >= np.linalg.norm(m.point_data["displacement"], axis=1) - 1e-9)
-    out = write_animation(short_storm, gf, tmp_path / "storm.mp4", max_frames=4, dpi=50)
+    import matplotlib
+    import matplotlib.pyplot as plt
+
+    before = matplotlib.get_backend()
+    plt.switch_backend("pdf")  # a caller's own backend (not Agg) ...
+    try:
+        out = write_animation(short_storm, gf, tmp_path / "storm.mp4", max_frames=4, dpi=50)
+        assert matplotlib.get_backend() == "pdf"  # ... is left alone by the renderer
+    finally:
+        plt.switch_backend(before)
     assert out.is_file() and out.stat().st_size > 0
 
 
