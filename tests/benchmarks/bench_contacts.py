@@ -43,6 +43,16 @@ def timeit(fn, repeat: int, warmup: int = 3) -> np.ndarray:
     return out
 
 
+def random_contacts(gf, tris: np.ndarray, rng: np.random.Generator, s: int, sets: int | None = None):
+    """``s`` random contacts on the triangles ``tris`` pressed ~1 mm in: (tri, bary, ubar);
+    ``ubar`` is (s, 3), or (sets, s, 3) for several prescriptions of the same set."""
+    tri = rng.choice(tris, size=s, replace=s > tris.size)
+    bary = rng.dirichlet([1.0, 1.0, 1.0], size=s)
+    nrm = triangle_normals(gf.vertices, gf.triangles[tri])
+    shape = (s, 3) if sets is None else (sets, s, 3)
+    return tri, bary, -1e-3 * nrm + rng.normal(scale=2e-4, size=shape)
+
+
 def get_bundle(args) -> Path:
     if args.gf:
         return Path(args.gf)
@@ -130,10 +140,7 @@ def main(argv=None) -> int:
     print(header)
     print("-" * len(header))
     for s in args.sizes:
-        tri = rng.choice(tris, size=s, replace=s > tris.size)
-        bary = rng.dirichlet([1.0, 1.0, 1.0], size=s)
-        nrm = triangle_normals(gf.vertices, gf.triangles[tri])
-        ubar = -1e-3 * nrm + rng.normal(scale=2e-4, size=(s, 3))
+        tri, bary, ubar = random_contacts(gf, tris, rng, s)
         t_full = timeit(lambda: solve_contacts(gf, tri, bary, ubar), args.repeat)
         t_forces = timeit(lambda: solve_contacts(gf, tri, bary, ubar, rows=None), args.repeat)
         V = np.unique(gf.triangles[tri]).size
@@ -206,10 +213,7 @@ def print_steady(gf, ref, tris: np.ndarray, args) -> None:
     print(header)
     print("-" * len(header))
     for s in args.sizes:
-        tri = rng.choice(tris, size=s, replace=s > tris.size)
-        bary = rng.dirichlet([1.0, 1.0, 1.0], size=s)
-        nrm = triangle_normals(gf.vertices, gf.triangles[tri])
-        ubars = -1e-3 * nrm + rng.normal(scale=2e-4, size=(16, s, 3))
+        tri, bary, ubars = random_contacts(gf, tris, rng, s, sets=16)
         t0 = time.perf_counter()
         cap = capacitance(gf, tri, bary)
         cap.keep_response()
