@@ -14,7 +14,8 @@ Use::
 from __future__ import annotations
 
 import os
-import tempfile
+import secrets
+import stat
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
@@ -28,17 +29,36 @@ def replacing(path: str | os.PathLike) -> Iterator[Path]:
     block ends normally (one rename) and is removed if the block raises.
 
     The temporary keeps ``path``'s suffix (writers such as ``numpy.savez`` add
-    theirs otherwise). The parent folder must exist.
+    theirs otherwise). The result has the permissions a plain write would give:
+    those of the file it replaces, else the default for new files (the umask
+    applies). The parent folder must exist.
     """
     path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=path.suffix, dir=path.parent)
-    os.close(fd)
+    tmp = _create_sibling(path)
     try:
         yield Path(tmp)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+def _create_sibling(path: Path) -> Path:
+    """Create an empty, uniquely named hidden sibling of ``path`` (mode of ``path`` if it
+    exists, else ``0o666`` minus the umask, as ``open(path, "w")`` would)."""
+    for _ in range(100):
+        tmp = path.parent / f".{path.name}.{secrets.token_hex(6)}{path.suffix}"
+        try:
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        except FileExistsError:  # pragma: no cover - a 48-bit name collision
+            continue
+        os.close(fd)
+        try:
+            os.chmod(tmp, stat.S_IMODE(path.stat().st_mode))
+        except FileNotFoundError:
+            pass
+        return tmp
+    raise FileExistsError(f"no free temporary name next to {path}")  # pragma: no cover
 
 
 def write_text_atomic(path: str | os.PathLike, text: str) -> Path:

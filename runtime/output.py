@@ -200,6 +200,8 @@ def write_animation(
     canvas = FigureCanvasAgg(fig)
     ax = fig.add_subplot(111, projection="3d", facecolor=_SKY)
     fig.subplots_adjust(left=0.0, right=0.95, bottom=0.0, top=1.0)
+    # the caption is a figure text: an axes title would sit above the (full-height) axes, off the image
+    caption = fig.text(0.02, 0.97, "", fontsize=8, va="top", family="monospace")
     sm = cm.ScalarMappable(norm=norm, cmap=cmap)
     peak_shown = any(getattr(frames[i], "peak_displacement", None) is not None for i in idx)
     fig.colorbar(sm, ax=ax, shrink=0.6, pad=0.02, extend="max" if umax > vmax else "neither",
@@ -236,8 +238,8 @@ def write_animation(
         ax.set_box_aspect((span[0] + 0.02, span[1] + 0.02, ztop - lo[2]), zoom=1.15)
         ax.view_init(elev=28, azim=-55)
         ax.set_axis_off()
-        ax.set_title(f"t = {f.t * 1e3:6.1f} ms   stones {len(f.radii)}   contacts {f.contacts}"
-                     + (f"   (u x{exaggeration:.0f})" if exaggeration != 1 else ""), fontsize=8)
+        caption.set_text(f"t = {f.t * 1e3:6.1f} ms   stones {len(f.radii)}   contacts {f.contacts}"
+                         + (f"   (u x{exaggeration:.0f})" if exaggeration != 1 else ""))
         canvas.draw()
         images.append(np.asarray(canvas.buffer_rgba())[..., :3].copy())
     if path.suffix.lower() == ".gif":
