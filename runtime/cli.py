@@ -78,12 +78,18 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _storm_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--duration", type=_positive_float, default=None, help="simulated time in seconds")
-    p.add_argument("--stones", type=int, default=None, help="number of hailstones")
-    p.add_argument("--seed", type=int, default=None, help="random seed (runs are reproducible from it)")
+    from runtime.scene import Scene  # noqa: PLC0415 (the packaged default scene, for the help texts)
+
+    d = Scene.default()
+    p.add_argument("--duration", type=_positive_float, default=None,
+                   help=f"simulated time in seconds (default: the scene's, {d.duration:g})")
+    p.add_argument("--stones", type=int, default=None,
+                   help=f"number of hailstones (default: the scene's rate, {d.rate:g} per second, over the duration)")
+    p.add_argument("--seed", type=int, default=None,
+                   help=f"random seed; runs are reproducible from it (default: the scene's, {d.seed})")
     p.add_argument("--integrator", choices=("implicit", "symplectic", "exact"), default=None,
-                   help="time integrator of the contacts (default: the scene's, implicit)")
-    p.add_argument("--dt", type=_positive_float, default=None, help="time step in seconds (default: the scene's)")
+                   help=f"time integrator of the contacts (default: the scene's, {d.integrator})")
+    p.add_argument("--dt", type=_positive_float, default=None, help=f"time step in seconds (default: the scene's, {d.dt:g})")
     p.add_argument("--gf", type=Path, default=None, help="bundle directory (default: build/cache the default seat)")
     p.add_argument("--scene", type=Path, default=None, help="TOML scene file holding every storm setting")
     p.add_argument("--out", type=Path, default=Path("hailstorm-out"), help="output directory (default ./hailstorm-out)")
