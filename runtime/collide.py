@@ -19,6 +19,7 @@ from typing import Callable
 import numpy as np
 from scipy.spatial import cKDTree
 
+from runtime.compiled import SampleGrid
 from runtime.gather import _unique_inverse
 
 __all__ = ["Closest", "SurfaceIndex", "closest_point_on_triangles"]
@@ -150,7 +151,10 @@ class SurfaceIndex:
         self._sample_tri = np.concatenate(owners) if owners else np.zeros(0, np.intp)
         #: every point of a triangle lies within this of one of its samples
         self.sample_radius = float(srad.max()) if len(p) else 0.0
-        self.tree = cKDTree(np.concatenate(samples) if samples else np.zeros((0, 3)))
+        spts = np.concatenate(samples) if samples else np.zeros((0, 3))
+        self.tree = cKDTree(spts)
+        #: the same samples in a uniform grid, for the compiled kernels (:mod:`runtime.compiled`)
+        self.grid = SampleGrid.build(spts, self._sample_tri, max(2.0 * self.sample_radius, 1e-6))
         fn = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
         ln = np.linalg.norm(fn, axis=1, keepdims=True)
         #: outward unit normals of the undeformed triangles

@@ -112,6 +112,7 @@ from typing import Any, Callable, cast
 import numpy as np
 
 from runtime.collide import Closest, SurfaceIndex
+from runtime.compiled import closest_points, near_set, resolve_backend
 from runtime.hail import (
     GRAVITY,
     contact_step,
@@ -280,6 +281,12 @@ class Storm:
         self._live: np.ndarray | None = None
         self._far = np.zeros(0, dtype=np.intp)  # live stones that are not near (set by _near_set)
         #: time-of-impact sub-steps (adaptive) and the gap within which a contact opens [radii]
+        #: compiled kernels for the queries and the broad phase (:mod:`runtime.compiled`)
+        try:
+            self.backend = resolve_backend(scene.backend)
+        except ValueError as exc:
+            raise SceneError(str(exc)) from None
+        self._compiled = self.backend == "numba"
         self._toi = bool(scene.adaptive)
         self._toi_tol = 0.01
         self._hmin = scene.dt / scene.max_substeps
@@ -525,7 +532,8 @@ class Storm:
         self.stats["patch_weights_reused"] += stones.size - len(todo)
         if todo:
             ti = np.asarray(todo, dtype=np.intp)
-            pv, pw = patch_weights(self.gf, tris[ti], bary[ti], radius[ti], normals[ti], profile="hertz")
+            pv, pw = patch_weights(self.gf, tris[ti], bary[ti], radius[ti], normals[ti], profile="hertz",
+                                   backend=self.backend)
             self.stats["patch_weights_computed"] += ti.size
             for r, i in enumerate(todo):
                 keep = pw[r] > 0.0
@@ -662,8 +670,15 @@ class Storm:
         tol = 1e-3
         return (b1 >= -tol) & (b2 >= -tol) & (b1 + b2 <= 1 + tol)
 
-    def _query(self, stones: np.ndarray, reach: np.ndarray, deformed: bool = True):
+    def _query(self, stones: np.ndarray, reach: np.ndarray, deformed: bool = True) -> Closest:
         deformed = deformed and self._fv is not None
+        if self._compiled:
+            ix = self.index
+            tri, bary, point, dist = closest_points(
+                ix.grid, ix.sample_radius, ix.vertices, ix.triangles, self.pos[stones], reach,
+                D=self._D if deformed else None, cols=self._fcols, forces=self._fv if deformed else None,
+                max_displacement=self.umax if deformed else 0.0)
+            return Closest(triangle=tri, bary=bary, point=point, distance=dist)
         return self.index.query(self.pos[stones], reach, displacement=self._u_at if deformed else None,
                                 max_displacement=self.umax if deformed else 0.0)
 
@@ -1005,6 +1020,12 @@ class Storm:
         travel in a step; only when it runs out is the distance re-measured (a
         k-d tree query). Stones with budget left are not collision-tested.
         """
+        if self._compiled:
+            ix = self.index
+            m = near_set(ix.grid, ix.sample_radius, ix.bbox, live, self.pos, self.vel, self.radius, self.ctri,
+                         self.budget, self._bud_u, 1.5 * self._umax_step, dt, GRAVITY)
+            self._far = live[~m]
+            return live[m]
         v = self.vel[live]
         travel = np.sqrt(np.einsum("ij,ij->i", v, v)) * dt + GRAVITY * dt * dt + 1e-4
         U = 1.5 * self._umax_step

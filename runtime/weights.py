@@ -51,6 +51,7 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
+from runtime.compiled import SampleGrid, resolve_backend
 from runtime.gather import _unique_inverse
 
 __all__ = [
@@ -292,6 +293,10 @@ class _TriangleIndex:
         self.radii = np.linalg.norm(P - c[:, None, :], axis=2).max(axis=1) if self.tris.size else np.zeros(0)
         self.reach = float(self.radii.max(initial=0.0))
         self.tree = cKDTree(c) if self.tris.size else None
+        #: the centroids in a uniform grid, for the compiled patch kernel (:mod:`runtime.compiled`)
+        self.grid = SampleGrid.build(c, np.arange(self.tris.size), max(self.reach, 1e-6))
+        self.T = np.ascontiguousarray(T, dtype=np.int64)
+        self.nv = int(X.shape[0])
 
 
 _INDEX_CACHE: "weakref.WeakKeyDictionary[Any, _TriangleIndex]" = weakref.WeakKeyDictionary()
@@ -345,10 +350,22 @@ def _tangents(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _one_patch(idx: _TriangleIndex, gf: Any, x: np.ndarray, n: np.ndarray, a: float, h: float,
-               profile: str, resolution: float) -> tuple[np.ndarray, np.ndarray] | None:
-    """Vertices and weights of one patch; None if the disc hits no usable triangle."""
+               profile: str, resolution: float, compiled: bool = False) -> tuple[np.ndarray, np.ndarray] | None:
+    """Vertices and weights of one patch; None if the disc hits no usable triangle.
+    ``compiled``: the same computation in :func:`runtime.compiled._one_patch`."""
     if idx.tree is None:
         return None
+    if compiled:
+        from runtime import compiled as C
+
+        n_r = int(min(max(math.ceil(resolution * a / max(h, 1e-300)) + 4, 4), 40))
+        qx, qy, qw = _disc_rule(n_r, 4 * n_r, profile)
+        g = idx.grid
+        V, w = C._one_patch(np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(n, dtype=np.float64),
+                            float(a), float(h), qx, qy, qw, PATCH_FACING, PATCH_DROP, g.lo, g.h, g.dims, g.start,
+                            g.items, g.points, idx.radii, idx.normals, idx.p0, idx.e1, idx.e2, idx.reach, idx.tris,
+                            idx.T, idx.nv)
+        return (V.astype(np.intp), w) if V.size else None
     cand = np.asarray(idx.tree.query_ball_point(x, a + idx.reach + 1e-12 * max(a, 1.0)), dtype=np.intp)
     if cand.size == 0:
         return None
@@ -404,6 +421,7 @@ def patch_weights(
     *,
     profile: str = "hertz",
     resolution: float = 3.0,
+    backend: str = "auto",
 ) -> tuple[np.ndarray, np.ndarray]:
     """Force-distribution weights of patch contacts (consistent load of a pressure disc).
 
@@ -427,6 +445,10 @@ def patch_weights(
         Quadrature points per local mesh size along a radius (plus 4). The
         default integrates the hat functions to ~1e-3 relative; the weights
         always sum to 1.
+    backend : {"auto", "numba", "numpy"}
+        Compute the patches in a compiled kernel (:mod:`runtime.compiled`,
+        needs numba) or in numpy; ``"auto"``: numba when installed. The two
+        agree to rounding.
 
     Returns
     -------
@@ -438,6 +460,7 @@ def patch_weights(
     """
     if profile not in PATCH_PROFILES:
         raise ValueError(f"patch profile must be one of {PATCH_PROFILES}, got {profile!r}")
+    compiled = resolve_backend(backend) == "numba"
     T = np.asarray(gf.triangles)
     t = np.asarray(tri_idx, dtype=np.intp).reshape(-1)
     s = t.size
@@ -459,7 +482,7 @@ def patch_weights(
         E = P - P[:, [2, 0, 1]]  # the edges (np.roll(P, 1, axis=1) without its overhead)
         h = np.sqrt(np.add.reduce(E * E, axis=2)).mean(axis=1)  # mean edge of the contact triangle
         for j in np.flatnonzero(a > 0):
-            res = _one_patch(idx, gf, X[j], n[j], float(a[j]), float(h[j]), profile, resolution)
+            res = _one_patch(idx, gf, X[j], n[j], float(a[j]), float(h[j]), profile, resolution, compiled)
             if res is not None:
                 verts_list[j], w_list[j] = res
     Pm = max([3] + [v.size for v in verts_list])

@@ -1,0 +1,156 @@
+"""The compiled kernels (numba) against their numpy references."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+pytest.importorskip("numba")
+
+from runtime import compiled as C  # noqa: E402
+from runtime.collide import SurfaceIndex  # noqa: E402
+from runtime.scene import Scene, SceneError  # noqa: E402
+from runtime.storm import Storm, run_storm  # noqa: E402
+from test_hail import plate_gf  # noqa: E402
+
+
+@pytest.fixture(scope="module")
+def gf():
+    return plate_gf()
+
+
+def _bumpy(gf):
+    """A lifted, bumpy copy of the plate (no two triangles coplanar)."""
+    V = gf.vertices.copy()
+    V[:, 2] = 0.01 * np.sin(40 * V[:, 0]) * np.cos(30 * V[:, 1])
+    return V, np.asarray(gf.triangles)
+
+
+def test_nearest_sample_is_exact(gf):
+    """The grid's nearest-sample search equals the k-d tree's, inside and far outside the grid."""
+    V, T = _bumpy(gf)
+    idx = SurfaceIndex(V, T)
+    g = idx.grid
+    rng = np.random.default_rng(1)
+    P = rng.uniform(V.min(axis=0) - 0.05, V.max(axis=0) + 0.05, (500, 3))
+    ref, _ = idx.tree.query(P, k=1)
+    got = np.array([C._nearest_sample(p, g.lo, g.h, g.dims, g.start, g.items, g.points) for p in P])
+    np.testing.assert_allclose(got, ref, rtol=1e-14, atol=1e-15)
+
+
+@pytest.mark.parametrize("deformed", [False, True])
+def test_closest_points_match_the_numpy_query(gf, deformed):
+    """Same hits, distances and points as SurfaceIndex.query (the triangle may differ only
+    where two triangles share the closest point: a tie)."""
+    V, T = _bumpy(gf)
+    idx = SurfaceIndex(V, T)
+    rng = np.random.default_rng(2)
+    Q = rng.uniform(V.min(axis=0) - 0.01, V.max(axis=0) + 0.01, (400, 3))
+    reach = rng.uniform(0.001, 0.03, 400)
+    D = np.asfortranarray(gf.D)
+    cols = np.array([3 * 40 + 2, 3 * 41 + 2, 3 * 60 + 0])
+    fv = np.array([-20.0, -15.0, 7.0])
+    kw, disp, md = {}, None, 0.0
+    if deformed:
+        u = (D[:, cols] @ fv).reshape(-1, 3)
+        md = 1.5 * float(np.linalg.norm(u, axis=1).max())
+        assert md > 1e-3  # the deformation moves the surface by more than the rounding
+        kw = dict(D=D, cols=cols, forces=fv, max_displacement=md)
+
+        def disp(v):
+            return u[v]
+    ref = idx.query(Q, reach, displacement=disp, max_displacement=md)
+    tri, bary, point, dist = C.closest_points(idx.grid, idx.sample_radius, idx.vertices, idx.triangles, Q, reach,
+                                              **kw)
+    hit = ref.triangle >= 0
+    assert 50 < hit.sum() < 350  # hits and misses
+    np.testing.assert_array_equal(tri >= 0, hit)
+    np.testing.assert_allclose(dist[hit], ref.distance[hit], rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(point[hit], ref.point[hit], atol=1e-12)
+    assert np.all(np.isinf(dist[~hit])) and np.all(np.isnan(point[~hit]))
+    assert np.mean(tri[hit] == ref.triangle[hit]) > 0.95
+    np.testing.assert_allclose(bary[hit].sum(axis=1), 1.0, rtol=1e-14)
+    # the barycentric coordinates reproduce the point on the (deformed) triangle they name
+    X = V + ((D[:, cols] @ fv).reshape(-1, 3) if deformed else 0.0)
+    np.testing.assert_allclose(np.einsum("kj,kjd->kd", bary[hit], X[T[tri[hit]]]), point[hit], atol=1e-12)
+
+
+def test_near_set_matches_numpy(gf):
+    """The compiled broad phase decides near/far and updates the budgets as the numpy one."""
+    sc = Scene(duration=0.1, stones=0, r_min=0.003, r_max=0.008, backend="numpy")
+    st = Storm(gf, sc, spawn=False)
+    rng = np.random.default_rng(3)
+    lo, hi = st.lo, st.hi
+    n = 300
+    pos = rng.uniform(lo - 0.03, hi + np.array([0.03, 0.03, 0.08]), (n, 3))
+    vel = rng.normal(0.0, 5.0, (n, 3))
+    st.add_stones(pos, vel, rng.uniform(0.003, 0.008, n))
+    st.ctri[rng.random(n) < 0.05] = 0  # a few stones in contact
+    st.budget[:] = rng.uniform(-0.01, 0.05, n)
+    st._bud_u[:] = rng.uniform(0.0, 0.002, n)
+    st._umax_step = 0.001
+    live = np.flatnonzero(st.alive)
+    b0, u0 = st.budget.copy(), st._bud_u.copy()
+    for dt in (5e-4, 5e-3):
+        st.budget[:], st._bud_u[:] = b0, u0
+        st._compiled = False
+        near_ref = st._near_set(live, dt)
+        far_ref, b_ref, u_ref = st._far.copy(), st.budget.copy(), st._bud_u.copy()
+        st.budget[:], st._bud_u[:] = b0, u0
+        st._compiled = True
+        near = st._near_set(live, dt)
+        np.testing.assert_array_equal(near, near_ref)
+        np.testing.assert_array_equal(st._far, far_ref)
+        np.testing.assert_allclose(st.budget, b_ref, rtol=1e-13, atol=1e-15)
+        np.testing.assert_array_equal(st._bud_u, u_ref)
+        assert 0 < near.size < n
+
+
+def test_patch_weights_backends_agree(seat_bundle):
+    """Compiled and numpy patch weights on the curved seat, small to large discs."""
+    from runtime.bundle import load
+    from runtime.weights import patch_weights
+
+    gf = load(seat_bundle)
+    usable = np.flatnonzero((gf.contactable | gf.fixed)[gf.triangles].all(axis=1))
+    rng = np.random.default_rng(4)
+    k = 60
+    t = rng.choice(usable, k)
+    b = rng.dirichlet([1.0, 1.0, 1.0], k)
+    a = rng.uniform(0.0, 0.03, k)
+    a[:5] = 0.0  # point contacts: the barycentric weights
+    v0, w0 = patch_weights(gf, t, b, a, backend="numpy")
+    v1, w1 = patch_weights(gf, t, b, a, backend="numba")
+    n = gf.vertices.shape[0]
+    for i in range(k):
+        d0, d1 = np.zeros(n), np.zeros(n)
+        np.add.at(d0, v0[i], w0[i])
+        np.add.at(d1, v1[i], w1[i])
+        np.testing.assert_allclose(d1, d0, atol=1e-13)
+    assert (w0 > 0).sum(axis=1).max() > 10  # some patches span many vertices
+
+
+def test_storm_backends_agree(gf):
+    """The same storm on the flat plate (no ties that change a normal): the same impacts and forces."""
+    sc = Scene(duration=0.08, stones=15, seed=5, spawn_height=0.02, r_min=0.003, r_max=0.008, dt=5e-4,
+               integrator="exact")
+    res = {b: run_storm(gf, dataclasses.replace(sc, backend=b), progress=False).stats for b in ("numpy", "numba")}
+    a, b = res["numpy"], res["numba"]
+    assert a["impacts"] == b["impacts"] >= 5
+    assert a["substeps"] == b["substeps"]
+    assert b["max_contact_force"] == pytest.approx(a["max_contact_force"], rel=1e-6)
+    assert b["max_indentation_m"] == pytest.approx(a["max_indentation_m"], rel=1e-6)
+
+
+def test_backend_choice(gf, monkeypatch):
+    """'auto' takes numba when installed; asking for numba without it is a clear error."""
+    assert Storm(gf, Scene(backend="auto"), spawn=False).backend == "numba"
+    assert Storm(gf, Scene(backend="numpy"), spawn=False).backend == "numpy"
+    with pytest.raises(SceneError, match="backend"):
+        Scene(backend="fortran")
+    monkeypatch.setattr(C, "HAVE_NUMBA", False)
+    assert Storm(gf, Scene(backend="auto"), spawn=False).backend == "numpy"
+    with pytest.raises(SceneError, match=r"pip install"):
+        Storm(gf, Scene(backend="numba"), spawn=False)
