@@ -211,91 +211,105 @@ def _nearest_sample(p, lo, h, dims, start, items, spts):  # pragma: no cover (co
 
 
 @_njit
-def _closest_points(pts, reach, md, use_u, lo, h, dims, start, items, spts, owner, sr,
-                    X, T, D, fcols, fv):  # pragma: no cover (compiled)
+def _closest_one(p, r, md, use_u, surf, D, fcols, fv, done, Y, bary_out, point_out):  # pragma: no cover
+    """Closest point of the (deformed) surface to ``p`` within ``r``: (triangle, distance),
+    (-1, inf) if none; writes ``bary_out`` and ``point_out``. ``done``/``Y`` cache the
+    deformed positions of the vertices met so far (the forces are those of the call)."""
+    lo, h, dims, start, items, spts, owner, sr, X, T = surf
+    d0 = _nearest_sample(p, lo, h, dims, start, items, spts)
+    if d0 - sr - md > r:
+        return -1, np.inf
+    lim = min(r, d0 + md) + md + sr
+    lim2 = lim * lim
+    ilo = np.empty(3, np.int64)
+    ihi = np.empty(3, np.int64)
+    for d in range(3):
+        a = int(math.floor((p[d] - lim - lo[d]) / h))
+        b = int(math.floor((p[d] + lim - lo[d]) / h))
+        if b < 0 or a >= dims[d]:
+            return -1, np.inf
+        ilo[d] = max(a, 0)
+        ihi[d] = min(b, dims[d] - 1)
+    corner = np.empty((3, 3))
+    bc = np.empty(3)
+    best = np.inf
+    best_sd = np.inf
+    best_t = -1
+    ncol = fcols.shape[0]
+    for ci in range(ilo[0], ihi[0] + 1):
+        for cj in range(ilo[1], ihi[1] + 1):
+            for ck in range(ilo[2], ihi[2] + 1):
+                c = (ci * dims[1] + cj) * dims[2] + ck
+                for q in range(start[c], start[c + 1]):
+                    s = items[q]
+                    dx = spts[s, 0] - p[0]; dy = spts[s, 1] - p[1]; dz = spts[s, 2] - p[2]
+                    sd = dx * dx + dy * dy + dz * dz
+                    if sd > lim2:
+                        continue
+                    t = owner[s]
+                    for m in range(3):
+                        v = T[t, m]
+                        if use_u:
+                            if not done[v]:
+                                # the vertex's displacement under the current forces (its
+                                # three rows are adjacent in each column of D)
+                                u0 = 0.0; u1 = 0.0; u2 = 0.0
+                                for j in range(ncol):
+                                    col = fcols[j]
+                                    u0 += D[3 * v, col] * fv[j]
+                                    u1 += D[3 * v + 1, col] * fv[j]
+                                    u2 += D[3 * v + 2, col] * fv[j]
+                                Y[v, 0] = X[v, 0] + u0; Y[v, 1] = X[v, 1] + u1; Y[v, 2] = X[v, 2] + u2
+                                done[v] = True
+                            for e in range(3):
+                                corner[m, e] = Y[v, e]
+                        else:
+                            for e in range(3):
+                                corner[m, e] = X[v, e]
+                    _closest_on_triangle(p, corner[0], corner[1], corner[2], bc)
+                    d2 = 0.0
+                    for e in range(3):
+                        x = bc[0] * corner[0, e] + bc[1] * corner[1, e] + bc[2] * corner[2, e]
+                        d2 += (p[e] - x) * (p[e] - x)
+                    dd = math.sqrt(d2)
+                    # ties (a shared edge or vertex): the triangle of the nearer sample, as the
+                    # reference's k-d order
+                    if dd < best or (dd == best and sd < best_sd):
+                        best = dd
+                        best_sd = sd
+                        best_t = t
+                        for e in range(3):
+                            bary_out[e] = bc[e]
+                            point_out[e] = bc[0] * corner[0, e] + bc[1] * corner[1, e] + bc[2] * corner[2, e]
+    if best_t < 0 or best > r:
+        for e in range(3):
+            bary_out[e] = 0.0
+            point_out[e] = np.nan
+        return -1, np.inf
+    return best_t, best
+
+
+@_njit
+def _closest_points(pts, reach, md, use_u, surf, D, fcols, fv):  # pragma: no cover (compiled)
     k = pts.shape[0]
     out_tri = np.full(k, -1, np.int64)
     out_bary = np.zeros((k, 3))
     out_pt = np.full((k, 3), np.nan)
     out_d = np.full(k, np.inf)
-    nv = X.shape[0]
-    stamp = np.full(nv, -1, np.int64)  # vertex -> query row whose deformed position is in Y
-    Y = np.empty((nv, 3))
-    corner = np.empty((3, 3))
-    bc = np.empty(3)
-    best_bc = np.empty(3)
-    ncol = fcols.shape[0]
+    nv = surf[8].shape[0]
+    done = np.zeros(nv if use_u else 0, np.bool_)
+    Y = np.empty((nv if use_u else 0, 3))
     for i in range(k):
-        p = pts[i]
-        r = reach[i]
-        d0 = _nearest_sample(p, lo, h, dims, start, items, spts)
-        if d0 - sr - md > r:
-            continue
-        lim = min(r, d0 + md) + md + sr
-        lim2 = lim * lim
-        best = np.inf
-        best_sd = np.inf
-        best_t = -1
-        ilo = np.empty(3, np.int64)
-        ihi = np.empty(3, np.int64)
-        empty = False
-        for d in range(3):
-            a = int(math.floor((p[d] - lim - lo[d]) / h))
-            b = int(math.floor((p[d] + lim - lo[d]) / h))
-            if b < 0 or a >= dims[d]:
-                empty = True
-            ilo[d] = max(a, 0)
-            ihi[d] = min(b, dims[d] - 1)
-        if empty:
-            continue
-        for ci in range(ilo[0], ihi[0] + 1):
-            for cj in range(ilo[1], ihi[1] + 1):
-                for ck in range(ilo[2], ihi[2] + 1):
-                    c = (ci * dims[1] + cj) * dims[2] + ck
-                    for q in range(start[c], start[c + 1]):
-                        s = items[q]
-                        dx = spts[s, 0] - p[0]; dy = spts[s, 1] - p[1]; dz = spts[s, 2] - p[2]
-                        sd = dx * dx + dy * dy + dz * dz
-                        if sd > lim2:
-                            continue
-                        t = owner[s]
-                        for m in range(3):
-                            v = T[t, m]
-                            if use_u and stamp[v] != i:
-                                # the vertex's displacement under the current forces
-                                for e in range(3):
-                                    row = 3 * v + e
-                                    acc = 0.0
-                                    for j in range(ncol):
-                                        acc += D[row, fcols[j]] * fv[j]
-                                    Y[v, e] = X[v, e] + acc
-                                stamp[v] = i
-                            for e in range(3):
-                                corner[m, e] = Y[v, e] if use_u else X[v, e]
-                        _closest_on_triangle(p, corner[0], corner[1], corner[2], bc)
-                        d2 = 0.0
-                        for e in range(3):
-                            x = bc[0] * corner[0, e] + bc[1] * corner[1, e] + bc[2] * corner[2, e]
-                            d2 += (p[e] - x) * (p[e] - x)
-                        dd = math.sqrt(d2)
-                        # ties (a shared edge or vertex): the triangle of the nearer sample, as
-                        # the reference's k-d order
-                        if dd < best or (dd == best and sd < best_sd):
-                            best = dd
-                            best_sd = sd
-                            best_t = t
-                            for e in range(3):
-                                best_bc[e] = bc[e]
-                                out_pt[i, e] = bc[0] * corner[0, e] + bc[1] * corner[1, e] + bc[2] * corner[2, e]
-        if best_t >= 0 and best <= r:
-            out_tri[i] = best_t
-            out_d[i] = best
-            for e in range(3):
-                out_bary[i, e] = best_bc[e]
-        else:
-            for e in range(3):
-                out_pt[i, e] = np.nan
+        t, d = _closest_one(pts[i], reach[i], md, use_u, surf, D, fcols, fv, done, Y, out_bary[i], out_pt[i])
+        out_tri[i] = t
+        out_d[i] = d
     return out_tri, out_bary, out_pt, out_d
+
+
+def _surface(grid: SampleGrid, sample_radius: float, vertices: np.ndarray, triangles: np.ndarray) -> tuple:
+    """The surface as the kernels take it (a tuple of arrays)."""
+    return (grid.lo, grid.h, grid.dims, grid.start, grid.items, grid.points, grid.owner, float(sample_radius),
+            np.ascontiguousarray(vertices, dtype=np.float64), np.ascontiguousarray(triangles, dtype=np.int64))
 
 
 def closest_points(
@@ -353,9 +367,8 @@ def closest_points(
     pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
     return _closest_points(
         pts, np.ascontiguousarray(np.broadcast_to(np.asarray(reach, dtype=np.float64), (pts.shape[0],))),
-        float(max_displacement) if use_u else 0.0, use_u,
-        grid.lo, grid.h, grid.dims, grid.start, grid.items, grid.points, grid.owner, float(sample_radius),
-        vertices, triangles, D, np.asarray(cols, dtype=np.int64), np.asarray(forces, dtype=np.float64))
+        float(max_displacement) if use_u else 0.0, use_u, _surface(grid, sample_radius, vertices, triangles),
+        D, np.asarray(cols, dtype=np.int64), np.asarray(forces, dtype=np.float64))
 
 
 @_njit
@@ -502,3 +515,295 @@ def _one_patch(x, n, a, h, qx, qy, qw, facing, drop, glo, gh, gdims, gstart, git
     V = V[keep]
     w = w[keep]
     return V, w / w.sum()
+
+
+# -- flight and contact blocks --------------------------------------------------------
+@_njit
+def flight(idx, pos, vel, radius, h, g, wind, drag_coef):  # pragma: no cover (compiled)
+    """Free flight of stones ``idx`` over ``h``, in place: gravity ``g`` [m/s^2] plus,
+    if ``drag_coef > 0``, quadratic drag ``-(drag_coef / r) |v - wind| (v - wind)``
+    (``drag_coef = 3 C_d rho_air / (8 rho_ice)``), taken constant over the step as
+    :func:`runtime.hail.free_flight` does."""
+    a = np.empty(3)
+    for q in range(idx.size):
+        i = idx[q]
+        a[0] = 0.0; a[1] = 0.0; a[2] = -g
+        if drag_coef > 0.0:
+            w0 = vel[i, 0] - wind[0]; w1 = vel[i, 1] - wind[1]; w2 = vel[i, 2] - wind[2]
+            c = drag_coef / radius[i] * math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+            a[0] -= c * w0; a[1] -= c * w1; a[2] -= c * w2
+        for d in range(3):
+            pos[i, d] += h * vel[i, d] + 0.5 * h * h * a[d]
+            vel[i, d] += h * a[d]
+
+
+@_njit
+def _dvv(V, D, column_of):  # pragma: no cover (compiled)
+    """D_VV (3|V|, 3|V|), zero columns at clamped vertices."""
+    nV = V.size
+    out = np.zeros((3 * nV, 3 * nV))
+    for j in range(nV):
+        cb = column_of[V[j]]
+        if cb < 0:
+            continue
+        for e in range(3):
+            col = 3 * cb + e
+            for i in range(nV):
+                for d in range(3):
+                    out[3 * i + d, 3 * j + e] = D[3 * V[i] + d, col]
+    return out
+
+
+@_njit
+def capacitance_blocks(verts, w, normals, sticky, D, column_of):  # pragma: no cover (compiled)
+    """The dense blocks of a contact set (the storm's ``_build_cache``) in one pass.
+
+    Parameters
+    ----------
+    verts, w : (s, P) int / float ndarrays
+        Vertices carrying each contact's force and their weights (padding: weight 0).
+    normals : (s, 3) ndarray
+    sticky : bool
+        Three multipliers per contact (``G = B``) or one normal multiplier (``G = B N``).
+    D : (3n, c) ndarray
+        The compliance; ``column_of`` (n,): D's column block of each vertex (-1 clamped).
+
+    Returns
+    -------
+    V : (|V|,) int64 ndarray
+        The sorted union of ``verts``.
+    W : (m, m) ndarray
+        ``G^T D_VV G``, symmetrised (m = 3s sticky, s frictionless).
+    G : (3|V|, m) ndarray
+        Vertex forces per unit multiplier.
+    DG : (3|V|, m) ndarray
+        ``D_VV G``: displacement of V per unit multiplier.
+    """
+    s, P = verts.shape
+    nv_all = column_of.size
+    pos = np.full(nv_all, -1, np.int64)
+    lst = np.empty(s * P, np.int64)
+    nV = 0
+    for k in range(s):
+        for p in range(P):
+            v = verts[k, p]
+            if pos[v] < 0:
+                pos[v] = 0
+                lst[nV] = v
+                nV += 1
+    V = np.sort(lst[:nV])
+    for i in range(nV):
+        pos[V[i]] = i
+    m = 3 * s if sticky else s
+    G = np.zeros((3 * nV, m))
+    for k in range(s):
+        for p in range(P):
+            i = pos[verts[k, p]]
+            if sticky:
+                for d in range(3):
+                    G[3 * i + d, 3 * k + d] += w[k, p]
+            else:
+                for d in range(3):
+                    G[3 * i + d, k] += w[k, p] * normals[k, d]
+    DG = _dvv(V, D, column_of) @ G
+    W = G.T @ DG
+    W = 0.5 * (W + W.T)
+    return V, W, G, DG
+
+
+@_njit
+def patch_compliance(verts, w, normal, D, column_of):  # pragma: no cover (compiled)
+    """Normal compliance ``g^T D_vv g`` of one contact alone, ``g = w kron normal``."""
+    c = 0.0
+    nv = verts.size
+    for j in range(nv):
+        if w[j] == 0.0:
+            continue
+        cb = column_of[verts[j]]
+        if cb < 0:
+            continue
+        for e in range(3):
+            col = 3 * cb + e
+            gj = w[j] * normal[e]
+            acc = 0.0
+            for i in range(nv):
+                if w[i] == 0.0:
+                    continue
+                r = 3 * verts[i]
+                acc += w[i] * (D[r, col] * normal[0] + D[r + 1, col] * normal[1] + D[r + 2, col] * normal[2])
+            c += gj * acc
+    return c
+
+
+# -- the storm's sub-step, free part ------------------------------------------------------
+@_njit
+def _drag_dot(i, vel, radius, nrm, g, wind, drag_coef):  # pragma: no cover (compiled)
+    """``accel . nrm`` of stone i in flight (gravity + drag)."""
+    a0 = 0.0; a1 = 0.0; a2 = -g
+    if drag_coef > 0.0:
+        w0 = vel[i, 0] - wind[0]; w1 = vel[i, 1] - wind[1]; w2 = vel[i, 2] - wind[2]
+        c = drag_coef / radius[i] * math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+        a0 -= c * w0; a1 -= c * w1; a2 -= c * w2
+    return a0 * nrm[0] + a1 * nrm[1] + a2 * nrm[2]
+
+
+@_njit
+def _unit(x, out):  # pragma: no cover (compiled)
+    ln = max(math.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2]), 1e-300)
+    for e in range(3):
+        out[e] = x[e] / ln
+    return ln
+
+
+@_njit
+def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, ctri, cbary, gap, near_tri, surf, tri_normals,
+               soft, umax, use_u, D, fcols, fv, g, wind, drag_coef, restitution):  # pragma: no cover
+    """The first phases of one storm sub-step for the near stones, in place (compiled
+    ``Storm._proximity``, ``_time_of_impact``, ``_contacts_to_open``, ``_open_contacts``
+    and ``_hard_walls``; see those for the rules).
+
+    Stones without a contact query the deformed surface; an open contact keeps its
+    ``(t, beta)`` while its stone stays over the triangle, else moves to the closest
+    point of the undeformed surface. With ``toi`` the sub-step ends when the first
+    approaching stone reaches the tangent plane at its closest point; contacts open
+    within ``toi_tol`` radii (approaching or overlapping), the stone put on the
+    surface; contacts on hard triangles bounce at once.
+
+    Returns
+    -------
+    h : float
+        The sub-step actually taken.
+    walls : int
+        Impacts on hard triangles.
+    """
+    X = surf[8]
+    T = surf[9]
+    k = near.size
+    nv = X.shape[0]
+    done = np.zeros(nv if use_u else 0, np.bool_)
+    Y = np.empty((nv if use_u else 0, 3))
+    done0 = np.zeros(0, np.bool_)
+    Y0 = np.empty((0, 3))
+    in_contact = np.zeros(k, np.bool_)
+    dist = np.full(k, np.inf)
+    tri = np.full(k, -1, np.int64)
+    bary = np.zeros((k, 3))
+    point = np.full((k, 3), np.nan)
+    gp = np.zeros(k)
+    nrm = np.empty(3)
+    dvec = np.empty(3)
+    queried = False
+    for j in range(k):
+        i = near[j]
+        if ctri[i] >= 0:
+            in_contact[j] = True
+            # does the centre still project onto the contact triangle (undeformed)?
+            t = ctri[i]
+            n0 = tri_normals[t, 0]; n1 = tri_normals[t, 1]; n2 = tri_normals[t, 2]
+            a = T[t, 0]; b = T[t, 1]; c = T[t, 2]
+            v00 = X[b, 0] - X[a, 0]; v01 = X[b, 1] - X[a, 1]; v02 = X[b, 2] - X[a, 2]
+            v10 = X[c, 0] - X[a, 0]; v11 = X[c, 1] - X[a, 1]; v12 = X[c, 2] - X[a, 2]
+            w0 = pos[i, 0] - X[a, 0]; w1 = pos[i, 1] - X[a, 1]; w2 = pos[i, 2] - X[a, 2]
+            wn = w0 * n0 + w1 * n1 + w2 * n2
+            w0 -= wn * n0; w1 -= wn * n1; w2 -= wn * n2
+            d00 = v00 * v00 + v01 * v01 + v02 * v02
+            d01 = v00 * v10 + v01 * v11 + v02 * v12
+            d11 = v10 * v10 + v11 * v11 + v12 * v12
+            d20 = w0 * v00 + w1 * v01 + w2 * v02
+            d21 = w0 * v10 + w1 * v11 + w2 * v12
+            den = d00 * d11 - d01 * d01
+            b1 = (d11 * d20 - d01 * d21) / den
+            b2 = (d00 * d21 - d01 * d20) / den
+            if not (b1 >= -1e-3 and b2 >= -1e-3 and b1 + b2 <= 1.0 + 1e-3):
+                # slid off: the closest point of the undeformed surface (the contact stays open)
+                tt, dd = _closest_one(pos[i], 2.0 * radius[i] + umax + 1e-3, 0.0, False, surf, D, fcols, fv,
+                                      done0, Y0, bary[j], point[j])
+                ctri[i] = tt
+                if tt >= 0:
+                    for e in range(3):
+                        cbary[i, e] = bary[j, e]
+                tri[j] = tt
+                dist[j] = dd
+        else:
+            queried = True
+            sp = math.sqrt(vel[i, 0] ** 2 + vel[i, 1] ** 2 + vel[i, 2] ** 2)
+            tt, dd = _closest_one(pos[i], radius[i] + sp * h + 1e-3, umax if use_u else 0.0, use_u, surf, D,
+                                  fcols, fv, done, Y, bary[j], point[j])
+            tri[j] = tt
+            dist[j] = dd
+            near_tri[i] = tt
+            gp[j] = dd - radius[i]
+        gap[i] = gp[j]
+    timing = toi and queried
+    # time of impact: the first approaching stone to reach its tangent plane
+    if timing:
+        tmin = np.inf
+        for j in range(k):
+            i = near[j]
+            if in_contact[j] or not np.isfinite(gp[j]) or not gp[j] > toi_tol * radius[i]:
+                continue
+            for e in range(3):
+                dvec[e] = pos[i, e] - point[j, e]
+            _unit(dvec, nrm)
+            w = -(vel[i, 0] * nrm[0] + vel[i, 1] * nrm[1] + vel[i, 2] * nrm[2])
+            an = -_drag_dot(i, vel, radius, nrm, g, wind, drag_coef)
+            if w > 0.0 and gp[j] < w * h + 0.5 * abs(an) * h * h:
+                disc = math.sqrt(max(w * w + 2.0 * an * gp[j], 0.0))
+                tmin = min(tmin, 2.0 * gp[j] / max(w + disc, 1e-12))
+        if tmin < np.inf:
+            h = min(h, max(tmin, hmin))
+    # contacts that open, at their closest points
+    for j in range(k):
+        i = near[j]
+        if in_contact[j] or tri[j] < 0:
+            continue
+        eps = toi_tol * radius[i]
+        if timing:
+            if not gp[j] < eps:
+                continue
+            for e in range(3):
+                dvec[e] = pos[i, e] - point[j, e]
+            _unit(dvec, nrm)
+            vn = vel[i, 0] * nrm[0] + vel[i, 1] * nrm[1] + vel[i, 2] * nrm[2]
+            if not (vn < 0.0 or gp[j] < -eps):
+                continue
+        elif not dist[j] < radius[i]:
+            continue
+        t = tri[j]
+        ctri[i] = t
+        for e in range(3):
+            cbary[i, e] = bary[j, e]
+        if timing:
+            for e in range(3):
+                pos[i, e] -= gp[j] * tri_normals[t, e]
+        else:
+            vn = vel[i, 0] * tri_normals[t, 0] + vel[i, 1] * tri_normals[t, 1] + vel[i, 2] * tri_normals[t, 2]
+            if vn < 0.0:
+                depth = max(-gp[j], 0.0)
+                for e in range(3):
+                    pos[i, e] += depth * tri_normals[t, e]
+    # hard walls: out of the wall, restitution bounce, the contact closes
+    walls = 0
+    for j in range(k):
+        i = near[j]
+        t = ctri[i]
+        if t < 0 or soft[t]:
+            continue
+        for e in range(3):
+            dvec[e] = pos[i, e] - point[j, e]
+        dw = math.sqrt(dvec[0] ** 2 + dvec[1] ** 2 + dvec[2] ** 2)
+        if dw > 1e-12:
+            for e in range(3):
+                nrm[e] = dvec[e] / dw
+        else:
+            for e in range(3):
+                nrm[e] = tri_normals[t, e]
+        push = max(radius[i] - dw, 0.0)
+        vn = vel[i, 0] * nrm[0] + vel[i, 1] * nrm[1] + vel[i, 2] * nrm[2]
+        if vn < 0.0:
+            walls += 1
+        for e in range(3):
+            pos[i, e] += push * nrm[e]
+            vel[i, e] -= (1.0 + restitution) * min(vn, 0.0) * nrm[e]
+        ctri[i] = -1
+    return h, walls

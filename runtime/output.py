@@ -43,9 +43,11 @@ def summary(result: Any) -> dict[str, Any]:
     ``max_indentation_m`` (largest normal contact displacement), 
     ``max_simultaneous_contacts``, ``max_penetration_m`` (deepest overlap of a
     stone with the deformed surface), ``steps``, ``substeps``,
-    ``capacitance_rebuilds``, ``sim_time_s``, ``wall_time_s``,
-    ``real_time_factor`` (simulated / wall-clock time; > 1 is faster than
-    real time), ``seed``, ``dt``, ``integrator``, ``mode``, and the scene.
+    ``capacitance_rebuilds``, ``sim_time_s``, ``wall_time_s`` (the stepping,
+    frames included), ``real_time_factor`` (simulated / wall-clock time; > 1
+    is faster than real time), ``setup_time_s`` (building the storm: spatial
+    index, spawn plan, loading the compiled kernels), ``backend``, ``seed``,
+    ``dt``, ``integrator``, ``mode``, and the scene.
     """
     d = dict(result.stats)
     d["scene"] = result.scene.to_dict()

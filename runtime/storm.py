@@ -112,7 +112,16 @@ from typing import Any, Callable, cast
 import numpy as np
 
 from runtime.collide import Closest, SurfaceIndex
-from runtime.compiled import closest_points, near_set, resolve_backend
+from runtime.compiled import (
+    _surface,
+    capacitance_blocks,
+    closest_points,
+    flight,
+    free_phase,
+    near_set,
+    patch_compliance,
+    resolve_backend,
+)
 from runtime.hail import (
     GRAVITY,
     contact_step,
@@ -263,6 +272,11 @@ class Storm:
         self._D = np.asarray(D)
         #: the bundle as the D-gather helpers see it, reading through that view
         self._gfD = SimpleNamespace(D=self._D, column_of=np.asarray(gf.column_of))
+        self._col_of = np.ascontiguousarray(gf.column_of, dtype=np.int64)
+        #: the surface as the compiled kernels take it, and their "no forces"
+        self._surf = _surface(self.index.grid, self.index.sample_radius, self.index.vertices, self.index.triangles)
+        self._no_cols = np.zeros(0, dtype=np.int64)
+        self._no_forces = np.zeros(0)
         self._fv: np.ndarray | None = None
         self._fcols: np.ndarray | None = None
         self._u_version = 0
@@ -305,9 +319,36 @@ class Storm:
             max_patch_radius_m=0.0,
         )
         self._pending = self._plan_spawns() if spawn else np.zeros((0, 8))
+        if self._compiled:
+            self._warm_up()
         self._next_pending = 0
         #: spawn times as a plain list (one float comparison per step when nothing is due)
         self._pending_t = self._pending[:, 0].tolist()
+
+    def _warm_up(self) -> None:
+        """Load (or compile, the first time after an install) every kernel the loop calls,
+        with the loop's argument types, so that the stepping itself runs compiled code
+        from its first step (loading takes ~0.3 s; compiling ~15 s, once: numba caches
+        the machine code on disk)."""
+        none = np.zeros(0, dtype=np.intp)
+        sc = self.scene
+        self._fly(none, 0.0)
+        near_set(self.index.grid, self.index.sample_radius, self.index.bbox, none, self.pos, self.vel, self.radius,
+                 self.ctri, self.budget, self._bud_u, 0.0, float(sc.dt), GRAVITY)
+        self._free_phase(none, float(sc.dt))
+        self._query(none, np.zeros(0))
+        soft = np.flatnonzero(self.soft)
+        if soft.size:
+            t = int(soft[0])
+            verts = np.asarray(self.gf.triangles)[[t]].astype(np.int64)
+            w = np.full((1, 3), 1.0 / 3.0)
+            n = self.index.normals[[t]]
+            capacitance_blocks(verts, w, n, sc.mode == "sticky", self._D, self._col_of)
+            patch_compliance(verts[0], w[0], n[0], self._D, self._col_of)
+            if self._patch:
+                from runtime.weights import patch_weights
+
+                patch_weights(self.gf, [t], w, [sc.patch_min_radius], n, profile="hertz", backend="numba")
 
     # -- stones ------------------------------------------------------------------
     def _plan_spawns(self) -> np.ndarray:
@@ -372,6 +413,16 @@ class Storm:
                                    rho_air=sc.rho_air, density=sc.density)
         return a
 
+    def _fly(self, idx: np.ndarray, h: float) -> None:
+        """Free flight of stones ``idx`` over ``h`` (gravity and drag)."""
+        if self._compiled:
+            sc = self.scene
+            coef = 3.0 * sc.cd * sc.rho_air / (8.0 * sc.density) if sc.drag else 0.0
+            flight(idx, self.pos, self.vel, self.radius, h, GRAVITY, self.wind, coef)
+            return
+        self.pos[idx], self.vel[idx] = free_flight(self.pos[idx], self.vel[idx], h,
+                                                   accel=self._accel(idx) - self.g, g=GRAVITY)
+
     # -- contacts ----------------------------------------------------------------
     def _build_cache(self, stones: np.ndarray, tris: np.ndarray, bary: np.ndarray, key: tuple,
                      radius: np.ndarray | None = None) -> _ContactCache:
@@ -389,17 +440,22 @@ class Storm:
             radius = np.zeros(s)
         else:
             verts, w = self._patch_weights(stones, tris, bary, radius, normals)
-        V, loc = _locate_lists(verts)
-        D_VV = _gather(self._gfD, _dof3(V), _column_dofs(gf, V))
-        W = _contact_compliance(D_VV, loc, w, normals, mode)
         if np.any(_rigid(gf, verts, w)):
             raise RuntimeError("rigid contacts must be filtered before the capacitance")  # pragma: no cover
-        K = _inv_spd(W)
-        if mode == "sticky":
-            G = _dense_B(V.size, loc, w)
+        if self._compiled:
+            V, W, G, DG = capacitance_blocks(verts.astype(np.int64, copy=False), w, normals, mode == "sticky",
+                                             self._D, self._col_of)
         else:
-            # G = B N: row (i, d), column k = Bs[i, k] n_k[d] (B = Bs kron I3, without forming it)
-            G = (_dense_Bs(V.size, loc, w)[:, None, :] * normals.T[None, :, :]).reshape(3 * V.size, s)
+            V, loc = _locate_lists(verts)
+            D_VV = _gather(self._gfD, _dof3(V), _column_dofs(gf, V))
+            W = _contact_compliance(D_VV, loc, w, normals, mode)
+            if mode == "sticky":
+                G = _dense_B(V.size, loc, w)
+            else:
+                # G = B N: row (i, d), column k = Bs[i, k] n_k[d] (B = Bs kron I3, without forming it)
+                G = (_dense_Bs(V.size, loc, w)[:, None, :] * normals.T[None, :, :]).reshape(3 * V.size, s)
+            DG = D_VV @ G
+        K = _inv_spd(W)
         cb = np.asarray(gf.column_of)[V]
         live = np.repeat(cb >= 0, 3)
         cols = (3 * cb[:, None] + np.arange(3)).ravel()[live]  # D columns of the loaded dofs
@@ -411,7 +467,7 @@ class Storm:
         # a small gap: measured restitution 0.488 instead of 0.499 for the single drop.)
         X = np.einsum("kj,kjd->kd", bary, self.X[gf.triangles[tris]])
         self.stats["capacitance_rebuilds"] += 1
-        return _ContactCache(key=key, W=W, K=K, G=G[live], cols=cols, DVV=D_VV @ G, stones=stones,
+        return _ContactCache(key=key, W=W, K=K, G=G[live], cols=cols, DVV=DG, stones=stones,
                              tris=tris, bary=bary, normals=normals, X=X, rest=self.radius[stones].copy(),
                              patch_radius=np.asarray(radius, dtype=np.float64).copy(), verts=verts, weights=w)
 
@@ -502,6 +558,11 @@ class Storm:
 
         verts, w = self._patch_weights(stones, tris, self.cbary[stones], radius, normals)
         k = np.zeros(stones.size)
+        if self._compiled:
+            for i in range(stones.size):
+                c = patch_compliance(verts[i].astype(np.int64, copy=False), w[i], normals[i], self._D, self._col_of)
+                k[i] = 1.0 / c if c > 0 else 0.0
+            return k
         for i in range(stones.size):
             keep = w[i] > 0.0
             v, wi = verts[i][keep], w[i][keep]
@@ -694,14 +755,17 @@ class Storm:
         """
         in_contact = self.ctri[near] >= 0
         was_open = in_contact.copy()
-        px = self._proximity(near, in_contact, h)
-        if self._toi and px.qi.size:
-            h = self._time_of_impact(px, h)
-        new = self._contacts_to_open(px)
-        if self._toi and px.qi.size:
-            self._predict_gaps(px, new, h)
-        self._open_contacts(px, new)
-        self._hard_walls(near, px.point)
+        if self._compiled:
+            h = self._free_phase(near, h)
+        else:
+            px = self._proximity(near, in_contact, h)
+            if self._toi and px.qi.size:
+                h = self._time_of_impact(px, h)
+            new = self._contacts_to_open(px)
+            if self._toi and px.qi.size:
+                self._predict_gaps(px, new, h)
+            self._open_contacts(px, new)
+            self._hard_walls(near, px.point)
         soft = near[self.ctri[near] >= 0]
         if soft.size < near.size:
             free = near[self.ctri[near] < 0] if soft.size else near
@@ -714,10 +778,24 @@ class Storm:
             self.lam = np.zeros(0)
             self._set_forces(None, self.lam)
         if free.size:
-            self.pos[free], self.vel[free] = free_flight(self.pos[free], self.vel[free], h,
-                                                         accel=self._accel(free) - self.g, g=GRAVITY)
+            self._fly(free, h)
         self.stats["substeps"] += 1
         return h
+
+    def _free_phase(self, near: np.ndarray, h: float) -> float:
+        """The compiled counterpart of :meth:`_proximity` ... :meth:`_hard_walls`
+        (:func:`runtime.compiled.free_phase`; every stone is queried: no reuse or
+        prediction, which only save numpy calls). Returns the sub-step taken."""
+        sc = self.scene
+        use_u = self._fv is not None
+        coef = 3.0 * sc.cd * sc.rho_air / (8.0 * sc.density) if sc.drag else 0.0
+        h, walls = free_phase(
+            near, h, self._toi, self._toi_tol, self._hmin, self.pos, self.vel, self.radius, self.ctri, self.cbary,
+            self.gap, self.near_tri, self._surf, self.index.normals, self.soft, self.umax, use_u,
+            self._D, self._fcols if use_u else self._no_cols, self._fv if use_u else self._no_forces,
+            GRAVITY, self.wind, coef, float(sc.restitution))
+        self.stats["wall_contacts"] += int(walls)
+        return float(h)
 
     def _proximity(self, near: np.ndarray, in_contact: np.ndarray, h: float) -> _Proximity:
         """Closest points of the deformed surface to the near stones without a kept contact
@@ -1114,8 +1192,7 @@ class Storm:
             near = far = live
         if far.size:
             self._pstamp[far] = -1  # gap predictions are for near stones that stay near
-            self.pos[far], self.vel[far] = free_flight(self.pos[far], self.vel[far], dt,
-                                                       accel=self._accel(far) - self.g, g=GRAVITY)
+            self._fly(far, dt)
             self.gap[far] = np.inf
         if near.size:
             self._step_query(near, dt)
@@ -1201,7 +1278,9 @@ def run_storm(
         statistics (see :func:`runtime.output.write_summary`).
     """
     scene = Scene.default() if scene is None else scene
+    setup0 = time.perf_counter()
     storm = Storm(gf, scene)
+    setup = time.perf_counter() - setup0
     n_steps = max(1, int(round(scene.duration / scene.dt)))
     frame_dt = 1.0 / scene.fps
     frames = [storm.frame()]
@@ -1236,7 +1315,7 @@ def run_storm(
     n_pen, pen_sum = st.pop("_pen_contact_n"), st.pop("_pen_contact_sum")
     st["mean_penetration_contact_m"] = pen_sum / n_pen if n_pen else 0.0
     st.update(
-        sim_time_s=float(storm.t), wall_time_s=float(wall),
+        sim_time_s=float(storm.t), wall_time_s=float(wall), setup_time_s=float(setup), backend=storm.backend,
         real_time_factor=float(storm.t / wall) if wall > 0 else float("inf"),
         seed=scene.seed, dt=scene.dt, integrator=scene.integrator, mode=scene.mode,
         restitution=scene.restitution, n_vertices=int(storm.n), n_triangles=int(len(gf.triangles)),
