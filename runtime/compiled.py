@@ -312,6 +312,11 @@ def _surface(grid: SampleGrid, sample_radius: float, vertices: np.ndarray, trian
             np.ascontiguousarray(vertices, dtype=np.float64), np.ascontiguousarray(triangles, dtype=np.int64))
 
 
+#: a stand-in for D when none is given: (2, 2) so that it is only F-contiguous, as a
+#: column-major D (a (1, 1) array is also C-contiguous: another compiled specialisation)
+_NO_D = np.zeros((2, 2), order="F")
+
+
 def closest_points(
     grid: SampleGrid,
     sample_radius: float,
@@ -362,7 +367,8 @@ def closest_points(
     """
     use_u = forces is not None and D is not None and cols is not None
     if not use_u:
-        D, cols, forces = np.zeros((1, 1), order="F"), np.zeros(0, np.int64), np.zeros(0)
+        # (a D given without forces is passed on unused: the same compiled specialisation)
+        D, cols, forces = (_NO_D if D is None else D), np.zeros(0, np.int64), np.zeros(0)
     assert D is not None and cols is not None and forces is not None
     pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
     return _closest_points(
@@ -420,10 +426,10 @@ def near_set(grid: SampleGrid, sample_radius: float, bbox: tuple[np.ndarray, np.
 
 # -- patch weights ------------------------------------------------------------------
 @_njit
-def _one_patch(x, n, a, h, qx, qy, qw, facing, drop, glo, gh, gdims, gstart, gitems, cent, radii, tnorm,
-               p0, e1, e2, reach, tris, T, nv):  # pragma: no cover (compiled)
+def _one_patch(x, n, a, h, qx, qy, qw, facing, drop, pidx):  # pragma: no cover (compiled)
     """Compiled ``runtime.weights._one_patch``: (vertices, weights) of one patch, both
-    empty if the disc hits no usable triangle."""
+    empty if the disc hits no usable triangle. ``pidx``: :func:`runtime.weights._patch_index_arrays`."""
+    glo, gh, gdims, gstart, gitems, cent, radii, tnorm, p0, e1, e2, reach, tris, T, nv = pidx
     tol = 1e-12 * max(a, 1.0)
     lim = a + reach + tol
     # candidate triangles: centroid within a + reach (grid), then within a + own radius, facing n
@@ -807,3 +813,40 @@ def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, ctri, cbary, gap, 
             vel[i, e] -= (1.0 + restitution) * min(vn, 0.0) * nrm[e]
         ctri[i] = -1
     return h, walls
+
+
+@_njit
+def patch_one(t, bary, a, n, resolution, rule_off, rule_x, rule_y, rule_w, facing, drop,
+              pidx, X):  # pragma: no cover (compiled)
+    """Weights of one patch contact on triangle ``t`` at ``bary`` with radius ``a`` and
+    normal ``n`` (``runtime.weights.patch_weights`` for one contact, positive weights
+    only): (vertices, weights). ``rule_*``: the disc rules of ``n_r`` = 0..40 points per
+    radius, concatenated (rule ``n_r`` is ``rule_off[n_r]:rule_off[n_r + 1]``)."""
+    T = pidx[13]
+    if a > 0.0:
+        x = np.zeros(3)
+        for m in range(3):
+            for e in range(3):
+                x[e] += bary[m] * X[T[t, m], e]
+        h = 0.0
+        for m in range(3):
+            a_ = T[t, m]
+            b_ = T[t, (m + 2) % 3]
+            h += math.sqrt((X[a_, 0] - X[b_, 0]) ** 2 + (X[a_, 1] - X[b_, 1]) ** 2 + (X[a_, 2] - X[b_, 2]) ** 2)
+        h /= 3.0
+        n_r = int(min(max(math.ceil(resolution * a / max(h, 1e-300)) + 4, 4), 40))
+        o0 = rule_off[n_r]
+        o1 = rule_off[n_r + 1]
+        V, w = _one_patch(x, n, a, h, rule_x[o0:o1], rule_y[o0:o1], rule_w[o0:o1], facing, drop, pidx)
+        if V.size:
+            keep = w > 0.0
+            return V[keep], w[keep]
+    V = np.empty(3, np.int64)
+    w = np.empty(3)
+    k = 0
+    for m in range(3):
+        if bary[m] > 0.0:
+            V[k] = T[t, m]
+            w[k] = bary[m]
+            k += 1
+    return V[:k], w[:k]

@@ -120,6 +120,7 @@ from runtime.compiled import (
     free_phase,
     near_set,
     patch_compliance,
+    patch_one,
     resolve_backend,
 )
 from runtime.hail import (
@@ -132,6 +133,7 @@ from runtime.hail import (
     terminal_velocity,
 )
 from runtime.scene import Scene, SceneError
+from runtime.weights import PATCH_DROP, PATCH_FACING
 
 __all__ = ["Frame", "Scene", "SceneError", "Storm", "StormResult", "run_storm"]
 
@@ -301,6 +303,11 @@ class Storm:
         except ValueError as exc:
             raise SceneError(str(exc)) from None
         self._compiled = self.backend == "numba"
+        if self._patch and self._compiled:
+            from runtime.weights import _disc_table, _triangle_index
+
+            self._pidx = _triangle_index(gf).arrays
+            self._disc = _disc_table("hertz")
         self._toi = bool(scene.adaptive)
         self._toi_tol = 0.01
         self._hmin = scene.dt / scene.max_substeps
@@ -346,9 +353,8 @@ class Storm:
             capacitance_blocks(verts, w, n, sc.mode == "sticky", self._D, self._col_of)
             patch_compliance(verts[0], w[0], n[0], self._D, self._col_of)
             if self._patch:
-                from runtime.weights import patch_weights
-
-                patch_weights(self.gf, [t], w, [sc.patch_min_radius], n, profile="hertz", backend="numba")
+                patch_one(t, w[0], float(sc.patch_min_radius), n[0], 3.0, *self._disc, PATCH_FACING, PATCH_DROP,
+                          self._pidx, self.X)
 
     # -- stones ------------------------------------------------------------------
     def _plan_spawns(self) -> np.ndarray:
@@ -591,7 +597,14 @@ class Storm:
             else:
                 todo.append(i)
         self.stats["patch_weights_reused"] += stones.size - len(todo)
-        if todo:
+        if todo and self._compiled:
+            self.stats["patch_weights_computed"] += len(todo)
+            for i in todo:
+                v, w_ = patch_one(int(tris[i]), bary[i], float(radius[i]), normals[i], 3.0, *self._disc,
+                                  PATCH_FACING, PATCH_DROP, self._pidx, self.X)
+                self._wcache[int(stones[i])] = (int(tris[i]), bary[i].tobytes(), float(radius[i]), v, w_)
+                out[i] = (v, w_)
+        elif todo:
             ti = np.asarray(todo, dtype=np.intp)
             pv, pw = patch_weights(self.gf, tris[ti], bary[ti], radius[ti], normals[ti], profile="hertz",
                                    backend=self.backend)
@@ -737,7 +750,7 @@ class Storm:
             ix = self.index
             tri, bary, point, dist = closest_points(
                 ix.grid, ix.sample_radius, ix.vertices, ix.triangles, self.pos[stones], reach,
-                D=self._D if deformed else None, cols=self._fcols, forces=self._fv if deformed else None,
+                D=self._D, cols=self._fcols, forces=self._fv if deformed else None,
                 max_displacement=self.umax if deformed else 0.0)
             return Closest(triangle=tri, bary=bary, point=point, distance=dist)
         return self.index.query(self.pos[stones], reach, displacement=self._u_at if deformed else None,

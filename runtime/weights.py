@@ -295,8 +295,12 @@ class _TriangleIndex:
         self.tree = cKDTree(c) if self.tris.size else None
         #: the centroids in a uniform grid, for the compiled patch kernel (:mod:`runtime.compiled`)
         self.grid = SampleGrid.build(c, np.arange(self.tris.size), max(self.reach, 1e-6))
-        self.T = np.ascontiguousarray(T, dtype=np.int64)
-        self.nv = int(X.shape[0])
+        g = self.grid
+        #: the index as the compiled kernels take it
+        self.arrays = (g.lo, g.h, g.dims, g.start, g.items, g.points, np.ascontiguousarray(self.radii),
+                       np.ascontiguousarray(self.normals), np.ascontiguousarray(self.p0),
+                       np.ascontiguousarray(self.e1), np.ascontiguousarray(self.e2), self.reach,
+                       self.tris.astype(np.int64), np.ascontiguousarray(T, dtype=np.int64), int(X.shape[0]))
 
 
 _INDEX_CACHE: "weakref.WeakKeyDictionary[Any, _TriangleIndex]" = weakref.WeakKeyDictionary()
@@ -337,6 +341,16 @@ def _disc_rule(n_r: int, n_t: int, profile: str) -> tuple[np.ndarray, np.ndarray
     return x, y, w
 
 
+@functools.lru_cache(maxsize=4)
+def _disc_table(profile: str, n_max: int = 40) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Every :func:`_disc_rule` ``(n_r, 4 n_r)`` for ``n_r <= n_max``, concatenated for the
+    compiled kernels: (offsets (n_max + 2,), x, y, weight); rule ``n_r`` is
+    ``offsets[n_r]:offsets[n_r + 1]`` (empty below 4)."""
+    rules = [_disc_rule(n, 4 * n, profile) if n >= 4 else (np.zeros(0),) * 3 for n in range(n_max + 1)]
+    off = np.concatenate([[0], np.cumsum([r[0].size for r in rules])]).astype(np.int64)
+    return off, *(np.concatenate([r[i] for r in rules]) for i in range(3))
+
+
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Cross product of two 3-vectors (np.cross has a large per-call overhead)."""
     return np.array([a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]])
@@ -360,11 +374,8 @@ def _one_patch(idx: _TriangleIndex, gf: Any, x: np.ndarray, n: np.ndarray, a: fl
 
         n_r = int(min(max(math.ceil(resolution * a / max(h, 1e-300)) + 4, 4), 40))
         qx, qy, qw = _disc_rule(n_r, 4 * n_r, profile)
-        g = idx.grid
         V, w = C._one_patch(np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(n, dtype=np.float64),
-                            float(a), float(h), qx, qy, qw, PATCH_FACING, PATCH_DROP, g.lo, g.h, g.dims, g.start,
-                            g.items, g.points, idx.radii, idx.normals, idx.p0, idx.e1, idx.e2, idx.reach, idx.tris,
-                            idx.T, idx.nv)
+                            float(a), float(h), qx, qy, qw, PATCH_FACING, PATCH_DROP, idx.arrays)
         return (V.astype(np.intp), w) if V.size else None
     cand = np.asarray(idx.tree.query_ball_point(x, a + idx.reach + 1e-12 * max(a, 1.0)), dtype=np.intp)
     if cand.size == 0:
