@@ -850,3 +850,212 @@ def patch_one(t, bary, a, n, resolution, rule_off, rule_x, rule_y, rule_w, facin
             w[k] = bary[m]
             k += 1
     return V[:k], w[:k]
+
+
+# -- the storm's sub-step, contact part -----------------------------------------------
+@_njit
+def _hertz_target(kk, f, f_eq, m, vn, R, e_star, a_min):  # pragma: no cover (compiled)
+    """Patch radius for the expected peak force ``f_eq + sqrt((f - f_eq)^2 + k m vn^2)``:
+    the Hertz radius, clipped to ``[a_min, R]``, then at least ``a_min``."""
+    kk = max(kk, 0.0)
+    fp = f_eq + math.sqrt((f - f_eq) ** 2 + kk * m * vn * vn)
+    a = np.cbrt(3.0 * abs(fp) * R / (4.0 * e_star))
+    a = min(max(a, a_min), R)
+    return max(a, a_min)
+
+
+@_njit
+def patch_radii(stones, tris, mass, radius, vel, cbary, crad, tnormals, g, wind, drag_coef, cc_stones, Kdiag,
+                lam, sticky, k_tri, e_star, a_min, tol, rest_speed, rule_off, rule_x, rule_y, rule_w, facing,
+                drop, pidx, X, D, column_of):  # pragma: no cover (compiled)
+    """Compiled ``Storm._patch_radii`` (see there for the rule): the patch radius of
+    each soft contact, written to ``crad``.
+
+    ``cc_stones``, ``Kdiag``, ``lam``: the previous contact set's stones, the diagonal
+    of its capacitance and its multipliers (a stone found there is a *known*
+    contact). A new contact is sized with the triangle's point stiffness ``k_tri``,
+    then once more with the stiffness of that patch alone; its weights at the first
+    radius are returned for the weights cache.
+
+    Returns
+    -------
+    a : (s,) ndarray
+        The radii.
+    resizes : int
+        Known contacts whose radius changed.
+    a0 : (s,) ndarray
+        New contacts: the first radius (0 for known ones).
+    off, wv, ww : ndarrays
+        New contact ``i``'s weights at ``a0[i]``: vertices ``wv[off[i]:off[i + 1]]``,
+        weights ``ww[...]`` (empty for known ones).
+    """
+    s = stones.size
+    out = np.empty(s)
+    a0s = np.zeros(s)
+    off = np.zeros(s + 1, np.int64)
+    wv = np.empty(0, np.int64)
+    ww = np.empty(0)
+    resizes = 0
+    t1 = 1.0 + tol
+    for i in range(s):
+        j = stones[i]
+        t = tris[i]
+        n = tnormals[t]
+        m = mass[j]
+        R = radius[j]
+        vn = vel[j, 0] * n[0] + vel[j, 1] * n[1] + vel[j, 2] * n[2]
+        gn = _drag_dot(j, vel, radius, n, g, wind, drag_coef)
+        f_eq = m * max(-gn, 0.0)
+        ik = -1
+        for c in range(cc_stones.size):
+            if cc_stones[c] == j:
+                ik = c
+                break
+        k = 0.0
+        f = 0.0
+        if ik >= 0:
+            if sticky:
+                fn = 0.0
+                for d in range(3):
+                    k += Kdiag[3 * ik + d] * n[d] * n[d]
+                    fn += lam[3 * ik + d] * n[d]
+                f = abs(fn)
+            else:
+                k = Kdiag[ik]
+                f = abs(lam[ik])
+            target = _hertz_target(k, f, f_eq, m, vn, R, e_star, a_min)
+            off[i + 1] = off[i]
+        else:
+            a0 = _hertz_target(k_tri[t], 0.0, f_eq, m, vn, R, e_star, a_min)
+            V, w = patch_one(t, cbary[j], a0, n, 3.0, rule_off, rule_x, rule_y, rule_w, facing, drop, pidx, X)
+            c = patch_compliance(V, w, n, D, column_of)
+            a1 = _hertz_target(1.0 / c if c > 0.0 else 0.0, 0.0, f_eq, m, vn, R, e_star, a_min)
+            target = a1 if (a1 > a0 * t1 or a1 * t1 < a0) else a0
+            a0s[i] = a0
+            wv = np.concatenate((wv, V))
+            ww = np.concatenate((ww, w))
+            off[i + 1] = off[i] + V.size
+        cur = crad[j] if ik >= 0 else 0.0
+        amp = math.sqrt((f - f_eq) ** 2 / max(max(k, 0.0) * m, 1e-300) + vn * vn)
+        resting = ik >= 0 and amp < rest_speed
+        if cur <= 0.0 or target > cur * t1 or (target * t1 < cur and resting):
+            if cur > 0.0:
+                resizes += 1
+            cur = target
+        crad[j] = cur
+        out[i] = cur
+    return out, resizes, a0s, off, wv, ww
+
+
+@_njit
+def contact_prep(soft, pos, vel, radius, mass, g, wind, drag_coef, nk, Xc, rest, Kdiag, sticky, exact,
+                 rest_speed):  # pragma: no cover (compiled)
+    """The constrained coordinates of a contact set for :func:`runtime.hail.contact_step`
+    (compiled first half of ``Storm._soft_contacts``): ``(q, anchor, v, accel, mass,
+    always_damped, acc)``, per contact (frictionless, normal components) or per
+    component (sticky); ``acc`` (s, 3) is the stones' gravity + drag."""
+    s = soft.size
+    nq = 3 * s if sticky else s
+    q = np.empty(nq); a = np.empty(nq); vq = np.empty(nq); gq = np.empty(nq); mq = np.empty(nq)
+    always = np.zeros(nq, np.bool_)
+    acc = np.empty((s, 3))
+    for i in range(s):
+        j = soft[i]
+        acc[i, 0] = 0.0; acc[i, 1] = 0.0; acc[i, 2] = -g
+        if drag_coef > 0.0:
+            w0 = vel[j, 0] - wind[0]; w1 = vel[j, 1] - wind[1]; w2 = vel[j, 2] - wind[2]
+            c = drag_coef / radius[j] * math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+            acc[i, 0] -= c * w0; acc[i, 1] -= c * w1; acc[i, 2] -= c * w2
+        pn = 0.0; xn = 0.0; vn = 0.0; an = 0.0
+        for d in range(3):
+            pn += nk[i, d] * pos[j, d]
+            xn += nk[i, d] * Xc[i, d]
+            vn += nk[i, d] * vel[j, d]
+            an += nk[i, d] * acc[i, d]
+        if sticky:
+            for d in range(3):
+                q[3 * i + d] = pos[j, d]
+                a[3 * i + d] = Xc[i, d] + rest[i] * nk[i, d]
+                vq[3 * i + d] = vel[j, d]
+                gq[3 * i + d] = acc[i, d]
+                mq[3 * i + d] = mass[j]
+        else:
+            q[i] = pn; a[i] = xn + rest[i]; vq[i] = vn; gq[i] = an; mq[i] = mass[j]
+        if exact:
+            # resting (oscillation amplitude about equilibrium below rest_speed): the
+            # dashpot acts both ways, no switching events
+            if sticky:
+                kd = max(max(max(Kdiag[3 * i], 0.0), max(Kdiag[3 * i + 1], 0.0)), max(Kdiag[3 * i + 2], 0.0))
+            else:
+                kd = max(Kdiag[i], 0.0)
+            om = math.sqrt(kd / mass[j])
+            ubar = pn - xn - rest[i]
+            u_eq = an * mass[j] / max(kd, 1e-300)
+            r = math.hypot(vn, om * (ubar - u_eq)) < rest_speed
+            if sticky:
+                for d in range(3):
+                    always[3 * i + d] = r
+            else:
+                always[i] = r
+    return q, a, vq, gq, mq, always, acc
+
+
+@_njit
+def contact_post(soft, pos, vel, ctri, hit, was_open, nk, acc, q, a, vq, gq, rq, rv, ractive, rseat, sticky,
+                 exact, h, rest_speed):  # pragma: no cover (compiled)
+    """Apply a contact step to the stones, in place (compiled second half of
+    ``Storm._soft_contacts``): new positions and velocities (frictionless: free
+    tangential motion), released contacts closed, impacts marked.
+
+    Returns
+    -------
+    impacts : int
+        Contacts that opened in this sub-step, push, and came in faster than ``rest_speed``.
+    max_force : float
+        Largest contact force magnitude [N].
+    max_indentation : float
+        Largest normal contact displacement of an active contact (-inf if none) [m].
+    n_active : int
+    """
+    s = soft.size
+    impacts = 0
+    fmax = 0.0
+    indent = -np.inf
+    n_active = 0
+    for i in range(s):
+        j = soft[i]
+        if sticky:
+            act = ractive[3 * i] and ractive[3 * i + 1] and ractive[3 * i + 2]
+            f2 = rseat[3 * i] ** 2 + rseat[3 * i + 1] ** 2 + rseat[3 * i + 2] ** 2
+            ubn = 0.0
+            for d in range(3):
+                ubn += (rq[3 * i + d] - a[3 * i + d]) * nk[i, d]
+        else:
+            act = ractive[i]
+            f2 = rseat[i] ** 2
+            ubn = rq[i] - a[i]
+        fmax = max(fmax, math.sqrt(f2))
+        if act:
+            n_active += 1
+            indent = max(indent, -ubn)
+            if not was_open[i]:
+                vin = vel[j, 0] * nk[i, 0] + vel[j, 1] * nk[i, 1] + vel[j, 2] * nk[i, 2]
+                if vin < -rest_speed:
+                    impacts += 1
+                hit[j] = True
+        for d in range(3):
+            if sticky:
+                vnew = rv[3 * i + d]
+                pnew = rq[3 * i + d]
+            else:
+                vt0 = vel[j, d] - vq[i] * nk[i, d]
+                at = acc[i, d] - gq[i] * nk[i, d]
+                vnew = vt0 + h * at + rv[i] * nk[i, d]
+                pnew = pos[j, d] - q[i] * nk[i, d] + h * vt0 + 0.5 * h * h * at + rq[i] * nk[i, d]
+            if not exact:
+                pnew = pos[j, d] + h * vnew  # (semi-)implicit position update
+            vel[j, d] = vnew
+            pos[j, d] = pnew
+        if not act:
+            ctri[j] = -1
+    return impacts, fmax, indent, n_active

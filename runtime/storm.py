@@ -116,11 +116,14 @@ from runtime.compiled import (
     _surface,
     capacitance_blocks,
     closest_points,
+    contact_post,
+    contact_prep,
     flight,
     free_phase,
     near_set,
     patch_compliance,
     patch_one,
+    patch_radii,
     resolve_backend,
 )
 from runtime.hail import (
@@ -200,6 +203,7 @@ class _ContactCache:
     verts: np.ndarray  # (s, P) vertices carrying each contact's force
     weights: np.ndarray  # (s, P) their weights (B: block (verts[k, p], k) = weights[k, p] I3)
     C: np.ndarray | None = None  # exact-integrator dashpot (cached)
+    Kdiag: np.ndarray | None = None  # diag(K), contiguous (compiled kernels; cached)
 
 
 @dataclass
@@ -303,6 +307,8 @@ class Storm:
         except ValueError as exc:
             raise SceneError(str(exc)) from None
         self._compiled = self.backend == "numba"
+        #: quadratic drag coefficient 3 C_d rho_air / (8 rho_ice) (0: no drag), for the kernels
+        self._drag_coef = 3.0 * scene.cd * scene.rho_air / (8.0 * scene.density) if scene.drag else 0.0
         if self._patch and self._compiled:
             from runtime.weights import _disc_table, _triangle_index
 
@@ -355,6 +361,15 @@ class Storm:
             if self._patch:
                 patch_one(t, w[0], float(sc.patch_min_radius), n[0], 3.0, *self._disc, PATCH_FACING, PATCH_DROP,
                           self._pidx, self.X)
+                self._patch_radii_compiled(none, none)
+        e3 = np.zeros((0, 3))
+        e = np.zeros(0)
+        b = np.zeros(0, dtype=bool)
+        args = contact_prep(none, self.pos, self.vel, self.radius, self.mass, GRAVITY, self.wind, self._drag_coef,
+                            e3, e3, e, e, sc.mode == "sticky", True, 1.0)
+        q, a, vq, gq, _, _, acc = args
+        contact_post(none, self.pos, self.vel, self.ctri, self.hit, b, e3, acc, q, a, vq, gq, e, e, b, e,
+                     sc.mode == "sticky", True, 0.0, 1.0)
 
     # -- stones ------------------------------------------------------------------
     def _plan_spawns(self) -> np.ndarray:
@@ -422,9 +437,7 @@ class Storm:
     def _fly(self, idx: np.ndarray, h: float) -> None:
         """Free flight of stones ``idx`` over ``h`` (gravity and drag)."""
         if self._compiled:
-            sc = self.scene
-            coef = 3.0 * sc.cd * sc.rho_air / (8.0 * sc.density) if sc.drag else 0.0
-            flight(idx, self.pos, self.vel, self.radius, h, GRAVITY, self.wind, coef)
+            flight(idx, self.pos, self.vel, self.radius, h, GRAVITY, self.wind, self._drag_coef)
             return
         self.pos[idx], self.vel[idx] = free_flight(self.pos[idx], self.vel[idx], h,
                                                    accel=self._accel(idx) - self.g, g=GRAVITY)
@@ -495,6 +508,8 @@ class Storm:
         ``[a / (1 + tol), a (1 + tol)]`` (``tol = patch_tolerance``).
         """
         sc = self.scene
+        if self._compiled:
+            return self._patch_radii_compiled(stones, tris)
         from runtime.weights import hertz_radius
 
         m, R = self.mass[stones], self.radius[stones]
@@ -555,6 +570,36 @@ class Storm:
         self.crad[stones] = a
         if a.size:
             self.stats["max_patch_radius_m"] = max(self.stats["max_patch_radius_m"], float(a.max()))
+        return a
+
+    def _patch_radii_compiled(self, stones: np.ndarray, tris: np.ndarray) -> np.ndarray:
+        """:meth:`_patch_radii` in one kernel (:func:`runtime.compiled.patch_radii`); the
+        new contacts' weights at their first radius go to the weights cache."""
+        sc = self.scene
+        cc = self.cache
+        if cc is not None and cc.stones.size and self.lam.size:
+            if cc.Kdiag is None:
+                cc.Kdiag = np.diag(cc.K).copy()  # (a writable copy: one compiled specialisation)
+            cs, kd, lam = cc.stones, cc.Kdiag, self.lam
+        else:
+            cs, kd, lam = self._no_cols, self._no_forces, self._no_forces
+        if self._k_tri_all is None:
+            self._k_tri_all = self._all_triangle_stiffness()
+        e_star = float(self.gf.young) / (1.0 - float(self.gf.poisson) ** 2)
+        a, resizes, a0, off, wv, ww = patch_radii(
+            stones, tris, self.mass, self.radius, self.vel, self.cbary, self.crad, self.index.normals, GRAVITY,
+            self.wind, self._drag_coef, cs, kd, lam, sc.mode == "sticky", self._k_tri_all, e_star,
+            float(sc.patch_min_radius), float(sc.patch_tolerance), float(sc.rest_speed), *self._disc, PATCH_FACING,
+            PATCH_DROP, self._pidx, self.X, self._D, self._col_of)
+        st = self.stats
+        st["patch_resizes"] += int(resizes)
+        for i in np.flatnonzero(a0 > 0.0).tolist():
+            j = int(stones[i])
+            self._wcache[j] = (int(tris[i]), self.cbary[j].tobytes(), float(a0[i]), wv[off[i]:off[i + 1]],
+                               ww[off[i]:off[i + 1]])
+            st["patch_weights_computed"] += 1
+        if a.size:
+            st["max_patch_radius_m"] = max(st["max_patch_radius_m"], float(a.max()))
         return a
 
     def _patch_stiffness(self, stones: np.ndarray, tris: np.ndarray, radius: np.ndarray,
@@ -801,7 +846,7 @@ class Storm:
         prediction, which only save numpy calls). Returns the sub-step taken."""
         sc = self.scene
         use_u = self._fv is not None
-        coef = 3.0 * sc.cd * sc.rho_air / (8.0 * sc.density) if sc.drag else 0.0
+        coef = self._drag_coef
         h, walls = free_phase(
             near, h, self._toi, self._toi_tol, self._hmin, self.pos, self.vel, self.radius, self.ctri, self.cbary,
             self.gap, self.near_tri, self._surf, self.index.normals, self.soft, self.umax, use_u,
@@ -987,9 +1032,12 @@ class Storm:
             self.cache = self._build_cache(soft, tris, self.cbary[soft].copy(), key, rad)
         cc = self.cache
         s = soft.size
+        nk = cc.normals
+        if self._compiled:
+            self._soft_contacts_compiled(near, soft, was_open, h, cc)
+            return
         acc = self._accel(soft)
         m = self.mass[soft]
-        nk = cc.normals
         if sc.mode == "frictionless":
             q = np.einsum("ij,ij->i", nk, self.pos[soft])
             a = np.einsum("ij,ij->i", nk, cc.X) + cc.rest
@@ -1054,6 +1102,41 @@ class Storm:
         if active_c.any():
             self.stats["max_indentation_m"] = max(self.stats["max_indentation_m"], float(-ubar_n[active_c].min()))
         self.stats["max_simultaneous_contacts"] = max(self.stats["max_simultaneous_contacts"], int(active_c.sum()))
+
+    def _soft_contacts_compiled(self, near: np.ndarray, soft: np.ndarray, was_open: np.ndarray, h: float,
+                                cc: _ContactCache) -> None:
+        """:meth:`_soft_contacts` after the contact set is known, with the per-contact
+        work in compiled kernels (:func:`runtime.compiled.contact_prep`,
+        :func:`runtime.compiled.contact_post`) around the same :func:`contact_step`."""
+        sc = self.scene
+        exact = sc.integrator == "exact"
+        sticky = sc.mode == "sticky"
+        s = soft.size
+        nk = cc.normals
+        if cc.Kdiag is None:
+            cc.Kdiag = np.diag(cc.K).copy()  # (a writable copy: one compiled specialisation)
+        q, a, vq, gq, mq, always, acc = contact_prep(
+            soft, self.pos, self.vel, self.radius, self.mass, GRAVITY, self.wind, self._drag_coef, nk, cc.X, cc.rest,
+            cc.Kdiag, sticky, exact, float(sc.rest_speed))
+        group, wts = (np.repeat(np.arange(s), 3), nk.ravel()) if sticky else (None, None)
+        if exact:
+            C = self._damping(cc, mq)
+        else:
+            C = damping_coefficients(cc.K, mq, sc.restitution, dt=h, integrator=sc.integrator)
+        res = contact_step(q, vq, a, mq, gq, h, K=cc.K, W=cc.W, damping=C, integrator=sc.integrator,
+                           unilateral=sc.unilateral, group=group, normal_of=wts,
+                           always_damped=always if exact else None)
+        impacts, fmax, indent, n_active = contact_post(
+            soft, self.pos, self.vel, self.ctri, self.hit, was_open[np.searchsorted(near, soft)], nk, acc, q, a, vq,
+            gq, res.q, res.v, res.active, res.seat_force, sticky, exact, h, float(sc.rest_speed))
+        st = self.stats
+        st["impacts"] += int(impacts)
+        self.lam = res.seat_force
+        self._set_forces(cc, res.seat_force)
+        st["max_contact_force"] = max(st["max_contact_force"], float(fmax))
+        if n_active:
+            st["max_indentation_m"] = max(st["max_indentation_m"], float(indent))
+        st["max_simultaneous_contacts"] = max(st["max_simultaneous_contacts"], int(n_active))
 
     def _damping(self, cc: _ContactCache, mq: np.ndarray) -> np.ndarray:
         """Exact-integrator dashpot of a contact set (cached with the set)."""
