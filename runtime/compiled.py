@@ -663,7 +663,7 @@ def _unit(x, out):  # pragma: no cover (compiled)
 
 @_njit
 def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, ctri, cbary, gap, near_tri, surf, tri_normals,
-               soft, umax, use_u, D, fcols, fv, g, wind, drag_coef, restitution):  # pragma: no cover
+               soft, fixed, umax, use_u, D, fcols, fv, g, wind, drag_coef, restitution):  # pragma: no cover
     """The first phases of one storm sub-step for the near stones, in place (compiled
     ``Storm._proximity``, ``_time_of_impact``, ``_contacts_to_open``, ``_open_contacts``
     and ``_hard_walls``; see those for the rules).
@@ -673,7 +673,8 @@ def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, ctri, cbary, gap, 
     point of the undeformed surface. With ``toi`` the sub-step ends when the first
     approaching stone reaches the tangent plane at its closest point; contacts open
     within ``toi_tol`` radii (approaching or overlapping), the stone put on the
-    surface; contacts on hard triangles bounce at once.
+    surface; contacts on hard triangles (or on the clamped edge or corner of a soft
+    one) bounce at once.
 
     Returns
     -------
@@ -793,8 +794,15 @@ def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, ctri, cbary, gap, 
     for j in range(k):
         i = near[j]
         t = ctri[i]
-        if t < 0 or soft[t]:
+        if t < 0:
             continue
+        if soft[t]:
+            free_w = 0.0
+            for m in range(3):
+                if not fixed[T[t, m]]:
+                    free_w += cbary[i, m]
+            if free_w > 1e-12:
+                continue
         for e in range(3):
             dvec[e] = pos[i, e] - point[j, e]
         dw = math.sqrt(dvec[0] ** 2 + dvec[1] ** 2 + dvec[2] ** 2)

@@ -245,6 +245,7 @@ class Storm:
         has_col = np.asarray(gf.contactable) | np.asarray(gf.fixed)
         #: triangles that deform under a contact (others are a hard wall)
         self.soft = has_col[tri].all(axis=1) & ~np.asarray(gf.fixed)[tri].all(axis=1)
+        self._fixed = np.ascontiguousarray(gf.fixed, dtype=bool)
         lo, hi = self.index.bbox
         self.lo, self.hi = lo, hi
         self.g = np.array([0.0, 0.0, -GRAVITY])
@@ -849,7 +850,7 @@ class Storm:
         coef = self._drag_coef
         h, walls = free_phase(
             near, h, self._toi, self._toi_tol, self._hmin, self.pos, self.vel, self.radius, self.ctri, self.cbary,
-            self.gap, self.near_tri, self._surf, self.index.normals, self.soft, self.umax, use_u,
+            self.gap, self.near_tri, self._surf, self.index.normals, self.soft, self._fixed, self.umax, use_u,
             self._D, self._fcols if use_u else self._no_cols, self._fv if use_u else self._no_forces,
             GRAVITY, self.wind, coef, float(sc.restitution))
         self.stats["wall_contacts"] += int(walls)
@@ -1002,7 +1003,10 @@ class Storm:
         restitution bounce; the contact closes at once."""
         sc = self.scene
         opened = near[(self.ctri[near] >= 0)]
-        wall = opened[~self.soft[self.ctri[opened]]]
+        t = self.ctri[opened]
+        # (a contact point on the clamped edge or corner of a soft triangle cannot move either)
+        pinned = (self.cbary[opened] * ~self._fixed[self.gf.triangles[t]]).sum(axis=1) <= 1e-12
+        wall = opened[~self.soft[t] | pinned]
         if wall.size:
             j = np.searchsorted(near, wall)
             dvec = self.pos[wall] - point[j]

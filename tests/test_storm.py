@@ -162,6 +162,25 @@ def test_clamped_triangle_is_a_hard_wall(gf):
     assert st.vel[0, 2] > 0.3  # bounced with e = 0.5 (minus gravity)
 
 
+@pytest.mark.parametrize("backend", ["numpy", "auto"])
+@pytest.mark.parametrize("mode, patch", [("sticky", "none"), ("frictionless", "hertz")])
+def test_contact_on_a_clamped_edge_of_a_soft_triangle_is_a_hard_wall(gf, backend, mode, patch):
+    """A stone that lands exactly on the clamped edge of a soft triangle (its barycentric
+    weight all on clamped vertices: nothing there can move) bounces as off a wall
+    instead of asking the capacitance for a rigid contact."""
+    sc = Scene(duration=0.05, stones=0, drag=False, restitution=0.5, mode=mode, patch=patch, backend=backend)
+    st = Storm(gf, sc, spawn=False)
+    T = np.asarray(gf.triangles)
+    t = int(np.flatnonzero(st.soft & (gf.fixed[T].sum(axis=1) == 2))[0])
+    edge = T[t][gf.fixed[T[t]]]
+    c = gf.vertices[edge].mean(axis=0)
+    st.add_stones(c + [0, 0, 0.005 + 1e-3], [0, 0, -1.0], 0.005)
+    while st.t < 0.01:
+        st.step()
+    assert st.stats["wall_contacts"] >= 1
+    assert st.vel[0, 2] > 0.3  # bounced with e = 0.5 (minus gravity)
+
+
 def test_outputs(tmp_path, gf, short_storm):
     from runtime.output import write_animation, write_paraview, write_summary
 
