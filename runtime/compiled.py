@@ -580,8 +580,11 @@ def capacitance_blocks(verts, w, normals, sticky, D, column_of):  # pragma: no c
         The sorted union of ``verts``.
     W : (m, m) ndarray
         ``G^T D_VV G``, symmetrised (m = 3s sticky, s frictionless).
-    G : (3|V|, m) ndarray
-        Vertex forces per unit multiplier.
+    G : (c, m) ndarray
+        Vertex forces per unit multiplier at the ``c`` loaded dofs of V (vertices
+        with a column of D, vertex-major).
+    cols : (c,) int64 ndarray
+        Their columns of D.
     DG : (3|V|, m) ndarray
         ``D_VV G``: displacement of V per unit multiplier.
     """
@@ -614,7 +617,23 @@ def capacitance_blocks(verts, w, normals, sticky, D, column_of):  # pragma: no c
     DG = _dvv(V, D, column_of) @ G
     W = G.T @ DG
     W = 0.5 * (W + W.T)
-    return V, W, G, DG
+    # the loaded dofs (vertices with a column of D) and their columns
+    nl = 0
+    for i in range(nV):
+        if column_of[V[i]] >= 0:
+            nl += 1
+    cols = np.empty(3 * nl, np.int64)
+    Gl = np.empty((3 * nl, m))
+    r = 0
+    for i in range(nV):
+        cb = column_of[V[i]]
+        if cb < 0:
+            continue
+        for d in range(3):
+            cols[r] = 3 * cb + d
+            Gl[r] = G[3 * i + d]
+            r += 1
+    return V, W, Gl, cols, DG
 
 
 @_njit
@@ -957,15 +976,21 @@ def patch_radii(stones, tris, mass, radius, vel, cbary, crad, tnormals, g, wind,
 
 @_njit
 def contact_prep(soft, pos, vel, radius, mass, g, wind, drag_coef, nk, Xc, rest, Kdiag, sticky, exact,
-                 rest_speed):  # pragma: no cover (compiled)
+                 rest_speed, zeta):  # pragma: no cover (compiled)
     """The constrained coordinates of a contact set for :func:`runtime.hail.contact_step`
     (compiled first half of ``Storm._soft_contacts``): ``(q, anchor, v, accel, mass,
-    always_damped, acc)``, per contact (frictionless, normal components) or per
-    component (sticky); ``acc`` (s, 3) is the stones' gravity + drag."""
+    always_damped, acc, damping)``, per contact (frictionless, normal components) or
+    per component (sticky); ``acc`` (s, 3) is the stones' gravity + drag; ``damping``
+    the exact integrator's dashpot ``2 zeta sqrt(K_ii m_i)``
+    (:func:`runtime.hail.damping_coefficients` with ``zeta`` for the scene's
+    restitution)."""
     s = soft.size
     nq = 3 * s if sticky else s
     q = np.empty(nq); a = np.empty(nq); vq = np.empty(nq); gq = np.empty(nq); mq = np.empty(nq)
     always = np.zeros(nq, np.bool_)
+    damping = np.zeros(nq)
+    for c in range(nq):
+        damping[c] = 2.0 * zeta * math.sqrt(max(Kdiag[c], 0.0) * mass[soft[c // 3 if sticky else c]])
     acc = np.empty((s, 3))
     for i in range(s):
         j = soft[i]
@@ -1005,7 +1030,7 @@ def contact_prep(soft, pos, vel, radius, mass, g, wind, drag_coef, nk, Xc, rest,
                     always[3 * i + d] = r
             else:
                 always[i] = r
-    return q, a, vq, gq, mq, always, acc
+    return q, a, vq, gq, mq, always, acc, damping
 
 
 @_njit
@@ -1067,3 +1092,45 @@ def contact_post(soft, pos, vel, ctri, hit, was_open, nk, acc, q, a, vq, gq, rq,
         if not act:
             ctri[j] = -1
     return impacts, fmax, indent, n_active
+
+
+@_njit
+def penetration(near, dt, pos, vel, radius, ctri, surf, umax, use_u, D, fcols, fv):  # pragma: no cover
+    """Overlap of the near stones with the deformed surface, for the statistics
+    (compiled ``Storm._step_query``): free stones within this step's reach, stones in
+    contact within their radius.
+
+    Returns
+    -------
+    max_pen, max_pen_contact, max_rel_contact, sum_contact, n_contact, max_pen_free
+        Largest overlap [m] of any near stone, of a stone in contact (also relative to
+        its radius, and the sum of the non-negative overlaps over the ``n_contact``
+        stones in contact within reach), and of a free stone; ``-inf`` where none.
+    """
+    X = surf[8]
+    nv = X.shape[0]
+    done = np.zeros(nv if use_u else 0, np.bool_)
+    Y = np.empty((nv if use_u else 0, 3))
+    bary = np.empty(3)
+    point = np.empty(3)
+    mp = -np.inf; mpc = -np.inf; mrc = -np.inf; spc = 0.0; npc = 0; mpf = -np.inf
+    for q in range(near.size):
+        i = near[q]
+        free = ctri[i] < 0
+        reach = radius[i]
+        if free:
+            sp = math.sqrt(vel[i, 0] ** 2 + vel[i, 1] ** 2 + vel[i, 2] ** 2)
+            reach += sp * dt + 1e-3
+        t, d = _closest_one(pos[i], reach, umax if use_u else 0.0, use_u, surf, D, fcols, fv, done, Y, bary, point)
+        if t < 0:
+            continue
+        pen = radius[i] - d
+        mp = max(mp, pen)
+        if free:
+            mpf = max(mpf, pen)
+        else:
+            mpc = max(mpc, pen)
+            mrc = max(mrc, pen / radius[i])
+            spc += max(pen, 0.0)
+            npc += 1
+    return mp, mpc, mrc, spc, npc, mpf

@@ -124,12 +124,14 @@ from runtime.compiled import (
     patch_compliance,
     patch_one,
     patch_radii,
+    penetration,
     resolve_backend,
 )
 from runtime.hail import (
     GRAVITY,
     contact_step,
     damping_coefficients,
+    damping_ratio_for_restitution,
     drag_acceleration,
     free_flight,
     stone_mass,
@@ -183,6 +185,15 @@ class StormResult:
     stats: dict[str, Any]
     #: contact-force history: (time, total normal force on the seat [N], open contacts) per step
     history: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+
+
+#: the per-stone arrays of a :class:`Storm` and the value a new stone starts with
+#: (None: given to :meth:`Storm.add_stones`)
+_STONE_FIELDS: tuple[tuple[str, Any], ...] = (
+    ("pos", None), ("vel", None), ("radius", None), ("mass", None), ("alive", True), ("ctri", -1),
+    ("cbary", 0.0), ("gap", np.inf), ("hit", False), ("near_tri", -1), ("crad", 0.0), ("budget", 0.0),
+    ("_bud_u", 0.0), ("_pgap", 0.0), ("_pstamp", -1),
+)
 
 
 @dataclass
@@ -297,6 +308,9 @@ class Storm:
         self._bud_u = np.zeros(0)  # the displacement bound each budget allows for [m]
         self._pgap = np.zeros(0)  # gap lower bound predicted for the next sub-step [m]
         self._pstamp = np.zeros(0, dtype=np.int64)  # sub-step the prediction is valid for
+        #: the per-stone arrays above are the first rows of these buffers (see :meth:`add_stones`)
+        self._buffers = {name: getattr(self, name) for name, _ in _STONE_FIELDS}
+        self._capacity = 0
         self._pred_umax = 0.0
         self._umax_step = 0.0  # largest umax in the current step
         self._live: np.ndarray | None = None
@@ -308,6 +322,8 @@ class Storm:
         except ValueError as exc:
             raise SceneError(str(exc)) from None
         self._compiled = self.backend == "numba"
+        #: the exact integrator's damping ratio for the scene's restitution, for the kernels
+        self._zeta = max(float(damping_ratio_for_restitution(scene.restitution)), 0.0)
         #: quadratic drag coefficient 3 C_d rho_air / (8 rho_ice) (0: no drag), for the kernels
         self._drag_coef = 3.0 * scene.cd * scene.rho_air / (8.0 * scene.density) if scene.drag else 0.0
         if self._patch and self._compiled:
@@ -350,6 +366,7 @@ class Storm:
         near_set(self.index.grid, self.index.sample_radius, self.index.bbox, none, self.pos, self.vel, self.radius,
                  self.ctri, self.budget, self._bud_u, 0.0, float(sc.dt), GRAVITY)
         self._free_phase(none, float(sc.dt))
+        self._step_query(none, float(sc.dt))
         self._query(none, np.zeros(0))
         soft = np.flatnonzero(self.soft)
         if soft.size:
@@ -367,8 +384,8 @@ class Storm:
         e = np.zeros(0)
         b = np.zeros(0, dtype=bool)
         args = contact_prep(none, self.pos, self.vel, self.radius, self.mass, GRAVITY, self.wind, self._drag_coef,
-                            e3, e3, e, e, sc.mode == "sticky", True, 1.0)
-        q, a, vq, gq, _, _, acc = args
+                            e3, e3, e, e, sc.mode == "sticky", True, 1.0, 0.0)
+        q, a, vq, gq, _, _, acc, _ = args
         contact_post(none, self.pos, self.vel, self.ctri, self.hit, b, e3, acc, q, a, vq, gq, e, e, b, e,
                      sc.mode == "sticky", True, 0.0, 1.0)
 
@@ -394,22 +411,25 @@ class Storm:
         vel = np.broadcast_to(np.asarray(vel, dtype=np.float64), pos.shape)
         radius = np.broadcast_to(np.asarray(radius, dtype=np.float64), (pos.shape[0],))
         k = pos.shape[0]
-        ids = np.arange(self.pos.shape[0], self.pos.shape[0] + k)
-        self.pos = np.vstack([self.pos, pos])
-        self.vel = np.vstack([self.vel, vel])
-        self.radius = np.concatenate([self.radius, radius])
-        self.mass = np.concatenate([self.mass, stone_mass(radius, self.scene.density)])
-        self.alive = np.concatenate([self.alive, np.ones(k, dtype=bool)])
-        self.ctri = np.concatenate([self.ctri, np.full(k, -1, dtype=np.intp)])
-        self.cbary = np.vstack([self.cbary, np.zeros((k, 3))])
-        self.gap = np.concatenate([self.gap, np.full(k, np.inf)])
-        self.hit = np.concatenate([self.hit, np.zeros(k, dtype=bool)])
-        self.near_tri = np.concatenate([self.near_tri, np.full(k, -1, dtype=np.intp)])
-        self.crad = np.concatenate([self.crad, np.zeros(k)])
-        self.budget = np.concatenate([self.budget, np.zeros(k)])
-        self._bud_u = np.concatenate([self._bud_u, np.zeros(k)])
-        self._pgap = np.concatenate([self._pgap, np.zeros(k)])
-        self._pstamp = np.concatenate([self._pstamp, np.full(k, -1, dtype=np.int64)])
+        n = self.pos.shape[0]
+        ids = np.arange(n, n + k)
+        if n + k > self._capacity:  # grow the per-stone buffers (doubling: O(1) per stone)
+            cap = max(2 * self._capacity, n + k, 64)
+            for name, _ in _STONE_FIELDS:
+                old = getattr(self, name)
+                buf = np.empty((cap,) + old.shape[1:], dtype=old.dtype)
+                buf[:n] = old
+                self._buffers[name] = buf
+            self._capacity = cap
+        for name, new in _STONE_FIELDS:
+            arr = self._buffers[name][:n + k]
+            setattr(self, name, arr)
+            if new is not None:
+                arr[n:] = new
+        self.pos[n:] = pos
+        self.vel[n:] = vel
+        self.radius[n:] = radius
+        self.mass[n:] = stone_mass(radius, self.scene.density)
         self._live = None
         self.stats["hailstones"] += k
         return ids
@@ -463,8 +483,8 @@ class Storm:
         if np.any(_rigid(gf, verts, w)):
             raise RuntimeError("rigid contacts must be filtered before the capacitance")  # pragma: no cover
         if self._compiled:
-            V, W, G, DG = capacitance_blocks(verts.astype(np.int64, copy=False), w, normals, mode == "sticky",
-                                             self._D, self._col_of)
+            V, W, G, cols, DG = capacitance_blocks(verts.astype(np.int64, copy=False), w, normals, mode == "sticky",
+                                                   self._D, self._col_of)
         else:
             V, loc = _locate_lists(verts)
             D_VV = _gather(self._gfD, _dof3(V), _column_dofs(gf, V))
@@ -475,10 +495,11 @@ class Storm:
                 # G = B N: row (i, d), column k = Bs[i, k] n_k[d] (B = Bs kron I3, without forming it)
                 G = (_dense_Bs(V.size, loc, w)[:, None, :] * normals.T[None, :, :]).reshape(3 * V.size, s)
             DG = D_VV @ G
+            cb = np.asarray(gf.column_of)[V]
+            live = np.repeat(cb >= 0, 3)
+            cols = (3 * cb[:, None] + np.arange(3)).ravel()[live]  # D columns of the loaded dofs
+            G = G[live]
         K = _inv_spd(W)
-        cb = np.asarray(gf.column_of)[V]
-        live = np.repeat(cb >= 0, 3)
-        cols = (3 * cb[:, None] + np.arange(3)).ravel()[live]  # D columns of the loaded dofs
         # reference point: the contact point (the patch centre). A patch contact prescribes the
         # pressure-weighted mean normal displacement of the surface under the disc, measured from
         # the tangent plane at the contact point (the plane of the disc): the stone's lowest point
@@ -487,7 +508,7 @@ class Storm:
         # a small gap: measured restitution 0.488 instead of 0.499 for the single drop.)
         X = np.einsum("kj,kjd->kd", bary, self.X[gf.triangles[tris]])
         self.stats["capacitance_rebuilds"] += 1
-        return _ContactCache(key=key, W=W, K=K, G=G[live], cols=cols, DVV=DG, stones=stones,
+        return _ContactCache(key=key, W=W, K=K, G=G, cols=cols, DVV=DG, stones=stones,
                              tris=tris, bary=bary, normals=normals, X=X, rest=self.radius[stones].copy(),
                              patch_radius=np.asarray(radius, dtype=np.float64).copy(), verts=verts, weights=w)
 
@@ -1119,13 +1140,11 @@ class Storm:
         nk = cc.normals
         if cc.Kdiag is None:
             cc.Kdiag = np.diag(cc.K).copy()  # (a writable copy: one compiled specialisation)
-        q, a, vq, gq, mq, always, acc = contact_prep(
+        q, a, vq, gq, mq, always, acc, C = contact_prep(
             soft, self.pos, self.vel, self.radius, self.mass, GRAVITY, self.wind, self._drag_coef, nk, cc.X, cc.rest,
-            cc.Kdiag, sticky, exact, float(sc.rest_speed))
+            cc.Kdiag, sticky, exact, float(sc.rest_speed), self._zeta)
         group, wts = (np.repeat(np.arange(s), 3), nk.ravel()) if sticky else (None, None)
-        if exact:
-            C = self._damping(cc, mq)
-        else:
+        if not exact:
             C = damping_coefficients(cc.K, mq, sc.restitution, dt=h, integrator=sc.integrator)
         res = contact_step(q, vq, a, mq, gq, h, K=cc.K, W=cc.W, damping=C, integrator=sc.integrator,
                            unilateral=sc.unilateral, group=group, normal_of=wts,
@@ -1248,6 +1267,19 @@ class Storm:
         deformed surface (sphere vs surface) for the statistics, kept for the first
         sub-step to reuse (free stones with this step's reach, contact stones within r;
         free stones whose predicted gap shows they cannot touch in this step are skipped)."""
+        if self._compiled:
+            use_u = self._fv is not None
+            mp, mpc, mrc, spc, npc, mpf = penetration(
+                near, float(dt), self.pos, self.vel, self.radius, self.ctri, self._surf, self.umax, use_u, self._D,
+                self._fcols if use_u else self._no_cols, self._fv if use_u else self._no_forces)
+            st = self.stats
+            st["max_penetration_m"] = max(st["max_penetration_m"], mp)
+            st["max_penetration_contact_m"] = max(st["max_penetration_contact_m"], mpc)
+            st["max_penetration_contact_rel"] = max(st["max_penetration_contact_rel"], mrc)
+            st["max_penetration_free_m"] = max(st["max_penetration_free_m"], mpf)
+            st["_pen_contact_sum"] += spc
+            st["_pen_contact_n"] += int(npc)
+            return
         vv = self.vel[near]
         sp = np.sqrt(np.einsum("ij,ij->i", vv, vv))
         free_m = self.ctri[near] < 0
