@@ -1134,3 +1134,347 @@ def penetration(near, dt, pos, vel, radius, ctri, surf, umax, use_u, D, fcols, f
             spc += max(pen, 0.0)
             npc += 1
     return mp, mpc, mrc, spc, npc, mpf
+
+
+# -- the exact (modal) contact integrator -----------------------------------------------
+@_njit
+def _scalar_exact(q, v, a, m, g, dt, k, c, unilateral, always):  # pragma: no cover (compiled)
+    """Compiled ``runtime.hail._scalar_exact`` (one frictionless contact in closed form):
+    (q, v, active, ok); ``ok`` False where the numpy version returns None."""
+    t = 0.0
+    damp = always or v < 0.0
+    if unilateral and not damp and -k * (q - a) < 0.0 and v >= 0.0:
+        return q, v, True, False
+    w2 = k / m
+    if w2 <= 0.0:
+        return q, v, True, False
+    off = a + g / w2
+    finished = False
+    for _ in range(6):
+        h = dt - t
+        if h <= 0.0:
+            finished = True
+            break
+        ce = c if damp else 0.0
+        sig = 0.5 * ce / m
+        wd2 = w2 - sig * sig
+        if wd2 <= 1e-6 * w2:
+            return q, v, True, False
+        wd = math.sqrt(wd2)
+        y0 = q - off
+        A = y0
+        B = (v + sig * y0) / wd
+        P = v
+        Q = A * wd + sig * B
+        te = h
+        kind = 0
+        if c > 0.0 and not always:
+            th = math.atan2(P, Q) % math.pi
+            if th <= 1e-12:
+                th += math.pi
+            tv = th / wd
+            if tv < te:
+                te = tv
+                kind = 1
+        if unilateral and ce == 0.0:
+            R = math.hypot(A, B)
+            ystar = a - off
+            if R > abs(ystar) and R > 0.0:
+                phi = math.atan2(B, A)
+                al = math.acos(max(-1.0, min(1.0, ystar / R)))
+                tr = ((-al + phi) % (2.0 * math.pi)) / wd
+                if tr <= 1e-15 * dt:
+                    tr += 2.0 * math.pi / wd
+                if tr < te:
+                    te = tr
+                    kind = 2
+        e = math.exp(-sig * te)
+        cs = math.cos(wd * te)
+        sn = math.sin(wd * te)
+        q = off + e * (A * cs + B * sn)
+        v = e * (P * cs - Q * sn)
+        t += te
+        if kind == 1:
+            damp = False
+        elif kind == 2:
+            h = dt - t
+            q += h * v + 0.5 * h * h * g
+            v += h * g
+            return q, v, False, True
+        else:
+            finished = True
+            break
+    if not finished:
+        return q, v, True, False
+    if unilateral and always and -k * (q - a) - c * v < 0.0 and v >= 0.0:
+        return q, v, True, False
+    return q, v, True, True
+
+
+@_njit
+def _inv_spd(W):  # pragma: no cover (compiled)
+    """Inverse of a small symmetric positive (semi-)definite matrix (Cholesky, else the
+    pseudo-inverse), as ``runtime.hail._inv_spd``."""
+    n = W.shape[0]
+    if n == 0:
+        return np.zeros((0, 0))
+    Ws = 0.5 * (W + W.T)
+    try:
+        L = np.linalg.cholesky(Ws)
+        Li = np.linalg.inv(L)
+        return np.ascontiguousarray(Li.T @ Li)
+    except Exception:
+        return np.ascontiguousarray(np.linalg.pinv(Ws, rcond=1e-10))
+
+
+@_njit
+def _gsum(x, group, wts, ng, ident):  # pragma: no cover (compiled)
+    """Normal sums per contact group of per-component rows ``x`` (n, T) -> (ng, T)."""
+    if ident:
+        return x.copy()
+    out = np.zeros((ng, x.shape[1]))
+    for i in range(x.shape[0]):
+        out[group[i]] += wts[i] * x[i]
+    return out
+
+
+@_njit
+def _sub(M, idx):  # pragma: no cover (compiled)
+    out = np.empty((idx.size, idx.size))
+    for r in range(idx.size):
+        for c in range(idx.size):
+            out[r, c] = M[idx[r], idx[c]]
+    return out
+
+
+@_njit
+def _modal(Ka, ma, ce):  # pragma: no cover (compiled)
+    """Eigen-decomposition of ``z' = A z`` for ``M y'' + C y' + K y = 0``: (lam, V, Vi, ok);
+    ``ok`` False for a (nearly) defective system (the numpy path then uses expm)."""
+    n = ma.size
+    A = np.zeros((2 * n, 2 * n), np.complex128)
+    for i in range(n):
+        A[i, n + i] = 1.0
+        for j in range(n):
+            A[n + i, j] = -Ka[i, j] / ma[i]
+        A[n + i, n + i] = -ce[i] / ma[i]
+    lam, V = np.linalg.eig(A)
+    try:
+        Vi = np.linalg.inv(V)
+    except Exception:
+        return lam, V, V, False
+    ok = np.all(np.isfinite(Vi.real)) and np.all(np.isfinite(Vi.imag)) and np.abs(V).max() * np.abs(Vi).max() < 1e7
+    return lam, V, Vi, ok
+
+
+@_njit
+def _modal_at(lam, V, Vi, z0, tau):  # pragma: no cover (compiled)
+    """States (2n, len(tau)) at times ``tau`` from ``z0``."""
+    c = Vi @ z0.astype(np.complex128)
+    E = np.empty((lam.size, tau.size), np.complex128)
+    for i in range(lam.size):
+        for j in range(tau.size):
+            E[i, j] = np.exp(lam[i] * tau[j]) * c[i]
+    return (V @ E).real
+
+
+@_njit
+def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always):  # pragma: no cover (compiled)
+    """Compiled ``runtime.hail._exact_step`` (the exact integrator's step; see there).
+
+    Returns ``(q, v, active, force, seat_force, ok)``; ``ok`` is False in the rare
+    cases the compiled version does not cover (a nearly defective modal basis, an
+    overdamped single contact): the caller then runs the numpy version.
+    """
+    GRID = 32
+    REFINE = 2
+    MAX_SEGMENTS = 12
+    n = q.size
+    ng = 0
+    for i in range(n):
+        ng = max(ng, group[i] + 1)
+    v0 = v.copy()
+    q = q.copy()
+    v = v.copy()
+    active = np.ones(n, np.bool_)
+    if n == 1 and group[0] == 0 and wts[0] == 1.0:
+        k = K[0, 0]
+        qn, vn, act, ok = _scalar_exact(q[0], v[0], a[0], m[0], g[0], dt, k, Cn[0], unilateral, always[0])
+        if ok:
+            q[0] = qn
+            v[0] = vn
+            active[0] = act
+            force = np.zeros(1)
+            seat = np.zeros(1)
+            if act:
+                force[0] = m[0] * ((vn - v0[0]) / dt - g[0])
+                seat[0] = k * (qn - a[0])
+            return q, v, active, force, seat, True
+    ident = ng == n
+    for i in range(n):
+        if group[i] != i or wts[i] != 1.0:
+            ident = False
+    damp_g = _gsum(v.reshape(n, 1), group, wts, ng, ident)[:, 0] < 0.0
+    t = 0.0
+    Ka = K
+    for _seg in range(MAX_SEGMENTS):
+        # unilateral: release contacts that pull now and do not approach (active-set iteration)
+        while True:
+            idx = np.flatnonzero(active)
+            Ka = _inv_spd(_sub(W, idx)) if idx.size < n else K
+            if not unilateral or idx.size == 0:
+                break
+            f = np.zeros(n)
+            fa = -(Ka @ (q[idx] - a[idx]))
+            for r in range(idx.size):
+                i = idx[r]
+                ce = Cn[i] if (damp_g[group[i]] or always[i]) else 0.0
+                f[i] = fa[r] - ce * v[i]
+            fn = _gsum(f.reshape(n, 1), group, wts, ng, ident)[:, 0]
+            vn = _gsum(v.reshape(n, 1), group, wts, ng, ident)[:, 0]
+            gact = np.zeros(ng, np.bool_)
+            for i in range(n):
+                if active[i]:
+                    gact[group[i]] = True
+            pull = (fn < 0.0) & (vn >= 0.0) & gact
+            if not pull.any():
+                break
+            for i in range(n):
+                if pull[group[i]]:
+                    active[i] = False
+        h = dt - t
+        if h <= 1e-12 * dt:
+            break
+        idx = np.flatnonzero(active)
+        free = np.flatnonzero(~active)
+        if idx.size == 0:
+            for i in free:
+                q[i] += h * v[i] + 0.5 * h * h * g[i]
+                v[i] += h * g[i]
+            t = dt
+            break
+        na = idx.size
+        ma = m[idx]
+        ga = g[idx]
+        aa = a[idx]
+        ce = np.empty(na)
+        for r in range(na):
+            i = idx[r]
+            ce[r] = Cn[i] if (damp_g[group[i]] or always[i]) else 0.0
+        q_eq = aa + np.linalg.solve(Ka, ma * ga)
+        lam, V, Vi, ok = _modal(Ka, ma, ce)
+        if not ok:
+            return q, v, active, v0, v0, False
+        z0 = np.concatenate((q[idx] - q_eq, v[idx]))
+        gi = group[idx]
+        wi = wts[idx]
+        ident_a = ident and na == n
+        sw_on = np.zeros(ng, np.bool_)
+        has_sw = np.zeros(ng, np.bool_)
+        for r in range(na):
+            sw_on[gi[r]] = True
+            i = idx[r]
+            if Cn[i] > 0.0 and not always[i]:
+                has_sw[gi[r]] = True
+        switchable = sw_on & has_sw
+        off_mask = switchable & damp_g
+        on_mask = switchable & ~damp_g
+        off_eq = q_eq - aa
+        lo = 0.0
+        hi = h
+        tau = h * np.arange(1, GRID + 1) / GRID
+        t_e = h
+        ze = np.empty(2 * na)
+        evg = np.zeros(ng, np.bool_)
+        found = False
+        for ref in range(REFINE + 1):
+            Z = _modal_at(lam, V, Vi, z0, tau)
+            y = Z[:na]
+            vv = Z[na:]
+            vng = _gsum(vv, gi, wi, ng, ident_a)
+            fl = -(Ka @ (y + off_eq.reshape(na, 1)))
+            for r in range(na):
+                fl[r] -= ce[r] * vv[r]
+            fng = _gsum(fl, gi, wi, ng, ident_a)
+            j = -1
+            for col in range(tau.size):
+                for gg in range(ng):
+                    e = (off_mask[gg] and vng[gg, col] >= 0.0) or (on_mask[gg] and vng[gg, col] < 0.0) or (
+                        unilateral and sw_on[gg] and fng[gg, col] < 0.0 and vng[gg, col] >= 0.0)
+                    if e:
+                        j = col
+                        break
+                if j >= 0:
+                    break
+            if ref == 0 and j < 0:
+                ze[:] = Z[:, -1]
+                break
+            if j < 0:  # (the bracket's right end had an event; rounding aside, it still does)
+                j = 0
+            found = True
+            lo, hi = (tau[j - 1] if j else lo), tau[j]
+            ze[:] = Z[:, j]
+            for gg in range(ng):
+                evg[gg] = (off_mask[gg] and vng[gg, j] >= 0.0) or (on_mask[gg] and vng[gg, j] < 0.0) or (
+                    unilateral and sw_on[gg] and fng[gg, j] < 0.0 and vng[gg, j] >= 0.0)
+            t_e = hi
+            if ref < REFINE:
+                tau = lo + (hi - lo) * np.arange(1, GRID + 1) / GRID
+        # advance to t_e
+        for r in range(na):
+            q[idx[r]] = ze[r] + q_eq[r]
+            v[idx[r]] = ze[na + r]
+        for i in free:
+            q[i] += t_e * v[i] + 0.5 * t_e * t_e * g[i]
+            v[i] += t_e * g[i]
+        t += t_e
+        if not found:
+            break
+        vng1 = _gsum(v.reshape(n, 1), group, wts, ng, ident)[:, 0]
+        f = np.zeros(n)
+        fa = -(Ka @ (q[idx] - aa))
+        for r in range(na):
+            f[idx[r]] = fa[r] - ce[r] * v[idx[r]]
+        fng1 = _gsum(f.reshape(n, 1), group, wts, ng, ident)[:, 0]
+        for gg in range(ng):
+            ea = evg[gg] and sw_on[gg]
+            rel = unilateral and ea and fng1[gg] < 0.0 and vng1[gg] >= 0.0
+            if ea and not rel:
+                damp_g[gg] = vng1[gg] < 0.0
+            if rel:
+                for i in range(n):
+                    if group[i] == gg:
+                        active[i] = False
+    else:
+        # too many events in one step: finish it with the pattern frozen (rare)
+        h = dt - t
+        if h > 0:
+            idx = np.flatnonzero(active)
+            free = np.flatnonzero(~active)
+            if idx.size:
+                na = idx.size
+                ce = np.empty(na)
+                for r in range(na):
+                    i = idx[r]
+                    ce[r] = Cn[i] if (damp_g[group[i]] or always[i]) else 0.0
+                q_eq = a[idx] + np.linalg.solve(Ka, m[idx] * g[idx])
+                lam, V, Vi, ok = _modal(Ka, m[idx], ce)
+                if not ok:
+                    return q, v, active, v0, v0, False
+                ze = _modal_at(lam, V, Vi, np.concatenate((q[idx] - q_eq, v[idx])), np.array([h]))[:, 0]
+                for r in range(na):
+                    q[idx[r]] = ze[r] + q_eq[r]
+                    v[idx[r]] = ze[na + r]
+            for i in free:
+                q[i] += h * v[i] + 0.5 * h * h * g[i]
+                v[i] += h * g[i]
+    force = np.zeros(n)
+    seat = np.zeros(n)
+    idx = np.flatnonzero(active)
+    for i in idx:
+        force[i] = m[i] * ((v[i] - v0[i]) / dt - g[i])
+    if idx.size:
+        sa = Ka @ (q[idx] - a[idx])
+        for r in range(idx.size):
+            seat[idx[r]] = sa[r]
+    return q, v, active, force, seat, True

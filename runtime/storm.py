@@ -118,6 +118,7 @@ from runtime.compiled import (
     closest_points,
     contact_post,
     contact_prep,
+    exact_step,
     flight,
     free_phase,
     near_set,
@@ -129,6 +130,7 @@ from runtime.compiled import (
 )
 from runtime.hail import (
     GRAVITY,
+    ContactStep,
     contact_step,
     damping_coefficients,
     damping_ratio_for_restitution,
@@ -388,6 +390,10 @@ class Storm:
         q, a, vq, gq, _, _, acc, _ = args
         contact_post(none, self.pos, self.vel, self.ctri, self.hit, b, e3, acc, q, a, vq, gq, e, e, b, e,
                      sc.mode == "sticky", True, 0.0, 1.0)
+        if sc.integrator == "exact":
+            one = np.ones(1)
+            exact_step(one, one, one, one, one, 1e-4, np.eye(1), np.eye(1), one, True, np.arange(1), one,
+                       np.zeros(1, dtype=bool))
 
     # -- stones ------------------------------------------------------------------
     def _plan_spawns(self) -> np.ndarray:
@@ -1144,11 +1150,20 @@ class Storm:
             soft, self.pos, self.vel, self.radius, self.mass, GRAVITY, self.wind, self._drag_coef, nk, cc.X, cc.rest,
             cc.Kdiag, sticky, exact, float(sc.rest_speed), self._zeta)
         group, wts = (np.repeat(np.arange(s), 3), nk.ravel()) if sticky else (None, None)
-        if not exact:
+        res = None
+        if exact:
+            if group is None:
+                group, wts = np.arange(s), np.ones(s)
+            qn, vn, act, force, seat, ok = exact_step(q, vq, a, mq, gq, h, cc.K, cc.W, C, bool(sc.unilateral), group,
+                                                      wts, always)
+            if ok:
+                res = ContactStep(q=qn, v=vn, active=act, force=force, seat_force=seat)
+        else:
             C = damping_coefficients(cc.K, mq, sc.restitution, dt=h, integrator=sc.integrator)
-        res = contact_step(q, vq, a, mq, gq, h, K=cc.K, W=cc.W, damping=C, integrator=sc.integrator,
-                           unilateral=sc.unilateral, group=group, normal_of=wts,
-                           always_damped=always if exact else None)
+        if res is None:
+            res = contact_step(q, vq, a, mq, gq, h, K=cc.K, W=cc.W, damping=C, integrator=sc.integrator,
+                               unilateral=sc.unilateral, group=group, normal_of=wts,
+                               always_damped=always if exact else None)
         impacts, fmax, indent, n_active = contact_post(
             soft, self.pos, self.vel, self.ctri, self.hit, was_open[np.searchsorted(near, soft)], nk, acc, q, a, vq,
             gq, res.q, res.v, res.active, res.seat_force, sticky, exact, h, float(sc.rest_speed))
