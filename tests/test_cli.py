@@ -125,3 +125,20 @@ def test_storm_integrator_and_dt_from_the_command_line(seat_bundle, tmp_path):
     assert s["scene"]["time"]["integrator"] == "exact"
     run = hailstorm("storm", "--integrator", "verlet", "--out", tmp_path / "o", check=False)
     assert run.returncode == 2 and "invalid choice" in run.stderr
+
+
+def test_storm_backend_from_the_command_line(seat_bundle, tmp_path):
+    import json
+
+    from runtime.compiled import HAVE_NUMBA
+
+    for backend in ("numpy", "auto"):
+        out = tmp_path / backend
+        run = hailstorm("storm", "--duration", 0.01, "--stones", 2, "--backend", backend, "--gf", seat_bundle,
+                        "--out", out, "-q", "--no-video")
+        assert run.returncode == 0, run.stderr
+        s = json.loads((out / "summary.json").read_text())
+        assert s["scene"]["compute"]["backend"] == backend
+        assert s["backend"] == ("numba" if backend == "auto" and HAVE_NUMBA else "numpy")
+    run = hailstorm("storm", "--backend", "cuda", "--out", tmp_path / "o", check=False)
+    assert run.returncode == 2 and "invalid choice" in run.stderr
