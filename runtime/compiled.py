@@ -561,6 +561,37 @@ def _dvv(V, D, column_of):  # pragma: no cover (compiled)
 
 
 @_njit
+def rigid_contacts(verts, w, fixed):  # pragma: no cover (compiled)
+    """True if some contact's weight lies entirely on clamped vertices
+    (``runtime.contact_capacitance._rigid``, any)."""
+    for k in range(verts.shape[0]):
+        free_w = 0.0
+        for p in range(verts.shape[1]):
+            if not fixed[verts[k, p]]:
+                free_w += abs(w[k, p])
+        if free_w <= 1e-12:
+            return True
+    return False
+
+
+@_njit
+def retired(live, pos, radius, lo, hi, margin):  # pragma: no cover (compiled)
+    """Mask of the ``live`` stones that left the seat's region (compiled rule of
+    ``Storm.step``): below the seat by ``margin``, or beyond its footprint grown by
+    ``2 margin + r`` while below its top."""
+    out = np.zeros(live.size, np.bool_)
+    for q in range(live.size):
+        i = live[q]
+        r = radius[i]
+        outside = False
+        for d in range(2):
+            if pos[i, d] < lo[d] - 2.0 * margin - r or pos[i, d] > hi[d] + 2.0 * margin + r:
+                outside = True
+        out[q] = pos[i, 2] < lo[2] - margin or (outside and pos[i, 2] < hi[2])
+    return out
+
+
+@_njit
 def capacitance_blocks(verts, w, normals, sticky, D, column_of):  # pragma: no cover (compiled)
     """The dense blocks of a contact set (the storm's ``_build_cache``) in one pass.
 
@@ -1212,7 +1243,7 @@ def _scalar_exact(q, v, a, m, g, dt, k, c, unilateral, always):  # pragma: no co
 
 
 @_njit
-def _inv_spd(W):  # pragma: no cover (compiled)
+def inv_spd(W):  # pragma: no cover (compiled)
     """Inverse of a small symmetric positive (semi-)definite matrix (Cholesky, else the
     pseudo-inverse), as ``runtime.hail._inv_spd``."""
     n = W.shape[0]
@@ -1321,7 +1352,7 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always):  # 
         # unilateral: release contacts that pull now and do not approach (active-set iteration)
         while True:
             idx = np.flatnonzero(active)
-            Ka = _inv_spd(_sub(W, idx)) if idx.size < n else K
+            Ka = inv_spd(_sub(W, idx)) if idx.size < n else K
             if not unilateral or idx.size == 0:
                 break
             f = np.zeros(n)

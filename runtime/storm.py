@@ -99,6 +99,25 @@ time integration.
 
 BLAS runs single-threaded inside :func:`run_storm` (``threadpoolctl``): the
 dense solves are tiny and threaded BLAS on a shared machine only adds latency.
+
+Backends (``[compute] backend``)
+--------------------------------
+A step's arithmetic is small; in numpy its cost is the per-call overhead of a
+few hundred calls on arrays of a handful of stones. With numba installed
+(``backend = "auto"`` or ``"numba"``) the same phases run in compiled kernels
+(:mod:`runtime.compiled`): the broad phase and free flight, the queries on a
+uniform grid of the same samples (instead of the k-d tree), phases a–c of a
+sub-step in one kernel (every free near stone is queried: the numpy path's
+query reuse and gap prediction only save numpy calls), the patch sizing and
+weights, the capacitance blocks, and the exact integrator's step; the
+orchestration stays in this module and the numpy path stays the reference
+the tests hold the kernels to. The two backends compute the same contacts to
+rounding, except where two triangles share a stone's closest point (an edge
+or vertex): both then take the triangle of the nearer sample, but the two
+distances, equal in exact arithmetic, round differently in each backend, so
+the pick (hence the contact normal) can differ and a storm on a curved seat
+diverges between the backends after such a tie, as it would under any
+rounding change (same statistics; on the flat test plate, identical).
 """
 
 from __future__ import annotations
@@ -121,12 +140,15 @@ from runtime.compiled import (
     exact_step,
     flight,
     free_phase,
+    inv_spd,
     near_set,
     patch_compliance,
     patch_one,
     patch_radii,
     penetration,
     resolve_backend,
+    retired,
+    rigid_contacts,
 )
 from runtime.hail import (
     GRAVITY,
@@ -365,6 +387,7 @@ class Storm:
         none = np.zeros(0, dtype=np.intp)
         sc = self.scene
         self._fly(none, 0.0)
+        retired(none, self.pos, self.radius, self.lo, self.hi, float(sc.margin))
         near_set(self.index.grid, self.index.sample_radius, self.index.bbox, none, self.pos, self.vel, self.radius,
                  self.ctri, self.budget, self._bud_u, 0.0, float(sc.dt), GRAVITY)
         self._free_phase(none, float(sc.dt))
@@ -376,7 +399,8 @@ class Storm:
             verts = np.asarray(self.gf.triangles)[[t]].astype(np.int64)
             w = np.full((1, 3), 1.0 / 3.0)
             n = self.index.normals[[t]]
-            capacitance_blocks(verts, w, n, sc.mode == "sticky", self._D, self._col_of)
+            rigid_contacts(verts, w, self._fixed)
+            inv_spd(capacitance_blocks(verts, w, n, sc.mode == "sticky", self._D, self._col_of)[1])
             patch_compliance(verts[0], w[0], n[0], self._D, self._col_of)
             if self._patch:
                 patch_one(t, w[0], float(sc.patch_min_radius), n[0], 3.0, *self._disc, PATCH_FACING, PATCH_DROP,
@@ -486,12 +510,15 @@ class Storm:
             radius = np.zeros(s)
         else:
             verts, w = self._patch_weights(stones, tris, bary, radius, normals)
-        if np.any(_rigid(gf, verts, w)):
-            raise RuntimeError("rigid contacts must be filtered before the capacitance")  # pragma: no cover
         if self._compiled:
-            V, W, G, cols, DG = capacitance_blocks(verts.astype(np.int64, copy=False), w, normals, mode == "sticky",
-                                                   self._D, self._col_of)
+            verts = verts.astype(np.int64, copy=False)
+            if rigid_contacts(verts, w, self._fixed):
+                raise RuntimeError("rigid contacts must be filtered before the capacitance")  # pragma: no cover
+            V, W, G, cols, DG = capacitance_blocks(verts, w, normals, mode == "sticky", self._D, self._col_of)
+            K = inv_spd(W)
         else:
+            if np.any(_rigid(gf, verts, w)):
+                raise RuntimeError("rigid contacts must be filtered before the capacitance")  # pragma: no cover
             V, loc = _locate_lists(verts)
             D_VV = _gather(self._gfD, _dof3(V), _column_dofs(gf, V))
             W = _contact_compliance(D_VV, loc, w, normals, mode)
@@ -505,7 +532,7 @@ class Storm:
             live = np.repeat(cb >= 0, 3)
             cols = (3 * cb[:, None] + np.arange(3)).ravel()[live]  # D columns of the loaded dofs
             G = G[live]
-        K = _inv_spd(W)
+            K = _inv_spd(W)
         # reference point: the contact point (the patch centre). A patch contact prescribes the
         # pressure-weighted mean normal displacement of the surface under the disc, measured from
         # the tangent plane at the contact point (the plane of the disc): the stone's lowest point
@@ -659,7 +686,7 @@ class Storm:
         triangle and its radius while the force stays within the tolerance, so
         the weights are reused until one of them changes.
         """
-        from runtime.weights import _pad, patch_weights
+        from runtime.weights import patch_weights
 
         out: list[tuple[np.ndarray, np.ndarray] | None] = [None] * stones.size
         todo = []
@@ -693,9 +720,10 @@ class Storm:
         P = max(3, max(o[0].size for o in done))
         verts = np.empty((stones.size, P), dtype=np.intp)
         w = np.zeros((stones.size, P))
-        for i, (v, wi) in enumerate(done):
-            vv, ww = _pad(v[None, :], wi[None, :], P)
-            verts[i], w[i] = vv[0], ww[0]
+        for i, (v, wi) in enumerate(done):  # padding: weight-0 copies of the first vertex (weights._pad)
+            verts[i, :v.size] = v
+            verts[i, v.size:] = v[0]
+            w[i, :v.size] = wi
         return verts, w
 
     # -- the seat's displacement (only where it is needed) ---------------------------
@@ -1357,11 +1385,14 @@ class Storm:
             self._set_forces(None, np.zeros(0))
         # retire stones that left the seat's region
         if live.size:
-            p = self.pos[live]
-            r = self.radius[live][:, None]
-            gone = (p[:, 2] < self.lo[2] - sc.margin) | np.any(
-                (p[:, :2] < self.lo[:2] - 2 * sc.margin - r)
-                | (p[:, :2] > self.hi[:2] + 2 * sc.margin + r), axis=1) & (p[:, 2] < self.hi[2])
+            if self._compiled:
+                gone = retired(live, self.pos, self.radius, self.lo, self.hi, float(sc.margin))
+            else:
+                p = self.pos[live]
+                r = self.radius[live][:, None]
+                gone = (p[:, 2] < self.lo[2] - sc.margin) | np.any(
+                    (p[:, :2] < self.lo[:2] - 2 * sc.margin - r)
+                    | (p[:, :2] > self.hi[:2] + 2 * sc.margin + r), axis=1) & (p[:, 2] < self.hi[2])
             if gone.any():
                 g = live[gone]
                 self.alive[g] = False
