@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -35,12 +35,12 @@ try:  # pragma: no cover - exercised by whichever of the two environments runs t
 
     HAVE_NUMBA = True
 except ImportError:  # pragma: no cover
-    numba = None
     HAVE_NUMBA = False
 
 
-def _njit(f: Callable) -> Callable:
-    """``numba.njit(cache=True)`` when numba is installed, else the plain function."""
+def _njit(f: Callable) -> Any:
+    """``numba.njit(cache=True)`` when numba is installed, else the plain function
+    (never called then: the storm takes the numpy path)."""
     return numba.njit(cache=True, nogil=True)(f) if HAVE_NUMBA else f
 
 

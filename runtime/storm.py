@@ -123,6 +123,7 @@ rounding change (same statistics; on the flat test plate, identical).
 from __future__ import annotations
 
 import bisect
+import logging
 import time
 from dataclasses import dataclass, field
 from types import SimpleNamespace
@@ -210,6 +211,8 @@ class StormResult:
     #: contact-force history: (time, total normal force on the seat [N], open contacts) per step
     history: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
 
+
+_log = logging.getLogger(__name__)
 
 #: the per-stone arrays of a :class:`Storm` and the value a new stone starts with
 #: (None: given to :meth:`Storm.add_stones`)
@@ -386,7 +389,10 @@ class Storm:
         the machine code on disk)."""
         none = np.zeros(0, dtype=np.intp)
         sc = self.scene
+        t0 = time.perf_counter()
         self._fly(none, 0.0)
+        if sum(flight.stats.cache_misses.values()):  # not in numba's on-disk cache: compiling
+            _log.info("compiling the storm's kernels (numba; once after an install, about 40 s)...")
         retired(none, self.pos, self.radius, self.lo, self.hi, float(sc.margin))
         near_set(self.index.grid, self.index.sample_radius, self.index.bbox, none, self.pos, self.vel, self.radius,
                  self.ctri, self.budget, self._bud_u, 0.0, float(sc.dt), GRAVITY)
@@ -418,6 +424,7 @@ class Storm:
             one = np.ones(1)
             exact_step(one, one, one, one, one, 1e-4, np.eye(1), np.eye(1), one, True, np.arange(1), one,
                        np.zeros(1, dtype=bool))
+        _log.debug("storm kernels ready in %.2f s", time.perf_counter() - t0)
 
     # -- stones ------------------------------------------------------------------
     def _plan_spawns(self) -> np.ndarray:

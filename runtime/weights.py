@@ -348,7 +348,8 @@ def _disc_table(profile: str, n_max: int = 40) -> tuple[np.ndarray, np.ndarray, 
     ``offsets[n_r]:offsets[n_r + 1]`` (empty below 4)."""
     rules = [_disc_rule(n, 4 * n, profile) if n >= 4 else (np.zeros(0),) * 3 for n in range(n_max + 1)]
     off = np.concatenate([[0], np.cumsum([r[0].size for r in rules])]).astype(np.int64)
-    return off, *(np.concatenate([r[i] for r in rules]) for i in range(3))
+    x, y, wt = (np.concatenate([r[i] for r in rules]) for i in range(3))
+    return off, x, y, wt
 
 
 def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
