@@ -28,6 +28,8 @@ from typing import Any, Callable
 
 import numpy as np
 
+from runtime.hail import _scalar_exact as _hail_scalar_exact
+
 __all__ = ["HAVE_NUMBA", "SampleGrid", "closest_points", "near_set", "resolve_backend"]
 
 try:  # pragma: no cover - exercised by whichever of the two environments runs the tests
@@ -169,6 +171,18 @@ def _closest_on_triangle(p, a, b, c, out_bary):  # pragma: no cover (compiled)
 
 
 @_njit
+def _cell_range(p, lim, lo, h, dims):  # pragma: no cover (compiled)
+    """First and last cell index per axis of the box ``p +- lim`` (clipped to the grid;
+    an axis with ``ilo > ihi`` means the box misses the grid)."""
+    ilo = np.empty(3, np.int64)
+    ihi = np.empty(3, np.int64)
+    for d in range(3):
+        ilo[d] = max(int(math.floor((p[d] - lim - lo[d]) / h)), 0)
+        ihi[d] = min(int(math.floor((p[d] + lim - lo[d]) / h)), dims[d] - 1)
+    return ilo, ihi
+
+
+@_njit
 def _nearest_sample(p, lo, h, dims, start, items, spts):  # pragma: no cover (compiled)
     """Distance from ``p`` to its nearest sample (inf without samples): rings of cells
     around p's (clamped) cell until the ring's distance bound passes the best."""
@@ -221,15 +235,7 @@ def _closest_one(p, r, md, use_u, surf, D, fcols, fv, done, Y, bary_out, point_o
         return -1, np.inf
     lim = min(r, d0 + md) + md + sr
     lim2 = lim * lim
-    ilo = np.empty(3, np.int64)
-    ihi = np.empty(3, np.int64)
-    for d in range(3):
-        a = int(math.floor((p[d] - lim - lo[d]) / h))
-        b = int(math.floor((p[d] + lim - lo[d]) / h))
-        if b < 0 or a >= dims[d]:
-            return -1, np.inf
-        ilo[d] = max(a, 0)
-        ihi[d] = min(b, dims[d] - 1)
+    ilo, ihi = _cell_range(p, lim, lo, h, dims)
     corner = np.empty((3, 3))
     bc = np.empty(3)
     best = np.inf
@@ -435,11 +441,7 @@ def _one_patch(x, n, a, h, qx, qy, qw, facing, drop, pidx):  # pragma: no cover 
     # candidate triangles: centroid within a + reach (grid), then within a + own radius, facing n
     nc = 0
     cand = np.empty(cent.shape[0], np.int64)
-    ilo = np.empty(3, np.int64)
-    ihi = np.empty(3, np.int64)
-    for d in range(3):
-        ilo[d] = max(int(math.floor((x[d] - lim - glo[d]) / gh)), 0)
-        ihi[d] = min(int(math.floor((x[d] + lim - glo[d]) / gh)), gdims[d] - 1)
+    ilo, ihi = _cell_range(x, lim, glo, gh, gdims)
     for ci in range(ilo[0], ihi[0] + 1):
         for cj in range(ilo[1], ihi[1] + 1):
             for ck in range(ilo[2], ihi[2] + 1):
@@ -1168,78 +1170,8 @@ def penetration(near, dt, pos, vel, radius, ctri, surf, umax, use_u, D, fcols, f
 
 
 # -- the exact (modal) contact integrator -----------------------------------------------
-@_njit
-def _scalar_exact(q, v, a, m, g, dt, k, c, unilateral, always):  # pragma: no cover (compiled)
-    """Compiled ``runtime.hail._scalar_exact`` (one frictionless contact in closed form):
-    (q, v, active, ok); ``ok`` False where the numpy version returns None."""
-    t = 0.0
-    damp = always or v < 0.0
-    if unilateral and not damp and -k * (q - a) < 0.0 and v >= 0.0:
-        return q, v, True, False
-    w2 = k / m
-    if w2 <= 0.0:
-        return q, v, True, False
-    off = a + g / w2
-    finished = False
-    for _ in range(6):
-        h = dt - t
-        if h <= 0.0:
-            finished = True
-            break
-        ce = c if damp else 0.0
-        sig = 0.5 * ce / m
-        wd2 = w2 - sig * sig
-        if wd2 <= 1e-6 * w2:
-            return q, v, True, False
-        wd = math.sqrt(wd2)
-        y0 = q - off
-        A = y0
-        B = (v + sig * y0) / wd
-        P = v
-        Q = A * wd + sig * B
-        te = h
-        kind = 0
-        if c > 0.0 and not always:
-            th = math.atan2(P, Q) % math.pi
-            if th <= 1e-12:
-                th += math.pi
-            tv = th / wd
-            if tv < te:
-                te = tv
-                kind = 1
-        if unilateral and ce == 0.0:
-            R = math.hypot(A, B)
-            ystar = a - off
-            if R > abs(ystar) and R > 0.0:
-                phi = math.atan2(B, A)
-                al = math.acos(max(-1.0, min(1.0, ystar / R)))
-                tr = ((-al + phi) % (2.0 * math.pi)) / wd
-                if tr <= 1e-15 * dt:
-                    tr += 2.0 * math.pi / wd
-                if tr < te:
-                    te = tr
-                    kind = 2
-        e = math.exp(-sig * te)
-        cs = math.cos(wd * te)
-        sn = math.sin(wd * te)
-        q = off + e * (A * cs + B * sn)
-        v = e * (P * cs - Q * sn)
-        t += te
-        if kind == 1:
-            damp = False
-        elif kind == 2:
-            h = dt - t
-            q += h * v + 0.5 * h * h * g
-            v += h * g
-            return q, v, False, True
-        else:
-            finished = True
-            break
-    if not finished:
-        return q, v, True, False
-    if unilateral and always and -k * (q - a) - c * v < 0.0 and v >= 0.0:
-        return q, v, True, False
-    return q, v, True, True
+#: the closed-form single contact of the exact integrator: runtime.hail's own function, compiled
+_scalar_exact = _njit(_hail_scalar_exact)
 
 
 @_njit

@@ -484,26 +484,30 @@ class _Modal:
 
 
 def _scalar_exact(q: float, v: float, a: float, m: float, g: float, dt: float, k: float, c: float,
-                  unilateral: bool, always: bool):
-    """One frictionless contact, closed form (pure Python floats). Returns (q, v, active) or
-    None when the case is not covered (overdamped, or release from an always-damped state)."""
+                  unilateral: bool, always: bool) -> tuple[float, float, bool, bool]:
+    """One frictionless contact, closed form (plain floats; :mod:`runtime.compiled`
+    compiles this same function for its exact step). Returns ``(q, v, active, ok)``;
+    ``ok`` is False when the case is not covered (overdamped, or release from an
+    always-damped state): the general path then takes the step."""
     t = 0.0
     damp = always or v < 0.0
     if unilateral and not damp and -k * (q - a) < 0.0 and v >= 0.0:
-        return None  # pulls at the start: let the general path release it
+        return q, v, True, False  # pulls at the start: let the general path release it
     w2 = k / m
     if w2 <= 0.0:
-        return None
+        return q, v, True, False
     off = a + g / w2  # equilibrium q_eq
+    finished = False
     for _ in range(6):
         h = dt - t
         if h <= 0.0:
+            finished = True
             break
         ce = c if damp else 0.0
         sig = 0.5 * ce / m
         wd2 = w2 - sig * sig
         if wd2 <= 1e-6 * w2:
-            return None
+            return q, v, True, False
         wd = math.sqrt(wd2)
         y0 = q - off
         A, B = y0, (v + sig * y0) / wd
@@ -543,14 +547,15 @@ def _scalar_exact(q: float, v: float, a: float, m: float, g: float, dt: float, k
             h = dt - t
             q += h * v + 0.5 * h * h * g
             v += h * g
-            return q, v, False
+            return q, v, False, True
         else:
+            finished = True
             break
-    else:
-        return None
+    if not finished:
+        return q, v, True, False
     if unilateral and always and -k * (q - a) - c * v < 0.0 and v >= 0.0:
-        return None
-    return q, v, True
+        return q, v, True, False
+    return q, v, True, True
 
 
 def _exact_step(q, v, a, m, g, dt, K, W, C, unilateral, group, wts, always_damped) -> ContactStep:
@@ -558,10 +563,9 @@ def _exact_step(q, v, a, m, g, dt, K, W, C, unilateral, group, wts, always_dampe
     if n == 1 and group[0] == 0 and wts[0] == 1.0:
         k = float((_inv_spd(W) if K is None else np.asarray(K, dtype=np.float64))[0, 0])
         al = bool(always_damped[0]) if always_damped is not None else False
-        r = _scalar_exact(float(q[0]), float(v[0]), float(a[0]), float(m[0]), float(g[0]), dt, k,
-                          float(np.asarray(C)[0]), unilateral, al)
-        if r is not None:
-            qn, vn, act = r
+        qn, vn, act, ok = _scalar_exact(float(q[0]), float(v[0]), float(a[0]), float(m[0]), float(g[0]), dt, k,
+                                        float(np.asarray(C)[0]), unilateral, al)
+        if ok:
             force = m * ((vn - v) / dt - g) if act else np.zeros(1)
             seat = np.array([k * (qn - a[0])]) if act else np.zeros(1)
             return ContactStep(q=np.array([qn]), v=np.array([vn]), active=np.array([act]), force=force,
