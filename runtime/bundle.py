@@ -188,7 +188,11 @@ def write_bundle(
             json.dump(full, fh, indent=2, sort_keys=True)
             fh.flush()
             os.fsync(fh.fileno())
-        os.chmod(tmp, 0o755)
+        # mkdtemp makes a private (0o700) directory: give the bundle the mode a plain
+        # mkdir would (0o777 minus the umask), as the files in it have
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o777 & ~umask)
         if out.exists():
             old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=out.parent))
             old.rmdir()

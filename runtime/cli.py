@@ -188,6 +188,8 @@ def main(argv: list[str] | None = None) -> int:
     while argv and argv[0] in ("-q", "--quiet"):  # `hailstorm -q storm ...`
         leading.append(argv[0])
         argv = argv[1:]
+    if argv and not argv[0].startswith("-") and argv[0] not in COMMANDS:
+        parser.error(f"unknown command {argv[0]!r} (choose from {', '.join(COMMANDS)}, or give storm options)")
     if not argv or argv[0] not in (*COMMANDS, "-h", "--help"):
         argv = ["storm", *argv]  # plain `hailstorm [storm options]` runs the storm
     args = parser.parse_args(argv[:1] + leading + argv[1:])

@@ -36,6 +36,24 @@ def test_round_trip_preserves_every_array(box_bundle, small_box):
     assert again.manifest["arrays"] == gf.manifest["arrays"]
 
 
+def test_bundle_directory_permissions_follow_the_umask(box_bundle):
+    """The bundle directory gets the mode a plain mkdir would give (not mkdtemp's 0o700,
+    nor a fixed 0o755), like the files in it."""
+    import os
+    import stat
+
+    gf = load(box_bundle)
+    arrays = {name: np.asarray(getattr(gf, name if name != "compliance" else "D")) for name in ARRAY_SPECS}
+    meta = {"key": "x", "options": gf.manifest["options"], "material": gf.manifest["material"]}
+    umask = os.umask(0o027)
+    try:
+        out = write_bundle(box_bundle.parent / "perm", arrays, meta)
+        assert stat.S_IMODE(out.stat().st_mode) == 0o750
+        assert stat.S_IMODE((out / MANIFEST).stat().st_mode) == 0o640
+    finally:
+        os.umask(umask)
+
+
 def test_compliance_is_memory_mapped(box_bundle):
     assert isinstance(load(box_bundle).D, np.memmap)
 

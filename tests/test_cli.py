@@ -127,6 +127,12 @@ def test_storm_integrator_and_dt_from_the_command_line(seat_bundle, tmp_path):
     assert run.returncode == 2 and "invalid choice" in run.stderr
 
 
+def test_unknown_command_is_a_usage_error(tmp_path):
+    run = hailstorm("bogus", "--out", tmp_path / "o", check=False)
+    assert run.returncode == 2 and "unknown command 'bogus'" in run.stderr and "storm" in run.stderr
+    assert not (tmp_path / "o").exists()
+
+
 def test_storm_backend_from_the_command_line(seat_bundle, tmp_path):
     import json
 
