@@ -1441,3 +1441,140 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always):  # 
         for r in range(idx.size):
             seat[idx[r]] = sa[r]
     return q, v, active, force, seat, True
+
+
+# -- the sub-stepped (implicit / symplectic) integrators ---------------------------------------
+@_njit
+def substep_size(near, h_left, hmin, vel, radius, mass, pos, gap, near_tri, ctri, k_tri, approach_fraction,
+                 rest_speed, omega_dt, symplectic, cc_stones, Kdiag, sticky, cc_normals, cc_X, cc_rest,
+                 g):  # pragma: no cover (compiled)
+    """Compiled ``Storm._substep_size`` for the adaptive implicit and symplectic
+    integrators (see there): approaching stones travel at most ``approach_fraction``
+    radii, an impact about to start and moving contacts are resolved to ``omega_dt``."""
+    h = h_left
+    om_close = 0.0
+    for q in range(near.size):
+        i = near[q]
+        sp = math.sqrt(vel[i, 0] ** 2 + vel[i, 1] ** 2 + vel[i, 2] ** 2)
+        if gap[i] >= sp * h_left + 1e-3 and np.isfinite(gap[i]):
+            continue  # cannot reach the surface within the sub-step
+        h = min(h, approach_fraction * radius[i] / max(sp, 1e-9))
+        t = near_tri[i]
+        k = k_tri[t] if t >= 0 else 0.0
+        if (sp > rest_speed or symplectic) and k > 0.0:
+            om_close = max(om_close, 1.5 * math.sqrt(k / mass[i]))
+    if om_close > 0.0:
+        h = min(h, omega_dt / om_close)
+    om_move = 0.0
+    for c in range(cc_stones.size):
+        j = cc_stones[c]
+        if ctri[j] < 0:
+            continue
+        if sticky:
+            k = max(max(max(Kdiag[3 * c], 0.0), max(Kdiag[3 * c + 1], 0.0)), max(Kdiag[3 * c + 2], 0.0))
+        else:
+            k = max(Kdiag[c], 0.0)
+        om = math.sqrt(k / mass[j])
+        vn = 0.0; ubar = 0.0; gn = 0.0
+        for d in range(3):
+            vn += vel[j, d] * cc_normals[c, d]
+            ubar += (pos[j, d] - cc_X[c, d]) * cc_normals[c, d]
+            gn += g[d] * cc_normals[c, d]
+        ubar -= cc_rest[c]
+        u_eq = gn * mass[j] / max(k, 1e-300)
+        amp = math.hypot(vn, om * (ubar - u_eq))
+        if amp > rest_speed or symplectic:
+            om_move = max(om_move, om)
+    if om_move > 0.0:
+        h = min(h, omega_dt / om_move)
+    return min(max(h, hmin), h_left)
+
+
+@_njit
+def substep_damping(Kdiag, mq, restitution, dt, implicit, x_grid, z_grid):  # pragma: no cover (compiled)
+    """Compiled :func:`runtime.hail.damping_coefficients` for the implicit (with ``dt``)
+    and symplectic integrators: ``2 zeta sqrt(K_ii m_i)``, backward Euler's numerical
+    damping ``omega dt / 2`` compensated. ``x_grid``, ``z_grid``: the restitution
+    table of :func:`runtime.hail.damping_ratio_for_restitution`."""
+    n = mq.size
+    out = np.empty(n)
+    for i in range(n):
+        k = max(Kdiag[i], 0.0)
+        e = restitution
+        zn = 0.0
+        if implicit:
+            zn = 0.5 * math.sqrt(k / mq[i]) * dt
+            e = min(e / math.exp(-zn * math.pi / 2.0), 1.0)
+        z = np.interp(-math.log(min(max(e, 1e-300), 1.0)), x_grid, z_grid)
+        out[i] = 2.0 * max(z - zn, 0.0) * math.sqrt(k * mq[i])
+    return out
+
+
+@_njit
+def substep_contacts(q, v, a, m, g, dt, K, W, C, implicit, unilateral, group, wts):  # pragma: no cover
+    """Compiled implicit (backward Euler) and symplectic Euler contact step of
+    :func:`runtime.hail.contact_step` (see there): the dashpot in compression only,
+    unilateral release by active-set iteration. Returns ``(q, v, active, force, seat_force)``."""
+    n = q.size
+    ng = 0
+    for i in range(n):
+        ng = max(ng, group[i] + 1)
+    vn_g = np.zeros(ng)
+    for i in range(n):
+        vn_g[group[i]] += wts[i] * v[i]
+    c = np.empty(n)
+    for i in range(n):
+        c[i] = C[i] if vn_g[group[i]] < 0.0 else 0.0
+    active = np.ones(n, np.bool_)
+    ubar = q - a
+    v_new = v + dt * g
+    force = np.zeros(n)
+    while True:
+        idx = np.flatnonzero(active)
+        Ka = inv_spd(_sub(W, idx)) if idx.size < n else K
+        v_new = v + dt * g
+        na = idx.size
+        if na:
+            if implicit:
+                A = dt * dt * Ka
+                rhs = np.empty(na)
+                ku = Ka @ ubar[idx]
+                for r in range(na):
+                    i = idx[r]
+                    A[r, r] += m[i] + dt * c[i]
+                    rhs[r] = m[i] * v[i] + dt * (m[i] * g[i] - ku[r])
+                vs = np.linalg.solve(A, rhs)
+                for r in range(na):
+                    v_new[idx[r]] = vs[r]
+            else:
+                ku = Ka @ ubar[idx]
+                for r in range(na):
+                    i = idx[r]
+                    v_new[i] = v[i] + dt * (g[i] + (-ku[r] - c[i] * v[i]) / m[i])
+        force = np.zeros(n)
+        for i in idx:
+            force[i] = m[i] * ((v_new[i] - v[i]) / dt - g[i])
+        if not unilateral or na == 0:
+            break
+        fn = np.zeros(ng)
+        for i in range(n):
+            fn[group[i]] += wts[i] * force[i]
+        pulling = False
+        for i in range(n):
+            if active[i] and fn[group[i]] < 0.0:
+                active[i] = False
+                pulling = True
+        if not pulling:
+            break
+    q_new = q + dt * v_new
+    seat = np.zeros(n)
+    idx = np.flatnonzero(active)
+    if idx.size:
+        Ka = inv_spd(_sub(W, idx)) if idx.size < n else K
+        sa = Ka @ (q_new[idx] - a[idx])
+        for r in range(idx.size):
+            seat[idx[r]] = sa[r]
+    for i in range(n):
+        if not active[i]:
+            force[i] = 0.0
+    return q_new, v_new, active, force, seat

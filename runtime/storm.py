@@ -150,8 +150,13 @@ from runtime.compiled import (
     resolve_backend,
     retired,
     rigid_contacts,
+    substep_contacts,
+    substep_damping,
+    substep_size,
 )
 from runtime.hail import (
+    _X_GRID,
+    _Z_GRID,
     GRAVITY,
     ContactStep,
     contact_step,
@@ -322,6 +327,7 @@ class Storm:
         self._surf = _surface(self.index.grid, self.index.sample_radius, self.index.vertices, self.index.triangles)
         self._no_cols = np.zeros(0, dtype=np.int64)
         self._no_forces = np.zeros(0)
+        self._no_e3 = np.zeros((0, 3))
         self._fv: np.ndarray | None = None
         self._fcols: np.ndarray | None = None
         self._u_version = 0
@@ -420,10 +426,15 @@ class Storm:
         q, a, vq, gq, _, _, acc, _ = args
         contact_post(none, self.pos, self.vel, self.ctri, self.hit, b, e3, acc, q, a, vq, gq, e, e, b, e,
                      sc.mode == "sticky", True, 0.0, 1.0)
+        one = np.ones(1)
         if sc.integrator == "exact":
-            one = np.ones(1)
             exact_step(one, one, one, one, one, 1e-4, np.eye(1), np.eye(1), one, True, np.arange(1), one,
                        np.zeros(1, dtype=bool))
+        else:
+            substep_contacts(one, one, one, one, one, 1e-4, np.eye(1), np.eye(1), one, True, True, np.arange(1), one)
+            substep_damping(one, one, 0.5, 1e-4, True, _X_GRID, _Z_GRID)
+            if sc.adaptive:
+                self._substep_size(none, float(sc.dt))
         _log.debug("storm kernels ready in %.2f s", time.perf_counter() - t0)
 
     # -- stones ------------------------------------------------------------------
@@ -1185,16 +1196,20 @@ class Storm:
             soft, self.pos, self.vel, self.radius, self.mass, GRAVITY, self.wind, self._drag_coef, nk, cc.X, cc.rest,
             cc.Kdiag, sticky, exact, float(sc.rest_speed), self._zeta)
         group, wts = (np.repeat(np.arange(s), 3), nk.ravel()) if sticky else (None, None)
+        if group is None:
+            group, wts = np.arange(s), np.ones(s)
         res = None
         if exact:
-            if group is None:
-                group, wts = np.arange(s), np.ones(s)
             qn, vn, act, force, seat, ok = exact_step(q, vq, a, mq, gq, h, cc.K, cc.W, C, bool(sc.unilateral), group,
                                                       wts, always)
             if ok:
                 res = ContactStep(q=qn, v=vn, active=act, force=force, seat_force=seat)
         else:
-            C = damping_coefficients(cc.K, mq, sc.restitution, dt=h, integrator=sc.integrator)
+            implicit = sc.integrator == "implicit"
+            C = substep_damping(cc.Kdiag, mq, float(sc.restitution), h, implicit, _X_GRID, _Z_GRID)
+            qn, vn, act, force, seat = substep_contacts(q, vq, a, mq, gq, h, cc.K, cc.W, C, implicit,
+                                                        bool(sc.unilateral), group, wts)
+            res = ContactStep(q=qn, v=vn, active=act, force=force, seat_force=seat)
         if res is None:
             res = contact_step(q, vq, a, mq, gq, h, K=cc.K, W=cc.W, damping=C, integrator=sc.integrator,
                                unilateral=sc.unilateral, group=group, normal_of=wts,
@@ -1223,6 +1238,20 @@ class Storm:
         if not sc.adaptive or sc.integrator == "exact":
             return h  # exact: no stability/accuracy limit; impacts are caught by time of impact
         hmin = sc.dt / sc.max_substeps
+        if self._compiled:
+            cc = self.cache
+            if self._k_tri_all is None:
+                self._k_tri_all = self._all_triangle_stiffness()
+            if cc is not None and cc.stones.size:
+                if cc.Kdiag is None:
+                    cc.Kdiag = np.diag(cc.K).copy()  # (a writable copy: one compiled specialisation)
+                cs, kd, cn, cx, cr = cc.stones, cc.Kdiag, cc.normals, cc.X, cc.rest
+            else:
+                cs, kd, cn, cx, cr = self._no_cols, self._no_forces, self._no_e3, self._no_e3, self._no_forces
+            return float(substep_size(near, float(h_left), float(hmin), self.vel, self.radius, self.mass, self.pos,
+                                      self.gap, self.near_tri, self.ctri, self._k_tri_all,
+                                      float(sc.approach_fraction), float(sc.rest_speed), float(sc.omega_dt),
+                                      sc.integrator == "symplectic", cs, kd, sc.mode == "sticky", cn, cx, cr, self.g))
         speed = np.linalg.norm(self.vel[near], axis=1)
         # gap unknown (inf: just became near) counts as close
         close = ~(self.gap[near] >= speed * h + 1e-3)
