@@ -133,7 +133,6 @@ import numpy as np
 
 from runtime.collide import Closest, SurfaceIndex
 from runtime.compiled import (
-    _surface,
     capacitance_blocks,
     closest_points,
     contact_post,
@@ -154,6 +153,7 @@ from runtime.compiled import (
     substep_damping,
     substep_size,
 )
+from runtime.compiled.grid import _surface
 from runtime.hail import (
     _X_GRID,
     _Z_GRID,
@@ -349,7 +349,7 @@ class Storm:
         self._live: np.ndarray | None = None
         self._far = np.zeros(0, dtype=np.intp)  # live stones that are not near (set by _near_set)
         #: time-of-impact sub-steps (adaptive) and the gap within which a contact opens [radii]
-        #: compiled kernels for the queries and the broad phase (:mod:`runtime.compiled`)
+        #: compiled kernels for the step's work (:mod:`runtime.compiled`), or numpy
         try:
             self.backend = resolve_backend(scene.backend)
         except ValueError as exc:

@@ -367,16 +367,16 @@ def _tangents(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _one_patch(idx: _TriangleIndex, gf: Any, x: np.ndarray, n: np.ndarray, a: float, h: float,
                profile: str, resolution: float, compiled: bool = False) -> tuple[np.ndarray, np.ndarray] | None:
     """Vertices and weights of one patch; None if the disc hits no usable triangle.
-    ``compiled``: the same computation in :func:`runtime.compiled._one_patch`."""
+    ``compiled``: the same computation in :func:`runtime.compiled.patches._one_patch`."""
     if idx.tree is None:
         return None
     if compiled:
-        from runtime import compiled as C
+        from runtime.compiled.patches import _one_patch as one_patch_compiled
 
         n_r = int(min(max(math.ceil(resolution * a / max(h, 1e-300)) + 4, 4), 40))
         qx, qy, qw = _disc_rule(n_r, 4 * n_r, profile)
-        V, w = C._one_patch(np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(n, dtype=np.float64),
-                            float(a), float(h), qx, qy, qw, PATCH_FACING, PATCH_DROP, idx.arrays)
+        V, w = one_patch_compiled(np.ascontiguousarray(x, dtype=np.float64), np.ascontiguousarray(n, dtype=np.float64),
+                                  float(a), float(h), qx, qy, qw, PATCH_FACING, PATCH_DROP, idx.arrays)
         return (V.astype(np.intp), w) if V.size else None
     cand = np.asarray(idx.tree.query_ball_point(x, a + idx.reach + 1e-12 * max(a, 1.0)), dtype=np.intp)
     if cand.size == 0:

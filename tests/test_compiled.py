@@ -36,7 +36,9 @@ def test_nearest_sample_is_exact(gf):
     rng = np.random.default_rng(1)
     P = rng.uniform(V.min(axis=0) - 0.05, V.max(axis=0) + 0.05, (500, 3))
     ref, _ = idx.tree.query(P, k=1)
-    got = np.array([C._nearest_sample(p, g.lo, g.h, g.dims, g.start, g.items, g.points) for p in P])
+    from runtime.compiled.grid import _nearest_sample
+
+    got = np.array([_nearest_sample(p, g.lo, g.h, g.dims, g.start, g.items, g.points) for p in P])
     np.testing.assert_allclose(got, ref, rtol=1e-14, atol=1e-15)
 
 
@@ -52,16 +54,13 @@ def test_closest_points_match_the_numpy_query(gf, deformed):
     D = np.asfortranarray(gf.D)
     cols = np.array([3 * 40 + 2, 3 * 41 + 2, 3 * 60 + 0])
     fv = np.array([-20.0, -15.0, 7.0])
-    kw, disp, md = {}, None, 0.0
+    u = (D[:, cols] @ fv).reshape(-1, 3)
+    kw, md = {}, 0.0
     if deformed:
-        u = (D[:, cols] @ fv).reshape(-1, 3)
         md = 1.5 * float(np.linalg.norm(u, axis=1).max())
         assert md > 1e-3  # the deformation moves the surface by more than the rounding
         kw = dict(D=D, cols=cols, forces=fv, max_displacement=md)
-
-        def disp(v):
-            return u[v]
-    ref = idx.query(Q, reach, displacement=disp, max_displacement=md)
+    ref = idx.query(Q, reach, displacement=(lambda v: u[v]) if deformed else None, max_displacement=md)
     tri, bary, point, dist = C.closest_points(idx.grid, idx.sample_radius, idx.vertices, idx.triangles, Q, reach,
                                               **kw)
     hit = ref.triangle >= 0

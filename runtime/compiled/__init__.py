@@ -1,0 +1,87 @@
+"""Optional compiled kernels (numba) for the storm's per-step work.
+
+A storm step is hundreds of numpy calls on arrays of a few stones; their
+per-call overhead, not arithmetic, is what a step costs. The kernels here do
+the same work in compiled loops when `numba <https://numba.pydata.org>`_ is
+installed (``pip install "hailstorm[fast]"``). Without numba nothing here is
+called and the runtime stays numpy/scipy only. Every kernel has a numpy
+counterpart elsewhere in :mod:`runtime`, the reference the tests hold it to.
+
+Modules, in the order of a storm step:
+
+* :mod:`~runtime.compiled.grid` — the surface's samples in a uniform grid
+  (:class:`SampleGrid`), nearest samples and closest points of the deformed
+  surface (:func:`closest_points`);
+* :mod:`~runtime.compiled.flight` — free flight with drag, the broad phase
+  (:func:`near_set`), retirement;
+* :mod:`~runtime.compiled.narrow` — the free part of a sub-step
+  (:func:`free_phase`: closest points, time of impact, contacts that open,
+  hard walls) and the penetration statistics;
+* :mod:`~runtime.compiled.patches` — patch weights, a patch's compliance and
+  the patch sizing of the storm's contacts;
+* :mod:`~runtime.compiled.contacts` — a contact set's blocks (W, K, G, D_VV G)
+  and the constrained coordinates around a contact step;
+* :mod:`~runtime.compiled.integrators` — the exact, implicit and symplectic
+  contact steps, the sub-step sizing and the dashpot.
+
+The kernels are compiled on first use and cached on disk (``cache=True``,
+beside the modules' bytecode, or numba's user cache if that is read-only), so
+only the first run after an install pays the compilation (about 40 s for a
+storm's set); later processes load them in ~0.3 s.
+"""
+
+from __future__ import annotations
+
+from runtime.compiled._jit import HAVE_NUMBA
+from runtime.compiled.contacts import capacitance_blocks, contact_post, contact_prep, inv_spd, rigid_contacts
+from runtime.compiled.flight import flight, near_set, retired
+from runtime.compiled.grid import SampleGrid, closest_points
+from runtime.compiled.integrators import exact_step, substep_contacts, substep_damping, substep_size
+from runtime.compiled.narrow import free_phase, penetration
+from runtime.compiled.patches import patch_compliance, patch_one, patch_radii
+
+__all__ = [
+    "HAVE_NUMBA",
+    "SampleGrid",
+    "capacitance_blocks",
+    "closest_points",
+    "contact_post",
+    "contact_prep",
+    "exact_step",
+    "flight",
+    "free_phase",
+    "inv_spd",
+    "near_set",
+    "patch_compliance",
+    "patch_one",
+    "patch_radii",
+    "penetration",
+    "resolve_backend",
+    "retired",
+    "rigid_contacts",
+    "substep_contacts",
+    "substep_damping",
+    "substep_size",
+]
+
+
+def resolve_backend(backend: str) -> str:
+    """The backend a storm runs on: ``"numba"`` or ``"numpy"``.
+
+    Parameters
+    ----------
+    backend : {"auto", "numba", "numpy"}
+        ``"auto"`` takes numba when it is installed.
+
+    Raises
+    ------
+    ValueError
+        ``"numba"`` asked for but numba is not installed, or an unknown name.
+    """
+    if backend == "auto":
+        return "numba" if HAVE_NUMBA else "numpy"
+    if backend == "numba" and not HAVE_NUMBA:
+        raise ValueError('backend "numba" needs numba: pip install "hailstorm[fast]" (or use backend "auto")')
+    if backend not in ("numba", "numpy"):
+        raise ValueError(f'backend must be "auto", "numba" or "numpy", not {backend!r}')
+    return backend

@@ -1,0 +1,259 @@
+"""A contact set's dense blocks and the stones' constrained coordinates around a contact
+step.
+
+The numpy references are ``Storm._build_cache`` (W = Bᵀ D B, K = W⁻¹, G, D_VV G)
+and the two halves of ``Storm._soft_contacts``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from runtime.compiled._jit import _njit
+
+__all__ = ["capacitance_blocks", "contact_post", "contact_prep", "inv_spd", "rigid_contacts"]
+
+
+@_njit
+def _dvv(V, D, column_of):  # pragma: no cover (compiled)
+    """D_VV (3|V|, 3|V|), zero columns at clamped vertices."""
+    nV = V.size
+    out = np.zeros((3 * nV, 3 * nV))
+    for j in range(nV):
+        cb = column_of[V[j]]
+        if cb < 0:
+            continue
+        for e in range(3):
+            col = 3 * cb + e
+            for i in range(nV):
+                for d in range(3):
+                    out[3 * i + d, 3 * j + e] = D[3 * V[i] + d, col]
+    return out
+
+
+@_njit
+def rigid_contacts(verts, w, fixed):  # pragma: no cover (compiled)
+    """True if some contact's weight lies entirely on clamped vertices
+    (``runtime.contact_capacitance._rigid``, any)."""
+    for k in range(verts.shape[0]):
+        free_w = 0.0
+        for p in range(verts.shape[1]):
+            if not fixed[verts[k, p]]:
+                free_w += abs(w[k, p])
+        if free_w <= 1e-12:
+            return True
+    return False
+
+
+@_njit
+def capacitance_blocks(verts, w, normals, sticky, D, column_of):  # pragma: no cover (compiled)
+    """The dense blocks of a contact set (the storm's ``_build_cache``) in one pass.
+
+    Parameters
+    ----------
+    verts, w : (s, P) int / float ndarrays
+        Vertices carrying each contact's force and their weights (padding: weight 0).
+    normals : (s, 3) ndarray
+    sticky : bool
+        Three multipliers per contact (``G = B``) or one normal multiplier (``G = B N``).
+    D : (3n, c) ndarray
+        The compliance; ``column_of`` (n,): D's column block of each vertex (-1 clamped).
+
+    Returns
+    -------
+    V : (|V|,) int64 ndarray
+        The sorted union of ``verts``.
+    W : (m, m) ndarray
+        ``G^T D_VV G``, symmetrised (m = 3s sticky, s frictionless).
+    G : (c, m) ndarray
+        Vertex forces per unit multiplier at the ``c`` loaded dofs of V (vertices
+        with a column of D, vertex-major).
+    cols : (c,) int64 ndarray
+        Their columns of D.
+    DG : (3|V|, m) ndarray
+        ``D_VV G``: displacement of V per unit multiplier.
+    """
+    s, P = verts.shape
+    nv_all = column_of.size
+    pos = np.full(nv_all, -1, np.int64)
+    lst = np.empty(s * P, np.int64)
+    nV = 0
+    for k in range(s):
+        for p in range(P):
+            v = verts[k, p]
+            if pos[v] < 0:
+                pos[v] = 0
+                lst[nV] = v
+                nV += 1
+    V = np.sort(lst[:nV])
+    for i in range(nV):
+        pos[V[i]] = i
+    m = 3 * s if sticky else s
+    G = np.zeros((3 * nV, m))
+    for k in range(s):
+        for p in range(P):
+            i = pos[verts[k, p]]
+            if sticky:
+                for d in range(3):
+                    G[3 * i + d, 3 * k + d] += w[k, p]
+            else:
+                for d in range(3):
+                    G[3 * i + d, k] += w[k, p] * normals[k, d]
+    DG = _dvv(V, D, column_of) @ G
+    W = G.T @ DG
+    W = 0.5 * (W + W.T)
+    # the loaded dofs (vertices with a column of D) and their columns
+    nl = 0
+    for i in range(nV):
+        if column_of[V[i]] >= 0:
+            nl += 1
+    cols = np.empty(3 * nl, np.int64)
+    Gl = np.empty((3 * nl, m))
+    r = 0
+    for i in range(nV):
+        cb = column_of[V[i]]
+        if cb < 0:
+            continue
+        for d in range(3):
+            cols[r] = 3 * cb + d
+            Gl[r] = G[3 * i + d]
+            r += 1
+    return V, W, Gl, cols, DG
+
+
+@_njit
+def inv_spd(W):  # pragma: no cover (compiled)
+    """Inverse of a small symmetric positive (semi-)definite matrix (Cholesky, else the
+    pseudo-inverse), as ``runtime.hail._inv_spd``."""
+    n = W.shape[0]
+    if n == 0:
+        return np.zeros((0, 0))
+    Ws = 0.5 * (W + W.T)
+    try:
+        L = np.linalg.cholesky(Ws)
+        Li = np.linalg.inv(L)
+        return np.ascontiguousarray(Li.T @ Li)
+    except Exception:
+        return np.ascontiguousarray(np.linalg.pinv(Ws, rcond=1e-10))
+
+
+@_njit
+def contact_prep(soft, pos, vel, radius, mass, g, wind, drag_coef, nk, Xc, rest, Kdiag, sticky, exact,
+                 rest_speed, zeta):  # pragma: no cover (compiled)
+    """The constrained coordinates of a contact set for :func:`runtime.hail.contact_step`
+    (compiled first half of ``Storm._soft_contacts``): ``(q, anchor, v, accel, mass,
+    always_damped, acc, damping)``, per contact (frictionless, normal components) or
+    per component (sticky); ``acc`` (s, 3) is the stones' gravity + drag; ``damping``
+    the exact integrator's dashpot ``2 zeta sqrt(K_ii m_i)``
+    (:func:`runtime.hail.damping_coefficients` with ``zeta`` for the scene's
+    restitution)."""
+    s = soft.size
+    nq = 3 * s if sticky else s
+    q = np.empty(nq); a = np.empty(nq); vq = np.empty(nq); gq = np.empty(nq); mq = np.empty(nq)
+    always = np.zeros(nq, np.bool_)
+    damping = np.zeros(nq)
+    for c in range(nq):
+        damping[c] = 2.0 * zeta * math.sqrt(max(Kdiag[c], 0.0) * mass[soft[c // 3 if sticky else c]])
+    acc = np.empty((s, 3))
+    for i in range(s):
+        j = soft[i]
+        acc[i, 0] = 0.0; acc[i, 1] = 0.0; acc[i, 2] = -g
+        if drag_coef > 0.0:
+            w0 = vel[j, 0] - wind[0]; w1 = vel[j, 1] - wind[1]; w2 = vel[j, 2] - wind[2]
+            c = drag_coef / radius[j] * math.sqrt(w0 * w0 + w1 * w1 + w2 * w2)
+            acc[i, 0] -= c * w0; acc[i, 1] -= c * w1; acc[i, 2] -= c * w2
+        pn = 0.0; xn = 0.0; vn = 0.0; an = 0.0
+        for d in range(3):
+            pn += nk[i, d] * pos[j, d]
+            xn += nk[i, d] * Xc[i, d]
+            vn += nk[i, d] * vel[j, d]
+            an += nk[i, d] * acc[i, d]
+        if sticky:
+            for d in range(3):
+                q[3 * i + d] = pos[j, d]
+                a[3 * i + d] = Xc[i, d] + rest[i] * nk[i, d]
+                vq[3 * i + d] = vel[j, d]
+                gq[3 * i + d] = acc[i, d]
+                mq[3 * i + d] = mass[j]
+        else:
+            q[i] = pn; a[i] = xn + rest[i]; vq[i] = vn; gq[i] = an; mq[i] = mass[j]
+        if exact:
+            # resting (oscillation amplitude about equilibrium below rest_speed): the
+            # dashpot acts both ways, no switching events
+            if sticky:
+                kd = max(max(max(Kdiag[3 * i], 0.0), max(Kdiag[3 * i + 1], 0.0)), max(Kdiag[3 * i + 2], 0.0))
+            else:
+                kd = max(Kdiag[i], 0.0)
+            om = math.sqrt(kd / mass[j])
+            ubar = pn - xn - rest[i]
+            u_eq = an * mass[j] / max(kd, 1e-300)
+            r = math.hypot(vn, om * (ubar - u_eq)) < rest_speed
+            if sticky:
+                for d in range(3):
+                    always[3 * i + d] = r
+            else:
+                always[i] = r
+    return q, a, vq, gq, mq, always, acc, damping
+
+
+@_njit
+def contact_post(soft, pos, vel, ctri, hit, was_open, nk, acc, q, a, vq, gq, rq, rv, ractive, rseat, sticky,
+                 exact, h, rest_speed):  # pragma: no cover (compiled)
+    """Apply a contact step to the stones, in place (compiled second half of
+    ``Storm._soft_contacts``): new positions and velocities (frictionless: free
+    tangential motion), released contacts closed, impacts marked.
+
+    Returns
+    -------
+    impacts : int
+        Contacts that opened in this sub-step, push, and came in faster than ``rest_speed``.
+    max_force : float
+        Largest contact force magnitude [N].
+    max_indentation : float
+        Largest normal contact displacement of an active contact (-inf if none) [m].
+    n_active : int
+    """
+    s = soft.size
+    impacts = 0
+    fmax = 0.0
+    indent = -np.inf
+    n_active = 0
+    for i in range(s):
+        j = soft[i]
+        if sticky:
+            act = ractive[3 * i] and ractive[3 * i + 1] and ractive[3 * i + 2]
+            f2 = rseat[3 * i] ** 2 + rseat[3 * i + 1] ** 2 + rseat[3 * i + 2] ** 2
+            ubn = 0.0
+            for d in range(3):
+                ubn += (rq[3 * i + d] - a[3 * i + d]) * nk[i, d]
+        else:
+            act = ractive[i]
+            f2 = rseat[i] ** 2
+            ubn = rq[i] - a[i]
+        fmax = max(fmax, math.sqrt(f2))
+        if act:
+            n_active += 1
+            indent = max(indent, -ubn)
+            if not was_open[i]:
+                vin = vel[j, 0] * nk[i, 0] + vel[j, 1] * nk[i, 1] + vel[j, 2] * nk[i, 2]
+                if vin < -rest_speed:
+                    impacts += 1
+                hit[j] = True
+        for d in range(3):
+            if sticky:
+                vnew = rv[3 * i + d]
+                pnew = rq[3 * i + d]
+            else:
+                vt0 = vel[j, d] - vq[i] * nk[i, d]
+                at = acc[i, d] - gq[i] * nk[i, d]
+                vnew = vt0 + h * at + rv[i] * nk[i, d]
+                pnew = pos[j, d] - q[i] * nk[i, d] + h * vt0 + 0.5 * h * h * at + rq[i] * nk[i, d]
+            if not exact:
+                pnew = pos[j, d] + h * vnew  # (semi-)implicit position update
+            vel[j, d] = vnew
+            pos[j, d] = pnew
+        if not act:
+            ctri[j] = -1
+    return impacts, fmax, indent, n_active

@@ -1,0 +1,411 @@
+"""The contact integrators' steps: exact (closed form, modal with events) and the
+sub-stepped backward Euler / symplectic Euler with their step sizing and dashpot.
+
+The numpy references are :func:`runtime.hail.contact_step`,
+:func:`runtime.hail.damping_coefficients` and ``Storm._substep_size``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from runtime.compiled._jit import _njit
+from runtime.compiled.contacts import inv_spd
+from runtime.hail import _scalar_exact as _hail_scalar_exact
+
+__all__ = ["exact_step", "substep_contacts", "substep_damping", "substep_size"]
+
+
+#: the closed-form single contact of the exact integrator: runtime.hail's own function, compiled
+_scalar_exact = _njit(_hail_scalar_exact)
+
+
+@_njit
+def _gsum(x, group, wts, ng, ident):  # pragma: no cover (compiled)
+    """Normal sums per contact group of per-component rows ``x`` (n, T) -> (ng, T)."""
+    if ident:
+        return x.copy()
+    out = np.zeros((ng, x.shape[1]))
+    for i in range(x.shape[0]):
+        out[group[i]] += wts[i] * x[i]
+    return out
+
+
+@_njit
+def _sub(M, idx):  # pragma: no cover (compiled)
+    out = np.empty((idx.size, idx.size))
+    for r in range(idx.size):
+        for c in range(idx.size):
+            out[r, c] = M[idx[r], idx[c]]
+    return out
+
+
+@_njit
+def _modal(Ka, ma, ce):  # pragma: no cover (compiled)
+    """Eigen-decomposition of ``z' = A z`` for ``M y'' + C y' + K y = 0``: (lam, V, Vi, ok);
+    ``ok`` False for a (nearly) defective system (the numpy path then uses expm)."""
+    n = ma.size
+    A = np.zeros((2 * n, 2 * n), np.complex128)
+    for i in range(n):
+        A[i, n + i] = 1.0
+        for j in range(n):
+            A[n + i, j] = -Ka[i, j] / ma[i]
+        A[n + i, n + i] = -ce[i] / ma[i]
+    lam, V = np.linalg.eig(A)
+    try:
+        Vi = np.linalg.inv(V)
+    except Exception:
+        return lam, V, V, False
+    ok = np.all(np.isfinite(Vi.real)) and np.all(np.isfinite(Vi.imag)) and np.abs(V).max() * np.abs(Vi).max() < 1e7
+    return lam, V, Vi, ok
+
+
+@_njit
+def _modal_at(lam, V, Vi, z0, tau):  # pragma: no cover (compiled)
+    """States (2n, len(tau)) at times ``tau`` from ``z0``."""
+    c = Vi @ z0.astype(np.complex128)
+    E = np.empty((lam.size, tau.size), np.complex128)
+    for i in range(lam.size):
+        for j in range(tau.size):
+            E[i, j] = np.exp(lam[i] * tau[j]) * c[i]
+    return (V @ E).real
+
+
+@_njit
+def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always):  # pragma: no cover (compiled)
+    """Compiled ``runtime.hail._exact_step`` (the exact integrator's step; see there).
+
+    Returns ``(q, v, active, force, seat_force, ok)``; ``ok`` is False in the rare
+    cases the compiled version does not cover (a nearly defective modal basis, an
+    overdamped single contact): the caller then runs the numpy version.
+    """
+    GRID = 32
+    REFINE = 2
+    MAX_SEGMENTS = 12
+    n = q.size
+    ng = 0
+    for i in range(n):
+        ng = max(ng, group[i] + 1)
+    v0 = v.copy()
+    q = q.copy()
+    v = v.copy()
+    active = np.ones(n, np.bool_)
+    if n == 1 and group[0] == 0 and wts[0] == 1.0:
+        k = K[0, 0]
+        qn, vn, act, ok = _scalar_exact(q[0], v[0], a[0], m[0], g[0], dt, k, Cn[0], unilateral, always[0])
+        if ok:
+            q[0] = qn
+            v[0] = vn
+            active[0] = act
+            force = np.zeros(1)
+            seat = np.zeros(1)
+            if act:
+                force[0] = m[0] * ((vn - v0[0]) / dt - g[0])
+                seat[0] = k * (qn - a[0])
+            return q, v, active, force, seat, True
+    ident = ng == n
+    for i in range(n):
+        if group[i] != i or wts[i] != 1.0:
+            ident = False
+    damp_g = _gsum(v.reshape(n, 1), group, wts, ng, ident)[:, 0] < 0.0
+    t = 0.0
+    Ka = K
+    for _seg in range(MAX_SEGMENTS):
+        # unilateral: release contacts that pull now and do not approach (active-set iteration)
+        while True:
+            idx = np.flatnonzero(active)
+            Ka = inv_spd(_sub(W, idx)) if idx.size < n else K
+            if not unilateral or idx.size == 0:
+                break
+            f = np.zeros(n)
+            fa = -(Ka @ (q[idx] - a[idx]))
+            for r in range(idx.size):
+                i = idx[r]
+                ce = Cn[i] if (damp_g[group[i]] or always[i]) else 0.0
+                f[i] = fa[r] - ce * v[i]
+            fn = _gsum(f.reshape(n, 1), group, wts, ng, ident)[:, 0]
+            vn = _gsum(v.reshape(n, 1), group, wts, ng, ident)[:, 0]
+            gact = np.zeros(ng, np.bool_)
+            for i in range(n):
+                if active[i]:
+                    gact[group[i]] = True
+            pull = (fn < 0.0) & (vn >= 0.0) & gact
+            if not pull.any():
+                break
+            for i in range(n):
+                if pull[group[i]]:
+                    active[i] = False
+        h = dt - t
+        if h <= 1e-12 * dt:
+            break
+        idx = np.flatnonzero(active)
+        free = np.flatnonzero(~active)
+        if idx.size == 0:
+            for i in free:
+                q[i] += h * v[i] + 0.5 * h * h * g[i]
+                v[i] += h * g[i]
+            t = dt
+            break
+        na = idx.size
+        ma = m[idx]
+        ga = g[idx]
+        aa = a[idx]
+        ce = np.empty(na)
+        for r in range(na):
+            i = idx[r]
+            ce[r] = Cn[i] if (damp_g[group[i]] or always[i]) else 0.0
+        q_eq = aa + np.linalg.solve(Ka, ma * ga)
+        lam, V, Vi, ok = _modal(Ka, ma, ce)
+        if not ok:
+            return q, v, active, v0, v0, False
+        z0 = np.concatenate((q[idx] - q_eq, v[idx]))
+        gi = group[idx]
+        wi = wts[idx]
+        ident_a = ident and na == n
+        sw_on = np.zeros(ng, np.bool_)
+        has_sw = np.zeros(ng, np.bool_)
+        for r in range(na):
+            sw_on[gi[r]] = True
+            i = idx[r]
+            if Cn[i] > 0.0 and not always[i]:
+                has_sw[gi[r]] = True
+        switchable = sw_on & has_sw
+        off_mask = switchable & damp_g
+        on_mask = switchable & ~damp_g
+        off_eq = q_eq - aa
+        lo = 0.0
+        hi = h
+        tau = h * np.arange(1, GRID + 1) / GRID
+        t_e = h
+        ze = np.empty(2 * na)
+        evg = np.zeros(ng, np.bool_)
+        found = False
+        for ref in range(REFINE + 1):
+            Z = _modal_at(lam, V, Vi, z0, tau)
+            y = Z[:na]
+            vv = Z[na:]
+            vng = _gsum(vv, gi, wi, ng, ident_a)
+            fl = -(Ka @ (y + off_eq.reshape(na, 1)))
+            for r in range(na):
+                fl[r] -= ce[r] * vv[r]
+            fng = _gsum(fl, gi, wi, ng, ident_a)
+            j = -1
+            for col in range(tau.size):
+                for gg in range(ng):
+                    e = (off_mask[gg] and vng[gg, col] >= 0.0) or (on_mask[gg] and vng[gg, col] < 0.0) or (
+                        unilateral and sw_on[gg] and fng[gg, col] < 0.0 and vng[gg, col] >= 0.0)
+                    if e:
+                        j = col
+                        break
+                if j >= 0:
+                    break
+            if ref == 0 and j < 0:
+                ze[:] = Z[:, -1]
+                break
+            if j < 0:  # (the bracket's right end had an event; rounding aside, it still does)
+                j = 0
+            found = True
+            lo, hi = (tau[j - 1] if j else lo), tau[j]
+            ze[:] = Z[:, j]
+            for gg in range(ng):
+                evg[gg] = (off_mask[gg] and vng[gg, j] >= 0.0) or (on_mask[gg] and vng[gg, j] < 0.0) or (
+                    unilateral and sw_on[gg] and fng[gg, j] < 0.0 and vng[gg, j] >= 0.0)
+            t_e = hi
+            if ref < REFINE:
+                tau = lo + (hi - lo) * np.arange(1, GRID + 1) / GRID
+        # advance to t_e
+        for r in range(na):
+            q[idx[r]] = ze[r] + q_eq[r]
+            v[idx[r]] = ze[na + r]
+        for i in free:
+            q[i] += t_e * v[i] + 0.5 * t_e * t_e * g[i]
+            v[i] += t_e * g[i]
+        t += t_e
+        if not found:
+            break
+        vng1 = _gsum(v.reshape(n, 1), group, wts, ng, ident)[:, 0]
+        f = np.zeros(n)
+        fa = -(Ka @ (q[idx] - aa))
+        for r in range(na):
+            f[idx[r]] = fa[r] - ce[r] * v[idx[r]]
+        fng1 = _gsum(f.reshape(n, 1), group, wts, ng, ident)[:, 0]
+        for gg in range(ng):
+            ea = evg[gg] and sw_on[gg]
+            rel = unilateral and ea and fng1[gg] < 0.0 and vng1[gg] >= 0.0
+            if ea and not rel:
+                damp_g[gg] = vng1[gg] < 0.0
+            if rel:
+                for i in range(n):
+                    if group[i] == gg:
+                        active[i] = False
+    else:
+        # too many events in one step: finish it with the pattern frozen (rare)
+        h = dt - t
+        if h > 0:
+            idx = np.flatnonzero(active)
+            free = np.flatnonzero(~active)
+            if idx.size:
+                na = idx.size
+                ce = np.empty(na)
+                for r in range(na):
+                    i = idx[r]
+                    ce[r] = Cn[i] if (damp_g[group[i]] or always[i]) else 0.0
+                q_eq = a[idx] + np.linalg.solve(Ka, m[idx] * g[idx])
+                lam, V, Vi, ok = _modal(Ka, m[idx], ce)
+                if not ok:
+                    return q, v, active, v0, v0, False
+                ze = _modal_at(lam, V, Vi, np.concatenate((q[idx] - q_eq, v[idx])), np.array([h]))[:, 0]
+                for r in range(na):
+                    q[idx[r]] = ze[r] + q_eq[r]
+                    v[idx[r]] = ze[na + r]
+            for i in free:
+                q[i] += h * v[i] + 0.5 * h * h * g[i]
+                v[i] += h * g[i]
+    force = np.zeros(n)
+    seat = np.zeros(n)
+    idx = np.flatnonzero(active)
+    for i in idx:
+        force[i] = m[i] * ((v[i] - v0[i]) / dt - g[i])
+    if idx.size:
+        sa = Ka @ (q[idx] - a[idx])
+        for r in range(idx.size):
+            seat[idx[r]] = sa[r]
+    return q, v, active, force, seat, True
+
+
+@_njit
+def substep_size(near, h_left, hmin, vel, radius, mass, pos, gap, near_tri, ctri, k_tri, approach_fraction,
+                 rest_speed, omega_dt, symplectic, cc_stones, Kdiag, sticky, cc_normals, cc_X, cc_rest,
+                 g):  # pragma: no cover (compiled)
+    """Compiled ``Storm._substep_size`` for the adaptive implicit and symplectic
+    integrators (see there): approaching stones travel at most ``approach_fraction``
+    radii, an impact about to start and moving contacts are resolved to ``omega_dt``."""
+    h = h_left
+    om_close = 0.0
+    for q in range(near.size):
+        i = near[q]
+        sp = math.sqrt(vel[i, 0] ** 2 + vel[i, 1] ** 2 + vel[i, 2] ** 2)
+        if gap[i] >= sp * h_left + 1e-3 and np.isfinite(gap[i]):
+            continue  # cannot reach the surface within the sub-step
+        h = min(h, approach_fraction * radius[i] / max(sp, 1e-9))
+        t = near_tri[i]
+        k = k_tri[t] if t >= 0 else 0.0
+        if (sp > rest_speed or symplectic) and k > 0.0:
+            om_close = max(om_close, 1.5 * math.sqrt(k / mass[i]))
+    if om_close > 0.0:
+        h = min(h, omega_dt / om_close)
+    om_move = 0.0
+    for c in range(cc_stones.size):
+        j = cc_stones[c]
+        if ctri[j] < 0:
+            continue
+        if sticky:
+            k = max(max(max(Kdiag[3 * c], 0.0), max(Kdiag[3 * c + 1], 0.0)), max(Kdiag[3 * c + 2], 0.0))
+        else:
+            k = max(Kdiag[c], 0.0)
+        om = math.sqrt(k / mass[j])
+        vn = 0.0; ubar = 0.0; gn = 0.0
+        for d in range(3):
+            vn += vel[j, d] * cc_normals[c, d]
+            ubar += (pos[j, d] - cc_X[c, d]) * cc_normals[c, d]
+            gn += g[d] * cc_normals[c, d]
+        ubar -= cc_rest[c]
+        u_eq = gn * mass[j] / max(k, 1e-300)
+        amp = math.hypot(vn, om * (ubar - u_eq))
+        if amp > rest_speed or symplectic:
+            om_move = max(om_move, om)
+    if om_move > 0.0:
+        h = min(h, omega_dt / om_move)
+    return min(max(h, hmin), h_left)
+
+
+@_njit
+def substep_damping(Kdiag, mq, restitution, dt, implicit, x_grid, z_grid):  # pragma: no cover (compiled)
+    """Compiled :func:`runtime.hail.damping_coefficients` for the implicit (with ``dt``)
+    and symplectic integrators: ``2 zeta sqrt(K_ii m_i)``, backward Euler's numerical
+    damping ``omega dt / 2`` compensated. ``x_grid``, ``z_grid``: the restitution
+    table of :func:`runtime.hail.damping_ratio_for_restitution`."""
+    n = mq.size
+    out = np.empty(n)
+    for i in range(n):
+        k = max(Kdiag[i], 0.0)
+        e = restitution
+        zn = 0.0
+        if implicit:
+            zn = 0.5 * math.sqrt(k / mq[i]) * dt
+            e = min(e / math.exp(-zn * math.pi / 2.0), 1.0)
+        z = np.interp(-math.log(min(max(e, 1e-300), 1.0)), x_grid, z_grid)
+        out[i] = 2.0 * max(z - zn, 0.0) * math.sqrt(k * mq[i])
+    return out
+
+
+@_njit
+def substep_contacts(q, v, a, m, g, dt, K, W, C, implicit, unilateral, group, wts):  # pragma: no cover
+    """Compiled implicit (backward Euler) and symplectic Euler contact step of
+    :func:`runtime.hail.contact_step` (see there): the dashpot in compression only,
+    unilateral release by active-set iteration. Returns ``(q, v, active, force, seat_force)``."""
+    n = q.size
+    ng = 0
+    for i in range(n):
+        ng = max(ng, group[i] + 1)
+    vn_g = np.zeros(ng)
+    for i in range(n):
+        vn_g[group[i]] += wts[i] * v[i]
+    c = np.empty(n)
+    for i in range(n):
+        c[i] = C[i] if vn_g[group[i]] < 0.0 else 0.0
+    active = np.ones(n, np.bool_)
+    ubar = q - a
+    v_new = v + dt * g
+    force = np.zeros(n)
+    while True:
+        idx = np.flatnonzero(active)
+        Ka = inv_spd(_sub(W, idx)) if idx.size < n else K
+        v_new = v + dt * g
+        na = idx.size
+        if na:
+            if implicit:
+                A = dt * dt * Ka
+                rhs = np.empty(na)
+                ku = Ka @ ubar[idx]
+                for r in range(na):
+                    i = idx[r]
+                    A[r, r] += m[i] + dt * c[i]
+                    rhs[r] = m[i] * v[i] + dt * (m[i] * g[i] - ku[r])
+                vs = np.linalg.solve(A, rhs)
+                for r in range(na):
+                    v_new[idx[r]] = vs[r]
+            else:
+                ku = Ka @ ubar[idx]
+                for r in range(na):
+                    i = idx[r]
+                    v_new[i] = v[i] + dt * (g[i] + (-ku[r] - c[i] * v[i]) / m[i])
+        force = np.zeros(n)
+        for i in idx:
+            force[i] = m[i] * ((v_new[i] - v[i]) / dt - g[i])
+        if not unilateral or na == 0:
+            break
+        fn = np.zeros(ng)
+        for i in range(n):
+            fn[group[i]] += wts[i] * force[i]
+        pulling = False
+        for i in range(n):
+            if active[i] and fn[group[i]] < 0.0:
+                active[i] = False
+                pulling = True
+        if not pulling:
+            break
+    q_new = q + dt * v_new
+    seat = np.zeros(n)
+    idx = np.flatnonzero(active)
+    if idx.size:
+        Ka = inv_spd(_sub(W, idx)) if idx.size < n else K
+        sa = Ka @ (q_new[idx] - a[idx])
+        for r in range(idx.size):
+            seat[idx[r]] = sa[r]
+    for i in range(n):
+        if not active[i]:
+            force[i] = 0.0
+    return q_new, v_new, active, force, seat

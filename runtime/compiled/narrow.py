@@ -1,0 +1,230 @@
+"""The storm's narrow phase: the free part of a sub-step (closest points, time of impact,
+contacts that open, hard walls) and the penetration statistics.
+
+The numpy references are ``Storm._proximity``, ``_time_of_impact``,
+``_contacts_to_open``, ``_open_contacts``, ``_hard_walls`` and ``_step_query``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from runtime.compiled._jit import _njit
+from runtime.compiled.flight import _drag_dot
+from runtime.compiled.grid import _closest_one
+
+__all__ = ["free_phase", "penetration"]
+
+
+@_njit
+def _unit(x, out):  # pragma: no cover (compiled)
+    ln = max(math.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2]), 1e-300)
+    for e in range(3):
+        out[e] = x[e] / ln
+    return ln
+
+
+@_njit
+def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, ctri, cbary, gap, near_tri, surf, tri_normals,
+               soft, fixed, umax, use_u, D, fcols, fv, g, wind, drag_coef, restitution):  # pragma: no cover
+    """The first phases of one storm sub-step for the near stones, in place (compiled
+    ``Storm._proximity``, ``_time_of_impact``, ``_contacts_to_open``, ``_open_contacts``
+    and ``_hard_walls``; see those for the rules).
+
+    Stones without a contact query the deformed surface; an open contact keeps its
+    ``(t, beta)`` while its stone stays over the triangle, else moves to the closest
+    point of the undeformed surface. With ``toi`` the sub-step ends when the first
+    approaching stone reaches the tangent plane at its closest point; contacts open
+    within ``toi_tol`` radii (approaching or overlapping), the stone put on the
+    surface; contacts on hard triangles (or on the clamped edge or corner of a soft
+    one) bounce at once.
+
+    Returns
+    -------
+    h : float
+        The sub-step actually taken.
+    walls : int
+        Impacts on hard triangles.
+    """
+    X = surf[8]
+    T = surf[9]
+    k = near.size
+    nv = X.shape[0]
+    done = np.zeros(nv if use_u else 0, np.bool_)
+    Y = np.empty((nv if use_u else 0, 3))
+    done0 = np.zeros(0, np.bool_)
+    Y0 = np.empty((0, 3))
+    in_contact = np.zeros(k, np.bool_)
+    dist = np.full(k, np.inf)
+    tri = np.full(k, -1, np.int64)
+    bary = np.zeros((k, 3))
+    point = np.full((k, 3), np.nan)
+    gp = np.zeros(k)
+    nrm = np.empty(3)
+    dvec = np.empty(3)
+    queried = False
+    for j in range(k):
+        i = near[j]
+        if ctri[i] >= 0:
+            in_contact[j] = True
+            # does the centre still project onto the contact triangle (undeformed)?
+            t = ctri[i]
+            n0 = tri_normals[t, 0]; n1 = tri_normals[t, 1]; n2 = tri_normals[t, 2]
+            a = T[t, 0]; b = T[t, 1]; c = T[t, 2]
+            v00 = X[b, 0] - X[a, 0]; v01 = X[b, 1] - X[a, 1]; v02 = X[b, 2] - X[a, 2]
+            v10 = X[c, 0] - X[a, 0]; v11 = X[c, 1] - X[a, 1]; v12 = X[c, 2] - X[a, 2]
+            w0 = pos[i, 0] - X[a, 0]; w1 = pos[i, 1] - X[a, 1]; w2 = pos[i, 2] - X[a, 2]
+            wn = w0 * n0 + w1 * n1 + w2 * n2
+            w0 -= wn * n0; w1 -= wn * n1; w2 -= wn * n2
+            d00 = v00 * v00 + v01 * v01 + v02 * v02
+            d01 = v00 * v10 + v01 * v11 + v02 * v12
+            d11 = v10 * v10 + v11 * v11 + v12 * v12
+            d20 = w0 * v00 + w1 * v01 + w2 * v02
+            d21 = w0 * v10 + w1 * v11 + w2 * v12
+            den = d00 * d11 - d01 * d01
+            b1 = (d11 * d20 - d01 * d21) / den
+            b2 = (d00 * d21 - d01 * d20) / den
+            if not (b1 >= -1e-3 and b2 >= -1e-3 and b1 + b2 <= 1.0 + 1e-3):
+                # slid off: the closest point of the undeformed surface (the contact stays open)
+                tt, dd = _closest_one(pos[i], 2.0 * radius[i] + umax + 1e-3, 0.0, False, surf, D, fcols, fv,
+                                      done0, Y0, bary[j], point[j])
+                ctri[i] = tt
+                if tt >= 0:
+                    for e in range(3):
+                        cbary[i, e] = bary[j, e]
+                tri[j] = tt
+                dist[j] = dd
+        else:
+            queried = True
+            sp = math.sqrt(vel[i, 0] ** 2 + vel[i, 1] ** 2 + vel[i, 2] ** 2)
+            tt, dd = _closest_one(pos[i], radius[i] + sp * h + 1e-3, umax if use_u else 0.0, use_u, surf, D,
+                                  fcols, fv, done, Y, bary[j], point[j])
+            tri[j] = tt
+            dist[j] = dd
+            near_tri[i] = tt
+            gp[j] = dd - radius[i]
+        gap[i] = gp[j]
+    timing = toi and queried
+    # time of impact: the first approaching stone to reach its tangent plane
+    if timing:
+        tmin = np.inf
+        for j in range(k):
+            i = near[j]
+            if in_contact[j] or not np.isfinite(gp[j]) or not gp[j] > toi_tol * radius[i]:
+                continue
+            for e in range(3):
+                dvec[e] = pos[i, e] - point[j, e]
+            _unit(dvec, nrm)
+            w = -(vel[i, 0] * nrm[0] + vel[i, 1] * nrm[1] + vel[i, 2] * nrm[2])
+            an = -_drag_dot(i, vel, radius, nrm, g, wind, drag_coef)
+            if w > 0.0 and gp[j] < w * h + 0.5 * abs(an) * h * h:
+                disc = math.sqrt(max(w * w + 2.0 * an * gp[j], 0.0))
+                tmin = min(tmin, 2.0 * gp[j] / max(w + disc, 1e-12))
+        if tmin < np.inf:
+            h = min(h, max(tmin, hmin))
+    # contacts that open, at their closest points
+    for j in range(k):
+        i = near[j]
+        if in_contact[j] or tri[j] < 0:
+            continue
+        eps = toi_tol * radius[i]
+        if timing:
+            if not gp[j] < eps:
+                continue
+            for e in range(3):
+                dvec[e] = pos[i, e] - point[j, e]
+            _unit(dvec, nrm)
+            vn = vel[i, 0] * nrm[0] + vel[i, 1] * nrm[1] + vel[i, 2] * nrm[2]
+            if not (vn < 0.0 or gp[j] < -eps):
+                continue
+        elif not dist[j] < radius[i]:
+            continue
+        t = tri[j]
+        ctri[i] = t
+        for e in range(3):
+            cbary[i, e] = bary[j, e]
+        if timing:
+            for e in range(3):
+                pos[i, e] -= gp[j] * tri_normals[t, e]
+        else:
+            vn = vel[i, 0] * tri_normals[t, 0] + vel[i, 1] * tri_normals[t, 1] + vel[i, 2] * tri_normals[t, 2]
+            if vn < 0.0:
+                depth = max(-gp[j], 0.0)
+                for e in range(3):
+                    pos[i, e] += depth * tri_normals[t, e]
+    # hard walls: out of the wall, restitution bounce, the contact closes
+    walls = 0
+    for j in range(k):
+        i = near[j]
+        t = ctri[i]
+        if t < 0:
+            continue
+        if soft[t]:
+            free_w = 0.0
+            for m in range(3):
+                if not fixed[T[t, m]]:
+                    free_w += cbary[i, m]
+            if free_w > 1e-12:
+                continue
+        for e in range(3):
+            dvec[e] = pos[i, e] - point[j, e]
+        dw = math.sqrt(dvec[0] ** 2 + dvec[1] ** 2 + dvec[2] ** 2)
+        if dw > 1e-12:
+            for e in range(3):
+                nrm[e] = dvec[e] / dw
+        else:
+            for e in range(3):
+                nrm[e] = tri_normals[t, e]
+        push = max(radius[i] - dw, 0.0)
+        vn = vel[i, 0] * nrm[0] + vel[i, 1] * nrm[1] + vel[i, 2] * nrm[2]
+        if vn < 0.0:
+            walls += 1
+        for e in range(3):
+            pos[i, e] += push * nrm[e]
+            vel[i, e] -= (1.0 + restitution) * min(vn, 0.0) * nrm[e]
+        ctri[i] = -1
+    return h, walls
+
+
+@_njit
+def penetration(near, dt, pos, vel, radius, ctri, surf, umax, use_u, D, fcols, fv):  # pragma: no cover
+    """Overlap of the near stones with the deformed surface, for the statistics
+    (compiled ``Storm._step_query``): free stones within this step's reach, stones in
+    contact within their radius.
+
+    Returns
+    -------
+    max_pen, max_pen_contact, max_rel_contact, sum_contact, n_contact, max_pen_free
+        Largest overlap [m] of any near stone, of a stone in contact (also relative to
+        its radius, and the sum of the non-negative overlaps over the ``n_contact``
+        stones in contact within reach), and of a free stone; ``-inf`` where none.
+    """
+    X = surf[8]
+    nv = X.shape[0]
+    done = np.zeros(nv if use_u else 0, np.bool_)
+    Y = np.empty((nv if use_u else 0, 3))
+    bary = np.empty(3)
+    point = np.empty(3)
+    mp = -np.inf; mpc = -np.inf; mrc = -np.inf; spc = 0.0; npc = 0; mpf = -np.inf
+    for q in range(near.size):
+        i = near[q]
+        free = ctri[i] < 0
+        reach = radius[i]
+        if free:
+            sp = math.sqrt(vel[i, 0] ** 2 + vel[i, 1] ** 2 + vel[i, 2] ** 2)
+            reach += sp * dt + 1e-3
+        t, d = _closest_one(pos[i], reach, umax if use_u else 0.0, use_u, surf, D, fcols, fv, done, Y, bary, point)
+        if t < 0:
+            continue
+        pen = radius[i] - d
+        mp = max(mp, pen)
+        if free:
+            mpf = max(mpf, pen)
+        else:
+            mpc = max(mpc, pen)
+            mrc = max(mrc, pen / radius[i])
+            spc += max(pen, 0.0)
+            npc += 1
+    return mp, mpc, mrc, spc, npc, mpf

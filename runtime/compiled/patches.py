@@ -1,0 +1,267 @@
+"""Patch contacts: the weights of a Hertz pressure disc, a patch's normal compliance and
+the storm's patch sizing.
+
+The numpy references are :func:`runtime.weights.patch_weights` and
+``Storm._patch_stiffness`` / ``Storm._patch_radii``.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from runtime.compiled._jit import _njit
+from runtime.compiled.flight import _drag_dot
+from runtime.compiled.grid import _cell_range
+
+__all__ = ["patch_compliance", "patch_one", "patch_radii"]
+
+
+@_njit
+def _one_patch(x, n, a, h, qx, qy, qw, facing, drop, pidx):  # pragma: no cover (compiled)
+    """Compiled ``runtime.weights._one_patch``: (vertices, weights) of one patch, both
+    empty if the disc hits no usable triangle. ``pidx``: :func:`runtime.weights._patch_index_arrays`."""
+    glo, gh, gdims, gstart, gitems, cent, radii, tnorm, p0, e1, e2, reach, tris, T, nv = pidx
+    tol = 1e-12 * max(a, 1.0)
+    lim = a + reach + tol
+    # candidate triangles: centroid within a + reach (grid), then within a + own radius, facing n
+    nc = 0
+    cand = np.empty(cent.shape[0], np.int64)
+    ilo, ihi = _cell_range(x, lim, glo, gh, gdims)
+    for ci in range(ilo[0], ihi[0] + 1):
+        for cj in range(ilo[1], ihi[1] + 1):
+            for ck in range(ilo[2], ihi[2] + 1):
+                c = (ci * gdims[1] + cj) * gdims[2] + ck
+                for q in range(gstart[c], gstart[c + 1]):
+                    s = gitems[q]
+                    dx = cent[s, 0] - x[0]; dy = cent[s, 1] - x[1]; dz = cent[s, 2] - x[2]
+                    dd = math.sqrt(dx * dx + dy * dy + dz * dz)
+                    if dd <= lim and dd <= a + radii[s] + tol and (
+                            tnorm[s, 0] * n[0] + tnorm[s, 1] * n[1] + tnorm[s, 2] * n[2]) > facing:
+                        cand[nc] = s
+                        nc += 1
+    if nc == 0:
+        return np.zeros(0, np.int64), np.zeros(0)
+    cand = np.sort(cand[:nc])
+    # inverse of [e1 e2 -n] per candidate (projection along n onto its plane)
+    Minv = np.empty((nc, 3, 3))
+    for m in range(nc):
+        s = cand[m]
+        A = np.empty((3, 3))
+        for r in range(3):
+            A[r, 0] = e1[s, r]; A[r, 1] = e2[s, r]; A[r, 2] = -n[r]
+        det = (A[0, 0] * (A[1, 1] * A[2, 2] - A[1, 2] * A[2, 1])
+               - A[0, 1] * (A[1, 0] * A[2, 2] - A[1, 2] * A[2, 0])
+               + A[0, 2] * (A[1, 0] * A[2, 1] - A[1, 1] * A[2, 0]))
+        for r in range(3):
+            for c in range(3):
+                r1 = (c + 1) % 3; r2 = (c + 2) % 3
+                c1 = (r + 1) % 3; c2 = (r + 2) % 3
+                Minv[m, r, c] = (A[r1, c1] * A[r2, c2] - A[r1, c2] * A[r2, c1]) / det
+    # tangents of the disc, as runtime.weights._tangents
+    if abs(n[0]) < 0.9:
+        ax, ay, az = 1.0, 0.0, 0.0
+    else:
+        ax, ay, az = 0.0, 1.0, 0.0
+    t1x = n[1] * az - n[2] * ay; t1y = n[2] * ax - n[0] * az; t1z = n[0] * ay - n[1] * ax
+    ln = math.sqrt(t1x * t1x + t1y * t1y + t1z * t1z)
+    t1x /= ln; t1y /= ln; t1z /= ln
+    t2x = n[1] * t1z - n[2] * t1y; t2y = n[2] * t1x - n[0] * t1z; t2z = n[0] * t1y - n[1] * t1x
+    wv = np.zeros(nv)
+    touched = np.zeros(nv, np.bool_)
+    ntouch = 0
+    tlist = np.empty(3 * qx.size, np.int64)
+    eps = 1e-10
+    Y = np.empty(3)
+    for q in range(qx.size):
+        Y[0] = x[0] + a * (qx[q] * t1x + qy[q] * t2x)
+        Y[1] = x[1] + a * (qx[q] * t1y + qy[q] * t2y)
+        Y[2] = x[2] + a * (qx[q] * t1z + qy[q] * t2z)
+        best = np.inf
+        bm = -1
+        bl1 = 0.0; bl2 = 0.0
+        for m in range(nc):
+            s = cand[m]
+            d0 = Y[0] - p0[s, 0]; d1 = Y[1] - p0[s, 1]; d2 = Y[2] - p0[s, 2]
+            l1 = Minv[m, 0, 0] * d0 + Minv[m, 0, 1] * d1 + Minv[m, 0, 2] * d2
+            l2 = Minv[m, 1, 0] * d0 + Minv[m, 1, 1] * d1 + Minv[m, 1, 2] * d2
+            tt = Minv[m, 2, 0] * d0 + Minv[m, 2, 1] * d1 + Minv[m, 2, 2] * d2
+            if l1 >= -eps and l2 >= -eps and l1 + l2 <= 1.0 + eps and abs(tt) <= a + h:
+                if abs(tt) < best:
+                    best = abs(tt); bm = m; bl1 = l1; bl2 = l2
+        if bm < 0:
+            continue
+        lam0 = max(1.0 - bl1 - bl2, 0.0); lam1 = max(bl1, 0.0); lam2 = max(bl2, 0.0)
+        sm = lam0 + lam1 + lam2
+        t = tris[cand[bm]]
+        for k, lk in ((0, lam0), (1, lam1), (2, lam2)):
+            v = T[t, k]
+            if not touched[v]:
+                touched[v] = True
+                tlist[ntouch] = v
+                ntouch += 1
+            wv[v] += (lk / sm) * qw[q]
+    if ntouch == 0:
+        return np.zeros(0, np.int64), np.zeros(0)
+    V = np.sort(tlist[:ntouch])
+    w = wv[V]
+    keep = w > drop * w.max()
+    V = V[keep]
+    w = w[keep]
+    return V, w / w.sum()
+
+
+@_njit
+def patch_one(t, bary, a, n, resolution, rule_off, rule_x, rule_y, rule_w, facing, drop,
+              pidx, X):  # pragma: no cover (compiled)
+    """Weights of one patch contact on triangle ``t`` at ``bary`` with radius ``a`` and
+    normal ``n`` (``runtime.weights.patch_weights`` for one contact, positive weights
+    only): (vertices, weights). ``rule_*``: the disc rules of ``n_r`` = 0..40 points per
+    radius, concatenated (rule ``n_r`` is ``rule_off[n_r]:rule_off[n_r + 1]``)."""
+    T = pidx[13]
+    if a > 0.0:
+        x = np.zeros(3)
+        for m in range(3):
+            for e in range(3):
+                x[e] += bary[m] * X[T[t, m], e]
+        h = 0.0
+        for m in range(3):
+            a_ = T[t, m]
+            b_ = T[t, (m + 2) % 3]
+            h += math.sqrt((X[a_, 0] - X[b_, 0]) ** 2 + (X[a_, 1] - X[b_, 1]) ** 2 + (X[a_, 2] - X[b_, 2]) ** 2)
+        h /= 3.0
+        n_r = int(min(max(math.ceil(resolution * a / max(h, 1e-300)) + 4, 4), 40))
+        o0 = rule_off[n_r]
+        o1 = rule_off[n_r + 1]
+        V, w = _one_patch(x, n, a, h, rule_x[o0:o1], rule_y[o0:o1], rule_w[o0:o1], facing, drop, pidx)
+        if V.size:
+            keep = w > 0.0
+            return V[keep], w[keep]
+    V = np.empty(3, np.int64)
+    w = np.empty(3)
+    k = 0
+    for m in range(3):
+        if bary[m] > 0.0:
+            V[k] = T[t, m]
+            w[k] = bary[m]
+            k += 1
+    return V[:k], w[:k]
+
+
+@_njit
+def patch_compliance(verts, w, normal, D, column_of):  # pragma: no cover (compiled)
+    """Normal compliance ``g^T D_vv g`` of one contact alone, ``g = w kron normal``."""
+    c = 0.0
+    nv = verts.size
+    for j in range(nv):
+        if w[j] == 0.0:
+            continue
+        cb = column_of[verts[j]]
+        if cb < 0:
+            continue
+        for e in range(3):
+            col = 3 * cb + e
+            gj = w[j] * normal[e]
+            acc = 0.0
+            for i in range(nv):
+                if w[i] == 0.0:
+                    continue
+                r = 3 * verts[i]
+                acc += w[i] * (D[r, col] * normal[0] + D[r + 1, col] * normal[1] + D[r + 2, col] * normal[2])
+            c += gj * acc
+    return c
+
+
+@_njit
+def _hertz_target(kk, f, f_eq, m, vn, R, e_star, a_min):  # pragma: no cover (compiled)
+    """Patch radius for the expected peak force ``f_eq + sqrt((f - f_eq)^2 + k m vn^2)``:
+    the Hertz radius, clipped to ``[a_min, R]``, then at least ``a_min``."""
+    kk = max(kk, 0.0)
+    fp = f_eq + math.sqrt((f - f_eq) ** 2 + kk * m * vn * vn)
+    a = np.cbrt(3.0 * abs(fp) * R / (4.0 * e_star))
+    a = min(max(a, a_min), R)
+    return max(a, a_min)
+
+
+@_njit
+def patch_radii(stones, tris, mass, radius, vel, cbary, crad, tnormals, g, wind, drag_coef, cc_stones, Kdiag,
+                lam, sticky, k_tri, e_star, a_min, tol, rest_speed, rule_off, rule_x, rule_y, rule_w, facing,
+                drop, pidx, X, D, column_of):  # pragma: no cover (compiled)
+    """Compiled ``Storm._patch_radii`` (see there for the rule): the patch radius of
+    each soft contact, written to ``crad``.
+
+    ``cc_stones``, ``Kdiag``, ``lam``: the previous contact set's stones, the diagonal
+    of its capacitance and its multipliers (a stone found there is a *known*
+    contact). A new contact is sized with the triangle's point stiffness ``k_tri``,
+    then once more with the stiffness of that patch alone; its weights at the first
+    radius are returned for the weights cache.
+
+    Returns
+    -------
+    a : (s,) ndarray
+        The radii.
+    resizes : int
+        Known contacts whose radius changed.
+    a0 : (s,) ndarray
+        New contacts: the first radius (0 for known ones).
+    off, wv, ww : ndarrays
+        New contact ``i``'s weights at ``a0[i]``: vertices ``wv[off[i]:off[i + 1]]``,
+        weights ``ww[...]`` (empty for known ones).
+    """
+    s = stones.size
+    out = np.empty(s)
+    a0s = np.zeros(s)
+    off = np.zeros(s + 1, np.int64)
+    wv = np.empty(0, np.int64)
+    ww = np.empty(0)
+    resizes = 0
+    t1 = 1.0 + tol
+    for i in range(s):
+        j = stones[i]
+        t = tris[i]
+        n = tnormals[t]
+        m = mass[j]
+        R = radius[j]
+        vn = vel[j, 0] * n[0] + vel[j, 1] * n[1] + vel[j, 2] * n[2]
+        gn = _drag_dot(j, vel, radius, n, g, wind, drag_coef)
+        f_eq = m * max(-gn, 0.0)
+        ik = -1
+        for c in range(cc_stones.size):
+            if cc_stones[c] == j:
+                ik = c
+                break
+        k = 0.0
+        f = 0.0
+        if ik >= 0:
+            if sticky:
+                fn = 0.0
+                for d in range(3):
+                    k += Kdiag[3 * ik + d] * n[d] * n[d]
+                    fn += lam[3 * ik + d] * n[d]
+                f = abs(fn)
+            else:
+                k = Kdiag[ik]
+                f = abs(lam[ik])
+            target = _hertz_target(k, f, f_eq, m, vn, R, e_star, a_min)
+            off[i + 1] = off[i]
+        else:
+            a0 = _hertz_target(k_tri[t], 0.0, f_eq, m, vn, R, e_star, a_min)
+            V, w = patch_one(t, cbary[j], a0, n, 3.0, rule_off, rule_x, rule_y, rule_w, facing, drop, pidx, X)
+            c = patch_compliance(V, w, n, D, column_of)
+            a1 = _hertz_target(1.0 / c if c > 0.0 else 0.0, 0.0, f_eq, m, vn, R, e_star, a_min)
+            target = a1 if (a1 > a0 * t1 or a1 * t1 < a0) else a0
+            a0s[i] = a0
+            wv = np.concatenate((wv, V))
+            ww = np.concatenate((ww, w))
+            off[i + 1] = off[i] + V.size
+        cur = crad[j] if ik >= 0 else 0.0
+        amp = math.sqrt((f - f_eq) ** 2 / max(max(k, 0.0) * m, 1e-300) + vn * vn)
+        resting = ik >= 0 and amp < rest_speed
+        if cur <= 0.0 or target > cur * t1 or (target * t1 < cur and resting):
+            if cur > 0.0:
+                resizes += 1
+            cur = target
+        crad[j] = cur
+        out[i] = cur
+    return out, resizes, a0s, off, wv, ww
