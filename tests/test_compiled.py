@@ -211,42 +211,57 @@ def test_backend_choice(gf, monkeypatch):
         Storm(gf, Scene(backend="numba"), spawn=False)
 
 
+def _random_contact_set(rng):
+    """A random coupled contact set in constrained coordinates: frictionless (one
+    component per contact) or sticky (three, with the contact normals as weights)."""
+    from runtime.hail import _inv_spd
+
+    s = int(rng.integers(1, 5))
+    sticky = bool(rng.random() < 0.3)
+    n = 3 * s if sticky else s
+    A = rng.normal(size=(n, n))
+    W = (A @ A.T + n * np.eye(n)) * 1e-4
+    nk = rng.normal(size=(s, 3))
+    nk /= np.linalg.norm(nk, axis=1, keepdims=True)
+    a = rng.normal(size=n) * 1e-3
+    return dict(
+        sticky=sticky, W=W, K=_inv_spd(W), a=a, q=a + rng.normal(size=n) * 1e-3, v=rng.normal(size=n) * 2.0,
+        g=rng.normal(size=n) * 5.0,
+        m=np.repeat(rng.uniform(5e-4, 2e-3, s), 3) if sticky else rng.uniform(5e-4, 2e-3, n),
+        group=np.repeat(np.arange(s), 3) if sticky else np.arange(n),
+        wts=nk.ravel() if sticky else np.ones(n),
+        always=np.repeat(rng.random(s) < 0.2, 3) if sticky else rng.random(n) < 0.2,
+    )
+
+
+def _assert_same_step(got, ref):
+    qn, vn, act, force, seat = got
+    np.testing.assert_array_equal(act, ref.active)
+    np.testing.assert_allclose(qn, ref.q, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(vn, ref.v, rtol=1e-10, atol=1e-12)
+    np.testing.assert_allclose(seat, ref.seat_force, rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(force, ref.force, rtol=1e-9, atol=1e-9)
+    return int((~act).any())
+
+
 def test_exact_step_matches_numpy():
     """The compiled exact integrator reproduces runtime.hail's on random coupled contact
     sets: frictionless and sticky, s = 1..4, unilateral releases, resting (always damped)
     components, the same active sets."""
-    from runtime.hail import _inv_spd, contact_step, damping_coefficients
+    from runtime.hail import contact_step, damping_coefficients
 
     rng = np.random.default_rng(7)
     released = 0
     for _ in range(300):
-        s = int(rng.integers(1, 5))
-        sticky = bool(rng.random() < 0.3)
-        n = 3 * s if sticky else s
-        A = rng.normal(size=(n, n))
-        W = (A @ A.T + n * np.eye(n)) * 1e-4
-        K = _inv_spd(W)
-        m = np.repeat(rng.uniform(5e-4, 2e-3, s), 3) if sticky else rng.uniform(5e-4, 2e-3, n)
-        group = np.repeat(np.arange(s), 3) if sticky else np.arange(n)
-        nk = rng.normal(size=(s, 3))
-        nk /= np.linalg.norm(nk, axis=1, keepdims=True)
-        wts = nk.ravel() if sticky else np.ones(n)
-        a = rng.normal(size=n) * 1e-3
-        q = a + rng.normal(size=n) * 1e-3
-        v = rng.normal(size=n) * 2.0
-        g = rng.normal(size=n) * 5.0
-        damping = damping_coefficients(K, m, 0.5, integrator="exact")
-        always = np.repeat(rng.random(s) < 0.2, 3) if sticky else rng.random(n) < 0.2
-        ref = contact_step(q, v, a, m, g, 5e-4, K=K, W=W, damping=damping, integrator="exact", unilateral=True,
-                           group=group if sticky else None, normal_of=wts if sticky else None, always_damped=always)
-        qn, vn, act, force, seat, ok = C.exact_step(q, v, a, m, g, 5e-4, K, W, damping, True, group, wts, always)
+        c = _random_contact_set(rng)
+        damping = damping_coefficients(c["K"], c["m"], 0.5, integrator="exact")
+        ref = contact_step(c["q"], c["v"], c["a"], c["m"], c["g"], 5e-4, K=c["K"], W=c["W"], damping=damping,
+                           integrator="exact", unilateral=True, group=c["group"] if c["sticky"] else None,
+                           normal_of=c["wts"] if c["sticky"] else None, always_damped=c["always"])
+        *got, ok = C.exact_step(c["q"], c["v"], c["a"], c["m"], c["g"], 5e-4, c["K"], c["W"], damping, True,
+                                c["group"], c["wts"], c["always"])
         assert ok
-        np.testing.assert_array_equal(act, ref.active)
-        np.testing.assert_allclose(qn, ref.q, rtol=0, atol=1e-14)
-        np.testing.assert_allclose(vn, ref.v, rtol=1e-10, atol=1e-12)
-        np.testing.assert_allclose(seat, ref.seat_force, rtol=1e-9, atol=1e-9)
-        np.testing.assert_allclose(force, ref.force, rtol=1e-9, atol=1e-9)
-        released += int((~act).any())
+        released += _assert_same_step(got, ref)
     assert released > 20  # the active-set (release) path is exercised
 
 
@@ -254,39 +269,21 @@ def test_exact_step_matches_numpy():
 def test_substep_contacts_and_damping_match_numpy(integrator):
     """The compiled backward-Euler / symplectic contact step and its dashpot reproduce
     runtime.hail's on random coupled sets (frictionless and sticky, releases)."""
-    from runtime.hail import _X_GRID, _Z_GRID, _inv_spd, contact_step, damping_coefficients
+    from runtime.hail import _X_GRID, _Z_GRID, contact_step, damping_coefficients
 
     rng = np.random.default_rng(8)
     released = 0
     for _ in range(200):
-        s = int(rng.integers(1, 5))
-        sticky = bool(rng.random() < 0.3)
-        n = 3 * s if sticky else s
-        A = rng.normal(size=(n, n))
-        W = (A @ A.T + n * np.eye(n)) * 1e-4
-        K = _inv_spd(W)
-        m = np.repeat(rng.uniform(5e-4, 2e-3, s), 3) if sticky else rng.uniform(5e-4, 2e-3, n)
-        group = np.repeat(np.arange(s), 3) if sticky else np.arange(n)
-        nk = rng.normal(size=(s, 3))
-        nk /= np.linalg.norm(nk, axis=1, keepdims=True)
-        wts = nk.ravel() if sticky else np.ones(n)
-        a = rng.normal(size=n) * 1e-3
-        q = a + rng.normal(size=n) * 1e-3
-        v = rng.normal(size=n) * 2.0
-        g = rng.normal(size=n) * 5.0
+        c = _random_contact_set(rng)
         dt = float(rng.choice([2e-5, 2e-4]))
         e = float(rng.uniform(0.2, 0.9))
-        damping = damping_coefficients(K, m, e, dt=dt, integrator=integrator)
-        got = C.substep_damping(np.diag(K).copy(), m, e, dt, integrator == "implicit", _X_GRID, _Z_GRID)
+        damping = damping_coefficients(c["K"], c["m"], e, dt=dt, integrator=integrator)
+        got = C.substep_damping(np.diag(c["K"]).copy(), c["m"], e, dt, integrator == "implicit", _X_GRID, _Z_GRID)
         np.testing.assert_allclose(got, damping, rtol=1e-12, atol=1e-15)
-        ref = contact_step(q, v, a, m, g, dt, K=K, W=W, damping=damping, integrator=integrator, unilateral=True,
-                           group=group if sticky else None, normal_of=wts if sticky else None)
-        qn, vn, act, force, seat = C.substep_contacts(q, v, a, m, g, dt, K, W, damping, integrator == "implicit",
-                                                      True, group, wts)
-        np.testing.assert_array_equal(act, ref.active)
-        np.testing.assert_allclose(qn, ref.q, rtol=0, atol=1e-14)
-        np.testing.assert_allclose(vn, ref.v, rtol=1e-10, atol=1e-12)
-        np.testing.assert_allclose(seat, ref.seat_force, rtol=1e-9, atol=1e-9)
-        np.testing.assert_allclose(force, ref.force, rtol=1e-9, atol=1e-9)
-        released += int((~act).any())
+        ref = contact_step(c["q"], c["v"], c["a"], c["m"], c["g"], dt, K=c["K"], W=c["W"], damping=damping,
+                           integrator=integrator, unilateral=True, group=c["group"] if c["sticky"] else None,
+                           normal_of=c["wts"] if c["sticky"] else None)
+        released += _assert_same_step(
+            C.substep_contacts(c["q"], c["v"], c["a"], c["m"], c["g"], dt, c["K"], c["W"], damping,
+                               integrator == "implicit", True, c["group"], c["wts"]), ref)
     assert released > 20

@@ -43,6 +43,28 @@ def _sub(M, idx):  # pragma: no cover (compiled)
 
 
 @_njit
+def _dashpot(idx, Cn, damp_g, group, always):  # pragma: no cover (compiled)
+    """Dashpot of the components ``idx``: on while their contact compresses (or always)."""
+    ce = np.empty(idx.size)
+    for r in range(idx.size):
+        i = idx[r]
+        ce[r] = Cn[i] if (damp_g[group[i]] or always[i]) else 0.0
+    return ce
+
+
+@_njit
+def _advance(q, v, g, idx, ze, q_eq, free, h):  # pragma: no cover (compiled)
+    """Components ``idx`` to the modal state ``ze`` (about ``q_eq``); ``free`` ones fly for ``h``."""
+    na = idx.size
+    for r in range(na):
+        q[idx[r]] = ze[r] + q_eq[r]
+        v[idx[r]] = ze[na + r]
+    for i in free:
+        q[i] += h * v[i] + 0.5 * h * h * g[i]
+        v[i] += h * g[i]
+
+
+@_njit
 def _modal(Ka, ma, ce):  # pragma: no cover (compiled)
     """Eigen-decomposition of ``z' = A z`` for ``M y'' + C y' + K y = 0``: (lam, V, Vi, ok);
     ``ok`` False for a (nearly) defective system (the numpy path then uses expm)."""
@@ -121,10 +143,9 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always):  # 
                 break
             f = np.zeros(n)
             fa = -(Ka @ (q[idx] - a[idx]))
+            ce = _dashpot(idx, Cn, damp_g, group, always)
             for r in range(idx.size):
-                i = idx[r]
-                ce = Cn[i] if (damp_g[group[i]] or always[i]) else 0.0
-                f[i] = fa[r] - ce * v[i]
+                f[idx[r]] = fa[r] - ce[r] * v[idx[r]]
             fn = _gsum(f.reshape(n, 1), group, wts, ng, ident)[:, 0]
             vn = _gsum(v.reshape(n, 1), group, wts, ng, ident)[:, 0]
             gact = np.zeros(ng, np.bool_)
@@ -152,10 +173,7 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always):  # 
         ma = m[idx]
         ga = g[idx]
         aa = a[idx]
-        ce = np.empty(na)
-        for r in range(na):
-            i = idx[r]
-            ce[r] = Cn[i] if (damp_g[group[i]] or always[i]) else 0.0
+        ce = _dashpot(idx, Cn, damp_g, group, always)
         q_eq = aa + np.linalg.solve(Ka, ma * ga)
         lam, V, Vi, ok = _modal(Ka, ma, ce)
         if not ok:
@@ -215,13 +233,7 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always):  # 
             t_e = hi
             if ref < REFINE:
                 tau = lo + (hi - lo) * np.arange(1, GRID + 1) / GRID
-        # advance to t_e
-        for r in range(na):
-            q[idx[r]] = ze[r] + q_eq[r]
-            v[idx[r]] = ze[na + r]
-        for i in free:
-            q[i] += t_e * v[i] + 0.5 * t_e * t_e * g[i]
-            v[i] += t_e * g[i]
+        _advance(q, v, g, idx, ze, q_eq, free, t_e)
         t += t_e
         if not found:
             break
@@ -246,23 +258,16 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always):  # 
         if h > 0:
             idx = np.flatnonzero(active)
             free = np.flatnonzero(~active)
+            ze = np.zeros(0)
+            q_eq = np.zeros(0)
             if idx.size:
-                na = idx.size
-                ce = np.empty(na)
-                for r in range(na):
-                    i = idx[r]
-                    ce[r] = Cn[i] if (damp_g[group[i]] or always[i]) else 0.0
+                ce = _dashpot(idx, Cn, damp_g, group, always)
                 q_eq = a[idx] + np.linalg.solve(Ka, m[idx] * g[idx])
                 lam, V, Vi, ok = _modal(Ka, m[idx], ce)
                 if not ok:
                     return q, v, active, v0, v0, False
                 ze = _modal_at(lam, V, Vi, np.concatenate((q[idx] - q_eq, v[idx])), np.array([h]))[:, 0]
-                for r in range(na):
-                    q[idx[r]] = ze[r] + q_eq[r]
-                    v[idx[r]] = ze[na + r]
-            for i in free:
-                q[i] += h * v[i] + 0.5 * h * h * g[i]
-                v[i] += h * g[i]
+            _advance(q, v, g, idx, ze, q_eq, free, h)
     force = np.zeros(n)
     seat = np.zeros(n)
     idx = np.flatnonzero(active)
