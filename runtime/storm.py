@@ -72,7 +72,7 @@ course hint (barycentric weights on one triangle).
   that the damping was tuned for (the restitution), while the damping itself
   halves the amplitude within one impact.
 * Caching: a contact keeps ``(triangle, beta)`` while its stone stays over
-  the triangle, so its weights are cached per stone (``_patch_weights``) and
+  the triangle, so its weights are cached per stone (:func:`runtime.patches.cached_weights`) and
   only recomputed when the contact moves to another triangle or is resized;
   a capacitance rebuild (set change) reuses the cached weights of every other
   contact.
@@ -127,10 +127,11 @@ import logging
 import time
 from dataclasses import dataclass, field
 from types import SimpleNamespace
-from typing import Any, Callable, cast
+from typing import Any, Callable
 
 import numpy as np
 
+from runtime import narrow, patches
 from runtime.collide import Closest, SurfaceIndex
 from runtime.compiled import (
     capacitance_blocks,
@@ -144,7 +145,6 @@ from runtime.compiled import (
     near_set,
     patch_compliance,
     patch_one,
-    patch_radii,
     penetration,
     resolve_backend,
     retired,
@@ -247,22 +247,6 @@ class _ContactCache:
     weights: np.ndarray  # (s, P) their weights (B: block (verts[k, p], k) = weights[k, p] I3)
     C: np.ndarray | None = None  # exact-integrator dashpot (cached)
     Kdiag: np.ndarray | None = None  # diag(K), contiguous (compiled kernels; cached)
-
-
-@dataclass
-class _Proximity:
-    """The near stones' closest points of one sub-step (see :meth:`Storm._proximity`)."""
-
-    near: np.ndarray  # (k,) the near stones
-    in_contact: np.ndarray  # (k,) open contact at the sub-step's start
-    qi: np.ndarray  # positions (in near) of the stones without a contact
-    dist: np.ndarray  # (k,) distance centre - closest point (inf: nothing within reach)
-    tri: np.ndarray  # (k,) closest triangle (-1: none)
-    bary: np.ndarray  # (k, 3) its barycentric coordinates
-    point: np.ndarray  # (k, 3) the closest point (nan: none or predicted)
-    qreach: np.ndarray  # (k,) the query's reach (nan: no query)
-    gap: np.ndarray  # (k,) dist - radius (0 in contact)
-    eps: np.ndarray  # (k,) gap below which a contact opens
 
 
 class Storm:
@@ -417,7 +401,7 @@ class Storm:
             if self._patch:
                 patch_one(t, w[0], float(sc.patch_min_radius), n[0], 3.0, *self._disc, PATCH_FACING, PATCH_DROP,
                           self._pidx, self.X)
-                self._patch_radii_compiled(none, none)
+                patches.radii_compiled(self, none, none)
         e3 = np.zeros((0, 3))
         e = np.zeros(0)
         b = np.zeros(0, dtype=bool)
@@ -527,7 +511,7 @@ class Storm:
             verts, w = np.asarray(gf.triangles)[tris], bary
             radius = np.zeros(s)
         else:
-            verts, w = self._patch_weights(stones, tris, bary, radius, normals)
+            verts, w = patches.cached_weights(self, stones, tris, bary, radius, normals)
         if self._compiled:
             verts = verts.astype(np.int64, copy=False)
             if rigid_contacts(verts, w, self._fixed):
@@ -562,187 +546,6 @@ class Storm:
         return _ContactCache(key=key, W=W, K=K, G=G, cols=cols, DVV=DG, stones=stones,
                              tris=tris, bary=bary, normals=normals, X=X, rest=self.radius[stones].copy(),
                              patch_radius=np.asarray(radius, dtype=np.float64).copy(), verts=verts, weights=w)
-
-    # -- patch contacts ------------------------------------------------------------
-    def _patch_radii(self, stones: np.ndarray, tris: np.ndarray) -> np.ndarray:
-        """Patch radius of each soft contact ``stones`` (updated in :attr:`crad`).
-
-        The radius is the Hertz radius of the contact's *peak* force, estimated
-        from its current state as a linear oscillator about its static
-        equilibrium: ``F_peak = F_eq + sqrt((F - F_eq)^2 + k m v_n^2)``
-        (``F``: the previous sub-step's force on that contact, ``F_eq``: the
-        stone's weight along the normal, ``k``: its stiffness, the diagonal of
-        the current capacitance, or the point stiffness of the triangle for a
-        contact that just opened, whose ``F = 0``: the impact's expected
-        peak). The estimate is (nearly) constant over one impact and tends to
-        the resting force afterwards, so the patch is sized for the deepest
-        dent of the impact and is not re-weighted while the force rises and
-        falls. A contact keeps its radius until the target leaves the band
-        ``[a / (1 + tol), a (1 + tol)]`` (``tol = patch_tolerance``).
-        """
-        sc = self.scene
-        if self._compiled:
-            return self._patch_radii_compiled(stones, tris)
-        from runtime.weights import hertz_radius
-
-        m, R = self.mass[stones], self.radius[stones]
-        n = self.index.normals[tris]
-        vn = np.einsum("ij,ij->i", self.vel[stones], n)
-        gn = np.einsum("ij,ij->i", self._accel(stones), n)
-        f_eq = m * np.clip(-gn, 0.0, None)
-        k = np.zeros(stones.size)
-        f = np.zeros(stones.size)
-        known = np.zeros(stones.size, dtype=bool)
-        cc = self.cache
-        if cc is not None and cc.stones.size and self.lam.size:
-            order = np.argsort(cc.stones)
-            pos = np.minimum(np.searchsorted(cc.stones[order], stones), cc.stones.size - 1)
-            idx = order[pos]
-            known = cc.stones[idx] == stones
-            if known.any():
-                ik = idx[known]
-                if sc.mode == "frictionless":
-                    k[known] = np.diag(cc.K)[ik]
-                    f[known] = np.abs(self.lam[ik])
-                else:
-                    Kd = np.diag(cc.K).reshape(-1, 3)[ik]
-                    k[known] = np.einsum("ij,ij->i", Kd, n[known] ** 2)
-                    f[known] = np.abs(np.einsum("ij,ij->i", self.lam.reshape(-1, 3)[ik], n[known]))
-        def radius_for(kk: np.ndarray, sel: np.ndarray | slice = slice(None)) -> np.ndarray:
-            kk = np.clip(kk, 0.0, None)
-            fp = f_eq[sel] + np.sqrt((f[sel] - f_eq[sel]) ** 2 + kk * m[sel] * vn[sel] ** 2)
-            a_t = hertz_radius(fp, R[sel], float(self.gf.young), float(self.gf.poisson),
-                               a_min=sc.patch_min_radius, a_max=R[sel])
-            return np.maximum(a_t, sc.patch_min_radius)  # (a stone smaller than the floor: the floor)
-
-        target = np.zeros(stones.size)
-        if known.any():
-            target[known] = radius_for(k[known], known)
-        if (~known).any():
-            # a new contact: the impact's expected peak force with the point stiffness of the
-            # triangle, then once more with the stiffness of that patch alone (the patch is
-            # stiffer than the point; a ~ k^(1/6), so one fixed-point iteration suffices and
-            # the contact is not re-weighted in its second sub-step)
-            nw = ~known
-            a0 = radius_for(self._triangle_stiffness(tris[nw]), nw)
-            k1 = self._patch_stiffness(stones[nw], tris[nw], a0, n[nw])
-            a1 = radius_for(k1, nw)
-            # within the tolerance: keep a0, whose weights are already cached
-            target[nw] = np.where((a1 > a0 * (1.0 + sc.patch_tolerance)) | (a1 * (1.0 + sc.patch_tolerance) < a0), a1, a0)
-        cur = np.where(known, self.crad[stones], 0.0)
-        tol = 1.0 + sc.patch_tolerance
-        # grow at once; shrink only once the stone rests: the contact
-        # damping removes most of an impact's energy while it lasts, and re-weighting during
-        # the rebound would change the stiffness the restitution was tuned for
-        # (resting: the oscillation amplitude about equilibrium, in velocity units, below rest_speed)
-        amp = np.sqrt((f - f_eq) ** 2 / np.maximum(np.clip(k, 0.0, None) * m, 1e-300) + vn * vn)
-        resting = known & (amp < sc.rest_speed)
-        resize = (cur <= 0.0) | (target > cur * tol) | ((target * tol < cur) & resting)
-        self.stats["patch_resizes"] += int((resize & (cur > 0.0)).sum())
-        a = np.where(resize, target, cur)
-        self.crad[stones] = a
-        if a.size:
-            self.stats["max_patch_radius_m"] = max(self.stats["max_patch_radius_m"], float(a.max()))
-        return a
-
-    def _patch_radii_compiled(self, stones: np.ndarray, tris: np.ndarray) -> np.ndarray:
-        """:meth:`_patch_radii` in one kernel (:func:`runtime.compiled.patch_radii`); the
-        new contacts' weights at their first radius go to the weights cache."""
-        sc = self.scene
-        cc = self.cache
-        if cc is not None and cc.stones.size and self.lam.size:
-            if cc.Kdiag is None:
-                cc.Kdiag = np.diag(cc.K).copy()  # (a writable copy: one compiled specialisation)
-            cs, kd, lam = cc.stones, cc.Kdiag, self.lam
-        else:
-            cs, kd, lam = self._no_cols, self._no_forces, self._no_forces
-        if self._k_tri_all is None:
-            self._k_tri_all = self._all_triangle_stiffness()
-        e_star = float(self.gf.young) / (1.0 - float(self.gf.poisson) ** 2)
-        a, resizes, a0, off, wv, ww = patch_radii(
-            stones, tris, self.mass, self.radius, self.vel, self.cbary, self.crad, self.index.normals, GRAVITY,
-            self.wind, self._drag_coef, cs, kd, lam, sc.mode == "sticky", self._k_tri_all, e_star,
-            float(sc.patch_min_radius), float(sc.patch_tolerance), float(sc.rest_speed), *self._disc, PATCH_FACING,
-            PATCH_DROP, self._pidx, self.X, self._D, self._col_of)
-        st = self.stats
-        st["patch_resizes"] += int(resizes)
-        for i in np.flatnonzero(a0 > 0.0).tolist():
-            j = int(stones[i])
-            self._wcache[j] = (int(tris[i]), self.cbary[j].tobytes(), float(a0[i]), wv[off[i]:off[i + 1]],
-                               ww[off[i]:off[i + 1]])
-            st["patch_weights_computed"] += 1
-        if a.size:
-            st["max_patch_radius_m"] = max(st["max_patch_radius_m"], float(a.max()))
-        return a
-
-    def _patch_stiffness(self, stones: np.ndarray, tris: np.ndarray, radius: np.ndarray,
-                         normals: np.ndarray) -> np.ndarray:
-        """Normal stiffness ``1 / (g^T D g)`` of each patch contact alone, (s,) [N/m]."""
-        from runtime.gather import _column_dofs, _dof3, _gather
-
-        verts, w = self._patch_weights(stones, tris, self.cbary[stones], radius, normals)
-        k = np.zeros(stones.size)
-        if self._compiled:
-            for i in range(stones.size):
-                c = patch_compliance(verts[i].astype(np.int64, copy=False), w[i], normals[i], self._D, self._col_of)
-                k[i] = 1.0 / c if c > 0 else 0.0
-            return k
-        for i in range(stones.size):
-            keep = w[i] > 0.0
-            v, wi = verts[i][keep], w[i][keep]
-            g = (wi[:, None] * normals[i][None, :]).ravel()
-            Dv = _gather(self._gfD, _dof3(v), _column_dofs(self.gf, v))
-            c = float(g @ Dv @ g)
-            k[i] = 1.0 / c if c > 0 else 0.0
-        return k
-
-    def _patch_weights(self, stones: np.ndarray, tris: np.ndarray, bary: np.ndarray, radius: np.ndarray,
-                       normals: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Padded (s, P) vertex lists and weights of patch contacts, cached per stone.
-
-        A contact keeps its ``(triangle, beta)`` while its stone stays over the
-        triangle and its radius while the force stays within the tolerance, so
-        the weights are reused until one of them changes.
-        """
-        from runtime.weights import patch_weights
-
-        out: list[tuple[np.ndarray, np.ndarray] | None] = [None] * stones.size
-        todo = []
-        for i, (j, t, a) in enumerate(zip(stones.tolist(), tris.tolist(), radius.tolist())):
-            c = self._wcache.get(j)
-            if c is not None and c[0] == t and c[2] == a and c[1] == bary[i].tobytes():
-                out[i] = (c[3], c[4])
-            else:
-                todo.append(i)
-        self.stats["patch_weights_reused"] += stones.size - len(todo)
-        if todo and self._compiled:
-            self.stats["patch_weights_computed"] += len(todo)
-            for i in todo:
-                v, w_ = patch_one(int(tris[i]), bary[i], float(radius[i]), normals[i], 3.0, *self._disc,
-                                  PATCH_FACING, PATCH_DROP, self._pidx, self.X)
-                self._wcache[int(stones[i])] = (int(tris[i]), bary[i].tobytes(), float(radius[i]), v, w_)
-                out[i] = (v, w_)
-        elif todo:
-            ti = np.asarray(todo, dtype=np.intp)
-            pv, pw = patch_weights(self.gf, tris[ti], bary[ti], radius[ti], normals[ti], profile="hertz",
-                                   backend=self.backend)
-            self.stats["patch_weights_computed"] += ti.size
-            for r, i in enumerate(todo):
-                keep = pw[r] > 0.0
-                v, w = pv[r][keep], pw[r][keep]
-                if v.size == 0:  # pragma: no cover (weights sum to one)
-                    v, w = pv[r][:1], np.ones(1)
-                self._wcache[int(stones[i])] = (int(tris[i]), bary[i].tobytes(), float(radius[i]), v, w)
-                out[i] = (v, w)
-        done = cast(list[tuple[np.ndarray, np.ndarray]], out)  # every slot is filled above
-        P = max(3, max(o[0].size for o in done))
-        verts = np.empty((stones.size, P), dtype=np.intp)
-        w = np.zeros((stones.size, P))
-        for i, (v, wi) in enumerate(done):  # padding: weight-0 copies of the first vertex (weights._pad)
-            verts[i, :v.size] = v
-            verts[i, v.size:] = v[0]
-            w[i, :v.size] = wi
-        return verts, w
 
     # -- the seat's displacement (only where it is needed) ---------------------------
     def _set_forces(self, cc: _ContactCache | None, lam: np.ndarray) -> None:
@@ -807,62 +610,6 @@ class Storm:
             self._u_cache = (self._u_version, u)
         return self._u_cache[1]
 
-    def _triangle_stiffness(self, tris: np.ndarray) -> np.ndarray:
-        """Normal contact stiffness at the centroid of triangles, [N/m].
-
-        Used to size the sub-step *before* a contact opens (so the first
-        impact step is already resolved). Hard triangles give 0. Computed for
-        every soft triangle at once on first use (batched 9 x 9 blocks of D:
-        one gather instead of one per triangle), then looked up.
-        """
-        if self._k_tri_all is None:
-            self._k_tri_all = self._all_triangle_stiffness()
-        tris = np.asarray(tris, dtype=np.intp)
-        return np.where(tris >= 0, self._k_tri_all[tris], 0.0)
-
-    def _all_triangle_stiffness(self, chunk: int = 4096) -> np.ndarray:
-        """``1 / (b^T D_tt b)`` per soft triangle, ``b = (1/3, 1/3, 1/3) kron n`` (0 elsewhere)."""
-        tri = np.asarray(self.gf.triangles, dtype=np.intp)
-        out = np.zeros(tri.shape[0])
-        soft = np.flatnonzero(self.soft)
-        col_of = self._gfD.column_of
-        third = np.full(3, 1.0 / 3.0)
-        for s0 in range(0, soft.size, chunk):
-            t = soft[s0:s0 + chunk]
-            V = tri[t]
-            cb = col_of[V]
-            rows = (3 * V[:, :, None] + np.arange(3)).reshape(-1, 9)
-            cols = (3 * np.maximum(cb, 0)[:, :, None] + np.arange(3)).reshape(-1, 9)
-            # (T, 9, 9) blocks, each column-major like gf.compliance's (same gemv sums)
-            blk = np.ascontiguousarray(self._D[rows[:, None, :], cols[:, :, None]])  # (T, col, row)
-            blk[np.repeat(cb < 0, 3, axis=1)] = 0.0  # clamped columns
-            blk = blk.transpose(0, 2, 1)
-            Bn = (third[None, :, None] * self.index.normals[t][:, None, :]).reshape(-1, 9)  # kron(1/3, n)
-            w = np.matmul(np.matmul(Bn[:, None, :], blk), Bn[:, :, None])[:, 0, 0]
-            out[t] = np.where(w > 0, 1.0 / np.where(w > 0, w, 1.0), 0.0)
-        return out
-
-    def _reproject(self, stones: np.ndarray) -> np.ndarray:
-        """True for open contacts whose stone is still over its triangle."""
-        t = self.ctri[stones]
-        P = self.X[self.gf.triangles[t]]
-        n = self.index.normals[t]
-        c = self.pos[stones]
-        # barycentric coordinates of the centre projected on the triangle plane
-        v0, v1 = P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]
-        w = c - P[:, 0]
-        w = w - np.einsum("ij,ij->i", w, n)[:, None] * n
-        d00 = np.einsum("ij,ij->i", v0, v0)
-        d01 = np.einsum("ij,ij->i", v0, v1)
-        d11 = np.einsum("ij,ij->i", v1, v1)
-        d20 = np.einsum("ij,ij->i", w, v0)
-        d21 = np.einsum("ij,ij->i", w, v1)
-        den = d00 * d11 - d01 * d01
-        b1 = (d11 * d20 - d01 * d21) / den
-        b2 = (d00 * d21 - d01 * d20) / den
-        tol = 1e-3
-        return (b1 >= -tol) & (b2 >= -tol) & (b1 + b2 <= 1 + tol)
-
     def _query(self, stones: np.ndarray, reach: np.ndarray, deformed: bool = True) -> Closest:
         deformed = deformed and self._fv is not None
         if self._compiled:
@@ -879,25 +626,24 @@ class Storm:
         """Advance the near stones by at most ``h``; returns the time actually taken
         (shorter when a stone is about to touch the seat: time of impact).
 
-        The phases, in order: closest points (:meth:`_proximity`), time of impact
-        and contacts to open (:meth:`_time_of_impact`, :meth:`_contacts_to_open`),
-        gap predictions for the next sub-step (:meth:`_predict_gaps`), opening
-        (:meth:`_open_contacts`), hard walls (:meth:`_hard_walls`), soft contacts
-        through the capacitance (:meth:`_soft_contacts`) and free flight.
+        The phases, in order (numpy: :mod:`runtime.narrow`; compiled:
+        :meth:`_free_phase`): closest points, time of impact, gap predictions for
+        the next sub-step (numpy only), contacts that open, hard walls; then soft
+        contacts through the capacitance (:meth:`_soft_contacts`) and free flight.
         """
         in_contact = self.ctri[near] >= 0
         was_open = in_contact.copy()
         if self._compiled:
             h = self._free_phase(near, h)
         else:
-            px = self._proximity(near, in_contact, h)
+            px = narrow.proximity(self, near, in_contact, h)
             if self._toi and px.qi.size:
-                h = self._time_of_impact(px, h)
-            new = self._contacts_to_open(px)
+                h = narrow.time_of_impact(self, px, h)
+            new = narrow.contacts_to_open(self, px)
             if self._toi and px.qi.size:
-                self._predict_gaps(px, new, h)
-            self._open_contacts(px, new)
-            self._hard_walls(near, px.point)
+                narrow.predict_gaps(self, px, new, h)
+            narrow.open_contacts(self, px, new)
+            narrow.hard_walls(self, near, px.point)
         soft = near[self.ctri[near] >= 0]
         if soft.size < near.size:
             free = near[self.ctri[near] < 0] if soft.size else near
@@ -915,7 +661,7 @@ class Storm:
         return h
 
     def _free_phase(self, near: np.ndarray, h: float) -> float:
-        """The compiled counterpart of :meth:`_proximity` ... :meth:`_hard_walls`
+        """The compiled counterpart of :mod:`runtime.narrow`
         (:func:`runtime.compiled.free_phase`; every stone is queried: no reuse or
         prediction, which only save numpy calls). Returns the sub-step taken."""
         sc = self.scene
@@ -929,169 +675,6 @@ class Storm:
         self.stats["wall_contacts"] += int(walls)
         return float(h)
 
-    def _proximity(self, near: np.ndarray, in_contact: np.ndarray, h: float) -> _Proximity:
-        """Closest points of the deformed surface to the near stones without a kept contact
-        (reused from the step's query or predicted where possible) and their gaps; an open
-        contact keeps ``(t, beta)`` while its stone stays over the triangle, and one whose
-        stone slid off moves to the closest point of the undeformed surface."""
-        k = near.size
-        keep = np.zeros(k, dtype=bool)
-        if in_contact.any():
-            keep[in_contact] = self._reproject(near[in_contact])
-        dist = np.full(k, np.inf)
-        tri = np.full(k, -1, dtype=np.intp)
-        bary = np.zeros((k, 3))
-        point = np.full((k, 3), np.nan)
-        qreach = np.full(k, np.nan)
-        qi = np.flatnonzero(~in_contact)
-        if qi.size:
-            j = near[qi]
-            pad = np.sqrt(np.einsum("ij,ij->i", self.vel[j], self.vel[j])) * h
-            reach = self.radius[j] + pad + 1e-3
-            qreach[qi] = reach
-            # reuse the end-of-step query where nothing moved since (same stamp, enough reach)
-            lq = self._last_query
-            fresh = np.zeros(j.size, bool)
-            if lq is not None and lq[0] == self.stats["substeps"]:
-                pos_in = np.searchsorted(lq[1], j)
-                pos_in = np.minimum(pos_in, max(lq[1].size - 1, 0))
-                if lq[1].size:
-                    fresh = (lq[1][pos_in] == j) & (lq[2][pos_in] >= reach)
-            if fresh.any():
-                assert lq is not None  # fresh is all False without a last query
-                hq0 = lq[3]
-                f_i = pos_in[fresh]
-                dist[qi[fresh]], tri[qi[fresh]] = hq0.distance[f_i], hq0.triangle[f_i]
-                bary[qi[fresh]], point[qi[fresh]] = hq0.bary[f_i], hq0.point[f_i]
-                self.stats["queries_reused"] += int(fresh.sum())
-            # stones whose gap was predicted by the previous sub-step of this step (they
-            # could not touch in it): no query, the prediction is a lower bound
-            # (only stones that cannot touch within the rest of the step; the bound shrinks
-            # by the change of the seat's peak displacement since)
-            pg = self._pgap[j] - abs(self.umax - self._pred_umax)
-            sp = np.sqrt(np.einsum("ij,ij->i", self.vel[j], self.vel[j]))
-            pred = ~fresh & (self._pstamp[j] == self.stats["substeps"]) & (pg > sp * h + GRAVITY * h * h + 1e-4)
-            if pred.any():
-                pj = j[pred]
-                dist[qi[pred]] = pg[pred] + self.radius[pj]
-                self.stats["queries_predicted"] += int(pred.sum())
-            if not (fresh | pred).all():
-                sub = ~(fresh | pred)
-                hq = self._query(j[sub], reach[sub])
-                dist[qi[sub]], tri[qi[sub]], bary[qi[sub]], point[qi[sub]] = hq.distance, hq.triangle, hq.bary, hq.point
-            self.near_tri[j] = tri[qi]
-        gap = np.where(in_contact, 0.0, dist - self.radius[near])
-        self.gap[near] = gap
-        # a contact whose stone slid off its triangle moves to the closest point of the
-        # undeformed surface (the contact stays open: no spurious release and spring-back)
-        moved = np.flatnonzero(in_contact & ~keep)
-        if moved.size:
-            j = near[moved]
-            hm = self._query(j, 2.0 * self.radius[j] + self.umax + 1e-3, deformed=False)
-            ok = hm.triangle >= 0
-            self.ctri[j] = np.where(ok, hm.triangle, -1)
-            self.cbary[j[ok]] = hm.bary[ok]
-            tri[moved], bary[moved], point[moved] = hm.triangle, hm.bary, hm.point
-            dist[moved] = hm.distance
-        return _Proximity(near=near, in_contact=in_contact, qi=qi, dist=dist, tri=tri, bary=bary,
-                          point=point, qreach=qreach, gap=gap, eps=self._toi_tol * self.radius[near])
-
-    def _time_of_impact(self, px: _Proximity, h: float) -> float:
-        """End the sub-step when the first approaching stone touches the tangent plane at
-        its closest point (exact on a plane, conservative on convex parts; a concave
-        overshoot is put back onto the surface when the contact opens)."""
-        near, gap, point, eps = px.near, px.gap, px.point, px.eps
-        fin = np.isfinite(gap) & ~px.in_contact & (gap > eps)
-        if fin.any():
-            fi = np.flatnonzero(fin)
-            j = near[fi]
-            dvec = self.pos[j] - point[fi]
-            nrm = dvec / np.maximum(np.sqrt(np.einsum("ij,ij->i", dvec, dvec)), 1e-300)[:, None]
-            w = -np.einsum("ij,ij->i", self.vel[j], nrm)  # approach speed
-            an = -np.einsum("ij,ij->i", self._accel(j), nrm)
-            hits = (w > 0) & (gap[fi] < w * h + 0.5 * np.abs(an) * h * h)
-            if hits.any():
-                wh, gh, ah = w[hits], gap[fi][hits], an[hits]
-                # gap = w t + a t^2 / 2 (smallest positive root)
-                disc = np.sqrt(np.maximum(wh * wh + 2.0 * ah * gh, 0.0))
-                t_hit = 2.0 * gh / np.maximum(wh + disc, 1e-12)
-                h = float(min(h, max(t_hit.min(), self._hmin)))
-        return h
-
-    def _contacts_to_open(self, px: _Proximity) -> np.ndarray:
-        """Mask of the near stones whose contact opens in this sub-step: within the opening
-        gap and approaching (or overlapping) with time of impact, else overlapping."""
-        near, gap, point, eps, tri = px.near, px.gap, px.point, px.eps, px.tri
-        if not (self._toi and px.qi.size):
-            return ~px.in_contact & (px.dist < self.radius[near]) & (tri >= 0)
-        new = ~px.in_contact & (tri >= 0) & (gap < eps)
-        if new.any():
-            # open only stones that approach the (local) surface or overlap it
-            nn = np.flatnonzero(new)
-            dvec = self.pos[near[nn]] - point[nn]
-            nrm = dvec / np.maximum(np.linalg.norm(dvec, axis=1, keepdims=True), 1e-300)
-            vn = np.einsum("ij,ij->i", self.vel[near[nn]], nrm)
-            new[nn] = (vn < 0) | (gap[nn] < -eps[nn])
-        return new
-
-    def _predict_gaps(self, px: _Proximity, new: np.ndarray, h: float) -> None:
-        """Gap lower bounds for the next sub-step of this step (free stones that stay free;
-        nothing within the query's reach: the gap is at least reach - r)."""
-        near, gap, point = px.near, px.gap, px.point
-        gap_lb = np.where(np.isfinite(gap), gap, px.qreach - self.radius[near])
-        keepf = ~px.in_contact & ~new & np.isfinite(gap_lb)
-        fi = np.flatnonzero(keepf)
-        if fi.size:
-            j = near[fi]
-            okp = np.isfinite(point[fi]).all(axis=1)
-            dvec = self.pos[j] - np.where(okp[:, None], point[fi], self.pos[j])
-            nrm = dvec / np.maximum(np.sqrt(np.einsum("ij,ij->i", dvec, dvec)), 1e-300)[:, None]
-            w = np.maximum(-np.einsum("ij,ij->i", self.vel[j], nrm), 0.0)
-            sp = np.sqrt(np.einsum("ij,ij->i", self.vel[j], self.vel[j]))
-            w = np.where(okp, w, sp)  # predicted stones: no closest point, use |v|
-            self._pgap[j] = gap_lb[fi] - w * h - GRAVITY * h * h
-            self._pstamp[j] = self.stats["substeps"] + 1
-            self._pred_umax = self.umax
-
-    def _open_contacts(self, px: _Proximity, new: np.ndarray) -> None:
-        """Open the contacts ``new`` at their closest points; the stone is put on the surface."""
-        near, gap, tri, bary = px.near, px.gap, px.tri, px.bary
-        self.ctri[near[new]] = tri[new]
-        self.cbary[near[new]] = bary[new]
-        if new.any():
-            j = near[new]
-            nrm = self.index.normals[self.ctri[j]]
-            if self._toi:
-                # put the stone on the deformed surface (it is within eps of it)
-                self.pos[j] -= gap[new][:, None] * nrm
-            else:
-                # a stone that opens a contact while approaching is put back onto the deformed
-                # surface (it overshot by at most one sub-step's travel)
-                approaching = np.einsum("ij,ij->i", self.vel[j], nrm) < 0
-                depth = np.clip(-gap[new], 0.0, None) * approaching
-                self.pos[j] += depth[:, None] * nrm
-
-    def _hard_walls(self, near: np.ndarray, point: np.ndarray) -> None:
-        """Contacts on triangles that cannot deform: projection out of the wall and a
-        restitution bounce; the contact closes at once."""
-        sc = self.scene
-        opened = near[(self.ctri[near] >= 0)]
-        t = self.ctri[opened]
-        # (a contact point on the clamped edge or corner of a soft triangle cannot move either)
-        pinned = (self.cbary[opened] * ~self._fixed[self.gf.triangles[t]]).sum(axis=1) <= 1e-12
-        wall = opened[~self.soft[t] | pinned]
-        if wall.size:
-            j = np.searchsorted(near, wall)
-            dvec = self.pos[wall] - point[j]
-            dw = np.linalg.norm(dvec, axis=1, keepdims=True)
-            nrm = np.where(dw > 1e-12, dvec / np.maximum(dw, 1e-300), self.index.normals[self.ctri[wall]])
-            self.pos[wall] += np.clip(self.radius[wall][:, None] - dw, 0.0, None) * nrm
-            vn = np.einsum("ij,ij->i", self.vel[wall], nrm)
-            imp = vn < 0
-            self.vel[wall] -= ((1.0 + sc.restitution) * np.minimum(vn, 0.0))[:, None] * nrm
-            self.stats["wall_contacts"] += int(imp.sum())
-            self.ctri[wall] = -1
-
     def _soft_contacts(self, near: np.ndarray, soft: np.ndarray, was_open: np.ndarray, h: float) -> None:
         """Advance the stones in soft contact by ``h`` through the capacitance of their
         contact set (rebuilt when the set of (stone, triangle[, patch radius]) changes),
@@ -1100,7 +683,7 @@ class Storm:
         tris = self.ctri[soft]
         key: tuple[tuple[Any, ...], ...]
         if self._patch:
-            rad = self._patch_radii(soft, tris)
+            rad = patches.radii(self, soft, tris)
             key = tuple(zip(soft.tolist(), tris.tolist(), rad.tolist()))
         else:
             rad = None
@@ -1241,7 +824,7 @@ class Storm:
         if self._compiled:
             cc = self.cache
             if self._k_tri_all is None:
-                self._k_tri_all = self._all_triangle_stiffness()
+                self._k_tri_all = patches.all_triangle_stiffness(self)
             if cc is not None and cc.stones.size:
                 if cc.Kdiag is None:
                     cc.Kdiag = np.diag(cc.K).copy()  # (a writable copy: one compiled specialisation)
@@ -1261,7 +844,7 @@ class Storm:
             lim = sc.approach_fraction * self.radius[cl] / np.maximum(speed[close], 1e-9)
             h = min(h, float(lim.min()))
             # resolve the coming impact from its first step (1.5: the stiffness varies over a triangle)
-            k = self._triangle_stiffness(self.near_tri[cl])
+            k = patches.triangle_stiffness(self, self.near_tri[cl])
             fast = (speed[close] > sc.rest_speed) | (sc.integrator == "symplectic")
             if np.any(fast & (k > 0)):
                 omega = 1.5 * np.sqrt(k[fast] / self.mass[cl][fast])

@@ -10,6 +10,7 @@ import pytest
 pytest.importorskip("numba")
 
 from runtime import compiled as C  # noqa: E402
+from runtime import patches  # noqa: E402
 from runtime.collide import SurfaceIndex  # noqa: E402
 from runtime.scene import Scene, SceneError  # noqa: E402
 from runtime.storm import Storm, run_storm  # noqa: E402
@@ -184,7 +185,7 @@ def test_patch_radii_match_numpy(gf):
             st.stats = dict(stats0)
             st._wcache.clear()
             st._compiled = compiled
-            a = st._patch_radii(ids, tris)
+            a = patches.radii(st, ids, tris)
             out[compiled] = (a, st.crad.copy(), st.stats["patch_resizes"], dict(st._wcache))
         (a0, c0, r0, w0), (a1, c1, r1, w1) = out[False], out[True]
         np.testing.assert_allclose(a1, a0, rtol=1e-12)

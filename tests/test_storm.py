@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from runtime.scene import Scene, SceneError
+from runtime import patches
 from runtime.storm import Storm, run_storm
 from test_hail import plate_gf
 
@@ -329,13 +330,13 @@ def test_patch_weights_are_cached_per_contact(gf):
     t = np.flatnonzero(st.soft)[len(np.flatnonzero(st.soft)) // 2]
     st.add_stones(gf.vertices[gf.triangles[t]].mean(axis=0) + [0, 0, 0.01], [0, 0, -5.0], 0.006)
     st.ctri[0], st.cbary[0] = t, 1.0 / 3.0
-    k_patch = st._patch_stiffness(np.array([0]), np.array([t]), np.array([0.004]), st.index.normals[[t]])[0]
+    k_patch = patches.stiffness(st, np.array([0]), np.array([t]), np.array([0.004]), st.index.normals[[t]])[0]
     assert np.isfinite(k_patch) and k_patch > 0
-    verts, w = st._patch_weights(np.array([0]), np.array([t]), st.cbary[[0]], np.array([0.004]), st.index.normals[[t]])
+    verts, w = patches.cached_weights(st, np.array([0]), np.array([t]), st.cbary[[0]], np.array([0.004]), st.index.normals[[t]])
     assert (w > 0).sum() > 3 and w.sum() == pytest.approx(1.0)
     # cached: the same contact again costs nothing
     n0 = st.stats["patch_weights_computed"]
-    st._patch_weights(np.array([0]), np.array([t]), st.cbary[[0]], np.array([0.004]), st.index.normals[[t]])
+    patches.cached_weights(st, np.array([0]), np.array([t]), st.cbary[[0]], np.array([0.004]), st.index.normals[[t]])
     assert st.stats["patch_weights_computed"] == n0 and st.stats["patch_weights_reused"] >= 1
 
 
