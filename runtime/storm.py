@@ -375,7 +375,7 @@ class Storm:
     def _warm_up(self) -> None:
         """Load (or compile, the first time after an install) every kernel the loop calls,
         with the loop's argument types, so that the stepping itself runs compiled code
-        from its first step (loading takes ~0.3 s; compiling ~15 s, once: numba caches
+        from its first step (loading takes ~0.3 s; compiling ~40 s, once: numba caches
         the machine code on disk)."""
         none = np.zeros(0, dtype=np.intp)
         sc = self.scene
