@@ -131,7 +131,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from runtime import narrow, patches
+from runtime import narrow, patches, soft_contacts
 from runtime.collide import Closest, SurfaceIndex
 from runtime.compiled import (
     capacitance_blocks,
@@ -158,9 +158,6 @@ from runtime.hail import (
     _X_GRID,
     _Z_GRID,
     GRAVITY,
-    ContactStep,
-    contact_step,
-    damping_coefficients,
     damping_ratio_for_restitution,
     drag_acceleration,
     free_flight,
@@ -168,6 +165,7 @@ from runtime.hail import (
     terminal_velocity,
 )
 from runtime.scene import Scene, SceneError
+from runtime.soft_contacts import ContactSet
 from runtime.weights import PATCH_DROP, PATCH_FACING
 
 __all__ = ["Frame", "Scene", "SceneError", "Storm", "StormResult", "run_storm"]
@@ -226,27 +224,6 @@ _STONE_FIELDS: tuple[tuple[str, Any], ...] = (
     ("cbary", 0.0), ("gap", np.inf), ("hit", False), ("near_tri", -1), ("crad", 0.0), ("budget", 0.0),
     ("_bud_u", 0.0), ("_pgap", 0.0), ("_pstamp", -1),
 )
-
-
-@dataclass
-class _ContactCache:
-    key: tuple
-    W: np.ndarray
-    K: np.ndarray
-    G: np.ndarray  # (c, m) forces at the loaded (non-clamped) dofs of V per unit multiplier
-    cols: np.ndarray  # (c,) their columns of D
-    DVV: np.ndarray  # (3|V|, m) displacement of V per unit multiplier
-    stones: np.ndarray
-    tris: np.ndarray
-    bary: np.ndarray
-    normals: np.ndarray
-    X: np.ndarray  # undeformed contact points (s, 3) (the patch centres)
-    rest: np.ndarray  # (s,) distance along the normal from the reference point to the stone's centre at contact
-    patch_radius: np.ndarray  # (s,) patch radius [m] (0: point contact)
-    verts: np.ndarray  # (s, P) vertices carrying each contact's force
-    weights: np.ndarray  # (s, P) their weights (B: block (verts[k, p], k) = weights[k, p] I3)
-    C: np.ndarray | None = None  # exact-integrator dashpot (cached)
-    Kdiag: np.ndarray | None = None  # diag(K), contiguous (compiled kernels; cached)
 
 
 class Storm:
@@ -353,7 +330,7 @@ class Storm:
         self._hmin = scene.dt / scene.max_substeps
         #: the end-of-step query: (sub-step stamp, stones, reach (-1: contact stones), result)
         self._last_query: tuple[int, np.ndarray, np.ndarray, Closest] | None = None
-        self.cache: _ContactCache | None = None
+        self.cache: ContactSet | None = None
         self.lam = np.zeros(0)
         self.t = 0.0
         self.stats: dict[str, Any] = dict(
@@ -495,60 +472,8 @@ class Storm:
         self.pos[idx], self.vel[idx] = free_flight(self.pos[idx], self.vel[idx], h,
                                                    accel=self._accel(idx) - self.g, g=GRAVITY)
 
-    # -- contacts ----------------------------------------------------------------
-    def _build_cache(self, stones: np.ndarray, tris: np.ndarray, bary: np.ndarray, key: tuple,
-                     radius: np.ndarray | None = None) -> _ContactCache:
-        """The capacitance of the soft contacts ``stones`` (point contacts, or patches of ``radius``)."""
-        from runtime.contact_capacitance import _contact_compliance, _rigid
-        from runtime.gather import _column_dofs, _dof3, _gather
-        from runtime.hail import _inv_spd
-        from runtime.weights import _dense_B, _dense_Bs, _locate_lists
-
-        gf, mode = self.gf, self.scene.mode
-        normals = self.index.normals[tris]
-        s = stones.size
-        if radius is None:
-            verts, w = np.asarray(gf.triangles)[tris], bary
-            radius = np.zeros(s)
-        else:
-            verts, w = patches.cached_weights(self, stones, tris, bary, radius, normals)
-        if self._compiled:
-            verts = verts.astype(np.int64, copy=False)
-            if rigid_contacts(verts, w, self._fixed):
-                raise RuntimeError("rigid contacts must be filtered before the capacitance")  # pragma: no cover
-            V, W, G, cols, DG = capacitance_blocks(verts, w, normals, mode == "sticky", self._D, self._col_of)
-            K = inv_spd(W)
-        else:
-            if np.any(_rigid(gf, verts, w)):
-                raise RuntimeError("rigid contacts must be filtered before the capacitance")  # pragma: no cover
-            V, loc = _locate_lists(verts)
-            D_VV = _gather(self._gfD, _dof3(V), _column_dofs(gf, V))
-            W = _contact_compliance(D_VV, loc, w, normals, mode)
-            if mode == "sticky":
-                G = _dense_B(V.size, loc, w)
-            else:
-                # G = B N: row (i, d), column k = Bs[i, k] n_k[d] (B = Bs kron I3, without forming it)
-                G = (_dense_Bs(V.size, loc, w)[:, None, :] * normals.T[None, :, :]).reshape(3 * V.size, s)
-            DG = D_VV @ G
-            cb = np.asarray(gf.column_of)[V]
-            live = np.repeat(cb >= 0, 3)
-            cols = (3 * cb[:, None] + np.arange(3)).ravel()[live]  # D columns of the loaded dofs
-            G = G[live]
-            K = _inv_spd(W)
-        # reference point: the contact point (the patch centre). A patch contact prescribes the
-        # pressure-weighted mean normal displacement of the surface under the disc, measured from
-        # the tangent plane at the contact point (the plane of the disc): the stone's lowest point
-        # follows it. (Measuring from the weighted mean undeformed surface point sum_p w_p X_p
-        # instead, which lies below the tangent plane on the convex seat, opens every contact with
-        # a small gap: measured restitution 0.488 instead of 0.499 for the single drop.)
-        X = np.einsum("kj,kjd->kd", bary, self.X[gf.triangles[tris]])
-        self.stats["capacitance_rebuilds"] += 1
-        return _ContactCache(key=key, W=W, K=K, G=G, cols=cols, DVV=DG, stones=stones,
-                             tris=tris, bary=bary, normals=normals, X=X, rest=self.radius[stones].copy(),
-                             patch_radius=np.asarray(radius, dtype=np.float64).copy(), verts=verts, weights=w)
-
     # -- the seat's displacement (only where it is needed) ---------------------------
-    def _set_forces(self, cc: _ContactCache | None, lam: np.ndarray) -> None:
+    def _set_forces(self, cc: ContactSet | None, lam: np.ndarray) -> None:
         """Contact multipliers -> vertex forces; displacement bound ``umax``."""
         self._u_version += 1
         if cc is None or lam.size == 0 or not np.any(lam):
@@ -565,7 +490,7 @@ class Storm:
         self._umax_step = max(self._umax_step, self.umax)
         self._track_peaks(cc, lam)
 
-    def _track_peaks(self, cc: _ContactCache, lam: np.ndarray) -> None:
+    def _track_peaks(self, cc: ContactSet, lam: np.ndarray) -> None:
         """Keep, per stone, the vertex forces of its largest contact force since the last frame."""
         m = lam.size // cc.stones.size  # multipliers per contact (1 frictionless, 3 sticky)
         L = lam.reshape(-1, m)
@@ -629,7 +554,7 @@ class Storm:
         The phases, in order (numpy: :mod:`runtime.narrow`; compiled:
         :meth:`_free_phase`): closest points, time of impact, gap predictions for
         the next sub-step (numpy only), contacts that open, hard walls; then soft
-        contacts through the capacitance (:meth:`_soft_contacts`) and free flight.
+        contacts through the capacitance (:func:`runtime.soft_contacts.advance`) and free flight.
         """
         in_contact = self.ctri[near] >= 0
         was_open = in_contact.copy()
@@ -650,7 +575,7 @@ class Storm:
         else:
             free = near[:0]
         if soft.size:
-            self._soft_contacts(near, soft, was_open, h)
+            soft_contacts.advance(self, near, soft, was_open, h)
         else:
             self.cache = None
             self.lam = np.zeros(0)
@@ -674,146 +599,6 @@ class Storm:
             GRAVITY, self.wind, coef, float(sc.restitution))
         self.stats["wall_contacts"] += int(walls)
         return float(h)
-
-    def _soft_contacts(self, near: np.ndarray, soft: np.ndarray, was_open: np.ndarray, h: float) -> None:
-        """Advance the stones in soft contact by ``h`` through the capacitance of their
-        contact set (rebuilt when the set of (stone, triangle[, patch radius]) changes),
-        with unilateral release; update the seat's forces and the statistics."""
-        sc = self.scene
-        tris = self.ctri[soft]
-        key: tuple[tuple[Any, ...], ...]
-        if self._patch:
-            rad = patches.radii(self, soft, tris)
-            key = tuple(zip(soft.tolist(), tris.tolist(), rad.tolist()))
-        else:
-            rad = None
-            key = tuple(zip(soft.tolist(), tris.tolist()))
-        if self.cache is None or self.cache.key != key:
-            self.cache = self._build_cache(soft, tris, self.cbary[soft].copy(), key, rad)
-        cc = self.cache
-        s = soft.size
-        nk = cc.normals
-        if self._compiled:
-            self._soft_contacts_compiled(near, soft, was_open, h, cc)
-            return
-        acc = self._accel(soft)
-        m = self.mass[soft]
-        if sc.mode == "frictionless":
-            q = np.einsum("ij,ij->i", nk, self.pos[soft])
-            a = np.einsum("ij,ij->i", nk, cc.X) + cc.rest
-            vq = np.einsum("ij,ij->i", nk, self.vel[soft])
-            gq = np.einsum("ij,ij->i", nk, acc)
-            mq, group, wts = m, None, None
-        else:
-            q = self.pos[soft].ravel()
-            a = (cc.X + cc.rest[:, None] * nk).ravel()
-            vq = self.vel[soft].ravel()
-            gq = acc.ravel()
-            mq, group, wts = np.repeat(m, 3), np.repeat(np.arange(s), 3), nk.ravel()
-        always = None
-        if sc.integrator == "exact":
-            C = self._damping(cc, mq)
-            # resting contacts (oscillation amplitude below rest_speed): the dashpot acts
-            # both ways, no switching events; the residual oscillation decays
-            kd = np.clip(np.diag(cc.K), 0.0, None)
-            if sc.mode == "sticky":
-                kd = kd.reshape(-1, 3).max(axis=1)
-            om = np.sqrt(kd / m)
-            vn = np.einsum("ij,ij->i", self.vel[soft], nk)
-            ubar = np.einsum("ij,ij->i", self.pos[soft] - cc.X, nk) - cc.rest
-            u_eq = np.einsum("ij,ij->i", acc, nk) * m / np.maximum(kd, 1e-300)
-            rest = np.hypot(vn, om * (ubar - u_eq)) < sc.rest_speed
-            always = rest if sc.mode == "frictionless" else np.repeat(rest, 3)
-        else:
-            C = damping_coefficients(cc.K, mq, sc.restitution, dt=h, integrator=sc.integrator)
-        res = contact_step(q, vq, a, mq, gq, h, K=cc.K, W=cc.W, damping=C, integrator=sc.integrator,
-                           unilateral=sc.unilateral, group=group, normal_of=wts, always_damped=always)
-        if sc.mode == "frictionless":
-            # tangential motion: free (constant acceleration); normal: the contact step
-            vt0 = self.vel[soft] - vq[:, None] * nk
-            at = acc - gq[:, None] * nk
-            vnew = vt0 + h * at + res.v[:, None] * nk
-            pnew = (self.pos[soft] - q[:, None] * nk + h * vt0 + 0.5 * h * h * at + res.q[:, None] * nk)
-            fvec = res.seat_force[:, None] * nk
-            active_c = res.active
-            ubar_n = res.q - a
-        else:
-            vnew = res.v.reshape(s, 3)
-            pnew = res.q.reshape(s, 3)
-            fvec = res.seat_force.reshape(s, 3)
-            # numpy's stubs cannot tell that all(axis=1) of a 2-d array is an array, not a scalar
-            active_c = res.active.reshape(s, 3).all(axis=1)  # type: ignore[assignment]
-            ubar_n = np.einsum("ij,ij->i", (res.q - a).reshape(s, 3), nk)
-        if sc.integrator != "exact":
-            pnew = self.pos[soft] + h * vnew  # (semi-)implicit position update
-        # impacts: contacts that opened in this sub-step and push
-        fresh = active_c & ~was_open[np.searchsorted(near, soft)]
-        if fresh.any():
-            vn_in = np.einsum("ij,ij->i", self.vel[soft[fresh]], nk[fresh])
-            self.stats["impacts"] += int((vn_in < -sc.rest_speed).sum())
-            self.hit[soft[fresh]] = True
-        self.vel[soft] = vnew
-        self.pos[soft] = pnew
-        self.ctri[soft[~active_c]] = -1
-        self.lam = res.seat_force
-        self._set_forces(cc, res.seat_force)
-        fmag = np.sqrt(np.einsum("ij,ij->i", fvec, fvec))
-        self.stats["max_contact_force"] = max(self.stats["max_contact_force"], float(fmag.max()))
-        if active_c.any():
-            self.stats["max_indentation_m"] = max(self.stats["max_indentation_m"], float(-ubar_n[active_c].min()))
-        self.stats["max_simultaneous_contacts"] = max(self.stats["max_simultaneous_contacts"], int(active_c.sum()))
-
-    def _soft_contacts_compiled(self, near: np.ndarray, soft: np.ndarray, was_open: np.ndarray, h: float,
-                                cc: _ContactCache) -> None:
-        """:meth:`_soft_contacts` after the contact set is known, with the per-contact
-        work in compiled kernels (:func:`runtime.compiled.contact_prep`,
-        :func:`runtime.compiled.contact_post`) around the same :func:`contact_step`."""
-        sc = self.scene
-        exact = sc.integrator == "exact"
-        sticky = sc.mode == "sticky"
-        s = soft.size
-        nk = cc.normals
-        if cc.Kdiag is None:
-            cc.Kdiag = np.diag(cc.K).copy()  # (a writable copy: one compiled specialisation)
-        q, a, vq, gq, mq, always, acc, C = contact_prep(
-            soft, self.pos, self.vel, self.radius, self.mass, GRAVITY, self.wind, self._drag_coef, nk, cc.X, cc.rest,
-            cc.Kdiag, sticky, exact, float(sc.rest_speed), self._zeta)
-        group, wts = (np.repeat(np.arange(s), 3), nk.ravel()) if sticky else (None, None)
-        if group is None:
-            group, wts = np.arange(s), np.ones(s)
-        res = None
-        if exact:
-            qn, vn, act, force, seat, ok = exact_step(q, vq, a, mq, gq, h, cc.K, cc.W, C, bool(sc.unilateral), group,
-                                                      wts, always)
-            if ok:
-                res = ContactStep(q=qn, v=vn, active=act, force=force, seat_force=seat)
-        else:
-            implicit = sc.integrator == "implicit"
-            C = substep_damping(cc.Kdiag, mq, float(sc.restitution), h, implicit, _X_GRID, _Z_GRID)
-            qn, vn, act, force, seat = substep_contacts(q, vq, a, mq, gq, h, cc.K, cc.W, C, implicit,
-                                                        bool(sc.unilateral), group, wts)
-            res = ContactStep(q=qn, v=vn, active=act, force=force, seat_force=seat)
-        if res is None:
-            res = contact_step(q, vq, a, mq, gq, h, K=cc.K, W=cc.W, damping=C, integrator=sc.integrator,
-                               unilateral=sc.unilateral, group=group, normal_of=wts,
-                               always_damped=always if exact else None)
-        impacts, fmax, indent, n_active = contact_post(
-            soft, self.pos, self.vel, self.ctri, self.hit, was_open[np.searchsorted(near, soft)], nk, acc, q, a, vq,
-            gq, res.q, res.v, res.active, res.seat_force, sticky, exact, h, float(sc.rest_speed))
-        st = self.stats
-        st["impacts"] += int(impacts)
-        self.lam = res.seat_force
-        self._set_forces(cc, res.seat_force)
-        st["max_contact_force"] = max(st["max_contact_force"], float(fmax))
-        if n_active:
-            st["max_indentation_m"] = max(st["max_indentation_m"], float(indent))
-        st["max_simultaneous_contacts"] = max(st["max_simultaneous_contacts"], int(n_active))
-
-    def _damping(self, cc: _ContactCache, mq: np.ndarray) -> np.ndarray:
-        """Exact-integrator dashpot of a contact set (cached with the set)."""
-        if cc.C is None or cc.C.shape != mq.shape:
-            cc.C = damping_coefficients(cc.K, mq, self.scene.restitution, integrator="exact")
-        return cc.C
 
     def _substep_size(self, near: np.ndarray, h_left: float) -> float:
         sc = self.scene

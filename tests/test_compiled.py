@@ -10,7 +10,7 @@ import pytest
 pytest.importorskip("numba")
 
 from runtime import compiled as C  # noqa: E402
-from runtime import patches  # noqa: E402
+from runtime import patches, soft_contacts  # noqa: E402
 from runtime.collide import SurfaceIndex  # noqa: E402
 from runtime.scene import Scene, SceneError  # noqa: E402
 from runtime.storm import Storm, run_storm  # noqa: E402
@@ -175,7 +175,7 @@ def test_patch_radii_match_numpy(gf):
     st.cbary[ids] = bary
     for known in (False, True):
         if known:  # a previous set with the first four stones and some forces
-            st.cache = st._build_cache(ids[:4], tris[:4], bary[:4].copy(), ("prev",), st.crad[ids[:4]])
+            st.cache = soft_contacts.contact_set(st, ids[:4], tris[:4], bary[:4].copy(), ("prev",), st.crad[ids[:4]])
             st.lam = -rng.uniform(0.1, 20.0, 4)
             st.crad[ids[:2]] *= 0.5  # two known contacts whose radius is out of date
         crad0, stats0 = st.crad.copy(), dict(st.stats)
