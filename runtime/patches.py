@@ -111,8 +111,6 @@ def radii_compiled(st: Storm, stones: np.ndarray, tris: np.ndarray) -> np.ndarra
     sc = st.scene
     cc = st.cache
     if cc is not None and cc.stones.size and st.lam.size:
-        if cc.Kdiag is None:
-            cc.Kdiag = np.diag(cc.K).copy()  # (a writable copy: one compiled specialisation)
         cs, kd, lam = cc.stones, cc.Kdiag, st.lam
     else:
         cs, kd, lam = st._no_cols, st._no_forces, st._no_forces

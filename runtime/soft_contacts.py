@@ -55,8 +55,8 @@ class ContactSet:
     patch_radius: np.ndarray  # (s,) patch radius [m] (0: point contact)
     verts: np.ndarray  # (s, P) vertices carrying each contact's force
     weights: np.ndarray  # (s, P) their weights (B: block (verts[k, p], k) = weights[k, p] I3)
+    Kdiag: np.ndarray  # diag(K), a contiguous writable copy (what the compiled kernels take)
     C: np.ndarray | None = None  # exact-integrator dashpot (cached)
-    Kdiag: np.ndarray | None = None  # diag(K), contiguous (compiled kernels; cached)
 
 
 def contact_set(st: Storm, stones: np.ndarray, tris: np.ndarray, bary: np.ndarray, key: tuple,
@@ -106,9 +106,10 @@ def contact_set(st: Storm, stones: np.ndarray, tris: np.ndarray, bary: np.ndarra
     # a small gap: measured restitution 0.488 instead of 0.499 for the single drop.)
     X = np.einsum("kj,kjd->kd", bary, st.X[gf.triangles[tris]])
     st.stats["capacitance_rebuilds"] += 1
-    return ContactSet(key=key, W=W, K=K, G=G, cols=cols, DVV=DG, stones=stones,
-                         tris=tris, bary=bary, normals=normals, X=X, rest=st.radius[stones].copy(),
-                         patch_radius=np.asarray(radius, dtype=np.float64).copy(), verts=verts, weights=w)
+    return ContactSet(key=key, W=W, K=K, G=G, cols=cols, DVV=DG, stones=stones, tris=tris, bary=bary,
+                      normals=normals, X=X, rest=st.radius[stones].copy(),
+                      patch_radius=np.asarray(radius, dtype=np.float64).copy(), verts=verts, weights=w,
+                      Kdiag=np.diag(K).copy())
 
 
 def advance(st: Storm, near: np.ndarray, soft: np.ndarray, was_open: np.ndarray, h: float) -> None:
@@ -210,8 +211,6 @@ def advance_compiled(st: Storm, near: np.ndarray, soft: np.ndarray, was_open: np
     sticky = sc.mode == "sticky"
     s = soft.size
     nk = cc.normals
-    if cc.Kdiag is None:
-        cc.Kdiag = np.diag(cc.K).copy()  # (a writable copy: one compiled specialisation)
     q, a, vq, gq, mq, always, acc, C = contact_prep(
         soft, st.pos, st.vel, st.radius, st.mass, GRAVITY, st.wind, st._drag_coef, nk, cc.X, cc.rest,
         cc.Kdiag, sticky, exact, float(sc.rest_speed), st._zeta)

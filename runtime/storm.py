@@ -135,7 +135,6 @@ from runtime import narrow, patches, soft_contacts
 from runtime.collide import Closest, SurfaceIndex
 from runtime.compiled import (
     capacitance_blocks,
-    closest_points,
     contact_post,
     contact_prep,
     exact_step,
@@ -365,7 +364,6 @@ class Storm:
                  self.ctri, self.budget, self._bud_u, 0.0, float(sc.dt), GRAVITY)
         self._free_phase(none, float(sc.dt))
         self._step_query(none, float(sc.dt))
-        self._query(none, np.zeros(0))
         soft = np.flatnonzero(self.soft)
         if soft.size:
             t = int(soft[0])
@@ -379,8 +377,7 @@ class Storm:
                 patch_one(t, w[0], float(sc.patch_min_radius), n[0], 3.0, *self._disc, PATCH_FACING, PATCH_DROP,
                           self._pidx, self.X)
                 patches.radii_compiled(self, none, none)
-        e3 = np.zeros((0, 3))
-        e = np.zeros(0)
+        e3, e = self._no_e3, self._no_forces
         b = np.zeros(0, dtype=bool)
         args = contact_prep(none, self.pos, self.vel, self.radius, self.mass, GRAVITY, self.wind, self._drag_coef,
                             e3, e3, e, e, sc.mode == "sticky", True, 1.0, 0.0)
@@ -536,14 +533,8 @@ class Storm:
         return self._u_cache[1]
 
     def _query(self, stones: np.ndarray, reach: np.ndarray, deformed: bool = True) -> Closest:
+        """Closest points for the numpy narrow phase (the compiled one queries inside its kernels)."""
         deformed = deformed and self._fv is not None
-        if self._compiled:
-            ix = self.index
-            tri, bary, point, dist = closest_points(
-                ix.grid, ix.sample_radius, ix.vertices, ix.triangles, self.pos[stones], reach,
-                D=self._D, cols=self._fcols, forces=self._fv if deformed else None,
-                max_displacement=self.umax if deformed else 0.0)
-            return Closest(triangle=tri, bary=bary, point=point, distance=dist)
         return self.index.query(self.pos[stones], reach, displacement=self._u_at if deformed else None,
                                 max_displacement=self.umax if deformed else 0.0)
 
@@ -611,8 +602,6 @@ class Storm:
             if self._k_tri_all is None:
                 self._k_tri_all = patches.all_triangle_stiffness(self)
             if cc is not None and cc.stones.size:
-                if cc.Kdiag is None:
-                    cc.Kdiag = np.diag(cc.K).copy()  # (a writable copy: one compiled specialisation)
                 cs, kd, cn, cx, cr = cc.stones, cc.Kdiag, cc.normals, cc.X, cc.rest
             else:
                 cs, kd, cn, cx, cr = self._no_cols, self._no_forces, self._no_e3, self._no_e3, self._no_forces
