@@ -78,6 +78,7 @@ from typing import Any
 
 import numpy as np
 
+from runtime.compiled import resolve_backend
 from runtime.contact_capacitance import (
     COND_LIMIT,
     PINV_RCOND,
@@ -90,7 +91,7 @@ from runtime.contact_capacitance import (
     _Factor,
     capacitance,
 )
-from runtime.gather import _apply_columns
+from runtime.gather import _apply_columns, _compiled
 from runtime.weights import (
     _interpolate,
     _vertex_forces,
@@ -183,6 +184,7 @@ def solve_contacts(
     max_iter: int | None = None,
     patch_radius: Any = None,
     patch_profile: str = "hertz",
+    backend: str = "auto",
 ) -> ContactSolution:
     """Forces and deformation for prescribed contact-point displacements.
 
@@ -223,6 +225,10 @@ def solve_contacts(
         prescribes.
     patch_profile : {"hertz", "uniform"}
         Pressure profile over a patch.
+    backend : {"auto", "numba", "numpy"}
+        Build ``D_VV``, ``W`` and the full-surface displacement with the
+        compiled kernels (``"auto"``: when numba is installed and D is
+        column-major; see :func:`capacitance`). Same results to rounding.
 
     Returns
     -------
@@ -232,14 +238,15 @@ def solve_contacts(
     ------
     ValueError
         Shape mismatch, NaN/inf, barycentric coordinates not summing to 1 or
-        negative, contact on a vertex without a compliance column, bad mode
-        or rows.
+        negative, contact on a vertex without a compliance column, bad mode,
+        rows or backend (``"numba"`` without numba installed).
     IndexError
         Triangle (or row) index out of range.
     RuntimeError
         If the unilateral active set does not settle within ``max_iter``.
     """
     mode = _check_mode(mode)
+    backend = resolve_backend(backend)
     # sticky bilateral contacts never look at the normals
     t, b, n = _check_contacts(gf, triangles, barycentric, normals,
                               need_normals=unilateral or mode == "frictionless" or patch_radius is not None)
@@ -260,7 +267,7 @@ def solve_contacts(
     else:
         rows_arr, want_u = np.asarray(rows), True
 
-    cap = _build(gf, t, b, n, mode, a, patch_profile)
+    cap = _build(gf, t, b, n, mode, a, patch_profile, backend)
     rigid = cap.rigid
     c = cap._reduce(ubar)
     it = 1
@@ -302,7 +309,7 @@ def solve_contacts(
         f = np.where(active[:, None], f, 0.0)
     g = _vertex_forces(cap.V.size, cap.loc, cap.weights, f)
     gflat = g.reshape(-1)
-    u = _apply_columns(gf, cap._cols, gflat, rows_arr) if want_u else None
+    u = _apply_columns(gf, cap._cols, gflat, rows_arr, _compiled(gf, backend)) if want_u else None
     if u is not None and rows_arr is None:
         uV = u[cap.V]
     else:

@@ -16,7 +16,9 @@ from typing import Any, Literal, Sequence, cast, overload
 import numpy as np
 import scipy.linalg as sla
 
-from runtime.gather import _apply_columns, _column_dofs, _dof3, _gather, _gather_vertices
+from runtime.compiled import contacts as _kernels
+from runtime.compiled import resolve_backend
+from runtime.gather import _apply_columns, _column_dofs, _compiled, _dof3, _gather, _gather_vertices
 from runtime.weights import (
     _dense_B,
     _gT,
@@ -132,13 +134,19 @@ class _Factor:
         return self._pinv.copy()
 
 
-def _response_columns(gf: Any, cols: np.ndarray, loc: np.ndarray, weights: np.ndarray) -> np.ndarray:
+def _response_columns(gf: Any, cols: np.ndarray, loc: np.ndarray, weights: np.ndarray,
+                      compiled: bool = False) -> np.ndarray:
     """Full-surface response ``D[:, U] B`` of contacts on the vertex list U, (3n, 3k), F-ordered.
 
     ``cols``: column dofs of U (``-1`` at clamped vertices); ``loc`` (k, P):
     positions in U of each contact's vertices, ``weights`` (k, P) theirs.
+    ``compiled``: through :func:`runtime.compiled.contacts.weighted_rows`.
     """
     D = gf.D
+    if compiled:
+        blocks = np.where(cols[::3] >= 0, cols[::3] // 3, -1)
+        zeros = np.zeros((loc.shape[0], 3))
+        return _kernels.weighted_rows(np.asarray(D).T, blocks, loc, weights, zeros, True).T
     live = np.flatnonzero(cols >= 0)
     BT = _gT_csr(cols.size // 3, loc, weights, np.zeros((loc.shape[0], 3)), "sticky")[:, live]
     if D.flags.f_contiguous:
@@ -344,6 +352,9 @@ class Capacitance:
     patch_profile: str = "hertz"
     #: radius :meth:`add` uses when not given (a scalar ``patch_radius`` at build; else 0)
     default_patch_radius: float = 0.0
+    #: ``"numba"``: the build and the full-surface products use the compiled kernels
+    #: (:mod:`runtime.compiled.contacts`); ``"numpy"``: numpy only
+    backend: str = "numpy"
 
     # -- sizes and derived matrices ------------------------------------------
     @property
@@ -470,7 +481,7 @@ class Capacitance:
                 raise ValueError(f"forces must have shape ({self.s}, 3), got {np.shape(forces)}")
             return (self._R @ f).reshape(-1, 3)
         g = self.vertex_forces(forces).reshape(-1)
-        return _apply_columns(self.gf, self._cols, g, rows)
+        return _apply_columns(self.gf, self._cols, g, rows, _compiled(self.gf, self.backend))
 
     def keep_response(self) -> np.ndarray:
         """Form (once) and keep the full-surface response ``R = D[:, V] B``.
@@ -493,7 +504,8 @@ class Capacitance:
             do not modify it).
         """
         if self._R is None:
-            self._R = _response_columns(self.gf, self._cols, self.loc, self.weights)
+            self._R = _response_columns(self.gf, self._cols, self.loc, self.weights,
+                                        _compiled(self.gf, self.backend))
         return self._R
 
     def surface_response(self, rows: np.ndarray | None = None) -> np.ndarray:
@@ -708,6 +720,7 @@ def capacitance(
     mode: Mode = "sticky",
     patch_radius: Any = None,
     patch_profile: str = "hertz",
+    backend: str = "auto",
 ) -> Capacitance:
     """Build the capacitance of a set of point or patch contacts.
 
@@ -735,6 +748,12 @@ def capacitance(
         uses by default.
     patch_profile : {"hertz", "uniform"}
         Pressure profile over a patch.
+    backend : {"auto", "numba", "numpy"}
+        ``"auto"`` (default) builds ``D_VV`` and ``W`` with the compiled kernels
+        of :mod:`runtime.compiled.contacts` when numba is installed and D is
+        column-major (as bundles are written), and so do the full-surface
+        products of :meth:`Capacitance.surface_displacement` and
+        :meth:`Capacitance.keep_response`. Same results to rounding.
 
     Returns
     -------
@@ -746,9 +765,10 @@ def capacitance(
         On malformed input (see :func:`solve_contacts`).
     """
     mode = _check_mode(mode)
+    backend = resolve_backend(backend)
     t, b, n = _check_contacts(gf, tri_idx, bary, normals)
     a = _check_patch(patch_radius, t.size, patch_profile)
-    cap = _build(gf, t, b, n, mode, a, patch_profile)
+    cap = _build(gf, t, b, n, mode, a, patch_profile, backend)
     if patch_radius is not None and np.ndim(patch_radius) == 0:
         cap.default_patch_radius = float(patch_radius)
     return cap
@@ -780,9 +800,10 @@ def _contact_weights(gf: Any, t: np.ndarray, b: np.ndarray, n: np.ndarray | None
 
 
 def _build(gf: Any, t: np.ndarray, b: np.ndarray, n: np.ndarray | None, mode: Mode,
-           a: np.ndarray | None = None, profile: str = "hertz") -> Capacitance:
+           a: np.ndarray | None = None, profile: str = "hertz", backend: str = "numpy") -> Capacitance:
     """The capacitance of validated contacts. ``n`` may be None only for sticky point
-    contacts (which never look at the normals; they are then stored as zeros)."""
+    contacts (which never look at the normals; they are then stored as zeros).
+    ``backend``: resolved (``"numba"`` or ``"numpy"``)."""
     if n is None:
         if mode != "sticky" or a is not None:
             raise ValueError("normals are needed for frictionless and patch contacts")  # pragma: no cover
@@ -790,8 +811,15 @@ def _build(gf: Any, t: np.ndarray, b: np.ndarray, n: np.ndarray | None, mode: Mo
     pv, w = _contact_weights(gf, t, b, n, a, profile)
     V, loc = _locate_lists(pv)
     cols = _column_dofs(gf, V)
-    D_VV = _gather_vertices(gf, V, cols)
-    W = _contact_compliance(D_VV, loc, w, n, mode)
+    compiled = _compiled(gf, backend)
+    if compiled:
+        M = _kernels.vertex_block(V, np.asarray(gf.D).T, gf.column_of)  # D_VV^T
+        D_VV = M.T
+        Y = _kernels.weighted_rows(M, np.arange(V.size), loc, w, n, mode == "sticky")
+        W = _kernels.contact_compliance(Y, loc, w, n, mode == "sticky")
+    else:
+        D_VV = _gather_vertices(gf, V, cols)
+        W = _contact_compliance(D_VV, loc, w, n, mode)
     rigid = _rigid(gf, pv, w)
     p = 3 if mode == "sticky" else 1
     if rigid.any():
@@ -805,5 +833,5 @@ def _build(gf: Any, t: np.ndarray, b: np.ndarray, n: np.ndarray | None, mode: Mo
     return Capacitance(
         gf=gf, mode=mode, tri_idx=t, bary=b, normals=n, V=V, loc=loc, D_VV=D_VV,
         W=W, rigid=rigid, exact=factor.exact, _cols=cols, _factor=factor, weights=w,
-        patch_radius=np.zeros(t.size) if a is None else a, patch_profile=profile,
+        patch_radius=np.zeros(t.size) if a is None else a, patch_profile=profile, backend=backend,
     )

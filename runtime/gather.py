@@ -9,7 +9,9 @@ compliance ``D`` fast; nothing knows about contacts.
 * ``_column_dofs(gf, V)`` -- column dofs of D for surface vertices (-1 at clamped ones);
 * ``_gather(gf, rows, cols)`` -- ``D[rows, cols]`` with zero clamped columns;
 * ``_apply_columns(gf, cols, g, rows)`` -- ``D[rows, cols] @ g``;
-* :func:`columns_times` -- blocked ``D[:, cols] @ x`` for a column-major D.
+* :func:`columns_times` -- blocked ``D[:, cols] @ x`` for a column-major D;
+* ``_compiled(gf, backend)`` -- whether the numba kernels of
+  :mod:`runtime.compiled.contacts` serve this D.
 """
 
 from __future__ import annotations
@@ -18,11 +20,21 @@ from typing import Any
 
 import numpy as np
 
+from runtime.compiled import contacts as _kernels
+
 __all__ = ["COLUMN_BLOCK", "GATHER_FRACTION", "columns_times"]
 
 #: Full-surface displacement: gather columns of a C-ordered D below this
 #: fraction of its columns, else one gemv with the whole D (memory-bound).
 GATHER_FRACTION: float = 0.12
+
+
+def _compiled(gf: Any, backend: str) -> bool:
+    """True if the contact API should use the compiled kernels: ``backend`` is the
+    resolved ``"numba"`` and D is column-major (as bundles are written; the kernels
+    read whole columns). Any other layout takes the numpy path."""
+    D = gf.D
+    return backend == "numba" and D.ndim == 2 and D.flags.f_contiguous and not D.flags.c_contiguous
 
 
 def _dof3(idx: np.ndarray) -> np.ndarray:
@@ -140,8 +152,14 @@ def _gather(gf: Any, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
     return out
 
 
-def _apply_columns(gf: Any, cols: np.ndarray, g: np.ndarray, rows: np.ndarray | None) -> np.ndarray:
-    """``D[rows, cols] @ g`` as (r, 3) (all rows if ``rows`` is None), skipping clamped columns."""
+def _apply_columns(gf: Any, cols: np.ndarray, g: np.ndarray, rows: np.ndarray | None,
+                   compiled: bool = False) -> np.ndarray:
+    """``D[rows, cols] @ g`` as (r, 3) (all rows if ``rows`` is None), skipping clamped columns.
+
+    ``compiled``: all rows through :func:`runtime.compiled.contacts.columns_times`
+    (see :func:`_compiled`)."""
+    if compiled and rows is None:
+        return _kernels.columns_times(np.asarray(gf.D).T, cols, g).reshape(-1, 3)
     live = cols >= 0
     c, gl = cols[live], g[live]
     D = gf.D

@@ -288,3 +288,93 @@ def test_substep_contacts_and_damping_match_numpy(integrator):
             C.substep_contacts(c["q"], c["v"], c["a"], c["m"], c["g"], dt, c["K"], c["W"], damping,
                                integrator == "implicit", True, c["group"], c["wts"]), ref)
     assert released > 20
+
+
+# ---------------------------------------------------------------------------
+# the contact API's kernels (runtime.contact with backend="numba")
+# ---------------------------------------------------------------------------
+def _contact_lists(gf, rng, s, patch):
+    """s random contacts on the plate (some on the clamp): vertex lists, weights, normals."""
+    from runtime.contact_capacitance import _contact_weights
+    from runtime.weights import _locate_lists, triangle_normals
+
+    usable = np.flatnonzero((gf.contactable | gf.fixed)[gf.triangles].all(axis=1))
+    t = rng.choice(usable, s)
+    b = rng.dirichlet([1.0, 1.0, 1.0], s)
+    n = triangle_normals(gf.vertices, gf.triangles[t])
+    a = rng.uniform(0.0, 0.03, s) if patch else None
+    pv, w = _contact_weights(gf, t, b, n, a, "hertz")
+    V, loc = _locate_lists(pv)
+    return t, b, n, a, V, loc, w
+
+
+@pytest.mark.parametrize("patch", [False, True])
+@pytest.mark.parametrize("s", [1, 12, 40])
+def test_contact_blocks_match_numpy(gf, s, patch):
+    """vertex_block is D_VV exactly (zero columns at clamped vertices); W and D_VV G
+    from weighted_rows / contact_compliance equal numpy's to rounding, both modes;
+    weighted_rows over D.T is the full-surface response D[:, V] B."""
+    from runtime.contact_capacitance import _contact_compliance, _response_columns
+    from runtime.gather import _column_dofs, _gather_vertices
+    from runtime.weights import _dense_B
+
+    gf = dataclasses.replace(gf, D=np.asfortranarray(gf.D))
+    rng = np.random.default_rng(s + 100 * patch)
+    t, b, n, a, V, loc, w = _contact_lists(gf, rng, s, patch)
+    cols = _column_dofs(gf, V)
+    assert (cols < 0).any() or s < 40  # the larger sets reach the clamp
+    D_VV = _gather_vertices(gf, V, cols)
+    M = C.vertex_block(V, gf.D.T, gf.column_of)
+    np.testing.assert_array_equal(M.T, D_VV)
+    for sticky in (True, False):
+        mode = "sticky" if sticky else "frictionless"
+        Y = C.weighted_rows(M, np.arange(V.size), loc, w, n, sticky)
+        W = C.contact_compliance(Y, loc, w, n, sticky)
+        W_ref = _contact_compliance(D_VV, loc, w, n, mode)
+        np.testing.assert_allclose(W, W_ref, rtol=0, atol=1e-13 * np.abs(W_ref).max())
+        np.testing.assert_array_equal(W, W.T)
+        G = _dense_B(V.size, loc, w)
+        if not sticky:
+            G = np.einsum("rkj,kj->rk", G.reshape(G.shape[0], s, 3), n)
+        np.testing.assert_allclose(Y.T, D_VV @ G, rtol=0, atol=1e-13 * np.abs(D_VV).max())
+    R = _response_columns(gf, cols, loc, w, compiled=True)
+    R_ref = _response_columns(gf, cols, loc, w)
+    np.testing.assert_allclose(R, R_ref, rtol=0, atol=1e-13 * np.abs(R_ref).max())
+    g = rng.normal(size=cols.size)
+    u_ref = np.asarray(gf.D)[:, np.maximum(cols, 0)] @ np.where(cols >= 0, g, 0.0)
+    np.testing.assert_allclose(C.columns_times(gf.D.T, cols, g), u_ref, rtol=0, atol=1e-13 * np.abs(u_ref).max())
+
+
+def test_contact_api_takes_the_kernels(gf, monkeypatch):
+    """backend="numba" (and "auto" with numba) calls the kernels for a column-major D;
+    "numpy", and a row-major D, do not; the results agree to rounding."""
+    import runtime.compiled.contacts as K
+    from runtime.contact import capacitance, solve_contacts
+
+    calls = []
+    for name in ("vertex_block", "weighted_rows", "contact_compliance", "columns_times"):
+        real = getattr(K, name)
+        monkeypatch.setattr(K, name, lambda *a, _f=real, _n=name: calls.append(_n) or _f(*a))
+    rng = np.random.default_rng(5)
+    t, b, n, a, V, loc, w = _contact_lists(gf, rng, 6, False)
+    ubar = -1e-4 * n
+    F = dataclasses.replace(gf, D=np.asfortranarray(gf.D))
+    ref = solve_contacts(F, t, b, ubar, backend="numpy")
+    assert not calls
+    for backend in ("numba", "auto"):
+        sol = solve_contacts(F, t, b, ubar, backend=backend)
+        assert calls == ["vertex_block", "weighted_rows", "contact_compliance", "columns_times"]
+        calls.clear()
+        np.testing.assert_allclose(sol.forces, ref.forces, rtol=0, atol=1e-12 * np.abs(ref.forces).max())
+        np.testing.assert_allclose(sol.surface_displacement, ref.surface_displacement, rtol=0,
+                                   atol=1e-12 * np.abs(ref.surface_displacement).max())
+    capacitance(F, t, b, backend="numba").keep_response()
+    assert calls == ["vertex_block", "weighted_rows", "contact_compliance", "weighted_rows"]
+    calls.clear()
+    Crow = dataclasses.replace(gf, D=np.ascontiguousarray(gf.D))
+    sol = solve_contacts(Crow, t, b, ubar, backend="numba")
+    assert not calls
+    np.testing.assert_allclose(sol.forces, ref.forces, rtol=0, atol=1e-12 * np.abs(ref.forces).max())
+    monkeypatch.setattr(C, "HAVE_NUMBA", False)
+    solve_contacts(F, t, b, ubar, backend="auto")
+    assert not calls

@@ -14,6 +14,7 @@ import scipy.sparse.linalg as spla
 
 import runtime
 from runtime.bundle import load
+from runtime.compiled import HAVE_NUMBA
 from runtime.contact import (
     Capacitance,
     ContactSolution,
@@ -31,6 +32,9 @@ precompute = pytest.importorskip("precompute")
 from precompute import fem  # noqa: E402
 
 YOUNG, POISSON = 1.0e6, 0.3
+#: Both backends of the contact API where numba is installed (the box bundle's D is
+#: column-major, so "numba" really takes the kernels; test_compiled checks that).
+BACKENDS = ["numpy", "numba"] if HAVE_NUMBA else ["numpy"]
 
 
 @pytest.fixture(scope="module")
@@ -151,9 +155,10 @@ def test_barycentric_matrix_columns_sum_to_identity():
 # ---------------------------------------------------------------------------
 # against the direct FEM saddle point
 # ---------------------------------------------------------------------------
+@pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("mode", ["sticky", "frictionless"])
 @pytest.mark.parametrize("s", [1, 2, 7, 30])
-def test_matches_direct_fem(box, mode, s):
+def test_matches_direct_fem(box, mode, s, backend):
     rng = np.random.default_rng(100 + s + (mode == "frictionless"))
     gf = box["gf"]
     tri, bary = random_contacts(box, s, rng)
@@ -161,7 +166,7 @@ def test_matches_direct_fem(box, mode, s):
         verts = gf.triangles[tri]
         assert np.unique(verts).size < verts.size
     ubar = rng.normal(scale=1e-3, size=(s, 3))
-    sol = solve_contacts(gf, tri, bary, ubar, mode=mode)
+    sol = solve_contacts(gf, tri, bary, ubar, mode=mode, backend=backend)
     f_ref, u_ref = direct_fem(box, tri, bary, ubar, mode)
     assert isinstance(sol, ContactSolution)
     assert sol.forces.shape == (s, 3) and sol.surface_displacement.shape == (gf.n_vertices, 3)
@@ -205,16 +210,17 @@ def test_pushing_contact_pushes_inward(box):
     assert float(sol.contact_displacement[0] @ n[0]) == pytest.approx(-1e-3, rel=1e-10)
 
 
-def test_rows_subset_and_none(box):
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_rows_subset_and_none(box, backend):
     gf = box["gf"]
     rng = np.random.default_rng(3)
     tri, bary = random_contacts(box, 7, rng)
     ubar = rng.normal(scale=1e-3, size=(7, 3))
-    full = solve_contacts(gf, tri, bary, ubar)
+    full = solve_contacts(gf, tri, bary, ubar, backend=backend)
     rows = np.array([0, 5, 17, gf.n_vertices - 1])
-    sub = solve_contacts(gf, tri, bary, ubar, rows=rows)
+    sub = solve_contacts(gf, tri, bary, ubar, rows=rows, backend=backend)
     np.testing.assert_allclose(sub.surface_displacement, full.surface_displacement[rows], rtol=1e-12, atol=1e-20)
-    none = solve_contacts(gf, tri, bary, ubar, rows=None)
+    none = solve_contacts(gf, tri, bary, ubar, rows=None, backend=backend)
     assert none.surface_displacement is None
     np.testing.assert_array_equal(none.forces, full.forces)
 
@@ -294,14 +300,15 @@ def test_unilateral_all_pushing_equals_bilateral(box, mode):
     assert rel(b.forces, a.forces) < 1e-12
 
 
-def test_unilateral_complementarity_random(box):
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_unilateral_complementarity_random(box, backend):
     """Random prescriptions: the active set satisfies the contact conditions."""
     gf = box["gf"]
     rng = np.random.default_rng(13)
     tri, bary = random_contacts(box, 30, rng, same_triangle=False)
     n = triangle_normals(gf.vertices, gf.triangles[tri])
     ubar = rng.normal(scale=1e-3, size=30)[:, None] * n
-    sol = solve_contacts(gf, tri, bary, ubar, mode="frictionless", unilateral=True)
+    sol = solve_contacts(gf, tri, bary, ubar, mode="frictionless", unilateral=True, backend=backend)
     fn = np.einsum("ki,ki->k", sol.forces, n)
     gap = np.einsum("ki,ki->k", sol.contact_displacement - ubar, n)
     scale_f, scale_u = np.abs(fn).max(), np.abs(ubar).max()
@@ -523,6 +530,7 @@ def test_capacitance_methods(box):
         (dict(normals=[[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]]), ValueError, "shape"),
         (dict(rows="some"), ValueError, "rows"),
         (dict(rows=[10**6]), IndexError, "rows"),
+        (dict(backend="fortran"), ValueError, "backend"),
     ],
 )
 def test_validation(box, kwargs, exc, match):
@@ -575,9 +583,10 @@ def _top_contacts(box, s, rng):
     return tri, rng.dirichlet([1.0, 1.0, 1.0], s)
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("mode", ["sticky", "frictionless"])
 @pytest.mark.parametrize("s, radius", [(1, 0.03), (3, 0.025), (7, "mixed")])
-def test_patch_matches_direct_fem(box, mode, s, radius):
+def test_patch_matches_direct_fem(box, mode, s, radius, backend):
     """Patch contacts = the FEM saddle point with the patch weights as constraint rows."""
     gf = box["gf"]
     rng = np.random.default_rng(200 + s + (mode == "frictionless"))
@@ -585,8 +594,8 @@ def test_patch_matches_direct_fem(box, mode, s, radius):
     if radius == "mixed":  # point contacts, patches of several sizes, one reaching the clamp
         radius = np.array([0.0, 0.015, 0.03, 0.045, 0.0, 0.02, 0.06])
     ubar = rng.normal(scale=1e-3, size=(s, 3))
-    sol = solve_contacts(gf, tri, bary, ubar, mode=mode, patch_radius=radius)
-    cap = capacitance(gf, tri, bary, mode=mode, patch_radius=radius)
+    sol = solve_contacts(gf, tri, bary, ubar, mode=mode, patch_radius=radius, backend=backend)
+    cap = capacitance(gf, tri, bary, mode=mode, patch_radius=radius, backend=backend)
     verts, w = patch_weights(gf, tri, bary, radius)
     assert verts.shape[1] > 3  # the patches really cover more than a triangle
     np.testing.assert_array_equal(cap.V[cap.loc], verts)
@@ -716,9 +725,10 @@ def test_patch_add_remove_equal_fresh_build(box, mode):
     np.testing.assert_allclose(R, gf.compliance(np.arange(gf.n_vertices), cap.V) @ cap.G, rtol=1e-12, atol=1e-20)
 
 
+@pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("mode", ["sticky", "frictionless"])
 @pytest.mark.parametrize("patch", [False, True])
-def test_kept_response_follows_add_and_remove(box, mode, patch):
+def test_kept_response_follows_add_and_remove(box, mode, patch, backend):
     """keep_response: surface_displacement is R @ f, and R follows add / remove (with a
     rigid contact and patches in the mix): equal to the column gather and to direct FEM."""
     gf = box["gf"]
@@ -726,7 +736,8 @@ def test_kept_response_follows_add_and_remove(box, mode, patch):
     tri, bary = random_contacts(box, 8, rng)
     tri[6] = box["rigid_tris"][0]
     radii = np.array([0.02, 0.0, 0.03, 0.02, 0.0, 0.01, 0.02, 0.04]) if patch else np.zeros(8)
-    cap = capacitance(gf, tri[:3], bary[:3], mode=mode, patch_radius=radii[:3])
+    cap = capacitance(gf, tri[:3], bary[:3], mode=mode, patch_radius=radii[:3], backend=backend)
+    assert cap.backend == backend
     R = cap.keep_response()
     assert R.shape == (3 * gf.n_vertices, 9) and cap.keep_response() is R  # formed once
     keep = [0, 1, 2]

@@ -1,7 +1,9 @@
-"""Optional compiled kernels (numba) for the storm's per-step work.
+"""Optional compiled kernels (numba) for the storm's per-step work and the contact solves.
 
 A storm step is hundreds of numpy calls on arrays of a few stones; their
-per-call overhead, not arithmetic, is what a step costs. The kernels here do
+per-call overhead, not arithmetic, is what a step costs. A fresh contact solve
+with many contacts is scattered reads of D, which numpy's fancy indexing
+does slowly. The kernels here do
 the same work in compiled loops when `numba <https://numba.pydata.org>`_ is
 installed (``pip install "hailstorm[fast]"``). Without numba nothing here is
 called and the runtime stays numpy/scipy only. Every kernel has a numpy
@@ -19,7 +21,8 @@ Modules, in the order of a storm step:
   hard walls) and the penetration statistics;
 * :mod:`~runtime.compiled.patches` — patch weights, a patch's compliance and
   the patch sizing of the storm's contacts;
-* :mod:`~runtime.compiled.contacts` — a contact set's blocks (W, K, G, D_VV G)
+* :mod:`~runtime.compiled.contacts` — a contact set's blocks (D_VV, W, K, G,
+  D_VV G, D[:, V] g; also the contact API's, :func:`runtime.contact.solve_contacts`)
   and the constrained coordinates around a contact step;
 * :mod:`~runtime.compiled.integrators` — the exact, implicit and symplectic
   contact steps, the sub-step sizing and the dashpot.
@@ -33,7 +36,17 @@ storm's set); later processes load them in ~0.3 s.
 from __future__ import annotations
 
 from runtime.compiled._jit import HAVE_NUMBA
-from runtime.compiled.contacts import capacitance_blocks, contact_post, contact_prep, inv_spd, rigid_contacts
+from runtime.compiled.contacts import (
+    capacitance_blocks,
+    columns_times,
+    contact_compliance,
+    contact_post,
+    contact_prep,
+    inv_spd,
+    rigid_contacts,
+    vertex_block,
+    weighted_rows,
+)
 from runtime.compiled.flight import flight, near_set, retired
 from runtime.compiled.grid import SampleGrid, closest_points
 from runtime.compiled.integrators import exact_step, substep_contacts, substep_damping, substep_size
@@ -45,6 +58,8 @@ __all__ = [
     "SampleGrid",
     "capacitance_blocks",
     "closest_points",
+    "columns_times",
+    "contact_compliance",
     "contact_post",
     "contact_prep",
     "exact_step",
@@ -62,11 +77,13 @@ __all__ = [
     "substep_contacts",
     "substep_damping",
     "substep_size",
+    "vertex_block",
+    "weighted_rows",
 ]
 
 
 def resolve_backend(backend: str) -> str:
-    """The backend a storm runs on: ``"numba"`` or ``"numpy"``.
+    """The backend a storm or a contact solve runs on: ``"numba"`` or ``"numpy"``.
 
     Parameters
     ----------
