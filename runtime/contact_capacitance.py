@@ -494,8 +494,8 @@ class Capacitance:
         :meth:`remove` deletes them. Worth it when one contact set is solved
         many times (measured in ``tests/benchmarks/bench_contacts.py``: on the
         default seat at s = 100, forces + full-surface displacement take
-        0.24 ms against 8.8 ms for a fresh solve; forming R costs about one
-        fresh solve). Memory: ``3n x 3s`` doubles (11 MB at n = 1557, s = 100).
+        0.24 ms against 5-8 ms for a fresh solve; building the capacitance and
+        forming R cost 9 ms). Memory: ``3n x 3s`` doubles (11 MB at n = 1557, s = 100).
 
         Returns
         -------
