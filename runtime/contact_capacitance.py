@@ -569,7 +569,7 @@ class Capacitance:
             None if normal is None else np.asarray(normal, dtype=np.float64).reshape(1, 3),
         )
         a_new = self.default_patch_radius if patch_radius is None else float(patch_radius)
-        pv, pw = _contact_weights(self.gf, t, b, n, np.array([a_new]), self.patch_profile)
+        pv, pw = _contact_weights(self.gf, t, b, n, np.array([a_new]), self.patch_profile, self.backend)
         gf = self.gf
         old_s = self.s
         p = self.per_contact
@@ -792,11 +792,11 @@ def _check_patch(patch_radius: Any, s: int, profile: str) -> np.ndarray | None:
 
 
 def _contact_weights(gf: Any, t: np.ndarray, b: np.ndarray, n: np.ndarray | None, a: np.ndarray | None,
-                     profile: str) -> tuple[np.ndarray, np.ndarray]:
+                     profile: str, backend: str = "numpy") -> tuple[np.ndarray, np.ndarray]:
     """(s, P) vertex lists and weights: barycentric (point) or patch."""
     if a is None or not a.any():
         return np.asarray(gf.triangles)[t], b
-    return patch_weights(gf, t, b, a, n, profile=profile)
+    return patch_weights(gf, t, b, a, n, profile=profile, backend=backend)
 
 
 def _build(gf: Any, t: np.ndarray, b: np.ndarray, n: np.ndarray | None, mode: Mode,
@@ -808,7 +808,7 @@ def _build(gf: Any, t: np.ndarray, b: np.ndarray, n: np.ndarray | None, mode: Mo
         if mode != "sticky" or a is not None:
             raise ValueError("normals are needed for frictionless and patch contacts")  # pragma: no cover
         n = np.zeros((t.size, 3))
-    pv, w = _contact_weights(gf, t, b, n, a, profile)
+    pv, w = _contact_weights(gf, t, b, n, a, profile, backend)
     V, loc = _locate_lists(pv)
     cols = _column_dofs(gf, V)
     compiled = _compiled(gf, backend)

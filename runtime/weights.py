@@ -218,18 +218,19 @@ def barycentric_matrix(
 
 
 def patch_matrix(gf: Any, tri_idx: Any, bary: Any, radius: Any, normals: Any = None, *,
-                 profile: str = "hertz") -> tuple[np.ndarray, np.ndarray]:
+                 profile: str = "hertz", backend: str = "auto") -> tuple[np.ndarray, np.ndarray]:
     """The patch force-distribution matrix B (block ``(i, k) = w_{k,i} I3``).
 
     Same as :func:`barycentric_matrix` with the weights of
-    :func:`patch_weights`; ``radius = 0`` gives the barycentric matrix.
+    :func:`patch_weights` (``profile`` and ``backend`` as there); ``radius = 0``
+    gives the barycentric matrix.
 
     Returns
     -------
     V : (|V|,) int ndarray
     B : (3|V|, 3s) float ndarray
     """
-    verts, w = patch_weights(gf, tri_idx, bary, radius, normals, profile=profile)
+    verts, w = patch_weights(gf, tri_idx, bary, radius, normals, profile=profile, backend=backend)
     V, loc = _locate_lists(verts)
     return V, _dense_B(V.size, loc, w)
 

@@ -596,7 +596,7 @@ def test_patch_matches_direct_fem(box, mode, s, radius, backend):
     ubar = rng.normal(scale=1e-3, size=(s, 3))
     sol = solve_contacts(gf, tri, bary, ubar, mode=mode, patch_radius=radius, backend=backend)
     cap = capacitance(gf, tri, bary, mode=mode, patch_radius=radius, backend=backend)
-    verts, w = patch_weights(gf, tri, bary, radius)
+    verts, w = patch_weights(gf, tri, bary, radius, backend=backend)
     assert verts.shape[1] > 3  # the patches really cover more than a triangle
     np.testing.assert_array_equal(cap.V[cap.loc], verts)
     np.testing.assert_array_equal(cap.weights, w)
@@ -613,7 +613,7 @@ def test_patch_matches_direct_fem(box, mode, s, radius, backend):
         np.testing.assert_allclose(np.einsum("ki,ki->k", u_patch, nrm), np.einsum("ki,ki->k", ubar, nrm),
                                    atol=1e-10 * np.abs(ubar).max())
     # B of the capacitance is the patch matrix
-    V, B = patch_matrix(gf, tri, bary, radius)
+    V, B = patch_matrix(gf, tri, bary, radius, backend=backend)
     np.testing.assert_array_equal(V, cap.V)
     np.testing.assert_array_equal(B, cap.B)
 

@@ -2,10 +2,9 @@
 
 A storm step is hundreds of numpy calls on arrays of a few stones; their
 per-call overhead, not arithmetic, is what a step costs. A fresh contact solve
-with many contacts is scattered reads of D, which numpy's fancy indexing
-does slowly. The kernels here do
-the same work in compiled loops when `numba <https://numba.pydata.org>`_ is
-installed (``pip install "hailstorm[fast]"``). Without numba nothing here is
+with many contacts is scattered reads of D, which numpy's fancy indexing does
+slowly. The kernels here do the same work in compiled loops when `numba
+<https://numba.pydata.org>`_ is installed (``pip install "hailstorm[fast]"``). Without numba nothing here is
 called and the runtime stays numpy/scipy only. Every kernel has a numpy
 counterpart elsewhere in :mod:`runtime`, the reference the tests hold it to.
 
