@@ -78,6 +78,8 @@ from typing import Any
 
 import numpy as np
 
+from runtime import contact_capacitance as _cap
+from runtime.compiled import contacts as _kernels
 from runtime.compiled import resolve_backend
 from runtime.contact_capacitance import (
     COND_LIMIT,
@@ -93,6 +95,7 @@ from runtime.contact_capacitance import (
 )
 from runtime.gather import _apply_columns, _compiled
 from runtime.weights import (
+    PATCH_PROFILES,
     _interpolate,
     _vertex_forces,
     barycentric_matrix,
@@ -171,6 +174,32 @@ def _solve_subset(cap: Capacitance, c: np.ndarray, act: np.ndarray) -> np.ndarra
     return lam
 
 
+def _point_contacts_compiled(gf: Any, triangles: Any, barycentric: Any, displacements: Any, mode: Mode,
+                             want_u: bool) -> ContactSolution | None:
+    """:func:`solve_contacts` for bilateral point contacts in one compiled call
+    (:func:`runtime.compiled.contacts.point_contacts`), or None where the general
+    path must decide: malformed input (it raises the error), rigid contacts,
+    coincident contacts (pseudo-inverse), no contacts, more than
+    :data:`runtime.contact_capacitance.POINT_FAST_MAX` contacts."""
+    t = np.asarray(triangles)
+    if t.ndim != 1 or not 0 < t.size <= _cap.POINT_FAST_MAX or t.dtype.kind not in "iu":
+        return None
+    b = np.asarray(barycentric, dtype=np.float64)
+    u = np.asarray(displacements, dtype=np.float64)
+    s = t.size
+    if b.shape != (s, 3) or u.shape != (s, 3):
+        return None
+    code, f, cd, V, g, uall = _kernels.point_contacts(
+        np.asarray(gf.D).T, gf.column_of, gf.contactable, gf.fixed, gf.triangles, gf.vertices, t.astype(np.int64, copy=False),
+        b, u, mode == "sticky", want_u, _cap.BARY_SUM_TOL, _cap.BARY_NEG_TOL, _cap.COND_LIMIT)
+    if code:
+        return None
+    return ContactSolution(
+        forces=f, surface_displacement=uall.reshape(-1, 3) if want_u else None, active=np.ones(s, bool),
+        rigid=np.zeros(s, bool), contact_displacement=cd, iterations=1, vertices=V, vertex_forces=g,
+    )
+
+
 def solve_contacts(
     gf: Any,
     triangles: Any,
@@ -247,6 +276,11 @@ def solve_contacts(
     """
     mode = _check_mode(mode)
     backend = resolve_backend(backend)
+    if (not unilateral and normals is None and patch_radius is None and patch_profile in PATCH_PROFILES
+            and (rows is None or (isinstance(rows, str) and rows == "all")) and _compiled(gf, backend)):
+        fast = _point_contacts_compiled(gf, triangles, barycentric, displacements, mode, rows is not None)
+        if fast is not None:
+            return fast
     # sticky bilateral contacts never look at the normals
     t, b, n = _check_contacts(gf, triangles, barycentric, normals,
                               need_normals=unilateral or mode == "frictionless" or patch_radius is not None)

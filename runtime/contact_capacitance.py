@@ -4,8 +4,8 @@ Split out of :mod:`runtime.contact` (which re-exports the public names, so
 ``from runtime.contact import Capacitance, capacitance`` keeps working). See
 that module's docstring for the notation, sign conventions and the
 documented degenerate cases. The tuning constants (:data:`COND_LIMIT`,
-:data:`PINV_RCOND`, :data:`EMBED_BLOCKS_FROM`, :data:`SPARSE_FROM`) live
-here: set them on this module.
+:data:`PINV_RCOND`, :data:`EMBED_BLOCKS_FROM`, :data:`SPARSE_FROM`,
+:data:`POINT_FAST_MAX`) live here: set them on this module.
 """
 
 from __future__ import annotations
@@ -35,6 +35,7 @@ __all__ = [
     "COND_LIMIT",
     "EMBED_BLOCKS_FROM",
     "PINV_RCOND",
+    "POINT_FAST_MAX",
     "SPARSE_FROM",
     "Capacitance",
     "capacitance",
@@ -55,6 +56,10 @@ BARY_NEG_TOL: float = 1e-9
 EMBED_BLOCKS_FROM: int = 300
 #: From this many contacts on, W is formed with a sparse G (less work, more overhead).
 SPARSE_FROM: int = 16
+#: Up to this many bilateral point contacts, ``solve_contacts`` with numba takes the
+#: one-call compiled solve (:func:`runtime.compiled.contacts.point_contacts`); above
+#: it the block kernels, which win from s = 64-80 on (measured on the default seat).
+POINT_FAST_MAX: int = 64
 
 
 def _contact_compliance(D_VV: np.ndarray, loc, bary, normals, mode) -> np.ndarray:

@@ -346,35 +346,105 @@ def test_contact_blocks_match_numpy(gf, s, patch):
 
 
 def test_contact_api_takes_the_kernels(gf, monkeypatch):
-    """backend="numba" (and "auto" with numba) calls the kernels for a column-major D;
-    "numpy", and a row-major D, do not; the results agree to rounding."""
-    import runtime.compiled.contacts as K
+    """backend="numba" (and "auto" with numba) calls the kernels for a column-major D:
+    bilateral point contacts in one call (point_contacts), everything else through the
+    block kernels; "numpy", and a row-major D, call none. Results agree to rounding."""
+    import runtime.contact
+    import runtime.contact_capacitance
+    import runtime.gather
     from runtime.contact import capacitance, solve_contacts
 
     calls = []
-    for name in ("vertex_block", "weighted_rows", "contact_compliance", "columns_times"):
-        real = getattr(K, name)
-        monkeypatch.setattr(K, name, lambda *a, _f=real, _n=name: calls.append(_n) or _f(*a))
+
+    class Spy:  # the modules' handle on the kernels, recording which are fetched
+        def __getattr__(self, name):
+            calls.append(name)
+            return getattr(C.contacts, name)
+
+    for mod in (runtime.contact, runtime.contact_capacitance, runtime.gather):
+        monkeypatch.setattr(mod, "_kernels", Spy())
     rng = np.random.default_rng(5)
     t, b, n, a, V, loc, w = _contact_lists(gf, rng, 6, False)
+    t = np.where(gf.fixed[gf.triangles[t]].all(axis=1), t[0], t)  # no rigid contact: the fast path takes all
     ubar = -1e-4 * n
     F = dataclasses.replace(gf, D=np.asfortranarray(gf.D))
     ref = solve_contacts(F, t, b, ubar, backend="numpy")
+    ref_uni = solve_contacts(F, t, b, ubar, backend="numpy", unilateral=True)
     assert not calls
+
+    def same(x, y):
+        for p, q in ((x.forces, y.forces), (x.surface_displacement, y.surface_displacement),
+                     (x.contact_displacement, y.contact_displacement), (x.vertex_forces, y.vertex_forces)):
+            np.testing.assert_allclose(p, q, rtol=0, atol=1e-12 * np.abs(q).max())
+        np.testing.assert_array_equal(x.vertices, y.vertices)
+        np.testing.assert_array_equal(x.active, y.active)
+
     for backend in ("numba", "auto"):
-        sol = solve_contacts(F, t, b, ubar, backend=backend)
+        same(solve_contacts(F, t, b, ubar, backend=backend), ref)
+        assert calls == ["point_contacts"]
+        calls.clear()
+        same(solve_contacts(F, t, b, ubar, backend=backend, unilateral=True), ref_uni)
         assert calls == ["vertex_block", "weighted_rows", "contact_compliance", "columns_times"]
         calls.clear()
-        np.testing.assert_allclose(sol.forces, ref.forces, rtol=0, atol=1e-12 * np.abs(ref.forces).max())
-        np.testing.assert_allclose(sol.surface_displacement, ref.surface_displacement, rtol=0,
-                                   atol=1e-12 * np.abs(ref.surface_displacement).max())
     capacitance(F, t, b, backend="numba").keep_response()
     assert calls == ["vertex_block", "weighted_rows", "contact_compliance", "weighted_rows"]
     calls.clear()
+    monkeypatch.setattr(runtime.contact_capacitance, "POINT_FAST_MAX", t.size - 1)  # too many for the fast path
+    same(solve_contacts(F, t, b, ubar, backend="numba"), ref)
+    assert calls == ["vertex_block", "weighted_rows", "contact_compliance", "columns_times"]
+    calls.clear()
     Crow = dataclasses.replace(gf, D=np.ascontiguousarray(gf.D))
-    sol = solve_contacts(Crow, t, b, ubar, backend="numba")
+    same(solve_contacts(Crow, t, b, ubar, backend="numba"), ref)
     assert not calls
-    np.testing.assert_allclose(sol.forces, ref.forces, rtol=0, atol=1e-12 * np.abs(ref.forces).max())
     monkeypatch.setattr(C, "HAVE_NUMBA", False)
     solve_contacts(F, t, b, ubar, backend="auto")
     assert not calls
+
+
+def test_point_contacts_fast_path(gf):
+    """The one-call solve of bilateral point contacts equals the general path (random sets,
+    both modes, with and without the surface), and hands every special case back to it
+    with its code: invalid input 1, a vertex without a column of D 2, a rigid contact 3,
+    coincident contacts (pseudo-inverse) 4."""
+    import runtime.contact_capacitance as cc
+    from runtime.contact import solve_contacts, triangle_normals
+
+    F = dataclasses.replace(gf, D=np.asfortranarray(gf.D))
+    T = np.asarray(F.triangles)
+    soft = np.flatnonzero(F.contactable[T].all(axis=1))
+    rng = np.random.default_rng(8)
+    for trial in range(40):
+        s = int(rng.integers(1, 25))
+        t = rng.choice(soft, s)
+        b = rng.dirichlet([1.0, 1.0, 1.0], s)
+        ubar = -1e-4 * triangle_normals(F.vertices, T[t]) + rng.normal(scale=3e-5, size=(s, 3))
+        mode = ("sticky", "frictionless")[trial % 2]
+        rows = ("all", None)[(trial // 2) % 2]
+        got = solve_contacts(F, t, b, ubar, mode=mode, rows=rows, backend="numba")
+        ref = solve_contacts(F, t, b, ubar, mode=mode, rows=rows, backend="numpy")
+        for p, q in ((got.forces, ref.forces), (got.contact_displacement, ref.contact_displacement),
+                     (got.vertex_forces, ref.vertex_forces), (got.surface_displacement, ref.surface_displacement)):
+            if q is None:
+                assert p is None
+                continue
+            np.testing.assert_allclose(p, q, rtol=0, atol=1e-10 * np.abs(q).max())
+        np.testing.assert_array_equal(got.vertices, ref.vertices)
+        assert got.active.all() and not got.rigid.any() and got.iterations == 1
+
+    def code(t, b, contactable=None, sticky=True):
+        t = np.asarray(t, dtype=np.int64)
+        return C.point_contacts(F.D.T, F.column_of, F.contactable if contactable is None else contactable, F.fixed,
+                                T, F.vertices, t, np.asarray(b, float), np.full((t.size, 3), -1e-4), sticky, True,
+                                cc.BARY_SUM_TOL, cc.BARY_NEG_TOL, cc.COND_LIMIT)[0]
+
+    third = [1 / 3, 1 / 3, 1 / 3]
+    assert code([soft[0]], [third]) == 0
+    assert code([soft[0]], [[0.2, 0.3, 0.6]]) == 1  # does not sum to 1
+    assert code([T.shape[0]], [third]) == 1  # out of range
+    crippled = F.contactable.copy()
+    crippled[T[soft[0], 0]] = False
+    assert code([soft[0]], [third], contactable=crippled) == 2
+    rigid = np.flatnonzero(F.fixed[T].all(axis=1))[0]
+    assert code([soft[0], rigid], [third, third]) == 3
+    assert code([soft[0], soft[0]], [third, third]) == 4
+    assert code([soft[0], soft[0]], [third, third], sticky=False) == 4

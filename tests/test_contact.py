@@ -219,7 +219,9 @@ def test_rows_subset_and_none(box, backend):
     full = solve_contacts(gf, tri, bary, ubar, backend=backend)
     rows = np.array([0, 5, 17, gf.n_vertices - 1])
     sub = solve_contacts(gf, tri, bary, ubar, rows=rows, backend=backend)
-    np.testing.assert_allclose(sub.surface_displacement, full.surface_displacement[rows], rtol=1e-12, atol=1e-20)
+    # (with numba, rows "all" and None take the one-call fast path and a subset the general one)
+    np.testing.assert_allclose(sub.surface_displacement, full.surface_displacement[rows], rtol=0,
+                               atol=1e-12 * np.abs(full.surface_displacement).max())
     none = solve_contacts(gf, tri, bary, ubar, rows=None, backend=backend)
     assert none.surface_displacement is None
     np.testing.assert_array_equal(none.forces, full.forces)
@@ -227,22 +229,23 @@ def test_rows_subset_and_none(box, backend):
 
 @pytest.mark.parametrize("s", [1, 7, 30])
 def test_memory_layouts_agree(box, s):
-    """Memory-mapped (C order), in-memory C order and Fortran-order D: same results
-    (the surface product switches between a column gather and a full gemv with s)."""
+    """Memory-mapped, in-memory C-order and Fortran-order D: the numpy path's gathers give
+    the same results (the surface product switches between a column gather and a full
+    gemv with s). The compiled path is held to the numpy one in test_compiled."""
     import dataclasses
 
     gf = box["gf"]
     rng = np.random.default_rng(60 + s)
     tri, bary = random_contacts(box, s, rng)
     ubar = rng.normal(scale=1e-3, size=(s, 3))
-    ref = solve_contacts(gf, tri, bary, ubar)
+    ref = solve_contacts(gf, tri, bary, ubar, backend="numpy")
     rows = np.arange(0, gf.n_vertices, 2)
     for D in (np.array(gf.D), np.asfortranarray(gf.D)):
         other = dataclasses.replace(gf, D=D)
-        sol = solve_contacts(other, tri, bary, ubar)
+        sol = solve_contacts(other, tri, bary, ubar, backend="numpy")
         assert rel(sol.forces, ref.forces) < 1e-12
         assert rel(sol.surface_displacement, ref.surface_displacement) < 1e-12
-        sub = solve_contacts(other, tri, bary, ubar, rows=rows)
+        sub = solve_contacts(other, tri, bary, ubar, rows=rows, backend="numpy")
         assert rel(sub.surface_displacement, ref.surface_displacement[rows]) < 1e-12
 
 
@@ -640,9 +643,9 @@ def test_patch_radius_zero_is_point_contact(box):
     rng = np.random.default_rng(5)
     tri, bary = random_contacts(box, 7, rng)
     ubar = rng.normal(scale=1e-3, size=(7, 3))
-    ref = solve_contacts(gf, tri, bary, ubar)
+    ref = solve_contacts(gf, tri, bary, ubar, backend="numpy")
     for radius in (0.0, np.zeros(7)):
-        sol = solve_contacts(gf, tri, bary, ubar, patch_radius=radius)
+        sol = solve_contacts(gf, tri, bary, ubar, patch_radius=radius, backend="numpy")
         np.testing.assert_array_equal(sol.forces, ref.forces)
         np.testing.assert_array_equal(sol.surface_displacement, ref.surface_displacement)
     # a patch much smaller than a triangle: the weights tend to beta (continuity at a -> 0)
