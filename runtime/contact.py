@@ -184,14 +184,16 @@ def _point_contacts_compiled(gf: Any, triangles: Any, barycentric: Any, displace
     t = np.asarray(triangles)
     if t.ndim != 1 or not 0 < t.size <= _cap.POINT_FAST_MAX or t.dtype.kind not in "iu":
         return None
-    b = np.asarray(barycentric, dtype=np.float64)
-    u = np.asarray(displacements, dtype=np.float64)
+    # C-contiguous float64 / int64: one compiled specialisation serves every caller
+    b = np.ascontiguousarray(barycentric, dtype=np.float64)
+    u = np.ascontiguousarray(displacements, dtype=np.float64)
     s = t.size
     if b.shape != (s, 3) or u.shape != (s, 3):
         return None
+    t = np.ascontiguousarray(t, dtype=np.int64)
     code, f, cd, V, g, uall = _kernels.point_contacts(
-        np.asarray(gf.D).T, gf.column_of, gf.contactable, gf.fixed, gf.triangles, gf.vertices, t.astype(np.int64, copy=False),
-        b, u, mode == "sticky", want_u, _cap.BARY_SUM_TOL, _cap.BARY_NEG_TOL, _cap.COND_LIMIT)
+        np.asarray(gf.D).T, gf.column_of, gf.contactable, gf.fixed, gf.triangles, gf.vertices, t, b, u,
+        mode == "sticky", want_u, _cap.BARY_SUM_TOL, _cap.BARY_NEG_TOL, _cap.COND_LIMIT)
     if code:
         return None
     return ContactSolution(
