@@ -79,7 +79,7 @@ from typing import Any
 import numpy as np
 
 from runtime import contact_capacitance as _cap
-from runtime.compiled import contacts as _kernels
+from runtime.compiled import blocks as _kernels
 from runtime.compiled import resolve_backend
 from runtime.contact_capacitance import (
     COND_LIMIT,
@@ -177,7 +177,7 @@ def _solve_subset(cap: Capacitance, c: np.ndarray, act: np.ndarray) -> np.ndarra
 def _point_contacts_compiled(gf: Any, triangles: Any, barycentric: Any, displacements: Any, mode: Mode,
                              want_u: bool) -> ContactSolution | None:
     """:func:`solve_contacts` for bilateral point contacts in one compiled call
-    (:func:`runtime.compiled.contacts.point_contacts`), or None where the general
+    (:func:`runtime.compiled.blocks.point_contacts`), or None where the general
     path must decide: malformed input (it raises the error), rigid contacts,
     coincident contacts (pseudo-inverse), no contacts, more than
     :data:`runtime.contact_capacitance.POINT_FAST_MAX` contacts."""

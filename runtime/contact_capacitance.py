@@ -16,7 +16,7 @@ from typing import Any, Literal, Sequence, cast, overload
 import numpy as np
 import scipy.linalg as sla
 
-from runtime.compiled import contacts as _kernels
+from runtime.compiled import blocks as _kernels
 from runtime.compiled import resolve_backend
 from runtime.gather import _apply_columns, _column_dofs, _compiled, _dof3, _gather, _gather_vertices
 from runtime.weights import (
@@ -57,7 +57,7 @@ EMBED_BLOCKS_FROM: int = 300
 #: From this many contacts on, W is formed with a sparse G (less work, more overhead).
 SPARSE_FROM: int = 16
 #: Up to this many bilateral point contacts, ``solve_contacts`` with numba takes the
-#: one-call compiled solve (:func:`runtime.compiled.contacts.point_contacts`); above
+#: one-call compiled solve (:func:`runtime.compiled.blocks.point_contacts`); above
 #: it the block kernels, which win from s = 64-80 on (measured on the default seat).
 POINT_FAST_MAX: int = 64
 
@@ -145,7 +145,7 @@ def _response_columns(gf: Any, cols: np.ndarray, loc: np.ndarray, weights: np.nd
 
     ``cols``: column dofs of U (``-1`` at clamped vertices); ``loc`` (k, P):
     positions in U of each contact's vertices, ``weights`` (k, P) theirs.
-    ``compiled``: through :func:`runtime.compiled.contacts.weighted_rows`.
+    ``compiled``: through :func:`runtime.compiled.blocks.weighted_rows`.
     """
     D = gf.D
     if compiled:
@@ -358,7 +358,7 @@ class Capacitance:
     #: radius :meth:`add` uses when not given (a scalar ``patch_radius`` at build; else 0)
     default_patch_radius: float = 0.0
     #: ``"numba"``: the build and the full-surface products use the compiled kernels
-    #: (:mod:`runtime.compiled.contacts`); ``"numpy"``: numpy only
+    #: (:mod:`runtime.compiled.blocks`); ``"numpy"``: numpy only
     backend: str = "numpy"
 
     # -- sizes and derived matrices ------------------------------------------
@@ -755,7 +755,7 @@ def capacitance(
         Pressure profile over a patch.
     backend : {"auto", "numba", "numpy"}
         ``"auto"`` (default) builds ``D_VV`` and ``W`` with the compiled kernels
-        of :mod:`runtime.compiled.contacts` when numba is installed and D is
+        of :mod:`runtime.compiled.blocks` when numba is installed and D is
         column-major (as bundles are written), and so do the full-surface
         products of :meth:`Capacitance.surface_displacement` and
         :meth:`Capacitance.keep_response`. Same results to rounding.

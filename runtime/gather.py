@@ -11,7 +11,7 @@ compliance ``D`` fast; nothing knows about contacts.
 * ``_apply_columns(gf, cols, g, rows)`` -- ``D[rows, cols] @ g``;
 * :func:`columns_times` -- blocked ``D[:, cols] @ x`` for a column-major D;
 * ``_compiled(gf, backend)`` -- whether the numba kernels of
-  :mod:`runtime.compiled.contacts` serve this D.
+  :mod:`runtime.compiled.blocks` serve this D.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from runtime.compiled import contacts as _kernels
+from runtime.compiled import blocks as _kernels
 
 __all__ = ["COLUMN_BLOCK", "GATHER_FRACTION", "columns_times"]
 
@@ -168,7 +168,7 @@ def _apply_columns(gf: Any, cols: np.ndarray, g: np.ndarray, rows: np.ndarray | 
                    compiled: bool = False) -> np.ndarray:
     """``D[rows, cols] @ g`` as (r, 3) (all rows if ``rows`` is None), skipping clamped columns.
 
-    ``compiled``: all rows through :func:`runtime.compiled.contacts.columns_times`
+    ``compiled``: all rows through :func:`runtime.compiled.blocks.columns_times`
     (see :func:`_compiled`)."""
     if compiled and rows is None:
         return _kernels.columns_times(np.asarray(gf.D).T, cols, g).reshape(-1, 3)

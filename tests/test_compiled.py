@@ -359,7 +359,7 @@ def test_contact_api_takes_the_kernels(gf, monkeypatch):
     class Spy:  # the modules' handle on the kernels, recording which are fetched
         def __getattr__(self, name):
             calls.append(name)
-            return getattr(C.contacts, name)
+            return getattr(C.blocks, name)
 
     for mod in (runtime.contact, runtime.contact_capacitance, runtime.gather):
         monkeypatch.setattr(mod, "_kernels", Spy())

@@ -20,9 +20,11 @@ Modules, in the order of a storm step:
   hard walls) and the penetration statistics;
 * :mod:`~runtime.compiled.patches` — patch weights, a patch's compliance and
   the patch sizing of the storm's contacts;
-* :mod:`~runtime.compiled.contacts` — a contact set's blocks (D_VV, W, K, G,
-  D_VV G, D[:, V] g; also the contact API's, :func:`runtime.contact.solve_contacts`)
-  and the constrained coordinates around a contact step;
+* :mod:`~runtime.compiled.blocks` — blocks of D (D_VV, D_VV G, W, D[:, V] g)
+  and one-call point-contact solves: the contact API's kernels
+  (:func:`runtime.contact.solve_contacts`), also used by the storm;
+* :mod:`~runtime.compiled.contacts` — a storm contact set's blocks (W, K, G,
+  D_VV G) and the constrained coordinates around a contact step;
 * :mod:`~runtime.compiled.integrators` — the exact, implicit and symplectic
   contact steps, the sub-step sizing and the dashpot.
 
@@ -35,18 +37,8 @@ storm's set); later processes load them in ~0.3 s.
 from __future__ import annotations
 
 from runtime.compiled._jit import HAVE_NUMBA
-from runtime.compiled.contacts import (
-    capacitance_blocks,
-    columns_times,
-    contact_compliance,
-    contact_post,
-    contact_prep,
-    inv_spd,
-    point_contacts,
-    rigid_contacts,
-    vertex_block,
-    weighted_rows,
-)
+from runtime.compiled.blocks import columns_times, contact_compliance, point_contacts, vertex_block, weighted_rows
+from runtime.compiled.contacts import capacitance_blocks, contact_post, contact_prep, inv_spd, rigid_contacts
 from runtime.compiled.flight import flight, near_set, retired
 from runtime.compiled.grid import SampleGrid, closest_points
 from runtime.compiled.integrators import exact_step, substep_contacts, substep_damping, substep_size
