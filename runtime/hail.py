@@ -301,6 +301,16 @@ class ContactStep:
     seat_force : (m,) ndarray
         Elastic force on the seat ``K_active (q+ - a)`` (a push has the sign
         of ``q - a < 0``), the one that deforms the seat; zero where released.
+    peak_seat_force : (m,) ndarray
+        The elastic seat force at the instant inside the step when the
+        contact's force was largest (zero for a contact that carried none).
+        ``"exact"`` finds it on the closed-form trajectory, so a contact that
+        opens and is released within one step still shows its peak;
+        ``"implicit"``/``"symplectic"`` only know the step's end
+        (``seat_force``).
+    peak_ubar : (m,) ndarray
+        ``q - a`` at the contact's deepest instant inside the step (the most
+        negative normal component; where the contact carried no force, ``q+ - a``).
     """
 
     q: np.ndarray
@@ -308,6 +318,8 @@ class ContactStep:
     active: np.ndarray
     force: np.ndarray
     seat_force: np.ndarray
+    peak_seat_force: np.ndarray
+    peak_ubar: np.ndarray
 
 
 def _inv_spd(W: np.ndarray) -> np.ndarray:
@@ -441,7 +453,8 @@ def contact_step(
             Ka = K_full[np.ix_(idx, idx)]
         seat[idx] = Ka @ (q_new[idx] - a[idx])
     force[~active] = 0.0
-    return ContactStep(q=q_new, v=v_new, active=active, force=force, seat_force=seat)
+    return ContactStep(q=q_new, v=v_new, active=active, force=force, seat_force=seat, peak_seat_force=seat.copy(),
+                       peak_ubar=q_new - a)
 
 
 # --------------------------------------------------------------------------
@@ -484,18 +497,25 @@ class _Modal:
 
 
 def _scalar_exact(q: float, v: float, a: float, m: float, g: float, dt: float, k: float, c: float,
-                  unilateral: bool, always: bool) -> tuple[float, float, bool, bool]:
+                  unilateral: bool, always: bool) -> tuple[float, float, bool, bool, float, float]:
     """One frictionless contact, closed form (plain floats; :mod:`runtime.compiled`
-    compiles this same function for its exact step). Returns ``(q, v, active, ok)``;
+    compiles this same function for its exact step). Returns ``(q, v, active, ok, umin, umax)``;
     ``ok`` is False when the case is not covered (overdamped, or release from an
-    always-damped state): the general path then takes the step."""
+    always-damped state): the general path then takes the step. ``umin``, ``umax``
+    are the smallest and largest ``q - a`` (the deepest compression; the largest
+    stretch of a bilateral contact) while the contact is closed during the step,
+    located analytically: the closed form's extrema in each segment lie at its ends or
+    at the zeros of ``v``, and a damped oscillation's first minimum (maximum) is its
+    deepest (highest), so the ends and the first two zeros of ``v`` in the segment
+    suffice."""
     t = 0.0
+    umin = umax = q - a
     damp = always or v < 0.0
     if unilateral and not damp and -k * (q - a) < 0.0 and v >= 0.0:
-        return q, v, True, False  # pulls at the start: let the general path release it
+        return q, v, True, False, umin, umax  # pulls at the start: let the general path release it
     w2 = k / m
     if w2 <= 0.0:
-        return q, v, True, False
+        return q, v, True, False, umin, umax
     off = a + g / w2  # equilibrium q_eq
     finished = False
     for _ in range(6):
@@ -507,13 +527,15 @@ def _scalar_exact(q: float, v: float, a: float, m: float, g: float, dt: float, k
         sig = 0.5 * ce / m
         wd2 = w2 - sig * sig
         if wd2 <= 1e-6 * w2:
-            return q, v, True, False
+            return q, v, True, False, umin, umax
         wd = math.sqrt(wd2)
         y0 = q - off
         A, B = y0, (v + sig * y0) / wd
         P, Q = v, A * wd + sig * B  # v(t) = e^{-sig t} (P cos wd t - Q sin wd t)
         te = h
         kind = 0
+        # first zero of v (wd t = atan2(P, Q) mod pi); the next one is pi / wd later
+        tv0 = (math.atan2(P, Q) % math.pi) / wd
         if c > 0.0 and not always:
             # v(t) = 0: wd t = atan2(P, Q) mod pi (first positive root)
             th = math.atan2(P, Q) % math.pi
@@ -535,11 +557,20 @@ def _scalar_exact(q: float, v: float, a: float, m: float, g: float, dt: float, k
                     tr += 2.0 * math.pi / wd
                 if tr < te:
                     te, kind = tr, 2
+        # deepest compression inside the segment (its ends are covered below and above)
+        for j in range(2):
+            tz = tv0 + j * math.pi / wd
+            if 0.0 < tz < te:
+                qz = off + math.exp(-sig * tz) * (A * math.cos(wd * tz) + B * math.sin(wd * tz))
+                umin = min(umin, qz - a)
+                umax = max(umax, qz - a)
         e = math.exp(-sig * te)
         cs, sn = math.cos(wd * te), math.sin(wd * te)
         q = off + e * (A * cs + B * sn)
         v = e * (P * cs - Q * sn)
         t += te
+        umin = min(umin, q - a)
+        umax = max(umax, q - a)
         if kind == 1:
             damp = False
         elif kind == 2:
@@ -547,15 +578,15 @@ def _scalar_exact(q: float, v: float, a: float, m: float, g: float, dt: float, k
             h = dt - t
             q += h * v + 0.5 * h * h * g
             v += h * g
-            return q, v, False, True
+            return q, v, False, True, umin, umax
         else:
             finished = True
             break
     if not finished:
-        return q, v, True, False
+        return q, v, True, False, umin, umax
     if unilateral and always and -k * (q - a) - c * v < 0.0 and v >= 0.0:
-        return q, v, True, False
-    return q, v, True, True
+        return q, v, True, False, umin, umax
+    return q, v, True, True, umin, umax
 
 
 def _exact_step(q, v, a, m, g, dt, K, W, C, unilateral, group, wts, always_damped) -> ContactStep:
@@ -563,13 +594,14 @@ def _exact_step(q, v, a, m, g, dt, K, W, C, unilateral, group, wts, always_dampe
     if n == 1 and group[0] == 0 and wts[0] == 1.0:
         k = float((_inv_spd(W) if K is None else np.asarray(K, dtype=np.float64))[0, 0])
         al = bool(always_damped[0]) if always_damped is not None else False
-        qn, vn, act, ok = _scalar_exact(float(q[0]), float(v[0]), float(a[0]), float(m[0]), float(g[0]), dt, k,
-                                        float(np.asarray(C)[0]), unilateral, al)
+        qn, vn, act, ok, umin, umax = _scalar_exact(float(q[0]), float(v[0]), float(a[0]), float(m[0]),
+                                                    float(g[0]), dt, k, float(np.asarray(C)[0]), unilateral, al)
         if ok:
             force = m * ((vn - v) / dt - g) if act else np.zeros(1)
             seat = np.array([k * (qn - a[0])]) if act else np.zeros(1)
+            peak = np.array([k * (umin if -umin >= umax else umax)])
             return ContactStep(q=np.array([qn]), v=np.array([vn]), active=np.array([act]), force=force,
-                               seat_force=seat)
+                               seat_force=seat, peak_seat_force=peak, peak_ubar=np.array([umin]))
     ng = int(group.max()) + 1 if n else 0
     K_full = _inv_spd(W) if K is None else np.asarray(K, dtype=np.float64)
     Cn = np.asarray(C, dtype=np.float64).copy()  # nominal dashpot per component
@@ -594,6 +626,37 @@ def _exact_step(q, v, a, m, g, dt, K, W, C, unilateral, group, wts, always_dampe
     damp_g = vn_of(v) < 0.0
     t = 0.0
     Ka = K_full
+    # peaks inside the step, per contact group: the largest |elastic seat force| (squared) and the
+    # most negative normal q - a, with the components at those instants, over the closed-form
+    # states the event search evaluates (its samples and the located events)
+    pk2 = np.zeros(ng)
+    pk_f = np.zeros(n)
+    dmin = np.full(ng, np.inf)
+    dmin_u = q - a
+
+    def track(comp: np.ndarray, Ka_: np.ndarray, ub: np.ndarray) -> None:
+        """Update the peaks from states of the active components ``comp`` (ub: their q - a, (na, T))."""
+        F = Ka_ @ ub
+        gc = group[comp]
+        mag2 = np.zeros((ng, ub.shape[1]))
+        np.add.at(mag2, gc, F * F)
+        un = np.full((ng, ub.shape[1]), np.inf)
+        un[gc] = 0.0
+        np.add.at(un, gc, wts[comp][:, None] * ub)
+        cb = np.argmax(mag2, axis=1)
+        best = mag2[np.arange(ng), cb]
+        up = best > pk2
+        if up.any():
+            pk2[up] = best[up]
+            sel = up[gc]
+            pk_f[comp[sel]] = F[sel, cb[gc[sel]]]
+        cd = np.argmin(un, axis=1)
+        deep = un[np.arange(ng), cd]
+        dn = deep < dmin
+        if dn.any():
+            dmin[dn] = deep[dn]
+            sel = dn[gc]
+            dmin_u[comp[sel]] = ub[sel, cd[gc[sel]]]
     for _seg in range(_MAX_SEGMENTS):
         # unilateral: release contacts that pull now and do not approach (active-set iteration)
         while True:
@@ -613,6 +676,9 @@ def _exact_step(q, v, a, m, g, dt, K, W, C, unilateral, group, wts, always_dampe
             if not pull.any():
                 break
             active &= ~pull[group]
+        if _seg == 0 and active.any():
+            ia = np.flatnonzero(active)
+            track(ia, Ka, (q[ia] - a[ia])[:, None])
         h = dt - t
         if h <= 1e-12 * dt:
             break
@@ -666,10 +732,12 @@ def _exact_step(q, v, a, m, g, dt, K, W, C, unilateral, group, wts, always_dampe
         anyev = ev.any(axis=0)
         if not anyev.any():
             t_e, ze, evg = h, Z[:, -1], None
+            track(idx, Ka, Z[:na] + off_eq)
         else:
             j = int(np.argmax(anyev))
             lo, hi = (tau[j - 1] if j else 0.0), tau[j]
             ze, evg = Z[:, j], ev[:, j]
+            track(idx, Ka, Z[:na, :j + 1] + off_eq)  # the states up to the event (after it: another pattern)
             for _ in range(_REFINE):
                 tau = lo + (hi - lo) * np.arange(1, _GRID + 1) / _GRID
                 Z, ev = events(tau)
@@ -677,6 +745,7 @@ def _exact_step(q, v, a, m, g, dt, K, W, C, unilateral, group, wts, always_dampe
                 j = int(np.argmax(anyev))  # the bracket's right end has an event
                 lo, hi = (tau[j - 1] if j else lo), tau[j]
                 ze, evg = Z[:, j], ev[:, j]
+                track(idx, Ka, Z[:na, :j + 1] + off_eq)
             t_e = hi
         # advance to t_e
         q[idx] = ze[:na] + q_eq
@@ -707,6 +776,7 @@ def _exact_step(q, v, a, m, g, dt, K, W, C, unilateral, group, wts, always_dampe
                 q_eq = a[idx] + np.linalg.solve(Ka, m[idx] * g[idx])
                 ze = _Modal(Ka, m[idx], ce).at(np.concatenate([q[idx] - q_eq, v[idx]]), np.array([h]))[:, 0]
                 q[idx], v[idx] = ze[:idx.size] + q_eq, ze[idx.size:]
+                track(idx, Ka, (q[idx] - a[idx])[:, None])
             q[free] += h * v[free] + 0.5 * h * h * g[free]
             v[free] += h * g[free]
     force = np.where(active, m * ((v - v0) / dt - g), 0.0)
@@ -714,4 +784,7 @@ def _exact_step(q, v, a, m, g, dt, K, W, C, unilateral, group, wts, always_dampe
     idx = np.flatnonzero(active)
     if idx.size:
         seat[idx] = Ka @ (q[idx] - a[idx])
-    return ContactStep(q=q, v=v, active=active, force=force, seat_force=seat)
+    untouched = ~np.isfinite(dmin)[group]
+    dmin_u[untouched] = (q - a)[untouched]
+    return ContactStep(q=q, v=v, active=active, force=force, seat_force=seat, peak_seat_force=pk_f,
+                       peak_ubar=dmin_u)

@@ -173,18 +173,27 @@ def advance(st: Storm, near: np.ndarray, soft: np.ndarray, was_open: np.ndarray,
         pnew = (st.pos[soft] - q[:, None] * nk + h * vt0 + 0.5 * h * h * at + res.q[:, None] * nk)
         fvec = res.seat_force[:, None] * nk
         active_c = res.active
-        ubar_n = res.q - a
     else:
         vnew = res.v.reshape(s, 3)
         pnew = res.q.reshape(s, 3)
         fvec = res.seat_force.reshape(s, 3)
         # numpy's stubs cannot tell that all(axis=1) of a 2-d array is an array, not a scalar
         active_c = res.active.reshape(s, 3).all(axis=1)  # type: ignore[assignment]
-        ubar_n = np.einsum("ij,ij->i", (res.q - a).reshape(s, 3), nk)
     if sc.integrator != "exact":
         pnew = st.pos[soft] + h * vnew  # (semi-)implicit position update
-    # impacts: contacts that opened in this sub-step and push
-    fresh = active_c & ~was_open[np.searchsorted(near, soft)]
+    # peaks inside the sub-step (exact: on the closed-form trajectory, so a contact that
+    # opens and is released within the sub-step still counts)
+    if sc.mode == "frictionless":
+        fpk = np.abs(res.peak_seat_force)
+        ubar_n = res.peak_ubar
+    else:
+        pf = res.peak_seat_force.reshape(s, 3)
+        fpk = np.sqrt(np.einsum("ij,ij->i", pf, pf))
+        ubar_n = np.einsum("ij,ij->i", res.peak_ubar.reshape(s, 3), nk)
+    fmag = np.maximum(np.sqrt(np.einsum("ij,ij->i", fvec, fvec)), fpk)
+    touched = active_c | (fpk > 0.0)  # carried force at some instant of the sub-step
+    # impacts: contacts that opened in this sub-step and pushed
+    fresh = touched & ~was_open[np.searchsorted(near, soft)]
     if fresh.any():
         vn_in = np.einsum("ij,ij->i", st.vel[soft[fresh]], nk[fresh])
         st.stats["impacts"] += int((vn_in < -sc.rest_speed).sum())
@@ -193,12 +202,11 @@ def advance(st: Storm, near: np.ndarray, soft: np.ndarray, was_open: np.ndarray,
     st.pos[soft] = pnew
     st.ctri[soft[~active_c]] = -1
     st.lam = res.seat_force
-    st._set_forces(cc, res.seat_force)
-    fmag = np.sqrt(np.einsum("ij,ij->i", fvec, fvec))
+    st._set_forces(cc, res.seat_force, res.peak_seat_force)
     st.stats["max_contact_force"] = max(st.stats["max_contact_force"], float(fmag.max()))
-    if active_c.any():
-        st.stats["max_indentation_m"] = max(st.stats["max_indentation_m"], float(-ubar_n[active_c].min()))
-    st.stats["max_simultaneous_contacts"] = max(st.stats["max_simultaneous_contacts"], int(active_c.sum()))
+    if touched.any():
+        st.stats["max_indentation_m"] = max(st.stats["max_indentation_m"], float(-ubar_n[touched].min()))
+    st.stats["max_simultaneous_contacts"] = max(st.stats["max_simultaneous_contacts"], int(touched.sum()))
 
 
 def advance_compiled(st: Storm, near: np.ndarray, soft: np.ndarray, was_open: np.ndarray, h: float,
@@ -219,27 +227,30 @@ def advance_compiled(st: Storm, near: np.ndarray, soft: np.ndarray, was_open: np
         group, wts = np.arange(s), np.ones(s)
     res = None
     if exact:
-        qn, vn, act, force, seat, ok = exact_step(q, vq, a, mq, gq, h, cc.K, cc.W, C, bool(sc.unilateral), group,
-                                                  wts, always)
+        qn, vn, act, force, seat, peak, pub, ok = exact_step(q, vq, a, mq, gq, h, cc.K, cc.W, C,
+                                                              bool(sc.unilateral), group, wts, always)
         if ok:
-            res = ContactStep(q=qn, v=vn, active=act, force=force, seat_force=seat)
+            res = ContactStep(q=qn, v=vn, active=act, force=force, seat_force=seat, peak_seat_force=peak,
+                              peak_ubar=pub)
     else:
         implicit = sc.integrator == "implicit"
         C = substep_damping(cc.Kdiag, mq, float(sc.restitution), h, implicit, _X_GRID, _Z_GRID)
         qn, vn, act, force, seat = substep_contacts(q, vq, a, mq, gq, h, cc.K, cc.W, C, implicit,
                                                     bool(sc.unilateral), group, wts)
-        res = ContactStep(q=qn, v=vn, active=act, force=force, seat_force=seat)
+        res = ContactStep(q=qn, v=vn, active=act, force=force, seat_force=seat, peak_seat_force=seat,
+                          peak_ubar=qn - a)
     if res is None:
         res = contact_step(q, vq, a, mq, gq, h, K=cc.K, W=cc.W, damping=C, integrator=sc.integrator,
                            unilateral=sc.unilateral, group=group, normal_of=wts,
                            always_damped=always if exact else None)
     impacts, fmax, indent, n_active = contact_post(
         soft, st.pos, st.vel, st.ctri, st.hit, was_open[np.searchsorted(near, soft)], nk, acc, q, a, vq,
-        gq, res.q, res.v, res.active, res.seat_force, sticky, exact, h, float(sc.rest_speed))
+        gq, res.q, res.v, res.active, res.seat_force, res.peak_seat_force, res.peak_ubar, sticky, exact, h,
+        float(sc.rest_speed))
     stats = st.stats
     stats["impacts"] += int(impacts)
     st.lam = res.seat_force
-    st._set_forces(cc, res.seat_force)
+    st._set_forces(cc, res.seat_force, res.peak_seat_force)
     stats["max_contact_force"] = max(stats["max_contact_force"], float(fmax))
     if n_active:
         stats["max_indentation_m"] = max(stats["max_indentation_m"], float(indent))

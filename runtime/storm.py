@@ -294,8 +294,8 @@ class Storm:
         self._u_cache: tuple[int, np.ndarray] = (-1, np.zeros((self.n, 3)))
         self.umax = 0.0
         self._umax_seen = 0.0
-        #: per stone, the largest contact force since the previous frame and the vertex forces
-        #: then: stone id -> (|f|, D columns, vertex forces) (see :meth:`frame`)
+        #: per stone, its deepest dent since the previous frame and the vertex forces
+        #: then: stone id -> (dent [m], D columns, vertex forces) (see :meth:`frame`)
         self._peaks: dict[int, tuple[float, np.ndarray, np.ndarray]] = {}
         self.budget = np.zeros(0)  # lower bound of each stone's distance to the seat [m]
         self._bud_u = np.zeros(0)  # the displacement bound each budget allows for [m]
@@ -382,7 +382,7 @@ class Storm:
         args = contact_prep(none, self.pos, self.vel, self.radius, self.mass, GRAVITY, self.wind, self._drag_coef,
                             e3, e3, e, e, sc.mode == "sticky", True, 1.0, 0.0)
         q, a, vq, gq, _, _, acc, _ = args
-        contact_post(none, self.pos, self.vel, self.ctri, self.hit, b, e3, acc, q, a, vq, gq, e, e, b, e,
+        contact_post(none, self.pos, self.vel, self.ctri, self.hit, b, e3, acc, q, a, vq, gq, e, e, b, e, e, e,
                      sc.mode == "sticky", True, 0.0, 1.0)
         one = np.ones(1)
         if sc.integrator == "exact":
@@ -470,13 +470,17 @@ class Storm:
                                                    accel=self._accel(idx) - self.g, g=GRAVITY)
 
     # -- the seat's displacement (only where it is needed) ---------------------------
-    def _set_forces(self, cc: ContactSet | None, lam: np.ndarray) -> None:
-        """Contact multipliers -> vertex forces; displacement bound ``umax``."""
+    def _set_forces(self, cc: ContactSet | None, lam: np.ndarray, peak: np.ndarray | None = None) -> None:
+        """Contact multipliers -> vertex forces; displacement bound ``umax``. ``peak``: the
+        multipliers of each contact's largest force within the sub-step (default ``lam``),
+        kept for the frames' peak displacement."""
         self._u_version += 1
         if cc is None or lam.size == 0 or not np.any(lam):
             self._fv = None
             self._fcols = None
             self.umax = 0.0
+            if cc is not None and peak is not None and np.any(peak):
+                self._track_peaks(cc, peak)  # released within the sub-step: its dent still counts
             return
         self._fv = cc.G @ lam
         self._fcols = cc.cols
@@ -485,25 +489,37 @@ class Storm:
         self.umax = 1.5 * float(np.sqrt((uV**2).sum(axis=1).max())) if uV.size else 0.0
         self._umax_seen = max(self._umax_seen, self.umax)
         self._umax_step = max(self._umax_step, self.umax)
-        self._track_peaks(cc, lam)
+        self._track_peaks(cc, lam if peak is None else peak)
 
     def _track_peaks(self, cc: ContactSet, lam: np.ndarray) -> None:
-        """Keep, per stone, the vertex forces of its largest contact force since the last frame."""
-        m = lam.size // cc.stones.size  # multipliers per contact (1 frictionless, 3 sticky)
+        """Keep, per stone, the vertex forces of its deepest dent since the last frame.
+
+        The dent is the largest displacement of the contact's own load at the loaded
+        vertices (``D_VV G``): for fixed weights it grows with the force, and across
+        a re-weighting (a patch resized) it still ranks the fields by what they show,
+        which the force alone does not (a wider patch carries more force in a shallower dent).
+        """
+        s = cc.stones.size
+        m = lam.size // s  # multipliers per contact (1 frictionless, 3 sticky)
         L = lam.reshape(-1, m)
-        fmag = np.abs(L[:, 0]) if m == 1 else np.sqrt(np.einsum("ij,ij->i", L, L))
+        if m == 1:
+            U = cc.DVV * L[:, 0]  # (3|V|, s): each contact's own displacement of V
+        else:
+            U = np.einsum("rkj,kj->rk", cc.DVV.reshape(-1, s, m), L)
+        U = U.reshape(-1, 3, s)
+        dent = np.sqrt((U * U).sum(axis=1).max(axis=0)) if U.size else np.zeros(s)
         peaks = self._peaks
-        for k in np.flatnonzero(fmag > 0.0).tolist():
+        for k in np.flatnonzero(dent > 0.0).tolist():
             sid = int(cc.stones[k])
             prev = peaks.get(sid)
-            if prev is None or fmag[k] > prev[0]:
+            if prev is None or dent[k] > prev[0]:
                 fk = cc.G[:, m * k:m * k + m] @ L[k]
                 nz = np.flatnonzero(fk)
-                peaks[sid] = (float(fmag[k]), cc.cols[nz], fk[nz])
+                peaks[sid] = (float(dent[k]), cc.cols[nz], fk[nz])
 
     def _peak_field(self) -> np.ndarray:
         """Per vertex, the largest of the current displacement and each stone's displacement
-        at its peak force since the previous frame (each stone's field alone: impacts rarely
+        at its deepest dent since the previous frame (each stone's field alone: impacts rarely
         overlap within a frame, and superposing peaks of different instants would overstate)."""
         u = self.u
         if not self._peaks:

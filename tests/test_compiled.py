@@ -236,19 +236,22 @@ def _random_contact_set(rng):
 
 
 def _assert_same_step(got, ref):
-    qn, vn, act, force, seat = got
+    qn, vn, act, force, seat, *peaks = got
     np.testing.assert_array_equal(act, ref.active)
     np.testing.assert_allclose(qn, ref.q, rtol=0, atol=1e-14)
     np.testing.assert_allclose(vn, ref.v, rtol=1e-10, atol=1e-12)
     np.testing.assert_allclose(seat, ref.seat_force, rtol=1e-9, atol=1e-9)
     np.testing.assert_allclose(force, ref.force, rtol=1e-9, atol=1e-9)
+    if peaks:  # the exact step's peaks inside the step
+        np.testing.assert_allclose(peaks[0], ref.peak_seat_force, rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(peaks[1], ref.peak_ubar, rtol=0, atol=1e-14)
     return int((~act).any())
 
 
 def test_exact_step_matches_numpy():
     """The compiled exact integrator reproduces runtime.hail's on random coupled contact
     sets: frictionless and sticky, s = 1..4, unilateral releases, resting (always damped)
-    components, the same active sets."""
+    components, the same active sets and the same peaks inside the step."""
     from runtime.hail import contact_step, damping_coefficients
 
     rng = np.random.default_rng(7)

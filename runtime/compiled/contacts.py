@@ -190,21 +190,24 @@ def contact_prep(soft, pos, vel, radius, mass, g, wind, drag_coef, nk, Xc, rest,
 
 
 @_njit
-def contact_post(soft, pos, vel, ctri, hit, was_open, nk, acc, q, a, vq, gq, rq, rv, ractive, rseat, sticky,
-                 exact, h, rest_speed):  # pragma: no cover (compiled)
+def contact_post(soft, pos, vel, ctri, hit, was_open, nk, acc, q, a, vq, gq, rq, rv, ractive, rseat, rpeak,
+                 rpubar, sticky, exact, h, rest_speed):  # pragma: no cover (compiled)
     """Apply a contact step to the stones, in place (compiled second half of
-    ``Storm._soft_contacts``): new positions and velocities (frictionless: free
-    tangential motion), released contacts closed, impacts marked.
+    :func:`runtime.soft_contacts.advance`): new positions and velocities (frictionless: free
+    tangential motion), released contacts closed, impacts marked. ``rpeak``, ``rpubar``:
+    the step's ``peak_seat_force`` and ``peak_ubar`` (:class:`runtime.hail.ContactStep`);
+    a contact that carried force at some instant of the step counts as touched.
 
     Returns
     -------
     impacts : int
-        Contacts that opened in this sub-step, push, and came in faster than ``rest_speed``.
+        Contacts that opened in this sub-step, pushed, and came in faster than ``rest_speed``.
     max_force : float
-        Largest contact force magnitude [N].
+        Largest contact force magnitude within the sub-step [N].
     max_indentation : float
-        Largest normal contact displacement of an active contact (-inf if none) [m].
-    n_active : int
+        Largest normal contact displacement of a touched contact within the sub-step (-inf if none) [m].
+    n_touched : int
+        Contacts that carried force within the sub-step.
     """
     s = soft.size
     impacts = 0
@@ -216,15 +219,17 @@ def contact_post(soft, pos, vel, ctri, hit, was_open, nk, acc, q, a, vq, gq, rq,
         if sticky:
             act = ractive[3 * i] and ractive[3 * i + 1] and ractive[3 * i + 2]
             f2 = rseat[3 * i] ** 2 + rseat[3 * i + 1] ** 2 + rseat[3 * i + 2] ** 2
+            p2 = rpeak[3 * i] ** 2 + rpeak[3 * i + 1] ** 2 + rpeak[3 * i + 2] ** 2
             ubn = 0.0
             for d in range(3):
-                ubn += (rq[3 * i + d] - a[3 * i + d]) * nk[i, d]
+                ubn += rpubar[3 * i + d] * nk[i, d]
         else:
             act = ractive[i]
             f2 = rseat[i] ** 2
-            ubn = rq[i] - a[i]
-        fmax = max(fmax, math.sqrt(f2))
-        if act:
+            p2 = rpeak[i] ** 2
+            ubn = rpubar[i]
+        fmax = max(fmax, math.sqrt(f2), math.sqrt(p2))
+        if act or p2 > 0.0:
             n_active += 1
             indent = max(indent, -ubn)
             if not was_open[i]:

@@ -96,10 +96,45 @@ def _modal_at(lam, V, Vi, z0, tau):  # pragma: no cover (compiled)
 
 
 @_njit
+def _track(idx, Ka, ub, ncol, group, wts, ng, pk2, pk_f, dmin, dmin_u):  # pragma: no cover (compiled)
+    """Update the step's peaks (``runtime.hail._exact_step``'s ``track``) from the first
+    ``ncol`` states of the active components ``idx`` (``ub``: their q - a, (na, T)):
+    per contact group the largest |elastic seat force| and the most negative normal q - a."""
+    na = idx.size
+    F = Ka @ np.ascontiguousarray(ub[:, :ncol])
+    mag2 = np.zeros(ng)
+    un = np.zeros(ng)
+    seen = np.zeros(ng, np.bool_)
+    for r in range(na):
+        seen[group[idx[r]]] = True
+    for col in range(ncol):
+        for gg in range(ng):
+            mag2[gg] = 0.0
+            un[gg] = 0.0
+        for r in range(na):
+            gg = group[idx[r]]
+            mag2[gg] += F[r, col] ** 2
+            un[gg] += wts[idx[r]] * ub[r, col]
+        for gg in range(ng):
+            if mag2[gg] > pk2[gg]:
+                pk2[gg] = mag2[gg]
+                for r in range(na):
+                    if group[idx[r]] == gg:
+                        pk_f[idx[r]] = F[r, col]
+        for gg in range(ng):
+            if seen[gg] and un[gg] < dmin[gg]:
+                dmin[gg] = un[gg]
+                for r in range(na):
+                    if group[idx[r]] == gg:
+                        dmin_u[idx[r]] = ub[r, col]
+
+
+@_njit
 def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always):  # pragma: no cover (compiled)
     """Compiled ``runtime.hail._exact_step`` (the exact integrator's step; see there).
 
-    Returns ``(q, v, active, force, seat_force, ok)``; ``ok`` is False in the rare
+    Returns ``(q, v, active, force, seat_force, peak_seat_force, peak_ubar, ok)``
+    (see :class:`runtime.hail.ContactStep`); ``ok`` is False in the rare
     cases the compiled version does not cover (a nearly defective modal basis, an
     overdamped single contact): the caller then runs the numpy version.
     """
@@ -116,7 +151,8 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always):  # 
     active = np.ones(n, np.bool_)
     if n == 1 and group[0] == 0 and wts[0] == 1.0:
         k = K[0, 0]
-        qn, vn, act, ok = _scalar_exact(q[0], v[0], a[0], m[0], g[0], dt, k, Cn[0], unilateral, always[0])
+        qn, vn, act, ok, umin, umax = _scalar_exact(q[0], v[0], a[0], m[0], g[0], dt, k, Cn[0], unilateral,
+                                                    always[0])
         if ok:
             q[0] = qn
             v[0] = vn
@@ -126,7 +162,11 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always):  # 
             if act:
                 force[0] = m[0] * ((vn - v0[0]) / dt - g[0])
                 seat[0] = k * (qn - a[0])
-            return q, v, active, force, seat, True
+            peak = np.empty(1)
+            peak[0] = k * (umin if -umin >= umax else umax)
+            pub = np.empty(1)
+            pub[0] = umin
+            return q, v, active, force, seat, peak, pub, True
     ident = ng == n
     for i in range(n):
         if group[i] != i or wts[i] != 1.0:
@@ -134,6 +174,10 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always):  # 
     damp_g = _gsum(v.reshape(n, 1), group, wts, ng, ident)[:, 0] < 0.0
     t = 0.0
     Ka = K
+    pk2 = np.zeros(ng)
+    pk_f = np.zeros(n)
+    dmin = np.full(ng, np.inf)
+    dmin_u = q - a
     for _seg in range(MAX_SEGMENTS):
         # unilateral: release contacts that pull now and do not approach (active-set iteration)
         while True:
@@ -158,6 +202,10 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always):  # 
             for i in range(n):
                 if pull[group[i]]:
                     active[i] = False
+        if _seg == 0:
+            ia = np.flatnonzero(active)
+            if ia.size:
+                _track(ia, Ka, (q[ia] - a[ia]).reshape(ia.size, 1), 1, group, wts, ng, pk2, pk_f, dmin, dmin_u)
         h = dt - t
         if h <= 1e-12 * dt:
             break
@@ -177,7 +225,7 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always):  # 
         q_eq = aa + np.linalg.solve(Ka, ma * ga)
         lam, V, Vi, ok = _modal(Ka, ma, ce)
         if not ok:
-            return q, v, active, v0, v0, False
+            return q, v, active, v0, v0, v0, v0, False
         z0 = np.concatenate((q[idx] - q_eq, v[idx]))
         gi = group[idx]
         wi = wts[idx]
@@ -221,9 +269,12 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always):  # 
                     break
             if ref == 0 and j < 0:
                 ze[:] = Z[:, -1]
+                _track(idx, Ka, y + off_eq.reshape(na, 1), tau.size, group, wts, ng, pk2, pk_f, dmin, dmin_u)
                 break
             if j < 0:  # (the bracket's right end had an event; rounding aside, it still does)
                 j = 0
+            # the states up to the event (after it: another pattern)
+            _track(idx, Ka, y + off_eq.reshape(na, 1), j + 1, group, wts, ng, pk2, pk_f, dmin, dmin_u)
             found = True
             lo, hi = (tau[j - 1] if j else lo), tau[j]
             ze[:] = Z[:, j]
@@ -265,9 +316,11 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always):  # 
                 q_eq = a[idx] + np.linalg.solve(Ka, m[idx] * g[idx])
                 lam, V, Vi, ok = _modal(Ka, m[idx], ce)
                 if not ok:
-                    return q, v, active, v0, v0, False
+                    return q, v, active, v0, v0, v0, v0, False
                 ze = _modal_at(lam, V, Vi, np.concatenate((q[idx] - q_eq, v[idx])), np.array([h]))[:, 0]
             _advance(q, v, g, idx, ze, q_eq, free, h)
+            if idx.size:
+                _track(idx, Ka, (q[idx] - a[idx]).reshape(idx.size, 1), 1, group, wts, ng, pk2, pk_f, dmin, dmin_u)
     force = np.zeros(n)
     seat = np.zeros(n)
     idx = np.flatnonzero(active)
@@ -277,7 +330,10 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always):  # 
         sa = Ka @ (q[idx] - a[idx])
         for r in range(idx.size):
             seat[idx[r]] = sa[r]
-    return q, v, active, force, seat, True
+    for i in range(n):
+        if not np.isfinite(dmin[group[i]]):
+            dmin_u[i] = q[i] - a[i]
+    return q, v, active, force, seat, pk_f, dmin_u, True
 
 
 @_njit
