@@ -9,6 +9,7 @@ extra) the storm runs its per-step geometry and contact kernels compiled
 * :func:`barycentric_matrix` (B), :func:`patch_weights`, :func:`hertz_radius`;
 * :func:`capacitance` -> :class:`Capacitance` (W = Bᵀ D B, K = W⁻¹, low-rank updates);
 * :func:`solve_contacts` -> :class:`ContactSolution`;
+* :func:`press_spheres` -> :class:`SphereContacts` (rigid spheres, Hertz-consistent patches);
 * :class:`Scene`, :func:`run_storm` -> :class:`StormResult` (the hail storm).
 """
 
@@ -22,6 +23,7 @@ from runtime.contact import (
     patch_weights,
     solve_contacts,
 )
+from runtime.hertz import SphereContacts, hertz_force, press_spheres
 from runtime.scene import Scene, SceneError
 from runtime.storm import StormResult, run_storm
 
@@ -32,12 +34,15 @@ __all__ = [
     "GreensFunctions",
     "Scene",
     "SceneError",
+    "SphereContacts",
     "StormResult",
     "barycentric_matrix",
     "capacitance",
+    "hertz_force",
     "hertz_radius",
     "load",
     "patch_weights",
+    "press_spheres",
     "run_storm",
     "solve_contacts",
 ]
