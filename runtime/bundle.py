@@ -148,12 +148,13 @@ def _is_number(x: Any) -> bool:
 def _check_structure(manifest: Any, m: Path) -> None:
     """Raise :class:`BundleError` naming the first key of ``manifest`` that is missing or mistyped."""
     def need(obj: Any, key: str, kind, where: str, check=None, what: str = "") -> Any:
+        full = f"{where}{key}"
         if not isinstance(obj, dict) or key not in obj:
-            raise BundleError(f"{m}: the manifest has no {where}{key!r} entry; the bundle is damaged")
+            raise BundleError(f"{m}: the manifest has no {full!r} entry; the bundle is damaged")
         value = obj[key]
         if not isinstance(value, kind) or isinstance(value, bool) and kind is not bool or (check and not check(value)):
             raise BundleError(
-                f"{m}: manifest entry {where}{key!r} is {value!r}, expected {what or getattr(kind, '__name__', kind)}; "
+                f"{m}: manifest entry {full!r} is {value!r}, expected {what or getattr(kind, '__name__', kind)}; "
                 "the bundle is damaged"
             )
         return value
@@ -169,6 +170,8 @@ def _check_structure(manifest: Any, m: Path) -> None:
     for k in ("mesh", "timings_s"):
         if k in manifest and not isinstance(manifest[k], dict):
             raise BundleError(f"{m}: manifest entry {k!r} is {manifest[k]!r}, expected an object; the bundle is damaged")
+    for k in manifest.get("timings_s", {}):
+        need(manifest["timings_s"], k, (int, float), "timings_s.", _is_number, "a number of seconds")
     arrays = need(manifest, "arrays", dict, "", what="an object listing the arrays")
     for name in ARRAY_SPECS:
         entry = need(arrays, name, dict, "arrays.", what="an object")
@@ -336,7 +339,8 @@ def _ours(d: Path) -> bool:
 
 
 def _debris(parent: Path) -> dict[str, list[Path]]:
-    """Writer temporaries in ``parent`` (``.NAME.tmp-*``, ``.NAME.old-*``), by target name."""
+    """Writer temporaries (``.NAME.tmp-*``, ``.NAME.old-*``) and lock files (``.NAME.lock``)
+    in ``parent``: the temporaries of each target name (an empty list for a lock file alone)."""
     found: dict[str, list[Path]] = {}
     try:
         entries = list(os.scandir(parent))
@@ -344,12 +348,36 @@ def _debris(parent: Path) -> dict[str, list[Path]]:
         return found
     for e in entries:
         n = e.name
-        if not n.startswith(".") or not e.is_dir(follow_symlinks=False):
+        if not n.startswith("."):
+            continue
+        if n.endswith(".lock") and len(n) > 6 and e.is_file(follow_symlinks=False):
+            found.setdefault(n[1:-5], [])
             continue
         i = max(n.rfind(_TMP), n.rfind(_OLD))
-        if i > 1:
+        if i > 1 and e.is_dir(follow_symlinks=False):
             found.setdefault(n[1:i], []).append(Path(e.path))
     return found
+
+
+def check_writable(directory: str | os.PathLike) -> None:
+    """Raise :class:`BundleError` unless a bundle can be created in ``directory``.
+
+    Probes the directory (or, if it does not exist yet, its nearest existing
+    ancestor) by creating and removing an empty file in it, so that an
+    unwritable output is refused before any work; creates nothing else.
+    """
+    directory = Path(directory).absolute()
+    probe = directory
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    if not probe.is_dir():
+        raise BundleError(f"cannot write a bundle in {directory}: {probe} is not a directory")
+    try:
+        fd, name = tempfile.mkstemp(prefix=".hailstorm-probe-", dir=probe)
+        os.close(fd)
+        os.unlink(name)
+    except OSError as exc:
+        raise BundleError(f"cannot write a bundle in {directory}: {exc.strerror or exc} ({probe})") from exc
 
 
 def _recover_locked(out: Path, temps: list[Path] | None = None) -> None:
