@@ -14,9 +14,10 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 
-#: surface vertices per unit area of a surface meshed at size h: 2 / (sqrt(3) h^2)
-#: (equilateral triangles; measured 0.99-1.23 / h^2 on the default seat's top at 4-10 mm)
-VERTICES_PER_AREA = 2.0 / 3.0**0.5
+#: surface vertices per unit area of a surface meshed at size h, times h^2: 2 / sqrt(3) = 1.15 for
+#: equilateral triangles; measured 0.99-1.48 on the default seat's top at 4-15 mm (coarse meshes
+#: have more, relatively, along edges): 1.5 errs on the safe side
+VERTICES_PER_AREA = 1.5
 
 
 class TooLargeError(ValueError):

@@ -212,9 +212,11 @@ def read_manifest(path: str | os.PathLike) -> dict[str, Any]:
         manifest = json.loads(m.read_text())
     except (OSError, ValueError) as exc:
         raise BundleError(f"{m} is not valid JSON ({exc}); the bundle is corrupted") from exc
-    if not isinstance(manifest, dict) or manifest.get("format") != FORMAT_NAME:
-        fmt = manifest.get("format") if isinstance(manifest, dict) else None
-        raise BundleError(f"{m} is not a hailstorm bundle manifest (format={fmt!r})")
+    if not isinstance(manifest, dict):
+        raise BundleError(f"{m}: the manifest is a JSON {type(manifest).__name__}, not an object; "
+                          "it is not a hailstorm bundle manifest, or the bundle is damaged")
+    if manifest.get("format") != FORMAT_NAME:
+        raise BundleError(f"{m} is not a hailstorm bundle manifest (format={manifest.get('format')!r})")
     if manifest.get("format_version") != FORMAT_VERSION:
         raise BundleError(
             f"bundle {path} has format version {manifest.get('format_version')!r}; "
