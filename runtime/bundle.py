@@ -539,6 +539,7 @@ def write_bundle(
             full.pop(MANIFEST_HASH, None)
             full.update(format=FORMAT_NAME, format_version=FORMAT_VERSION, arrays=entries)
             full[MANIFEST_HASH] = manifest_hash(full)
+            _check_structure(full, out / MANIFEST)  # never write a bundle that load would refuse
             with open(tmp / MANIFEST, "w") as fh:
                 json.dump(full, fh, indent=2, sort_keys=True)
                 fh.flush()

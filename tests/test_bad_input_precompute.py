@@ -388,6 +388,16 @@ def test_writing_a_nan_compliance_is_refused(box_bundle, tmp_path):
     assert not (tmp_path / "nan").exists()
 
 
+def test_writing_a_manifest_load_would_refuse_is_refused(box_bundle, tmp_path):
+    from runtime.bundle import write_bundle
+
+    gf = load(box_bundle)
+    arrays = {name: np.asarray(getattr(gf, name if name != "compliance" else "D")) for name in ARRAY_SPECS}
+    with pytest.raises(BundleError, match="'material'"):
+        write_bundle(tmp_path / "b", arrays, {"key": "x", "options": {"order": 1}})
+    assert list(tmp_path.iterdir()) == []
+
+
 # ----------------------------------------------------------------------------- replacing, debris, locks
 
 def test_rebuilding_replaces_a_bundle_but_never_user_files(small_box, tmp_path):
