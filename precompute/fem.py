@@ -36,10 +36,17 @@ def check_material(young: float, poisson: float) -> tuple[float, float]:
     young, poisson = float(young), float(poisson)
     if not np.isfinite(young) or young <= 0:
         raise ValueError(f"Young's modulus must be a positive number of pascals, got E = {young!r}")
-    if not np.isfinite(poisson) or not (-1.0 < poisson < 0.5):
+    if not np.isfinite(poisson):
+        raise ValueError(f"Poisson's ratio must be a number with -1 < nu < 0.5, got nu = {poisson!r}")
+    if poisson >= 0.5:
         raise ValueError(
             f"Poisson's ratio must satisfy -1 < nu < 0.5, got nu = {poisson!r} "
             "(nu >= 0.5 is incompressible: a displacement formulation cannot represent it)"
+        )
+    if poisson <= -1.0:
+        raise ValueError(
+            f"Poisson's ratio must satisfy -1 < nu < 0.5, got nu = {poisson!r} "
+            "(nu <= -1 is not a stable material: its shear modulus E / (2 (1 + nu)) is not positive)"
         )
     return young, poisson
 

@@ -16,8 +16,13 @@ Every constructor returns a mesh that passed :func:`check_mesh`.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
+import io
+import logging
 import os
+import signal
+import threading
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
@@ -25,6 +30,12 @@ from pathlib import Path
 import numpy as np
 
 REQUIRED_GROUPS = ("clamp",)
+#: Element size on the hail-facing surface [m], one default for every entry point
+#: (``hailstorm precompute``, :func:`build_bundle`, the default scene's seat).
+DEFAULT_MESH_SIZE = 0.006
+GEOMETRY_SUFFIXES = frozenset({".geo", ".step", ".stp", ".brep", ".iges", ".igs", ".xao"})
+
+log = logging.getLogger(__name__)
 
 
 class MeshError(ValueError):
@@ -66,7 +77,8 @@ class TetMesh:
     def group_vertices(self, name: str) -> np.ndarray:
         """Sorted unique node indices of a boundary group."""
         if name not in self.groups:
-            raise MeshError(f"mesh has no group {name!r} (it has: {sorted(self.groups)})")
+            raise MeshError(f"{self.source or 'the mesh'}: the mesh has no surface group {name!r} "
+                            f"(it has: {', '.join(sorted(self.groups)) or 'none'})")
         return np.unique(self.groups[name])
 
 
@@ -111,13 +123,93 @@ def check_mesh(mesh: TetMesh, required=REQUIRED_GROUPS) -> TetMesh:
             f"{mesh.source}: {' and '.join(kinds)} tetrahedra, e.g. tet {idx[0]} with nodes "
             f"{tets[idx[0]].tolist()} (volume {vol[idx[0]]:.3g} m^3); fix the mesh orientation/quality"
         )
+    _check_duplicates(mesh)
     surf = boundary_triangles(tets)
     surf_keys = set(map(tuple, np.sort(surf, axis=1).tolist()))
     for name, tris in mesh.groups.items():
         missing = [t for t in map(tuple, np.sort(tris, axis=1).tolist()) if t not in surf_keys]
         if missing:
             raise MeshError(f"{mesh.source}: {len(missing)} triangles of group {name!r} are not on the boundary of the tetrahedra")
+    if "clamp" in required:
+        check_clamped(mesh)
     return mesh
+
+
+def _check_duplicates(mesh: TetMesh) -> None:
+    """Refuse tetrahedra listed twice, and faces shared by more than two tetrahedra."""
+    tets = mesh.tets
+    key = np.sort(tets, axis=1)
+    _, first, inv, counts = np.unique(key, axis=0, return_index=True, return_inverse=True, return_counts=True)
+    inv = inv.ravel()
+    if np.any(counts > 1):
+        dup = np.flatnonzero(counts[inv] > 1)
+        j = dup[0]
+        other = int(dup[(inv[dup] == inv[j]) & (dup != j)][0])
+        raise MeshError(
+            f"{mesh.source}: {int(np.sum(counts[counts > 1] - 1))} duplicated tetrahedra (the same four nodes twice), "
+            f"e.g. tets {int(j)} and {other} with nodes {tets[j].tolist()}; remove the duplicates"
+        )
+    faces = np.sort(np.concatenate([tets[:, [1, 2, 3]], tets[:, [0, 3, 2]], tets[:, [0, 1, 3]], tets[:, [0, 2, 1]]]), axis=1)
+    _, fcounts = np.unique(faces, axis=0, return_counts=True)
+    if np.any(fcounts > 2):
+        raise MeshError(
+            f"{mesh.source}: {int(np.sum(fcounts > 2))} faces are shared by more than two tetrahedra "
+            "(overlapping elements); the mesh is not a valid solid"
+        )
+
+
+def connected_parts(tets: np.ndarray) -> np.ndarray:
+    """Label of the connected part of each tetrahedron, (T,) int.
+
+    Two tetrahedra are connected when they share a face (a shared edge or
+    vertex is a hinge, not a connection: the parts can rotate about it).
+    Labels are 0, 1, ... in the order of each part's first tetrahedron.
+    """
+    import scipy.sparse as sp
+    from scipy.sparse.csgraph import connected_components
+
+    n = tets.shape[0]
+    faces = np.sort(np.concatenate([tets[:, [1, 2, 3]], tets[:, [0, 3, 2]], tets[:, [0, 1, 3]], tets[:, [0, 2, 1]]]), axis=1)
+    owner = np.tile(np.arange(n), 4)
+    order = np.lexsort(faces.T[::-1])
+    f, o = faces[order], owner[order]
+    same = np.all(f[1:] == f[:-1], axis=1)
+    a, b = o[:-1][same], o[1:][same]
+    graph = sp.coo_matrix((np.ones(a.size), (a, b)), shape=(n, n))
+    _, labels = connected_components(graph, directed=False)
+    # relabel in order of first appearance, so part 1 is the one holding tet 0
+    _, first = np.unique(labels, return_index=True)
+    rank = np.empty_like(first)
+    rank[np.argsort(first)] = np.arange(first.size)
+    return rank[labels]
+
+
+def check_clamped(mesh: TetMesh, group: str = "clamp") -> None:
+    """Refuse a mesh with a part (connected through shared faces) that touches no clamp face.
+
+    Such a part is free to move as a rigid body: its stiffness is singular and
+    its Green's functions do not exist.
+    """
+    labels = connected_parts(mesh.tets)
+    n_parts = int(labels.max()) + 1
+    clamp = np.sort(np.asarray(mesh.groups.get(group, np.zeros((0, 3), np.int64))), axis=1)
+    tets = mesh.tets
+    faces = np.sort(np.concatenate([tets[:, [1, 2, 3]], tets[:, [0, 3, 2]], tets[:, [0, 1, 3]], tets[:, [0, 2, 1]]]), axis=1)
+    owner = np.tile(np.arange(tets.shape[0]), 4)
+    n = int(mesh.points.shape[0]) + 1
+    fkey = (faces[:, 0] * n + faces[:, 1]) * n + faces[:, 2]
+    ckey = (clamp[:, 0] * n + clamp[:, 1]) * n + clamp[:, 2]
+    held = np.unique(labels[owner[np.isin(fkey, ckey)]])
+    free = np.setdiff1d(np.arange(n_parts), held)
+    if free.size:
+        sizes = np.bincount(labels, minlength=n_parts)
+        desc = ", ".join(f"part {k + 1} ({sizes[k]} tets, e.g. tet {int(np.flatnonzero(labels == k)[0])})"
+                         for k in free[:5]) + (f" and {free.size - 5} more" if free.size > 5 else "")
+        raise MeshError(
+            f"{mesh.source}: the body has {n_parts} parts connected through shared faces, and {free.size} of them "
+            f"touch no {group!r} face: {desc}. A part without a clamp can move freely (a shared edge or vertex "
+            "is only a hinge), so its Green's functions do not exist; clamp every part or remove it"
+        )
 
 
 def boundary_triangles(tets: np.ndarray) -> np.ndarray:
@@ -152,7 +244,46 @@ def _gmsh_session():
     return gmsh
 
 
-def mesh_geometry(path: str | os.PathLike, mesh_size: float, *, coarsening: float = 2.5) -> TetMesh:
+@contextlib.contextmanager
+def _interruptible():
+    """Let Ctrl-C end the process while gmsh runs (its C++ loop never returns to Python to
+    raise KeyboardInterrupt): SIGINT takes its default action, in the main thread only, and
+    Python's handler is put back afterwards."""
+    if threading.current_thread() is not threading.main_thread() or \
+            signal.getsignal(signal.SIGINT) is not signal.default_int_handler:
+        yield
+        return
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+
+def _measure(gmsh, names: dict) -> tuple[float, float, float, float]:
+    """Area of ``top``, area of every surface, volume, and smallest bounding-box extent of the model."""
+    def mass(dim: int, tags) -> float:
+        total = 0.0
+        for t in tags:
+            try:
+                total += gmsh.model.occ.getMass(dim, t)
+            except Exception:  # built-in kernel: no masses; fall back on the bounding box
+                return float("nan")
+        return total
+
+    box = np.array(gmsh.model.getBoundingBox(-1, -1), dtype=float)
+    ext = np.maximum(box[3:] - box[:3], 0.0)
+    area_all = mass(2, [t for _, t in gmsh.model.getEntities(2)])
+    volume = mass(3, [t for _, t in gmsh.model.getEntities(3)])
+    area_top = mass(2, gmsh.model.getEntitiesForPhysicalGroup(*names["top"])) if "top" in names else area_all
+    if not np.isfinite(area_all + volume + area_top):
+        area_all = area_top = 2.0 * (ext[0] * ext[1] + ext[1] * ext[2] + ext[0] * ext[2])
+        volume = float(np.prod(ext))
+    return area_top, area_all, volume, float(ext.min())
+
+
+def mesh_geometry(path: str | os.PathLike, mesh_size: float, *, coarsening: float = 2.5,
+                  allow_large: bool = False, order: int = 1) -> TetMesh:
     """Mesh a gmsh-readable geometry with linear tetrahedra.
 
     Parameters
@@ -161,15 +292,30 @@ def mesh_geometry(path: str | os.PathLike, mesh_size: float, *, coarsening: floa
         ``.geo``, ``.step``/``.stp``, ``.brep``... with physical groups
         ``top`` and ``clamp`` (Physical Surface) and one or more volumes.
     mesh_size
-        Element size on ``top`` [m] (the hail-facing surface).
+        Element size on ``top`` [m] (the hail-facing surface). A size larger
+        than the body's smallest extent is logged as a warning.
     coarsening
         Elements grow to ``coarsening * mesh_size`` away from ``top``.
+    allow_large, order
+        Before meshing, the bundle's memory is estimated from the geometry's
+        areas (:func:`precompute.resources.estimate_geometry`, for elements of
+        ``order``); a run that would not fit in the memory available raises
+        :class:`precompute.resources.TooLargeError` unless ``allow_large``.
 
     Returns
     -------
     TetMesh
+
+    Notes
+    -----
+    Ctrl-C (SIGINT) during meshing ends the process at once (gmsh cannot be
+    interrupted otherwise); nothing has been written by then.
     """
+    from precompute.resources import check_fits, estimate_geometry
+
     path = Path(path)
+    if path.is_dir():
+        raise MeshError(f"geometry {path} is a directory, not a geometry file")
     if not path.is_file():
         raise MeshError(f"geometry file {path} does not exist")
     if not (np.isfinite(mesh_size) and mesh_size > 0):
@@ -177,7 +323,8 @@ def mesh_geometry(path: str | os.PathLike, mesh_size: float, *, coarsening: floa
     gmsh = _gmsh_session()
     try:
         try:
-            gmsh.open(str(path))
+            with _interruptible():
+                gmsh.open(str(path))
         except Exception as exc:  # gmsh raises bare Exception
             raise MeshError(f"gmsh could not read {path}: {exc}") from exc
         names = {gmsh.model.getPhysicalName(d, t): (d, t) for d, t in gmsh.model.getPhysicalGroups()}
@@ -188,6 +335,12 @@ def mesh_geometry(path: str | os.PathLike, mesh_size: float, *, coarsening: floa
             )
         if not gmsh.model.getEntities(3):
             raise MeshError(f"{path}: the geometry has no volume to mesh")
+        area_top, area_all, volume, smallest = _measure(gmsh, names)
+        if mesh_size > smallest:
+            log.warning("%s: mesh size %g m is larger than the body's smallest extent (%.3g m): the mesh cannot "
+                        "resolve the body, and its Green's functions mean little", path.name, mesh_size, smallest)
+        check_fits(estimate_geometry(area_top, area_all, volume, mesh_size, order, coarsening),
+                   f"{path.name} at mesh size {mesh_size:g} m", allow_large=allow_large)
         fine = []
         if "top" in names:
             fine = list(gmsh.model.getEntitiesForPhysicalGroup(*names["top"]))
@@ -209,8 +362,10 @@ def mesh_geometry(path: str | os.PathLike, mesh_size: float, *, coarsening: floa
         else:
             gmsh.option.setNumber("Mesh.MeshSizeMax", mesh_size)
         gmsh.option.setNumber("Mesh.ElementOrder", 1)
+        log.info("meshing %s at %g m ...", path.name, mesh_size)
         try:
-            gmsh.model.mesh.generate(3)
+            with _interruptible():
+                gmsh.model.mesh.generate(3)
         except Exception as exc:
             raise MeshError(f"gmsh failed to mesh {path} at mesh size {mesh_size}: {exc}") from exc
         return _mesh_from_gmsh(gmsh, names, source=f"{path.name}@h={mesh_size:g}")
@@ -248,9 +403,10 @@ def _mesh_from_gmsh(gmsh, names: dict, source: str) -> TetMesh:
     return check_mesh(mesh)
 
 
-def mesh_default_seat(mesh_size: float = 0.01) -> TetMesh:
-    """Mesh the default saddle (``meshes/saddle.geo``) at ``mesh_size`` on top [m]."""
-    return mesh_geometry(default_seat_path(), mesh_size)
+def mesh_default_seat(mesh_size: float = DEFAULT_MESH_SIZE, *, allow_large: bool = False, order: int = 1) -> TetMesh:
+    """Mesh the default saddle (``meshes/saddle.geo``) at ``mesh_size`` on top [m]
+    (``allow_large``, ``order``: see :func:`mesh_geometry`)."""
+    return mesh_geometry(default_seat_path(), mesh_size, allow_large=allow_large, order=order)
 
 
 def read_mesh(path: str | os.PathLike) -> TetMesh:
@@ -262,10 +418,19 @@ def read_mesh(path: str | os.PathLike) -> TetMesh:
     import meshio
 
     path = Path(path)
+    if path.is_dir():
+        raise MeshError(f"mesh {path} is a directory, not a mesh file")
     if not path.is_file():
         raise MeshError(f"mesh file {path} does not exist")
+    said = io.StringIO()
     try:
-        m = meshio.read(path)
+        # meshio prints its readers' complaints, and exits (sys.exit(1)) when none could read the file
+        with contextlib.redirect_stdout(said), contextlib.redirect_stderr(said):
+            m = meshio.read(path)
+    except SystemExit as exc:
+        lines = [ln.strip() for ln in said.getvalue().splitlines() if ln.strip()]
+        why = lines[-1].removeprefix("Error: ") if lines else f"not a valid {path.suffix or 'mesh'} file"
+        raise MeshError(f"meshio could not read {path}: {why}") from exc
     except Exception as exc:
         raise MeshError(f"meshio could not read {path}: {exc}") from exc
     tets = [c.data for c in m.cells if c.type == "tetra"]
@@ -298,15 +463,19 @@ def read_mesh(path: str | os.PathLike) -> TetMesh:
     return check_mesh(mesh)
 
 
-def load_seat(geometry: str | os.PathLike | None, mesh_size: float) -> TetMesh:
-    """The mesh for a precompute run: default seat, a geometry file or a mesh file."""
+def load_seat(geometry: str | os.PathLike | None, mesh_size: float, *, allow_large: bool = False,
+              order: int = 1) -> TetMesh:
+    """The mesh for a precompute run: default seat, a geometry file or a mesh file
+    (``allow_large``, ``order``: see :func:`mesh_geometry`)."""
     if geometry is None:
-        return mesh_default_seat(mesh_size)
+        return mesh_default_seat(mesh_size, allow_large=allow_large, order=order)
     path = Path(geometry)
+    if path.is_dir():
+        raise MeshError(f"--geometry {path} is a directory; give a geometry (.geo, .step, .brep...) or mesh file")
     if not path.exists():
         raise MeshError(f"geometry file {path} does not exist")
-    if path.suffix.lower() in {".geo", ".step", ".stp", ".brep", ".iges", ".igs", ".xao"}:
-        return mesh_geometry(path, mesh_size)
+    if path.suffix.lower() in GEOMETRY_SUFFIXES:
+        return mesh_geometry(path, mesh_size, allow_large=allow_large, order=order)
     return read_mesh(path)
 
 

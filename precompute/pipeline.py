@@ -30,13 +30,25 @@ from precompute.fem import (
     stiffness_matrix,
     vertex_dofs,
 )
-from precompute.geometry import TetMesh, boundary_triangles, load_seat
+from precompute.geometry import DEFAULT_MESH_SIZE, MeshError, TetMesh, boundary_triangles, check_mesh, load_seat
 from precompute.greens import SOLVERS, compliance_matrix, hat_load_matrix, lumped_areas
-from runtime.bundle import FORMAT_VERSION, is_bundle, read_manifest, write_bundle
+from precompute.resources import check_fits, estimate_mesh
+from runtime.bundle import (
+    FORMAT_VERSION,
+    BundleError,
+    bundle_lock,
+    check_replaceable,
+    check_writable,
+    clean_stale_temporaries,
+    is_bundle,
+    read_manifest,
+    write_bundle,
+)
 
 log = logging.getLogger(__name__)
 
-DEFAULT_MESH_SIZE = 0.01
+__all__ = ["DEFAULT_MESH_SIZE", "LOADS", "Surface", "build_bundle", "cache_key", "default_cache_dir", "extract_surface"]
+
 LOADS = ("point", "hat")
 
 
@@ -77,7 +89,7 @@ def extract_surface(mesh: TetMesh, contact_group: str = "top") -> Surface:
     else:
         contactable = np.isin(nodes, mesh.group_vertices(contact_group)) & ~fixed
     if not contactable.any():
-        raise ValueError(f"no contactable vertices: group {contact_group!r} lies entirely on the clamp")
+        raise MeshError(f"{mesh.source}: no contactable vertices: group {contact_group!r} lies entirely on the clamp")
     areas = lumped_areas(mesh.points[nodes], triangles)
     return Surface(nodes, triangles, fixed, contactable, areas)
 
@@ -121,16 +133,23 @@ def build_bundle(
     load: str = "point",
     reuse: bool = True,
     progress: bool = False,
+    allow_large: bool = False,
 ) -> Path:
     """Compute the Green's functions of a seat and write them as a bundle.
 
     Parameters
     ----------
     out
-        Bundle directory. ``None``: ``default_cache_dir() / <key>``.
+        Bundle directory. ``None``: ``default_cache_dir() / <key>``. It must
+        be new, empty or a bundle (anything else is refused, naming the files
+        in the way), and writable: both are checked before any work.
+        Concurrent builds of one ``out`` take turns (the second waits, then
+        reuses the first's bundle if the key matches).
     mesh
-        A ready :class:`TetMesh` (tests, studies). Otherwise ``geometry`` is
-        meshed at ``mesh_size`` (``None``: the default saddle).
+        A ready :class:`TetMesh` (tests, studies); it is checked
+        (:func:`precompute.geometry.check_mesh`: every part clamped...).
+        Otherwise ``geometry`` is meshed at ``mesh_size`` (``None``: the
+        default saddle).
     mesh_size
         Element size on the hail-facing surface [m].
     order
@@ -154,6 +173,11 @@ def build_bundle(
         recomputing.
     progress
         Show a progress bar over the columns of D.
+    allow_large
+        Skip the memory check: by default a run whose estimated memory (from
+        the geometry before meshing, from the mesh before assembly; see
+        :mod:`precompute.resources`) exceeds the memory available raises
+        :class:`precompute.resources.TooLargeError`.
 
     Returns
     -------
@@ -169,10 +193,24 @@ def build_bundle(
         raise ValueError(f"unknown solver {solver!r}; choose one of {SOLVERS}")
     if not (np.isfinite(tol) and 0 < tol < 1):
         raise ValueError(f"solver tolerance must be in (0, 1), got {tol!r}")
+    if not (np.isfinite(mesh_size) and mesh_size > 0):
+        raise ValueError(f"mesh size must be a positive length in metres, got {mesh_size!r}")
+    # the output first: an occupied or unwritable place is refused before any work
+    if out is not None:
+        out = Path(out).absolute()
+        check_replaceable(out)
+        check_writable(out.parent)
+    else:
+        check_writable(default_cache_dir())
     t0 = time.perf_counter()
     if mesh is None:
-        mesh = load_seat(geometry, mesh_size)
+        mesh = load_seat(geometry, mesh_size, allow_large=allow_large, order=order)
+    else:
+        check_mesh(mesh)
     t_mesh = time.perf_counter() - t0
+    surface = extract_surface(mesh, contact_group)
+    check_fits(estimate_mesh(surface.nodes.size, int(surface.contactable.sum()), mesh.points.shape[0], order),
+               f"{mesh.source} (P{order})", allow_large=allow_large)
 
     options = {
         "order": int(order),
@@ -185,18 +223,29 @@ def build_bundle(
     }
     key = cache_key(mesh, options)
     if out is None:
-        out = default_cache_dir() / key[:16]
-    out = Path(out)
-    if reuse and is_bundle(out):
+        out = (default_cache_dir() / key[:16]).absolute()
+    with bundle_lock(out):  # waits for another writer of `out`
+        clean_stale_temporaries(out.parent)  # a killed writer's debris; a stranded bundle is put back
+        if reuse and is_bundle(out):
+            try:
+                if read_manifest(out)["key"] == key:
+                    log.info("bundle %s is up to date (key %s); reusing it", out, key[:12])
+                    return out
+            except ValueError:
+                pass
+            log.info("bundle %s was built for other inputs; recomputing", out)
+        check_replaceable(out)
         try:
-            if read_manifest(out).get("key") == key:
-                log.info("bundle %s is up to date (key %s); reusing it", out, key[:12])
-                return out
-        except ValueError:
-            pass
-        log.info("bundle %s was built for other inputs; recomputing", out)
+            return _compute(out, mesh, surface, options, key, geometry, mesh_size, tol, t0, t_mesh, progress)
+        except OSError as exc:
+            raise BundleError(f"cannot write bundle {out}: {exc.strerror or exc} ({exc.filename or out})") from exc
 
-    surface = extract_surface(mesh, contact_group)
+
+def _compute(out: Path, mesh: TetMesh, surface: Surface, options: dict, key: str, geometry, mesh_size: float,
+             tol: float, t0: float, t_mesh: float, progress: bool) -> Path:
+    """Assemble, solve for D and write the bundle (``build_bundle``'s work once its checks passed)."""
+    order, young, poisson = options["order"], options["young"], options["poisson"]
+    solver, load = options["solver"], options["load"]
     t1 = time.perf_counter()
     basis = elasticity_basis(mesh, order)
     K = stiffness_matrix(basis, young, poisson)

@@ -5,9 +5,11 @@ array. It is the *only* thing the runtime reads, so this module depends on
 numpy alone (no gmsh, no scikit-fem). The offline stage writes bundles through
 :func:`write_bundle`; everybody reads them through :func:`load`.
 
-Layout (format version 1)::
+Layout (format version 2)::
 
-    manifest.json            format, version, key, options, material, hashes
+    manifest.json            format, version, key, options, material, per-array file
+                             name, shape, dtype, size in bytes and SHA-256, and the
+                             SHA-256 of the manifest's own content
     vertices.npy             (n, 3)   surface corner vertices [m]
     triangles.npy            (m, 3)   outward-oriented surface triangles
     areas.npy                (n,)     lumped vertex areas a_i [m^2] (A = diag(a) ⊗ I3)
@@ -21,27 +23,42 @@ Layout (format version 1)::
                                       (vertex-major, x, y, z per vertex) [m/N]
 
 The bundle is written atomically: into a temporary sibling directory first,
-then renamed into place, so a reader never sees half a bundle.
+then renamed into place, so a reader never sees half a bundle. Writers of one
+bundle directory take turns through a lock file next to it
+(``.NAME.lock``, :func:`bundle_lock`); a writer that finds temporaries left by
+a killed writer removes them, and a bundle stranded by a crash between the
+writer's two renames is put back in place (:func:`recover`). A directory is
+only ever replaced if it holds exactly the files a bundle writer writes:
+nothing else is deleted.
 """
 
 from __future__ import annotations
 
+import ctypes
+import errno
 import hashlib
 import json
+import logging
+import math
 import os
 import shutil
 import tempfile
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Iterator, Mapping
 
 import numpy as np
 
 from runtime.gather import _apply_columns, _column_dofs, _dof3, _gather
 
 FORMAT_NAME = "hailstorm-greens-bundle"
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 MANIFEST = "manifest.json"
+#: manifest entry holding the SHA-256 of the rest of the manifest
+MANIFEST_HASH = "manifest_sha256"
+
+log = logging.getLogger(__name__)
 
 #: Arrays every bundle holds, with their dtype kind and number of dimensions.
 ARRAY_SPECS: dict[str, tuple[str, int]] = {
@@ -57,8 +74,21 @@ ARRAY_SPECS: dict[str, tuple[str, int]] = {
 }
 
 
+#: Every file a bundle writer writes into a bundle directory.
+BUNDLE_FILES = frozenset({MANIFEST, *(f"{name}.npy" for name in ARRAY_SPECS)})
+
+
 class BundleError(ValueError):
     """A bundle is missing, truncated, corrupted or does not match a request."""
+
+
+def _slabs(a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The array in its own memory order (no copy) and its bytes as a flat uint8 view."""
+    if a.flags.f_contiguous and not a.flags.c_contiguous:
+        a = a.T
+    a = np.ascontiguousarray(a)
+    flat = a.reshape(-1).view(np.uint8) if a.size else np.zeros(0, np.uint8)
+    return a.reshape(-1), flat
 
 
 def array_hash(a: np.ndarray) -> str:
@@ -68,42 +98,107 @@ def array_hash(a: np.ndarray) -> str:
     gathering the columns of a contact set is a contiguous copy) is hashed in
     its own order, without a copy.
     """
+    return _scan(a)[0]
+
+
+def _scan(a: np.ndarray) -> tuple[str, int]:
+    """One pass over an array: its :func:`array_hash` and its number of non-finite entries."""
     h = hashlib.sha256()
-    order = "F" if (a.flags.f_contiguous and not a.flags.c_contiguous) else "C"
+    fortran = a.flags.f_contiguous and not a.flags.c_contiguous
     h.update(str(a.dtype.str).encode())
     h.update(str(a.shape).encode())
-    if order == "F":
+    if fortran:
         h.update(b"F")
-        a = a.T
-    a = np.ascontiguousarray(a)
-    # hash in slabs so a memory-mapped D is not pulled into memory at once
-    flat = a.reshape(-1).view(np.uint8) if a.size else np.zeros(0, np.uint8)
+    values, flat = _slabs(a)
+    # in slabs, so that a memory-mapped D is not pulled into memory at once
     step = 1 << 26
     for start in range(0, flat.size, step):
         # numpy's stubs declare ndarray.__buffer__ only for Python >= 3.12
         h.update(flat[start:start + step])  # type: ignore[arg-type]
-    return h.hexdigest()
+    bad = 0
+    if a.dtype.kind == "f":
+        per = max(1, step // a.dtype.itemsize)
+        for start in range(0, values.size, per):
+            bad += int(np.count_nonzero(~np.isfinite(values[start:start + per])))
+    return h.hexdigest(), bad
+
+
+def manifest_hash(manifest: Mapping[str, Any]) -> str:
+    """SHA-256 of a manifest's content (canonical JSON, without its own hash entry)."""
+    body = {k: v for k, v in manifest.items() if k != MANIFEST_HASH}
+    return hashlib.sha256(json.dumps(body, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
 
 
 def is_bundle(path: str | os.PathLike) -> bool:
-    """True if ``path`` is a directory holding a hailstorm manifest."""
+    """True if ``path`` is a directory holding a hailstorm manifest (of any version)."""
     m = Path(path) / MANIFEST
     if not m.is_file():
         return False
     try:
-        return json.loads(m.read_text()).get("format") == FORMAT_NAME
+        manifest = json.loads(m.read_text())
     except (OSError, ValueError):
         return False
+    return isinstance(manifest, dict) and manifest.get("format") == FORMAT_NAME
+
+
+def _is_number(x: Any) -> bool:
+    return isinstance(x, (int, float)) and not isinstance(x, bool) and math.isfinite(x)
+
+
+def _check_structure(manifest: Any, m: Path) -> None:
+    """Raise :class:`BundleError` naming the first key of ``manifest`` that is missing or mistyped."""
+    def need(obj: Any, key: str, kind, where: str, check=None, what: str = "") -> Any:
+        full = f"{where}{key}"
+        if not isinstance(obj, dict) or key not in obj:
+            raise BundleError(f"{m}: the manifest has no {full!r} entry; the bundle is damaged")
+        value = obj[key]
+        if not isinstance(value, kind) or isinstance(value, bool) and kind is not bool or (check and not check(value)):
+            raise BundleError(
+                f"{m}: manifest entry {full!r} is {value!r}, expected {what or getattr(kind, '__name__', kind)}; "
+                "the bundle is damaged"
+            )
+        return value
+
+    if not isinstance(manifest, dict):
+        raise BundleError(f"{m}: the manifest is a JSON {type(manifest).__name__}, not an object; the bundle is damaged")
+    need(manifest, "key", str, "")
+    options = need(manifest, "options", dict, "")
+    need(options, "order", int, "options.", lambda v: v in (1, 2), "1 or 2")
+    material = need(manifest, "material", dict, "")
+    for k in ("young", "poisson"):
+        need(material, k, (int, float), "material.", _is_number, "a finite number")
+    for k in ("mesh", "timings_s"):
+        if k in manifest and not isinstance(manifest[k], dict):
+            raise BundleError(f"{m}: manifest entry {k!r} is {manifest[k]!r}, expected an object; the bundle is damaged")
+    for k in manifest.get("timings_s", {}):
+        need(manifest["timings_s"], k, (int, float), "timings_s.", _is_number, "a number of seconds")
+    arrays = need(manifest, "arrays", dict, "", what="an object listing the arrays")
+    for name in ARRAY_SPECS:
+        entry = need(arrays, name, dict, "arrays.", what="an object")
+        where = f"arrays.{name}."
+        need(entry, "file", str, where, _plain_name, "a file name inside the bundle")
+        need(entry, "shape", list, where, lambda v: all(isinstance(n, int) and not isinstance(n, bool) and n >= 0
+                                                        for n in v), "a list of sizes")
+        need(entry, "dtype", str, where)
+        need(entry, "sha256", str, where, lambda v: len(v) == 64, "a SHA-256 hex digest")
+        need(entry, "bytes", int, where, lambda v: v >= 0, "a file size")
+    need(manifest, MANIFEST_HASH, str, "", lambda v: len(v) == 64, "a SHA-256 hex digest")
+
+
+def _plain_name(name: str) -> bool:
+    """A file name that stays inside its directory (no separator, not '.', '..' or empty)."""
+    return bool(name) and name not in (".", "..") and "/" not in name and os.sep not in name and "\0" not in name
 
 
 def read_manifest(path: str | os.PathLike) -> dict[str, Any]:
-    """Read and sanity-check a bundle's manifest.
+    """Read and check a bundle's manifest: its structure and its content hash.
 
     Raises
     ------
     BundleError
-        If the directory or manifest is missing, unreadable, or of another
-        format or version.
+        If the directory or manifest is missing, unreadable, of another format
+        or version, lacks an entry or holds one of the wrong type (the message
+        names it), or its content does not match its hash (it was edited).
     """
     path = Path(path)
     if not path.exists():
@@ -117,6 +212,9 @@ def read_manifest(path: str | os.PathLike) -> dict[str, Any]:
         manifest = json.loads(m.read_text())
     except (OSError, ValueError) as exc:
         raise BundleError(f"{m} is not valid JSON ({exc}); the bundle is corrupted") from exc
+    if not isinstance(manifest, dict):
+        raise BundleError(f"{m}: the manifest is a JSON {type(manifest).__name__}, not an object; "
+                          "it is not a hailstorm bundle manifest, or the bundle is damaged")
     if manifest.get("format") != FORMAT_NAME:
         raise BundleError(f"{m} is not a hailstorm bundle manifest (format={manifest.get('format')!r})")
     if manifest.get("format_version") != FORMAT_VERSION:
@@ -124,7 +222,260 @@ def read_manifest(path: str | os.PathLike) -> dict[str, Any]:
             f"bundle {path} has format version {manifest.get('format_version')!r}; "
             f"this hailstorm reads version {FORMAT_VERSION}. Re-run `hailstorm precompute`."
         )
+    _check_structure(manifest, m)
+    if manifest_hash(manifest) != manifest[MANIFEST_HASH]:
+        raise BundleError(f"{m}: the manifest's content does not match its hash (edited or corrupted); "
+                          "re-run `hailstorm precompute`")
     return manifest
+
+
+# --------------------------------------------------------------------------- writers: locks, debris, replacement
+
+try:
+    import fcntl
+except ImportError:  # pragma: no cover - not POSIX: no locking
+    fcntl = None  # type: ignore[assignment]
+
+_TMP, _OLD = ".tmp-", ".old-"
+_held: dict[tuple[Path, int], int] = {}
+
+
+def lock_path(out: str | os.PathLike) -> Path:
+    """The lock file that writers of bundle directory ``out`` share: ``.NAME.lock`` beside it."""
+    out = Path(out).absolute()
+    return out.parent / f".{out.name}.lock"
+
+
+@contextmanager
+def bundle_lock(out: str | os.PathLike, *, wait: bool = True) -> Iterator[Path]:
+    """Hold the exclusive writer's lock of bundle directory ``out``.
+
+    Creates ``out``'s parent and the lock file if needed (which also proves,
+    before any work, that the place is writable). Re-entrant within a thread.
+
+    Parameters
+    ----------
+    out
+        The bundle directory.
+    wait
+        If another process (or thread) holds the lock: wait for it (logging
+        who holds it), or raise :class:`BundleError` at once.
+
+    Yields
+    ------
+    pathlib.Path
+        ``out`` as an absolute path.
+    """
+    import threading
+
+    out = Path(out).absolute()
+    me = (out, threading.get_ident())
+    if me in _held:
+        _held[me] += 1
+        try:
+            yield out
+        finally:
+            _held[me] -= 1
+        return
+    lock = lock_path(out)
+    try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise BundleError(f"cannot write a bundle at {out}: {exc.strerror or exc}: {exc.filename or out.parent}") from exc
+    fd = _acquire(lock, out, wait)
+    try:
+        os.ftruncate(fd, 0)
+        os.pwrite(fd, f"{os.getpid()}\n".encode(), 0)
+        _held[me] = 1
+        try:
+            yield out
+        finally:
+            del _held[me]
+            # unlinked while held: a process waiting on this file finds it gone and retries (see _acquire)
+            try:
+                os.unlink(lock)
+            except OSError:
+                pass
+    finally:
+        os.close(fd)  # releases the lock
+
+
+def _acquire(lock: Path, out: Path, wait: bool) -> int:
+    """Open and flock ``lock``; retry while the file that was locked is no longer the one at ``lock``."""
+    while True:
+        try:
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o666)
+        except OSError as exc:
+            raise BundleError(f"cannot write a bundle at {out}: {exc.strerror or exc}: {exc.filename or lock}") from exc
+        if fcntl is None:  # pragma: no cover
+            return fd
+        try:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                holder = os.pread(fd, 32, 0).decode(errors="replace").strip() or "unknown"
+                if not wait:
+                    raise BundleError(f"bundle {out} is being written by another process (pid {holder}); "
+                                      "try again when it has finished") from None
+                log.warning("waiting for another hailstorm (pid %s) to finish writing %s ...", holder, out)
+                fcntl.flock(fd, fcntl.LOCK_EX)
+            st = os.fstat(fd)
+            try:
+                now = os.stat(lock)
+            except FileNotFoundError:
+                now = None
+            if now is not None and (now.st_dev, now.st_ino) == (st.st_dev, st.st_ino):
+                return fd
+        except BaseException:
+            os.close(fd)
+            raise
+        os.close(fd)  # the previous holder removed the file we locked: lock the new one
+
+
+def _ours(d: Path) -> bool:
+    """True if directory ``d`` holds nothing but files a bundle writer writes."""
+    try:
+        return all(e.name in BUNDLE_FILES and e.is_file(follow_symlinks=False) for e in os.scandir(d))
+    except OSError:
+        return False
+
+
+def _debris(parent: Path) -> dict[str, list[Path]]:
+    """Writer temporaries (``.NAME.tmp-*``, ``.NAME.old-*``) and lock files (``.NAME.lock``)
+    in ``parent``: the temporaries of each target name (an empty list for a lock file alone)."""
+    found: dict[str, list[Path]] = {}
+    try:
+        entries = list(os.scandir(parent))
+    except OSError:
+        return found
+    for e in entries:
+        n = e.name
+        if not n.startswith("."):
+            continue
+        if n.endswith(".lock") and len(n) > 6 and e.is_file(follow_symlinks=False):
+            found.setdefault(n[1:-5], [])
+            continue
+        i = max(n.rfind(_TMP), n.rfind(_OLD))
+        if i > 1 and e.is_dir(follow_symlinks=False):
+            found.setdefault(n[1:i], []).append(Path(e.path))
+    return found
+
+
+def check_writable(directory: str | os.PathLike) -> None:
+    """Raise :class:`BundleError` unless a bundle can be created in ``directory``.
+
+    Probes the directory (or, if it does not exist yet, its nearest existing
+    ancestor) by creating and removing an empty file in it, so that an
+    unwritable output is refused before any work; creates nothing else.
+    """
+    directory = Path(directory).absolute()
+    probe = directory
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    if not probe.is_dir():
+        raise BundleError(f"cannot write a bundle in {directory}: {probe} is not a directory")
+    try:
+        fd, name = tempfile.mkstemp(prefix=".hailstorm-probe-", dir=probe)
+        os.close(fd)
+        os.unlink(name)
+    except OSError as exc:
+        raise BundleError(f"cannot write a bundle in {directory}: {exc.strerror or exc} ({probe})") from exc
+
+
+def _recover_locked(out: Path, temps: list[Path] | None = None) -> None:
+    """With ``out``'s lock held: put a bundle stranded between the two renames of a killed
+    writer back at ``out``, and remove that writer's temporaries."""
+    if temps is None:
+        temps = _debris(out.parent).get(out.name, [])
+    temps = [t for t in temps if _ours(t)]
+    if not temps:
+        return
+    if not out.exists():
+        # newest complete copy first: a finished temporary (.tmp-) before the previous bundle (.old-)
+        for cand in sorted(temps, key=lambda t: (_OLD in t.name, -t.stat().st_mtime)):
+            try:
+                load(cand, verify=True)
+            except BundleError:
+                continue
+            os.replace(cand, out)
+            log.warning("recovered bundle %s from %s, left by an interrupted writer", out, cand.name)
+            temps.remove(cand)
+            break
+    for t in temps:
+        log.info("removing %s, left by an interrupted bundle writer", t)
+        shutil.rmtree(t, ignore_errors=True)
+
+
+def clean_stale_temporaries(parent: str | os.PathLike) -> None:
+    """Remove the temporaries of killed bundle writers in ``parent`` and recover stranded bundles.
+
+    A temporary is only touched if its target's lock is free (no live writer)
+    and it holds nothing but bundle files.
+    """
+    parent = Path(parent).absolute()
+    import threading
+
+    for name, temps in _debris(parent).items():
+        out = parent / name
+        if (out, threading.get_ident()) in _held:
+            _recover_locked(out, temps)
+            continue
+        try:
+            with bundle_lock(out, wait=False):
+                _recover_locked(out, temps)
+        except BundleError:
+            continue  # a live writer, or an unwritable place: leave it
+
+
+def check_replaceable(out: str | os.PathLike) -> None:
+    """Raise :class:`BundleError` unless ``out`` may be (re)written as a bundle.
+
+    ``out`` may be missing, an empty directory, or a directory holding exactly
+    the files a bundle writer writes with a hailstorm manifest. Anything else
+    (a file; a directory with other files, such as the user's notes or results;
+    a manifest alone) is refused, naming what is in the way.
+    """
+    out = Path(out)
+    if not out.exists() and not out.is_symlink():
+        return
+    if not out.is_dir() or out.is_symlink():
+        raise BundleError(f"--out {out} exists and is not a directory; refusing to overwrite it")
+    try:
+        entries = list(os.scandir(out))
+    except OSError as exc:
+        raise BundleError(f"cannot read --out {out}: {exc.strerror or exc}") from exc
+    if not entries:
+        return
+    foreign = sorted(e.name for e in entries if e.name not in BUNDLE_FILES or not e.is_file(follow_symlinks=False))
+    if foreign:
+        shown = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more" if len(foreign) > 5 else "")
+        raise BundleError(
+            f"--out {out} holds files that are not part of a hailstorm bundle ({shown}); "
+            "refusing to replace it (move them away, or choose another directory)"
+        )
+    missing = sorted(BUNDLE_FILES - {e.name for e in entries})
+    if missing or not is_bundle(out):
+        raise BundleError(
+            f"--out {out} is not a complete hailstorm bundle ("
+            + (f"no {', '.join(missing[:3])}" + (" ..." if len(missing) > 3 else "") if missing else "no hailstorm manifest")
+            + "); refusing to replace it (remove it yourself, or choose another directory)"
+        )
+
+
+def _exchange(a: Path, b: Path) -> bool:
+    """Atomically swap two paths (Linux renameat2 RENAME_EXCHANGE); False if unsupported."""
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        fn = libc.renameat2
+    except (OSError, AttributeError):
+        return False
+    at_fdcwd, rename_exchange = -100, 2
+    if fn(at_fdcwd, os.fsencode(a), at_fdcwd, os.fsencode(b), rename_exchange) == 0:
+        return True
+    err = ctypes.get_errno()
+    if err in (errno.EINVAL, errno.ENOSYS, errno.EPERM, errno.ENOTSUP):
+        return False
+    raise OSError(err, os.strerror(err), str(b))
 
 
 def write_bundle(
@@ -139,13 +490,17 @@ def write_bundle(
     out
         Target directory. If it already holds a bundle, that bundle is replaced
         (atomically: the old one stays intact until the new one is complete).
-        If it is a non-empty directory that is not a bundle, nothing is touched
-        and :class:`BundleError` is raised.
+        If it holds anything but a bundle's files, nothing is touched and
+        :class:`BundleError` is raised naming the files in the way. Writers of
+        one ``out`` take turns (:func:`bundle_lock`); temporaries left by a
+        killed writer are removed first.
     arrays
-        Every array named in :data:`ARRAY_SPECS`.
+        Every array named in :data:`ARRAY_SPECS`; floating-point arrays must be
+        finite.
     manifest
         Metadata (options, material, key, timings...). ``format``,
-        ``format_version`` and ``arrays`` entries are added here.
+        ``format_version``, ``arrays`` and ``manifest_sha256`` entries are
+        added here.
 
     Returns
     -------
@@ -156,54 +511,57 @@ def write_bundle(
     missing = set(ARRAY_SPECS) - set(arrays)
     if missing:
         raise BundleError(f"cannot write bundle: arrays missing: {sorted(missing)}")
-    if out.exists() and not out.is_dir():
-        raise BundleError(f"--out {out} exists and is not a directory; refusing to overwrite it")
-    if out.is_dir() and any(out.iterdir()) and not is_bundle(out):
-        raise BundleError(
-            f"--out {out} is a non-empty directory that is not a hailstorm bundle; "
-            "refusing to overwrite it (choose an empty or new directory)"
-        )
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.tmp-", dir=out.parent))
-    try:
-        entries = {}
-        for name in ARRAY_SPECS:
-            a = np.asarray(arrays[name])
-            if not (a.flags.c_contiguous or a.flags.f_contiguous):
-                a = np.ascontiguousarray(a)
-            fname = f"{name}.npy"
-            with open(tmp / fname, "wb") as fh:
-                np.save(fh, a, allow_pickle=False)
+    prepared = {}
+    for name in ARRAY_SPECS:
+        a = np.asarray(arrays[name])
+        if not (a.flags.c_contiguous or a.flags.f_contiguous):
+            a = np.ascontiguousarray(a)
+        digest, bad = _scan(a)
+        if bad:
+            raise BundleError(f"cannot write bundle {out}: {name} holds {bad} non-finite (NaN or inf) values")
+        prepared[name] = (a, digest)
+    with bundle_lock(out):
+        clean_stale_temporaries(out.parent)
+        check_replaceable(out)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}{_TMP}", dir=out.parent))
+        try:
+            entries = {}
+            for name, (a, digest) in prepared.items():
+                fname = f"{name}.npy"
+                with open(tmp / fname, "wb") as fh:
+                    np.save(fh, a, allow_pickle=False)
+                    fh.flush()
+                    os.fsync(fh.fileno())
+                    size = os.fstat(fh.fileno()).st_size
+                entries[name] = {"file": fname, "shape": list(a.shape), "dtype": a.dtype.str, "sha256": digest,
+                                 "bytes": size}
+            full = dict(manifest)
+            full.pop(MANIFEST_HASH, None)
+            full.update(format=FORMAT_NAME, format_version=FORMAT_VERSION, arrays=entries)
+            full[MANIFEST_HASH] = manifest_hash(full)
+            _check_structure(full, out / MANIFEST)  # never write a bundle that load would refuse
+            with open(tmp / MANIFEST, "w") as fh:
+                json.dump(full, fh, indent=2, sort_keys=True)
                 fh.flush()
                 os.fsync(fh.fileno())
-            entries[name] = {
-                "file": fname,
-                "shape": list(a.shape),
-                "dtype": a.dtype.str,
-                "sha256": array_hash(a),
-            }
-        full = dict(manifest)
-        full.update(format=FORMAT_NAME, format_version=FORMAT_VERSION, arrays=entries)
-        with open(tmp / MANIFEST, "w") as fh:
-            json.dump(full, fh, indent=2, sort_keys=True)
-            fh.flush()
-            os.fsync(fh.fileno())
-        # mkdtemp makes a private (0o700) directory: give the bundle the mode a plain
-        # mkdir would (0o777 minus the umask), as the files in it have
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o777 & ~umask)
-        if out.exists():
-            old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=out.parent))
-            old.rmdir()
-            os.replace(out, old)
-            os.replace(tmp, out)
-            shutil.rmtree(old, ignore_errors=True)
-        else:
-            os.replace(tmp, out)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
+            # mkdtemp makes a private (0o700) directory: give the bundle the mode a plain
+            # mkdir would (0o777 minus the umask), as the files in it have
+            umask = os.umask(0)
+            os.umask(umask)
+            os.chmod(tmp, 0o777 & ~umask)
+            if out.exists():
+                if not _exchange(tmp, out):  # tmp now holds the old bundle
+                    old = Path(tempfile.mkdtemp(prefix=f".{out.name}{_OLD}", dir=out.parent))
+                    old.rmdir()
+                    os.replace(out, old)
+                    os.replace(tmp, out)
+                    tmp = old
+                shutil.rmtree(tmp, ignore_errors=True)
+            else:
+                os.replace(tmp, out)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
     return out
 
 
@@ -358,9 +716,12 @@ def load(path: str | os.PathLike, *, verify: bool = True, mmap: bool = True) -> 
     path
         Bundle directory.
     verify
-        Check every array's content hash against the manifest (reads every
-        byte once; about a second per GB). Shapes, dtypes and cross-array
-        consistency are always checked.
+        Check every array's content hash against the manifest, and that
+        floating-point arrays (D among them) are finite (reads every byte
+        once; about a second per GB). The manifest's structure and content
+        hash, every file's size, shapes, dtypes and cross-array consistency
+        are always checked. A bundle stranded beside ``path`` by a writer
+        killed between its two renames is put back first.
     mmap
         Memory-map the compliance matrix instead of reading it into memory.
 
@@ -375,16 +736,25 @@ def load(path: str | os.PathLike, *, verify: bool = True, mmap: bool = True) -> 
         corrupted, of another format version or internally inconsistent.
     """
     path = Path(path)
+    if not path.exists() and path.parent.is_dir():
+        # a writer killed between its two renames leaves the bundle beside its place
+        clean_stale_temporaries(path.parent)
     manifest = read_manifest(path)
-    entries = manifest.get("arrays", {})
+    entries = manifest["arrays"]
     data: dict[str, np.ndarray] = {}
     for name, (kind, ndim) in ARRAY_SPECS.items():
-        entry = entries.get(name)
-        if entry is None:
-            raise BundleError(f"bundle {path}: manifest lists no array {name!r}")
+        entry = entries[name]
         f = path / entry["file"]
         if not f.is_file():
             raise BundleError(f"bundle {path}: array file {entry['file']} is missing")
+        if f.is_symlink() or f.resolve().parent != path.resolve():
+            raise BundleError(f"bundle {path}: array file {entry['file']} lies outside the bundle")
+        size = f.stat().st_size
+        if size != entry["bytes"]:
+            raise BundleError(
+                f"bundle {path}: {entry['file']} has {size} bytes, manifest says {entry['bytes']} "
+                "(truncated, extended or replaced file)"
+            )
         try:
             a = np.load(f, mmap_mode="r" if mmap else None, allow_pickle=False)
         except (ValueError, OSError, EOFError) as exc:
@@ -396,8 +766,12 @@ def load(path: str | os.PathLike, *, verify: bool = True, mmap: bool = True) -> 
             )
         if a.dtype.kind != kind or a.ndim != ndim:
             raise BundleError(f"bundle {path}: {name} has dtype kind {a.dtype.kind}/ndim {a.ndim}, expected {kind}/{ndim}")
-        if verify and array_hash(a) != entry["sha256"]:
-            raise BundleError(f"bundle {path}: {entry['file']} content hash does not match the manifest (corrupted)")
+        if verify:
+            digest, bad = _scan(a)
+            if digest != entry["sha256"]:
+                raise BundleError(f"bundle {path}: {entry['file']} content hash does not match the manifest (corrupted)")
+            if bad:
+                raise BundleError(f"bundle {path}: {name} holds {bad} non-finite (NaN or inf) values")
         data[name] = a if name == "compliance" else np.asarray(a)
 
     n = data["vertices"].shape[0]

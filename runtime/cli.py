@@ -68,6 +68,8 @@ def _parser() -> argparse.ArgumentParser:
                      "spread over the vertex's hat function (hat: the consistent choice for --order 2)")
     pre.add_argument("--out", type=Path, required=True, help="bundle directory to write")
     pre.add_argument("--force", action="store_true", help="recompute even if --out holds an up-to-date bundle")
+    pre.add_argument("--allow-large", action="store_true",
+                     help="run even if the estimated memory (D and the solver) exceeds the memory available")
 
     storm = sub.add_parser("storm", parents=[common], help="run a hail storm and write an animation, a ParaView series and summary.json")
     _storm_args(storm)
@@ -100,23 +102,42 @@ def _storm_args(p: argparse.ArgumentParser) -> None:
 
 def _run_precompute(args: argparse.Namespace) -> int:
     from precompute.pipeline import build_bundle
+    from runtime.bundle import BundleError
 
     t0 = time.perf_counter()
-    path = build_bundle(
-        args.out, geometry=args.geometry, mesh_size=args.mesh_size, order=args.order,
-        young=args.young, poisson=args.poisson, solver=args.solver, tol=args.tol, load=args.load,
-        reuse=not args.force, progress=not args.quiet,
-    )
+    try:
+        path = build_bundle(
+            args.out, geometry=args.geometry, mesh_size=args.mesh_size, order=args.order,
+            young=args.young, poisson=args.poisson, solver=args.solver, tol=args.tol, load=args.load,
+            reuse=not args.force, progress=not args.quiet, allow_large=args.allow_large,
+        )
+    except OSError as exc:  # what the library did not already name (a full disk...): still the user's
+        raise BundleError(f"precompute failed: {exc}") from exc
     _print_bundle(path)
     if not args.quiet:
         print(f"done in {time.perf_counter() - t0:.1f} s")
     return 0
 
 
-def _print_bundle(path: Path) -> None:
-    from runtime.bundle import load
+def _run_info(args: argparse.Namespace) -> int:
+    """``hailstorm info``: describe and verify a bundle; a reader that stops early (``| head``) is no error."""
+    import os
 
-    gf = load(path)
+    try:
+        _print_bundle(args.bundle)
+        sys.stdout.flush()
+    except BrokenPipeError:
+        # the reader went away: silence the interpreter's final flush too
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    return 0
+
+
+def _print_bundle(path: Path) -> None:
+    from runtime.bundle import ARRAY_SPECS, load
+
+    gf = load(path)  # verifies: manifest hash and structure, array sizes and hashes, finite D, consistency
     m = gf.manifest
     mesh = m.get("mesh", {})
     print(f"bundle   {path}")
@@ -130,6 +151,8 @@ def _print_bundle(path: Path) -> None:
     t = m.get("timings_s", {})
     if t:
         print("timings  " + ", ".join(f"{k} {v:.2f} s" for k, v in t.items()))
+    print(f"verified manifest hash and structure; {len(ARRAY_SPECS)} arrays: sizes, SHA-256, shapes, dtypes; "
+          "D finite; arrays consistent")
 
 
 def _run_storm(args: argparse.Namespace) -> int:
@@ -202,8 +225,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "precompute":
             return _run_precompute(args)
         if args.command == "info":
-            _print_bundle(args.bundle)
-            return 0
+            return _run_info(args)
         return _run_storm(args)
     except (MeshError, BundleError, ValueError, FileNotFoundError) as exc:
         print(f"hailstorm: error: {exc}", file=sys.stderr)

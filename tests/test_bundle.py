@@ -10,7 +10,7 @@ import pytest
 
 import runtime
 from precompute import build_bundle
-from runtime.bundle import ARRAY_SPECS, MANIFEST, BundleError, load, write_bundle
+from runtime.bundle import ARRAY_SPECS, MANIFEST, MANIFEST_HASH, BundleError, load, manifest_hash, write_bundle
 
 
 def _copy(src, dst):
@@ -93,6 +93,7 @@ def test_mismatched_bundle_is_refused(box_bundle, seat_bundle, tmp_path):
     shutil.copy(seat_bundle / "compliance.npy", b / "compliance.npy")
     m = json.loads((b / MANIFEST).read_text())
     m["arrays"]["compliance"] = json.loads((seat_bundle / MANIFEST).read_text())["arrays"]["compliance"]
+    m[MANIFEST_HASH] = manifest_hash(m)  # a consistent manifest: only the cross-array checks catch it
     (b / MANIFEST).write_text(json.dumps(m))
     with pytest.raises(BundleError, match="inconsistent"):
         load(b)
@@ -111,7 +112,7 @@ def test_non_bundle_directory_is_never_overwritten(small_box, tmp_path):
     target = tmp_path / "precious"
     target.mkdir()
     (target / "thesis.tex").write_text("years of work")
-    with pytest.raises(BundleError, match="not a hailstorm bundle"):
+    with pytest.raises(BundleError, match="not part of a hailstorm bundle"):
         build_bundle(target, mesh=small_box)
     assert (target / "thesis.tex").read_text() == "years of work"
 
