@@ -21,8 +21,9 @@ solves for the pair (force, radius) by fixed-point iteration. The map
 ``a -> a(F(a))`` contracts with slope about 1/6 at the solution, so a few
 iterations reach ``tol``.
 
-:func:`hertz_mean_offset` is the same correction for the storm, whose
-patch contacts follow the stone's lowest point.
+:func:`runtime.weights.sphere_mean_offset` is that correction as far as the
+surface mesh resolves the patch (a patch inside one triangle sees a plane:
+no offset); the storm's patch contacts use the same function.
 """
 
 from __future__ import annotations
@@ -33,18 +34,9 @@ from typing import Any
 import numpy as np
 
 from runtime.contact import ContactSolution, solve_contacts
-from runtime.weights import hertz_radius, triangle_normals
+from runtime.weights import contact_points, hertz_radius, patch_weights, sphere_mean_offset, triangle_normals
 
-__all__ = ["SphereContacts", "hertz_force", "hertz_mean_offset", "press_spheres"]
-
-
-def hertz_mean_offset(patch_radius: Any, sphere_radius: Any) -> np.ndarray:
-    """``a^2 / (5 R)``: how far the Hertz-weighted mean surface displacement of a
-    disc of radius ``a`` under a sphere of radius ``R`` lies short of the
-    sphere's lowest point [m] (0 for a point contact, ``a = 0``)."""
-    a = np.asarray(patch_radius, dtype=np.float64)
-    R = np.asarray(sphere_radius, dtype=np.float64)
-    return np.where(R > 0, a * a / (5.0 * np.where(R > 0, R, 1.0)), 0.0)
+__all__ = ["SphereContacts", "hertz_force", "press_spheres"]
 
 
 def hertz_force(depth: Any, sphere_radius: Any, young: float, poisson: float) -> np.ndarray:
@@ -145,8 +137,13 @@ def press_spheres(
         n = np.asarray(normals, dtype=np.float64).reshape(s, 3)
     E, nu = float(gf.young), float(gf.poisson)
     a = np.sqrt(R * d)  # the geometric Hertz radius: the start of the iteration
+    X = contact_points(np.asarray(gf.vertices), np.asarray(gf.triangles), t, barycentric)
     for it in range(1, max_iter + 1):
-        ubar = -(d - hertz_mean_offset(a, R))[:, None] * n
+        off = np.zeros(s)
+        if np.any(a > 0):
+            verts, w = patch_weights(gf, t, barycentric, a, n, backend=backend)
+            off = sphere_mean_offset(np.asarray(gf.vertices), verts, w, X, n, a, R)
+        ubar = -(d - off)[:, None] * n
         sol = solve_contacts(gf, t, barycentric, ubar, mode="frictionless", unilateral=True, normals=n,
                              rows=rows, patch_radius=np.maximum(a, 0.0), backend=backend)
         fn = np.clip(-np.einsum("ki,ki->k", sol.forces, n), 0.0, None)

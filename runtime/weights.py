@@ -58,7 +58,9 @@ __all__ = [
     "PATCH_PROFILES",
     "barycentric_matrix",
     "contact_points",
+    "hertz_mean_offset",
     "hertz_radius",
+    "sphere_mean_offset",
     "patch_matrix",
     "patch_weights",
     "triangle_normals",
@@ -145,6 +147,55 @@ def hertz_radius(force: Any, stone_radius: Any, young: float, poisson: float, *,
     if a_max is not None:
         a = np.minimum(a, a_max)
     return a
+
+
+def hertz_mean_offset(patch_radius: Any, sphere_radius: Any) -> np.ndarray:
+    """``a^2 / (5 R)``: how far the Hertz-weighted mean surface displacement of a
+    disc of radius ``a`` under a sphere of radius ``R`` lies short of the
+    sphere's lowest point [m] (0 for a point contact, ``a = 0``).
+
+    Under a sphere the surface follows ``delta - r^2 / (2 R)``; its mean under
+    the weights ``sqrt(1 - r^2/a^2)`` is ``delta - <r^2> / (2 R)`` with
+    ``<r^2> = 2 a^2 / 5``.
+    """
+    a = np.asarray(patch_radius, dtype=np.float64)
+    R = np.asarray(sphere_radius, dtype=np.float64)
+    return np.where(R > 0, a * a / (5.0 * np.where(R > 0, R, 1.0)), 0.0)
+
+
+def sphere_mean_offset(points: np.ndarray, verts: np.ndarray, weights: np.ndarray, centres: np.ndarray,
+                       normals: np.ndarray, patch_radius: Any, sphere_radius: Any) -> np.ndarray:
+    """The patch-mean offset of a sphere's profile as the surface mesh can follow it [m], (s,).
+
+    :func:`hertz_mean_offset` assumes a surface that follows the sphere over
+    the whole disc. A piecewise-linear surface can only do so where its
+    triangles are small against the disc: a disc inside one triangle sees a
+    plane, whose weighted mean is its value at the contact point, offset 0.
+    The weights' tangential second moment about the contact point,
+    ``m2 = sum_p w_p |rho_p|^2``, measures this: it is ``2 a^2 / 5`` plus an
+    ``O(h^2)`` smear of the hat functions. The offset is
+    ``a^2 / (5 R) * min(1, (2 a^2 / 5) / m2)``: Hertz's on a resolved patch,
+    vanishing as the patch shrinks inside a triangle.
+
+    Parameters
+    ----------
+    points : (n, 3) ndarray
+        Undeformed surface vertices.
+    verts, weights : (s, P) ndarrays
+        Each contact's weighted vertices and weights (:func:`patch_weights`;
+        padding has weight 0).
+    centres, normals : (s, 3) ndarrays
+        Contact points and unit normals.
+    patch_radius, sphere_radius : float or (s,) array_like
+        ``a`` and ``R`` [m].
+    """
+    a = np.broadcast_to(np.asarray(patch_radius, dtype=np.float64), (verts.shape[0],))
+    rho = np.asarray(points, dtype=np.float64)[verts] - centres[:, None, :]
+    rho = rho - np.einsum("kpd,kd->kp", rho, normals)[..., None] * normals[:, None, :]
+    m2 = np.einsum("kp,kpd,kpd->k", weights, rho, rho)
+    m2_disc = 0.4 * a * a
+    resolved = np.where(m2 > m2_disc, m2_disc / np.where(m2 > 0, m2, 1.0), 1.0)
+    return hertz_mean_offset(a, sphere_radius) * resolved
 
 
 # --------------------------------------------------------------------------
