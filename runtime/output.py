@@ -520,8 +520,10 @@ def check_storm_out(out: str | os.PathLike) -> None:
         parent = parent.parent
     if not parent.is_dir():
         raise OutputError(f"cannot create --out {out}: {parent} is not a directory")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise OutputError(f"cannot write --out {out}: {parent} is not writable")
+    try:  # a real probe: permissions, read-only file systems, and root's exceptions alike
+        os.rmdir(tempfile.mkdtemp(prefix=f".{out.name}.probe-", dir=parent))
+    except OSError as exc:
+        raise OutputError(f"cannot write --out {out}: {parent}: {exc.strerror or exc}") from None
 
 
 class StormOutput:

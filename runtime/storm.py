@@ -223,13 +223,16 @@ class StormResult:
 _log = logging.getLogger(__name__)
 
 
+#: seconds after which a kernel group still loading is announced as compiling
+#: (loading a group from numba's on-disk cache takes milliseconds)
+COMPILE_NOTICE_DELAY = 1.0
+
+
 class _CompileNotice:
     """Announces a first compile: :meth:`stage` names the kernels being loaded next
     and roughly how long compiling them takes; if loading them has not finished
-    after :attr:`delay` seconds (loading from numba's cache takes milliseconds),
-    numba is compiling and one INFO line says so."""
-
-    delay = 1.0
+    after :data:`COMPILE_NOTICE_DELAY` seconds, numba is compiling and one INFO
+    line says so."""
 
     def __init__(self) -> None:
         self._timer: threading.Timer | None = None
@@ -240,7 +243,7 @@ class _CompileNotice:
     def stage(self, what: str, seconds: float) -> None:
         self.done()
         self._what, self._t0 = what, time.perf_counter()
-        self._timer = threading.Timer(self.delay, _log.info, args=(
+        self._timer = threading.Timer(COMPILE_NOTICE_DELAY, _log.info, args=(
             "compiling %s (numba, once after an install: about %.0f s)...", what, seconds))
         self._timer.daemon = True
         self._timer.start()
