@@ -168,9 +168,7 @@ def _run_storm(args: argparse.Namespace) -> int:
     gf = load(gf_path)
     if args.gf is not None:
         _warn_seat_ignored(args, scene, gf)
-    estimate = scene.estimate(gf.n_vertices)
-    if not args.quiet:
-        print(f"storm: {estimate.describe()}")
+    estimate = scene.estimate(gf.n_vertices)  # run_storm logs it
     with StormOutput(out, gf, video=not args.no_video, disk_bytes=estimate.disk_bytes,
                      progress=not args.quiet) as sink:
         result = run_storm(gf, scene, progress=not args.quiet, on_frame=sink.add, allow_large=args.allow_large)
@@ -225,11 +223,14 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         if args.command == "precompute":
-            return _run_precompute(args)
-        if args.command == "info":
+            rc = _run_precompute(args)
+        elif args.command == "info":
             _print_bundle(args.bundle)
-            return 0
-        return _run_storm(args)
+            rc = 0
+        else:
+            rc = _run_storm(args)
+        sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's exit
+        return rc
     except BrokenPipeError:  # `hailstorm info X | head -2`: the reader left; exit quietly
         _silence_stdout()
         return 1

@@ -104,7 +104,9 @@ def summary(result: Any, gf: Any = None) -> dict[str, Any]:
     ``max_simultaneous_contacts``, ``max_penetration_m`` (deepest overlap of a
     stone with the deformed surface), ``steps``, ``substeps``,
     ``capacitance_rebuilds``, ``frames`` (recorded, = files in each series),
-    ``sim_time_s``, ``wall_time_s`` (the stepping, frames included),
+    ``sim_time_s``, ``wall_time_s`` (the stepping, recording the frames
+    included, writing them not), ``output_time_s`` (writing the frames as they
+    were recorded),
     ``real_time_factor`` (simulated / wall-clock time; > 1 is faster than real
     time), ``setup_time_s`` (building the storm: spatial index, spawn plan,
     loading the compiled kernels), ``backend``, ``seed``, ``dt``,
