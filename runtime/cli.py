@@ -241,7 +241,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"hailstorm: error: {_os_error(exc)}", file=sys.stderr)
         return EXIT_INPUT
     except MemoryError:
-        print("hailstorm: error: out of memory (lower the mesh size, duration or stone rate)", file=sys.stderr)
+        print("hailstorm: error: out of memory (a coarser mesh, a shorter storm or fewer stones needs less)", file=sys.stderr)
         return EXIT_INPUT
     except KeyboardInterrupt:
         print("hailstorm: interrupted", file=sys.stderr)
@@ -253,7 +253,7 @@ def _one_line(exc: BaseException) -> str:
 
 
 def _os_error(exc: OSError) -> str:
-    """``[Errno 13] Permission denied: 'x'`` as ``x: permission denied``."""
+    """``[Errno 13] Permission denied: 'x'`` as ``x: Permission denied`` (one line)."""
     if exc.strerror:
         where = ": ".join(str(f) for f in (exc.filename, exc.filename2) if f is not None)
         return f"{where}: {exc.strerror}" if where else exc.strerror
