@@ -15,6 +15,7 @@ import logging
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 EXIT_USAGE = 2
 EXIT_INPUT = 3
@@ -98,6 +99,8 @@ def _storm_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scene", type=Path, default=None, help="TOML scene file holding every storm setting")
     p.add_argument("--out", type=Path, default=Path("hailstorm-out"), help="output directory (default ./hailstorm-out)")
     p.add_argument("--no-video", action="store_true", help="skip the animation")
+    p.add_argument("--allow-large", action="store_true",
+                   help="run a storm whose estimate exceeds the machine (memory, or more than 10 million steps)")
 
 
 def _run_precompute(args: argparse.Namespace) -> int:
@@ -121,16 +124,11 @@ def _run_precompute(args: argparse.Namespace) -> int:
 
 def _run_info(args: argparse.Namespace) -> int:
     """``hailstorm info``: describe and verify a bundle; a reader that stops early (``| head``) is no error."""
-    import os
-
     try:
         _print_bundle(args.bundle)
         sys.stdout.flush()
     except BrokenPipeError:
-        # the reader went away: silence the interpreter's final flush too
-        devnull = os.open(os.devnull, os.O_WRONLY)
-        os.dup2(devnull, sys.stdout.fileno())
-        os.close(devnull)
+        _silence_stdout()  # the reader went away: silence the interpreter's final flush too
     return 0
 
 
@@ -157,7 +155,7 @@ def _print_bundle(path: Path) -> None:
 
 def _run_storm(args: argparse.Namespace) -> int:
     from runtime.bundle import load
-    from runtime.output import write_animation, write_paraview, write_summary
+    from runtime.output import StormOutput, check_storm_out
     from runtime.scene import Scene
     from runtime.storm import run_storm
 
@@ -172,6 +170,10 @@ def _run_storm(args: argparse.Namespace) -> int:
                 changed = True
     if changed:
         scene = Scene.from_dict(data, source="command line")
+    # everything that can be refused cheaply, before the bundle and the storm
+    scene.estimate().check(allow_large=args.allow_large)
+    out = args.out
+    check_storm_out(out)
     if args.gf is not None:
         gf_path = args.gf
     else:
@@ -182,25 +184,41 @@ def _run_storm(args: argparse.Namespace) -> int:
         gf_path = build_bundle(None, mesh_size=scene.mesh_size, order=scene.order, young=scene.young,
                                poisson=scene.poisson, progress=not args.quiet)
     gf = load(gf_path)
-    out = args.out
-    out.mkdir(parents=True, exist_ok=True)
-    result = run_storm(gf, scene, progress=not args.quiet)
-    summary_path = write_summary(result, out / "summary.json")
-    write_paraview(result, gf, out)
-    if not args.no_video:
-        video = write_animation(result, gf, out / "storm.mp4", progress=not args.quiet)
+    if args.gf is not None:
+        _warn_seat_ignored(args, scene, gf)
+    estimate = scene.estimate(gf.n_vertices)  # run_storm logs it
+    with StormOutput(out, gf, video=not args.no_video, disk_bytes=estimate.disk_bytes,
+                     progress=not args.quiet) as sink:
+        result = run_storm(gf, scene, progress=not args.quiet, on_frame=sink.add, allow_large=args.allow_large)
+        paths = sink.finish(result)
     if not args.quiet:
         import json
 
-        s = json.loads(summary_path.read_text())
+        s = json.loads(paths["summary"].read_text())
         keys = ("hailstones", "impacts", "max_contact_force", "max_indentation_m", "max_simultaneous_contacts",
-                "steps", "sim_time_s", "wall_time_s", "real_time_factor", "backend")
+                "steps", "frames", "sim_time_s", "wall_time_s", "real_time_factor", "backend")
         width = max(map(len, keys))
         for k in keys:
             v = s.get(k)
             print(f"{k:<{width}}  {v:.4g}" if isinstance(v, float) else f"{k:<{width}}  {v}")
-        print(f"outputs in {out}/" + ("" if args.no_video else f" (animation: {Path(video).name})"))
+        print(f"outputs in {out}/" + (f" (animation: {paths['video'].name})" if "video" in paths else ""))
     return 0
+
+
+def _warn_seat_ignored(args: argparse.Namespace, scene: Any, gf: Any) -> None:
+    """With --gf the bundle is the seat: say so if the scene file asked for another one."""
+    import tomllib
+
+    if args.scene is None or not isinstance(tomllib.loads(args.scene.read_text()).get("seat"), dict):
+        return
+    m = gf.manifest
+    have = {"mesh_size": m.get("options", {}).get("mesh_size"), "order": gf.order, "young": gf.young,
+            "poisson": gf.poisson}
+    differ = [f"{k} = {getattr(scene, k)!r} (bundle: {v!r})" for k, v in have.items() if v != getattr(scene, k)]
+    if differ:
+        logging.getLogger("hailstorm").warning(
+            "warning: the scene's [seat] settings are ignored with --gf (the bundle %s is the seat): %s",
+            args.gf, "; ".join(differ))
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -223,16 +241,52 @@ def main(argv: list[str] | None = None) -> int:
 
     try:
         if args.command == "precompute":
-            return _run_precompute(args)
-        if args.command == "info":
-            return _run_info(args)
-        return _run_storm(args)
-    except (MeshError, BundleError, ValueError, FileNotFoundError) as exc:
-        print(f"hailstorm: error: {exc}", file=sys.stderr)
+            rc = _run_precompute(args)
+        elif args.command == "info":
+            rc = _run_info(args)
+        else:
+            rc = _run_storm(args)
+        sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's exit
+        return rc
+    except BrokenPipeError:  # `hailstorm info X | head -2`: the reader left; exit quietly
+        _silence_stdout()
+        return 1
+    except (MeshError, BundleError, ValueError) as exc:
+        print(f"hailstorm: error: {_one_line(exc)}", file=sys.stderr)
+        return EXIT_INPUT
+    except OSError as exc:  # files and directories the user named (missing, read-only, full disk...)
+        print(f"hailstorm: error: {_os_error(exc)}", file=sys.stderr)
+        return EXIT_INPUT
+    except MemoryError:
+        print("hailstorm: error: out of memory (a coarser mesh, a shorter storm or fewer stones needs less)", file=sys.stderr)
         return EXIT_INPUT
     except KeyboardInterrupt:
         print("hailstorm: interrupted", file=sys.stderr)
         return 130
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def _os_error(exc: OSError) -> str:
+    """``[Errno 13] Permission denied: 'x'`` as ``x: Permission denied`` (one line)."""
+    if exc.strerror:
+        where = ": ".join(str(f) for f in (exc.filename, exc.filename2) if f is not None)
+        return f"{where}: {exc.strerror}" if where else exc.strerror
+    return _one_line(exc)
+
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null so that the interpreter's final flush does not
+    raise BrokenPipeError again (Python's documented recipe)."""
+    import os
+
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):  # no real file descriptor (captured stdout)
+        pass
 
 
 if __name__ == "__main__":

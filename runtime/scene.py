@@ -17,21 +17,128 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import tomllib
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
 from typing import Any, Mapping
 
+import numpy as np
+
 from runtime.atomic import write_text_atomic
 from runtime.contact_capacitance import Mode
-from runtime.hail import Integrator, SizeDistribution
+from runtime.hail import GRAVITY, Integrator, SizeDistribution, terminal_velocity
 
-__all__ = ["Scene", "SceneError"]
+__all__ = ["Scene", "SceneError", "StormEstimate", "StormTooLarge"]
 
 
 class SceneError(ValueError):
     """A scene file or value is invalid."""
+
+
+class StormTooLarge(SceneError):
+    """A storm would exceed the machine (memory, or a step count of hours); the
+    message names the estimate and the override."""
+
+
+#: above this many steps a storm is refused without ``allow_large`` (hours of stepping)
+MAX_STEPS = 10_000_000
+#: a storm may hold at most this fraction of the available memory without ``allow_large``
+MEMORY_FRACTION = 0.8
+#: memory per stone over the run [bytes]: the spawn plan (64) and the per-stone state
+#: (~160), which grows by doubling (x2), rounded up
+BYTES_PER_STONE = 512
+#: memory per step [bytes]: the contact-force history (time, force, contacts)
+BYTES_PER_STEP = 24
+#: disk per frame and surface vertex [bytes]: the seat's VTU (measured ~60 on the
+#: default seat, zlib-compressed float64 fields and the triangles), rounded up
+DISK_BYTES_PER_VERTEX = 80
+
+
+def available_memory() -> int | None:
+    """Memory available to a new allocation [bytes] (``MemAvailable`` of
+    ``/proc/meminfo``, else the physical memory), or None if unknown."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return int(os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def _size(n: float) -> str:
+    for unit, k in (("TiB", 2**40), ("GiB", 2**30), ("MiB", 2**20)):
+        if n >= k:
+            return f"{n / k:.3g} {unit}"
+    return f"{n / 2**10:.3g} KiB"
+
+
+@dataclass(frozen=True)
+class StormEstimate:
+    """What a storm will cost, before it runs (:meth:`Scene.estimate`).
+
+    Attributes
+    ----------
+    steps : int
+        Time steps (``duration / dt``; sub-steps come on top).
+    stones : int
+        Hailstones (the exact count, or the mean of the Poisson rate).
+    frames : int
+        Recorded frames.
+    memory_bytes : int
+        Memory the run holds beyond the bundle (stones, the per-step history,
+        frames if kept in memory).
+    disk_bytes : int or None
+        Size of the written outputs (None: the surface size was not given).
+    """
+
+    steps: int
+    stones: int
+    frames: int
+    memory_bytes: int
+    disk_bytes: int | None = None
+
+    def describe(self) -> str:
+        """One line: steps, stones, frames, memory (and disk)."""
+        text = (f"{self.steps:,} steps, {self.stones:,} stones, {self.frames:,} frames, "
+                f"~{_size(self.memory_bytes)} of memory")
+        return text + (f", ~{_size(self.disk_bytes)} on disk" if self.disk_bytes is not None else "")
+
+    def check(self, *, allow_large: bool = False) -> None:
+        """Refuse a storm that exceeds the machine.
+
+        Raises
+        ------
+        StormTooLarge
+            More than :data:`MAX_STEPS` steps, or more memory than
+            :data:`MEMORY_FRACTION` of the available memory; not raised with
+            ``allow_large`` (the CLI's ``--allow-large``).
+        """
+        if allow_large:
+            return
+        avail = available_memory()
+        if avail is not None and self.memory_bytes > MEMORY_FRACTION * avail:
+            raise StormTooLarge(f"the storm needs an estimated {_size(self.memory_bytes)} of memory "
+                                f"({self.describe()}), more than this machine has available ({_size(avail)}); "
+                                "lower the duration, the rate or the frame rate, or pass --allow-large "
+                                "(allow_large=True)")
+        if self.steps > MAX_STEPS:
+            raise StormTooLarge(f"the storm has {self.steps:,} steps ({self.describe()}), more than "
+                                f"{MAX_STEPS:,} (hours of computing); raise dt or lower the duration, "
+                                "or pass --allow-large (allow_large=True)")
+
+
+#: Python types a scene value may have, per field annotation
+_TYPES: dict[str, tuple[type, ...]] = {
+    "float": (int, float), "int": (int,), "bool": (bool,), "str": (str,), "Mode": (str,), "Integrator": (str,),
+    "int | None": (int, type(None)),
+}
 
 
 #: TOML section of every Scene field.
@@ -170,6 +277,14 @@ class Scene:
     poisson: float = 0.35
 
     def __post_init__(self) -> None:
+        for f in dataclasses.fields(self):
+            types = _TYPES.get(str(f.type))
+            v = getattr(self, f.name)
+            if types is not None and (not isinstance(v, types) or (isinstance(v, bool) and bool not in types)):
+                kind = {"float": "a number", "int": "an integer", "bool": "true or false",
+                        "int | None": "an integer"}.get(str(f.type), "a string")
+                raise SceneError(f"{f.name} must be {kind}, got {v!r}")
+
         def positive(name: str, allow_zero: bool = False) -> None:
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or (v < 0 or (v == 0 and not allow_zero)):
@@ -218,6 +333,109 @@ class Scene:
             raise SceneError(str(exc)) from None
 
     # -- helpers ---------------------------------------------------------------
+    def n_steps(self) -> int:
+        """Time steps of the storm (as :func:`runtime.storm.run_storm` takes them)."""
+        return max(1, int(round(self.duration / self.dt)))
+
+    def estimate(self, n_vertices: int | None = None, *, keep_frames: bool = False) -> StormEstimate:
+        """Steps, stones, frames, memory and disk of this storm, before it runs.
+
+        Parameters
+        ----------
+        n_vertices : int, optional
+            Surface vertices of the bundle (for the frames' memory and disk).
+        keep_frames : bool
+            Frames held in memory (the Python API's default) rather than
+            streamed to disk.
+        """
+        steps = self.n_steps()
+        stones = self.stones if self.stones is not None else int(round(self.rate * self.duration))
+        frames = min(steps, int(math.ceil(self.duration * self.fps - 1e-9))) + 1
+        # the stone count of a rate is Poisson: allow five standard deviations
+        high = stones if self.stones is not None else stones + 5 * math.sqrt(stones) + 16
+        memory = BYTES_PER_STEP * steps + BYTES_PER_STONE * high
+        if keep_frames and n_vertices is not None:
+            memory += frames * (24 * n_vertices + 64)  # two float32 fields per vertex
+        disk = None if n_vertices is None else frames * (DISK_BYTES_PER_VERTEX * n_vertices + 4096)
+        return StormEstimate(steps=steps, stones=int(stones), frames=frames, memory_bytes=int(memory),
+                             disk_bytes=disk)
+
+    def physical_warnings(self, vertices: Any) -> list[str]:
+        """Settings that are valid but make the storm physically meaningless on this seat.
+
+        Checks: stones wider than the seat, a contact patch wider than the seat
+        (patch weights then fall back to a point contact), and wind or drag
+        settings with which no stone reaches the seat (an updraft, or a wind
+        without drag that carries every stone past it, or stones that fall
+        too slowly to arrive within the duration). The flight is integrated
+        here, independently of the storm's own flight code.
+
+        Parameters
+        ----------
+        vertices : (n, 3) array
+            The seat's surface vertices [m].
+
+        Returns
+        -------
+        list of str
+            One sentence per problem (empty: nothing found).
+        """
+        X = np.asarray(vertices, dtype=np.float64)
+        lo, hi = X.min(axis=0), X.max(axis=0)
+        width = float(min(hi[0] - lo[0], hi[1] - lo[1]))
+        out = []
+        if 2.0 * self.r_max > width:
+            out.append(f"stones are larger than the seat: diameters up to {2e3 * self.r_max:.4g} mm "
+                       f"on a seat {1e3 * width:.4g} mm wide ([hail] r_max)")
+        if self.patch != "none" and 2.0 * self.patch_min_radius > width:
+            out.append(f"the contact patch ({2e3 * self.patch_min_radius:.4g} mm across, [contact] "
+                       f"patch_min_radius) is wider than the seat ({1e3 * width:.4g} mm): every contact "
+                       "falls back to a point contact")
+        if (self.stones is None and self.rate == 0) or self.stones == 0:
+            return out
+        if not self._some_stone_lands(lo, hi):
+            out.append("no stone reaches the seat within the storm: with this wind and drag "
+                       f"([storm] wind = {list(self.wind)}, [hail] drag = {str(self.drag).lower()}, "
+                       f"cd = {self.cd:g}, rho_air = {self.rho_air:g}) every stone misses or arrives after "
+                       f"{self.duration:g} s")
+        return out
+
+    def _some_stone_lands(self, lo: np.ndarray, hi: np.ndarray) -> bool:
+        """Whether a stone dropped from the spawn plane over the middle of the seat
+        (with the storm's upwind offset) reaches the seat's mid-height inside the
+        spawn footprint within the duration, for some radius."""
+        r = np.linspace(self.r_min, self.r_max, 9) if self.distribution != "fixed" else np.array([self.r_min])
+        vt = terminal_velocity(r, cd=self.cd, rho_air=self.rho_air, density=self.density)
+        zmid = 0.5 * (lo[2] + hi[2])
+        z0 = hi[2] + self.spawn_height + r
+        wind = np.asarray(self.wind, dtype=np.float64)
+        t_fall = (z0 - zmid) / np.maximum(vt, 1e-9)
+        centre = 0.5 * (lo[:2] + hi[:2])
+        pos = np.column_stack([centre[None, :] - wind[None, :2] * t_fall[:, None], z0])
+        vel = np.column_stack([np.broadcast_to(wind[:2], (len(r), 2)), -vt])
+        if self.drag and not np.any(wind):  # straight down at terminal speed
+            return bool(t_fall.min() <= self.duration)
+        k = 3.0 * self.cd * self.rho_air / (8.0 * self.density * r) if self.drag else np.zeros_like(r)
+        n = 1000
+        h = self.duration / n
+        g = np.array([0.0, 0.0, -GRAVITY])
+        for _ in range(n):
+            # drag implicit (stable for any h): v' = v + h (g - k |v - w| (v' - w))
+            kr = h * k * np.linalg.norm(vel - wind, axis=1)
+            vel = (vel + h * g + kr[:, None] * wind) / (1.0 + kr)[:, None]
+            pos = pos + h * vel
+            down = pos[:, 2] <= zmid
+            if down.any():
+                xy = pos[down, :2]
+                inside = np.all((xy >= lo[:2] - self.margin) & (xy <= hi[:2] + self.margin), axis=1)
+                if inside.any():
+                    return True
+                pos[down, 2] = np.inf  # missed: stop following it
+                vel[down] = 0.0
+            if np.all(~np.isfinite(pos[:, 2])):
+                return False
+        return False
+
     def size_distribution(self) -> SizeDistribution:
         """The radius distribution of this scene."""
         return SizeDistribution(kind=self.distribution, r_min=float(self.r_min), r_max=float(self.r_max), scale=float(self.scale))
@@ -260,7 +478,7 @@ class Scene:
                 kwargs[f.name] = float(kwargs[f.name])
         try:
             return cls(**kwargs)
-        except SceneError as exc:
+        except (SceneError, TypeError) as exc:
             raise SceneError(f"{source}: {exc}") from None
 
     @classmethod
@@ -280,7 +498,8 @@ class Scene:
                 merged[sec] = {**merged[sec], **body}
             else:
                 merged[sec] = body
-        if "stones" not in data.get("storm", {}) and (base is None or base.stones is None):
+        storm = data.get("storm", {})
+        if isinstance(storm, Mapping) and "stones" not in storm and (base is None or base.stones is None):
             merged["storm"].pop("stones", None)
         return cls.from_dict(merged, source=str(path))
 

@@ -124,6 +124,7 @@ from __future__ import annotations
 
 import bisect
 import logging
+import threading
 import time
 from dataclasses import dataclass, field
 from types import SimpleNamespace
@@ -205,7 +206,12 @@ class Frame:
 
 @dataclass
 class StormResult:
-    """What :func:`run_storm` returns: the scene, the frames and the statistics."""
+    """What :func:`run_storm` returns: the scene, the frames and the statistics.
+
+    ``frames`` holds the recorded frames when they were kept (``run_storm``'s
+    ``keep_frames``), else it is empty: they were streamed to ``on_frame``.
+    ``stats["frames"]`` counts them either way.
+    """
 
     scene: Scene
     frames: list[Frame]
@@ -215,6 +221,38 @@ class StormResult:
 
 
 _log = logging.getLogger(__name__)
+
+
+#: seconds after which a kernel group still loading is announced as compiling
+#: (loading a group from numba's on-disk cache takes milliseconds)
+COMPILE_NOTICE_DELAY = 2.0
+
+
+class _CompileNotice:
+    """Announces a first compile: :meth:`stage` names the kernels being loaded next
+    and roughly how long compiling them takes; if loading them has not finished
+    after :data:`COMPILE_NOTICE_DELAY` seconds, numba is compiling and one INFO
+    line says so."""
+
+    def __init__(self) -> None:
+        self._timer: threading.Timer | None = None
+        self._t0 = time.perf_counter()
+        self.times: dict[str, float] = {}
+        self._what = ""
+
+    def stage(self, what: str, seconds: float) -> None:
+        self.done()
+        self._what, self._t0 = what, time.perf_counter()
+        self._timer = threading.Timer(COMPILE_NOTICE_DELAY, _log.info, args=(
+            "compiling %s (numba, once after an install: about %.0f s)...", what, seconds))
+        self._timer.daemon = True
+        self._timer.start()
+
+    def done(self) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+            self.times[self._what] = time.perf_counter() - self._t0
+            self._timer = None
 
 #: the per-stone arrays of a :class:`Storm` and the value a new stone starts with
 #: (None: given to :meth:`Storm.add_stones`)
@@ -352,18 +390,21 @@ class Storm:
         """Load (or compile, the first time after an install) every kernel the loop calls,
         with the loop's argument types, so that the stepping itself runs compiled code
         from its first step (loading takes ~0.3 s; compiling ~40 s, once: numba caches
-        the machine code on disk)."""
+        the machine code on disk). Each group of kernels that compiles says so in one
+        INFO line (:class:`_CompileNotice`)."""
         none = np.zeros(0, dtype=np.intp)
         sc = self.scene
         t0 = time.perf_counter()
+        notice = _CompileNotice()
+        notice.stage("the storm's free-flight and broad-phase kernels", 3)
         self._fly(none, 0.0)
-        if sum(flight.stats.cache_misses.values()):  # not in numba's on-disk cache: compiling
-            _log.info("compiling the storm's kernels (numba; once after an install, about 40 s)...")
         retired(none, self.pos, self.radius, self.lo, self.hi, float(sc.margin))
         near_set(self.index.grid, self.index.sample_radius, self.index.bbox, none, self.pos, self.vel, self.radius,
                  self.ctri, self.budget, self._bud_u, 0.0, float(sc.dt), GRAVITY)
+        notice.stage("the storm's closest-point and narrow-phase kernels", 8)
         self._free_phase(none, float(sc.dt))
         self._step_query(none, float(sc.dt))
+        notice.stage("the storm's contact-set kernels", 30)
         soft = np.flatnonzero(self.soft)
         if soft.size:
             t = int(soft[0])
@@ -379,6 +420,7 @@ class Storm:
                 patches.radii_compiled(self, none, none)
         e3, e = self._no_e3, self._no_forces
         b = np.zeros(0, dtype=bool)
+        notice.stage(f"the {sc.integrator} integrator's kernels", 25 if sc.integrator == "exact" else 15)
         args = contact_prep(none, self.pos, self.vel, self.radius, self.mass, GRAVITY, self.wind, self._drag_coef,
                             e3, e3, e, e, sc.mode == "sticky", True, 1.0, 0.0)
         q, a, vq, gq, _, _, acc, _ = args
@@ -393,7 +435,9 @@ class Storm:
             substep_damping(one, one, 0.5, 1e-4, True, _X_GRID, _Z_GRID)
             if sc.adaptive:
                 self._substep_size(none, float(sc.dt))
-        _log.debug("storm kernels ready in %.2f s", time.perf_counter() - t0)
+        notice.done()
+        _log.debug("storm kernels ready in %.2f s (%s)", time.perf_counter() - t0,
+                   ", ".join(f"{k}: {v:.2f} s" for k, v in notice.times.items()))
 
     # -- stones ------------------------------------------------------------------
     def _plan_spawns(self) -> np.ndarray:
@@ -845,6 +889,9 @@ def run_storm(
     scene: Scene | None = None,
     *,
     progress: bool | Callable[[float, float], None] = True,
+    on_frame: Callable[[Frame], None] | None = None,
+    keep_frames: bool | None = None,
+    allow_large: bool = False,
 ) -> StormResult:
     """Run a hail storm on the seat.
 
@@ -855,48 +902,91 @@ def run_storm(
     scene : Scene, optional
         Default: :meth:`Scene.default`.
     progress : bool or callable
-        ``True``: a tqdm progress bar (on stderr); a callable is called as
-        ``progress(t, duration)`` after every step.
+        ``True``: a tqdm progress bar over the simulated time (on stderr); a
+        callable is called as ``progress(t, duration)`` after every step.
+    on_frame : callable, optional
+        Called with each :class:`Frame` as it is recorded, e.g.
+        :meth:`runtime.output.StormOutput.add`, which streams the frames to
+        disk.
+    keep_frames : bool, optional
+        Keep the frames in :attr:`StormResult.frames` (memory grows with the
+        duration: ~24 bytes per surface vertex and frame). Default: kept when
+        no ``on_frame`` is given, else not.
+    allow_large : bool
+        Run even a storm whose estimate (:meth:`Scene.estimate`) exceeds the
+        machine; otherwise it is refused before anything runs.
 
     Returns
     -------
     StormResult
-        Frames at ``scene.fps`` (plus the first and last instants) and
-        statistics (see :func:`runtime.output.write_summary`).
+        Frames at ``scene.fps`` (plus the first and last instants; empty
+        unless kept) and statistics (see :func:`runtime.output.summary`).
+
+    Raises
+    ------
+    runtime.scene.StormTooLarge
+        The estimate exceeds the machine and ``allow_large`` is not set.
     """
     scene = Scene.default() if scene is None else scene
+    keep = on_frame is None if keep_frames is None else bool(keep_frames)
+    estimate = scene.estimate(int(np.asarray(gf.vertices).shape[0]), keep_frames=keep)
+    estimate.check(allow_large=allow_large)
+    _log.info("storm: %s", estimate.describe())
+    for warning in scene.physical_warnings(gf.vertices):
+        _log.warning("warning: %s", warning)
     setup0 = time.perf_counter()
     storm = Storm(gf, scene)
     setup = time.perf_counter() - setup0
-    n_steps = max(1, int(round(scene.duration / scene.dt)))
+    n_steps = scene.n_steps()
     frame_dt = 1.0 / scene.fps
-    frames = [storm.frame()]
+    frames: list[Frame] = []
+    n_frames = 0
+    sink_time = 0.0  # spent in on_frame (writing files): not the storm's wall time
+
+    def record() -> None:
+        nonlocal n_frames, sink_time
+        f = storm.frame()
+        n_frames += 1
+        if on_frame is not None:
+            t0 = time.perf_counter()
+            on_frame(f)
+            sink_time += time.perf_counter() - t0
+        if keep:
+            frames.append(f)
+
+    record()
     next_frame = frame_dt
     history = np.zeros((n_steps, 3))
     bar = None
     if progress is True:
         from tqdm.auto import tqdm
 
-        bar = tqdm(total=n_steps, desc="hail storm", unit="step", leave=False)
+        bar = tqdm(total=float(scene.duration), desc="hail storm", unit="s sim", leave=False,
+                   bar_format="{l_bar}{bar}| {n:.3g}/{total:.3g} s simulated [{elapsed}<{remaining}]")
     from threadpoolctl import threadpool_limits
 
     limiter = threadpool_limits(1)  # small dense solves: threaded BLAS only adds overhead
-    wall0 = time.perf_counter()
-    for i in range(n_steps):
-        storm.step()
-        _, f = storm.contact_forces()
-        history[i] = (storm.t, float(np.linalg.norm(f, axis=1).sum()) if f.size else 0.0, f.shape[0])
-        if storm.t >= next_frame - 1e-12 or i == n_steps - 1:
-            frames.append(storm.frame())
-            next_frame += frame_dt
+    wall0, sink0 = time.perf_counter(), sink_time
+    shown = 0.0
+    try:
+        for i in range(n_steps):
+            storm.step()
+            _, f = storm.contact_forces()
+            history[i] = (storm.t, float(np.linalg.norm(f, axis=1).sum()) if f.size else 0.0, f.shape[0])
+            if storm.t >= next_frame - 1e-12 or i == n_steps - 1:
+                record()
+                next_frame += frame_dt
+            if bar is not None:
+                if storm.t - shown >= 0.002 * scene.duration or i == n_steps - 1:
+                    bar.update(min(storm.t, scene.duration) - shown)
+                    shown = min(storm.t, scene.duration)
+            elif callable(progress):
+                progress(storm.t, scene.duration)
+    finally:
+        wall = time.perf_counter() - wall0 - (sink_time - sink0)
+        limiter.restore_original_limits()
         if bar is not None:
-            bar.update(1)
-        elif callable(progress):
-            progress(storm.t, scene.duration)
-    wall = time.perf_counter() - wall0
-    limiter.restore_original_limits()
-    if bar is not None:
-        bar.close()
+            bar.close()
     st = storm.stats
     st["stones_hit"] = int(storm.hit.sum())
     n_pen, pen_sum = st.pop("_pen_contact_n"), st.pop("_pen_contact_sum")
@@ -906,6 +996,6 @@ def run_storm(
         real_time_factor=float(storm.t / wall) if wall > 0 else float("inf"),
         seed=scene.seed, dt=scene.dt, integrator=scene.integrator, mode=scene.mode,
         restitution=scene.restitution, n_vertices=int(storm.n), n_triangles=int(len(gf.triangles)),
-        resting_at_end=int((storm.ctri[storm.alive] >= 0).sum()), frames=len(frames),
+        resting_at_end=int((storm.ctri[storm.alive] >= 0).sum()), frames=n_frames, output_time_s=float(sink_time),
     )
     return StormResult(scene=scene, frames=frames, stats=st, history=history)
