@@ -549,10 +549,11 @@ def test_ctrl_c_while_meshing_ends_the_process(tmp_path):
 
     reader = threading.Thread(target=read, daemon=True)
     reader.start()
-    for _ in range(1200):
+    for _ in range(12000):  # a loaded machine can take minutes to import gmsh and read the geometry
         if any("meshing" in s for s in seen) or p.poll() is not None:
             break
         time.sleep(0.05)
+    assert any("meshing" in s for s in seen), f"meshing never started: {seen}"
     time.sleep(0.5)  # inside gmsh's generate
     p.send_signal(signal.SIGINT)
     try:
