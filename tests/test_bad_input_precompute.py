@@ -539,8 +539,11 @@ def test_ctrl_c_while_meshing_ends_the_process(tmp_path):
     code = ("import logging, sys; logging.basicConfig(level=logging.INFO)\n"
             "from precompute import build_bundle\n"
             "build_bundle(sys.argv[1], mesh_size=0.0006, allow_large=True)\n")
+    # (a job started in the background by a non-interactive shell, as CI may be, inherits
+    # SIGINT ignored, and an ignored SIGINT is rightly left ignored: give the child the default)
     p = subprocess.Popen([sys.executable, "-c", code, str(tmp_path / "b")], stderr=subprocess.PIPE, text=True,
-                         env={**os.environ, "PYTHONPATH": str(ROOT)})
+                         env={**os.environ, "PYTHONPATH": str(ROOT)},
+                         preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     seen = []
 
     def read():
