@@ -363,8 +363,13 @@ def _modal_damping(om2, Phi, sqm, restitution, dt, implicit, x_grid, z_grid):
         zn = 0.0
         if implicit:
             zn = 0.5 * om * dt
-            e = min(e / math.exp(-zn * math.pi / 2.0), 1.0)
-        z = np.interp(-math.log(min(max(e, 1e-300), 1.0)), x_grid, z_grid)
+            # the restitution phase loses exp(-zn pi/2); beyond the target no dashpot
+            x = -math.log(min(max(e, 1e-300), 1.0)) - zn * math.pi / 2.0
+            if x <= 0.0:
+                continue
+        else:
+            x = -math.log(min(max(e, 1e-300), 1.0))
+        z = np.interp(x, x_grid, z_grid)
         c[j] = 2.0 * max(z - zn, 0.0) * om
     P = np.ascontiguousarray(Phi * sqm.reshape(-1, 1))
     C = np.ascontiguousarray(P * c.reshape(1, -1)) @ np.ascontiguousarray(P.T)
@@ -840,6 +845,8 @@ def _exact_step(q, v, a, m, g, dt, K, W, C, unilateral, group, wts, always_dampe
             idx = np.flatnonzero(active)
             free = np.flatnonzero(~active)
             if idx.size:
+                # (the last segment may have released contacts: the capacitance of those left)
+                Ka = _inv_spd(W[np.ix_(idx, idx)]) if W is not None and idx.size < n else K_full[np.ix_(idx, idx)]
                 ce = dashpot(idx)
                 q_eq = a[idx] + _equilibrium(Ka, m[idx] * g[idx])
                 ze = _Modal(Ka, m[idx], ce).at(np.concatenate([q[idx] - q_eq, v[idx]]), np.array([h]))[:, 0]
@@ -850,5 +857,7 @@ def _exact_step(q, v, a, m, g, dt, K, W, C, unilateral, group, wts, always_dampe
     seat = np.zeros(n)
     idx = np.flatnonzero(active)
     if idx.size:
+        if Ka.shape[0] != idx.size:  # released at the last event
+            Ka = _inv_spd(W[np.ix_(idx, idx)]) if W is not None and idx.size < n else K_full[np.ix_(idx, idx)]
         seat[idx] = Ka @ (q[idx] - a[idx])
     return ContactStep(q=q, v=v, active=active, force=force, seat_force=seat)

@@ -277,6 +277,8 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond
             ze = np.zeros(0)
             q_eq = np.zeros(0)
             if idx.size:
+                # (the last segment may have released contacts: the capacitance of those left)
+                Ka = inv_spd(_sub(W, idx), cond_limit, rcond) if idx.size < n else K
                 ce = _dashpot(idx, Cn, damp_g, group, always)
                 q_eq = a[idx] + _equilibrium(Ka, m[idx] * g[idx])
                 lam, V, Vi, ok = _modal(Ka, m[idx], ce)
@@ -290,6 +292,8 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond
     for i in idx:
         force[i] = m[i] * ((v[i] - v0[i]) / dt - g[i])
     if idx.size:
+        if Ka.shape[0] != idx.size:  # released at the last event
+            Ka = inv_spd(_sub(W, idx), cond_limit, rcond) if idx.size < n else K
         sa = Ka @ (q[idx] - a[idx])
         for r in range(idx.size):
             seat[idx[r]] = sa[r]
