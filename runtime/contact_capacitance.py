@@ -39,6 +39,7 @@ __all__ = [
     "SPARSE_FROM",
     "Capacitance",
     "capacitance",
+    "spd_inverse",
 ]
 
 Mode = Literal["sticky", "frictionless"]
@@ -137,6 +138,28 @@ class _Factor:
         if self._pinv is None:  # pragma: no cover - m > 0: one of the two is always set
             raise RuntimeError("empty factorisation")
         return self._pinv.copy()
+
+
+def spd_inverse(W: np.ndarray) -> np.ndarray:
+    """Inverse of a symmetric positive semi-definite matrix under the contact API's one policy.
+
+    The Cholesky inverse when ``W`` is well conditioned (condition estimate below
+    :data:`COND_LIMIT`), else the pseudo-inverse (eigenvalues below
+    :data:`PINV_RCOND` times the largest dropped): the same factorisation as
+    :class:`Capacitance`. For contacts that (nearly) coincide this is the
+    min-norm split of their common force: finite and symmetric.
+
+    Parameters
+    ----------
+    W : (m, m) ndarray
+        A contact compliance (symmetrised here).
+
+    Returns
+    -------
+    (m, m) ndarray
+        Symmetric ``K``, the capacitance.
+    """
+    return _Factor(np.asarray(W, dtype=np.float64)).inverse()
 
 
 def _response_columns(gf: Any, cols: np.ndarray, loc: np.ndarray, weights: np.ndarray,

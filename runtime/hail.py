@@ -68,6 +68,7 @@ __all__ = [
     "contact_step",
     "damping_coefficients",
     "damping_ratio_for_restitution",
+    "modal_damping",
     "drag_acceleration",
     "free_flight",
     "restitution_for_damping_ratio",
@@ -323,15 +324,128 @@ class ContactStep:
 
 
 def _inv_spd(W: np.ndarray) -> np.ndarray:
-    """Inverse of a small symmetric positive (semi-)definite matrix."""
-    if W.size == 0:
-        return np.zeros_like(W)
-    try:
-        c = np.linalg.cholesky(0.5 * (W + W.T))
-        ci = np.linalg.inv(c)
-        return ci.T @ ci
-    except np.linalg.LinAlgError:
-        return np.linalg.pinv(W, rcond=1e-10, hermitian=True)
+    """Inverse of a small symmetric positive (semi-)definite matrix: the contact API's
+    policy (:func:`runtime.contact_capacitance.spd_inverse`; the pseudo-inverse when
+    ``W`` is ill conditioned, e.g. coincident contacts)."""
+    from runtime.contact_capacitance import spd_inverse  # (import cycle: it imports runtime.compiled)
+
+    return spd_inverse(W)
+
+
+def contact_modes(K: np.ndarray, mass: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Normal modes of a contact set: ``M^-1/2 K M^-1/2 = Phi diag(omega^2) Phi^T``.
+
+    Parameters
+    ----------
+    K : (m, m) ndarray
+        Capacitance (symmetric positive semi-definite; the pseudo-inverse of
+        coincident contacts has zero modes).
+    mass : (m,) ndarray
+
+    Returns
+    -------
+    omega2 : (m,) ndarray
+        Squared modal frequencies, clipped at zero.
+    Phi : (m, m) ndarray
+        Orthonormal mode shapes (columns).
+    sqm : (m,) ndarray
+        ``sqrt(mass)``.
+    """
+    K = np.asarray(K, dtype=np.float64)
+    sqm = np.sqrt(np.asarray(mass, dtype=np.float64))
+    if K.size == 0:
+        return np.zeros(0), np.zeros((0, 0)), sqm
+    Kt = K / sqm[:, None] / sqm[None, :]
+    om2, Phi = np.linalg.eigh(0.5 * (Kt + Kt.T))
+    return np.clip(om2, 0.0, None), np.ascontiguousarray(Phi), sqm
+
+
+def _modal_damping(om2, Phi, sqm, restitution, dt, implicit, x_grid, z_grid):
+    """The dashpot matrix ``M^1/2 Phi diag(2 zeta_j omega_j) Phi^T M^1/2`` (plain numpy that
+    :mod:`runtime.compiled` also compiles): every mode ``j`` gets the damping ratio of
+    the target restitution (implicit: less backward Euler's numerical ``omega_j dt / 2``),
+    zero modes none."""
+    n = om2.size
+    c = np.zeros(n)
+    for j in range(n):
+        om = math.sqrt(max(om2[j], 0.0))
+        if om <= 0.0:
+            continue
+        e = restitution
+        zn = 0.0
+        if implicit:
+            zn = 0.5 * om * dt
+            # the restitution phase loses exp(-zn pi/2); beyond the target no dashpot
+            x = -math.log(min(max(e, 1e-300), 1.0)) - zn * math.pi / 2.0
+            if x <= 0.0:
+                continue
+        else:
+            x = -math.log(min(max(e, 1e-300), 1.0))
+        z = np.interp(x, x_grid, z_grid)
+        c[j] = 2.0 * max(z - zn, 0.0) * om
+    P = np.ascontiguousarray(Phi * sqm.reshape(-1, 1))
+    C = np.ascontiguousarray(P * c.reshape(1, -1)) @ np.ascontiguousarray(P.T)
+    return 0.5 * (C + C.T)
+
+
+def _explicit_modes(om2, dt):
+    """Squared modal frequencies an explicit step of ``dt`` can carry:
+    ``omega^2 / sqrt(1 + (omega dt)^4)`` (unchanged to 1e-3 at ``omega dt = 0.2``;
+    at most ``1 / dt^2``, inside symplectic Euler's stability limit ``omega dt < 2``).
+    Stiff modes (contacts closer than the mesh resolves, whose relative motion the
+    stones do not excite) would otherwise need sub-steps no storm can afford."""
+    out = np.empty(om2.size)
+    for j in range(om2.size):
+        x = om2[j] * dt * dt
+        out[j] = om2[j] / math.sqrt(1.0 + x * x)
+    return out
+
+
+def _modal_stiffness(om2, Phi, sqm):
+    """``K = M^1/2 Phi diag(om2) Phi^T M^1/2`` and its (pseudo-)inverse ``W`` (zero modes dropped)."""
+    P = np.ascontiguousarray(Phi * sqm.reshape(-1, 1))
+    Q = np.ascontiguousarray(Phi / sqm.reshape(-1, 1))
+    inv = np.zeros(om2.size)
+    top = 0.0
+    for j in range(om2.size):
+        top = max(top, om2[j])
+    for j in range(om2.size):
+        if om2[j] > 1e-10 * top:
+            inv[j] = 1.0 / om2[j]
+    K = np.ascontiguousarray(P * om2.reshape(1, -1)) @ np.ascontiguousarray(P.T)
+    W = np.ascontiguousarray(Q * inv.reshape(1, -1)) @ np.ascontiguousarray(Q.T)
+    return 0.5 * (K + K.T), 0.5 * (W + W.T)
+
+
+def modal_damping(
+    K: np.ndarray,
+    mass: np.ndarray,
+    restitution: float,
+    *,
+    dt: float | None = None,
+    integrator: Integrator = "implicit",
+) -> np.ndarray:
+    """The contact set's dashpot, per normal mode: ``C = M^1/2 Phi diag(2 zeta_j omega_j) Phi^T M^1/2``.
+
+    Every mode of ``M^-1/2 K M^-1/2`` (:func:`contact_modes`) is damped to the
+    target restitution, as :func:`damping_coefficients` damps a single contact
+    (with ``dt``, for ``"implicit"``, backward Euler's numerical damping of the
+    mode compensated; for ``"symplectic"`` the modes the step can carry,
+    see the storm). Zero modes (coincident contacts: the split of their common
+    force is free) get none. For uncoupled contacts ``C`` is the diagonal of
+    :func:`damping_coefficients`; for coupled ones (two stones on one spot) the
+    diagonal dashpot would damp the mode they share by the wrong ratio.
+
+    Returns
+    -------
+    (m, m) ndarray
+        Symmetric positive semi-definite dashpot [N s/m] (:func:`contact_step`'s ``damping``).
+    """
+    om2, Phi, sqm = contact_modes(K, mass)
+    if integrator == "symplectic" and dt is not None:
+        om2 = _explicit_modes(om2, float(dt))
+    return _modal_damping(om2, Phi, sqm, float(restitution), 0.0 if dt is None else float(dt),
+                          integrator == "implicit" and dt is not None, _X_GRID, _Z_GRID)
 
 
 def contact_step(
@@ -367,8 +481,10 @@ def contact_step(
         (exact only when nothing is released).
     W : (m, m) ndarray, optional
         Contact compliance ``K^-1``.
-    damping : (m,) ndarray or float
-        Diagonal contact damping ``C`` [N s/m].
+    damping : (m,) ndarray, float or (m, m) ndarray
+        Contact damping ``C`` [N s/m]: diagonal, or a symmetric matrix
+        (:func:`modal_damping`); the dashpot of a contact that is not
+        compressing is off (its rows and columns).
     integrator : {"implicit", "symplectic", "exact"}
     unilateral : bool
         Release contacts whose force on the stone would pull it in.
@@ -394,7 +510,9 @@ def contact_step(
     m = np.asarray(mass, dtype=np.float64)
     g = np.asarray(accel, dtype=np.float64)
     n = q.size
-    C = np.broadcast_to(np.asarray(damping, dtype=np.float64), (n,))
+    C = np.asarray(damping, dtype=np.float64)
+    if C.ndim < 2:  # a diagonal dashpot
+        C = np.diag(np.broadcast_to(C, (n,)))
     if K is None and W is None:
         raise ValueError("give the capacitance K or the contact compliance W")
     if integrator not in INTEGRATORS:
@@ -407,7 +525,8 @@ def contact_step(
     # the dashpot acts in compression only (normal velocity of the contact < 0)
     vn_g = np.zeros(group.max() + 1 if n else 0)
     np.add.at(vn_g, group, wts * v)
-    C = np.where(vn_g[group] < 0.0, C, 0.0)
+    on = vn_g[group] < 0.0
+    C = C * (on[:, None] & on[None, :])
     active = np.ones(n, dtype=bool)
     ubar = q - a
     if K is None:
@@ -423,14 +542,14 @@ def contact_step(
             Ka = K_full[np.ix_(idx, idx)]
         v_new = v + dt * g  # free motion of released components
         if idx.size:
-            ma, ua, va, ga, ca = m[idx], ubar[idx], v[idx], g[idx], C[idx]
+            ma, ua, va, ga, ca = m[idx], ubar[idx], v[idx], g[idx], C[np.ix_(idx, idx)]
             if integrator == "implicit":
-                A = dt * dt * Ka
-                A[np.diag_indices_from(A)] += ma + dt * ca
+                A = dt * dt * Ka + dt * ca
+                A[np.diag_indices_from(A)] += ma
                 rhs = ma * va + dt * (ma * ga - Ka @ ua)
                 v_new[idx] = np.linalg.solve(A, rhs)
             else:
-                f = -(Ka @ ua) - ca * va
+                f = -(Ka @ ua) - ca @ va
                 v_new[idx] = va + dt * (ga + f / ma)
         force = np.zeros(n)
         force[idx] = m[idx] * ((v_new[idx] - v[idx]) / dt - g[idx])
@@ -475,7 +594,7 @@ class _Modal:
         A = np.zeros((2 * n, 2 * n))
         A[:n, n:] = np.eye(n)
         A[n:, :n] = -K / m[:, None]
-        A[n:, n:] = np.diag(-c / m)
+        A[n:, n:] = -c / m[:, None]  # (n, n) dashpot
         self.n, self.A = n, A
         lam, V = np.linalg.eig(A)
         self.lam, self.V = lam, V
@@ -589,13 +708,32 @@ def _scalar_exact(q: float, v: float, a: float, m: float, g: float, dt: float, k
     return q, v, True, True, umin, umax
 
 
+def _equilibrium(K, f):
+    """``K x = f`` for the static equilibrium; for a singular ``K`` (coincident contacts:
+    the pseudo-inverse capacitance has zero modes) the least-squares, min-norm ``x``
+    (the part of ``f`` on the zero modes, which moves coincident stones relative to
+    each other, is not carried). Plain numpy that :mod:`runtime.compiled` also compiles."""
+    ok = True
+    try:
+        x = np.linalg.solve(K, f)
+    except Exception:
+        ok = False
+        x = f.copy()
+    if ok:
+        r = K @ x - f
+        ok = np.all(np.isfinite(x)) and np.sqrt(np.sum(r * r)) <= 1e-9 * np.sqrt(np.sum(f * f)) + 1e-300
+    if not ok:
+        x = np.linalg.lstsq(K, f, rcond=1e-10)[0]
+    return x
+
+
 def _exact_step(q, v, a, m, g, dt, K, W, C, unilateral, group, wts, always_damped) -> ContactStep:
     n = q.size
     if n == 1 and group[0] == 0 and wts[0] == 1.0:
         k = float((_inv_spd(W) if K is None else np.asarray(K, dtype=np.float64))[0, 0])
         al = bool(always_damped[0]) if always_damped is not None else False
         qn, vn, act, ok, umin, umax = _scalar_exact(float(q[0]), float(v[0]), float(a[0]), float(m[0]),
-                                                    float(g[0]), dt, k, float(np.asarray(C)[0]), unilateral, al)
+                                                    float(g[0]), dt, k, float(np.asarray(C)[0, 0]), unilateral, al)
         if ok:
             force = m * ((vn - v) / dt - g) if act else np.zeros(1)
             seat = np.array([k * (qn - a[0])]) if act else np.zeros(1)
@@ -604,7 +742,11 @@ def _exact_step(q, v, a, m, g, dt, K, W, C, unilateral, group, wts, always_dampe
                                seat_force=seat, peak_seat_force=peak, peak_ubar=np.array([umin]))
     ng = int(group.max()) + 1 if n else 0
     K_full = _inv_spd(W) if K is None else np.asarray(K, dtype=np.float64)
-    Cn = np.asarray(C, dtype=np.float64).copy()  # nominal dashpot per component
+    Cn = np.asarray(C, dtype=np.float64).copy()  # nominal dashpot (m, m)
+
+    def dashpot(idx: np.ndarray) -> np.ndarray:  # of the components idx: on while compressing (or always)
+        on = (damp_g[group] | always)[idx]
+        return Cn[np.ix_(idx, idx)] * (on[:, None] & on[None, :])
     always = np.zeros(n, bool) if always_damped is None else np.asarray(always_damped, bool)
     v0 = v
     q, v = q.copy(), v.copy()
@@ -667,9 +809,9 @@ def _exact_step(q, v, a, m, g, dt, K, W, C, unilateral, group, wts, always_dampe
                 Ka = K_full[np.ix_(idx, idx)]
             if not unilateral or idx.size == 0:
                 break
-            ce = np.where(damp_g[group] | always, Cn, 0.0)[idx]
+            ce = dashpot(idx)
             f = np.zeros(n)
-            f[idx] = -(Ka @ (q[idx] - a[idx])) - ce * v[idx]
+            f[idx] = -(Ka @ (q[idx] - a[idx])) - ce @ v[idx]
             fn = gsum(f)
             vn = vn_of(v)
             pull = (fn < 0.0) & (vn >= 0.0) & np.bincount(group, active, minlength=ng).astype(bool)
@@ -690,8 +832,8 @@ def _exact_step(q, v, a, m, g, dt, K, W, C, unilateral, group, wts, always_dampe
             t = dt
             break
         ma, ga, aa = m[idx], g[idx], a[idx]
-        ce = np.where(damp_g[group] | always, Cn, 0.0)[idx]
-        q_eq = aa + np.linalg.solve(Ka, ma * ga)
+        ce = dashpot(idx)
+        q_eq = aa + _equilibrium(Ka, ma * ga)
         modal = _Modal(Ka, ma, ce)
         z0 = np.concatenate([q[idx] - q_eq, v[idx]])
         na = idx.size
@@ -701,7 +843,7 @@ def _exact_step(q, v, a, m, g, dt, K, W, C, unilateral, group, wts, always_dampe
         sw_on = np.zeros(ng, bool)
         sw_on[gi] = True
 
-        switchable = sw_on & np.bincount(gi, (Cn[idx] > 0) & ~always[idx], minlength=ng).astype(bool)
+        switchable = sw_on & np.bincount(gi, (np.diag(Cn)[idx] > 0) & ~always[idx], minlength=ng).astype(bool)
         off_mask = (switchable & damp_g)[:, None]
         on_mask = (switchable & ~damp_g)[:, None]
         ident_a = ident and na == n
@@ -718,7 +860,7 @@ def _exact_step(q, v, a, m, g, dt, K, W, C, unilateral, group, wts, always_dampe
             Z = modal.at(z0, tau)
             y, vv = Z[:na], Z[na:]
             vng = gsum_a(vv)
-            fng = gsum_a(-(Ka @ (y + off_eq)) - ce[:, None] * vv)
+            fng = gsum_a(-(Ka @ (y + off_eq)) - ce @ vv)
             ev = np.zeros((ng, tau.size), bool)
             ev |= off_mask & (vng >= 0.0)  # maximum compression: dashpot off
             ev |= on_mask & (vng < 0.0)  # compresses again: dashpot on
@@ -759,7 +901,7 @@ def _exact_step(q, v, a, m, g, dt, K, W, C, unilateral, group, wts, always_dampe
         vng = vn_of(v)
         ea = evg & sw_on
         f = np.zeros(n)
-        f[idx] = -(Ka @ (q[idx] - aa)) - ce * v[idx]
+        f[idx] = -(Ka @ (q[idx] - aa)) - ce @ v[idx]
         fng = gsum(f)
         rel = ea & (fng < 0.0) & (vng >= 0.0) if unilateral else np.zeros(ng, bool)
         damp_g = np.where(ea & ~rel, vng < 0.0, damp_g)
@@ -772,8 +914,10 @@ def _exact_step(q, v, a, m, g, dt, K, W, C, unilateral, group, wts, always_dampe
             idx = np.flatnonzero(active)
             free = np.flatnonzero(~active)
             if idx.size:
-                ce = np.where(damp_g[group] | always, Cn, 0.0)[idx]
-                q_eq = a[idx] + np.linalg.solve(Ka, m[idx] * g[idx])
+                # (the last segment may have released contacts: the capacitance of those left)
+                Ka = _inv_spd(W[np.ix_(idx, idx)]) if W is not None and idx.size < n else K_full[np.ix_(idx, idx)]
+                ce = dashpot(idx)
+                q_eq = a[idx] + _equilibrium(Ka, m[idx] * g[idx])
                 ze = _Modal(Ka, m[idx], ce).at(np.concatenate([q[idx] - q_eq, v[idx]]), np.array([h]))[:, 0]
                 q[idx], v[idx] = ze[:idx.size] + q_eq, ze[idx.size:]
                 track(idx, Ka, (q[idx] - a[idx])[:, None])
@@ -783,6 +927,8 @@ def _exact_step(q, v, a, m, g, dt, K, W, C, unilateral, group, wts, always_dampe
     seat = np.zeros(n)
     idx = np.flatnonzero(active)
     if idx.size:
+        if Ka.shape[0] != idx.size:  # released at the last event
+            Ka = _inv_spd(W[np.ix_(idx, idx)]) if W is not None and idx.size < n else K_full[np.ix_(idx, idx)]
         seat[idx] = Ka @ (q[idx] - a[idx])
     untouched = ~np.isfinite(dmin)[group]
     dmin_u[untouched] = (q - a)[untouched]

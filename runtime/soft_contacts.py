@@ -16,23 +16,28 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from runtime import contact_capacitance as _policy
 from runtime import patches
 from runtime.compiled import (
     capacitance_blocks,
     contact_post,
     contact_prep,
     exact_step,
+    explicit_modes,
     inv_spd,
+    modal_stiffness,
     rigid_contacts,
     substep_contacts,
     substep_damping,
 )
-from runtime.hail import _X_GRID, _Z_GRID, GRAVITY, ContactStep, contact_step, damping_coefficients
+from runtime.contact_capacitance import spd_inverse
+from runtime.hail import _X_GRID, _Z_GRID, GRAVITY, ContactStep, contact_modes, contact_step
+from runtime.hail import _explicit_modes, _modal_damping, _modal_stiffness
 
 if TYPE_CHECKING:  # pragma: no cover
     from runtime.storm import Storm
 
-__all__ = ["ContactSet", "advance", "advance_compiled", "contact_set", "exact_damping"]
+__all__ = ["ContactSet", "advance", "advance_compiled", "contact_matrices", "contact_set", "exact_damping"]
 
 
 @dataclass
@@ -57,6 +62,7 @@ class ContactSet:
     weights: np.ndarray  # (s, P) their weights (B: block (verts[k, p], k) = weights[k, p] I3)
     Kdiag: np.ndarray  # diag(K), a contiguous writable copy (what the compiled kernels take)
     C: np.ndarray | None = None  # exact-integrator dashpot (cached)
+    modes: tuple | None = None  # (omega^2, Phi, sqrt(m)) of M^-1/2 K M^-1/2 (cached, contact_modes)
 
 
 def contact_set(st: Storm, stones: np.ndarray, tris: np.ndarray, bary: np.ndarray, key: tuple,
@@ -64,7 +70,6 @@ def contact_set(st: Storm, stones: np.ndarray, tris: np.ndarray, bary: np.ndarra
     """The capacitance of the soft contacts ``stones`` (point contacts, or patches of ``radius``)."""
     from runtime.contact_capacitance import _contact_compliance, _rigid
     from runtime.gather import _column_dofs, _dof3, _gather
-    from runtime.hail import _inv_spd
     from runtime.weights import _dense_B, _dense_Bs, _locate_lists
 
     gf, mode = st.gf, st.scene.mode
@@ -80,7 +85,7 @@ def contact_set(st: Storm, stones: np.ndarray, tris: np.ndarray, bary: np.ndarra
         if rigid_contacts(verts, w, st._fixed):
             raise RuntimeError("rigid contacts must be filtered before the capacitance")  # pragma: no cover
         V, W, G, cols, DG = capacitance_blocks(verts, w, normals, mode == "sticky", st._D, st._col_of)
-        K = inv_spd(W)
+        K = inv_spd(W, float(_policy.COND_LIMIT), float(_policy.PINV_RCOND))  # spd_inverse's policy
     else:
         if np.any(_rigid(gf, verts, w)):
             raise RuntimeError("rigid contacts must be filtered before the capacitance")  # pragma: no cover
@@ -97,7 +102,7 @@ def contact_set(st: Storm, stones: np.ndarray, tris: np.ndarray, bary: np.ndarra
         live = np.repeat(cb >= 0, 3)
         cols = (3 * cb[:, None] + np.arange(3)).ravel()[live]  # D columns of the loaded dofs
         G = G[live]
-        K = _inv_spd(W)
+        K = spd_inverse(W)  # the pseudo-inverse for (nearly) coincident contacts
     # reference point: the contact point (the patch centre). A patch contact prescribes the
     # pressure-weighted mean normal displacement of the surface under the disc, measured from
     # the tangent plane at the contact point (the plane of the disc): the stone's lowest point
@@ -161,9 +166,10 @@ def advance(st: Storm, near: np.ndarray, soft: np.ndarray, was_open: np.ndarray,
         u_eq = np.einsum("ij,ij->i", acc, nk) * m / np.maximum(kd, 1e-300)
         rest = np.hypot(vn, om * (ubar - u_eq)) < sc.rest_speed
         always = rest if sc.mode == "frictionless" else np.repeat(rest, 3)
+        K, W = cc.K, cc.W
     else:
-        C = damping_coefficients(cc.K, mq, sc.restitution, dt=h, integrator=sc.integrator)
-    res = contact_step(q, vq, a, mq, gq, h, K=cc.K, W=cc.W, damping=C, integrator=sc.integrator,
+        K, W, C = contact_matrices(st, cc, mq, h)
+    res = contact_step(q, vq, a, mq, gq, h, K=K, W=W, damping=C, integrator=sc.integrator,
                        unilateral=sc.unilateral, group=group, normal_of=wts, always_damped=always)
     if sc.mode == "frictionless":
         # tangential motion: free (constant acceleration); normal: the contact step
@@ -226,21 +232,25 @@ def advance_compiled(st: Storm, near: np.ndarray, soft: np.ndarray, was_open: np
     if group is None:
         group, wts = np.arange(s), np.ones(s)
     res = None
+    lim, rcond = float(_policy.COND_LIMIT), float(_policy.PINV_RCOND)
+    K, W = cc.K, cc.W
     if exact:
+        C = exact_damping(st, cc, mq)
         qn, vn, act, force, seat, peak, pub, ok = exact_step(q, vq, a, mq, gq, h, cc.K, cc.W, C,
-                                                              bool(sc.unilateral), group, wts, always)
+                                                              bool(sc.unilateral), group, wts, always, lim,
+                                                              rcond)
         if ok:
             res = ContactStep(q=qn, v=vn, active=act, force=force, seat_force=seat, peak_seat_force=peak,
                               peak_ubar=pub)
     else:
         implicit = sc.integrator == "implicit"
-        C = substep_damping(cc.Kdiag, mq, float(sc.restitution), h, implicit, _X_GRID, _Z_GRID)
-        qn, vn, act, force, seat = substep_contacts(q, vq, a, mq, gq, h, cc.K, cc.W, C, implicit,
-                                                    bool(sc.unilateral), group, wts)
+        K, W, C = contact_matrices(st, cc, mq, h)
+        qn, vn, act, force, seat = substep_contacts(q, vq, a, mq, gq, h, K, W, C, implicit,
+                                                    bool(sc.unilateral), group, wts, lim, rcond)
         res = ContactStep(q=qn, v=vn, active=act, force=force, seat_force=seat, peak_seat_force=seat,
                           peak_ubar=qn - a)
     if res is None:
-        res = contact_step(q, vq, a, mq, gq, h, K=cc.K, W=cc.W, damping=C, integrator=sc.integrator,
+        res = contact_step(q, vq, a, mq, gq, h, K=K, W=W, damping=C, integrator=sc.integrator,
                            unilateral=sc.unilateral, group=group, normal_of=wts,
                            always_damped=always if exact else None)
     impacts, fmax, indent, n_active = contact_post(
@@ -257,8 +267,39 @@ def advance_compiled(st: Storm, near: np.ndarray, soft: np.ndarray, was_open: np
     stats["max_simultaneous_contacts"] = max(stats["max_simultaneous_contacts"], int(n_active))
 
 
+def _modes(cc: ContactSet, mq: np.ndarray) -> tuple:
+    """The contact set's normal modes (cached with the set)."""
+    if cc.modes is None or cc.modes[2].shape != mq.shape:
+        cc.modes = contact_modes(cc.K, mq)
+    return cc.modes
+
+
 def exact_damping(st: Storm, cc: ContactSet, mq: np.ndarray) -> np.ndarray:
-    """Exact-integrator dashpot of a contact set (cached with the set)."""
-    if cc.C is None or cc.C.shape != mq.shape:
-        cc.C = damping_coefficients(cc.K, mq, st.scene.restitution, integrator="exact")
+    """Exact-integrator dashpot of a contact set, per mode (:func:`runtime.hail.modal_damping`;
+    cached with the set)."""
+    if cc.C is None or cc.C.shape != (mq.size, mq.size):
+        om2, Phi, sqm = _modes(cc, mq)
+        damping = substep_damping if st._compiled else _modal_damping
+        cc.C = damping(om2, Phi, sqm, float(st.scene.restitution), 0.0, False, _X_GRID, _Z_GRID)
     return cc.C
+
+
+def contact_matrices(st: Storm, cc: ContactSet, mq: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(K, W, C)`` of a sub-step ``h`` of the implicit or symplectic integrator.
+
+    ``C`` is the dashpot per mode (:func:`runtime.hail.modal_damping`: backward
+    Euler's numerical damping compensated). For the symplectic (explicit) step, ``K``
+    and ``W`` carry the modes it can resolve (:func:`runtime.hail._explicit_modes`:
+    unchanged at ``omega h`` <~ 0.3, at most ``1 / h^2``); the implicit step takes the
+    set's own.
+    """
+    om2, Phi, sqm = _modes(cc, mq)
+    sc = st.scene
+    K, W = cc.K, cc.W
+    fast = st._compiled
+    if sc.integrator == "symplectic":
+        om2 = (explicit_modes if fast else _explicit_modes)(om2, float(h))
+        K, W = (modal_stiffness if fast else _modal_stiffness)(om2, Phi, sqm)
+    C = (substep_damping if fast else _modal_damping)(om2, Phi, sqm, float(sc.restitution), float(h), sc.integrator == "implicit", _X_GRID,
+                        _Z_GRID)
+    return K, W, C

@@ -412,7 +412,7 @@ class Storm:
             w = np.full((1, 3), 1.0 / 3.0)
             n = self.index.normals[[t]]
             rigid_contacts(verts, w, self._fixed)
-            inv_spd(capacitance_blocks(verts, w, n, sc.mode == "sticky", self._D, self._col_of)[1])
+            inv_spd(capacitance_blocks(verts, w, n, sc.mode == "sticky", self._D, self._col_of)[1], 1e10, 1e-10)
             patch_compliance(verts[0], w[0], n[0], self._D, self._col_of)
             if self._patch:
                 patch_one(t, w[0], float(sc.patch_min_radius), n[0], 3.0, *self._disc, PATCH_FACING, PATCH_DROP,
@@ -428,11 +428,12 @@ class Storm:
                      sc.mode == "sticky", True, 0.0, 1.0)
         one = np.ones(1)
         if sc.integrator == "exact":
-            exact_step(one, one, one, one, one, 1e-4, np.eye(1), np.eye(1), one, True, np.arange(1), one,
-                       np.zeros(1, dtype=bool))
+            exact_step(one, one, one, one, one, 1e-4, np.eye(1), np.eye(1), np.eye(1), True, np.arange(1), one,
+                       np.zeros(1, dtype=bool), 1e10, 1e-10)
         else:
-            substep_contacts(one, one, one, one, one, 1e-4, np.eye(1), np.eye(1), one, True, True, np.arange(1), one)
-            substep_damping(one, one, 0.5, 1e-4, True, _X_GRID, _Z_GRID)
+            substep_contacts(one, one, one, one, one, 1e-4, np.eye(1), np.eye(1), np.eye(1), True, True,
+                             np.arange(1), one, 1e10, 1e-10)
+            substep_damping(one, np.eye(1), one, 0.5, 1e-4, True, _X_GRID, _Z_GRID)
             if sc.adaptive:
                 self._substep_size(none, float(sc.dt))
         notice.done()

@@ -262,8 +262,8 @@ def test_exact_step_matches_numpy():
         ref = contact_step(c["q"], c["v"], c["a"], c["m"], c["g"], 5e-4, K=c["K"], W=c["W"], damping=damping,
                            integrator="exact", unilateral=True, group=c["group"] if c["sticky"] else None,
                            normal_of=c["wts"] if c["sticky"] else None, always_damped=c["always"])
-        *got, ok = C.exact_step(c["q"], c["v"], c["a"], c["m"], c["g"], 5e-4, c["K"], c["W"], damping, True,
-                                c["group"], c["wts"], c["always"])
+        *got, ok = C.exact_step(c["q"], c["v"], c["a"], c["m"], c["g"], 5e-4, c["K"], c["W"], np.diag(damping), True,
+                                c["group"], c["wts"], c["always"], 1e10, 1e-10)
         assert ok
         released += _assert_same_step(got, ref)
     assert released > 20  # the active-set (release) path is exercised
@@ -273,7 +273,7 @@ def test_exact_step_matches_numpy():
 def test_substep_contacts_and_damping_match_numpy(integrator):
     """The compiled backward-Euler / symplectic contact step and its dashpot reproduce
     runtime.hail's on random coupled sets (frictionless and sticky, releases)."""
-    from runtime.hail import _X_GRID, _Z_GRID, contact_step, damping_coefficients
+    from runtime.hail import _X_GRID, _Z_GRID, contact_modes, contact_step, modal_damping
 
     rng = np.random.default_rng(8)
     released = 0
@@ -281,15 +281,15 @@ def test_substep_contacts_and_damping_match_numpy(integrator):
         c = _random_contact_set(rng)
         dt = float(rng.choice([2e-5, 2e-4]))
         e = float(rng.uniform(0.2, 0.9))
-        damping = damping_coefficients(c["K"], c["m"], e, dt=dt, integrator=integrator)
-        got = C.substep_damping(np.diag(c["K"]).copy(), c["m"], e, dt, integrator == "implicit", _X_GRID, _Z_GRID)
-        np.testing.assert_allclose(got, damping, rtol=1e-12, atol=1e-15)
+        damping = modal_damping(c["K"], c["m"], e, dt=dt, integrator="implicit" if integrator == "implicit" else "exact")
+        got = C.substep_damping(*contact_modes(c["K"], c["m"]), e, dt, integrator == "implicit", _X_GRID, _Z_GRID)
+        np.testing.assert_allclose(got, damping, rtol=1e-12, atol=1e-12 * np.abs(damping).max())
         ref = contact_step(c["q"], c["v"], c["a"], c["m"], c["g"], dt, K=c["K"], W=c["W"], damping=damping,
                            integrator=integrator, unilateral=True, group=c["group"] if c["sticky"] else None,
                            normal_of=c["wts"] if c["sticky"] else None)
         released += _assert_same_step(
             C.substep_contacts(c["q"], c["v"], c["a"], c["m"], c["g"], dt, c["K"], c["W"], damping,
-                               integrator == "implicit", True, c["group"], c["wts"]), ref)
+                               integrator == "implicit", True, c["group"], c["wts"], 1e10, 1e-10), ref)
     assert released > 20
 
 

@@ -41,7 +41,14 @@ from runtime.compiled.blocks import columns_times, contact_compliance, point_con
 from runtime.compiled.contacts import capacitance_blocks, contact_post, contact_prep, inv_spd, rigid_contacts
 from runtime.compiled.flight import flight, near_set, retired
 from runtime.compiled.grid import SampleGrid, closest_points
-from runtime.compiled.integrators import exact_step, substep_contacts, substep_damping, substep_size
+from runtime.compiled.integrators import (
+    exact_step,
+    explicit_modes,
+    modal_stiffness,
+    substep_contacts,
+    substep_damping,
+    substep_size,
+)
 from runtime.compiled.narrow import free_phase, penetration
 from runtime.compiled.patches import patch_compliance, patch_one, patch_radii
 
@@ -55,9 +62,11 @@ __all__ = [
     "contact_post",
     "contact_prep",
     "exact_step",
+    "explicit_modes",
     "flight",
     "free_phase",
     "inv_spd",
+    "modal_stiffness",
     "near_set",
     "patch_compliance",
     "patch_one",

@@ -115,19 +115,43 @@ def capacitance_blocks(verts, w, normals, sticky, D, column_of):  # pragma: no c
 
 
 @_njit
-def inv_spd(W):  # pragma: no cover (compiled)
-    """Inverse of a small symmetric positive (semi-)definite matrix (Cholesky, else the
-    pseudo-inverse), as ``runtime.hail._inv_spd``."""
+def inv_spd(W, cond_limit, rcond):  # pragma: no cover (compiled)
+    """Inverse of a small symmetric positive (semi-)definite matrix under the contact
+    API's policy (:func:`runtime.contact_capacitance.spd_inverse`; pass its
+    ``COND_LIMIT`` and ``PINV_RCOND``): Cholesky if the condition estimate from the
+    factor's diagonal is below ``cond_limit``, else the pseudo-inverse (eigenvalues
+    below ``rcond`` times the largest dropped)."""
     n = W.shape[0]
     if n == 0:
         return np.zeros((0, 0))
-    Ws = 0.5 * (W + W.T)
-    try:
-        L = np.linalg.cholesky(Ws)
-        Li = np.linalg.inv(L)
-        return np.ascontiguousarray(Li.T @ Li)
-    except Exception:
-        return np.ascontiguousarray(np.linalg.pinv(Ws, rcond=1e-10))
+    Ws = np.ascontiguousarray(0.5 * (W + W.T))
+    if np.all(np.isfinite(Ws)):
+        ok = True
+        try:
+            L = np.linalg.cholesky(Ws)
+        except Exception:
+            ok = False
+            L = Ws
+        if ok:
+            dmin = np.inf
+            dmax = 0.0
+            for i in range(n):
+                d = abs(L[i, i])
+                dmin = min(dmin, d)
+                dmax = max(dmax, d)
+            if dmin > 0.0 and (dmax / dmin) ** 2 < cond_limit:
+                Li = np.linalg.inv(L)
+                K = Li.T @ Li
+                return np.ascontiguousarray(0.5 * (K + K.T))
+    lam, Q = np.linalg.eigh(Ws)
+    top = max(lam.max(), 0.0)
+    K = np.zeros((n, n))
+    for j in range(n):
+        if lam[j] > rcond * top:
+            for r in range(n):
+                for c in range(n):
+                    K[r, c] += Q[r, j] * Q[c, j] / lam[j]
+    return np.ascontiguousarray(0.5 * (K + K.T))
 
 
 @_njit

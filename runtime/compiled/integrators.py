@@ -13,10 +13,17 @@ import numpy as np
 
 from runtime.compiled._jit import _njit
 from runtime.compiled.contacts import inv_spd
+from runtime.hail import _equilibrium as _hail_equilibrium
+from runtime.hail import _explicit_modes as _hail_explicit_modes
+from runtime.hail import _modal_damping as _hail_modal_damping
+from runtime.hail import _modal_stiffness as _hail_modal_stiffness
 from runtime.hail import _scalar_exact as _hail_scalar_exact
 
-__all__ = ["exact_step", "substep_contacts", "substep_damping", "substep_size"]
+__all__ = ["exact_step", "explicit_modes", "modal_stiffness", "substep_contacts", "substep_damping", "substep_size"]
 
+
+#: the static equilibrium of the exact step (runtime.hail's own function, compiled)
+_equilibrium = _njit(_hail_equilibrium)
 
 #: the closed-form single contact of the exact integrator: runtime.hail's own function, compiled
 _scalar_exact = _njit(_hail_scalar_exact)
@@ -44,11 +51,18 @@ def _sub(M, idx):  # pragma: no cover (compiled)
 
 @_njit
 def _dashpot(idx, Cn, damp_g, group, always):  # pragma: no cover (compiled)
-    """Dashpot of the components ``idx``: on while their contact compresses (or always)."""
-    ce = np.empty(idx.size)
-    for r in range(idx.size):
+    """Dashpot (a, a) of the components ``idx``: on while their contact compresses (or always)."""
+    na = idx.size
+    on = np.empty(na, np.bool_)
+    for r in range(na):
         i = idx[r]
-        ce[r] = Cn[i] if (damp_g[group[i]] or always[i]) else 0.0
+        on[r] = damp_g[group[i]] or always[i]
+    ce = np.zeros((na, na))
+    for r in range(na):
+        if on[r]:
+            for c in range(na):
+                if on[c]:
+                    ce[r, c] = Cn[idx[r], idx[c]]
     return ce
 
 
@@ -74,7 +88,8 @@ def _modal(Ka, ma, ce):  # pragma: no cover (compiled)
         A[i, n + i] = 1.0
         for j in range(n):
             A[n + i, j] = -Ka[i, j] / ma[i]
-        A[n + i, n + i] = -ce[i] / ma[i]
+        for j in range(n):
+            A[n + i, n + j] = -ce[i, j] / ma[i]
     lam, V = np.linalg.eig(A)
     try:
         Vi = np.linalg.inv(V)
@@ -130,8 +145,10 @@ def _track(idx, Ka, ub, ncol, group, wts, ng, pk2, pk_f, dmin, dmin_u):  # pragm
 
 
 @_njit
-def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always):  # pragma: no cover (compiled)
-    """Compiled ``runtime.hail._exact_step`` (the exact integrator's step; see there).
+def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond_limit,
+               rcond):  # pragma: no cover (compiled)
+    """Compiled ``runtime.hail._exact_step`` (the exact integrator's step; see there):
+    ``Cn`` the (n, n) dashpot, ``cond_limit``, ``rcond`` the policy of :func:`inv_spd`.
 
     Returns ``(q, v, active, force, seat_force, peak_seat_force, peak_ubar, ok)``
     (see :class:`runtime.hail.ContactStep`); ``ok`` is False in the rare
@@ -151,7 +168,7 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always):  # 
     active = np.ones(n, np.bool_)
     if n == 1 and group[0] == 0 and wts[0] == 1.0:
         k = K[0, 0]
-        qn, vn, act, ok, umin, umax = _scalar_exact(q[0], v[0], a[0], m[0], g[0], dt, k, Cn[0], unilateral,
+        qn, vn, act, ok, umin, umax = _scalar_exact(q[0], v[0], a[0], m[0], g[0], dt, k, Cn[0, 0], unilateral,
                                                     always[0])
         if ok:
             q[0] = qn
@@ -182,14 +199,15 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always):  # 
         # unilateral: release contacts that pull now and do not approach (active-set iteration)
         while True:
             idx = np.flatnonzero(active)
-            Ka = inv_spd(_sub(W, idx)) if idx.size < n else K
+            Ka = inv_spd(_sub(W, idx), cond_limit, rcond) if idx.size < n else K
             if not unilateral or idx.size == 0:
                 break
             f = np.zeros(n)
             fa = -(Ka @ (q[idx] - a[idx]))
             ce = _dashpot(idx, Cn, damp_g, group, always)
+            fd = ce @ v[idx]
             for r in range(idx.size):
-                f[idx[r]] = fa[r] - ce[r] * v[idx[r]]
+                f[idx[r]] = fa[r] - fd[r]
             fn = _gsum(f.reshape(n, 1), group, wts, ng, ident)[:, 0]
             vn = _gsum(v.reshape(n, 1), group, wts, ng, ident)[:, 0]
             gact = np.zeros(ng, np.bool_)
@@ -222,7 +240,7 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always):  # 
         ga = g[idx]
         aa = a[idx]
         ce = _dashpot(idx, Cn, damp_g, group, always)
-        q_eq = aa + np.linalg.solve(Ka, ma * ga)
+        q_eq = aa + _equilibrium(Ka, ma * ga)
         lam, V, Vi, ok = _modal(Ka, ma, ce)
         if not ok:
             return q, v, active, v0, v0, v0, v0, False
@@ -235,7 +253,7 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always):  # 
         for r in range(na):
             sw_on[gi[r]] = True
             i = idx[r]
-            if Cn[i] > 0.0 and not always[i]:
+            if Cn[i, i] > 0.0 and not always[i]:
                 has_sw[gi[r]] = True
         switchable = sw_on & has_sw
         off_mask = switchable & damp_g
@@ -253,9 +271,7 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always):  # 
             y = Z[:na]
             vv = Z[na:]
             vng = _gsum(vv, gi, wi, ng, ident_a)
-            fl = -(Ka @ (y + off_eq.reshape(na, 1)))
-            for r in range(na):
-                fl[r] -= ce[r] * vv[r]
+            fl = -(Ka @ (y + off_eq.reshape(na, 1))) - ce @ np.ascontiguousarray(vv)
             fng = _gsum(fl, gi, wi, ng, ident_a)
             j = -1
             for col in range(tau.size):
@@ -290,9 +306,9 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always):  # 
             break
         vng1 = _gsum(v.reshape(n, 1), group, wts, ng, ident)[:, 0]
         f = np.zeros(n)
-        fa = -(Ka @ (q[idx] - aa))
+        fa = -(Ka @ (q[idx] - aa)) - ce @ v[idx]
         for r in range(na):
-            f[idx[r]] = fa[r] - ce[r] * v[idx[r]]
+            f[idx[r]] = fa[r]
         fng1 = _gsum(f.reshape(n, 1), group, wts, ng, ident)[:, 0]
         for gg in range(ng):
             ea = evg[gg] and sw_on[gg]
@@ -312,8 +328,10 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always):  # 
             ze = np.zeros(0)
             q_eq = np.zeros(0)
             if idx.size:
+                # (the last segment may have released contacts: the capacitance of those left)
+                Ka = inv_spd(_sub(W, idx), cond_limit, rcond) if idx.size < n else K
                 ce = _dashpot(idx, Cn, damp_g, group, always)
-                q_eq = a[idx] + np.linalg.solve(Ka, m[idx] * g[idx])
+                q_eq = a[idx] + _equilibrium(Ka, m[idx] * g[idx])
                 lam, V, Vi, ok = _modal(Ka, m[idx], ce)
                 if not ok:
                     return q, v, active, v0, v0, v0, v0, False
@@ -327,6 +345,8 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always):  # 
     for i in idx:
         force[i] = m[i] * ((v[i] - v0[i]) / dt - g[i])
     if idx.size:
+        if Ka.shape[0] != idx.size:  # released at the last event
+            Ka = inv_spd(_sub(W, idx), cond_limit, rcond) if idx.size < n else K
         sa = Ka @ (q[idx] - a[idx])
         for r in range(idx.size):
             seat[idx[r]] = sa[r]
@@ -382,31 +402,23 @@ def substep_size(near, h_left, hmin, vel, radius, mass, pos, gap, near_tri, ctri
     return min(max(h, hmin), h_left)
 
 
-@_njit
-def substep_damping(Kdiag, mq, restitution, dt, implicit, x_grid, z_grid):  # pragma: no cover (compiled)
-    """Compiled :func:`runtime.hail.damping_coefficients` for the implicit (with ``dt``)
-    and symplectic integrators: ``2 zeta sqrt(K_ii m_i)``, backward Euler's numerical
-    damping ``omega dt / 2`` compensated. ``x_grid``, ``z_grid``: the restitution
-    table of :func:`runtime.hail.damping_ratio_for_restitution`."""
-    n = mq.size
-    out = np.empty(n)
-    for i in range(n):
-        k = max(Kdiag[i], 0.0)
-        e = restitution
-        zn = 0.0
-        if implicit:
-            zn = 0.5 * math.sqrt(k / mq[i]) * dt
-            e = min(e / math.exp(-zn * math.pi / 2.0), 1.0)
-        z = np.interp(-math.log(min(max(e, 1e-300), 1.0)), x_grid, z_grid)
-        out[i] = 2.0 * max(z - zn, 0.0) * math.sqrt(k * mq[i])
-    return out
+#: the contact set's modal dashpot (runtime.hail's own function, compiled):
+#: ``substep_damping(om2, Phi, sqm, restitution, dt, implicit, x_grid, z_grid)`` -> (n, n)
+#: (``x_grid``, ``z_grid``: the restitution table of :func:`runtime.hail.damping_ratio_for_restitution`)
+substep_damping = _njit(_hail_modal_damping)
+#: the modal frequencies an explicit step carries (runtime.hail's, compiled)
+explicit_modes = _njit(_hail_explicit_modes)
+#: K and its pseudo-inverse W from modes (runtime.hail's, compiled)
+modal_stiffness = _njit(_hail_modal_stiffness)
 
 
 @_njit
-def substep_contacts(q, v, a, m, g, dt, K, W, C, implicit, unilateral, group, wts):  # pragma: no cover
+def substep_contacts(q, v, a, m, g, dt, K, W, C, implicit, unilateral, group, wts, cond_limit,
+                     rcond):  # pragma: no cover
     """Compiled implicit (backward Euler) and symplectic Euler contact step of
-    :func:`runtime.hail.contact_step` (see there): the dashpot in compression only,
-    unilateral release by active-set iteration. Returns ``(q, v, active, force, seat_force)``."""
+    :func:`runtime.hail.contact_step` (see there): the (n, n) dashpot ``C`` in compression
+    only, unilateral release by active-set iteration (``cond_limit``, ``rcond``: the
+    policy of :func:`inv_spd`). Returns ``(q, v, active, force, seat_force)``."""
     n = q.size
     ng = 0
     for i in range(n):
@@ -414,35 +426,40 @@ def substep_contacts(q, v, a, m, g, dt, K, W, C, implicit, unilateral, group, wt
     vn_g = np.zeros(ng)
     for i in range(n):
         vn_g[group[i]] += wts[i] * v[i]
-    c = np.empty(n)
+    on = np.empty(n, np.bool_)
     for i in range(n):
-        c[i] = C[i] if vn_g[group[i]] < 0.0 else 0.0
+        on[i] = vn_g[group[i]] < 0.0
     active = np.ones(n, np.bool_)
     ubar = q - a
     v_new = v + dt * g
     force = np.zeros(n)
     while True:
         idx = np.flatnonzero(active)
-        Ka = inv_spd(_sub(W, idx)) if idx.size < n else K
+        Ka = inv_spd(_sub(W, idx), cond_limit, rcond) if idx.size < n else K
         v_new = v + dt * g
         na = idx.size
         if na:
+            ca = _sub(C, idx)
+            for r in range(na):
+                for cc in range(na):
+                    if not (on[idx[r]] and on[idx[cc]]):
+                        ca[r, cc] = 0.0
             if implicit:
-                A = dt * dt * Ka
+                A = dt * dt * Ka + dt * ca
                 rhs = np.empty(na)
                 ku = Ka @ ubar[idx]
                 for r in range(na):
                     i = idx[r]
-                    A[r, r] += m[i] + dt * c[i]
+                    A[r, r] += m[i]
                     rhs[r] = m[i] * v[i] + dt * (m[i] * g[i] - ku[r])
                 vs = np.linalg.solve(A, rhs)
                 for r in range(na):
                     v_new[idx[r]] = vs[r]
             else:
-                ku = Ka @ ubar[idx]
+                ku = Ka @ ubar[idx] + ca @ v[idx]
                 for r in range(na):
                     i = idx[r]
-                    v_new[i] = v[i] + dt * (g[i] + (-ku[r] - c[i] * v[i]) / m[i])
+                    v_new[i] = v[i] + dt * (g[i] - ku[r] / m[i])
         force = np.zeros(n)
         for i in idx:
             force[i] = m[i] * ((v_new[i] - v[i]) / dt - g[i])
@@ -462,7 +479,7 @@ def substep_contacts(q, v, a, m, g, dt, K, W, C, implicit, unilateral, group, wt
     seat = np.zeros(n)
     idx = np.flatnonzero(active)
     if idx.size:
-        Ka = inv_spd(_sub(W, idx)) if idx.size < n else K
+        Ka = inv_spd(_sub(W, idx), cond_limit, rcond) if idx.size < n else K
         sa = Ka @ (q_new[idx] - a[idx])
         for r in range(idx.size):
             seat[idx[r]] = sa[r]
