@@ -220,7 +220,9 @@ class Scene:
     adaptive : bool
         Sub-step near stones (see the module notes). ``False``: fixed ``dt``.
     omega_dt : float
-        Target ``omega dt`` for moving contacts.
+        Target ``omega dt`` for moving contacts (``"symplectic"`` sub-steps to
+        half of it: its explicit dashpot's peak-force error is first order in
+        ``omega dt``).
     approach_fraction : float
         Largest travel per sub-step of an approaching stone, in radii.
     max_substeps : int

@@ -137,16 +137,10 @@ def _assert_dt_agreement(gf, integrator, stones=None):
     assert abs(st_c["impacts"] - st_f["impacts"]) <= max(1, 0.02 * st_f["impacts"])
 
 
-_SYMPLECTIC_REASON = (
-    "symplectic Euler's explicit dashpot makes its peak force first order in omega*h (-5 % at "
-    "omega h = 0.05, -21 % at 0.2 on one impact); the adaptive sub-steps of the largest impact are "
-    "set by the neighbouring stones and differ between dt: 68.8 against 72.8 N (5.6 %) on the "
-    "compiled backend, 1.4 % on numpy. Not the sub-step peak of this fix.")
-
 
 @pytest.mark.parametrize("integrator", [
     "exact", "implicit",
-    pytest.param("symplectic", marks=pytest.mark.xfail(reason=_SYMPLECTIC_REASON, strict=False)),
+    "symplectic",
 ])
 def test_default_storm_agrees_across_dt(default_seat, integrator):
     """The default scene (43 stones, 0.2 s, seed 0): the same stones hit and the same max
