@@ -10,7 +10,7 @@
 //   Surface "top"   - every face hail can reach (all but the underside)
 //   Surface "clamp" - the rail patch on the underside: zero displacement
 //
-// Mesh sizes are NOT set here: `precompute.geometry` sets them from
+// Mesh sizes are NOT set here: `hailstorm.precompute.geometry` sets them from
 // --mesh-size (finest on "top"), so the same file serves every resolution.
 
 SetFactory("OpenCASCADE");

@@ -1,14 +1,14 @@
 """Offline stage: mesh a seat, assemble linear elasticity, compute its Green's functions.
 
 The one entry point is :func:`build_bundle`; the pieces live in
-:mod:`precompute.geometry` (gmsh/meshio -> :class:`TetMesh`),
-:mod:`precompute.fem` (scikit-fem stiffness, clamp, dofs),
-:mod:`precompute.greens` (the compliance D, A and Ξ = D A) and
-:mod:`precompute.pipeline` (surface extraction, cache key, bundle).
+:mod:`hailstorm.precompute.geometry` (gmsh/meshio -> :class:`TetMesh`),
+:mod:`hailstorm.precompute.fem` (scikit-fem stiffness, clamp, dofs),
+:mod:`hailstorm.precompute.greens` (the compliance D, A and Ξ = D A) and
+:mod:`hailstorm.precompute.pipeline` (surface extraction, cache key, bundle).
 """
 
-from precompute.geometry import MeshError, TetMesh, box_mesh, mesh_default_seat, mesh_geometry, read_mesh
-from precompute.pipeline import build_bundle, default_cache_dir, extract_surface
+from hailstorm.precompute.geometry import MeshError, TetMesh, box_mesh, mesh_default_seat, mesh_geometry, read_mesh
+from hailstorm.precompute.pipeline import build_bundle, default_cache_dir, extract_surface
 
 __all__ = [
     "MeshError",

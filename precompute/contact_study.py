@@ -7,14 +7,14 @@ in ``notebooks/mesh_dependence.ipynb``):
     Effective normal stiffness ``k`` of one stone at fixed points of the seat
     against the mesh size, for a point contact (force on one triangle's
     vertices) and a patch contact (force spread over a Hertz pressure disc of
-    fixed physical radius, :func:`runtime.weights.patch_weights`). A point
+    fixed physical radius, :func:`hailstorm.runtime.weights.patch_weights`). A point
     load on an elastic body is singular (Boussinesq: ``u ~ 1/r``), so the
     point stiffness keeps falling as the mesh is refined (like ``h`` on a
     half-space); the patch stiffness converges.
 :func:`degenerate_contacts`
     Coincident, nearly coincident, clamped and conflicting contacts: the
     condition number of ``W = B^T D B`` and what the solver does with it
-    (:attr:`runtime.contact.Capacitance.exact`, rigid flags, the force split).
+    (:attr:`hailstorm.runtime.contact.Capacitance.exact`, rigid flags, the force split).
 :func:`locking_vs_poisson`
     Tip deflection of a cantilever with P1 and P2 tetrahedra as
     ``nu -> 0.5``: P1 locks (volumetric and in bending), P2 much less.
@@ -22,7 +22,7 @@ in ``notebooks/mesh_dependence.ipynb``):
 and the stability study (charted in ``notebooks/stability.ipynb``):
 
 :func:`stability_map`
-    One stone in contact, advanced by :func:`runtime.hail.contact_step`
+    One stone in contact, advanced by :func:`hailstorm.runtime.hail.contact_step`
     exactly as the storm does, for every (stiffness, mass, time step):
     bounded or diverged (energy growth), against the predicted explicit
     limit :func:`predicted_dt_limit` ``dt = 2 / omega``;
@@ -30,11 +30,11 @@ and the stability study (charted in ``notebooks/stability.ipynb``):
 
 The committed figures are regenerated with::
 
-    python -m precompute.contact_study --out notebooks/figures/mesh_dependence.png
-    python -m precompute.contact_study stability --out notebooks/figures/stability.png
+    python -m hailstorm.precompute.contact_study --out notebooks/figures/mesh_dependence.png
+    python -m hailstorm.precompute.contact_study stability --out notebooks/figures/stability.png
 
 (``--small`` for the coarse levels / a small grid only). Bundles are cached under
-``<hailstorm cache>/contact_study`` (see :func:`precompute.default_cache_dir`),
+``<hailstorm cache>/contact_study`` (see :func:`hailstorm.precompute.default_cache_dir`),
 so a second run only re-reads them. Scripts that call these functions must be
 guarded by ``if __name__ == "__main__":`` (the offline stage may spawn worker
 processes).
@@ -49,12 +49,12 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from precompute.geometry import TetMesh, box_mesh
-from precompute.pipeline import build_bundle, default_cache_dir
-from runtime.bundle import load as load_bundle
-from runtime.contact import capacitance, hertz_radius, solve_contacts, triangle_normals
-from runtime.contact_capacitance import Mode
-from runtime.hail import Integrator
+from hailstorm.precompute.geometry import TetMesh, box_mesh
+from hailstorm.precompute.pipeline import build_bundle, default_cache_dir
+from hailstorm.runtime.bundle import load as load_bundle
+from hailstorm.runtime.contact import capacitance, hertz_radius, solve_contacts, triangle_normals
+from hailstorm.runtime.contact_capacitance import Mode
+from hailstorm.runtime.hail import Integrator
 
 __all__ = [
     "SEAT_POINTS",
@@ -263,7 +263,7 @@ def contact_stiffness_vs_mesh(
     patch_radius
         Fixed physical patch radius [m]; default the Hertz radius of a rigid
         sphere of ``stone_radius`` pressed with ``load`` on the material
-        (:func:`runtime.weights.hertz_radius`).
+        (:func:`hailstorm.runtime.weights.hertz_radius`).
     order
         Element order of the bundles.
     mesh
@@ -284,7 +284,7 @@ def contact_stiffness_vs_mesh(
     -------
     StiffnessStudy
     """
-    from precompute.fem import DEFAULT_POISSON, DEFAULT_YOUNG
+    from hailstorm.precompute.fem import DEFAULT_POISSON, DEFAULT_YOUNG
 
     young = DEFAULT_YOUNG if young is None else float(young)
     poisson = DEFAULT_POISSON if poisson is None else float(poisson)
@@ -468,7 +468,7 @@ def cantilever_tip(order: int, poisson: float, *, length: float = 1.0, height: f
     import scipy.sparse.linalg as spla
     from skfem import FacetBasis, LinearForm
 
-    from precompute.fem import clamp_dofs, elasticity_basis, free_dofs, stiffness_matrix, vertex_dofs
+    from hailstorm.precompute.fem import clamp_dofs, elasticity_basis, free_dofs, stiffness_matrix, vertex_dofs
 
     E, P, h, L = young, load, height, length
     mesh = box_mesh((L, h, h), size, clamp="x0")
@@ -541,7 +541,7 @@ def _energy(q, v, k, m, gn):
 
 def _growth(k: float, m: float, dt: float, integrator: Integrator, *, steps: int, restitution: float | None,
             gravity: float, impact_speed: float, blowup: float = 1e20) -> float:
-    """Energy growth of one stone in contact over ``steps`` steps of :func:`runtime.hail.contact_step`.
+    """Energy growth of one stone in contact over ``steps`` steps of :func:`hailstorm.runtime.hail.contact_step`.
 
     The stone touches the seat (``q = anchor = 0``) moving in at ``impact_speed``
     and stays in contact (bilateral: the contact holds, as for a stone resting
@@ -550,7 +550,7 @@ def _growth(k: float, m: float, dt: float, integrator: Integrator, *, steps: int
     Returns ``max E over the second half / max E over the first half`` (``inf``
     once the energy exceeds ``blowup`` times its start or stops being finite).
     """
-    from runtime.hail import contact_step, damping_coefficients
+    from hailstorm.runtime.hail import contact_step, damping_coefficients
 
     K = np.array([[float(k)]])
     M = np.array([float(m)])
@@ -675,8 +675,8 @@ def stability_map(
     """Bounded or diverged: one stone in contact for every (stiffness, mass, time step).
 
     Each run advances one stone in a frictionless contact (its normal
-    coordinate, as :class:`runtime.storm` does) with
-    :func:`runtime.hail.contact_step` for ``steps`` steps, starting as it
+    coordinate, as :class:`hailstorm.runtime.storm` does) with
+    :func:`hailstorm.runtime.hail.contact_step` for ``steps`` steps, starting as it
     touches the seat moving in at ``impact_speed``, under gravity, and the
     contact holds (bilateral, the stone stays on the seat). The energy
     (kinetic + spring + gravity, relative to the static equilibrium) is
@@ -690,7 +690,7 @@ def stability_map(
     stiffness : (nk,)
         Contact stiffness ``k`` [N/m] (e.g. :func:`seat_contact_stiffness`).
     masses : (nm,)
-        Stone masses [kg] (e.g. :func:`runtime.hail.stone_mass`).
+        Stone masses [kg] (e.g. :func:`hailstorm.runtime.hail.stone_mass`).
     dts : (nd,)
         Time steps [s]; with ``relative=True`` multiples of ``2 / omega`` for
         each (k, m).
@@ -699,10 +699,10 @@ def stability_map(
     restitution : float, optional
         ``None`` (default): no dashpot, the pure stability question. A
         number: the storm's compression-only dashpot for that restitution
-        (:func:`runtime.hail.damping_coefficients`, with ``dt`` for the
+        (:func:`hailstorm.runtime.hail.damping_coefficients`, with ``dt`` for the
         stepping integrators, as the storm calls it).
     gravity : float, optional
-        Default :data:`runtime.hail.GRAVITY` (along the inward normal).
+        Default :data:`hailstorm.runtime.hail.GRAVITY` (along the inward normal).
     bisect : bool
         Also measure the limit of every (k, m) by bisection
         (:func:`measure_dt_limit`, relative tolerance ``rtol``): ``limit``.
@@ -714,7 +714,7 @@ def stability_map(
     steps, and the energy error of an explicit step at impact (where in the
     step the stone arrives) is an accuracy question of its own.
     """
-    from runtime.hail import GRAVITY
+    from hailstorm.runtime.hail import GRAVITY
 
     k = np.asarray(stiffness, dtype=np.float64).reshape(-1)
     m = np.asarray(masses, dtype=np.float64).reshape(-1)
@@ -751,7 +751,7 @@ def measure_dt_limit(k: float, m: float, integrator: Integrator = "symplectic", 
     if it diverges already at the bottom. Other arguments as
     :func:`stability_map`.
     """
-    from runtime.hail import GRAVITY
+    from hailstorm.runtime.hail import GRAVITY
 
     g = GRAVITY if gravity is None else float(gravity)
 
@@ -907,7 +907,7 @@ def stability_study(*, small: bool = False, cache_dir: str | os.PathLike | None 
     stones of :data:`STABILITY_RADII`. ``small``: fewer masses, steps and
     time steps (seconds).
     """
-    from runtime.hail import stone_mass
+    from hailstorm.runtime.hail import stone_mass
 
     h = 0.015
     cache = Path(cache_dir) if cache_dir is not None else study_cache_dir()
@@ -932,15 +932,15 @@ def stability_study(*, small: bool = False, cache_dir: str | os.PathLike | None 
 # command line
 # --------------------------------------------------------------------------
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m precompute.contact_study [--small] [--order 1 2] [--out PNG]``: table and chart."""
+    """``python -m hailstorm.precompute.contact_study [--small] [--order 1 2] [--out PNG]``: table and chart."""
     import argparse
     import sys
 
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ["stability"]:
         return main_stability(argv[1:])
-    ap = argparse.ArgumentParser(prog="python -m precompute.contact_study", description=main.__doc__,
-                                 epilog="python -m precompute.contact_study stability --help: the stability study")
+    ap = argparse.ArgumentParser(prog="python -m hailstorm.precompute.contact_study", description=main.__doc__,
+                                 epilog="python -m hailstorm.precompute.contact_study stability --help: the stability study")
     ap.add_argument("--small", action="store_true", help="coarse levels only (seconds)")
     ap.add_argument("--order", type=int, nargs="+", default=[1, 2], help="element orders (default 1 2)")
     ap.add_argument("--out", type=Path, default=None, help="write the chart to this PNG")
@@ -957,11 +957,11 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def main_stability(argv: Sequence[str] | None = None) -> int:
-    """``python -m precompute.contact_study stability [--small] [--restitution E] [--out PNG]``:
+    """``python -m hailstorm.precompute.contact_study stability [--small] [--restitution E] [--out PNG]``:
     stability tables (three integrators), measured vs predicted limit, degenerate contacts, locking, chart."""
     import argparse
 
-    ap = argparse.ArgumentParser(prog="python -m precompute.contact_study stability", description=main_stability.__doc__)
+    ap = argparse.ArgumentParser(prog="python -m hailstorm.precompute.contact_study stability", description=main_stability.__doc__)
     ap.add_argument("--small", action="store_true", help="small grid (seconds)")
     ap.add_argument("--restitution", type=float, default=None,
                     help="use the storm's dashpot for this restitution (default: no damping)")

@@ -17,7 +17,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from precompute.geometry import TetMesh
+from hailstorm.precompute.geometry import TetMesh
 
 #: Defaults for a padded saddle treated as one homogeneous solid (see README).
 DEFAULT_YOUNG = 2.0e6

@@ -223,7 +223,7 @@ def boundary_triangles(tets: np.ndarray) -> np.ndarray:
 
 def default_seat_path() -> Path:
     """Path of the default saddle geometry shipped with the package."""
-    return Path(str(resources.files("precompute.meshes").joinpath("saddle.geo")))
+    return Path(str(resources.files("hailstorm.meshes").joinpath("saddle.geo")))
 
 
 def _gmsh_session():
@@ -298,9 +298,9 @@ def mesh_geometry(path: str | os.PathLike, mesh_size: float, *, coarsening: floa
         Elements grow to ``coarsening * mesh_size`` away from ``top``.
     allow_large, order
         Before meshing, the bundle's memory is estimated from the geometry's
-        areas (:func:`precompute.resources.estimate_geometry`, for elements of
+        areas (:func:`hailstorm.precompute.resources.estimate_geometry`, for elements of
         ``order``); a run that would not fit in the memory available raises
-        :class:`precompute.resources.TooLargeError` unless ``allow_large``.
+        :class:`hailstorm.precompute.resources.TooLargeError` unless ``allow_large``.
 
     Returns
     -------
@@ -311,7 +311,7 @@ def mesh_geometry(path: str | os.PathLike, mesh_size: float, *, coarsening: floa
     Ctrl-C (SIGINT) during meshing ends the process at once (gmsh cannot be
     interrupted otherwise); nothing has been written by then.
     """
-    from precompute.resources import check_fits, estimate_geometry
+    from hailstorm.precompute.resources import check_fits, estimate_geometry
 
     path = Path(path)
     if path.is_dir():

@@ -24,7 +24,7 @@ from typing import Callable, Iterator
 import numpy as np
 import scipy.sparse as sp
 
-from precompute.fem import free_dofs
+from hailstorm.precompute.fem import free_dofs
 
 SOLVERS = ("cholmod", "splu", "amg")
 

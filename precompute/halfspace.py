@@ -19,7 +19,7 @@ from __future__ import annotations
 import tempfile
 from pathlib import Path
 
-from precompute.geometry import MeshError, TetMesh, read_mesh
+from hailstorm.precompute.geometry import MeshError, TetMesh, read_mesh
 
 __all__ = ["halfspace_block"]
 

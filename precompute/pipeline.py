@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from precompute.fem import (
+from hailstorm.precompute.fem import (
     DEFAULT_POISSON,
     DEFAULT_YOUNG,
     check_material,
@@ -30,10 +30,10 @@ from precompute.fem import (
     stiffness_matrix,
     vertex_dofs,
 )
-from precompute.geometry import DEFAULT_MESH_SIZE, MeshError, TetMesh, boundary_triangles, check_mesh, load_seat
-from precompute.greens import SOLVERS, compliance_matrix, hat_load_matrix, lumped_areas
-from precompute.resources import check_fits, estimate_mesh
-from runtime.bundle import (
+from hailstorm.precompute.geometry import DEFAULT_MESH_SIZE, MeshError, TetMesh, boundary_triangles, check_mesh, load_seat
+from hailstorm.precompute.greens import SOLVERS, compliance_matrix, hat_load_matrix, lumped_areas
+from hailstorm.precompute.resources import check_fits, estimate_mesh
+from hailstorm.runtime.bundle import (
     FORMAT_VERSION,
     BundleError,
     bundle_lock,
@@ -147,7 +147,7 @@ def build_bundle(
         reuses the first's bundle if the key matches).
     mesh
         A ready :class:`TetMesh` (tests, studies); it is checked
-        (:func:`precompute.geometry.check_mesh`: every part clamped...).
+        (:func:`hailstorm.precompute.geometry.check_mesh`: every part clamped...).
         Otherwise ``geometry`` is meshed at ``mesh_size`` (``None``: the
         default saddle).
     mesh_size
@@ -165,7 +165,7 @@ def build_bundle(
     load
         What a column of D responds to: ``"point"`` (default), a unit nodal
         force at the vertex; ``"hat"``, one newton spread as a traction over
-        the vertex's hat function (:func:`precompute.greens.hat_load_matrix`),
+        the vertex's hat function (:func:`hailstorm.precompute.greens.hat_load_matrix`),
         the consistent choice for P2 (measured: 12 % instead of 37 % error
         under distributed loads at 6 mm).
     reuse
@@ -176,13 +176,13 @@ def build_bundle(
     allow_large
         Skip the memory check: by default a run whose estimated memory (from
         the geometry before meshing, from the mesh before assembly; see
-        :mod:`precompute.resources`) exceeds the memory available raises
-        :class:`precompute.resources.TooLargeError`.
+        :mod:`hailstorm.precompute.resources`) exceeds the memory available raises
+        :class:`hailstorm.precompute.resources.TooLargeError`.
 
     Returns
     -------
     pathlib.Path
-        The bundle directory; ``runtime.load`` reads it.
+        The bundle directory; ``hailstorm.runtime.load`` reads it.
     """
     young, poisson = check_material(young, poisson)
     if order not in (1, 2):

@@ -51,7 +51,7 @@ def _estimate(n_surface: float, n_contactable: float, n_points: float, order: in
     n_dofs = 3.0 * n_points * (1 if order == 1 else 8)
     d_bytes = 72.0 * n_surface * n_contactable
     # a sparse Cholesky factor of a 3-D stiffness holds ~ n^(4/3) entries (nested dissection),
-    # K ~ 80 entries per row for P1; 256 MiB of right-hand-side blocks (precompute.greens)
+    # K ~ 80 entries per row for P1; 256 MiB of right-hand-side blocks (hailstorm.precompute.greens)
     solver = 12.0 * 8.0 * n_dofs ** (4.0 / 3.0) + 80.0 * 12.0 * n_dofs + 256 * 2**20
     return Estimate(int(n_surface), int(n_contactable), int(n_dofs), int(d_bytes), int(d_bytes + solver))
 

@@ -23,18 +23,18 @@ What is scored
 Costs
     Precompute wall time (measured: meshing + ``build_bundle``; for derived
     points the post-processing is added), memory of D [MB], and optionally
-    the per-step runtime cost of :func:`runtime.solve_contacts`, with a
+    the per-step runtime cost of :func:`hailstorm.runtime.solve_contacts`, with a
     "direct FEM re-solved per step" anchor (one sparse factorization + solve
     of the full system at that mesh).
 
 Everything is parameterised by a ``mesher`` (mesh size -> :class:`TetMesh`)
-and a :class:`Scenario`, so the tests run it on :func:`precompute.box_mesh`.
+and a :class:`Scenario`, so the tests run it on :func:`hailstorm.precompute.box_mesh`.
 :func:`run_study` is what the notebook calls; it caches its results (and the
 reference) as files in ``cache_dir``.
 
 Regenerate the figure::
 
-    python -m precompute.study --out notebooks/figures/speed_vs_accuracy.png
+    python -m hailstorm.precompute.study --out notebooks/figures/speed_vs_accuracy.png
 """
 
 from __future__ import annotations
@@ -52,7 +52,7 @@ from typing import Any, Callable, Iterable, Sequence
 import numpy as np
 import scipy.sparse as sp
 
-from precompute.fem import (
+from hailstorm.precompute.fem import (
     DEFAULT_POISSON,
     DEFAULT_YOUNG,
     clamp_dofs,
@@ -61,10 +61,10 @@ from precompute.fem import (
     stiffness_matrix,
     vertex_dofs,
 )
-from precompute.geometry import TetMesh, boundary_triangles, mesh_default_seat
-from precompute.greens import compliance_matrix, factorize
-from precompute.pipeline import build_bundle, default_cache_dir
-from runtime.atomic import replacing, write_text_atomic
+from hailstorm.precompute.geometry import TetMesh, boundary_triangles, mesh_default_seat
+from hailstorm.precompute.greens import compliance_matrix, factorize
+from hailstorm.precompute.pipeline import build_bundle, default_cache_dir
+from hailstorm.runtime.atomic import replacing, write_text_atomic
 
 #: Bump when the meaning of cached study results changes.
 STUDY_VERSION = 1
@@ -469,8 +469,8 @@ def hat_traction_compliance(
     time of the whole computation (surface, assembly, factorization, solves),
     without meshing.
     """
-    from precompute.greens import hat_load_matrix
-    from precompute.pipeline import extract_surface
+    from hailstorm.precompute.greens import hat_load_matrix
+    from hailstorm.precompute.pipeline import extract_surface
 
     t0 = time.perf_counter()
     surface = extract_surface(mesh, contact_group)
@@ -490,7 +490,7 @@ def bundle_qoi(gf: Any, scenario: Scenario, D: Any = None) -> QoI:
     Parameters
     ----------
     gf
-        A loaded bundle (:func:`runtime.load`).
+        A loaded bundle (:func:`hailstorm.runtime.load`).
     scenario
         Loads and probes.
     D
@@ -609,7 +609,7 @@ class StudyPoint:
     error : float
         Relative QoI error against the reference.
     step_s : float or None
-        Runtime cost per step [s]: :func:`runtime.solve_contacts` with one
+        Runtime cost per step [s]: :func:`hailstorm.runtime.solve_contacts` with one
         contact per load case, or one factor + solve for the anchor.
     params : dict
         The knob values (mesh_size, order, solver, tol, rank...).
@@ -674,16 +674,16 @@ def build_config(
     path = build_bundle(Path(workdir) / name, mesh=mesh, mesh_size=mesh_size, order=order, solver=solver, tol=tol,
                         contact_group=contact_group, reuse=False)
     t2 = time.perf_counter()
-    from runtime import load
+    from hailstorm.runtime import load
 
     gf = load(path, verify=False, mmap=False)
     return Built(gf, path, t2 - t0, t1 - t0, int(gf.manifest["mesh"]["n_dofs"]), gf.D.nbytes / 1e6)
 
 
 def step_time(gf: Any, scenario: Scenario, *, repeats: int = 7, depth: float = 1e-3) -> float:
-    """Median wall time of one :func:`runtime.solve_contacts` call with one
+    """Median wall time of one :func:`hailstorm.runtime.solve_contacts` call with one
     sticky contact at each load centre, pressed ``depth`` into the surface."""
-    from runtime import solve_contacts
+    from hailstorm.runtime import solve_contacts
 
     centers = np.array([ld.center for ld in scenario.loads])
     loc = locate_probes(gf.vertices, gf.triangles, centers, scenario.min_nz)
@@ -1108,7 +1108,7 @@ def _json_default(o: Any) -> Any:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m precompute.study [--small] [--recompute] [--out PNG] [--cache DIR]``."""
+    """``python -m hailstorm.precompute.study [--small] [--recompute] [--out PNG] [--cache DIR]``."""
     import argparse
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])

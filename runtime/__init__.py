@@ -3,7 +3,7 @@
 Imports numpy and scipy only (no gmsh, no scikit-fem): a bundle written by
 ``hailstorm precompute`` is all it needs. With numba installed (the ``fast``
 extra) the storm runs its per-step geometry and contact kernels compiled
-(:mod:`runtime.compiled`); without it, the same in numpy.
+(:mod:`hailstorm.runtime.compiled`); without it, the same in numpy.
 
 * :func:`load` -> :class:`GreensFunctions` (D, surface, ``compliance(rows, cols)``);
 * :func:`barycentric_matrix` (B), :func:`patch_weights`, :func:`hertz_radius`;
@@ -13,8 +13,8 @@ extra) the storm runs its per-step geometry and contact kernels compiled
 * :class:`Scene`, :func:`run_storm` -> :class:`StormResult` (the hail storm).
 """
 
-from runtime.bundle import BundleError, GreensFunctions, load
-from runtime.contact import (
+from hailstorm.runtime.bundle import BundleError, GreensFunctions, load
+from hailstorm.runtime.contact import (
     Capacitance,
     ContactSolution,
     barycentric_matrix,
@@ -23,9 +23,9 @@ from runtime.contact import (
     patch_weights,
     solve_contacts,
 )
-from runtime.hertz import SphereContacts, hertz_force, press_spheres
-from runtime.scene import Scene, SceneError
-from runtime.storm import StormResult, run_storm
+from hailstorm.runtime.hertz import SphereContacts, hertz_force, press_spheres
+from hailstorm.runtime.scene import Scene, SceneError
+from hailstorm.runtime.storm import StormResult, run_storm
 
 __all__ = [
     "BundleError",

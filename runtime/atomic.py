@@ -2,13 +2,13 @@
 
 Use::
 
-    from runtime.atomic import replacing, write_text_atomic
+    from hailstorm.runtime.atomic import replacing, write_text_atomic
     write_text_atomic("summary.json", text)
     with replacing("reference.npz") as tmp:   # any writer that takes a path
         np.savez(tmp, u=u)
 
 (Bundles, which are directories, have their own atomic writer in
-:mod:`runtime.bundle`.)
+:mod:`hailstorm.runtime.bundle`.)
 """
 
 from __future__ import annotations

@@ -50,7 +50,7 @@ from typing import Any, Iterator, Mapping
 
 import numpy as np
 
-from runtime.gather import _apply_columns, _column_dofs, _dof3, _gather
+from hailstorm.runtime.gather import _apply_columns, _column_dofs, _dof3, _gather
 
 FORMAT_NAME = "hailstorm-greens-bundle"
 FORMAT_VERSION = 2

@@ -40,8 +40,8 @@ def _float(text: str) -> float:
 
 
 def _parser() -> argparse.ArgumentParser:
-    from precompute.fem import DEFAULT_POISSON, DEFAULT_YOUNG  # noqa: PLC0415 (cheap module)
-    from precompute.pipeline import DEFAULT_MESH_SIZE
+    from hailstorm.precompute.fem import DEFAULT_POISSON, DEFAULT_YOUNG  # noqa: PLC0415 (cheap module)
+    from hailstorm.precompute.pipeline import DEFAULT_MESH_SIZE
 
     p = argparse.ArgumentParser(
         prog="hailstorm",
@@ -81,7 +81,7 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _storm_args(p: argparse.ArgumentParser) -> None:
-    from runtime.scene import Scene  # noqa: PLC0415 (the packaged default scene, for the help texts)
+    from hailstorm.runtime.scene import Scene  # noqa: PLC0415 (the packaged default scene, for the help texts)
 
     d = Scene.default()
     p.add_argument("--duration", type=_positive_float, default=None,
@@ -104,8 +104,8 @@ def _storm_args(p: argparse.ArgumentParser) -> None:
 
 
 def _run_precompute(args: argparse.Namespace) -> int:
-    from precompute.pipeline import build_bundle
-    from runtime.bundle import BundleError
+    from hailstorm.precompute.pipeline import build_bundle
+    from hailstorm.runtime.bundle import BundleError
 
     t0 = time.perf_counter()
     try:
@@ -133,7 +133,7 @@ def _run_info(args: argparse.Namespace) -> int:
 
 
 def _print_bundle(path: Path) -> None:
-    from runtime.bundle import ARRAY_SPECS, load
+    from hailstorm.runtime.bundle import ARRAY_SPECS, load
 
     gf = load(path)  # verifies: manifest hash and structure, array sizes and hashes, finite D, consistency
     m = gf.manifest
@@ -154,10 +154,10 @@ def _print_bundle(path: Path) -> None:
 
 
 def _run_storm(args: argparse.Namespace) -> int:
-    from runtime.bundle import load
-    from runtime.output import StormOutput, check_storm_out
-    from runtime.scene import Scene
-    from runtime.storm import run_storm
+    from hailstorm.runtime.bundle import load
+    from hailstorm.runtime.output import StormOutput, check_storm_out
+    from hailstorm.runtime.scene import Scene
+    from hailstorm.runtime.storm import run_storm
 
     scene = Scene.from_toml(args.scene) if args.scene is not None else Scene.default()
     data = scene.to_dict()
@@ -177,7 +177,7 @@ def _run_storm(args: argparse.Namespace) -> int:
     if args.gf is not None:
         gf_path = args.gf
     else:
-        from precompute.pipeline import build_bundle
+        from hailstorm.precompute.pipeline import build_bundle
 
         if not args.quiet:
             print(f"default seat: building or reusing the cached bundle (mesh size {scene.mesh_size} m)...")
@@ -236,8 +236,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv[:1] + leading + argv[1:])
     logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO, format="%(message)s")
     logging.getLogger("skfem").setLevel(logging.WARNING)
-    from precompute.geometry import MeshError
-    from runtime.bundle import BundleError
+    from hailstorm.precompute.geometry import MeshError
+    from hailstorm.runtime.bundle import BundleError
 
     try:
         if args.command == "precompute":

@@ -19,8 +19,8 @@ from typing import Callable
 import numpy as np
 from scipy.spatial import cKDTree
 
-from runtime.compiled import SampleGrid
-from runtime.gather import _unique_inverse
+from hailstorm.runtime.compiled import SampleGrid
+from hailstorm.runtime.gather import _unique_inverse
 
 __all__ = ["Closest", "SurfaceIndex", "closest_point_on_triangles"]
 
@@ -153,7 +153,7 @@ class SurfaceIndex:
         self.sample_radius = float(srad.max()) if len(p) else 0.0
         spts = np.concatenate(samples) if samples else np.zeros((0, 3))
         self.tree = cKDTree(spts)
-        #: the same samples in a uniform grid, for the compiled kernels (:mod:`runtime.compiled`)
+        #: the same samples in a uniform grid, for the compiled kernels (:mod:`hailstorm.runtime.compiled`)
         self.grid = SampleGrid.build(spts, self._sample_tri, max(2.0 * self.sample_radius, 1e-6))
         fn = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
         ln = np.linalg.norm(fn, axis=1, keepdims=True)

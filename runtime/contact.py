@@ -1,18 +1,18 @@
 """Point and patch contacts on the seat through the precomputed compliance (capacitance method).
 
 Module layout (one seam per module; every name that was importable from
-``runtime.contact`` still is):
+``hailstorm.runtime.contact`` still is):
 
-* :mod:`runtime.contact` (this module) -- the solver :func:`solve_contacts`
+* :mod:`hailstorm.runtime.contact` (this module) -- the solver :func:`solve_contacts`
   (unilateral active set, surface displacement) and :class:`ContactSolution`;
-* :mod:`runtime.contact_capacitance` -- the capacitance object
+* :mod:`hailstorm.runtime.contact_capacitance` -- the capacitance object
   :class:`Capacitance` / :func:`capacitance` (``W``, its factorisation,
   low-rank :meth:`~Capacitance.add` / :meth:`~Capacitance.remove`), input
   validation and the tuning constants (:data:`COND_LIMIT`, ...: set them
   there, not here);
-* :mod:`runtime.weights` -- the force-distribution weights ``B`` of point
+* :mod:`hailstorm.runtime.weights` -- the force-distribution weights ``B`` of point
   and patch contacts, :func:`hertz_radius`;
-* :mod:`runtime.gather` -- fast access to blocks of ``D``.
+* :mod:`hailstorm.runtime.gather` -- fast access to blocks of ``D``.
 
 Notation (see ``DESIGN.md`` and the course hint). Contact ``k`` sits on surface
 triangle ``t_k`` with barycentric coordinates ``beta_k``. ``V`` is the sorted
@@ -30,7 +30,7 @@ union of the contacted triangles' vertices and
 
 Patch contacts (``patch_radius=a``) replace ``beta_k`` by the weights of a
 pressure disc of radius ``a`` (the consistent nodal load of a Hertz profile,
-:func:`runtime.weights.patch_weights`): ``B`` keeps its shape ``3|V| x 3s``
+:func:`hailstorm.runtime.weights.patch_weights`): ``B`` keeps its shape ``3|V| x 3s``
 with block ``(i, k) = w_{k,i} I3`` over the patch vertices, and everything
 below (``W``, ``K``, rigid contacts, the low-rank updates, the active set)
 is unchanged. A point load is singular (its stiffness vanishes as the mesh is
@@ -78,10 +78,10 @@ from typing import Any
 
 import numpy as np
 
-from runtime import contact_capacitance as _cap
-from runtime.compiled import blocks as _kernels
-from runtime.compiled import resolve_backend
-from runtime.contact_capacitance import (
+from hailstorm.runtime import contact_capacitance as _cap
+from hailstorm.runtime.compiled import blocks as _kernels
+from hailstorm.runtime.compiled import resolve_backend
+from hailstorm.runtime.contact_capacitance import (
     COND_LIMIT,
     PINV_RCOND,
     Capacitance,
@@ -93,8 +93,8 @@ from runtime.contact_capacitance import (
     _Factor,
     capacitance,
 )
-from runtime.gather import _apply_columns, _compiled
-from runtime.weights import (
+from hailstorm.runtime.gather import _apply_columns, _compiled
+from hailstorm.runtime.weights import (
     PATCH_PROFILES,
     _interpolate,
     _vertex_forces,
@@ -177,10 +177,10 @@ def _solve_subset(cap: Capacitance, c: np.ndarray, act: np.ndarray) -> np.ndarra
 def _point_contacts_compiled(gf: Any, triangles: Any, barycentric: Any, displacements: Any, mode: Mode,
                              want_u: bool) -> ContactSolution | None:
     """:func:`solve_contacts` for bilateral point contacts in one compiled call
-    (:func:`runtime.compiled.blocks.point_contacts`), or None where the general
+    (:func:`hailstorm.runtime.compiled.blocks.point_contacts`), or None where the general
     path must decide: malformed input (it raises the error), rigid contacts,
     coincident contacts (pseudo-inverse), no contacts, more than
-    :data:`runtime.contact_capacitance.POINT_FAST_MAX` contacts."""
+    :data:`hailstorm.runtime.contact_capacitance.POINT_FAST_MAX` contacts."""
     t = np.asarray(triangles)
     if t.ndim != 1 or not 0 < t.size <= _cap.POINT_FAST_MAX or t.dtype.kind not in "iu":
         return None
@@ -260,7 +260,7 @@ def solve_contacts(
         Build ``D_VV``, ``W`` and the full-surface displacement with the
         compiled kernels (``"auto"``: when numba is installed and D is
         column-major; see :func:`capacitance`). Up to
-        :data:`~runtime.contact_capacitance.POINT_FAST_MAX` bilateral point
+        :data:`~hailstorm.runtime.contact_capacitance.POINT_FAST_MAX` bilateral point
         contacts with ``normals=None`` and ``rows`` "all" or None are then
         solved in one compiled call (5-11x faster than numpy). Same results to
         rounding. The first call in a process loads the kernels (~0.3 s;

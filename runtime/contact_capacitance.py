@@ -1,7 +1,7 @@
 """The capacitance object of a contact set: W = G^T D_VV G, its factorisation and low-rank updates.
 
-Split out of :mod:`runtime.contact` (which re-exports the public names, so
-``from runtime.contact import Capacitance, capacitance`` keeps working). See
+Split out of :mod:`hailstorm.runtime.contact` (which re-exports the public names, so
+``from hailstorm.runtime.contact import Capacitance, capacitance`` keeps working). See
 that module's docstring for the notation, sign conventions and the
 documented degenerate cases. The tuning constants (:data:`COND_LIMIT`,
 :data:`PINV_RCOND`, :data:`EMBED_BLOCKS_FROM`, :data:`SPARSE_FROM`,
@@ -16,10 +16,10 @@ from typing import Any, Literal, Sequence, cast, overload
 import numpy as np
 import scipy.linalg as sla
 
-from runtime.compiled import blocks as _kernels
-from runtime.compiled import resolve_backend
-from runtime.gather import _apply_columns, _column_dofs, _compiled, _dof3, _gather, _gather_vertices
-from runtime.weights import (
+from hailstorm.runtime.compiled import blocks as _kernels
+from hailstorm.runtime.compiled import resolve_backend
+from hailstorm.runtime.gather import _apply_columns, _column_dofs, _compiled, _dof3, _gather, _gather_vertices
+from hailstorm.runtime.weights import (
     _dense_B,
     _gT,
     _gT_csr,
@@ -58,7 +58,7 @@ EMBED_BLOCKS_FROM: int = 300
 #: From this many contacts on, W is formed with a sparse G (less work, more overhead).
 SPARSE_FROM: int = 16
 #: Up to this many bilateral point contacts, ``solve_contacts`` with numba takes the
-#: one-call compiled solve (:func:`runtime.compiled.blocks.point_contacts`); above
+#: one-call compiled solve (:func:`hailstorm.runtime.compiled.blocks.point_contacts`); above
 #: it the block kernels, which win from s = 64-80 on (measured on the default seat).
 POINT_FAST_MAX: int = 64
 
@@ -168,7 +168,7 @@ def _response_columns(gf: Any, cols: np.ndarray, loc: np.ndarray, weights: np.nd
 
     ``cols``: column dofs of U (``-1`` at clamped vertices); ``loc`` (k, P):
     positions in U of each contact's vertices, ``weights`` (k, P) theirs.
-    ``compiled``: through :func:`runtime.compiled.blocks.weighted_rows`.
+    ``compiled``: through :func:`hailstorm.runtime.compiled.blocks.weighted_rows`.
     """
     D = gf.D
     if compiled:
@@ -329,7 +329,7 @@ class Capacitance:
     weights : (s, P) float ndarray
         Force-distribution weights (block ``(loc[k, j], k)`` of B is
         ``weights[k, j] I3``): ``bary`` for point contacts, the patch
-        weights of :func:`runtime.weights.patch_weights` otherwise.
+        weights of :func:`hailstorm.runtime.weights.patch_weights` otherwise.
     patch_radius : (s,) float ndarray
         Patch radius of each contact [m]; 0 for point contacts.
     D_VV : (3|V|, 3|V|) float ndarray
@@ -381,7 +381,7 @@ class Capacitance:
     #: radius :meth:`add` uses when not given (a scalar ``patch_radius`` at build; else 0)
     default_patch_radius: float = 0.0
     #: ``"numba"``: the build and the full-surface products use the compiled kernels
-    #: (:mod:`runtime.compiled.blocks`); ``"numpy"``: numpy only
+    #: (:mod:`hailstorm.runtime.compiled.blocks`); ``"numpy"``: numpy only
     backend: str = "numpy"
 
     # -- sizes and derived matrices ------------------------------------------
@@ -755,7 +755,7 @@ def capacitance(
     Parameters
     ----------
     gf : GreensFunctions
-        Loaded bundle (see :func:`runtime.bundle.load`).
+        Loaded bundle (see :func:`hailstorm.runtime.bundle.load`).
     tri_idx : (s,) int array_like
         Contacted surface triangles.
     bary : (s, 3) float array_like
@@ -771,14 +771,14 @@ def capacitance(
         triangle's vertices with the barycentric weights). A radius ``a > 0``
         [m] spreads each contact's force over the disc of radius ``a`` around
         the contact point with the pressure ``patch_profile`` (see
-        :mod:`runtime.weights`; :func:`hertz_radius` gives the physical
+        :mod:`hailstorm.runtime.weights`; :func:`hertz_radius` gives the physical
         radius for a load). A scalar is also the radius :meth:`Capacitance.add`
         uses by default.
     patch_profile : {"hertz", "uniform"}
         Pressure profile over a patch.
     backend : {"auto", "numba", "numpy"}
         ``"auto"`` (default) builds ``D_VV`` and ``W`` with the compiled kernels
-        of :mod:`runtime.compiled.blocks` when numba is installed and D is
+        of :mod:`hailstorm.runtime.compiled.blocks` when numba is installed and D is
         column-major (as bundles are written), and so do the full-surface
         products of :meth:`Capacitance.surface_displacement` and
         :meth:`Capacitance.keep_response`. Same results to rounding.
@@ -804,7 +804,7 @@ def capacitance(
 
 def _check_patch(patch_radius: Any, s: int, profile: str) -> np.ndarray | None:
     """Patch radii as an (s,) array, or None for point contacts only."""
-    from runtime.weights import PATCH_PROFILES
+    from hailstorm.runtime.weights import PATCH_PROFILES
 
     if profile not in PATCH_PROFILES:
         raise ValueError(f"patch_profile must be one of {PATCH_PROFILES}, got {profile!r}")

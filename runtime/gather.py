@@ -1,6 +1,6 @@
 """Access to the compliance D of a bundle: column dofs, block gathers, column products.
 
-Split out of :mod:`runtime.contact` (which re-exports nothing private from
+Split out of :mod:`hailstorm.runtime.contact` (which re-exports nothing private from
 here; import these helpers from this module). Everything here is about
 reading blocks of the (possibly memory-mapped, C- or Fortran-ordered)
 compliance ``D`` fast; nothing knows about contacts.
@@ -11,7 +11,7 @@ compliance ``D`` fast; nothing knows about contacts.
 * ``_apply_columns(gf, cols, g, rows)`` -- ``D[rows, cols] @ g``;
 * :func:`columns_times` -- blocked ``D[:, cols] @ x`` for a column-major D;
 * ``_compiled(gf, backend)`` -- whether the numba kernels of
-  :mod:`runtime.compiled.blocks` serve this D.
+  :mod:`hailstorm.runtime.compiled.blocks` serve this D.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from runtime.compiled import blocks as _kernels
+from hailstorm.runtime.compiled import blocks as _kernels
 
 __all__ = ["COLUMN_BLOCK", "GATHER_FRACTION", "columns_times"]
 
@@ -168,7 +168,7 @@ def _apply_columns(gf: Any, cols: np.ndarray, g: np.ndarray, rows: np.ndarray | 
                    compiled: bool = False) -> np.ndarray:
     """``D[rows, cols] @ g`` as (r, 3) (all rows if ``rows`` is None), skipping clamped columns.
 
-    ``compiled``: all rows through :func:`runtime.compiled.blocks.columns_times`
+    ``compiled``: all rows through :func:`hailstorm.runtime.compiled.blocks.columns_times`
     (see :func:`_compiled`)."""
     if compiled and rows is None:
         return _kernels.columns_times(np.asarray(gf.D).T, cols, g).reshape(-1, 3)

@@ -1,8 +1,8 @@
 """Hailstones: size distribution, spawning, free flight and contact integrators.
 
 Stones are rigid ice spheres. Everything here is vectorised numpy over stones
-or contacts; nothing knows about the seat's mesh (see :mod:`runtime.collide`
-and :mod:`runtime.storm`).
+or contacts; nothing knows about the seat's mesh (see :mod:`hailstorm.runtime.collide`
+and :mod:`hailstorm.runtime.storm`).
 
 Contact dynamics in *constrained coordinates*
 ---------------------------------------------
@@ -325,9 +325,9 @@ class ContactStep:
 
 def _inv_spd(W: np.ndarray) -> np.ndarray:
     """Inverse of a small symmetric positive (semi-)definite matrix: the contact API's
-    policy (:func:`runtime.contact_capacitance.spd_inverse`; the pseudo-inverse when
+    policy (:func:`hailstorm.runtime.contact_capacitance.spd_inverse`; the pseudo-inverse when
     ``W`` is ill conditioned, e.g. coincident contacts)."""
-    from runtime.contact_capacitance import spd_inverse  # (import cycle: it imports runtime.compiled)
+    from hailstorm.runtime.contact_capacitance import spd_inverse  # (import cycle: it imports hailstorm.runtime.compiled)
 
     return spd_inverse(W)
 
@@ -362,7 +362,7 @@ def contact_modes(K: np.ndarray, mass: np.ndarray) -> tuple[np.ndarray, np.ndarr
 
 def _modal_damping(om2, Phi, sqm, restitution, dt, implicit, x_grid, z_grid):
     """The dashpot matrix ``M^1/2 Phi diag(2 zeta_j omega_j) Phi^T M^1/2`` (plain numpy that
-    :mod:`runtime.compiled` also compiles): every mode ``j`` gets the damping ratio of
+    :mod:`hailstorm.runtime.compiled` also compiles): every mode ``j`` gets the damping ratio of
     the target restitution (implicit: less backward Euler's numerical ``omega_j dt / 2``),
     zero modes none."""
     n = om2.size
@@ -617,7 +617,7 @@ class _Modal:
 
 def _scalar_exact(q: float, v: float, a: float, m: float, g: float, dt: float, k: float, c: float,
                   unilateral: bool, always: bool) -> tuple[float, float, bool, bool, float, float]:
-    """One frictionless contact, closed form (plain floats; :mod:`runtime.compiled`
+    """One frictionless contact, closed form (plain floats; :mod:`hailstorm.runtime.compiled`
     compiles this same function for its exact step). Returns ``(q, v, active, ok, umin, umax)``;
     ``ok`` is False when the case is not covered (overdamped, or release from an
     always-damped state): the general path then takes the step. ``umin``, ``umax``
@@ -712,7 +712,7 @@ def _equilibrium(K, f):
     """``K x = f`` for the static equilibrium; for a singular ``K`` (coincident contacts:
     the pseudo-inverse capacitance has zero modes) the least-squares, min-norm ``x``
     (the part of ``f`` on the zero modes, which moves coincident stones relative to
-    each other, is not carried). Plain numpy that :mod:`runtime.compiled` also compiles."""
+    each other, is not carried). Plain numpy that :mod:`hailstorm.runtime.compiled` also compiles."""
     ok = True
     try:
         x = np.linalg.solve(K, f)

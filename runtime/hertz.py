@@ -7,7 +7,7 @@ under it follows the sphere, ``u(r) = delta - r^2 / (2 R)`` (Johnson,
 produces exactly that profile, with ``F = (4/3) E* sqrt(R) delta^(3/2)``,
 ``E* = E / (1 - nu^2)``.
 
-A patch contact (:func:`runtime.solve_contacts` with ``patch_radius``)
+A patch contact (:func:`hailstorm.runtime.solve_contacts` with ``patch_radius``)
 prescribes the pressure-weighted *mean* displacement of its disc, ``B^T u_V``.
 Under a sphere that mean is not ``delta``: with Hertz weights
 
@@ -16,12 +16,12 @@ Under a sphere that mean is not ``delta``: with Hertz weights
 (``<r^2> = 2 a^2 / 5``), which is ``0.8 delta`` when ``a^2 = R delta``.
 Prescribing ``delta`` itself makes the contact ~1.3x too stiff. And the
 radius must be the one the force produces, ``a = (3 F R / (4 E*))^(1/3)``
-(:func:`runtime.weights.hertz_radius`), not a guess: :func:`press_spheres`
+(:func:`hailstorm.runtime.weights.hertz_radius`), not a guess: :func:`press_spheres`
 solves for the pair (force, radius) by fixed-point iteration. The map
 ``a -> a(F(a))`` contracts with slope about 1/6 at the solution, so a few
 iterations reach ``tol``.
 
-:func:`runtime.weights.sphere_mean_offset` is that correction as far as the
+:func:`hailstorm.runtime.weights.sphere_mean_offset` is that correction as far as the
 surface mesh resolves the patch (a patch inside one triangle sees a plane:
 no offset); the storm's patch contacts use the same function.
 """
@@ -33,8 +33,8 @@ from typing import Any
 
 import numpy as np
 
-from runtime.contact import ContactSolution, solve_contacts
-from runtime.weights import contact_points, hertz_radius, patch_weights, sphere_mean_offset, triangle_normals
+from hailstorm.runtime.contact import ContactSolution, solve_contacts
+from hailstorm.runtime.weights import contact_points, hertz_radius, patch_weights, sphere_mean_offset, triangle_normals
 
 __all__ = ["SphereContacts", "hertz_force", "press_spheres"]
 
@@ -99,13 +99,13 @@ def press_spheres(
     normals : (s, 3) float array_like, optional
         Outward normals (default: the triangles').
     rows : "all", None or (r,) int array_like
-        Where to evaluate the surface displacement (see :func:`runtime.solve_contacts`).
+        Where to evaluate the surface displacement (see :func:`hailstorm.runtime.solve_contacts`).
     tol : float
         Relative change of the radii at which the iteration stops.
     max_iter : int
         Bound on the iterations.
     backend : {"auto", "numba", "numpy"}
-        Passed to :func:`runtime.solve_contacts`.
+        Passed to :func:`hailstorm.runtime.solve_contacts`.
 
     Returns
     -------
@@ -115,7 +115,7 @@ def press_spheres(
     ------
     ValueError
         Negative depths, non-positive radii, shape mismatch (and everything
-        :func:`runtime.solve_contacts` refuses).
+        :func:`hailstorm.runtime.solve_contacts` refuses).
     RuntimeError
         If the radii do not converge within ``max_iter`` iterations.
     """

@@ -1,11 +1,11 @@
 """The numpy narrow phase of a storm sub-step: closest points, time of impact, contacts
 that open, hard walls.
 
-Functions of a :class:`runtime.storm.Storm`'s state (``st``), called by
-``Storm._substep`` on the numpy backend; :func:`runtime.compiled.free_phase` is
+Functions of a :class:`hailstorm.runtime.storm.Storm`'s state (``st``), called by
+``Storm._substep`` on the numpy backend; :func:`hailstorm.runtime.compiled.free_phase` is
 their compiled counterpart (it queries every free near stone: the query reuse
 and the gap prediction here only save numpy calls). See the module notes of
-:mod:`runtime.storm` for the rules.
+:mod:`hailstorm.runtime.storm` for the rules.
 """
 
 from __future__ import annotations
@@ -15,10 +15,10 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from runtime.hail import GRAVITY
+from hailstorm.runtime.hail import GRAVITY
 
 if TYPE_CHECKING:  # pragma: no cover
-    from runtime.storm import Storm
+    from hailstorm.runtime.storm import Storm
 
 __all__ = ["Proximity", "contacts_to_open", "hard_walls", "open_contacts", "predict_gaps", "proximity",
            "reproject", "time_of_impact"]

@@ -10,9 +10,9 @@ of files the project wrote), and refuses any other non-empty directory.
 
 Use::
 
-    from runtime.output import StormOutput
+    from hailstorm.runtime.output import StormOutput
     with StormOutput("run1", gf) as out:           # checks "run1" can be written, first
-        result = runtime.run_storm(gf, scene, on_frame=out.add)
+        result = hailstorm.runtime.run_storm(gf, scene, on_frame=out.add)
         out.finish(result)                         # pvd, summary.json, storm.mp4: then in place
 
 matplotlib, imageio and meshio are imported inside the writers, so importing
@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from runtime.atomic import write_text_atomic
+from hailstorm.runtime.atomic import write_text_atomic
 
 __all__ = [
     "STORM_MANIFEST",
@@ -131,7 +131,7 @@ def summary(result: Any, gf: Any = None) -> dict[str, Any]:
 
 
 def write_summary(result: Any, path: str | os.PathLike, gf: Any = None) -> Path:
-    """Write ``summary.json`` for a :class:`runtime.storm.StormResult`; returns the path.
+    """Write ``summary.json`` for a :class:`hailstorm.runtime.storm.StormResult`; returns the path.
     ``gf``: see :func:`summary`."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -193,7 +193,7 @@ class ParaviewSeries:
         return len(self.entries)
 
     def add(self, frame: Any) -> None:
-        """Write one :class:`runtime.storm.Frame` (both files)."""
+        """Write one :class:`hailstorm.runtime.storm.Frame` (both files)."""
         import meshio
 
         i = len(self.entries)
@@ -237,7 +237,7 @@ class ParaviewSeries:
 
 class FrameSeries(Sequence):
     """The frames of a :class:`ParaviewSeries`, read back from its files on access
-    (a sequence of :class:`runtime.storm.Frame`; nothing is cached)."""
+    (a sequence of :class:`hailstorm.runtime.storm.Frame`; nothing is cached)."""
 
     def __init__(self, series: ParaviewSeries) -> None:
         self._series = series
@@ -252,7 +252,7 @@ class FrameSeries(Sequence):
     def __getitem__(self, i: int) -> Any:  # type: ignore[override]
         import meshio
 
-        from runtime.storm import Frame
+        from hailstorm.runtime.storm import Frame
 
         t, sname, stname, contacts, _ = self._series.entries[i]
         s = meshio.read(self._series.outdir / sname)
@@ -549,7 +549,7 @@ class StormOutput:
     video : bool
         Render ``storm.mp4`` (GIF fallback) from the written frames.
     disk_bytes : int, optional
-        Expected size of the outputs (:meth:`runtime.scene.Scene.estimate`):
+        Expected size of the outputs (:meth:`hailstorm.runtime.scene.Scene.estimate`):
         refused up front if the file system has less free space.
     progress : bool
         A tqdm bar while rendering.

@@ -1,10 +1,10 @@
 """Patch contacts in the storm: the radius of each contact's pressure disc, the per-stone
 cache of its weights, and the normal stiffness of a patch or of a triangle.
 
-Functions of a :class:`runtime.storm.Storm`'s state (``st``); the rules are in
-the module notes of :mod:`runtime.storm` ("Patch contacts"). The weights
-themselves are :func:`runtime.weights.patch_weights`; on the numba backend
-:func:`radii` runs as one kernel (:func:`runtime.compiled.patch_radii`).
+Functions of a :class:`hailstorm.runtime.storm.Storm`'s state (``st``); the rules are in
+the module notes of :mod:`hailstorm.runtime.storm` ("Patch contacts"). The weights
+themselves are :func:`hailstorm.runtime.weights.patch_weights`; on the numba backend
+:func:`radii` runs as one kernel (:func:`hailstorm.runtime.compiled.patch_radii`).
 """
 
 from __future__ import annotations
@@ -13,12 +13,12 @@ from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
-from runtime.compiled import patch_compliance, patch_one, patch_radii
-from runtime.hail import GRAVITY
-from runtime.weights import PATCH_DROP, PATCH_FACING
+from hailstorm.runtime.compiled import patch_compliance, patch_one, patch_radii
+from hailstorm.runtime.hail import GRAVITY
+from hailstorm.runtime.weights import PATCH_DROP, PATCH_FACING
 
 if TYPE_CHECKING:  # pragma: no cover
-    from runtime.storm import Storm
+    from hailstorm.runtime.storm import Storm
 
 __all__ = ["all_triangle_stiffness", "cached_weights", "radii", "stiffness", "triangle_stiffness"]
 
@@ -42,7 +42,7 @@ def radii(st: Storm, stones: np.ndarray, tris: np.ndarray) -> np.ndarray:
     sc = st.scene
     if st._compiled:
         return radii_compiled(st, stones, tris)
-    from runtime.weights import hertz_radius
+    from hailstorm.runtime.weights import hertz_radius
 
     m, R = st.mass[stones], st.radius[stones]
     n = st.index.normals[tris]
@@ -106,7 +106,7 @@ def radii(st: Storm, stones: np.ndarray, tris: np.ndarray) -> np.ndarray:
 
 
 def radii_compiled(st: Storm, stones: np.ndarray, tris: np.ndarray) -> np.ndarray:
-    """:func:`radii` in one kernel (:func:`runtime.compiled.patch_radii`); the
+    """:func:`radii` in one kernel (:func:`hailstorm.runtime.compiled.patch_radii`); the
     new contacts' weights at their first radius go to the weights cache."""
     sc = st.scene
     cc = st.cache
@@ -137,7 +137,7 @@ def radii_compiled(st: Storm, stones: np.ndarray, tris: np.ndarray) -> np.ndarra
 def stiffness(st: Storm, stones: np.ndarray, tris: np.ndarray, radius: np.ndarray,
               normals: np.ndarray) -> np.ndarray:
     """Normal stiffness ``1 / (g^T D g)`` of each patch contact alone, (s,) [N/m]."""
-    from runtime.gather import _column_dofs, _dof3, _gather
+    from hailstorm.runtime.gather import _column_dofs, _dof3, _gather
 
     verts, w = cached_weights(st, stones, tris, st.cbary[stones], radius, normals)
     k = np.zeros(stones.size)
@@ -164,7 +164,7 @@ def cached_weights(st: Storm, stones: np.ndarray, tris: np.ndarray, bary: np.nda
     triangle and its radius while the force stays within the tolerance, so
     the weights are reused until one of them changes.
     """
-    from runtime.weights import patch_weights
+    from hailstorm.runtime.weights import patch_weights
 
     out: list[tuple[np.ndarray, np.ndarray] | None] = [None] * stones.size
     todo = []

@@ -3,12 +3,12 @@
 A scene file has the sections ``[storm]``, ``[hail]``, ``[contact]``,
 ``[time]``, ``[output]`` and ``[seat]``; every key is optional and takes the
 packaged default (``meshes/default_scene.toml``, installed as
-``precompute.meshes``) when absent. Unknown sections or keys and bad values
+``hailstorm.meshes``) when absent. Unknown sections or keys and bad values
 raise :class:`SceneError` naming the file, the key and the problem.
 
 Use::
 
-    from runtime.scene import Scene
+    from hailstorm.runtime.scene import Scene
     scene = Scene.from_toml("scene.toml")      # or Scene.default(), Scene(duration=0.2, ...)
     scene.to_toml("copy.toml")
 """
@@ -26,9 +26,9 @@ from typing import Any, Mapping
 
 import numpy as np
 
-from runtime.atomic import write_text_atomic
-from runtime.contact_capacitance import Mode
-from runtime.hail import GRAVITY, Integrator, SizeDistribution, terminal_velocity
+from hailstorm.runtime.atomic import write_text_atomic
+from hailstorm.runtime.contact_capacitance import Mode
+from hailstorm.runtime.hail import GRAVITY, Integrator, SizeDistribution, terminal_velocity
 
 __all__ = ["Scene", "SceneError", "StormEstimate", "StormTooLarge"]
 
@@ -178,7 +178,7 @@ class Scene:
         start with its horizontal part and are spawned upwind so they land
         on the seat).
     distribution, r_min, r_max, scale
-        Radius distribution (:class:`runtime.hail.SizeDistribution`) [m].
+        Radius distribution (:class:`hailstorm.runtime.hail.SizeDistribution`) [m].
     density : float
         Ice density [kg/m^3].
     drag : bool
@@ -191,12 +191,12 @@ class Scene:
         Release contacts that would pull.
     restitution : float
         Target coefficient of restitution of an impact (0..1), realised by a
-        contact damping (see :func:`runtime.hail.damping_coefficients`).
+        contact damping (see :func:`hailstorm.runtime.hail.damping_coefficients`).
     patch : {"hertz", "none"}
         Force distribution of a soft contact. ``"hertz"`` (default): a patch
         contact, the stone's force spread over a disc with the Hertz pressure
-        profile (:func:`runtime.weights.patch_weights`), of radius
-        :func:`runtime.weights.hertz_radius` of the contact's *peak* force
+        profile (:func:`hailstorm.runtime.weights.patch_weights`), of radius
+        :func:`hailstorm.runtime.weights.hertz_radius` of the contact's *peak* force
         (see the module notes); ``"none"``: a point contact (barycentric
         weights on the contacted triangle; the dent is a one-vertex spike).
     patch_min_radius : float
@@ -213,7 +213,7 @@ class Scene:
     dt : float
         Step [s] (frame/broad-phase step; near stones may be sub-stepped).
     integrator : {"implicit", "symplectic", "exact"}
-        Contact integrator (:func:`runtime.hail.contact_step`). ``"exact"``
+        Contact integrator (:func:`hailstorm.runtime.hail.contact_step`). ``"exact"``
         solves the damped linear contact dynamics in closed form over the step
         (no numerical damping, no stability limit, events located inside the
         step), so it needs no ``omega_dt`` sub-steps.
@@ -233,7 +233,7 @@ class Scene:
         Recorded frames per simulated second.
     backend : {"auto", "numba", "numpy"}
         Closest-point queries and the broad phase in compiled kernels
-        (:mod:`runtime.compiled`, needs numba: ``pip install "hailstorm[fast]"``)
+        (:mod:`hailstorm.runtime.compiled`, needs numba: ``pip install "hailstorm[fast]"``)
         or in numpy. ``"auto"`` (default): numba when it is installed. Both
         compute the same contacts (ties between triangles that share the
         closest point aside); ``"numba"`` is several times faster per query.
@@ -336,7 +336,7 @@ class Scene:
 
     # -- helpers ---------------------------------------------------------------
     def n_steps(self) -> int:
-        """Time steps of the storm (as :func:`runtime.storm.run_storm` takes them)."""
+        """Time steps of the storm (as :func:`hailstorm.runtime.storm.run_storm` takes them)."""
         return max(1, int(round(self.duration / self.dt)))
 
     def estimate(self, n_vertices: int | None = None, *, keep_frames: bool = False) -> StormEstimate:
@@ -507,8 +507,8 @@ class Scene:
 
     @classmethod
     def default(cls) -> "Scene":
-        """The packaged default scene (``precompute.meshes/default_scene.toml``)."""
-        text = resources.files("precompute.meshes").joinpath("default_scene.toml").read_text()
+        """The packaged default scene (``hailstorm.meshes/default_scene.toml``)."""
+        text = resources.files("hailstorm.meshes").joinpath("default_scene.toml").read_text()
         return cls.from_dict(tomllib.loads(text), source="default_scene.toml")
 
     def to_toml(self, path: str | Path | None = None) -> str:

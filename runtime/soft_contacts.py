@@ -1,11 +1,11 @@
 """The storm's soft contacts: the capacitance of the current contact set (rebuilt when
 the set changes) and one contact step of its stones.
 
-Functions of a :class:`runtime.storm.Storm`'s state (``st``), called by
+Functions of a :class:`hailstorm.runtime.storm.Storm`'s state (``st``), called by
 ``Storm._substep``. :func:`contact_set` forms W = Bᵀ D B, K = W⁻¹ and the
 force and displacement blocks of the set (:class:`ContactSet`); :func:`advance`
 moves the stones in contact by one sub-step through
-:func:`runtime.hail.contact_step` with unilateral release, in numpy or, on the
+:func:`hailstorm.runtime.hail.contact_step` with unilateral release, in numpy or, on the
 numba backend, with the per-contact work in kernels (:func:`advance_compiled`).
 """
 
@@ -16,9 +16,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from runtime import contact_capacitance as _policy
-from runtime import patches
-from runtime.compiled import (
+from hailstorm.runtime import contact_capacitance as _policy
+from hailstorm.runtime import patches
+from hailstorm.runtime.compiled import (
     capacitance_blocks,
     contact_post,
     contact_prep,
@@ -30,12 +30,12 @@ from runtime.compiled import (
     substep_contacts,
     substep_damping,
 )
-from runtime.contact_capacitance import spd_inverse
-from runtime.hail import _X_GRID, _Z_GRID, GRAVITY, ContactStep, contact_modes, contact_step
-from runtime.hail import _explicit_modes, _modal_damping, _modal_stiffness
+from hailstorm.runtime.contact_capacitance import spd_inverse
+from hailstorm.runtime.hail import _X_GRID, _Z_GRID, GRAVITY, ContactStep, contact_modes, contact_step
+from hailstorm.runtime.hail import _explicit_modes, _modal_damping, _modal_stiffness
 
 if TYPE_CHECKING:  # pragma: no cover
-    from runtime.storm import Storm
+    from hailstorm.runtime.storm import Storm
 
 __all__ = ["ContactSet", "advance", "advance_compiled", "contact_matrices", "contact_set", "exact_damping"]
 
@@ -68,9 +68,9 @@ class ContactSet:
 def contact_set(st: Storm, stones: np.ndarray, tris: np.ndarray, bary: np.ndarray, key: tuple,
                 radius: np.ndarray | None = None) -> ContactSet:
     """The capacitance of the soft contacts ``stones`` (point contacts, or patches of ``radius``)."""
-    from runtime.contact_capacitance import _contact_compliance, _rigid
-    from runtime.gather import _column_dofs, _dof3, _gather
-    from runtime.weights import _dense_B, _dense_Bs, _locate_lists
+    from hailstorm.runtime.contact_capacitance import _contact_compliance, _rigid
+    from hailstorm.runtime.gather import _column_dofs, _dof3, _gather
+    from hailstorm.runtime.weights import _dense_B, _dense_Bs, _locate_lists
 
     gf, mode = st.gf, st.scene.mode
     normals = st.index.normals[tris]
@@ -218,8 +218,8 @@ def advance(st: Storm, near: np.ndarray, soft: np.ndarray, was_open: np.ndarray,
 def advance_compiled(st: Storm, near: np.ndarray, soft: np.ndarray, was_open: np.ndarray, h: float,
                      cc: ContactSet) -> None:
     """:func:`advance` after the contact set is known, with the per-contact
-    work in compiled kernels (:func:`runtime.compiled.contact_prep`,
-    :func:`runtime.compiled.contact_post`) around the same :func:`contact_step`."""
+    work in compiled kernels (:func:`hailstorm.runtime.compiled.contact_prep`,
+    :func:`hailstorm.runtime.compiled.contact_post`) around the same :func:`contact_step`."""
     sc = st.scene
     exact = sc.integrator == "exact"
     sticky = sc.mode == "sticky"
@@ -275,7 +275,7 @@ def _modes(cc: ContactSet, mq: np.ndarray) -> tuple:
 
 
 def exact_damping(st: Storm, cc: ContactSet, mq: np.ndarray) -> np.ndarray:
-    """Exact-integrator dashpot of a contact set, per mode (:func:`runtime.hail.modal_damping`;
+    """Exact-integrator dashpot of a contact set, per mode (:func:`hailstorm.runtime.hail.modal_damping`;
     cached with the set)."""
     if cc.C is None or cc.C.shape != (mq.size, mq.size):
         om2, Phi, sqm = _modes(cc, mq)
@@ -287,9 +287,9 @@ def exact_damping(st: Storm, cc: ContactSet, mq: np.ndarray) -> np.ndarray:
 def contact_matrices(st: Storm, cc: ContactSet, mq: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(K, W, C)`` of a sub-step ``h`` of the implicit or symplectic integrator.
 
-    ``C`` is the dashpot per mode (:func:`runtime.hail.modal_damping`: backward
+    ``C`` is the dashpot per mode (:func:`hailstorm.runtime.hail.modal_damping`: backward
     Euler's numerical damping compensated). For the symplectic (explicit) step, ``K``
-    and ``W`` carry the modes it can resolve (:func:`runtime.hail._explicit_modes`:
+    and ``W`` carry the modes it can resolve (:func:`hailstorm.runtime.hail._explicit_modes`:
     unchanged at ``omega h`` <~ 0.3, at most ``1 / h^2``); the implicit step takes the
     set's own.
     """

@@ -2,8 +2,8 @@
 
 Use::
 
-    from runtime.bundle import load
-    from runtime.storm import Scene, run_storm
+    from hailstorm.runtime.bundle import load
+    from hailstorm.runtime.storm import Scene, run_storm
     gf = load("bundle/")
     scene = Scene.from_toml("scene.toml")      # or Scene.default(), Scene(duration=0.2, ...)
     result = run_storm(gf, scene, progress=True)
@@ -34,9 +34,9 @@ Algorithm of one step (``dt`` = :attr:`Scene.dt`)
       the same triangle;
    c. contacts on triangles that cannot deform (all clamped, or without
       compliance columns) are a hard wall (projection + restitution);
-   d. the other contacts share one capacitance (``runtime.contact``), rebuilt
+   d. the other contacts share one capacitance (``hailstorm.runtime.contact``), rebuilt
       only when the set of (stone, triangle[, patch radius]) changes; the stones are
-      advanced by :func:`runtime.hail.contact_step` with unilateral release.
+      advanced by :func:`hailstorm.runtime.hail.contact_step` with unilateral release.
       ``integrator = "exact"`` solves the damped linear contact dynamics in
       closed form over the whole sub-step (maximum compression and release
       located inside it), so one sub-step per step suffices whatever
@@ -50,7 +50,7 @@ Patch contacts (``patch = "hertz"``, the default)
 -------------------------------------------------
 Each soft contact spreads its force over a disc of radius ``a`` around the
 contact point, with the Hertz pressure profile (consistent P1 nodal loads,
-:func:`runtime.weights.patch_weights`); the contact prescribes the
+:func:`hailstorm.runtime.weights.patch_weights`); the contact prescribes the
 pressure-weighted mean normal displacement of the surface under the disc
 (measured from the tangent plane at the contact point), which the stone's
 lowest point follows. ``patch = "none"`` gives the point contacts of the
@@ -72,7 +72,7 @@ course hint (barycentric weights on one triangle).
   that the damping was tuned for (the restitution), while the damping itself
   halves the amplitude within one impact.
 * Caching: a contact keeps ``(triangle, beta)`` while its stone stays over
-  the triangle, so its weights are cached per stone (:func:`runtime.patches.cached_weights`) and
+  the triangle, so its weights are cached per stone (:func:`hailstorm.runtime.patches.cached_weights`) and
   only recomputed when the contact moves to another triangle or is resized;
   a capacitance rebuild (set change) reuses the cached weights of every other
   contact.
@@ -105,7 +105,7 @@ Backends (``[compute] backend``)
 A step's arithmetic is small; in numpy its cost is the per-call overhead of a
 few hundred calls on arrays of a handful of stones. With numba installed
 (``backend = "auto"`` or ``"numba"``) the same phases run in compiled kernels
-(:mod:`runtime.compiled`): the broad phase and free flight, the queries on a
+(:mod:`hailstorm.runtime.compiled`): the broad phase and free flight, the queries on a
 uniform grid of the same samples (instead of the k-d tree), phases a–c of a
 sub-step in one kernel (every free near stone is queried: the numpy path's
 query reuse and gap prediction only save numpy calls), the patch sizing and
@@ -132,9 +132,9 @@ from typing import Any, Callable
 
 import numpy as np
 
-from runtime import narrow, patches, soft_contacts
-from runtime.collide import Closest, SurfaceIndex
-from runtime.compiled import (
+from hailstorm.runtime import narrow, patches, soft_contacts
+from hailstorm.runtime.collide import Closest, SurfaceIndex
+from hailstorm.runtime.compiled import (
     capacitance_blocks,
     contact_post,
     contact_prep,
@@ -153,8 +153,8 @@ from runtime.compiled import (
     substep_damping,
     substep_size,
 )
-from runtime.compiled.grid import _surface
-from runtime.hail import (
+from hailstorm.runtime.compiled.grid import _surface
+from hailstorm.runtime.hail import (
     _X_GRID,
     _Z_GRID,
     GRAVITY,
@@ -164,9 +164,9 @@ from runtime.hail import (
     stone_mass,
     terminal_velocity,
 )
-from runtime.scene import Scene, SceneError
-from runtime.soft_contacts import ContactSet
-from runtime.weights import PATCH_DROP, PATCH_FACING
+from hailstorm.runtime.scene import Scene, SceneError
+from hailstorm.runtime.soft_contacts import ContactSet
+from hailstorm.runtime.weights import PATCH_DROP, PATCH_FACING
 
 __all__ = ["Frame", "Scene", "SceneError", "Storm", "StormResult", "run_storm"]
 
@@ -269,7 +269,7 @@ class Storm:
     Parameters
     ----------
     gf : GreensFunctions
-        The bundle (:func:`runtime.bundle.load`).
+        The bundle (:func:`hailstorm.runtime.bundle.load`).
     scene : Scene
     spawn : bool
         Spawn the scene's random stones (``False``: only stones added with
@@ -347,7 +347,7 @@ class Storm:
         self._live: np.ndarray | None = None
         self._far = np.zeros(0, dtype=np.intp)  # live stones that are not near (set by _near_set)
         #: time-of-impact sub-steps (adaptive) and the gap within which a contact opens [radii]
-        #: compiled kernels for the step's work (:mod:`runtime.compiled`), or numpy
+        #: compiled kernels for the step's work (:mod:`hailstorm.runtime.compiled`), or numpy
         try:
             self.backend = resolve_backend(scene.backend)
         except ValueError as exc:
@@ -358,7 +358,7 @@ class Storm:
         #: quadratic drag coefficient 3 C_d rho_air / (8 rho_ice) (0: no drag), for the kernels
         self._drag_coef = 3.0 * scene.cd * scene.rho_air / (8.0 * scene.density) if scene.drag else 0.0
         if self._patch and self._compiled:
-            from runtime.weights import _disc_table, _triangle_index
+            from hailstorm.runtime.weights import _disc_table, _triangle_index
 
             self._pidx = _triangle_index(gf).arrays
             self._disc = _disc_table("hertz")
@@ -608,10 +608,10 @@ class Storm:
         """Advance the near stones by at most ``h``; returns the time actually taken
         (shorter when a stone is about to touch the seat: time of impact).
 
-        The phases, in order (numpy: :mod:`runtime.narrow`; compiled:
+        The phases, in order (numpy: :mod:`hailstorm.runtime.narrow`; compiled:
         :meth:`_free_phase`): closest points, time of impact, gap predictions for
         the next sub-step (numpy only), contacts that open, hard walls; then soft
-        contacts through the capacitance (:func:`runtime.soft_contacts.advance`) and free flight.
+        contacts through the capacitance (:func:`hailstorm.runtime.soft_contacts.advance`) and free flight.
         """
         in_contact = self.ctri[near] >= 0
         was_open = in_contact.copy()
@@ -643,8 +643,8 @@ class Storm:
         return h
 
     def _free_phase(self, near: np.ndarray, h: float) -> float:
-        """The compiled counterpart of :mod:`runtime.narrow`
-        (:func:`runtime.compiled.free_phase`; every stone is queried: no reuse or
+        """The compiled counterpart of :mod:`hailstorm.runtime.narrow`
+        (:func:`hailstorm.runtime.compiled.free_phase`; every stone is queried: no reuse or
         prediction, which only save numpy calls). Returns the sub-step taken."""
         sc = self.scene
         use_u = self._fv is not None
@@ -904,7 +904,7 @@ def run_storm(
     Parameters
     ----------
     gf : GreensFunctions
-        The bundle (:func:`runtime.bundle.load`).
+        The bundle (:func:`hailstorm.runtime.bundle.load`).
     scene : Scene, optional
         Default: :meth:`Scene.default`.
     progress : bool or callable
@@ -912,7 +912,7 @@ def run_storm(
         callable is called as ``progress(t, duration)`` after every step.
     on_frame : callable, optional
         Called with each :class:`Frame` as it is recorded, e.g.
-        :meth:`runtime.output.StormOutput.add`, which streams the frames to
+        :meth:`hailstorm.runtime.output.StormOutput.add`, which streams the frames to
         disk.
     keep_frames : bool, optional
         Keep the frames in :attr:`StormResult.frames` (memory grows with the
@@ -926,11 +926,11 @@ def run_storm(
     -------
     StormResult
         Frames at ``scene.fps`` (plus the first and last instants; empty
-        unless kept) and statistics (see :func:`runtime.output.summary`).
+        unless kept) and statistics (see :func:`hailstorm.runtime.output.summary`).
 
     Raises
     ------
-    runtime.scene.StormTooLarge
+    hailstorm.runtime.scene.StormTooLarge
         The estimate exceeds the machine and ``allow_large`` is not set.
     """
     scene = Scene.default() if scene is None else scene

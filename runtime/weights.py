@@ -1,6 +1,6 @@
 """Contact force-distribution weights: the matrix B of point and patch contacts.
 
-Split out of :mod:`runtime.contact`. A contact ``k`` spreads its force over a
+Split out of :mod:`hailstorm.runtime.contact`. A contact ``k`` spreads its force over a
 few surface vertices with weights ``w_{k,i}`` that sum to one; ``B`` is the
 ``3|V| x 3s`` matrix with block ``(i, k) = w_{k,i} I3``, vertex forces are
 ``f_V = B f_s`` and the contact "displacement" is ``u_s = B^T u_V`` (the
@@ -51,8 +51,8 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-from runtime.compiled import SampleGrid, resolve_backend
-from runtime.gather import _unique_inverse
+from hailstorm.runtime.compiled import SampleGrid, resolve_backend
+from hailstorm.runtime.gather import _unique_inverse
 
 __all__ = [
     "PATCH_PROFILES",
@@ -345,7 +345,7 @@ class _TriangleIndex:
         self.radii = np.linalg.norm(P - c[:, None, :], axis=2).max(axis=1) if self.tris.size else np.zeros(0)
         self.reach = float(self.radii.max(initial=0.0))
         self.tree = cKDTree(c) if self.tris.size else None
-        #: the centroids in a uniform grid, for the compiled patch kernel (:mod:`runtime.compiled`)
+        #: the centroids in a uniform grid, for the compiled patch kernel (:mod:`hailstorm.runtime.compiled`)
         self.grid = SampleGrid.build(c, np.arange(self.tris.size), max(self.reach, 1e-6))
         g = self.grid
         #: the index as the compiled kernels take it
@@ -419,11 +419,11 @@ def _tangents(n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _one_patch(idx: _TriangleIndex, gf: Any, x: np.ndarray, n: np.ndarray, a: float, h: float,
                profile: str, resolution: float, compiled: bool = False) -> tuple[np.ndarray, np.ndarray] | None:
     """Vertices and weights of one patch; None if the disc hits no usable triangle.
-    ``compiled``: the same computation in :func:`runtime.compiled.patches._one_patch`."""
+    ``compiled``: the same computation in :func:`hailstorm.runtime.compiled.patches._one_patch`."""
     if idx.tree is None:
         return None
     if compiled:
-        from runtime.compiled.patches import _one_patch as one_patch_compiled
+        from hailstorm.runtime.compiled.patches import _one_patch as one_patch_compiled
 
         n_r = int(min(max(math.ceil(resolution * a / max(h, 1e-300)) + 4, 4), 40))
         qx, qy, qw = _disc_rule(n_r, 4 * n_r, profile)
@@ -510,7 +510,7 @@ def patch_weights(
         default integrates the hat functions to ~1e-3 relative; the weights
         always sum to 1.
     backend : {"auto", "numba", "numpy"}
-        Compute the patches in a compiled kernel (:mod:`runtime.compiled`,
+        Compute the patches in a compiled kernel (:mod:`hailstorm.runtime.compiled`,
         needs numba) or in numpy; ``"auto"``: numba when installed. The two
         agree to rounding.
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from precompute import box_mesh, build_bundle
+from hailstorm.precompute import box_mesh, build_bundle
 
 
 @pytest.fixture(scope="session")

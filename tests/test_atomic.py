@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from runtime.atomic import replacing, write_text_atomic
+from hailstorm.runtime.atomic import replacing, write_text_atomic
 
 
 def test_write_text_atomic_replaces(tmp_path):

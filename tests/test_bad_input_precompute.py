@@ -1,7 +1,7 @@
 """Bad input to the offline stage and to bundles: refused with one line (exit 3), nothing lost.
 
 Table-driven: each CLI row is (arguments, expected part of the one-line error); the
-CLI runs in-process (``runtime.cli.main``). API rows check the exception type.
+CLI runs in-process (``hailstorm.runtime.cli.main``). API rows check the exception type.
 Also: writers' locks, temporaries of killed writers, stranded bundles, Ctrl-C while
 meshing.
 """
@@ -22,9 +22,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from precompute import build_bundle
-from precompute.geometry import MeshError, TetMesh, check_clamped, check_mesh, read_mesh
-from runtime.bundle import (
+from hailstorm.precompute import build_bundle
+from hailstorm.precompute.geometry import MeshError, TetMesh, check_clamped, check_mesh, read_mesh
+from hailstorm.runtime.bundle import (
     ARRAY_SPECS,
     BUNDLE_FILES,
     MANIFEST,
@@ -36,7 +36,7 @@ from runtime.bundle import (
     load,
     manifest_hash,
 )
-from runtime.cli import main
+from hailstorm.runtime.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -67,7 +67,7 @@ def _two_tets(kind: str) -> TetMesh:
     vol = np.einsum("ij,ij->i", np.cross(points[tets[:, 1]] - points[tets[:, 0]], points[tets[:, 2]] - points[tets[:, 0]]),
                     points[tets[:, 3]] - points[tets[:, 0]])
     tets[vol < 0] = tets[vol < 0][:, [0, 2, 1, 3]]
-    from precompute.geometry import boundary_triangles
+    from hailstorm.precompute.geometry import boundary_triangles
 
     bnd = boundary_triangles(tets) if kind != "duplicate" else np.array([[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]])
     on_clamp = np.all(np.isin(bnd, [0, 1, 2]), axis=1)
@@ -160,7 +160,7 @@ PRECOMPUTE_ROWS = [
 
 @pytest.mark.parametrize("row, extra, message", PRECOMPUTE_ROWS, ids=[r[0] for r in PRECOMPUTE_ROWS])
 def test_precompute_bad_input_is_one_line_exit_3(row, extra, message, tmp_path, capsys, monkeypatch):
-    import precompute.pipeline as pipeline
+    import hailstorm.precompute.pipeline as pipeline
 
     def no_assembly(*a, **k):  # every refusal comes before the expensive work
         raise AssertionError("assembled although the input is bad")
@@ -182,7 +182,7 @@ def test_read_only_output_is_refused_before_the_work(tmp_path, capsys, monkeypat
     """--out under a read-only directory: one line, exit 3, before meshing (not after the whole computation)."""
     import tempfile
 
-    import precompute.geometry as geometry
+    import hailstorm.precompute.geometry as geometry
 
     def no_meshing(*a, **k):
         raise AssertionError("meshed although the output is unwritable")
@@ -240,7 +240,7 @@ def test_meshio_exit_is_a_mesh_error(tmp_path):
 
 
 def test_memory_estimate_refuses_and_allow_large_overrides(small_box, tmp_path, monkeypatch):
-    import precompute.resources as resources
+    import hailstorm.precompute.resources as resources
 
     monkeypatch.setattr(resources, "available_memory", lambda: 10 * 2**20)
     with pytest.raises(resources.TooLargeError, match="allow_large=True"):
@@ -255,9 +255,9 @@ def test_memory_estimate_refuses_and_allow_large_overrides(small_box, tmp_path, 
 
 def test_geometry_estimate_bounds_the_default_seat():
     """Before meshing, the estimate of D must not be below what meshing gives (4-15 mm)."""
-    from precompute.geometry import _gmsh_session, _measure, default_seat_path, mesh_default_seat
-    from precompute.pipeline import extract_surface
-    from precompute.resources import estimate_geometry
+    from hailstorm.precompute.geometry import _gmsh_session, _measure, default_seat_path, mesh_default_seat
+    from hailstorm.precompute.pipeline import extract_surface
+    from hailstorm.precompute.resources import estimate_geometry
 
     gmsh = _gmsh_session()
     try:
@@ -274,7 +274,7 @@ def test_geometry_estimate_bounds_the_default_seat():
 
 
 def test_mesh_size_larger_than_the_body_warns(caplog):
-    from precompute.geometry import mesh_default_seat
+    from hailstorm.precompute.geometry import mesh_default_seat
 
     with caplog.at_level(logging.WARNING):
         mesh_default_seat(0.08)
@@ -282,9 +282,9 @@ def test_mesh_size_larger_than_the_body_warns(caplog):
 
 
 def test_one_default_mesh_size():
-    from precompute.pipeline import DEFAULT_MESH_SIZE
-    from runtime.cli import _parser
-    from runtime.scene import Scene
+    from hailstorm.precompute.pipeline import DEFAULT_MESH_SIZE
+    from hailstorm.runtime.cli import _parser
+    from hailstorm.runtime.scene import Scene
 
     assert Scene.default().mesh_size == DEFAULT_MESH_SIZE
     assert _parser().parse_args(["precompute", "--out", "x"]).mesh_size == DEFAULT_MESH_SIZE
@@ -368,7 +368,7 @@ def test_info_says_what_it_verified(box_bundle, capsys):
 
 def test_info_into_a_closed_pipe_is_quiet(box_bundle):
     """`hailstorm info B | head -1`: the reader leaves early; no traceback."""
-    p = subprocess.Popen([sys.executable, "-m", "runtime.cli", "info", str(box_bundle)], stdout=subprocess.PIPE,
+    p = subprocess.Popen([sys.executable, "-m", "hailstorm.runtime.cli", "info", str(box_bundle)], stdout=subprocess.PIPE,
                          stderr=subprocess.PIPE, env={**os.environ, "PYTHONPATH": str(ROOT)})
     p.stdout.close()  # before the child has printed anything
     err = p.stderr.read().decode()
@@ -378,7 +378,7 @@ def test_info_into_a_closed_pipe_is_quiet(box_bundle):
 
 
 def test_writing_a_nan_compliance_is_refused(box_bundle, tmp_path):
-    from runtime.bundle import write_bundle
+    from hailstorm.runtime.bundle import write_bundle
 
     gf = load(box_bundle)
     arrays = {name: np.array(getattr(gf, name if name != "compliance" else "D")) for name in ARRAY_SPECS}
@@ -389,7 +389,7 @@ def test_writing_a_nan_compliance_is_refused(box_bundle, tmp_path):
 
 
 def test_writing_a_manifest_load_would_refuse_is_refused(box_bundle, tmp_path):
-    from runtime.bundle import write_bundle
+    from hailstorm.runtime.bundle import write_bundle
 
     gf = load(box_bundle)
     arrays = {name: np.asarray(getattr(gf, name if name != "compliance" else "D")) for name in ARRAY_SPECS}
@@ -444,7 +444,7 @@ def test_bundle_stranded_between_the_renames_is_recovered(box_bundle, tmp_path, 
 
 _KILLABLE_WRITER = """
 import sys, time, pathlib, numpy as np
-from precompute import box_mesh, build_bundle
+from hailstorm.precompute import box_mesh, build_bundle
 real, n = np.save, [0]
 def slow_save(fh, a, **k):
     real(fh, a, **k)
@@ -513,7 +513,7 @@ def test_a_second_writer_waits_for_the_first(small_box, tmp_path, caplog):
 
 
 def _build_in_process(out, young):
-    from precompute import box_mesh
+    from hailstorm.precompute import box_mesh
 
     build_bundle(out, mesh=box_mesh((0.1, 0.1, 0.05), 0.02), young=young)
 
@@ -537,7 +537,7 @@ def test_two_processes_writing_one_bundle(tmp_path):
 def test_ctrl_c_while_meshing_ends_the_process(tmp_path):
     """SIGINT during gmsh's meshing ends the run promptly, with nothing left behind."""
     code = ("import logging, sys; logging.basicConfig(level=logging.INFO)\n"
-            "from precompute import build_bundle\n"
+            "from hailstorm.precompute import build_bundle\n"
             "build_bundle(sys.argv[1], mesh_size=0.0006, allow_large=True)\n")
     # (a job started in the background by a non-interactive shell, as CI may be, inherits
     # SIGINT ignored, and an ignored SIGINT is rightly left ignored: give the child the default)

@@ -1,5 +1,5 @@
 """`hailstorm storm` on bad input: one line on stderr, exit code 3, no traceback, and
-nothing written or lost (table-driven; in-process through ``runtime.cli.main``)."""
+nothing written or lost (table-driven; in-process through ``hailstorm.runtime.cli.main``)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from runtime.cli import EXIT_INPUT, main
+from hailstorm.runtime.cli import EXIT_INPUT, main
 
 TINY = ["--duration", "0.01", "--stones", "1", "--no-video", "-q"]  # a storm of seconds
 
@@ -91,7 +91,7 @@ def test_bad_storm_input_is_one_line_exit_3(seat_bundle, tmp_path, capsys, name,
 def test_broken_pipe_exits_quietly(box_bundle, reader):
     """`hailstorm info X | head -1`: the reader leaves early (``true``: before the first
     line); no traceback, nothing on stderr."""
-    run = subprocess.run(f"{sys.executable} -m runtime.cli info {box_bundle} | {reader}", shell=True,
+    run = subprocess.run(f"{sys.executable} -m hailstorm.runtime.cli info {box_bundle} | {reader}", shell=True,
                          capture_output=True, text=True, timeout=300)
     assert run.stdout == ("" if reader == "true" else f"bundle   {box_bundle}\n")
     assert run.stderr == ""
@@ -99,7 +99,7 @@ def test_broken_pipe_exits_quietly(box_bundle, reader):
 
 def test_a_large_storm_runs_with_allow_large(seat_bundle, tmp_path, monkeypatch):
     """The override: the estimate is checked, and --allow-large passes it."""
-    import runtime.scene as scene_mod
+    import hailstorm.runtime.scene as scene_mod
 
     monkeypatch.setattr(scene_mod, "MAX_STEPS", 10)  # 50 steps: "too many" here
     out = tmp_path / "out"

@@ -1,6 +1,7 @@
 """Bundle round trip, refusal of damaged bundles, atomic writes, the cache key."""
 
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -8,9 +9,9 @@ import sys
 import numpy as np
 import pytest
 
-import runtime
-from precompute import build_bundle
-from runtime.bundle import ARRAY_SPECS, MANIFEST, MANIFEST_HASH, BundleError, load, manifest_hash, write_bundle
+import hailstorm.runtime
+from hailstorm.precompute import build_bundle
+from hailstorm.runtime.bundle import ARRAY_SPECS, MANIFEST, MANIFEST_HASH, BundleError, load, manifest_hash, write_bundle
 
 
 def _copy(src, dst):
@@ -151,7 +152,7 @@ def test_cache_key_reuses_same_and_recomputes_different(small_box, tmp_path):
     assert gf.manifest["key"] != key and gf.young == 2e6
     moved = small_box.points.copy()
     moved[:, 0] *= 1.01
-    from precompute.geometry import TetMesh
+    from hailstorm.precompute.geometry import TetMesh
 
     build_bundle(out, mesh=TetMesh(moved, small_box.tets, small_box.groups, "moved"), young=2e6)
     assert not np.array_equal(load(out).vertices, gf.vertices)  # a different mesh is recomputed
@@ -159,15 +160,45 @@ def test_cache_key_reuses_same_and_recomputes_different(small_box, tmp_path):
 
 def test_runtime_imports_no_meshing_or_fem(box_bundle):
     code = (
-        "import sys, runtime; gf = runtime.load(sys.argv[1]); gf.compliance([0], gf.contact_vertices[:2]);"
-        "bad = [m for m in ('gmsh', 'skfem', 'meshio', 'precompute') if m in sys.modules];"
+        "import sys, hailstorm.runtime; gf = hailstorm.runtime.load(sys.argv[1]); gf.compliance([0], gf.contact_vertices[:2]);"
+        "bad = [m for m in ('gmsh', 'skfem', 'meshio', 'hailstorm.precompute') if m in sys.modules];"
         "assert not bad, bad"
     )
     subprocess.run([sys.executable, "-c", code, str(box_bundle)], check=True)
 
 
+def test_the_runtime_stage_runs_a_storm_without_the_offline_stage(box_bundle):
+    """The stages stay apart: the default scene and a storm load nothing of the offline
+    stage (hailstorm.precompute, gmsh, scikit-fem), in a fresh interpreter."""
+    code = (
+        "import dataclasses, sys\n"
+        "from hailstorm.runtime import Scene, load, run_storm\n"
+        "sc = dataclasses.replace(Scene.default(), duration=0.02, backend='numpy')\n"
+        "res = run_storm(load(sys.argv[1]), sc, progress=False)\n"
+        "assert res.stats['hailstones'] >= 0\n"
+        "bad = [m for m in sys.modules if m.split('.')[0] in ('gmsh', 'skfem')"
+        " or m.startswith('hailstorm.precompute')]\n"
+        "assert not bad, bad\n"
+    )
+    subprocess.run([sys.executable, "-c", code, str(box_bundle)], check=True)
+
+
+def test_one_top_level_package_named_hailstorm():
+    """Outside the checkout the old top-level names are gone; the CLI runs as a module."""
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as cwd:
+        env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
+        for old in ("runtime", "precompute"):
+            r = subprocess.run([sys.executable, "-c", f"import {old}"], cwd=cwd, env=env, capture_output=True)
+            assert r.returncode != 0
+        r = subprocess.run([sys.executable, "-m", "hailstorm", "--help"], cwd=cwd, env=env, capture_output=True,
+                           text=True)
+        assert r.returncode == 0 and "precompute" in r.stdout
+
+
 def test_compliance_argument_errors(box_bundle):
-    gf = runtime.load(box_bundle)
+    gf = hailstorm.runtime.load(box_bundle)
     with pytest.raises(IndexError):
         gf.compliance([gf.n_vertices], [int(gf.contact_vertices[0])])
     with pytest.raises(ValueError, match="vertex indices"):

@@ -7,21 +7,21 @@ import numpy as np
 import pytest
 from skfem import condense, solve
 
-import runtime
-from precompute import mesh_default_seat
-from precompute.fem import clamp_dofs, elasticity_basis, stiffness_matrix, vertex_dofs
+import hailstorm.runtime
+from hailstorm.precompute import mesh_default_seat
+from hailstorm.precompute.fem import clamp_dofs, elasticity_basis, stiffness_matrix, vertex_dofs
 
 
-def hailstorm(*args, check=True):
-    return subprocess.run([sys.executable, "-m", "runtime.cli", *map(str, args)],
+def run_cli(*args, check=True):
+    return subprocess.run([sys.executable, "-m", "hailstorm", *map(str, args)],
                           capture_output=True, text=True, check=check, timeout=600)
 
 
 def test_precompute_then_load_agrees_with_independent_fem(tmp_path):
     out = tmp_path / "gf"
-    run = hailstorm("precompute", "--mesh-size", 0.01, "--order", 1, "--out", out, "-q")
+    run = run_cli("precompute", "--mesh-size", 0.01, "--order", 1, "--out", out, "-q")
     assert run.returncode == 0, run.stderr
-    gf = runtime.load(out)
+    gf = hailstorm.runtime.load(out)
     # an independent solve: mesh again, assemble, scikit-fem's own condense/solve
     mesh = mesh_default_seat(0.01)
     assert np.array_equal(mesh.points, gf.volume_points)
@@ -40,7 +40,7 @@ def test_precompute_then_load_agrees_with_independent_fem(tmp_path):
 
 
 def test_info_describes_a_bundle(box_bundle):
-    run = hailstorm("info", box_bundle)
+    run = run_cli("info", box_bundle)
     assert "contactable" in run.stdout and "D " in run.stdout
 
 
@@ -53,7 +53,7 @@ def test_info_describes_a_bundle(box_bundle):
 def test_bad_input_gives_clear_error(tmp_path, args, message):
     if args[0] == "precompute":
         args = [*args, "--out", tmp_path / "b"]
-    run = hailstorm(*args, check=False)
+    run = run_cli(*args, check=False)
     assert run.returncode != 0
     assert message in run.stderr
     assert "Traceback" not in run.stderr
@@ -61,9 +61,9 @@ def test_bad_input_gives_clear_error(tmp_path, args, message):
 
 
 def test_usage_errors_exit_2(tmp_path):
-    run = hailstorm("precompute", "--order", "3", "--out", tmp_path / "b", check=False)
+    run = run_cli("precompute", "--order", "3", "--out", tmp_path / "b", check=False)
     assert run.returncode == 2 and "invalid choice" in run.stderr
-    run = hailstorm("precompute", "--mesh-size", "-1", "--out", tmp_path / "b", check=False)
+    run = run_cli("precompute", "--mesh-size", "-1", "--out", tmp_path / "b", check=False)
     assert run.returncode == 2 and "positive" in run.stderr
 
 
@@ -75,7 +75,7 @@ def test_storm_writes_animation_paraview_and_summary(seat_bundle, tmp_path):
     import json
 
     out = tmp_path / "run"
-    run = hailstorm("storm", "--duration", 0.06, "--stones", 8, "--seed", 3, "--gf", seat_bundle, "--out", out, "-q")
+    run = run_cli("storm", "--duration", 0.06, "--stones", 8, "--seed", 3, "--gf", seat_bundle, "--out", out, "-q")
     assert run.returncode == 0, run.stderr
     summary = json.loads((out / "summary.json").read_text())
     assert SUMMARY_KEYS <= set(summary)
@@ -84,7 +84,7 @@ def test_storm_writes_animation_paraview_and_summary(seat_bundle, tmp_path):
     assert (out / "storm.pvd").exists() and list((out / "frames").glob("surface_*.vtu"))
     # reproducible from the seed
     again = tmp_path / "again"
-    hailstorm("storm", "--duration", 0.06, "--stones", 8, "--seed", 3, "--gf", seat_bundle, "--out", again,
+    run_cli("storm", "--duration", 0.06, "--stones", 8, "--seed", 3, "--gf", seat_bundle, "--out", again,
               "-q", "--no-video")
     s2 = json.loads((again / "summary.json").read_text())
     for key in ("impacts", "max_contact_force", "max_indentation_m", "steps"):
@@ -97,7 +97,7 @@ def test_bare_hailstorm_runs_the_default_storm(tmp_path, monkeypatch):
     import os
 
     env = {**os.environ, "HAILSTORM_CACHE": str(tmp_path / "cache"), "MPLBACKEND": "Agg"}
-    run = subprocess.run([sys.executable, "-m", "runtime.cli", "--out", str(tmp_path / "out"), "--no-video"],
+    run = subprocess.run([sys.executable, "-m", "hailstorm.runtime.cli", "--out", str(tmp_path / "out"), "--no-video"],
                          capture_output=True, text=True, env=env, cwd=tmp_path, timeout=900)
     assert run.returncode == 0, run.stderr[-2000:]
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())
@@ -109,7 +109,7 @@ def test_bare_hailstorm_runs_the_default_storm(tmp_path, monkeypatch):
 def test_bad_scene_file_gives_clear_error(tmp_path):
     scene = tmp_path / "scene.toml"
     scene.write_text("[storm]\nduraton = 1.0\n")
-    run = hailstorm("storm", "--scene", scene, "--out", tmp_path / "o", check=False)
+    run = run_cli("storm", "--scene", scene, "--out", tmp_path / "o", check=False)
     assert run.returncode == 3 and "duraton" in run.stderr and "Traceback" not in run.stderr
 
 
@@ -117,18 +117,18 @@ def test_storm_integrator_and_dt_from_the_command_line(seat_bundle, tmp_path):
     import json
 
     out = tmp_path / "run"
-    run = hailstorm("storm", "--duration", 0.02, "--stones", 3, "--integrator", "exact", "--dt", 5e-4,
+    run = run_cli("storm", "--duration", 0.02, "--stones", 3, "--integrator", "exact", "--dt", 5e-4,
                     "--gf", seat_bundle, "--out", out, "-q", "--no-video")
     assert run.returncode == 0, run.stderr
     s = json.loads((out / "summary.json").read_text())
     assert s["integrator"] == "exact" and s["dt"] == 5e-4 and s["steps"] == 40
     assert s["scene"]["time"]["integrator"] == "exact"
-    run = hailstorm("storm", "--integrator", "verlet", "--out", tmp_path / "o", check=False)
+    run = run_cli("storm", "--integrator", "verlet", "--out", tmp_path / "o", check=False)
     assert run.returncode == 2 and "invalid choice" in run.stderr
 
 
 def test_unknown_command_is_a_usage_error(tmp_path):
-    run = hailstorm("bogus", "--out", tmp_path / "o", check=False)
+    run = run_cli("bogus", "--out", tmp_path / "o", check=False)
     assert run.returncode == 2 and "unknown command 'bogus'" in run.stderr and "storm" in run.stderr
     assert not (tmp_path / "o").exists()
 
@@ -136,15 +136,15 @@ def test_unknown_command_is_a_usage_error(tmp_path):
 def test_storm_backend_from_the_command_line(seat_bundle, tmp_path):
     import json
 
-    from runtime.compiled import HAVE_NUMBA
+    from hailstorm.runtime.compiled import HAVE_NUMBA
 
     for backend in ("numpy", "auto"):
         out = tmp_path / backend
-        run = hailstorm("storm", "--duration", 0.01, "--stones", 2, "--backend", backend, "--gf", seat_bundle,
+        run = run_cli("storm", "--duration", 0.01, "--stones", 2, "--backend", backend, "--gf", seat_bundle,
                         "--out", out, "-q", "--no-video")
         assert run.returncode == 0, run.stderr
         s = json.loads((out / "summary.json").read_text())
         assert s["scene"]["compute"]["backend"] == backend
         assert s["backend"] == ("numba" if backend == "auto" and HAVE_NUMBA else "numpy")
-    run = hailstorm("storm", "--backend", "cuda", "--out", tmp_path / "o", check=False)
+    run = run_cli("storm", "--backend", "cuda", "--out", tmp_path / "o", check=False)
     assert run.returncode == 2 and "invalid choice" in run.stderr

@@ -13,9 +13,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from runtime.compiled import HAVE_NUMBA
-from runtime.scene import Scene
-from runtime.storm import Storm
+from hailstorm.runtime.compiled import HAVE_NUMBA
+from hailstorm.runtime.scene import Scene
+from hailstorm.runtime.storm import Storm
 from test_hail import plate_gf
 
 BACKENDS = ["numpy"] + (["numba"] if HAVE_NUMBA else [])
@@ -70,8 +70,8 @@ def test_spd_inverse_is_the_contact_api_policy():
     """One policy: the storm's inverse (numpy and compiled) is the capacitance's
     factor -- the exact inverse of a well-conditioned W, the pseudo-inverse of a
     (nearly) singular one (coincident contacts: symmetric, finite)."""
-    from runtime.compiled import inv_spd
-    from runtime.contact_capacitance import COND_LIMIT, PINV_RCOND, spd_inverse
+    from hailstorm.runtime.compiled import inv_spd
+    from hailstorm.runtime.contact_capacitance import COND_LIMIT, PINV_RCOND, spd_inverse
 
     W1 = np.array([[2.0, 0.5], [0.5, 1.0]])
     np.testing.assert_allclose(spd_inverse(W1), np.linalg.inv(W1), rtol=1e-12)
@@ -87,7 +87,7 @@ def test_modal_damping_damps_the_shared_mode_to_target():
     """Coincident contacts (pseudo-inverse K): the mode the two stones share gets the
     damping ratio of the target restitution, the free (zero) mode none; a single
     contact gets damping_coefficients' dashpot."""
-    from runtime.hail import damping_coefficients, damping_ratio_for_restitution, modal_damping
+    from hailstorm.runtime.hail import damping_coefficients, damping_ratio_for_restitution, modal_damping
 
     m = np.array([3e-5, 3e-5])
     K = np.full((2, 2), 0.25 / 8e-5)

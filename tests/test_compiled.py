@@ -9,11 +9,11 @@ import pytest
 
 pytest.importorskip("numba")
 
-from runtime import compiled as C  # noqa: E402
-from runtime import patches, soft_contacts  # noqa: E402
-from runtime.collide import SurfaceIndex  # noqa: E402
-from runtime.scene import Scene, SceneError  # noqa: E402
-from runtime.storm import Storm, run_storm  # noqa: E402
+from hailstorm.runtime import compiled as C  # noqa: E402
+from hailstorm.runtime import patches, soft_contacts  # noqa: E402
+from hailstorm.runtime.collide import SurfaceIndex  # noqa: E402
+from hailstorm.runtime.scene import Scene, SceneError  # noqa: E402
+from hailstorm.runtime.storm import Storm, run_storm  # noqa: E402
 from test_hail import plate_gf  # noqa: E402
 
 
@@ -37,7 +37,7 @@ def test_nearest_sample_is_exact(gf):
     rng = np.random.default_rng(1)
     P = rng.uniform(V.min(axis=0) - 0.05, V.max(axis=0) + 0.05, (500, 3))
     ref, _ = idx.tree.query(P, k=1)
-    from runtime.compiled.grid import _nearest_sample
+    from hailstorm.runtime.compiled.grid import _nearest_sample
 
     got = np.array([_nearest_sample(p, g.lo, g.h, g.dims, g.start, g.items, g.points) for p in P])
     np.testing.assert_allclose(got, ref, rtol=1e-14, atol=1e-15)
@@ -110,8 +110,8 @@ def test_near_set_matches_numpy(gf):
 
 def test_patch_weights_backends_agree(seat_bundle):
     """Compiled and numpy patch weights on the curved seat, small to large discs."""
-    from runtime.bundle import load
-    from runtime.weights import patch_weights
+    from hailstorm.runtime.bundle import load
+    from hailstorm.runtime.weights import patch_weights
 
     gf = load(seat_bundle)
     usable = np.flatnonzero((gf.contactable | gf.fixed)[gf.triangles].all(axis=1))
@@ -215,7 +215,7 @@ def test_backend_choice(gf, monkeypatch):
 def _random_contact_set(rng):
     """A random coupled contact set in constrained coordinates: frictionless (one
     component per contact) or sticky (three, with the contact normals as weights)."""
-    from runtime.hail import _inv_spd
+    from hailstorm.runtime.hail import _inv_spd
 
     s = int(rng.integers(1, 5))
     sticky = bool(rng.random() < 0.3)
@@ -249,10 +249,10 @@ def _assert_same_step(got, ref):
 
 
 def test_exact_step_matches_numpy():
-    """The compiled exact integrator reproduces runtime.hail's on random coupled contact
+    """The compiled exact integrator reproduces hailstorm.runtime.hail's on random coupled contact
     sets: frictionless and sticky, s = 1..4, unilateral releases, resting (always damped)
     components, the same active sets and the same peaks inside the step."""
-    from runtime.hail import contact_step, damping_coefficients
+    from hailstorm.runtime.hail import contact_step, damping_coefficients
 
     rng = np.random.default_rng(7)
     released = 0
@@ -272,8 +272,8 @@ def test_exact_step_matches_numpy():
 @pytest.mark.parametrize("integrator", ["implicit", "symplectic"])
 def test_substep_contacts_and_damping_match_numpy(integrator):
     """The compiled backward-Euler / symplectic contact step and its dashpot reproduce
-    runtime.hail's on random coupled sets (frictionless and sticky, releases)."""
-    from runtime.hail import _X_GRID, _Z_GRID, contact_modes, contact_step, modal_damping
+    hailstorm.runtime.hail's on random coupled sets (frictionless and sticky, releases)."""
+    from hailstorm.runtime.hail import _X_GRID, _Z_GRID, contact_modes, contact_step, modal_damping
 
     rng = np.random.default_rng(8)
     released = 0
@@ -294,12 +294,12 @@ def test_substep_contacts_and_damping_match_numpy(integrator):
 
 
 # ---------------------------------------------------------------------------
-# the contact API's kernels (runtime.contact with backend="numba")
+# the contact API's kernels (hailstorm.runtime.contact with backend="numba")
 # ---------------------------------------------------------------------------
 def _contact_lists(gf, rng, s, patch):
     """s random contacts on the plate (some on the clamp): vertex lists, weights, normals."""
-    from runtime.contact_capacitance import _contact_weights
-    from runtime.weights import _locate_lists, triangle_normals
+    from hailstorm.runtime.contact_capacitance import _contact_weights
+    from hailstorm.runtime.weights import _locate_lists, triangle_normals
 
     usable = np.flatnonzero((gf.contactable | gf.fixed)[gf.triangles].all(axis=1))
     t = rng.choice(usable, s)
@@ -317,9 +317,9 @@ def test_contact_blocks_match_numpy(gf, s, patch):
     """vertex_block is D_VV exactly (zero columns at clamped vertices); W and D_VV G
     from weighted_rows / contact_compliance equal numpy's to rounding, both modes;
     weighted_rows over D.T is the full-surface response D[:, V] B."""
-    from runtime.contact_capacitance import _contact_compliance, _response_columns
-    from runtime.gather import _column_dofs, _gather_vertices
-    from runtime.weights import _dense_B
+    from hailstorm.runtime.contact_capacitance import _contact_compliance, _response_columns
+    from hailstorm.runtime.gather import _column_dofs, _gather_vertices
+    from hailstorm.runtime.weights import _dense_B
 
     gf = dataclasses.replace(gf, D=np.asfortranarray(gf.D))
     rng = np.random.default_rng(s + 100 * patch)
@@ -352,10 +352,10 @@ def test_contact_api_takes_the_kernels(gf, monkeypatch):
     """backend="numba" (and "auto" with numba) calls the kernels for a column-major D:
     bilateral point contacts in one call (point_contacts), everything else through the
     block kernels; "numpy", and a row-major D, call none. Results agree to rounding."""
-    import runtime.contact
-    import runtime.contact_capacitance
-    import runtime.gather
-    from runtime.contact import capacitance, solve_contacts
+    import hailstorm.runtime.contact
+    import hailstorm.runtime.contact_capacitance
+    import hailstorm.runtime.gather
+    from hailstorm.runtime.contact import capacitance, solve_contacts
 
     calls = []
 
@@ -364,7 +364,7 @@ def test_contact_api_takes_the_kernels(gf, monkeypatch):
             calls.append(name)
             return getattr(C.blocks, name)
 
-    for mod in (runtime.contact, runtime.contact_capacitance, runtime.gather):
+    for mod in (hailstorm.runtime.contact, hailstorm.runtime.contact_capacitance, hailstorm.runtime.gather):
         monkeypatch.setattr(mod, "_kernels", Spy())
     rng = np.random.default_rng(5)
     t, b, n, a, V, loc, w = _contact_lists(gf, rng, 6, False)
@@ -392,7 +392,7 @@ def test_contact_api_takes_the_kernels(gf, monkeypatch):
     capacitance(F, t, b, backend="numba").keep_response()
     assert calls == ["vertex_block", "weighted_rows", "contact_compliance", "weighted_rows"]
     calls.clear()
-    monkeypatch.setattr(runtime.contact_capacitance, "POINT_FAST_MAX", t.size - 1)  # too many for the fast path
+    monkeypatch.setattr(hailstorm.runtime.contact_capacitance, "POINT_FAST_MAX", t.size - 1)  # too many for the fast path
     same(solve_contacts(F, t, b, ubar, backend="numba"), ref)
     assert calls == ["vertex_block", "weighted_rows", "contact_compliance", "columns_times"]
     calls.clear()
@@ -409,8 +409,8 @@ def test_point_contacts_fast_path(gf):
     both modes, with and without the surface), and hands every special case back to it
     with its code: invalid input 1, a vertex without a column of D 2, a rigid contact 3,
     coincident contacts (pseudo-inverse) 4."""
-    import runtime.contact_capacitance as cc
-    from runtime.contact import solve_contacts, triangle_normals
+    import hailstorm.runtime.contact_capacitance as cc
+    from hailstorm.runtime.contact import solve_contacts, triangle_normals
 
     F = dataclasses.replace(gf, D=np.asfortranarray(gf.D))
     T = np.asarray(F.triangles)

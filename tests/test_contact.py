@@ -1,4 +1,4 @@
-"""Tests of runtime.contact: point contacts through the precomputed compliance.
+"""Tests of hailstorm.runtime.contact: point contacts through the precomputed compliance.
 
 The reference is an independent direct FEM solve (scikit-fem stiffness, the
 contact constraints imposed by Lagrange multipliers in a saddle-point system),
@@ -12,10 +12,10 @@ import pytest
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-import runtime
-from runtime.bundle import load
-from runtime.compiled import HAVE_NUMBA
-from runtime.contact import (
+import hailstorm.runtime
+from hailstorm.runtime.bundle import load
+from hailstorm.runtime.compiled import HAVE_NUMBA
+from hailstorm.runtime.contact import (
     Capacitance,
     ContactSolution,
     barycentric_matrix,
@@ -28,8 +28,8 @@ from runtime.contact import (
     triangle_normals,
 )
 
-precompute = pytest.importorskip("precompute")
-from precompute import fem  # noqa: E402
+precompute = pytest.importorskip("hailstorm.precompute")
+from hailstorm.precompute import fem  # noqa: E402
 
 YOUNG, POISSON = 1.0e6, 0.3
 #: Both backends of the contact API where numba is installed (the box bundle's D is
@@ -40,8 +40,8 @@ BACKENDS = ["numpy", "numba"] if HAVE_NUMBA else ["numpy"]
 @pytest.fixture(scope="module")
 def box(tmp_path_factory):
     """A small clamped box (0.1 x 0.1 x 0.05 m, h = 0.02), its bundle and its FEM."""
-    mesh = precompute.box_mesh(size=(0.1, 0.1, 0.05), mesh_size=0.02)
-    path = precompute.build_bundle(
+    mesh = hailstorm.precompute.box_mesh(size=(0.1, 0.1, 0.05), mesh_size=0.02)
+    path = hailstorm.precompute.build_bundle(
         tmp_path_factory.mktemp("bundle") / "box", mesh=mesh, young=YOUNG, poisson=POISSON, solver="splu"
     )
     gf = load(path)
@@ -256,8 +256,8 @@ def test_no_contacts(box):
 
 
 def test_exported_from_runtime():
-    assert runtime.solve_contacts is solve_contacts
-    assert runtime.capacitance is capacitance
+    assert hailstorm.runtime.solve_contacts is solve_contacts
+    assert hailstorm.runtime.capacitance is capacitance
 
 
 # ---------------------------------------------------------------------------
@@ -445,8 +445,8 @@ def test_add_remove_equal_fresh_build(box, mode):
 
 @pytest.mark.parametrize("pos", [[0, 1, 2, 6, 7, 8], [3, 4, 5, 9, 10, 11, 12, 13, 14], [1, 2, 3], [0, 2, 4, 6]])
 def test_embed_block_copies(pos, monkeypatch):
-    import runtime.contact_capacitance as rc
-    from runtime.contact_capacitance import _embed
+    import hailstorm.runtime.contact_capacitance as rc
+    from hailstorm.runtime.contact_capacitance import _embed
 
     monkeypatch.setattr(rc, "EMBED_BLOCKS_FROM", 0)
     pos = np.array(pos)
@@ -457,7 +457,7 @@ def test_embed_block_copies(pos, monkeypatch):
 
 def test_add_remove_block_copy_path(box, monkeypatch):
     """Same as a fresh build when D_VV is grown by block copies and W by the sparse path."""
-    import runtime.contact_capacitance as rc
+    import hailstorm.runtime.contact_capacitance as rc
 
     monkeypatch.setattr(rc, "EMBED_BLOCKS_FROM", 0)
     monkeypatch.setattr(rc, "SPARSE_FROM", 1)

@@ -1,4 +1,4 @@
-"""Fast tests of precompute.contact_study on tiny box meshes, and the mesh-dependence notebook."""
+"""Fast tests of hailstorm.precompute.contact_study on tiny box meshes, and the mesh-dependence notebook."""
 
 from __future__ import annotations
 
@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from precompute import box_mesh
-from precompute.contact_study import (
+from hailstorm.precompute import box_mesh
+from hailstorm.precompute.contact_study import (
     StiffnessStudy,
     contact_stiffness,
     contact_stiffness_vs_mesh,
@@ -26,7 +26,7 @@ from precompute.contact_study import (
     separation_sweep,
     stability_map,
 )
-from runtime import load
+from hailstorm.runtime import load
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -166,7 +166,7 @@ def test_predicted_dt_limit():
 def small_maps(box_bundle):
     """Stability maps on a small grid: real box-bundle stiffness and a bound, two stone sizes,
     time steps 0.3..30 x 2/omega (dense around 1)."""
-    from runtime.hail import stone_mass
+    from hailstorm.runtime.hail import stone_mass
 
     gf = load(box_bundle)
     k_box = seat_contact_stiffness(gf, {"centre": (0.047, 0.052)})["centre"]
@@ -206,7 +206,7 @@ def test_implicit_and_exact_bounded_everywhere(small_maps):
 
 
 def test_measure_dt_limit_bisection_and_damping():
-    from runtime.hail import stone_mass
+    from hailstorm.runtime.hail import stone_mass
 
     k, m = 2e4, float(stone_mass(0.005))
     pred = predicted_dt_limit(k, m)

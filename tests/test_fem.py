@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import scipy.sparse.linalg as spla
 
-from precompute.fem import (
+from hailstorm.precompute.fem import (
     check_material,
     clamp_dofs,
     elasticity_basis,
@@ -13,7 +13,7 @@ from precompute.fem import (
     stiffness_matrix,
     vertex_dofs,
 )
-from precompute.geometry import box_mesh
+from hailstorm.precompute.geometry import box_mesh
 
 
 @pytest.mark.parametrize("order", [1, 2])
@@ -42,7 +42,7 @@ def test_patch_test_uniform_stretch_is_exact(order):
 
 
 def test_cantilever_p2_matches_timoshenko_and_p1_locks():
-    from precompute.contact_study import cantilever_tip
+    from hailstorm.precompute.contact_study import cantilever_tip
 
     w2, ref = cantilever_tip(order=2, poisson=0.3)
     w1, _ = cantilever_tip(order=1, poisson=0.3)
@@ -56,7 +56,7 @@ def test_stiffness_is_symmetric_with_six_rigid_modes():
     basis = elasticity_basis(mesh, 1)
     K = stiffness_matrix(basis, 1e6, 0.3)
     assert abs(K - K.T).max() <= 1e-12 * abs(K).max()
-    from precompute.fem import rigid_body_modes
+    from hailstorm.precompute.fem import rigid_body_modes
 
     R = rigid_body_modes(mesh.points)  # nodal order x,y,z per node
     perm = vertex_dofs(basis, np.arange(mesh.points.shape[0])).ravel()

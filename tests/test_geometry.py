@@ -4,8 +4,8 @@ import meshio
 import numpy as np
 import pytest
 
-from precompute import MeshError, box_mesh, build_bundle, mesh_default_seat, mesh_geometry, read_mesh
-from precompute.geometry import TetMesh, boundary_triangles, check_mesh, tet_volumes
+from hailstorm.precompute import MeshError, box_mesh, build_bundle, mesh_default_seat, mesh_geometry, read_mesh
+from hailstorm.precompute.geometry import TetMesh, boundary_triangles, check_mesh, tet_volumes
 
 
 @pytest.fixture(scope="module")
@@ -53,10 +53,9 @@ def test_user_mesh_file_round_trip(tmp_path, small_box):
     assert np.array_equal(back.tets, m.tets)
     for name in tags:
         assert np.array_equal(np.unique(back.groups[name]), np.unique(m.groups[name]))
-    import runtime
-
-    a = runtime.load(build_bundle(tmp_path / "a", geometry=path))
-    b = runtime.load(build_bundle(tmp_path / "b", mesh=m))
+    import hailstorm.runtime
+    a = hailstorm.runtime.load(build_bundle(tmp_path / "a", geometry=path))
+    b = hailstorm.runtime.load(build_bundle(tmp_path / "b", mesh=m))
     assert np.allclose(a.D, b.D, rtol=0, atol=1e-14 * np.abs(b.D).max())
 
 

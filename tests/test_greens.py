@@ -4,11 +4,11 @@ import numpy as np
 import pytest
 from skfem import condense, solve
 
-import runtime
-from precompute.fem import clamp_dofs, elasticity_basis, stiffness_matrix, vertex_dofs
-from precompute.geometry import box_mesh
-from precompute.greens import area_matrix, compliance_matrix, traction_greens_function
-from precompute.pipeline import _rigid_modes_on_dofs, build_bundle, extract_surface
+import hailstorm.runtime
+from hailstorm.precompute.fem import clamp_dofs, elasticity_basis, stiffness_matrix, vertex_dofs
+from hailstorm.precompute.geometry import box_mesh
+from hailstorm.precompute.greens import area_matrix, compliance_matrix, traction_greens_function
+from hailstorm.precompute.pipeline import _rigid_modes_on_dofs, build_bundle, extract_surface
 
 
 def _direct_column(mesh, order, E, nu, node, direction):
@@ -23,7 +23,7 @@ def _direct_column(mesh, order, E, nu, node, direction):
 
 @pytest.mark.parametrize("order", [1, 2])
 def test_columns_equal_direct_fem(tmp_path, small_box, rng, order):
-    gf = runtime.load(build_bundle(tmp_path / "b", mesh=small_box, order=order, young=1e6, poisson=0.3))
+    gf = hailstorm.runtime.load(build_bundle(tmp_path / "b", mesh=small_box, order=order, young=1e6, poisson=0.3))
     cv = gf.contact_vertices
     rows = np.arange(gf.n_vertices)
     for j in rng.choice(cv, size=4, replace=False):
@@ -35,7 +35,7 @@ def test_columns_equal_direct_fem(tmp_path, small_box, rng, order):
 
 
 def test_reciprocity_contactable_block_is_symmetric(seat_bundle):
-    gf = runtime.load(seat_bundle)
+    gf = hailstorm.runtime.load(seat_bundle)
     cv = gf.contact_vertices
     Dcc = gf.compliance(cv, cv)
     assert np.abs(Dcc - Dcc.T).max() <= 1e-10 * np.abs(Dcc).max()
@@ -44,7 +44,7 @@ def test_reciprocity_contactable_block_is_symmetric(seat_bundle):
 
 
 def test_traction_greens_function_is_D_times_A(box_bundle, rng):
-    gf = runtime.load(box_bundle)
+    gf = hailstorm.runtime.load(box_bundle)
     cv = gf.contact_vertices
     rows = np.arange(gf.n_vertices)
     p = rng.normal(size=3 * cv.size)  # tractions [Pa] at the contactable vertices
@@ -56,7 +56,7 @@ def test_traction_greens_function_is_D_times_A(box_bundle, rng):
 
 
 def test_lumped_areas_sum_to_surface_area(box_bundle):
-    gf = runtime.load(box_bundle)
+    gf = hailstorm.runtime.load(box_bundle)
     total = 2 * (0.1 * 0.1 + 0.1 * 0.05 + 0.1 * 0.05)
     assert gf.areas.sum() == pytest.approx(total, rel=1e-12)
 
@@ -104,7 +104,7 @@ def test_blocked_solves_match_one_block(small_box):
 
 
 def test_clamped_columns_are_zero_and_unknown_columns_refused(box_bundle):
-    gf = runtime.load(box_bundle)
+    gf = hailstorm.runtime.load(box_bundle)
     fixed = np.flatnonzero(gf.fixed)[:3]
     block = gf.compliance(np.arange(5), fixed)
     assert block.shape == (15, 9) and not block.any()
@@ -127,10 +127,10 @@ def test_parallel_workers_give_identical_columns(small_box):
 @pytest.mark.slow
 def test_default_seat_p2_columns_equal_direct_fem(tmp_path):
     """The full-size path: P2 on the default seat at 6 mm (~36k dofs)."""
-    from precompute import mesh_default_seat
+    from hailstorm.precompute import mesh_default_seat
 
     mesh = mesh_default_seat(0.006)
-    gf = runtime.load(build_bundle(tmp_path / "p2", mesh=mesh, order=2))
+    gf = hailstorm.runtime.load(build_bundle(tmp_path / "p2", mesh=mesh, order=2))
     rows = np.arange(gf.n_vertices)
     for j in gf.contact_vertices[[0, gf.contact_vertices.size // 2]]:
         basis, K, f, u = _direct_column(mesh, 2, gf.young, gf.poisson, gf.surface_nodes[j], 2)
@@ -145,7 +145,7 @@ def test_hat_columns_equal_direct_fem_with_a_hat_traction(tmp_path, small_box, o
     the boundary with φ_j interpolated from a scalar P1 field)."""
     from skfem import ElementTetP1, FacetBasis, LinearForm
 
-    gf = runtime.load(build_bundle(tmp_path / "hat", mesh=small_box, order=order, young=1e6, poisson=0.3, load="hat"))
+    gf = hailstorm.runtime.load(build_bundle(tmp_path / "hat", mesh=small_box, order=order, young=1e6, poisson=0.3, load="hat"))
     assert gf.manifest["options"]["load"] == "hat"
     basis = elasticity_basis(small_box, order)
     K = stiffness_matrix(basis, 1e6, 0.3)
@@ -173,8 +173,8 @@ def test_hat_columns_equal_direct_fem_with_a_hat_traction(tmp_path, small_box, o
 
 
 def test_hat_and_point_bundles_have_different_keys(tmp_path, small_box):
-    a = runtime.load(build_bundle(tmp_path / "a", mesh=small_box, load="point"))
-    b = runtime.load(build_bundle(tmp_path / "b", mesh=small_box, load="hat"))
+    a = hailstorm.runtime.load(build_bundle(tmp_path / "a", mesh=small_box, load="point"))
+    b = hailstorm.runtime.load(build_bundle(tmp_path / "b", mesh=small_box, load="hat"))
     assert a.manifest["key"] != b.manifest["key"]
     assert not np.allclose(a.D, b.D)
     with pytest.raises(ValueError, match="unknown load"):

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from runtime.bundle import GreensFunctions
-from runtime.hail import (
+from hailstorm.runtime.bundle import GreensFunctions
+from hailstorm.runtime.hail import (
     GRAVITY,
     SizeDistribution,
     contact_step,
@@ -100,7 +100,7 @@ def test_restitution_damping_round_trip(e):
 
 def _bounce(e: float, integrator: str, omega_dt: float, k: float = 1e4, m: float = 1e-3, v0: float = 1.0) -> float:
     """Exit speed of one unilateral spring-dashpot impact (no gravity)."""
-    from runtime.hail import damping_coefficients
+    from hailstorm.runtime.hail import damping_coefficients
 
     omega = np.sqrt(k / m)
     dt = omega_dt / omega
@@ -140,7 +140,7 @@ def test_exact_coupled_contacts_match_a_fine_reference():
     K = np.linalg.inv(W)
     m = np.array([1e-3, 2e-3])
     g = np.array([-9.81, -9.81])
-    from runtime.hail import damping_coefficients
+    from hailstorm.runtime.hail import damping_coefficients
 
     def run(integrator, dt, T=0.004):
         q, v = np.zeros(2), np.array([-1.0, -0.6])
@@ -185,7 +185,7 @@ def _oscillate(integrator: str, dt: float, k: float, m: float, steps: int = 400)
 def test_stability_limit_on_a_seat_contact():
     """Symplectic Euler diverges above dt = 2/omega and is bounded below it;
     backward Euler is bounded at 10x that. k is a real contact's capacitance."""
-    from runtime.contact import capacitance
+    from hailstorm.runtime.contact import capacitance
 
     gf = plate_gf()
     cap = capacitance(gf, np.array([100]), np.array([[0.2, 0.3, 0.5]]), mode="frictionless")
@@ -212,7 +212,7 @@ def test_active_set_releases_pulling_contact():
 
 
 def _drop(e: float, h0: float, r: float = 0.005, integrator: str = "implicit", t_end: float = 0.6):
-    from runtime.storm import Scene, Storm
+    from hailstorm.runtime.storm import Scene, Storm
 
     gf = plate_gf()
     sc = Scene(duration=t_end, dt=5e-4, restitution=e, drag=False, integrator=integrator, stones=0)

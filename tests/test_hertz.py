@@ -19,7 +19,7 @@ With the unscaled offset the error falls as h^1.25 towards ~1.02
 Boussinesq estimate gives 1.5 %); the old prescription converges to ~1.3, the
 1/0.8 of prescribing delta instead of the Hertz-weighted mean
 delta - a^2/(5R). press_spheres scales the offset by how well the mesh
-resolves the patch (runtime.weights.sphere_mean_offset), which costs 1-2 %
+resolves the patch (hailstorm.runtime.weights.sphere_mean_offset), which costs 1-2 %
 on the coarse block and vanishes with refinement. The default-run test uses
 the 0.35 mm block (20 % tolerance, and the old prescription must be 30 %
 off); the slow test refines twice and extrapolates (see its docstring).
@@ -32,11 +32,11 @@ import pytest
 
 pytest.importorskip("gmsh")
 
-import runtime  # noqa: E402
-from precompute import build_bundle  # noqa: E402
-from precompute.halfspace import halfspace_block  # noqa: E402
-from runtime.hertz import hertz_force, press_spheres
-from runtime.weights import hertz_mean_offset  # noqa: E402
+import hailstorm.runtime  # noqa: E402
+from hailstorm.precompute import build_bundle  # noqa: E402
+from hailstorm.precompute.halfspace import halfspace_block  # noqa: E402
+from hailstorm.runtime.hertz import hertz_force, press_spheres  # noqa: E402
+from hailstorm.runtime.weights import hertz_mean_offset  # noqa: E402
 
 E, NU, R = 2.0e6, 0.35, 0.01
 RATIOS = (0.01, 0.02, 0.04)
@@ -56,7 +56,7 @@ def origin_contact(gf) -> tuple[int, np.ndarray]:
 
 def _block_bundle(path, fine: float):
     mesh = halfspace_block(fine_size=fine, top_half_width=0.0025, fine_radius=0.003)
-    return runtime.load(build_bundle(path, mesh=mesh, order=1, young=E, poisson=NU))
+    return hailstorm.runtime.load(build_bundle(path, mesh=mesh, order=1, young=E, poisson=NU))
 
 
 def _force_ratios(gf) -> tuple[np.ndarray, np.ndarray]:
@@ -67,7 +67,7 @@ def _force_ratios(gf) -> tuple[np.ndarray, np.ndarray]:
         d = rel * R
         res = press_spheres(gf, [t], [b], [d], R)
         new.append(res.normal_force[0] / hertz_force(d, R, E, NU))
-        sol = runtime.solve_contacts(gf, [t], [b], -d * n, mode="frictionless", normals=n,
+        sol = hailstorm.runtime.solve_contacts(gf, [t], [b], -d * n, mode="frictionless", normals=n,
                                      patch_radius=np.sqrt(R * d))
         old.append(-sol.forces[0, 2] / hertz_force(d, R, E, NU))
     return np.array(new), np.array(old)
@@ -98,7 +98,7 @@ def test_press_spheres_matches_hertz_on_a_coarse_block(coarse_block):
 def test_press_spheres_radius_is_consistent_with_its_force(coarse_block):
     t, b = origin_contact(coarse_block)
     res = press_spheres(coarse_block, [t], [b], [2e-4], R)
-    a_of_f = runtime.hertz_radius(res.normal_force, R, E, NU)
+    a_of_f = hailstorm.runtime.hertz_radius(res.normal_force, R, E, NU)
     np.testing.assert_allclose(res.patch_radius, a_of_f, rtol=1e-5)
     assert res.patch_radius[0] == pytest.approx(np.sqrt(R * 2e-4), rel=0.1)  # near Hertz's sqrt(R delta)
 

@@ -7,9 +7,9 @@ import json
 import numpy as np
 import pytest
 
-from runtime.scene import Scene, SceneError
-from runtime import patches
-from runtime.storm import Storm, run_storm
+from hailstorm.runtime.scene import Scene, SceneError
+from hailstorm.runtime import patches
+from hailstorm.runtime.storm import Storm, run_storm
 from test_hail import plate_gf
 
 
@@ -183,7 +183,7 @@ def test_contact_on_a_clamped_edge_of_a_soft_triangle_is_a_hard_wall(gf, backend
 
 
 def test_outputs(tmp_path, gf, short_storm):
-    from runtime.output import write_animation, write_paraview, write_summary
+    from hailstorm.runtime.output import write_animation, write_paraview, write_summary
 
     s = write_summary(short_storm, tmp_path / "summary.json")
     data = json.loads(s.read_text())
@@ -218,7 +218,7 @@ def test_outputs(tmp_path, gf, short_storm):
 
 def test_short_storm_on_the_seat(seat_bundle):
     """The real (coarse) seat bundle: a short storm stays finite and bounded."""
-    from runtime.bundle import load
+    from hailstorm.runtime.bundle import load
 
     gf = load(seat_bundle)
     sc = Scene(duration=0.04, stones=6, seed=3, spawn_height=0.01)
@@ -234,7 +234,7 @@ def test_closest_point_and_index_match_brute_force(gf):
     """Narrow phase: the vectorised closest point (against dense sampling of each
     triangle) and the sampled k-d index query (against all triangles), including the
     ball-query fallback and a local displacement callback."""
-    from runtime.collide import SurfaceIndex, closest_point_on_triangles
+    from hailstorm.runtime.collide import SurfaceIndex, closest_point_on_triangles
 
     rng = np.random.default_rng(0)
     A, B, C, P = (rng.normal(size=(300, 3)) for _ in range(4))
@@ -304,7 +304,7 @@ def _drop(gf, patch, r=0.005, v0=9.0, integrator="exact", dt=5e-4, at_vertex=Tru
 def test_patch_drop_on_the_seat_restitution_and_one_weighting(seat_bundle, integrator, dt, tol):
     """A single impact with patch contact: restitution on target, the disc is sized once
     (expected peak force) and kept for the whole impact (one capacitance, <= 2 weightings)."""
-    from runtime.bundle import load
+    from hailstorm.runtime.bundle import load
 
     gf = load(seat_bundle)
     st, e = _drop(gf, "hertz", integrator=integrator, dt=dt)
@@ -355,7 +355,7 @@ def test_resting_stone_reuses_its_patch(gf):
     assert S["patch_weights_computed"] <= 4  # 300 steps in contact: the weights are not recomputed
     assert S["capacitance_rebuilds"] <= 4  # nor the capacitance (the key does not change)
     # at rest the radius is the Hertz radius of the stone's weight (floored)
-    from runtime.weights import hertz_radius
+    from hailstorm.runtime.weights import hertz_radius
 
     a_rest = float(hertz_radius(st.mass[0] * 9.81, 0.005, gf.young, gf.poisson, a_min=sc.patch_min_radius))
     assert st.crad[0] == pytest.approx(a_rest, rel=sc.patch_tolerance + 0.01)
@@ -364,7 +364,7 @@ def test_resting_stone_reuses_its_patch(gf):
 def test_patch_and_point_storms_on_the_seat(seat_bundle):
     """The real (coarse) seat: patch and point storms both run, stay finite and bounded; the
     patch storm is reproducible, and its in-contact overlap is within a stated tolerance."""
-    from runtime.bundle import load
+    from hailstorm.runtime.bundle import load
 
     gf = load(seat_bundle)
     out = {}

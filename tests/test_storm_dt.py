@@ -13,9 +13,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from runtime.hail import contact_step, damping_coefficients
-from runtime.scene import Scene
-from runtime.storm import Storm
+from hailstorm.runtime.hail import contact_step, damping_coefficients
+from hailstorm.runtime.scene import Scene
+from hailstorm.runtime.storm import Storm
 from test_hail import plate_gf
 
 BACKENDS = ["numpy", "numba"]
@@ -111,8 +111,8 @@ def test_impact_inside_one_substep_is_counted(backend):
 @pytest.fixture(scope="module")
 def default_seat(tmp_path_factory):
     """The default seat (P1, 6 mm): the issue's configuration."""
-    from precompute import build_bundle
-    from runtime.bundle import load
+    from hailstorm.precompute import build_bundle
+    from hailstorm.runtime.bundle import load
 
     return load(build_bundle(tmp_path_factory.mktemp("gf") / "seat6", mesh_size=0.006, order=1))
 

@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from runtime.cli import main
-from runtime.output import STORM_MANIFEST, OutputError, StormOutput
-from runtime.scene import Scene
-from runtime.storm import run_storm
+from hailstorm.runtime.cli import main
+from hailstorm.runtime.output import STORM_MANIFEST, OutputError, StormOutput
+from hailstorm.runtime.scene import Scene
+from hailstorm.runtime.storm import run_storm
 from test_hail import plate_gf
 
 
@@ -150,7 +150,7 @@ def test_estimate_matches_the_run(gf):
 
 
 def test_disk_estimate_bounds_the_written_output(seat_bundle, tmp_path):
-    from runtime.bundle import load
+    from hailstorm.runtime.bundle import load
 
     g = load(seat_bundle)
     sc = Scene(duration=0.04, stones=4, seed=3, spawn_height=0.01)
@@ -189,7 +189,7 @@ def test_physical_warnings(gf, caplog):
     assert any("no stone reaches the seat" in w for w in updraft.physical_warnings(gf.vertices))
     for sc in (windy, updraft):
         caplog.clear()
-        with caplog.at_level(logging.WARNING, logger="runtime.storm"):
+        with caplog.at_level(logging.WARNING, logger="hailstorm.runtime.storm"):
             res = run_storm(gf, sc, progress=False)
         assert any("no stone reaches the seat" in r.getMessage() for r in caplog.records)
         assert res.stats["stones_hit"] == 0  # the storm itself agrees
@@ -205,10 +205,10 @@ def test_every_kernel_group_announces_its_compile(gf, caplog, monkeypatch, integ
     in one INFO line (delay 0 here: every group is announced, whether it compiles or
     loads from numba's cache)."""
     pytest.importorskip("numba")
-    import runtime.storm as storm_mod
+    import hailstorm.runtime.storm as storm_mod
 
     monkeypatch.setattr(storm_mod, "COMPILE_NOTICE_DELAY", 0.0)
-    with caplog.at_level(logging.INFO, logger="runtime.storm"):
+    with caplog.at_level(logging.INFO, logger="hailstorm.runtime.storm"):
         storm_mod.Storm(gf, _scene(integrator=integrator, backend="numba"))
         import time
 

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from precompute import box_mesh
-from precompute import study as S
+from hailstorm.precompute import box_mesh
+from hailstorm.precompute import study as S
 
 SIZE = (0.1, 0.1, 0.05)
 ROOT = Path(__file__).resolve().parents[1]
@@ -56,7 +56,7 @@ def test_pareto_front_hand_made():
 
 def test_nodal_loads_sum_to_the_disc_force():
     mesh = mesher(0.025)
-    from precompute.geometry import boundary_triangles
+    from hailstorm.precompute.geometry import boundary_triangles
 
     tris = boundary_triangles(mesh.tets)
     load = S.LoadCase((0.05, 0.05), 0.02, 1000.0)
@@ -81,7 +81,7 @@ def test_trace_shape_reproduces_quadratics():
 
 def test_locate_probes_rejects_a_probe_off_the_seat(scenario):
     mesh = mesher(0.025)
-    from precompute.geometry import boundary_triangles
+    from hailstorm.precompute.geometry import boundary_triangles
 
     tris = boundary_triangles(mesh.tets)
     loc = S.locate_probes(mesh.points, tris, np.array(scenario.probes))

@@ -10,22 +10,22 @@ counterpart elsewhere in :mod:`runtime`, the reference the tests hold it to.
 
 Modules, in the order of a storm step:
 
-* :mod:`~runtime.compiled.grid` — the surface's samples in a uniform grid
+* :mod:`~hailstorm.runtime.compiled.grid` — the surface's samples in a uniform grid
   (:class:`SampleGrid`), nearest samples and closest points of the deformed
   surface (:func:`closest_points`);
-* :mod:`~runtime.compiled.flight` — free flight with drag, the broad phase
+* :mod:`~hailstorm.runtime.compiled.flight` — free flight with drag, the broad phase
   (:func:`near_set`), retirement;
-* :mod:`~runtime.compiled.narrow` — the free part of a sub-step
+* :mod:`~hailstorm.runtime.compiled.narrow` — the free part of a sub-step
   (:func:`free_phase`: closest points, time of impact, contacts that open,
   hard walls) and the penetration statistics;
-* :mod:`~runtime.compiled.patches` — patch weights, a patch's compliance and
+* :mod:`~hailstorm.runtime.compiled.patches` — patch weights, a patch's compliance and
   the patch sizing of the storm's contacts;
-* :mod:`~runtime.compiled.blocks` — blocks of D (D_VV, D_VV G, W, D[:, V] g)
+* :mod:`~hailstorm.runtime.compiled.blocks` — blocks of D (D_VV, D_VV G, W, D[:, V] g)
   and one-call point-contact solves: the contact API's kernels
-  (:func:`runtime.contact.solve_contacts`), also used by the storm;
-* :mod:`~runtime.compiled.contacts` — a storm contact set's blocks (W, K, G,
+  (:func:`hailstorm.runtime.contact.solve_contacts`), also used by the storm;
+* :mod:`~hailstorm.runtime.compiled.contacts` — a storm contact set's blocks (W, K, G,
   D_VV G) and the constrained coordinates around a contact step;
-* :mod:`~runtime.compiled.integrators` — the exact, implicit and symplectic
+* :mod:`~hailstorm.runtime.compiled.integrators` — the exact, implicit and symplectic
   contact steps, the sub-step sizing and the dashpot.
 
 The kernels are compiled on first use and cached on disk (``cache=True``,
@@ -36,12 +36,12 @@ storm's set); later processes load them in ~0.3 s.
 
 from __future__ import annotations
 
-from runtime.compiled._jit import HAVE_NUMBA
-from runtime.compiled.blocks import columns_times, contact_compliance, point_contacts, vertex_block, weighted_rows
-from runtime.compiled.contacts import capacitance_blocks, contact_post, contact_prep, inv_spd, rigid_contacts
-from runtime.compiled.flight import flight, near_set, retired
-from runtime.compiled.grid import SampleGrid, closest_points
-from runtime.compiled.integrators import (
+from hailstorm.runtime.compiled._jit import HAVE_NUMBA
+from hailstorm.runtime.compiled.blocks import columns_times, contact_compliance, point_contacts, vertex_block, weighted_rows
+from hailstorm.runtime.compiled.contacts import capacitance_blocks, contact_post, contact_prep, inv_spd, rigid_contacts
+from hailstorm.runtime.compiled.flight import flight, near_set, retired
+from hailstorm.runtime.compiled.grid import SampleGrid, closest_points
+from hailstorm.runtime.compiled.integrators import (
     exact_step,
     explicit_modes,
     modal_stiffness,
@@ -49,8 +49,8 @@ from runtime.compiled.integrators import (
     substep_damping,
     substep_size,
 )
-from runtime.compiled.narrow import free_phase, penetration
-from runtime.compiled.patches import patch_compliance, patch_one, patch_radii
+from hailstorm.runtime.compiled.narrow import free_phase, penetration
+from hailstorm.runtime.compiled.patches import patch_compliance, patch_one, patch_radii
 
 __all__ = [
     "HAVE_NUMBA",

@@ -1,4 +1,4 @@
-"""numba, if installed: the decorator every kernel of :mod:`runtime.compiled` uses."""
+"""numba, if installed: the decorator every kernel of :mod:`hailstorm.runtime.compiled` uses."""
 
 from __future__ import annotations
 

@@ -1,9 +1,9 @@
 """The contact API's kernels: blocks of D, the contact compliance, one-call point-contact solves.
 
-Used by :func:`runtime.contact.solve_contacts` and :func:`runtime.contact.capacitance`
-with ``backend="numba"`` (numpy references in :mod:`runtime.gather`,
-:mod:`runtime.contact_capacitance` and :mod:`runtime.contact`), and by the
-storm's :func:`runtime.compiled.contacts.capacitance_blocks`:
+Used by :func:`hailstorm.runtime.contact.solve_contacts` and :func:`hailstorm.runtime.contact.capacitance`
+with ``backend="numba"`` (numpy references in :mod:`hailstorm.runtime.gather`,
+:mod:`hailstorm.runtime.contact_capacitance` and :mod:`hailstorm.runtime.contact`), and by the
+storm's :func:`hailstorm.runtime.compiled.contacts.capacitance_blocks`:
 
 * :func:`vertex_block` -- ``D_VV`` (transposed), gathered row by row;
 * :func:`weighted_rows` -- ``G^T M``: ``D_VV G`` or the full-surface response;
@@ -18,7 +18,7 @@ import math
 
 import numpy as np
 
-from runtime.compiled._jit import _njit
+from hailstorm.runtime.compiled._jit import _njit
 
 __all__ = ["columns_times", "contact_compliance", "point_contacts", "vertex_block", "weighted_rows"]
 
@@ -76,7 +76,7 @@ def vertex_block(V, Dt, column_of):  # pragma: no cover (compiled)
 def weighted_rows(M, blocks, loc, w, normals, sticky):  # pragma: no cover (compiled)
     """``Y = G^T M``: the rows of ``M`` combined with the weights of the contact constraints.
 
-    ``G`` (``3|V| x m``) is the constraint matrix of :mod:`runtime.contact` (``B``
+    ``G`` (``3|V| x m``) is the constraint matrix of :mod:`hailstorm.runtime.contact` (``B``
     for sticky contacts, ``B N`` for frictionless ones); its row ``3i + d`` is
     read from row ``3 blocks[i] + d`` of ``M`` (skipped where ``blocks[i] < 0``).
 
@@ -132,7 +132,7 @@ def contact_compliance(Y, loc, w, normals, sticky):  # pragma: no cover (compile
 
     ``Y`` is :func:`weighted_rows` of :func:`vertex_block`. ``Y G`` is
     ``G^T D_VV^T G = W^T``; the symmetrised result is the same W (up to
-    rounding) as numpy's ``runtime.contact_capacitance._contact_compliance``.
+    rounding) as numpy's ``hailstorm.runtime.contact_capacitance._contact_compliance``.
     Arguments as in :func:`weighted_rows`; returns the (m, m) W.
     """
     s, P = loc.shape
@@ -206,7 +206,7 @@ def columns_times(Dt, cols, g):  # pragma: no cover (compiled)
 def _cholesky_solve(A, rhs, cond_limit):  # pragma: no cover (compiled)
     """``A^-1 rhs`` by Cholesky (LAPACK) for a symmetric A, or None if A is not positive
     definite or its condition estimate ``(max L_ii / min L_ii)^2`` reaches ``cond_limit``
-    (the test of ``runtime.contact_capacitance._Factor``)."""
+    (the test of ``hailstorm.runtime.contact_capacitance._Factor``)."""
     m = A.shape[0]
     if m == 0:
         return np.zeros(0)
@@ -242,7 +242,7 @@ def _cholesky_solve(A, rhs, cond_limit):  # pragma: no cover (compiled)
 @_njit
 def point_contacts(Dt, column_of, contactable, fixed, triangles, vertices, tri, bary, ubar, sticky, want_u,
                    bary_sum_tol, bary_neg_tol, cond_limit):  # pragma: no cover (compiled)
-    """One fresh solve of bilateral point contacts, whole: :func:`runtime.contact.solve_contacts`'
+    """One fresh solve of bilateral point contacts, whole: :func:`hailstorm.runtime.contact.solve_contacts`'
     fast path for the common case.
 
     Validates, finds V, forms ``W = G^T D_VV G`` straight from D's columns (no
@@ -314,7 +314,7 @@ def point_contacts(Dt, column_of, contactable, fixed, triangles, vertices, tri, 
     V = np.sort(lst[:nV])
     for i in range(nV):
         pos[V[i]] = i
-    # normals (frictionless), from the triangles as runtime.weights.triangle_normals
+    # normals (frictionless), from the triangles as hailstorm.runtime.weights.triangle_normals
     nrm = np.zeros((s, 3))
     if not sticky:
         for k in range(s):

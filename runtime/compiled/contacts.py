@@ -1,11 +1,11 @@
 """A storm contact set's blocks and the stones' constrained coordinates around a contact step.
 
 * :func:`capacitance_blocks` -- all of a storm contact set's blocks in one call
-  (numpy reference: :func:`runtime.soft_contacts.contact_set`);
+  (numpy reference: :func:`hailstorm.runtime.soft_contacts.contact_set`);
 * :func:`contact_prep`, :func:`contact_post` -- the two halves of a storm's
   contact step around the integrator.
 
-The blocks of D come from :mod:`runtime.compiled.blocks` (shared with the contact API).
+The blocks of D come from :mod:`hailstorm.runtime.compiled.blocks` (shared with the contact API).
 """
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ import math
 
 import numpy as np
 
-from runtime.compiled._jit import _njit
-from runtime.compiled.blocks import contact_compliance, vertex_block, weighted_rows
+from hailstorm.runtime.compiled._jit import _njit
+from hailstorm.runtime.compiled.blocks import contact_compliance, vertex_block, weighted_rows
 
 __all__ = ["capacitance_blocks", "contact_post", "contact_prep", "inv_spd", "rigid_contacts"]
 
@@ -23,7 +23,7 @@ __all__ = ["capacitance_blocks", "contact_post", "contact_prep", "inv_spd", "rig
 @_njit
 def rigid_contacts(verts, w, fixed):  # pragma: no cover (compiled)
     """True if some contact's weight lies entirely on clamped vertices
-    (``runtime.contact_capacitance._rigid``, any)."""
+    (``hailstorm.runtime.contact_capacitance._rigid``, any)."""
     for k in range(verts.shape[0]):
         free_w = 0.0
         for p in range(verts.shape[1]):
@@ -117,7 +117,7 @@ def capacitance_blocks(verts, w, normals, sticky, D, column_of):  # pragma: no c
 @_njit
 def inv_spd(W, cond_limit, rcond):  # pragma: no cover (compiled)
     """Inverse of a small symmetric positive (semi-)definite matrix under the contact
-    API's policy (:func:`runtime.contact_capacitance.spd_inverse`; pass its
+    API's policy (:func:`hailstorm.runtime.contact_capacitance.spd_inverse`; pass its
     ``COND_LIMIT`` and ``PINV_RCOND``): Cholesky if the condition estimate from the
     factor's diagonal is below ``cond_limit``, else the pseudo-inverse (eigenvalues
     below ``rcond`` times the largest dropped)."""
@@ -157,12 +157,12 @@ def inv_spd(W, cond_limit, rcond):  # pragma: no cover (compiled)
 @_njit
 def contact_prep(soft, pos, vel, radius, mass, g, wind, drag_coef, nk, Xc, rest, Kdiag, sticky, exact,
                  rest_speed, zeta):  # pragma: no cover (compiled)
-    """The constrained coordinates of a contact set for :func:`runtime.hail.contact_step`
+    """The constrained coordinates of a contact set for :func:`hailstorm.runtime.hail.contact_step`
     (compiled first half of ``Storm._soft_contacts``): ``(q, anchor, v, accel, mass,
     always_damped, acc, damping)``, per contact (frictionless, normal components) or
     per component (sticky); ``acc`` (s, 3) is the stones' gravity + drag; ``damping``
     the exact integrator's dashpot ``2 zeta sqrt(K_ii m_i)``
-    (:func:`runtime.hail.damping_coefficients` with ``zeta`` for the scene's
+    (:func:`hailstorm.runtime.hail.damping_coefficients` with ``zeta`` for the scene's
     restitution)."""
     s = soft.size
     nq = 3 * s if sticky else s
@@ -217,9 +217,9 @@ def contact_prep(soft, pos, vel, radius, mass, g, wind, drag_coef, nk, Xc, rest,
 def contact_post(soft, pos, vel, ctri, hit, was_open, nk, acc, q, a, vq, gq, rq, rv, ractive, rseat, rpeak,
                  rpubar, sticky, exact, h, rest_speed):  # pragma: no cover (compiled)
     """Apply a contact step to the stones, in place (compiled second half of
-    :func:`runtime.soft_contacts.advance`): new positions and velocities (frictionless: free
+    :func:`hailstorm.runtime.soft_contacts.advance`): new positions and velocities (frictionless: free
     tangential motion), released contacts closed, impacts marked. ``rpeak``, ``rpubar``:
-    the step's ``peak_seat_force`` and ``peak_ubar`` (:class:`runtime.hail.ContactStep`);
+    the step's ``peak_seat_force`` and ``peak_ubar`` (:class:`hailstorm.runtime.hail.ContactStep`);
     a contact that carried force at some instant of the step counts as touched.
 
     Returns

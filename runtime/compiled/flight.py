@@ -1,7 +1,7 @@
 """Stones in flight: free flight with drag, the broad phase (conservative advancement)
 and retirement.
 
-The numpy references are :func:`runtime.hail.free_flight` and
+The numpy references are :func:`hailstorm.runtime.hail.free_flight` and
 ``Storm._near_set`` / ``Storm.step``.
 """
 
@@ -11,8 +11,8 @@ import math
 
 import numpy as np
 
-from runtime.compiled._jit import _njit
-from runtime.compiled.grid import SampleGrid, _nearest_sample
+from hailstorm.runtime.compiled._jit import _njit
+from hailstorm.runtime.compiled.grid import SampleGrid, _nearest_sample
 
 __all__ = ["flight", "near_set", "retired"]
 
@@ -22,7 +22,7 @@ def flight(idx, pos, vel, radius, h, g, wind, drag_coef):  # pragma: no cover (c
     """Free flight of stones ``idx`` over ``h``, in place: gravity ``g`` [m/s^2] plus,
     if ``drag_coef > 0``, quadratic drag ``-(drag_coef / r) |v - wind| (v - wind)``
     (``drag_coef = 3 C_d rho_air / (8 rho_ice)``), taken constant over the step as
-    :func:`runtime.hail.free_flight` does."""
+    :func:`hailstorm.runtime.hail.free_flight` does."""
     a = np.empty(3)
     for q in range(idx.size):
         i = idx[q]

@@ -1,7 +1,7 @@
 """Spatial queries inside compiled code: the surface's sample points in a uniform grid,
 nearest samples and closest points of the (deformed) surface.
 
-The numpy reference is :meth:`runtime.collide.SurfaceIndex.query` (a k-d tree
+The numpy reference is :meth:`hailstorm.runtime.collide.SurfaceIndex.query` (a k-d tree
 over the same samples).
 """
 
@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from runtime.compiled._jit import _njit
+from hailstorm.runtime.compiled._jit import _njit
 
 __all__ = ["SampleGrid", "closest_points"]
 
@@ -286,7 +286,7 @@ def closest_points(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Closest points of the (deformed) surface to ``points``, within ``reach``.
 
-    The compiled counterpart of :meth:`runtime.collide.SurfaceIndex.query`:
+    The compiled counterpart of :meth:`hailstorm.runtime.collide.SurfaceIndex.query`:
     the same candidate bound and the same exact point-triangle distances.
     The surface is deformed by ``u = D[:, cols] @ forces`` (evaluated only at
     candidate vertices) when ``forces`` is given.

@@ -1,8 +1,8 @@
 """The contact integrators' steps: exact (closed form, modal with events) and the
 sub-stepped backward Euler / symplectic Euler with their step sizing and dashpot.
 
-The numpy references are :func:`runtime.hail.contact_step`,
-:func:`runtime.hail.damping_coefficients` and ``Storm._substep_size``.
+The numpy references are :func:`hailstorm.runtime.hail.contact_step`,
+:func:`hailstorm.runtime.hail.damping_coefficients` and ``Storm._substep_size``.
 """
 
 from __future__ import annotations
@@ -11,21 +11,21 @@ import math
 
 import numpy as np
 
-from runtime.compiled._jit import _njit
-from runtime.compiled.contacts import inv_spd
-from runtime.hail import _equilibrium as _hail_equilibrium
-from runtime.hail import _explicit_modes as _hail_explicit_modes
-from runtime.hail import _modal_damping as _hail_modal_damping
-from runtime.hail import _modal_stiffness as _hail_modal_stiffness
-from runtime.hail import _scalar_exact as _hail_scalar_exact
+from hailstorm.runtime.compiled._jit import _njit
+from hailstorm.runtime.compiled.contacts import inv_spd
+from hailstorm.runtime.hail import _equilibrium as _hail_equilibrium
+from hailstorm.runtime.hail import _explicit_modes as _hail_explicit_modes
+from hailstorm.runtime.hail import _modal_damping as _hail_modal_damping
+from hailstorm.runtime.hail import _modal_stiffness as _hail_modal_stiffness
+from hailstorm.runtime.hail import _scalar_exact as _hail_scalar_exact
 
 __all__ = ["exact_step", "explicit_modes", "modal_stiffness", "substep_contacts", "substep_damping", "substep_size"]
 
 
-#: the static equilibrium of the exact step (runtime.hail's own function, compiled)
+#: the static equilibrium of the exact step (hailstorm.runtime.hail's own function, compiled)
 _equilibrium = _njit(_hail_equilibrium)
 
-#: the closed-form single contact of the exact integrator: runtime.hail's own function, compiled
+#: the closed-form single contact of the exact integrator: hailstorm.runtime.hail's own function, compiled
 _scalar_exact = _njit(_hail_scalar_exact)
 
 
@@ -112,7 +112,7 @@ def _modal_at(lam, V, Vi, z0, tau):  # pragma: no cover (compiled)
 
 @_njit
 def _track(idx, Ka, ub, ncol, group, wts, ng, pk2, pk_f, dmin, dmin_u):  # pragma: no cover (compiled)
-    """Update the step's peaks (``runtime.hail._exact_step``'s ``track``) from the first
+    """Update the step's peaks (``hailstorm.runtime.hail._exact_step``'s ``track``) from the first
     ``ncol`` states of the active components ``idx`` (``ub``: their q - a, (na, T)):
     per contact group the largest |elastic seat force| and the most negative normal q - a."""
     na = idx.size
@@ -147,11 +147,11 @@ def _track(idx, Ka, ub, ncol, group, wts, ng, pk2, pk_f, dmin, dmin_u):  # pragm
 @_njit
 def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond_limit,
                rcond):  # pragma: no cover (compiled)
-    """Compiled ``runtime.hail._exact_step`` (the exact integrator's step; see there):
+    """Compiled ``hailstorm.runtime.hail._exact_step`` (the exact integrator's step; see there):
     ``Cn`` the (n, n) dashpot, ``cond_limit``, ``rcond`` the policy of :func:`inv_spd`.
 
     Returns ``(q, v, active, force, seat_force, peak_seat_force, peak_ubar, ok)``
-    (see :class:`runtime.hail.ContactStep`); ``ok`` is False in the rare
+    (see :class:`hailstorm.runtime.hail.ContactStep`); ``ok`` is False in the rare
     cases the compiled version does not cover (a nearly defective modal basis, an
     overdamped single contact): the caller then runs the numpy version.
     """
@@ -402,13 +402,13 @@ def substep_size(near, h_left, hmin, vel, radius, mass, pos, gap, near_tri, ctri
     return min(max(h, hmin), h_left)
 
 
-#: the contact set's modal dashpot (runtime.hail's own function, compiled):
+#: the contact set's modal dashpot (hailstorm.runtime.hail's own function, compiled):
 #: ``substep_damping(om2, Phi, sqm, restitution, dt, implicit, x_grid, z_grid)`` -> (n, n)
-#: (``x_grid``, ``z_grid``: the restitution table of :func:`runtime.hail.damping_ratio_for_restitution`)
+#: (``x_grid``, ``z_grid``: the restitution table of :func:`hailstorm.runtime.hail.damping_ratio_for_restitution`)
 substep_damping = _njit(_hail_modal_damping)
-#: the modal frequencies an explicit step carries (runtime.hail's, compiled)
+#: the modal frequencies an explicit step carries (hailstorm.runtime.hail's, compiled)
 explicit_modes = _njit(_hail_explicit_modes)
-#: K and its pseudo-inverse W from modes (runtime.hail's, compiled)
+#: K and its pseudo-inverse W from modes (hailstorm.runtime.hail's, compiled)
 modal_stiffness = _njit(_hail_modal_stiffness)
 
 
@@ -416,7 +416,7 @@ modal_stiffness = _njit(_hail_modal_stiffness)
 def substep_contacts(q, v, a, m, g, dt, K, W, C, implicit, unilateral, group, wts, cond_limit,
                      rcond):  # pragma: no cover
     """Compiled implicit (backward Euler) and symplectic Euler contact step of
-    :func:`runtime.hail.contact_step` (see there): the (n, n) dashpot ``C`` in compression
+    :func:`hailstorm.runtime.hail.contact_step` (see there): the (n, n) dashpot ``C`` in compression
     only, unilateral release by active-set iteration (``cond_limit``, ``rcond``: the
     policy of :func:`inv_spd`). Returns ``(q, v, active, force, seat_force)``."""
     n = q.size

@@ -11,9 +11,9 @@ import math
 
 import numpy as np
 
-from runtime.compiled._jit import _njit
-from runtime.compiled.flight import _drag_dot
-from runtime.compiled.grid import _closest_one
+from hailstorm.runtime.compiled._jit import _njit
+from hailstorm.runtime.compiled.flight import _drag_dot
+from hailstorm.runtime.compiled.grid import _closest_one
 
 __all__ = ["free_phase", "penetration"]
 

@@ -1,7 +1,7 @@
 """Patch contacts: the weights of a Hertz pressure disc, a patch's normal compliance and
 the storm's patch sizing.
 
-The numpy references are :func:`runtime.weights.patch_weights` and
+The numpy references are :func:`hailstorm.runtime.weights.patch_weights` and
 ``Storm._patch_stiffness`` / ``Storm._patch_radii``.
 """
 
@@ -11,17 +11,17 @@ import math
 
 import numpy as np
 
-from runtime.compiled._jit import _njit
-from runtime.compiled.flight import _drag_dot
-from runtime.compiled.grid import _cell_range
+from hailstorm.runtime.compiled._jit import _njit
+from hailstorm.runtime.compiled.flight import _drag_dot
+from hailstorm.runtime.compiled.grid import _cell_range
 
 __all__ = ["patch_compliance", "patch_one", "patch_radii"]
 
 
 @_njit
 def _one_patch(x, n, a, h, qx, qy, qw, facing, drop, pidx):  # pragma: no cover (compiled)
-    """Compiled ``runtime.weights._one_patch``: (vertices, weights) of one patch, both
-    empty if the disc hits no usable triangle. ``pidx``: :func:`runtime.weights._patch_index_arrays`."""
+    """Compiled ``hailstorm.runtime.weights._one_patch``: (vertices, weights) of one patch, both
+    empty if the disc hits no usable triangle. ``pidx``: :func:`hailstorm.runtime.weights._patch_index_arrays`."""
     glo, gh, gdims, gstart, gitems, cent, radii, tnorm, p0, e1, e2, reach, tris, T, nv = pidx
     tol = 1e-12 * max(a, 1.0)
     lim = a + reach + tol
@@ -59,7 +59,7 @@ def _one_patch(x, n, a, h, qx, qy, qw, facing, drop, pidx):  # pragma: no cover 
                 r1 = (c + 1) % 3; r2 = (c + 2) % 3
                 c1 = (r + 1) % 3; c2 = (r + 2) % 3
                 Minv[m, r, c] = (A[r1, c1] * A[r2, c2] - A[r1, c2] * A[r2, c1]) / det
-    # tangents of the disc, as runtime.weights._tangents
+    # tangents of the disc, as hailstorm.runtime.weights._tangents
     if abs(n[0]) < 0.9:
         ax, ay, az = 1.0, 0.0, 0.0
     else:
@@ -116,7 +116,7 @@ def _one_patch(x, n, a, h, qx, qy, qw, facing, drop, pidx):  # pragma: no cover 
 def patch_one(t, bary, a, n, resolution, rule_off, rule_x, rule_y, rule_w, facing, drop,
               pidx, X):  # pragma: no cover (compiled)
     """Weights of one patch contact on triangle ``t`` at ``bary`` with radius ``a`` and
-    normal ``n`` (``runtime.weights.patch_weights`` for one contact, positive weights
+    normal ``n`` (``hailstorm.runtime.weights.patch_weights`` for one contact, positive weights
     only): (vertices, weights). ``rule_*``: the disc rules of ``n_r`` = 0..40 points per
     radius, concatenated (rule ``n_r`` is ``rule_off[n_r]:rule_off[n_r + 1]``)."""
     T = pidx[13]

@@ -7,7 +7,7 @@ Usage::
     python tests/benchmarks/bench_contacts.py --mesh-size 0.007 --repeat 200
 
 For s in {1, 10, 100} random contacts on contactable triangles it times
-``runtime.solve_contacts`` with full-surface deformation (min / median / max
+``hailstorm.runtime.solve_contacts`` with full-surface deformation (min / median / max
 over repeats; ``--backends numba,numpy`` times both backends side by side),
 one direct FEM saddle-point solve with the same constraints
 (scipy sparse direct, clamp eliminated, the stiffness assembled beforehand and
@@ -29,9 +29,9 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from runtime.bundle import load
-from runtime.compiled import HAVE_NUMBA, resolve_backend
-from runtime.contact import capacitance, solve_contacts, triangle_normals
+from hailstorm.runtime.bundle import load
+from hailstorm.runtime.compiled import HAVE_NUMBA, resolve_backend
+from hailstorm.runtime.contact import capacitance, solve_contacts, triangle_normals
 
 
 def timeit(fn, repeat: int, warmup: int = 3) -> np.ndarray:
@@ -59,20 +59,19 @@ def random_contacts(gf, tris: np.ndarray, rng: np.random.Generator, s: int, sets
 def get_bundle(args) -> Path:
     if args.gf:
         return Path(args.gf)
-    import precompute
-
+    import hailstorm.precompute
     cache = Path(args.cache) if args.cache else Path(tempfile.gettempdir()) / "hailstorm-bench"
     out = cache / f"seat-h{args.mesh_size:g}-p{args.order}"
     t0 = time.perf_counter()
-    path = precompute.build_bundle(out, mesh_size=args.mesh_size, order=args.order)
+    path = hailstorm.precompute.build_bundle(out, mesh_size=args.mesh_size, order=args.order)
     print(f"bundle {path} ready in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
     return path
 
 
 def direct_fem_setup(gf):
     """Stiffness of the bundle's own volume mesh (independent of D), clamp eliminated."""
-    from precompute import fem
-    from precompute.geometry import TetMesh
+    from hailstorm.precompute import fem
+    from hailstorm.precompute.geometry import TetMesh
 
     order = gf.order
     clamp_tris = gf.triangles[gf.fixed[gf.triangles].all(axis=1)]
@@ -311,7 +310,7 @@ def print_floor(gf, s: int, tri: np.ndarray, bary: np.ndarray, repeat: int) -> N
     t_vv = lines * 64 / rate
     t_gather = None
     if HAVE_NUMBA and f_order:  # the same cache lines as scattered reads, in one compiled loop
-        from runtime.compiled import vertex_block
+        from hailstorm.runtime.compiled import vertex_block
 
         t_gather = timeit(lambda: vertex_block(V, D.T, gf.column_of), repeat)
     W = capacitance(gf, tri, bary).W

@@ -30,9 +30,9 @@ import numpy as np
 
 
 def _setup(mesh_size: float, order: int):
-    from precompute import mesh_default_seat
-    from precompute.fem import DEFAULT_POISSON, DEFAULT_YOUNG, clamp_dofs, elasticity_basis, stiffness_matrix, vertex_dofs
-    from precompute.pipeline import extract_surface
+    from hailstorm.precompute import mesh_default_seat
+    from hailstorm.precompute.fem import DEFAULT_POISSON, DEFAULT_YOUNG, clamp_dofs, elasticity_basis, stiffness_matrix, vertex_dofs
+    from hailstorm.precompute.pipeline import extract_surface
 
     mesh = mesh_default_seat(mesh_size)
     surf = extract_surface(mesh)
@@ -47,7 +47,7 @@ def _setup(mesh_size: float, order: int):
 def _baseline(K, fixed, load, read):
     from scipy.sparse.linalg import splu
 
-    from precompute.fem import free_dofs
+    from hailstorm.precompute.fem import free_dofs
 
     free = free_dofs(K.shape[0], fixed)
     where = np.full(K.shape[0], -1)
@@ -69,8 +69,8 @@ def _one(method: str, mesh_size: float, order: int, queue) -> None:
     if method == "baseline":
         D = _baseline(K, fixed, load, read)
     else:
-        from precompute.greens import compliance_matrix
-        from precompute.pipeline import _rigid_modes_on_dofs
+        from hailstorm.precompute.greens import compliance_matrix
+        from hailstorm.precompute.pipeline import _rigid_modes_on_dofs
 
         solver, _, workers = method.partition("-")
         nn = _rigid_modes_on_dofs(basis) if solver == "amg" else None

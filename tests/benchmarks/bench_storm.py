@@ -63,7 +63,7 @@ def seat_drop(gf, integrator: str, adaptive: bool, dt: float, r: float = 0.005, 
               patch: str = "hertz", backend: str = "auto") -> dict:
     """One stone (no drag) hits the seat's top at v0: achieved restitution (normal exit /
     impact speed, target 0.5) and the largest penetration of that impact."""
-    from runtime.storm import Scene, Storm
+    from hailstorm.runtime.storm import Scene, Storm
 
     sc = Scene(duration=0.05, stones=0, drag=False, dt=dt, integrator=integrator, adaptive=adaptive, restitution=0.5,
                patch=patch, backend=backend)
@@ -103,19 +103,19 @@ def main() -> None:
                          "when numba is installed, else numpy)")
     args = ap.parse_args()
 
-    import runtime
-    from runtime.compiled import HAVE_NUMBA
-    from runtime.storm import Scene, run_storm
+    import hailstorm.runtime
+    from hailstorm.runtime.compiled import HAVE_NUMBA
+    from hailstorm.runtime.storm import Scene, run_storm
 
     backends = (args.backends or ("numba,numpy" if HAVE_NUMBA else "numpy")).split(",")
 
     if args.gf:
         path = args.gf
     else:
-        from precompute import build_bundle
+        from hailstorm.precompute import build_bundle
 
         path = build_bundle(None, mesh_size=0.006)
-    gf = runtime.load(path)
+    gf = hailstorm.runtime.load(path)
     rows = []
     base_rtf = None
     for name, backend in ((c, b) for c in args.configs.split(",") for b in backends):
