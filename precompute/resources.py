@@ -11,8 +11,9 @@ not fit in the memory available, unless overridden (``--allow-large``,
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
+
+from hailstorm.runtime.scene import available_memory as runtime_available_memory
 
 #: surface vertices per unit area of a surface meshed at size h, times h^2: 2 / sqrt(3) = 1.15 for
 #: equilateral triangles; measured 0.99-1.48 on the default seat's top at 4-15 mm (coarse meshes
@@ -75,18 +76,10 @@ def estimate_mesh(n_surface: int, n_contactable: int, n_points: int, order: int 
 
 
 def available_memory() -> int:
-    """Bytes of memory available to a new computation (``MemAvailable``, else free physical pages)."""
-    try:
-        with open("/proc/meminfo") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    try:
-        return int(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
-    except (OSError, ValueError, AttributeError):  # pragma: no cover - not POSIX
-        return 2**63 - 1
+    """Bytes of memory available to a new computation (the runtime's
+    :func:`hailstorm.runtime.scene.available_memory`; unknown counts as unlimited)."""
+    avail = runtime_available_memory()
+    return 2**63 - 1 if avail is None else avail
 
 
 def gib(n: float) -> str:
