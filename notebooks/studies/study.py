@@ -34,7 +34,7 @@ reference) as files in ``cache_dir``.
 
 Regenerate the figure::
 
-    python -m hailstorm.precompute.study --out notebooks/figures/speed_vs_accuracy.png
+    python -m hailstorm.studies.study --out notebooks/figures/speed_vs_accuracy.png
 """
 
 from __future__ import annotations
@@ -1108,7 +1108,7 @@ def _json_default(o: Any) -> Any:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m hailstorm.precompute.study [--small] [--recompute] [--out PNG] [--cache DIR]``."""
+    """``python -m hailstorm.studies.study [--small] [--recompute] [--out PNG] [--cache DIR]``."""
     import argparse
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])

@@ -1,0 +1,10 @@
+"""The studies behind the evidence (``hailstorm.studies``): the code the notebooks next to it run.
+
+* :mod:`hailstorm.studies.study` - speed against accuracy of the Green's functions
+  (mesh size, element order, load type, solver, storage);
+* :mod:`hailstorm.studies.contact_study` - mesh dependence of contact stiffness,
+  stability of the integrators, degenerate contacts, P1 locking.
+
+They use both stages (:mod:`hailstorm.precompute`, :mod:`hailstorm.runtime`);
+neither stage imports them.
+"""
