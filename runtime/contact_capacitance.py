@@ -688,12 +688,22 @@ class Capacitance:
         Parameters
         ----------
         k : int
-            Contact index (negative indices count from the end).
+            Contact index, ``0 <= k < s`` (like a triangle index, a negative
+            index is refused, not counted from the end).
+
+        Raises
+        ------
+        IndexError
+            ``k`` out of range.
+        TypeError
+            ``k`` not an integer.
         """
         s = self.s
-        if not -s <= k < s:
-            raise IndexError(f"contact index {k} out of range for {s} contacts")
-        k %= s
+        if isinstance(k, bool) or not isinstance(k, (int, np.integer)):
+            raise TypeError(f"contact index must be an integer, got {k!r}")
+        k = int(k)
+        if not 0 <= k < s:
+            raise IndexError(f"contact index {k} out of range for {s} contacts (0 <= k < {s})")
         p = self.per_contact
         keep = np.ones(s, bool)
         keep[k] = False

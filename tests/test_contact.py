@@ -568,6 +568,11 @@ def test_add_remove_validation(box):
     cap = capacitance(box["gf"], box["touchable"][:2], np.full((2, 3), 1 / 3))
     with pytest.raises(IndexError):
         cap.remove(2)
+    with pytest.raises(IndexError, match="out of range"):  # like a triangle index: -1 is refused
+        cap.remove(-1)
+    with pytest.raises(TypeError, match="integer"):
+        cap.remove(0.5)
+    assert cap.s == 2  # nothing was removed
     with pytest.raises(ValueError, match="sum"):
         cap.add(int(box["touchable"][3]), [0.5, 0.5, 0.5])
     with pytest.raises(ValueError, match="shape"):
