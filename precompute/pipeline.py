@@ -44,6 +44,7 @@ from hailstorm.runtime.bundle import (
     read_manifest,
     write_bundle,
 )
+from hailstorm.runtime.stamps import default_cache_dir
 
 log = logging.getLogger(__name__)
 
@@ -98,15 +99,6 @@ def cache_key(mesh: TetMesh, options: dict) -> str:
     """SHA-256 over the mesh content and every option that changes D."""
     payload = json.dumps({"format_version": FORMAT_VERSION, "mesh": mesh.content_hash(), **options}, sort_keys=True)
     return hashlib.sha256(payload.encode()).hexdigest()
-
-
-def default_cache_dir() -> Path:
-    """Where bundles built on demand live (``$HAILSTORM_CACHE`` or the XDG cache)."""
-    env = os.environ.get("HAILSTORM_CACHE")
-    if env:
-        return Path(env)
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(Path.home(), ".cache")
-    return Path(base) / "hailstorm"
 
 
 def _code_version() -> str:

@@ -51,6 +51,7 @@ from typing import Any, Iterator, Mapping
 import numpy as np
 
 from hailstorm.runtime.gather import _apply_columns, _column_dofs, _dof3, _gather
+from hailstorm.runtime.stamps import is_stamped, stamp
 
 FORMAT_NAME = "hailstorm-greens-bundle"
 FORMAT_VERSION = 2
@@ -708,7 +709,7 @@ def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     return vn / np.where(norm > 0, norm, 1.0)
 
 
-def load(path: str | os.PathLike, *, verify: bool = True, mmap: bool = True) -> GreensFunctions:
+def load(path: str | os.PathLike, *, verify: bool = True, mmap: bool = True, rehash: bool = False) -> GreensFunctions:
     """Load a Green's-function bundle written by ``hailstorm precompute``.
 
     Parameters
@@ -718,12 +719,18 @@ def load(path: str | os.PathLike, *, verify: bool = True, mmap: bool = True) -> 
     verify
         Check every array's content hash against the manifest, and that
         floating-point arrays (D among them) are finite (reads every byte
-        once; about a second per GB). The manifest's structure and content
-        hash, every file's size, shapes, dtypes and cross-array consistency
-        are always checked. A bundle stranded beside ``path`` by a writer
-        killed between its two renames is put back first.
+        once; about a second per GB), once per change of each file: a file
+        verified before and unchanged since (same inode, size, modification
+        and status-change times; :mod:`hailstorm.runtime.stamps`) is not
+        read again. The manifest's structure and content hash, every file's
+        size, shapes, dtypes and cross-array consistency are always checked.
+        A bundle stranded beside ``path`` by a writer killed between its two
+        renames is put back first.
     mmap
         Memory-map the compliance matrix instead of reading it into memory.
+    rehash
+        With ``verify``: hash every file even if it was verified unchanged
+        before (``hailstorm info`` does).
 
     Returns
     -------
@@ -766,12 +773,13 @@ def load(path: str | os.PathLike, *, verify: bool = True, mmap: bool = True) -> 
             )
         if a.dtype.kind != kind or a.ndim != ndim:
             raise BundleError(f"bundle {path}: {name} has dtype kind {a.dtype.kind}/ndim {a.ndim}, expected {kind}/{ndim}")
-        if verify:
+        if verify and (rehash or not is_stamped(f, entry["sha256"])):
             digest, bad = _scan(a)
             if digest != entry["sha256"]:
                 raise BundleError(f"bundle {path}: {entry['file']} content hash does not match the manifest (corrupted)")
             if bad:
                 raise BundleError(f"bundle {path}: {name} holds {bad} non-finite (NaN or inf) values")
+            stamp(f, entry["sha256"])
         data[name] = a if name == "compliance" else np.asarray(a)
 
     n = data["vertices"].shape[0]

@@ -135,7 +135,7 @@ def _run_info(args: argparse.Namespace) -> int:
 def _print_bundle(path: Path) -> None:
     from hailstorm.runtime.bundle import ARRAY_SPECS, load
 
-    gf = load(path)  # verifies: manifest hash and structure, array sizes and hashes, finite D, consistency
+    gf = load(path, rehash=True)  # verifies: manifest hash and structure, array sizes and hashes, finite D, consistency
     m = gf.manifest
     mesh = m.get("mesh", {})
     print(f"bundle   {path}")

@@ -221,3 +221,64 @@ def test_displacement_is_compliance_times_forces(seat_bundle, rng):
     assert np.allclose(gf.displacement(verts, f, rows=rows), expected[rows], rtol=1e-13, atol=0)
     with pytest.raises(ValueError, match="neither contactable nor fixed"):
         gf.displacement([int(np.flatnonzero(~gf.contactable & ~gf.fixed)[0])], [[0, 0, 1.0]])
+
+
+# ---------------------------------------------------------------------------
+# verification stamps: every file hashed once per change, not on every load
+# ---------------------------------------------------------------------------
+def _counting_scan(monkeypatch):
+    import hailstorm.runtime.bundle as bundle_mod
+
+    calls = []
+    real = bundle_mod._scan
+
+    def scan(a):
+        calls.append(a.shape)
+        return real(a)
+
+    monkeypatch.setattr(bundle_mod, "_scan", scan)
+    return calls
+
+
+def test_load_hashes_each_file_once_per_change(box_bundle, tmp_path, monkeypatch):
+    monkeypatch.setenv("HAILSTORM_CACHE", str(tmp_path / "cache"))
+    b = tmp_path / "b"
+    shutil.copytree(box_bundle, b)
+    calls = _counting_scan(monkeypatch)
+    load(b)
+    assert len(calls) == len(ARRAY_SPECS)  # first load: every array hashed
+    calls.clear()
+    gf = load(b)
+    assert calls == []  # unchanged since: nothing re-read
+    assert np.isfinite(gf.compliance([0], gf.contact_vertices[:2])).all()
+    load(b, rehash=True)
+    assert len(calls) == len(ARRAY_SPECS)  # what `hailstorm info` does
+
+
+@pytest.mark.parametrize("restore_mtime", [False, True])
+def test_a_file_changed_after_its_stamp_is_hashed_and_refused(box_bundle, tmp_path, monkeypatch, restore_mtime):
+    monkeypatch.setenv("HAILSTORM_CACHE", str(tmp_path / "cache"))
+    b = tmp_path / "b"
+    shutil.copytree(box_bundle, b)
+    load(b)  # stamps every file
+    f = b / "compliance.npy"
+    st = f.stat()
+    with open(f, "r+b") as fh:  # flip one byte of D, same size
+        fh.seek(st.st_size - 3)
+        byte = fh.read(1)
+        fh.seek(st.st_size - 3)
+        fh.write(bytes([byte[0] ^ 0xFF]))
+    if restore_mtime:  # the modification time put back: the status-change time still moved
+        os.utime(f, ns=(st.st_atime_ns, st.st_mtime_ns))
+    with pytest.raises(BundleError, match="content hash"):
+        load(b)
+
+
+def test_an_unwritable_cache_only_costs_the_speed_up(box_bundle, tmp_path, monkeypatch):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory")
+    monkeypatch.setenv("HAILSTORM_CACHE", str(blocker))
+    calls = _counting_scan(monkeypatch)
+    load(box_bundle)
+    load(box_bundle)
+    assert len(calls) == 2 * len(ARRAY_SPECS)
