@@ -16,11 +16,12 @@ from __future__ import annotations
 import os
 import secrets
 import stat
+import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
-__all__ = ["replacing", "write_text_atomic"]
+__all__ = ["probe_writable", "replacing", "write_text_atomic"]
 
 
 @contextmanager
@@ -66,3 +67,35 @@ def write_text_atomic(path: str | os.PathLike, text: str) -> Path:
     with replacing(path) as tmp:
         tmp.write_text(text)
     return Path(path)
+
+
+def probe_writable(directory: str | os.PathLike) -> Path:
+    """Check that ``directory`` can be written, or created, before any work is done.
+
+    Probes the directory, or if it does not exist yet its nearest existing
+    ancestor, by creating and removing an empty hidden file in it (a real
+    probe: permissions, read-only file systems and root's exceptions alike).
+    Creates nothing else.
+
+    Returns
+    -------
+    pathlib.Path
+        The directory probed.
+
+    Raises
+    ------
+    NotADirectoryError
+        The nearest existing ancestor is not a directory (its path is the
+        exception's ``filename``).
+    OSError
+        It cannot be written.
+    """
+    probe = Path(directory).absolute()
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    if not probe.is_dir():
+        raise NotADirectoryError(0, "not a directory", str(probe))
+    fd, name = tempfile.mkstemp(prefix=".hailstorm-probe-", dir=probe)
+    os.close(fd)
+    os.unlink(name)
+    return probe

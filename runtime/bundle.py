@@ -50,6 +50,7 @@ from typing import Any, Iterator, Mapping
 
 import numpy as np
 
+from hailstorm.runtime.atomic import probe_writable
 from hailstorm.runtime.gather import _apply_columns, _column_dofs, _dof3, _gather
 from hailstorm.runtime.stamps import is_stamped, stamp
 
@@ -370,17 +371,13 @@ def check_writable(directory: str | os.PathLike) -> None:
     unwritable output is refused before any work; creates nothing else.
     """
     directory = Path(directory).absolute()
-    probe = directory
-    while not probe.exists() and probe != probe.parent:
-        probe = probe.parent
-    if not probe.is_dir():
-        raise BundleError(f"cannot write a bundle in {directory}: {probe} is not a directory")
     try:
-        fd, name = tempfile.mkstemp(prefix=".hailstorm-probe-", dir=probe)
-        os.close(fd)
-        os.unlink(name)
+        probe_writable(directory)
+    except NotADirectoryError as exc:
+        raise BundleError(f"cannot write a bundle in {directory}: {exc.filename} is not a directory") from None
     except OSError as exc:
-        raise BundleError(f"cannot write a bundle in {directory}: {exc.strerror or exc} ({probe})") from exc
+        raise BundleError(f"cannot write a bundle in {directory}: {exc.strerror or exc} "
+                          f"({Path(exc.filename).parent if exc.filename else directory})") from exc
 
 
 def _recover_locked(out: Path, temps: list[Path] | None = None) -> None:

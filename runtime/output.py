@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from hailstorm.runtime.atomic import write_text_atomic
+from hailstorm.runtime.atomic import probe_writable, write_text_atomic
 
 __all__ = [
     "STORM_MANIFEST",
@@ -517,15 +517,13 @@ def check_storm_out(out: str | os.PathLike) -> None:
                               "refusing to overwrite it (choose an empty or new directory)")
         if not os.access(out, os.W_OK | os.X_OK):
             raise OutputError(f"--out {out} is not writable")
-    parent = out.absolute().parent
-    while not parent.exists() and parent != parent.parent:
-        parent = parent.parent
-    if not parent.is_dir():
-        raise OutputError(f"cannot create --out {out}: {parent} is not a directory")
-    try:  # a real probe: permissions, read-only file systems, and root's exceptions alike
-        os.rmdir(tempfile.mkdtemp(prefix=f".{out.name}.probe-", dir=parent))
+    try:
+        probe_writable(out.absolute().parent)
+    except NotADirectoryError as exc:
+        raise OutputError(f"cannot create --out {out}: {exc.filename} is not a directory") from None
     except OSError as exc:
-        raise OutputError(f"cannot write --out {out}: {parent}: {exc.strerror or exc}") from None
+        where = Path(exc.filename).parent if exc.filename else out.absolute().parent
+        raise OutputError(f"cannot write --out {out}: {where}: {exc.strerror or exc}") from None
 
 
 class StormOutput:
