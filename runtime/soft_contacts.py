@@ -225,9 +225,9 @@ def advance_compiled(st: Storm, near: np.ndarray, soft: np.ndarray, was_open: np
     sticky = sc.mode == "sticky"
     s = soft.size
     nk = cc.normals
-    q, a, vq, gq, mq, always, acc, C = contact_prep(
+    q, a, vq, gq, mq, always, acc = contact_prep(
         soft, st.pos, st.vel, st.radius, st.mass, GRAVITY, st.wind, st._drag_coef, nk, cc.X, cc.rest,
-        cc.Kdiag, sticky, exact, float(sc.rest_speed), st._zeta)
+        cc.Kdiag, sticky, exact, float(sc.rest_speed))
     group, wts = (np.repeat(np.arange(s), 3), nk.ravel()) if sticky else (None, None)
     if group is None:
         group, wts = np.arange(s), np.ones(s)

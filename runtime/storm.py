@@ -158,7 +158,6 @@ from hailstorm.runtime.hail import (
     _X_GRID,
     _Z_GRID,
     GRAVITY,
-    damping_ratio_for_restitution,
     drag_acceleration,
     free_flight,
     stone_mass,
@@ -353,8 +352,6 @@ class Storm:
         except ValueError as exc:
             raise SceneError(str(exc)) from None
         self._compiled = self.backend == "numba"
-        #: the exact integrator's damping ratio for the scene's restitution, for the kernels
-        self._zeta = max(float(damping_ratio_for_restitution(scene.restitution)), 0.0)
         #: quadratic drag coefficient 3 C_d rho_air / (8 rho_ice) (0: no drag), for the kernels
         self._drag_coef = 3.0 * scene.cd * scene.rho_air / (8.0 * scene.density) if scene.drag else 0.0
         if self._patch and self._compiled:
@@ -427,8 +424,8 @@ class Storm:
         b = np.zeros(0, dtype=bool)
         notice.stage(f"the {sc.integrator} integrator's kernels", 25 if sc.integrator == "exact" else 15)
         args = contact_prep(none, self.pos, self.vel, self.radius, self.mass, GRAVITY, self.wind, self._drag_coef,
-                            e3, e3, e, e, sc.mode == "sticky", True, 1.0, 0.0)
-        q, a, vq, gq, _, _, acc, _ = args
+                            e3, e3, e, e, sc.mode == "sticky", True, 1.0)
+        q, a, vq, gq, _, _, acc = args
         contact_post(none, self.pos, self.vel, self.ctri, self.hit, b, e3, acc, q, a, vq, gq, e, e, b, e, e, e,
                      sc.mode == "sticky", True, 0.0, 1.0)
         one = np.ones(1)

@@ -156,21 +156,17 @@ def inv_spd(W, cond_limit, rcond):  # pragma: no cover (compiled)
 
 @_njit
 def contact_prep(soft, pos, vel, radius, mass, g, wind, drag_coef, nk, Xc, rest, Kdiag, sticky, exact,
-                 rest_speed, zeta):  # pragma: no cover (compiled)
+                 rest_speed):  # pragma: no cover (compiled)
     """The constrained coordinates of a contact set for :func:`hailstorm.runtime.hail.contact_step`
     (compiled first half of ``Storm._soft_contacts``): ``(q, anchor, v, accel, mass,
-    always_damped, acc, damping)``, per contact (frictionless, normal components) or
-    per component (sticky); ``acc`` (s, 3) is the stones' gravity + drag; ``damping``
-    the exact integrator's dashpot ``2 zeta sqrt(K_ii m_i)``
-    (:func:`hailstorm.runtime.hail.damping_coefficients` with ``zeta`` for the scene's
-    restitution)."""
+    always_damped, acc)``, per contact (frictionless, normal components) or
+    per component (sticky); ``acc`` (s, 3) is the stones' gravity + drag. (The
+    dashpot is the contact set's, per mode: ``soft_contacts.exact_damping`` and
+    ``contact_matrices``.)"""
     s = soft.size
     nq = 3 * s if sticky else s
     q = np.empty(nq); a = np.empty(nq); vq = np.empty(nq); gq = np.empty(nq); mq = np.empty(nq)
     always = np.zeros(nq, np.bool_)
-    damping = np.zeros(nq)
-    for c in range(nq):
-        damping[c] = 2.0 * zeta * math.sqrt(max(Kdiag[c], 0.0) * mass[soft[c // 3 if sticky else c]])
     acc = np.empty((s, 3))
     for i in range(s):
         j = soft[i]
@@ -210,7 +206,7 @@ def contact_prep(soft, pos, vel, radius, mass, g, wind, drag_coef, nk, Xc, rest,
                     always[3 * i + d] = r
             else:
                 always[i] = r
-    return q, a, vq, gq, mq, always, acc, damping
+    return q, a, vq, gq, mq, always, acc
 
 
 @_njit
