@@ -561,7 +561,7 @@ def _growth(k: float, m: float, dt: float, integrator: Integrator, *, steps: int
     if restitution is None:
         C = 0.0
     elif integrator == "exact":
-        C = damping_coefficients(K, M, restitution, integrator="exact")  # as the storm does
+        C = damping_coefficients(K, M, restitution, integrator="exact")  # one contact: the storm's modal dashpot
     else:
         C = damping_coefficients(K, M, restitution, dt=dt, integrator=integrator)
     e0 = float(_energy(q[0], v[0], k, m, g[0]))
