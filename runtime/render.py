@@ -20,12 +20,13 @@ Each frame (:class:`StormRenderer`, 1280 x 720 pixels by default) shows
 
 Why a logarithmic colour scale: the dents of one storm span more than a
 decade (stone masses span 125x between the smallest and the largest radius,
-and impact speeds vary; the default 0.3 s storm's per-frame peaks run from
-0.3 to 10 mm, median 1.1 mm). A linear scale up to the peak draws the typical
-dent at a tenth of the scale, nearly the background colour; a linear scale up
-to a typical dent saturates the large ones and hides their shape. Two decades
-below the run's peak show every dent and its fall-off, each colour meaning the
-same depth in every frame.
+and impact speeds vary; in the default storm at ``--duration 0.3`` the 34
+frames with a dent peak at 0.31 to 18.1 mm, median 1.3 mm, 65 % of them below
+a tenth of the largest). A linear scale up to the peak draws most dents at
+less than a tenth of the scale, nearly the background colour; a linear scale
+up to a typical dent saturates the large ones and hides their shape. Two
+decades below the run's peak show every dent and its fall-off, each colour
+meaning the same depth in every frame.
 
 matplotlib and imageio are imported inside the functions, so importing this
 module costs nothing.

@@ -236,3 +236,14 @@ def test_render_costs_no_state_of_the_caller(gf, storm):
     before = plt.get_fignums()
     StormRenderer.for_frames(storm.frames, gf).render(storm.frames[-1])
     assert plt.get_fignums() == before
+
+
+def test_a_seat_that_did_not_move(gf):
+    """No displacement in any frame: the colour bar says so and the seat is all grey."""
+    R = StormRenderer.for_frames([_frame(gf, [[0.05, 0.05, 0.09]], [0.005])], gf)
+    img = R.render(_frame(gf, [[0.05, 0.05, 0.09]], [0.005]))
+    assert "did not move" in R.colorbar.ax.get_ylabel()
+    under = np.array(R.colorbar.cmap.get_under()[:3]) * 255
+    seat = np.asarray(R.surface.get_array()).reshape(-1, 4)[np.isfinite(R.shown.ravel())]
+    assert seat.size and np.allclose(seat[:, :3], under, atol=1.0)
+    assert img.shape == (720, 1280, 3)
