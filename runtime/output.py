@@ -15,8 +15,9 @@ Use::
         result = hailstorm.runtime.run_storm(gf, scene, on_frame=out.add)
         out.finish(result)                         # pvd, summary.json, storm.mp4: then in place
 
-matplotlib, imageio and meshio are imported inside the writers, so importing
-this module costs nothing.
+The animation is :mod:`hailstorm.runtime.render`'s (:func:`write_animation`
+is re-exported here). matplotlib, imageio and meshio are imported inside the
+writers, so importing this module costs nothing.
 """
 
 from __future__ import annotations
@@ -34,6 +35,8 @@ from typing import Any
 import numpy as np
 
 from hailstorm.runtime.atomic import probe_writable, write_text_atomic
+from hailstorm.runtime.render import shown_displacement as _shown
+from hailstorm.runtime.render import write_animation
 
 __all__ = [
     "STORM_MANIFEST",
@@ -138,19 +141,6 @@ def write_summary(result: Any, path: str | os.PathLike, gf: Any = None) -> Path:
     return write_text_atomic(path, json.dumps(summary(result, gf), indent=2, sort_keys=True) + "\n")
 
 
-_SKY = "#c9d3dd"  # background: a stormy grey-blue, so that the white stones show
-_ICE = "#f4f8fc"  # hailstones
-
-
-def _shown(frame: Any) -> np.ndarray:
-    """What a picture of a frame shows: the peak displacement since the previous
-    frame when the storm recorded it (impacts last ~1 ms, shorter than a frame
-    interval, so the instantaneous field would almost never show a dent), else
-    the displacement at the frame's instant."""
-    peak = getattr(frame, "peak_displacement", None)
-    return frame.displacement if peak is None else peak
-
-
 def _pvd(entries: list[tuple[float, str]]) -> str:
     rows = "\n".join(f'    <DataSet timestep="{t:.9g}" group="" part="0" file="{fn}"/>' for t, fn in entries)
     return ('<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">\n'
@@ -165,9 +155,10 @@ class ParaviewSeries:
     displacement since the previous frame); its points are the *undeformed*
     vertices (use ParaView's "Warp By Vector" to see the deformation). The
     stones (``frames/stones_NNNN.vtu``) are vertex cells with point data
-    ``radius`` [m] and ``id`` (use a "Glyph" filter, sphere, scale by
+    ``radius`` [m], ``id`` and ``force`` (the force each applies to the seat
+    [N], zero out of contact) (use a "Glyph" filter, sphere, scale by
     ``radius``, factor 2). A frame without stones holds one placeholder point
-    of radius 0 and id -1 (a VTU without cells cannot be read back by meshio).
+    of radius 0, id -1 and force 0 (a VTU without cells cannot be read back by meshio).
     Only the running list of file names and times is kept, not the frames.
 
     Parameters
@@ -207,12 +198,14 @@ class ParaviewSeries:
         pos = np.asarray(frame.positions, dtype=np.float64).reshape(-1, 3)
         radii = np.asarray(frame.radii, dtype=np.float64)
         ids = np.asarray(frame.ids, dtype=np.int64)
+        forces = getattr(frame, "forces", None)
+        forces = np.zeros((pos.shape[0], 3)) if forces is None else np.asarray(forces, dtype=np.float64)
         if pos.shape[0] == 0:  # placeholder: meshio cannot read a VTU without cells
-            pos, radii, ids = self._dummy, np.zeros(1), np.full(1, -1, dtype=np.int64)
+            pos, radii, ids, forces = self._dummy, np.zeros(1), np.full(1, -1, dtype=np.int64), np.zeros((1, 3))
         k = pos.shape[0]
         stname = f"frames/stones_{i:04d}.vtu"
         meshio.write(self.outdir / stname, meshio.Mesh(pos, [("vertex", np.arange(k, dtype=np.int64)[:, None])],
-                                                       point_data={"radius": radii, "id": ids}))
+                                                       point_data={"radius": radii, "id": ids, "force": forces}))
         umax = float(np.linalg.norm(peak, axis=1).max()) if len(peak) else 0.0
         self.entries.append((float(frame.t), sname, stname, int(frame.contacts), umax))
 
@@ -259,9 +252,11 @@ class FrameSeries(Sequence):
         st = meshio.read(self._series.outdir / stname)
         ids = np.asarray(st.point_data["id"], dtype=np.int64)
         keep = ids >= 0
+        force = st.point_data.get("force")  # absent from the files of older versions
         return Frame(t=t, displacement=s.point_data["displacement"], positions=st.points[keep],
                      radii=np.asarray(st.point_data["radius"])[keep], ids=ids[keep], contacts=contacts,
-                     peak_displacement=s.point_data["peak_displacement"])
+                     peak_displacement=s.point_data["peak_displacement"],
+                     forces=None if force is None else np.asarray(force, dtype=np.float64)[keep])
 
 
 def write_paraview(result: Any, gf: Any, outdir: str | os.PathLike, *, name: str = "storm") -> Path:
@@ -284,180 +279,6 @@ def write_paraview(result: Any, gf: Any, outdir: str | os.PathLike, *, name: str
     for f in getattr(result, "frames", result):
         series.add(f)
     return series.close()
-
-
-class _VideoWriter:
-    """Frames appended one by one to an MP4 (imageio-ffmpeg), or to a GIF beside it
-    when MP4 writing fails (no ffmpeg); nothing is held in memory."""
-
-    def __init__(self, path: Path, fps: float) -> None:
-        self.path, self.fps = path, fps
-        self._w: Any = None
-
-    def _open_gif(self) -> None:
-        import imageio.v2 as imageio
-
-        if self.path.suffix.lower() != ".gif":
-            self.path = self.path.with_suffix(".gif")
-        self._w = imageio.get_writer(self.path, mode="I", duration=1.0 / self.fps, loop=0)
-
-    def append(self, image: np.ndarray) -> None:
-        import imageio.v2 as imageio
-
-        if self._w is None:
-            if self.path.suffix.lower() == ".gif":
-                self._open_gif()
-            else:
-                try:
-                    self._w = imageio.get_writer(self.path, fps=self.fps, macro_block_size=1, codec="libx264",
-                                                 quality=7)
-                    self._w.append_data(image)
-                    return
-                except Exception:  # no ffmpeg: fall back to a GIF
-                    _log.warning("could not write %s (ffmpeg): writing a GIF instead", self.path.name)
-                    try:
-                        if self._w is not None:
-                            self._w.close()
-                    except Exception:  # noqa: S110 - the broken MP4 writer
-                        pass
-                    self.path.unlink(missing_ok=True)
-                    self._open_gif()
-        self._w.append_data(image)
-
-    def close(self) -> Path:
-        if self._w is not None:
-            self._w.close()
-        return self.path
-
-
-def write_animation(
-    result: Any,
-    gf: Any,
-    path: str | os.PathLike,
-    *,
-    max_frames: int = 100,
-    fps: float = 20.0,
-    dpi: int = 80,
-    exaggeration: float | None = None,
-    progress: bool = False,
-) -> Path:
-    """Render the storm: the seat coloured by ``|u|`` (mm) with the stones as spheres.
-
-    Frames are rendered and appended to the file one at a time (at most
-    ``max_frames`` are read, each once or twice when they are read back from
-    disk), so memory does not grow with the storm.
-
-    Parameters
-    ----------
-    result : StormResult or sequence of Frame
-        A result whose frames were kept in memory, or any sequence of frames
-        such as :meth:`ParaviewSeries.frames` (read back from the files).
-    gf : GreensFunctions
-    path : path
-        ``.mp4`` (imageio-ffmpeg) or ``.gif``. If MP4 writing fails (no
-        ffmpeg), a GIF is written next to it instead.
-    max_frames : int
-        At most this many frames (evenly subsampled).
-    fps : float
-        Playback frame rate.
-    dpi : int
-    exaggeration : float, optional
-        Scale of the drawn displacement (default: so the largest displacement
-        over the storm shows as ~5 mm; ``1`` is true scale).
-    progress : bool
-        tqdm bar over frames.
-
-    Returns
-    -------
-    pathlib.Path
-        The file written (may be the ``.gif`` fallback).
-    """
-    from matplotlib import cm, colors
-    from matplotlib.backends.backend_agg import FigureCanvasAgg
-    from matplotlib.figure import Figure
-    from mpl_toolkits.mplot3d.art3d import Poly3DCollection
-
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    frames = getattr(result, "frames", result)
-    if len(frames) == 0:
-        raise ValueError("no frames to render (run the storm with keep_frames=True, or render a ParaviewSeries)")
-    idx = np.unique(np.linspace(0, len(frames) - 1, min(max_frames, len(frames))).round().astype(int))
-    X = np.asarray(gf.vertices, dtype=np.float64)
-    tri = np.asarray(gf.triangles)
-    # the underside is never seen from the elevated camera: skip it (cheaper render)
-    p = X[tri]
-    fn = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-    fn /= np.maximum(np.linalg.norm(fn, axis=1, keepdims=True), 1e-300)
-    show = fn[:, 2] > -0.5 if len(fn) else np.zeros(0, bool)
-    tri_s = tri[show]
-    peak_norm = getattr(frames, "peak_norm", lambda i: float(np.linalg.norm(_shown(frames[i]), axis=1).max()))
-    peaks = np.array([peak_norm(int(i)) for i in idx] or [0.0])
-    umax = float(peaks.max())
-    if exaggeration is None:
-        exaggeration = 1.0 if umax <= 0 else max(1.0, 0.005 / umax)
-    # colour scale: the median of the frames' maxima (where something is pressed), so that an
-    # ordinary impact shows; the few larger ones saturate (the colour bar says so)
-    vmax = float(np.median(peaks[peaks > 0])) if np.any(peaks > 0) else 0.0
-    norm = colors.Normalize(vmin=0.0, vmax=max(vmax * 1e3, 1e-6))
-    cmap = cm.viridis
-    lo, hi = X.min(axis=0), X.max(axis=0)
-    span = hi - lo
-    ztop = hi[2] + 0.06  # room for the falling stones above the seat
-    light = np.array([-0.3, -0.5, 1.0])
-    light /= np.linalg.norm(light)
-    # sphere template
-    uu, vv = np.meshgrid(np.linspace(0, 2 * np.pi, 10), np.linspace(0, np.pi, 6))
-    sph = np.stack([np.cos(uu) * np.sin(vv), np.sin(uu) * np.sin(vv), np.cos(vv)], axis=-1)
-
-    # an off-screen Agg figure of its own: the caller's pyplot state and backend are not touched
-    fig = Figure(figsize=(6.4, 4.8), dpi=dpi, facecolor=_SKY)
-    canvas = FigureCanvasAgg(fig)
-    ax = fig.add_subplot(111, projection="3d", facecolor=_SKY)
-    fig.subplots_adjust(left=0.0, right=0.95, bottom=0.0, top=1.0)
-    # the caption is a figure text: an axes title would sit above the (full-height) axes, off the image
-    caption = fig.text(0.02, 0.97, "", fontsize=8, va="top", family="monospace")
-    sm = cm.ScalarMappable(norm=norm, cmap=cmap)
-    peak_shown = getattr(frames[int(idx[0])], "peak_displacement", None) is not None
-    fig.colorbar(sm, ax=ax, shrink=0.6, pad=0.02, extend="max" if umax > vmax else "neither",
-                 label="peak |u| since the previous frame [mm]" if peak_shown else "|u| [mm]")
-    video = _VideoWriter(path, fps)
-    it = idx
-    if progress:
-        from tqdm.auto import tqdm
-
-        it = tqdm(idx, desc="render", unit="frame", leave=False)
-    for i in it:
-        f = frames[i]
-        u = np.asarray(_shown(f), dtype=np.float64)
-        mag = np.linalg.norm(u, axis=1) * 1e3
-        ax.cla()
-        x = X + exaggeration * u
-        q = x[tri_s]
-        n = np.cross(q[:, 1] - q[:, 0], q[:, 2] - q[:, 0])
-        n /= np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-300)
-        shade = 0.45 + 0.55 * np.clip(n @ light, 0.0, 1.0)  # Lambert: gives the curved top its depth
-        rgba = cmap(norm(mag[tri_s].mean(axis=1)))
-        rgba[:, :3] *= shade[:, None]
-        poly = Poly3DCollection(q, linewidths=0.0, antialiased=False)
-        poly.set_facecolor(rgba)
-        poly.set_edgecolor(rgba)
-        ax.add_collection3d(poly)
-        for c, r in zip(f.positions, f.radii):
-            if np.all(c >= lo - 0.01) and np.all(c[:2] <= hi[:2] + 0.01) and c[2] <= ztop:
-                s = c + r * sph
-                ax.plot_surface(s[..., 0], s[..., 1], s[..., 2], color=_ICE, linewidth=0, shade=True)
-        ax.set_xlim(lo[0] - 0.01, hi[0] + 0.01)
-        ax.set_ylim(lo[1] - 0.01, hi[1] + 0.01)
-        ax.set_zlim(lo[2], ztop)
-        ax.set_box_aspect((span[0] + 0.02, span[1] + 0.02, ztop - lo[2]), zoom=1.15)
-        ax.view_init(elev=28, azim=-55)
-        ax.set_axis_off()
-        caption.set_text(f"t = {f.t * 1e3:6.1f} ms   stones {len(f.radii)}   contacts {f.contacts}"
-                         + (f"   (u x{exaggeration:.0f})" if exaggeration != 1 else ""))
-        canvas.draw()
-        video.append(np.asarray(canvas.buffer_rgba())[..., :3].copy())
-    return video.close()
 
 
 def _listing(out: Path) -> tuple[list[str], list[str]]:
@@ -623,7 +444,8 @@ class StormOutput:
         files = [*series.files(), "summary.json"]
         video = None
         if self.video:
-            video = write_animation(series.frames(), self.gf, staging / "storm.mp4", progress=self.progress)
+            video = write_animation(series.frames(), self.gf, staging / "storm.mp4",
+                                    history=getattr(result, "history", None), progress=self.progress)
             files.append(video.name)
         manifest = {"format": _MANIFEST_FORMAT, "version": 1, "files": sorted(files)}
         (staging / STORM_MANIFEST).write_text(json.dumps(manifest, indent=1) + "\n")

@@ -192,6 +192,11 @@ class Frame:
         (see :meth:`Storm.frame`): an impact lasts about a millisecond, much
         less than a frame interval, so ``displacement`` alone rarely shows
         the dents. ``None`` when not recorded.
+    forces : (k, 3) ndarray or None
+        Per live stone (the rows of ``positions``), the force it applies to
+        the seat at the frame's instant [N] (zero when not in soft contact);
+        ``np.linalg.norm(forces, axis=1).sum()`` is the total contact force of
+        :attr:`StormResult.history` at this instant. ``None`` when not recorded.
     """
 
     t: float
@@ -201,6 +206,7 @@ class Frame:
     ids: np.ndarray
     contacts: int
     peak_displacement: np.ndarray | None = None
+    forces: np.ndarray | None = None
 
 
 @dataclass
@@ -870,9 +876,12 @@ class Storm:
         live = np.flatnonzero(self.alive)
         peak = self._peak_field().astype(np.float32)
         self._peaks = {}
+        forces = np.zeros((live.size, 3))
+        ids, f = self.contact_forces()
+        np.add.at(forces, np.searchsorted(live, ids), f)  # stones in contact are live
         return Frame(t=self.t, displacement=self.u.astype(np.float32), positions=self.pos[live].copy(),
                      radii=self.radius[live].copy(), ids=live.copy(), contacts=int((self.ctri[live] >= 0).sum()),
-                     peak_displacement=peak)
+                     peak_displacement=peak, forces=forces)
 
     def contact_forces(self) -> tuple[np.ndarray, np.ndarray]:
         """Stone ids in soft contact and the forces they apply to the seat, (s,), (s, 3)."""
