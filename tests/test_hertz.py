@@ -36,7 +36,7 @@ import hailstorm.runtime  # noqa: E402
 from hailstorm.precompute import build_bundle  # noqa: E402
 from hailstorm.precompute.halfspace import halfspace_block  # noqa: E402
 from hailstorm.runtime.hertz import hertz_force, press_spheres  # noqa: E402
-from hailstorm.runtime.weights import hertz_mean_offset  # noqa: E402
+from hailstorm.runtime.contact.weights import hertz_mean_offset  # noqa: E402
 
 E, NU, R = 2.0e6, 0.35, 0.01
 RATIOS = (0.01, 0.02, 0.04)
