@@ -16,12 +16,12 @@ Under a sphere that mean is not ``delta``: with Hertz weights
 (``<r^2> = 2 a^2 / 5``), which is ``0.8 delta`` when ``a^2 = R delta``.
 Prescribing ``delta`` itself makes the contact ~1.3x too stiff. And the
 radius must be the one the force produces, ``a = (3 F R / (4 E*))^(1/3)``
-(:func:`hailstorm.runtime.weights.hertz_radius`), not a guess: :func:`press_spheres`
+(:func:`hailstorm.runtime.contact.weights.hertz_radius`), not a guess: :func:`press_spheres`
 solves for the pair (force, radius) by fixed-point iteration. The map
 ``a -> a(F(a))`` contracts with slope about 1/6 at the solution, so a few
 iterations reach ``tol``.
 
-:func:`hailstorm.runtime.weights.sphere_mean_offset` is that correction as far as the
+:func:`hailstorm.runtime.contact.weights.sphere_mean_offset` is that correction as far as the
 surface mesh resolves the patch (a patch inside one triangle sees a plane:
 no offset); the storm's patch contacts use the same function.
 """

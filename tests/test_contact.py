@@ -803,3 +803,100 @@ def test_patch_validation(box, kwargs, match):
         solve_contacts(box["gf"], [int(box["touchable"][0])], [[0.2, 0.3, 0.5]], [[0.0, 0.0, -1e-3]], **kwargs)
     with pytest.raises(ValueError, match=match):
         capacitance(box["gf"], [int(box["touchable"][0])], [[0.2, 0.3, 0.5]], **kwargs)
+
+
+# ---------------------------------------------------------------------------
+# the contact core as one package (issue 12): public active set, protocol, one policy
+# ---------------------------------------------------------------------------
+@pytest.mark.parametrize("mode", ["sticky", "frictionless"])
+def test_capacitance_solve_is_the_active_set(box, mode):
+    """Capacitance.solve (public) is what solve_contacts runs: the same forces, active set
+    and iterations for unilateral contacts that partly pull; the bilateral solve is forces()."""
+    gf = box["gf"]
+    rng = np.random.default_rng(77)
+    tri, bary = random_contacts(box, 12, rng)
+    n = triangle_normals(gf.vertices, gf.triangles[tri])
+    ubar = -1e-3 * n * rng.choice([-1.0, 1.0], size=(12, 1))  # some press, some pull
+    ref = solve_contacts(gf, tri, bary, ubar, mode=mode, unilateral=True)
+    cap = capacitance(gf, tri, bary, mode=mode)
+    got = cap.solve(ubar, unilateral=True)
+    assert 0 < got.active.sum() < 12 and got.iterations == ref.iterations
+    np.testing.assert_array_equal(got.active, ref.active)
+    assert rel(got.forces, ref.forces) < 1e-12
+    np.testing.assert_array_equal(cap.solve(ubar).forces, cap.forces(ubar))
+    with pytest.raises(ValueError, match="shape"):
+        cap.solve(ubar[:3])
+
+
+def test_compliance_source_protocol(box):
+    """Any object with the ComplianceSource attributes serves the contact core (here a plain
+    namespace holding a C-ordered copy of D): the same solution as the bundle."""
+    import types
+
+    from hailstorm.runtime.contact import ComplianceSource
+
+    gf = box["gf"]
+    src = types.SimpleNamespace(D=np.ascontiguousarray(gf.D), column_of=gf.column_of, contactable=gf.contactable,
+                                fixed=gf.fixed, vertices=gf.vertices, triangles=gf.triangles)
+    attrs = {name for name in dir(ComplianceSource) if not name.startswith("_")}
+    assert attrs == {"D", "column_of", "contactable", "fixed", "vertices", "triangles"}
+    rng = np.random.default_rng(3)
+    tri, bary = random_contacts(box, 9, rng)
+    ubar = rng.normal(scale=1e-3, size=(9, 3))
+    for kw in ({}, {"unilateral": True, "mode": "frictionless"}, {"patch_radius": 0.02}):
+        a = solve_contacts(gf, tri, bary, ubar, **kw)
+        b = solve_contacts(src, tri, bary, ubar, **kw)
+        assert rel(b.forces, a.forces) < 1e-12
+        assert rel(b.surface_displacement, a.surface_displacement) < 1e-12
+
+
+@pytest.mark.parametrize("fast", [True, False])
+def test_rigid_threshold_is_the_policy_constant(box, monkeypatch, fast):
+    """Both paths (the one-call point-contact kernel and the general one) read the rigid
+    threshold from hailstorm.runtime.contact.policy: a contact with 1e-13 of its weight on
+    its one free vertex is a hard wall at the default 1e-12 and a soft contact below it."""
+    from hailstorm.runtime.contact import policy
+
+    gf = box["gf"]
+    t = int(box["single"][0])
+    free = ~gf.fixed[gf.triangles[t]]
+    b = np.where(free, 1e-13, 0.0)
+    b[np.flatnonzero(~free)[0]] = 1.0 - 1e-13
+    kw = {} if fast else {"normals": triangle_normals(gf.vertices, gf.triangles[[t]])}
+    sol = solve_contacts(gf, [t], [b], [[0.0, 0.0, -1e-6]], **kw)
+    assert sol.rigid.all() and not sol.forces.any()
+    monkeypatch.setattr(policy, "RIGID_WEIGHT", 1e-14)
+    sol = solve_contacts(gf, [t], [b], [[0.0, 0.0, -1e-6]], **kw)
+    assert not sol.rigid.any() and sol.active.all() and np.abs(sol.forces).max() > 0
+
+
+def test_contact_api_has_no_backend_switch(box):
+    """One implementation: the contact API takes no backend= (issue 12)."""
+    import inspect
+
+    from hailstorm.runtime import press_spheres
+
+    for fn in (solve_contacts, capacitance, patch_weights, patch_matrix, press_spheres):
+        assert "backend" not in inspect.signature(fn).parameters, fn.__name__
+    with pytest.raises(TypeError):
+        solve_contacts(box["gf"], [int(box["touchable"][0])], [[0.2, 0.3, 0.5]], [[0, 0, -1e-3]], backend="numpy")
+
+
+def test_contact_core_imports_no_private_names():
+    """No module of the contact core (nor the bundle or press_spheres) imports an underscore
+    name from another module. The one exception is the patch kernel, which lives on the
+    storm's side (compiled/patches.py) under a private name."""
+    import ast
+    from pathlib import Path
+
+    root = Path(hailstorm.runtime.__file__).parent
+    files = sorted((root / "contact").glob("*.py")) + [root / "bundle.py", root / "hertz.py"]
+    allowed = {("hailstorm.runtime.compiled.patches", "_one_patch")}
+    found = []
+    for f in files:
+        for node in ast.walk(ast.parse(f.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("hailstorm"):
+                found += [(f.name, node.module, a.name) for a in node.names
+                          if a.name.startswith("_") and (node.module, a.name) not in allowed]
+    assert not found
+    assert len(files) >= 8

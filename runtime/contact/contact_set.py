@@ -166,7 +166,7 @@ class Capacitance:
     weights : (s, P) float ndarray
         Force-distribution weights (block ``(loc[k, j], k)`` of B is
         ``weights[k, j] I3``): ``bary`` for point contacts, the patch
-        weights of :func:`hailstorm.runtime.weights.patch_weights` otherwise.
+        weights of :func:`hailstorm.runtime.contact.weights.patch_weights` otherwise.
     patch_radius : (s,) float ndarray
         Patch radius of each contact [m]; 0 for point contacts.
     D_VV : (3|V|, 3|V|) float ndarray
@@ -728,7 +728,7 @@ def capacitance(
         triangle's vertices with the barycentric weights). A radius ``a > 0``
         [m] spreads each contact's force over the disc of radius ``a`` around
         the contact point with the pressure ``patch_profile`` (see
-        :mod:`hailstorm.runtime.weights`; :func:`hertz_radius` gives the physical
+        :mod:`hailstorm.runtime.contact.weights`; :func:`hertz_radius` gives the physical
         radius for a load). A scalar is also the radius :meth:`Capacitance.add`
         uses by default.
     patch_profile : {"hertz", "uniform"}
