@@ -51,7 +51,7 @@ from typing import Any, Iterator, Mapping
 import numpy as np
 
 from hailstorm.runtime.atomic import probe_writable
-from hailstorm.runtime.gather import _apply_columns, _column_dofs, _dof3, _gather
+from hailstorm.runtime.contact.compliance import apply_columns, column_dofs, dof3, gather
 from hailstorm.runtime.stamps import is_stamped, stamp
 
 FORMAT_NAME = "hailstorm-greens-bundle"
@@ -661,7 +661,7 @@ class GreensFunctions:
                 f"vertices {cols[bad][:5].tolist()} are neither contactable nor fixed: "
                 "the bundle holds no column of D for them"
             )
-        return _gather(self, _dof3(rows), _column_dofs(self, cols))
+        return gather(self, dof3(rows), column_dofs(self, cols))
 
     def traction_greens(self, rows, cols) -> np.ndarray:
         """The block Ξ[rows, cols] = D[rows, cols] A[cols] (traction Green's function).
@@ -692,7 +692,7 @@ class GreensFunctions:
         forces = np.asarray(forces, dtype=np.float64).reshape(vertices.size, 3)
         self.compliance(vertices[:0], vertices)  # raises the clear error for columns D lacks
         rows = None if rows is None else self._check_vertices(rows, "rows")
-        return _apply_columns(self, _column_dofs(self, vertices), forces.ravel(), rows)
+        return apply_columns(self, column_dofs(self, vertices), forces.ravel(), rows)
 
 
 def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:

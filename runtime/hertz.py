@@ -16,12 +16,12 @@ Under a sphere that mean is not ``delta``: with Hertz weights
 (``<r^2> = 2 a^2 / 5``), which is ``0.8 delta`` when ``a^2 = R delta``.
 Prescribing ``delta`` itself makes the contact ~1.3x too stiff. And the
 radius must be the one the force produces, ``a = (3 F R / (4 E*))^(1/3)``
-(:func:`hailstorm.runtime.weights.hertz_radius`), not a guess: :func:`press_spheres`
+(:func:`hailstorm.runtime.contact.weights.hertz_radius`), not a guess: :func:`press_spheres`
 solves for the pair (force, radius) by fixed-point iteration. The map
 ``a -> a(F(a))`` contracts with slope about 1/6 at the solution, so a few
 iterations reach ``tol``.
 
-:func:`hailstorm.runtime.weights.sphere_mean_offset` is that correction as far as the
+:func:`hailstorm.runtime.contact.weights.sphere_mean_offset` is that correction as far as the
 surface mesh resolves the patch (a patch inside one triangle sees a plane:
 no offset); the storm's patch contacts use the same function.
 """
@@ -29,12 +29,18 @@ no offset); the storm's patch contacts use the same function.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
-from hailstorm.runtime.contact import ContactSolution, solve_contacts
-from hailstorm.runtime.weights import contact_points, hertz_radius, patch_weights, sphere_mean_offset, triangle_normals
+from hailstorm.runtime.contact import ComplianceSource, ContactSolution, solve_contacts
+from hailstorm.runtime.contact.weights import (
+    contact_points,
+    hertz_radius,
+    patch_weights,
+    sphere_mean_offset,
+    triangle_normals,
+)
 
 __all__ = ["SphereContacts", "hertz_force", "press_spheres"]
 
@@ -68,8 +74,18 @@ class SphereContacts:
     iterations: int
 
 
+class ElasticSource(ComplianceSource, Protocol):
+    """A :class:`~hailstorm.runtime.contact.ComplianceSource` that knows its material."""
+
+    @property
+    def young(self) -> float: ...
+
+    @property
+    def poisson(self) -> float: ...
+
+
 def press_spheres(
-    gf: Any,
+    gf: ElasticSource,
     triangles: Any,
     barycentric: Any,
     depths: Any,
@@ -79,13 +95,12 @@ def press_spheres(
     rows: Any = "all",
     tol: float = 1e-6,
     max_iter: int = 50,
-    backend: str = "auto",
 ) -> SphereContacts:
     """Rigid spheres pressed into the seat, with Hertz-consistent patches.
 
     Parameters
     ----------
-    gf : GreensFunctions
+    gf : ElasticSource
         Loaded bundle (its ``young`` and ``poisson`` size the patches).
     triangles : (s,) int array_like
         Surface triangle under each sphere's lowest point.
@@ -104,8 +119,6 @@ def press_spheres(
         Relative change of the radii at which the iteration stops.
     max_iter : int
         Bound on the iterations.
-    backend : {"auto", "numba", "numpy"}
-        Passed to :func:`hailstorm.runtime.solve_contacts`.
 
     Returns
     -------
@@ -141,11 +154,11 @@ def press_spheres(
     for it in range(1, max_iter + 1):
         off = np.zeros(s)
         if np.any(a > 0):
-            verts, w = patch_weights(gf, t, barycentric, a, n, backend=backend)
+            verts, w = patch_weights(gf, t, barycentric, a, n)
             off = sphere_mean_offset(np.asarray(gf.vertices), verts, w, X, n, a, R)
         ubar = -(d - off)[:, None] * n
         sol = solve_contacts(gf, t, barycentric, ubar, mode="frictionless", unilateral=True, normals=n,
-                             rows=rows, patch_radius=np.maximum(a, 0.0), backend=backend)
+                             rows=rows, patch_radius=np.maximum(a, 0.0))
         fn = np.clip(-np.einsum("ki,ki->k", sol.forces, n), 0.0, None)
         a_new = hertz_radius(fn, R, E, nu)
         done = np.all(np.abs(a_new - a) <= tol * np.maximum(a, np.finfo(float).tiny))

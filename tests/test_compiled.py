@@ -108,10 +108,13 @@ def test_near_set_matches_numpy(gf):
         assert 0 < near.size < n
 
 
-def test_patch_weights_backends_agree(seat_bundle):
-    """Compiled and numpy patch weights on the curved seat, small to large discs."""
+def test_patch_weights_match_the_reference(seat_bundle):
+    """The compiled patch weights on the curved seat equal the numpy statement of the
+    algorithm (tests/reference/patch_weights_ref.py, its own k-d tree search), small to
+    large discs; radius 0 gives the barycentric weights bit for bit."""
     from hailstorm.runtime.bundle import load
-    from hailstorm.runtime.weights import patch_weights
+    from hailstorm.runtime.contact.weights import patch_weights
+    from reference.patch_weights_ref import patch_weights_ref
 
     gf = load(seat_bundle)
     usable = np.flatnonzero((gf.contactable | gf.fixed)[gf.triangles].all(axis=1))
@@ -121,15 +124,16 @@ def test_patch_weights_backends_agree(seat_bundle):
     b = rng.dirichlet([1.0, 1.0, 1.0], k)
     a = rng.uniform(0.0, 0.03, k)
     a[:5] = 0.0  # point contacts: the barycentric weights
-    v0, w0 = patch_weights(gf, t, b, a, backend="numpy")
-    v1, w1 = patch_weights(gf, t, b, a, backend="numba")
+    v1, w1 = patch_weights(gf, t, b, a)
+    ref = patch_weights_ref(gf, t, b, a)
     n = gf.vertices.shape[0]
     for i in range(k):
         d0, d1 = np.zeros(n), np.zeros(n)
-        np.add.at(d0, v0[i], w0[i])
+        np.add.at(d0, ref[i][0], ref[i][1])
         np.add.at(d1, v1[i], w1[i])
         np.testing.assert_allclose(d1, d0, atol=1e-13)
-    assert (w0 > 0).sum(axis=1).max() > 10  # some patches span many vertices
+    np.testing.assert_array_equal(w1[:5, :3], b[:5])
+    assert (w1 > 0).sum(axis=1).max() > 10  # some patches span many vertices
 
 
 @pytest.mark.parametrize("integrator, mode, patch, dt, rel", [
@@ -294,68 +298,79 @@ def test_substep_contacts_and_damping_match_numpy(integrator):
 
 
 # ---------------------------------------------------------------------------
-# the contact API's kernels (hailstorm.runtime.contact with backend="numba")
+# the contact core's block kernels (hailstorm.runtime.compiled.blocks), against dense algebra on D
 # ---------------------------------------------------------------------------
 def _contact_lists(gf, rng, s, patch):
     """s random contacts on the plate (some on the clamp): vertex lists, weights, normals."""
-    from hailstorm.runtime.contact_capacitance import _contact_weights
-    from hailstorm.runtime.weights import _locate_lists, triangle_normals
+    from hailstorm.runtime.contact.weights import locate, patch_weights, triangle_normals
 
     usable = np.flatnonzero((gf.contactable | gf.fixed)[gf.triangles].all(axis=1))
     t = rng.choice(usable, s)
     b = rng.dirichlet([1.0, 1.0, 1.0], s)
     n = triangle_normals(gf.vertices, gf.triangles[t])
     a = rng.uniform(0.0, 0.03, s) if patch else None
-    pv, w = _contact_weights(gf, t, b, n, a, "hertz")
-    V, loc = _locate_lists(pv)
+    pv, w = (gf.triangles[t], b) if a is None else patch_weights(gf, t, b, a, n)
+    V, loc = locate(pv)
     return t, b, n, a, V, loc, w
+
+
+def _dense_block(gf, rows, cols):
+    """D[rows, cols] by plain fancy indexing of the dense D, zero columns where cols < 0."""
+    D = np.asarray(gf.D)
+    return np.where(cols[None, :] >= 0, D[np.ix_(rows, np.maximum(cols, 0))], 0.0)
 
 
 @pytest.mark.parametrize("patch", [False, True])
 @pytest.mark.parametrize("s", [1, 12, 40])
-def test_contact_blocks_match_numpy(gf, s, patch):
-    """vertex_block is D_VV exactly (zero columns at clamped vertices); W and D_VV G
-    from weighted_rows / contact_compliance equal numpy's to rounding, both modes;
-    weighted_rows over D.T is the full-surface response D[:, V] B."""
-    from hailstorm.runtime.contact_capacitance import _contact_compliance, _response_columns
-    from hailstorm.runtime.gather import _column_dofs, _gather_vertices
-    from hailstorm.runtime.weights import _dense_B
+def test_contact_blocks_match_dense_algebra(gf, s, patch):
+    """vertex_block is D_VV exactly (zero columns at clamped vertices); W = G^T D_VV G and
+    D_VV G from weighted_rows / contact_compliance equal the dense products with G (B, or
+    B N) to rounding, both modes; constraint_rows is weighted_rows of vertex_block exactly; weighted_rows over D.T is the full-surface response
+    D[:, V] B; columns_times is D[:, cols] g."""
+    from hailstorm.runtime.contact.compliance import column_dofs, dof3, vertex_block
+    from hailstorm.runtime.contact.contact_set import _response_columns, contact_compliance
+    from hailstorm.runtime.contact.weights import dense_B
 
     gf = dataclasses.replace(gf, D=np.asfortranarray(gf.D))
     rng = np.random.default_rng(s + 100 * patch)
     t, b, n, a, V, loc, w = _contact_lists(gf, rng, s, patch)
-    cols = _column_dofs(gf, V)
+    cols = column_dofs(gf, V)
     assert (cols < 0).any() or s < 40  # the larger sets reach the clamp
-    D_VV = _gather_vertices(gf, V, cols)
+    D_VV = _dense_block(gf, dof3(V), cols)
     M = C.vertex_block(V, gf.D.T, gf.column_of)
     np.testing.assert_array_equal(M.T, D_VV)
+    np.testing.assert_array_equal(vertex_block(gf, V), D_VV)
+    B = dense_B(V.size, loc, w)
     for sticky in (True, False):
         mode = "sticky" if sticky else "frictionless"
+        G = B if sticky else np.einsum("rkj,kj->rk", B.reshape(B.shape[0], s, 3), n)
         Y = C.weighted_rows(M, np.arange(V.size), loc, w, n, sticky)
+        np.testing.assert_array_equal(C.blocks.constraint_rows(gf.D.T, gf.column_of, V, loc, w, n, sticky), Y)
         W = C.contact_compliance(Y, loc, w, n, sticky)
-        W_ref = _contact_compliance(D_VV, loc, w, n, mode)
+        W_ref = G.T @ D_VV @ G
+        W_ref = 0.5 * (W_ref + W_ref.T)
         np.testing.assert_allclose(W, W_ref, rtol=0, atol=1e-13 * np.abs(W_ref).max())
         np.testing.assert_array_equal(W, W.T)
-        G = _dense_B(V.size, loc, w)
-        if not sticky:
-            G = np.einsum("rkj,kj->rk", G.reshape(G.shape[0], s, 3), n)
+        np.testing.assert_array_equal(contact_compliance(D_VV, loc, w, n, mode), W)
         np.testing.assert_allclose(Y.T, D_VV @ G, rtol=0, atol=1e-13 * np.abs(D_VV).max())
-    R = _response_columns(gf, cols, loc, w, compiled=True)
-    R_ref = _response_columns(gf, cols, loc, w)
+    R = _response_columns(gf, cols, loc, w)
+    R_ref = _dense_block(gf, np.arange(gf.D.shape[0]), cols) @ B
     np.testing.assert_allclose(R, R_ref, rtol=0, atol=1e-13 * np.abs(R_ref).max())
     g = rng.normal(size=cols.size)
-    u_ref = np.asarray(gf.D)[:, np.maximum(cols, 0)] @ np.where(cols >= 0, g, 0.0)
+    u_ref = _dense_block(gf, np.arange(gf.D.shape[0]), cols) @ g
     np.testing.assert_allclose(C.columns_times(gf.D.T, cols, g), u_ref, rtol=0, atol=1e-13 * np.abs(u_ref).max())
 
 
-def test_contact_api_takes_the_kernels(gf, monkeypatch):
-    """backend="numba" (and "auto" with numba) calls the kernels for a column-major D:
-    bilateral point contacts in one call (point_contacts), everything else through the
-    block kernels; "numpy", and a row-major D, call none. Results agree to rounding."""
-    import hailstorm.runtime.contact
-    import hailstorm.runtime.contact_capacitance
-    import hailstorm.runtime.gather
-    from hailstorm.runtime.contact import capacitance, solve_contacts
+def test_contact_api_calls_the_kernels(gf, monkeypatch):
+    """Bilateral point contacts take the one-call point_contacts, everything else the block
+    kernels (also for a row-major D, read through a column-major copy); the two paths agree
+    to rounding with each other and with a dense solve of W."""
+    import hailstorm.runtime.contact.compliance
+    import hailstorm.runtime.contact.contact_set
+    import hailstorm.runtime.contact.solve
+    from hailstorm.runtime.contact import capacitance, policy, solve_contacts
+    from hailstorm.runtime.contact.compliance import column_dofs, dof3
+    from hailstorm.runtime.contact.weights import dense_B
 
     calls = []
 
@@ -364,44 +379,57 @@ def test_contact_api_takes_the_kernels(gf, monkeypatch):
             calls.append(name)
             return getattr(C.blocks, name)
 
-    for mod in (hailstorm.runtime.contact, hailstorm.runtime.contact_capacitance, hailstorm.runtime.gather):
-        monkeypatch.setattr(mod, "_kernels", Spy())
+    for mod in (hailstorm.runtime.contact.solve, hailstorm.runtime.contact.contact_set,
+                hailstorm.runtime.contact.compliance):
+        monkeypatch.setattr(mod, "kernels", Spy())
     rng = np.random.default_rng(5)
     t, b, n, a, V, loc, w = _contact_lists(gf, rng, 6, False)
     t = np.where(gf.fixed[gf.triangles[t]].all(axis=1), t[0], t)  # no rigid contact: the fast path takes all
     ubar = -1e-4 * n
     F = dataclasses.replace(gf, D=np.asfortranarray(gf.D))
-    ref = solve_contacts(F, t, b, ubar, backend="numpy")
-    ref_uni = solve_contacts(F, t, b, ubar, backend="numpy", unilateral=True)
-    assert not calls
+    # dense reference: f = (B^T D_VV B)^-1 ubar, u = D[:, V] B f
+    V, loc = np.unique(F.triangles[t], return_inverse=True)
+    cols = column_dofs(F, V)
+    B = dense_B(V.size, loc.reshape(-1, 3), b)
+    f_ref = np.linalg.solve(B.T @ _dense_block(F, dof3(V), cols) @ B, ubar.ravel())
+    u_ref = (_dense_block(F, np.arange(F.D.shape[0]), cols) @ B @ f_ref).reshape(-1, 3)
 
     def same(x, y):
         for p, q in ((x.forces, y.forces), (x.surface_displacement, y.surface_displacement),
                      (x.contact_displacement, y.contact_displacement), (x.vertex_forces, y.vertex_forces)):
+            if q is None:
+                assert p is None
+                continue
             np.testing.assert_allclose(p, q, rtol=0, atol=1e-12 * np.abs(q).max())
         np.testing.assert_array_equal(x.vertices, y.vertices)
         np.testing.assert_array_equal(x.active, y.active)
 
-    for backend in ("numba", "auto"):
-        same(solve_contacts(F, t, b, ubar, backend=backend), ref)
-        assert calls == ["point_contacts"]
-        calls.clear()
-        same(solve_contacts(F, t, b, ubar, backend=backend, unilateral=True), ref_uni)
-        assert calls == ["vertex_block", "weighted_rows", "contact_compliance", "columns_times"]
-        calls.clear()
-    capacitance(F, t, b, backend="numba").keep_response()
-    assert calls == ["vertex_block", "weighted_rows", "contact_compliance", "weighted_rows"]
+    fast = solve_contacts(F, t, b, ubar)
+    assert calls == ["point_contacts"]
+    np.testing.assert_allclose(fast.forces.ravel(), f_ref, rtol=0, atol=1e-10 * np.abs(f_ref).max())
+    np.testing.assert_allclose(fast.surface_displacement, u_ref, rtol=0, atol=1e-10 * np.abs(u_ref).max())
     calls.clear()
-    monkeypatch.setattr(hailstorm.runtime.contact_capacitance, "POINT_FAST_MAX", t.size - 1)  # too many for the fast path
-    same(solve_contacts(F, t, b, ubar, backend="numba"), ref)
-    assert calls == ["vertex_block", "weighted_rows", "contact_compliance", "columns_times"]
+    uni = solve_contacts(F, t, b, ubar, unilateral=True)
+    assert calls == ["constraint_rows", "contact_compliance", "columns_times"]
+    same(uni, fast)  # pressing contacts: none is released
+    calls.clear()
+    cap = capacitance(F, t, b)
+    cap.keep_response()
+    assert calls == ["constraint_rows", "contact_compliance", "weighted_rows"]
+    calls.clear()
+    np.testing.assert_array_equal(cap.D_VV, _dense_block(F, dof3(V), cols))  # gathered on first use
+    assert calls == ["vertex_block"]
+    calls.clear()
+    monkeypatch.setattr(policy, "POINT_FAST_MAX", t.size - 1)  # too many for the fast path
+    same(solve_contacts(F, t, b, ubar), fast)
+    assert calls == ["constraint_rows", "contact_compliance", "columns_times"]
+    calls.clear()
+    same(solve_contacts(F, t, b, ubar, rows=None), dataclasses.replace(fast, surface_displacement=None))
+    assert calls == ["constraint_rows", "contact_compliance"]  # the contact displacement from (D_VV G)^T
     calls.clear()
     Crow = dataclasses.replace(gf, D=np.ascontiguousarray(gf.D))
-    same(solve_contacts(Crow, t, b, ubar, backend="numba"), ref)
-    assert not calls
-    monkeypatch.setattr(C, "HAVE_NUMBA", False)
-    solve_contacts(F, t, b, ubar, backend="auto")
-    assert not calls
+    same(solve_contacts(Crow, t, b, ubar), fast)
+    assert calls == ["constraint_rows", "contact_compliance", "columns_times"]
 
 
 def test_point_contacts_fast_path(gf):
@@ -409,8 +437,7 @@ def test_point_contacts_fast_path(gf):
     both modes, with and without the surface), and hands every special case back to it
     with its code: invalid input 1, a vertex without a column of D 2, a rigid contact 3,
     coincident contacts (pseudo-inverse) 4."""
-    import hailstorm.runtime.contact_capacitance as cc
-    from hailstorm.runtime.contact import solve_contacts, triangle_normals
+    from hailstorm.runtime.contact import policy, solve_contacts, triangle_normals
 
     F = dataclasses.replace(gf, D=np.asfortranarray(gf.D))
     T = np.asarray(F.triangles)
@@ -420,11 +447,12 @@ def test_point_contacts_fast_path(gf):
         s = int(rng.integers(1, 25))
         t = rng.choice(soft, s)
         b = rng.dirichlet([1.0, 1.0, 1.0], s)
-        ubar = -1e-4 * triangle_normals(F.vertices, T[t]) + rng.normal(scale=3e-5, size=(s, 3))
+        nrm = triangle_normals(F.vertices, T[t])
+        ubar = -1e-4 * nrm + rng.normal(scale=3e-5, size=(s, 3))
         mode = ("sticky", "frictionless")[trial % 2]
         rows = ("all", None)[(trial // 2) % 2]
-        got = solve_contacts(F, t, b, ubar, mode=mode, rows=rows, backend="numba")
-        ref = solve_contacts(F, t, b, ubar, mode=mode, rows=rows, backend="numpy")
+        got = solve_contacts(F, t, b, ubar, mode=mode, rows=rows)
+        ref = solve_contacts(F, t, b, ubar, mode=mode, rows=rows, normals=nrm)  # explicit normals: the general path
         for p, q in ((got.forces, ref.forces), (got.contact_displacement, ref.contact_displacement),
                      (got.vertex_forces, ref.vertex_forces), (got.surface_displacement, ref.surface_displacement)):
             if q is None:
@@ -438,7 +466,7 @@ def test_point_contacts_fast_path(gf):
         t = np.asarray(t, dtype=np.int64)
         return C.point_contacts(F.D.T, F.column_of, F.contactable if contactable is None else contactable, F.fixed,
                                 T, F.vertices, t, np.asarray(b, float), np.full((t.size, 3), -1e-4), sticky, True,
-                                cc.BARY_SUM_TOL, cc.BARY_NEG_TOL, cc.COND_LIMIT)[0]
+                                policy.BARY_SUM_TOL, policy.BARY_NEG_TOL, policy.COND_LIMIT, policy.RIGID_WEIGHT)[0]
 
     third = [1 / 3, 1 / 3, 1 / 3]
     assert code([soft[0]], [third]) == 0

@@ -14,7 +14,6 @@ import scipy.sparse.linalg as spla
 
 import hailstorm.runtime
 from hailstorm.runtime.bundle import load
-from hailstorm.runtime.compiled import HAVE_NUMBA
 from hailstorm.runtime.contact import (
     Capacitance,
     ContactSolution,
@@ -32,9 +31,6 @@ precompute = pytest.importorskip("hailstorm.precompute")
 from hailstorm.precompute import fem  # noqa: E402
 
 YOUNG, POISSON = 1.0e6, 0.3
-#: Both backends of the contact API where numba is installed (the box bundle's D is
-#: column-major, so "numba" really takes the kernels; test_compiled checks that).
-BACKENDS = ["numpy", "numba"] if HAVE_NUMBA else ["numpy"]
 
 
 @pytest.fixture(scope="module")
@@ -155,10 +151,9 @@ def test_barycentric_matrix_columns_sum_to_identity():
 # ---------------------------------------------------------------------------
 # against the direct FEM saddle point
 # ---------------------------------------------------------------------------
-@pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("mode", ["sticky", "frictionless"])
 @pytest.mark.parametrize("s", [1, 2, 7, 30])
-def test_matches_direct_fem(box, mode, s, backend):
+def test_matches_direct_fem(box, mode, s):
     rng = np.random.default_rng(100 + s + (mode == "frictionless"))
     gf = box["gf"]
     tri, bary = random_contacts(box, s, rng)
@@ -166,7 +161,7 @@ def test_matches_direct_fem(box, mode, s, backend):
         verts = gf.triangles[tri]
         assert np.unique(verts).size < verts.size
     ubar = rng.normal(scale=1e-3, size=(s, 3))
-    sol = solve_contacts(gf, tri, bary, ubar, mode=mode, backend=backend)
+    sol = solve_contacts(gf, tri, bary, ubar, mode=mode)
     f_ref, u_ref = direct_fem(box, tri, bary, ubar, mode)
     assert isinstance(sol, ContactSolution)
     assert sol.forces.shape == (s, 3) and sol.surface_displacement.shape == (gf.n_vertices, 3)
@@ -210,43 +205,43 @@ def test_pushing_contact_pushes_inward(box):
     assert float(sol.contact_displacement[0] @ n[0]) == pytest.approx(-1e-3, rel=1e-10)
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
-def test_rows_subset_and_none(box, backend):
+def test_rows_subset_and_none(box):
     gf = box["gf"]
     rng = np.random.default_rng(3)
     tri, bary = random_contacts(box, 7, rng)
     ubar = rng.normal(scale=1e-3, size=(7, 3))
-    full = solve_contacts(gf, tri, bary, ubar, backend=backend)
+    full = solve_contacts(gf, tri, bary, ubar)
     rows = np.array([0, 5, 17, gf.n_vertices - 1])
-    sub = solve_contacts(gf, tri, bary, ubar, rows=rows, backend=backend)
+    sub = solve_contacts(gf, tri, bary, ubar, rows=rows)
     # (with numba, rows "all" and None take the one-call fast path and a subset the general one)
     np.testing.assert_allclose(sub.surface_displacement, full.surface_displacement[rows], rtol=0,
                                atol=1e-12 * np.abs(full.surface_displacement).max())
-    none = solve_contacts(gf, tri, bary, ubar, rows=None, backend=backend)
+    none = solve_contacts(gf, tri, bary, ubar, rows=None)
     assert none.surface_displacement is None
     np.testing.assert_array_equal(none.forces, full.forces)
 
 
 @pytest.mark.parametrize("s", [1, 7, 30])
 def test_memory_layouts_agree(box, s):
-    """Memory-mapped, in-memory C-order and Fortran-order D: the numpy path's gathers give
-    the same results (the surface product switches between a column gather and a full
-    gemv with s). The compiled path is held to the numpy one in test_compiled."""
+    """Memory-mapped, in-memory C-order and Fortran-order D give the same results (the
+    kernels read a C-order D through a column-major copy, the row gathers take other paths)."""
     import dataclasses
 
     gf = box["gf"]
     rng = np.random.default_rng(60 + s)
     tri, bary = random_contacts(box, s, rng)
     ubar = rng.normal(scale=1e-3, size=(s, 3))
-    ref = solve_contacts(gf, tri, bary, ubar, backend="numpy")
+    ref = solve_contacts(gf, tri, bary, ubar)
     rows = np.arange(0, gf.n_vertices, 2)
+    ref_sub = solve_contacts(gf, tri, bary, ubar, rows=rows)  # the general path (not the one-call kernel)
+    assert rel(ref_sub.surface_displacement, ref.surface_displacement[rows]) < 1e-9
     for D in (np.array(gf.D), np.asfortranarray(gf.D)):
         other = dataclasses.replace(gf, D=D)
-        sol = solve_contacts(other, tri, bary, ubar, backend="numpy")
+        sol = solve_contacts(other, tri, bary, ubar)
         assert rel(sol.forces, ref.forces) < 1e-12
         assert rel(sol.surface_displacement, ref.surface_displacement) < 1e-12
-        sub = solve_contacts(other, tri, bary, ubar, rows=rows, backend="numpy")
-        assert rel(sub.surface_displacement, ref.surface_displacement[rows]) < 1e-12
+        sub = solve_contacts(other, tri, bary, ubar, rows=rows)
+        assert rel(sub.surface_displacement, ref_sub.surface_displacement) < 1e-12
 
 
 def test_no_contacts(box):
@@ -303,15 +298,14 @@ def test_unilateral_all_pushing_equals_bilateral(box, mode):
     assert rel(b.forces, a.forces) < 1e-12
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
-def test_unilateral_complementarity_random(box, backend):
+def test_unilateral_complementarity_random(box):
     """Random prescriptions: the active set satisfies the contact conditions."""
     gf = box["gf"]
     rng = np.random.default_rng(13)
     tri, bary = random_contacts(box, 30, rng, same_triangle=False)
     n = triangle_normals(gf.vertices, gf.triangles[tri])
     ubar = rng.normal(scale=1e-3, size=30)[:, None] * n
-    sol = solve_contacts(gf, tri, bary, ubar, mode="frictionless", unilateral=True, backend=backend)
+    sol = solve_contacts(gf, tri, bary, ubar, mode="frictionless", unilateral=True)
     fn = np.einsum("ki,ki->k", sol.forces, n)
     gap = np.einsum("ki,ki->k", sol.contact_displacement - ubar, n)
     scale_f, scale_u = np.abs(fn).max(), np.abs(ubar).max()
@@ -445,8 +439,8 @@ def test_add_remove_equal_fresh_build(box, mode):
 
 @pytest.mark.parametrize("pos", [[0, 1, 2, 6, 7, 8], [3, 4, 5, 9, 10, 11, 12, 13, 14], [1, 2, 3], [0, 2, 4, 6]])
 def test_embed_block_copies(pos, monkeypatch):
-    import hailstorm.runtime.contact_capacitance as rc
-    from hailstorm.runtime.contact_capacitance import _embed
+    import hailstorm.runtime.contact.contact_set as rc
+    from hailstorm.runtime.contact.contact_set import _embed
 
     monkeypatch.setattr(rc, "EMBED_BLOCKS_FROM", 0)
     pos = np.array(pos)
@@ -456,11 +450,10 @@ def test_embed_block_copies(pos, monkeypatch):
 
 
 def test_add_remove_block_copy_path(box, monkeypatch):
-    """Same as a fresh build when D_VV is grown by block copies and W by the sparse path."""
-    import hailstorm.runtime.contact_capacitance as rc
+    """Same as a fresh build when D_VV is grown by block copies."""
+    import hailstorm.runtime.contact.contact_set as rc
 
     monkeypatch.setattr(rc, "EMBED_BLOCKS_FROM", 0)
-    monkeypatch.setattr(rc, "SPARSE_FROM", 1)
     gf = box["gf"]
     rng = np.random.default_rng(42)
     tri, bary = random_contacts(box, 9, rng)
@@ -533,7 +526,6 @@ def test_capacitance_methods(box):
         (dict(normals=[[0.0, 0.0, 1.0], [0.0, 0.0, 1.0]]), ValueError, "shape"),
         (dict(rows="some"), ValueError, "rows"),
         (dict(rows=[10**6]), IndexError, "rows"),
-        (dict(backend="fortran"), ValueError, "backend"),
     ],
 )
 def test_validation(box, kwargs, exc, match):
@@ -591,10 +583,9 @@ def _top_contacts(box, s, rng):
     return tri, rng.dirichlet([1.0, 1.0, 1.0], s)
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("mode", ["sticky", "frictionless"])
 @pytest.mark.parametrize("s, radius", [(1, 0.03), (3, 0.025), (7, "mixed")])
-def test_patch_matches_direct_fem(box, mode, s, radius, backend):
+def test_patch_matches_direct_fem(box, mode, s, radius):
     """Patch contacts = the FEM saddle point with the patch weights as constraint rows."""
     gf = box["gf"]
     rng = np.random.default_rng(200 + s + (mode == "frictionless"))
@@ -602,9 +593,9 @@ def test_patch_matches_direct_fem(box, mode, s, radius, backend):
     if radius == "mixed":  # point contacts, patches of several sizes, one reaching the clamp
         radius = np.array([0.0, 0.015, 0.03, 0.045, 0.0, 0.02, 0.06])
     ubar = rng.normal(scale=1e-3, size=(s, 3))
-    sol = solve_contacts(gf, tri, bary, ubar, mode=mode, patch_radius=radius, backend=backend)
-    cap = capacitance(gf, tri, bary, mode=mode, patch_radius=radius, backend=backend)
-    verts, w = patch_weights(gf, tri, bary, radius, backend=backend)
+    sol = solve_contacts(gf, tri, bary, ubar, mode=mode, patch_radius=radius)
+    cap = capacitance(gf, tri, bary, mode=mode, patch_radius=radius)
+    verts, w = patch_weights(gf, tri, bary, radius)
     assert verts.shape[1] > 3  # the patches really cover more than a triangle
     np.testing.assert_array_equal(cap.V[cap.loc], verts)
     np.testing.assert_array_equal(cap.weights, w)
@@ -621,7 +612,7 @@ def test_patch_matches_direct_fem(box, mode, s, radius, backend):
         np.testing.assert_allclose(np.einsum("ki,ki->k", u_patch, nrm), np.einsum("ki,ki->k", ubar, nrm),
                                    atol=1e-10 * np.abs(ubar).max())
     # B of the capacitance is the patch matrix
-    V, B = patch_matrix(gf, tri, bary, radius, backend=backend)
+    V, B = patch_matrix(gf, tri, bary, radius)
     np.testing.assert_array_equal(V, cap.V)
     np.testing.assert_array_equal(B, cap.B)
 
@@ -648,9 +639,11 @@ def test_patch_radius_zero_is_point_contact(box):
     rng = np.random.default_rng(5)
     tri, bary = random_contacts(box, 7, rng)
     ubar = rng.normal(scale=1e-3, size=(7, 3))
-    ref = solve_contacts(gf, tri, bary, ubar, backend="numpy")
+    # the general path (explicit normals: not the one-call point-contact kernel), which a
+    # patch radius of 0 takes too
+    ref = solve_contacts(gf, tri, bary, ubar, normals=triangle_normals(gf.vertices, gf.triangles[tri]))
     for radius in (0.0, np.zeros(7)):
-        sol = solve_contacts(gf, tri, bary, ubar, patch_radius=radius, backend="numpy")
+        sol = solve_contacts(gf, tri, bary, ubar, patch_radius=radius)
         np.testing.assert_array_equal(sol.forces, ref.forces)
         np.testing.assert_array_equal(sol.surface_displacement, ref.surface_displacement)
     # a patch much smaller than a triangle: the weights tend to beta (continuity at a -> 0)
@@ -733,10 +726,9 @@ def test_patch_add_remove_equal_fresh_build(box, mode):
     np.testing.assert_allclose(R, gf.compliance(np.arange(gf.n_vertices), cap.V) @ cap.G, rtol=1e-12, atol=1e-20)
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("mode", ["sticky", "frictionless"])
 @pytest.mark.parametrize("patch", [False, True])
-def test_kept_response_follows_add_and_remove(box, mode, patch, backend):
+def test_kept_response_follows_add_and_remove(box, mode, patch):
     """keep_response: surface_displacement is R @ f, and R follows add / remove (with a
     rigid contact and patches in the mix): equal to the column gather and to direct FEM."""
     gf = box["gf"]
@@ -744,8 +736,7 @@ def test_kept_response_follows_add_and_remove(box, mode, patch, backend):
     tri, bary = random_contacts(box, 8, rng)
     tri[6] = box["rigid_tris"][0]
     radii = np.array([0.02, 0.0, 0.03, 0.02, 0.0, 0.01, 0.02, 0.04]) if patch else np.zeros(8)
-    cap = capacitance(gf, tri[:3], bary[:3], mode=mode, patch_radius=radii[:3], backend=backend)
-    assert cap.backend == backend
+    cap = capacitance(gf, tri[:3], bary[:3], mode=mode, patch_radius=radii[:3])
     R = cap.keep_response()
     assert R.shape == (3 * gf.n_vertices, 9) and cap.keep_response() is R  # formed once
     keep = [0, 1, 2]
@@ -812,3 +803,100 @@ def test_patch_validation(box, kwargs, match):
         solve_contacts(box["gf"], [int(box["touchable"][0])], [[0.2, 0.3, 0.5]], [[0.0, 0.0, -1e-3]], **kwargs)
     with pytest.raises(ValueError, match=match):
         capacitance(box["gf"], [int(box["touchable"][0])], [[0.2, 0.3, 0.5]], **kwargs)
+
+
+# ---------------------------------------------------------------------------
+# the contact core as one package (issue 12): public active set, protocol, one policy
+# ---------------------------------------------------------------------------
+@pytest.mark.parametrize("mode", ["sticky", "frictionless"])
+def test_capacitance_solve_is_the_active_set(box, mode):
+    """Capacitance.solve (public) is what solve_contacts runs: the same forces, active set
+    and iterations for unilateral contacts that partly pull; the bilateral solve is forces()."""
+    gf = box["gf"]
+    rng = np.random.default_rng(77)
+    tri, bary = random_contacts(box, 12, rng)
+    n = triangle_normals(gf.vertices, gf.triangles[tri])
+    ubar = -1e-3 * n * rng.choice([-1.0, 1.0], size=(12, 1))  # some press, some pull
+    ref = solve_contacts(gf, tri, bary, ubar, mode=mode, unilateral=True)
+    cap = capacitance(gf, tri, bary, mode=mode)
+    got = cap.solve(ubar, unilateral=True)
+    assert 0 < got.active.sum() < 12 and got.iterations == ref.iterations
+    np.testing.assert_array_equal(got.active, ref.active)
+    assert rel(got.forces, ref.forces) < 1e-12
+    np.testing.assert_array_equal(cap.solve(ubar).forces, cap.forces(ubar))
+    with pytest.raises(ValueError, match="shape"):
+        cap.solve(ubar[:3])
+
+
+def test_compliance_source_protocol(box):
+    """Any object with the ComplianceSource attributes serves the contact core (here a plain
+    namespace holding a C-ordered copy of D): the same solution as the bundle."""
+    import types
+
+    from hailstorm.runtime.contact import ComplianceSource
+
+    gf = box["gf"]
+    src = types.SimpleNamespace(D=np.ascontiguousarray(gf.D), column_of=gf.column_of, contactable=gf.contactable,
+                                fixed=gf.fixed, vertices=gf.vertices, triangles=gf.triangles)
+    attrs = {name for name in dir(ComplianceSource) if not name.startswith("_")}
+    assert attrs == {"D", "column_of", "contactable", "fixed", "vertices", "triangles"}
+    rng = np.random.default_rng(3)
+    tri, bary = random_contacts(box, 9, rng)
+    ubar = rng.normal(scale=1e-3, size=(9, 3))
+    for kw in ({}, {"unilateral": True, "mode": "frictionless"}, {"patch_radius": 0.02}):
+        a = solve_contacts(gf, tri, bary, ubar, **kw)
+        b = solve_contacts(src, tri, bary, ubar, **kw)
+        assert rel(b.forces, a.forces) < 1e-12
+        assert rel(b.surface_displacement, a.surface_displacement) < 1e-12
+
+
+@pytest.mark.parametrize("fast", [True, False])
+def test_rigid_threshold_is_the_policy_constant(box, monkeypatch, fast):
+    """Both paths (the one-call point-contact kernel and the general one) read the rigid
+    threshold from hailstorm.runtime.contact.policy: a contact with 1e-13 of its weight on
+    its one free vertex is a hard wall at the default 1e-12 and a soft contact below it."""
+    from hailstorm.runtime.contact import policy
+
+    gf = box["gf"]
+    t = int(box["single"][0])
+    free = ~gf.fixed[gf.triangles[t]]
+    b = np.where(free, 1e-13, 0.0)
+    b[np.flatnonzero(~free)[0]] = 1.0 - 1e-13
+    kw = {} if fast else {"normals": triangle_normals(gf.vertices, gf.triangles[[t]])}
+    sol = solve_contacts(gf, [t], [b], [[0.0, 0.0, -1e-6]], **kw)
+    assert sol.rigid.all() and not sol.forces.any()
+    monkeypatch.setattr(policy, "RIGID_WEIGHT", 1e-14)
+    sol = solve_contacts(gf, [t], [b], [[0.0, 0.0, -1e-6]], **kw)
+    assert not sol.rigid.any() and sol.active.all() and np.abs(sol.forces).max() > 0
+
+
+def test_contact_api_has_no_backend_switch(box):
+    """One implementation: the contact API takes no backend= (issue 12)."""
+    import inspect
+
+    from hailstorm.runtime import press_spheres
+
+    for fn in (solve_contacts, capacitance, patch_weights, patch_matrix, press_spheres):
+        assert "backend" not in inspect.signature(fn).parameters, fn.__name__
+    with pytest.raises(TypeError):
+        solve_contacts(box["gf"], [int(box["touchable"][0])], [[0.2, 0.3, 0.5]], [[0, 0, -1e-3]], backend="numpy")
+
+
+def test_contact_core_imports_no_private_names():
+    """No module of the contact core (nor the bundle or press_spheres) imports an underscore
+    name from another module. The one exception is the patch kernel, which lives on the
+    storm's side (compiled/patches.py) under a private name."""
+    import ast
+    from pathlib import Path
+
+    root = Path(hailstorm.runtime.__file__).parent
+    files = sorted((root / "contact").glob("*.py")) + [root / "bundle.py", root / "hertz.py"]
+    allowed = {("hailstorm.runtime.compiled.patches", "_one_patch")}
+    found = []
+    for f in files:
+        for node in ast.walk(ast.parse(f.read_text())):
+            if isinstance(node, ast.ImportFrom) and node.module and node.module.startswith("hailstorm"):
+                found += [(f.name, node.module, a.name) for a in node.names
+                          if a.name.startswith("_") and (node.module, a.name) not in allowed]
+    assert not found
+    assert len(files) >= 8

@@ -19,7 +19,7 @@ With the unscaled offset the error falls as h^1.25 towards ~1.02
 Boussinesq estimate gives 1.5 %); the old prescription converges to ~1.3, the
 1/0.8 of prescribing delta instead of the Hertz-weighted mean
 delta - a^2/(5R). press_spheres scales the offset by how well the mesh
-resolves the patch (hailstorm.runtime.weights.sphere_mean_offset), which costs 1-2 %
+resolves the patch (hailstorm.runtime.contact.weights.sphere_mean_offset), which costs 1-2 %
 on the coarse block and vanishes with refinement. The default-run test uses
 the 0.35 mm block (20 % tolerance, and the old prescription must be 30 %
 off); the slow test refines twice and extrapolates (see its docstring).
@@ -36,7 +36,7 @@ import hailstorm.runtime  # noqa: E402
 from hailstorm.precompute import build_bundle  # noqa: E402
 from hailstorm.precompute.halfspace import halfspace_block  # noqa: E402
 from hailstorm.runtime.hertz import hertz_force, press_spheres  # noqa: E402
-from hailstorm.runtime.weights import hertz_mean_offset  # noqa: E402
+from hailstorm.runtime.contact.weights import hertz_mean_offset  # noqa: E402
 
 E, NU, R = 2.0e6, 0.35, 0.01
 RATIOS = (0.01, 0.02, 0.04)

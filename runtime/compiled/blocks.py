@@ -1,12 +1,14 @@
 """The contact API's kernels: blocks of D, the contact compliance, one-call point-contact solves.
 
-Used by :func:`hailstorm.runtime.contact.solve_contacts` and :func:`hailstorm.runtime.contact.capacitance`
-with ``backend="numba"`` (numpy references in :mod:`hailstorm.runtime.gather`,
-:mod:`hailstorm.runtime.contact_capacitance` and :mod:`hailstorm.runtime.contact`), and by the
-storm's :func:`hailstorm.runtime.compiled.contacts.capacitance_blocks`:
+The one implementation of these blocks: used by the contact core
+(:mod:`hailstorm.runtime.contact`: :func:`~hailstorm.runtime.contact.solve_contacts`,
+:func:`~hailstorm.runtime.contact.capacitance`) and by the storm's
+:func:`hailstorm.runtime.compiled.contacts.capacitance_blocks`. The tests hold them
+to dense algebra on D (fancy-indexed blocks, a dense B).
 
 * :func:`vertex_block` -- ``D_VV`` (transposed), gathered row by row;
 * :func:`weighted_rows` -- ``G^T M``: ``D_VV G`` or the full-surface response;
+* :func:`constraint_rows` -- ``(D_VV G)^T`` straight from D (no ``D_VV``);
 * :func:`contact_compliance` -- ``W = G^T D_VV G`` from it;
 * :func:`columns_times` -- ``D[:, cols] g``;
 * :func:`point_contacts` -- a fresh solve of bilateral point contacts in one call.
@@ -20,7 +22,7 @@ import numpy as np
 
 from hailstorm.runtime.compiled._jit import _njit
 
-__all__ = ["columns_times", "contact_compliance", "point_contacts", "vertex_block", "weighted_rows"]
+__all__ = ["columns_times", "constraint_rows", "contact_compliance", "point_contacts", "vertex_block", "weighted_rows"]
 
 
 @_njit
@@ -127,12 +129,85 @@ def weighted_rows(M, blocks, loc, w, normals, sticky):  # pragma: no cover (comp
 
 
 @_njit
+def constraint_rows(Dt, column_of, V, loc, w, normals, sticky):  # pragma: no cover (compiled)
+    """``Y = (D_VV G)^T`` straight from the columns of D: :func:`weighted_rows` of
+    :func:`vertex_block`, fused (the same sums in the same order, bit for bit), without
+    forming ``D_VV``.
+
+    Row ``(k, d)`` of ``Y`` is the weighted sum over contact ``k``'s vertices of column
+    ``(v, d)`` of D read at the rows of V: ``3 s P`` scattered row reads of ``|V|``
+    chunks of three doubles, instead of writing and re-reading the ``(3|V|)^2`` block.
+
+    Parameters
+    ----------
+    Dt : (3c, 3n) C-contiguous ndarray
+        ``D.T`` (each row a column of D).
+    column_of : (n,) int ndarray
+    V : (|V|,) int ndarray
+        The contacts' vertices (``loc`` indexes into it).
+    loc, w, normals, sticky
+        As in :func:`weighted_rows`.
+
+    Returns
+    -------
+    (m, 3|V|) ndarray
+    """
+    s, P = loc.shape
+    nV = V.size
+    m = 3 * s if sticky else s
+    Y = np.zeros((m, 3 * nV))
+    rows = 3 * V
+    for k in range(s):
+        for p in range(P):
+            wp = w[k, p]
+            cb = column_of[V[loc[k, p]]]
+            if wp == 0.0 or cb < 0:
+                continue
+            s0 = Dt[3 * cb]  # the vertex's three columns at once: more reads in flight
+            s1 = Dt[3 * cb + 1]
+            s2 = Dt[3 * cb + 2]
+            if sticky:
+                d0 = Y[3 * k]
+                d1 = Y[3 * k + 1]
+                d2 = Y[3 * k + 2]
+                for i in range(nV):
+                    r = rows[i]
+                    j = 3 * i
+                    d0[j] += wp * s0[r]
+                    d0[j + 1] += wp * s0[r + 1]
+                    d0[j + 2] += wp * s0[r + 2]
+                    d1[j] += wp * s1[r]
+                    d1[j + 1] += wp * s1[r + 1]
+                    d1[j + 2] += wp * s1[r + 2]
+                    d2[j] += wp * s2[r]
+                    d2[j + 1] += wp * s2[r + 1]
+                    d2[j + 2] += wp * s2[r + 2]
+            else:
+                c0 = wp * normals[k, 0]
+                c1 = wp * normals[k, 1]
+                c2 = wp * normals[k, 2]
+                dst = Y[k]
+                for i in range(nV):
+                    r = rows[i]
+                    j = 3 * i
+                    dst[j] += c0 * s0[r]  # per entry summed over d in order, as weighted_rows does
+                    dst[j] += c1 * s1[r]
+                    dst[j] += c2 * s2[r]
+                    dst[j + 1] += c0 * s0[r + 1]
+                    dst[j + 1] += c1 * s1[r + 1]
+                    dst[j + 1] += c2 * s2[r + 1]
+                    dst[j + 2] += c0 * s0[r + 2]
+                    dst[j + 2] += c1 * s1[r + 2]
+                    dst[j + 2] += c2 * s2[r + 2]
+    return Y
+
+
+@_njit
 def contact_compliance(Y, loc, w, normals, sticky):  # pragma: no cover (compiled)
     """The contact compliance ``W = G^T D_VV G`` from ``Y = (D_VV G)^T``, symmetrised.
 
     ``Y`` is :func:`weighted_rows` of :func:`vertex_block`. ``Y G`` is
-    ``G^T D_VV^T G = W^T``; the symmetrised result is the same W (up to
-    rounding) as numpy's ``hailstorm.runtime.contact_capacitance._contact_compliance``.
+    ``G^T D_VV^T G = W^T``; the symmetrised result is W.
     Arguments as in :func:`weighted_rows`; returns the (m, m) W.
     """
     s, P = loc.shape
@@ -206,7 +281,7 @@ def columns_times(Dt, cols, g):  # pragma: no cover (compiled)
 def _cholesky_solve(A, rhs, cond_limit):  # pragma: no cover (compiled)
     """``A^-1 rhs`` by Cholesky (LAPACK) for a symmetric A, or None if A is not positive
     definite or its condition estimate ``(max L_ii / min L_ii)^2`` reaches ``cond_limit``
-    (the test of ``hailstorm.runtime.contact_capacitance._Factor``)."""
+    (the test of :class:`hailstorm.runtime.contact.policy.SPDFactor`)."""
     m = A.shape[0]
     if m == 0:
         return np.zeros(0)
@@ -241,9 +316,9 @@ def _cholesky_solve(A, rhs, cond_limit):  # pragma: no cover (compiled)
 
 @_njit
 def point_contacts(Dt, column_of, contactable, fixed, triangles, vertices, tri, bary, ubar, sticky, want_u,
-                   bary_sum_tol, bary_neg_tol, cond_limit):  # pragma: no cover (compiled)
-    """One fresh solve of bilateral point contacts, whole: :func:`hailstorm.runtime.contact.solve_contacts`'
-    fast path for the common case.
+                   bary_sum_tol, bary_neg_tol, cond_limit, rigid_weight):  # pragma: no cover (compiled)
+    """One fresh solve of bilateral point contacts, whole: :func:`hailstorm.runtime.contact.solve_contacts`
+    for the common case, its validation, blocks, factorisation policy and products fused in one call.
 
     Validates, finds V, forms ``W = G^T D_VV G`` straight from D's columns (no
     D_VV), factorises it, and returns the forces, the contact displacements
@@ -267,8 +342,8 @@ def point_contacts(Dt, column_of, contactable, fixed, triangles, vertices, tri, 
     tri : (s,) int ndarray
     bary, ubar : (s, 3) ndarrays
     sticky, want_u : bool
-    bary_sum_tol, bary_neg_tol, cond_limit : float
-        The general path's tolerances.
+    bary_sum_tol, bary_neg_tol, cond_limit, rigid_weight : float
+        The general path's tolerances (:mod:`hailstorm.runtime.contact.policy`).
 
     Returns
     -------
@@ -309,12 +384,12 @@ def point_contacts(Dt, column_of, contactable, fixed, triangles, vertices, tri, 
                 pos[v] = 0
                 lst[nV] = v
                 nV += 1
-        if free_w <= 1e-12:
+        if free_w <= rigid_weight:
             return (3,) + fail
     V = np.sort(lst[:nV])
     for i in range(nV):
         pos[V[i]] = i
-    # normals (frictionless), from the triangles as hailstorm.runtime.weights.triangle_normals
+    # normals (frictionless), from the triangles as hailstorm.runtime.contact.weights.triangle_normals
     nrm = np.zeros((s, 3))
     if not sticky:
         for k in range(s):

@@ -1,0 +1,162 @@
+"""The contact core's numerical policy: its constants, named once, and its one SPD factorisation.
+
+Every solve of a contact compliance ``W`` (the contact API's
+:class:`~hailstorm.runtime.contact.contact_set.Capacitance`, its one-call
+compiled point-contact solve, the storm's contact set) follows one rule:
+Cholesky when ``W`` is safely positive definite, the pseudo-inverse when it is
+singular or ill conditioned (coincident contacts), and a contact whose weight
+lies on clamped vertices is rigid (excluded, never inverted). The thresholds of
+that rule are here; set them on this module.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import scipy.linalg as sla
+
+__all__ = [
+    "BARY_NEG_TOL",
+    "BARY_SUM_TOL",
+    "COND_LIMIT",
+    "EMBED_BLOCKS_FROM",
+    "PINV_RCOND",
+    "POINT_FAST_MAX",
+    "RIGID_WEIGHT",
+    "SPDFactor",
+    "is_rigid",
+    "spd_inverse",
+]
+
+#: Above this (lower-bound) condition estimate of W, use the pseudo-inverse.
+COND_LIMIT: float = 1e10
+#: Relative eigenvalue cut-off of the pseudo-inverse.
+PINV_RCOND: float = 1e-10
+#: A contact is rigid (a hard wall) when the weight it puts on free (unclamped)
+#: vertices is at most this: its rows and columns of W are zero.
+RIGID_WEIGHT: float = 1e-12
+#: Barycentric coordinates must sum to one within this and be >= -BARY_NEG_TOL.
+BARY_SUM_TOL: float = 1e-6
+BARY_NEG_TOL: float = 1e-9
+#: Up to this many bilateral point contacts, ``solve_contacts`` takes the
+#: one-call compiled solve (:func:`hailstorm.runtime.compiled.blocks.point_contacts`);
+#: above it the block kernels, which win from s = 64-80 on (measured on the default seat).
+POINT_FAST_MAX: int = 64
+#: From this size of D_VV on, :meth:`Capacitance.add` grows it by block copies.
+EMBED_BLOCKS_FROM: int = 300
+
+
+def is_rigid(fixed: np.ndarray, verts: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Contacts whose weight lies entirely on clamped vertices (at most :data:`RIGID_WEIGHT` elsewhere).
+
+    Parameters
+    ----------
+    fixed : (n,) bool ndarray
+        Clamped surface vertices.
+    verts, w : (s, P) int / float ndarrays
+        Each contact's weighted vertices and weights.
+
+    Returns
+    -------
+    (s,) bool ndarray
+    """
+    free_w = np.where(fixed[verts], 0.0, np.abs(w)).sum(axis=1)
+    return free_w <= RIGID_WEIGHT
+
+
+_potrf, _potrs, _potri = sla.lapack.get_lapack_funcs(("potrf", "potrs", "potri"), dtype=np.float64)
+
+
+class SPDFactor:
+    """Factorisation of a symmetric positive semi-definite W; never a singular solve.
+
+    Cholesky if W is well conditioned (the condition estimate
+    ``(max L_ii / min L_ii)^2`` from the diagonal of the factor is below
+    :data:`COND_LIMIT`), else the rank-revealing pseudo-inverse (symmetric
+    eigendecomposition, eigenvalues below :data:`PINV_RCOND` times the
+    largest dropped): the minimum-norm forces, which split the force of
+    coincident contacts equally and stay finite.
+
+    Parameters
+    ----------
+    W : (m, m) float ndarray
+        Symmetric (it is symmetrised here unless ``symmetric``).
+    symmetric : bool
+        ``W`` is exactly symmetric already (the compiled kernels symmetrise
+        it): skip the symmetrisation (which would not change it).
+
+    Attributes
+    ----------
+    m : int
+        Size.
+    exact : bool
+        True for the Cholesky factor, False for the pseudo-inverse.
+    """
+
+    def __init__(self, W: np.ndarray, *, symmetric: bool = False):
+        m = W.shape[0]
+        self.m = m
+        self.exact = True
+        self._cho: np.ndarray | None = None
+        self._pinv: np.ndarray | None = None
+        if m == 0:
+            return
+        Ws = W if symmetric else 0.5 * (W + W.T)
+        if np.isfinite(Ws).all():
+            c, info = _potrf(Ws, lower=0, clean=1, overwrite_a=0)
+            if info == 0:
+                d = np.abs(np.diag(c))
+                if d.min() > 0 and (d.max() / d.min()) ** 2 < COND_LIMIT:
+                    self._cho = c
+                    return
+        self.exact = False
+        lam, Q = np.linalg.eigh(Ws)
+        keep = lam > PINV_RCOND * max(float(lam.max()), 0.0)
+        Qk = Q[:, keep]
+        K = (Qk / lam[keep]) @ Qk.T
+        self._pinv = 0.5 * (K + K.T)
+
+    def solve(self, rhs: np.ndarray) -> np.ndarray:
+        """``W^-1 rhs`` (the pseudo-inverse's product if not :attr:`exact`)."""
+        if self.m == 0:
+            return np.zeros_like(rhs)
+        if self._cho is not None:
+            x, info = _potrs(self._cho, rhs, lower=0)
+            if info != 0:  # pragma: no cover - only on invalid arguments
+                raise np.linalg.LinAlgError(f"LAPACK potrs failed (info={info})")
+            return x
+        assert self._pinv is not None
+        return self._pinv @ rhs
+
+    def inverse(self) -> np.ndarray:
+        """The symmetric ``K = W^-1`` (or the pseudo-inverse), a new array."""
+        if self.m == 0:
+            return np.zeros((0, 0))
+        if self._cho is not None:
+            K, info = _potri(self._cho, lower=0)
+            if info != 0:  # pragma: no cover
+                raise np.linalg.LinAlgError(f"LAPACK potri failed (info={info})")
+            return np.triu(K) + np.triu(K, 1).T
+        assert self._pinv is not None
+        return self._pinv.copy()
+
+
+def spd_inverse(W: np.ndarray) -> np.ndarray:
+    """Inverse of a symmetric positive semi-definite matrix under the contact core's one policy.
+
+    The Cholesky inverse when ``W`` is well conditioned (condition estimate below
+    :data:`COND_LIMIT`), else the pseudo-inverse (eigenvalues below
+    :data:`PINV_RCOND` times the largest dropped): :class:`SPDFactor`. For
+    contacts that (nearly) coincide this is the min-norm split of their common
+    force: finite and symmetric.
+
+    Parameters
+    ----------
+    W : (m, m) ndarray
+        A contact compliance (symmetrised here).
+
+    Returns
+    -------
+    (m, m) ndarray
+        Symmetric ``K``, the capacitance.
+    """
+    return SPDFactor(np.asarray(W, dtype=np.float64)).inverse()
