@@ -93,7 +93,7 @@ def cluster_client(*, workers: int | None = None, scheduler: str | None = None) 
     """A ``distributed.Client`` for ``workers`` local processes or the cluster at ``scheduler``.
 
     Yields ``None`` if neither is given (solve in this process). The local
-    cluster's workers are single-threaded processes without a dashboard; the
+    cluster's workers are single-threaded processes (dashboard on a free port); the
     cluster and client are closed on exit.
 
     Raises

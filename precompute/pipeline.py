@@ -379,7 +379,8 @@ def _stream_compliance(out: Path, problem: ColumnProblem, key: str, progress: bo
             bar.update(1)
 
     try:
-        with cluster_client(workers=run.workers, scheduler=run.scheduler) if todo else nullcontext() as client:
+        with cluster_client(workers=run.workers, scheduler=run.scheduler) if todo else nullcontext() as client, \
+                _logging_beside(bar):
             stats = solve_blocks(problem, blocks, todo, on_block, client=client, key=key, on_first=on_first)
     except KeyboardInterrupt:
         log.warning("interrupted: %d of %d blocks of D are kept in %s; run the same command again to resume",
@@ -402,6 +403,15 @@ def _stream_compliance(out: Path, problem: ColumnProblem, key: str, progress: bo
                  "4 nnz(L) per column = %.3g GFLOP, %.2f GFLOP/s", stats.blocks, stats.columns, stats.solve_s,
                  stats.workers, f"{nnz_l:,}", flops / 1e9, flops / seconds / 1e9)
     return store.finish(), info
+
+
+def _logging_beside(bar):
+    """Log messages above the progress bar instead of through it."""
+    if bar is None:
+        return nullcontext()
+    from tqdm.contrib.logging import logging_redirect_tqdm
+
+    return logging_redirect_tqdm()
 
 
 def _rigid_modes_on_dofs(basis) -> np.ndarray:
