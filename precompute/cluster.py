@@ -29,6 +29,7 @@ import logging
 import os
 import threading
 import time
+import uuid
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable, Iterator, Sequence
@@ -67,6 +68,9 @@ class SolveStats:
         Wall time until the first block came back (factorization included).
     workers : int
         Processes that solved blocks (1 in this process).
+    factorizations : int
+        Factorizations of K_ff done (one per process that solved blocks,
+        unless a worker died and was restarted).
     """
 
     blocks: int = 0
@@ -75,6 +79,7 @@ class SolveStats:
     solve_s: float = 0.0
     first_block_s: float = float("nan")
     workers: int = 1
+    factorizations: int = 0
     factors: dict[str, float] = field(default_factory=dict)
 
 
@@ -169,8 +174,9 @@ def solve_blocks(
     client
         A ``distributed.Client`` (:func:`cluster_client`), or ``None``: here.
     key
-        Identifies ``problem`` in the workers' factorization cache (the
-        bundle's cache key); a new key evicts the old factorization.
+        Identifies ``problem`` in the workers' factorization cache: equal keys
+        must mean equal K_ff (the bundle's cache key); a new key evicts the
+        old factorization. Default: a fresh one (no reuse across calls).
     on_first
         Called once after the first block, with the statistics so far (for
         an estimate of the remaining time).
@@ -187,6 +193,7 @@ def solve_blocks(
         t0 = time.perf_counter()
         factor = problem.factor()
         stats.factor_s = time.perf_counter() - t0
+        stats.factorizations = 1
         for n, i in enumerate(todo):
             start, stop = blocks[i]
             on_block(i, problem.solve(factor, start, stop))
@@ -198,7 +205,7 @@ def solve_blocks(
                     on_first(stats)
         stats.solve_s = time.perf_counter() - t0
         return stats
-    return _solve_on_cluster(problem, blocks, todo, on_block, client, key or str(id(problem)), on_first, stats)
+    return _solve_on_cluster(problem, blocks, todo, on_block, client, key or uuid.uuid4().hex, on_first, stats)
 
 
 def _solve_on_cluster(problem, blocks, todo, on_block, client, key, on_first, stats: SolveStats) -> SolveStats:
@@ -234,6 +241,7 @@ def _solve_on_cluster(problem, blocks, todo, on_block, client, key, on_first, st
             fut.release()
             if factor_s:
                 stats.factors[worker] = factor_s
+                stats.factorizations += 1
             on_block(i, values)
             del values
             start, stop = blocks[i]

@@ -393,7 +393,8 @@ def _stream_compliance(out: Path, problem: ColumnProblem, key: str, progress: bo
         if bar is not None:
             bar.close()
     info: dict = {"blocks": len(blocks), "blocks_solved": stats.blocks, "blocks_resumed": done,
-                  "columns_solved": stats.columns, "workers": stats.workers, "factor_s": stats.factor_s,
+                  "columns_solved": stats.columns, "workers": stats.workers, "factorizations": stats.factorizations,
+                  "factor_s": stats.factor_s,
                   "solve_s": stats.solve_s}
     if nnz_l is not None and stats.columns:
         flops = 4.0 * nnz_l * stats.columns

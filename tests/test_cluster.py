@@ -74,6 +74,8 @@ def test_cluster_gives_the_serial_D(tmp_path, small_box, cluster, serial, monkey
     assert _rel(gf.D, serial.D) <= 1e-12
     stats = gf.manifest["solve_stats"]
     assert stats["workers"] == 2 and sorted(written) == list(range(stats["blocks"]))
+    # K_ff factorized once per worker, not once per block
+    assert stats["blocks"] == 10 and stats["factorizations"] <= 2
 
 
 def test_a_killed_worker_has_its_blocks_redone(tmp_path, small_box, cluster, serial, monkeypatch):
