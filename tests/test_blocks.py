@@ -185,3 +185,25 @@ def test_too_little_disk_is_refused_before_solving(tmp_path, small_box, monkeypa
     with pytest.raises(resources.TooLargeError, match="of disk for D"):
         build_bundle(tmp_path / "b", mesh=small_box, young=1e6, poisson=0.3)
     assert calls == []
+
+
+def test_interrupted_while_writing_the_bundle_keeps_D_and_solves_nothing_again(tmp_path, small_box, monkeypatch,
+                                                                                caplog):
+    import hailstorm.runtime.bundle as bundle
+
+    out = tmp_path / "b"
+    real = bundle.manifest_hash
+    with monkeypatch.context() as m:
+        def fail(manifest):  # after D moved into the bundle's temporary, before the manifest
+            raise KeyboardInterrupt
+
+        m.setattr(bundle, "manifest_hash", fail)
+        with pytest.raises(KeyboardInterrupt):
+            build_bundle(out, mesh=small_box, young=1e6, poisson=0.3, block_bytes=BLOCK)
+    assert not out.exists() and (work_dir(out) / "compliance.npy").is_file()  # D moved back to the work directory
+    assert bundle.manifest_hash is real
+    calls = _count_solves(monkeypatch)
+    with caplog.at_level(logging.INFO):
+        gf = hailstorm.runtime.load(build_bundle(out, mesh=small_box, young=1e6, poisson=0.3, block_bytes=BLOCK))
+    n = gf.manifest["solve_stats"]["blocks"]
+    assert f"resuming: {n} of {n} blocks done" in caplog.text and calls == []
