@@ -57,7 +57,7 @@ from hailstorm.runtime.bundle import (
     read_manifest,
     write_bundle,
 )
-from hailstorm.runtime.stamps import default_cache_dir
+from hailstorm.runtime.stamps import default_cache_dir, stamp
 
 log = logging.getLogger(__name__)
 
@@ -335,6 +335,9 @@ def _compute(out: Path, mesh: TetMesh, surface: Surface, options: dict, key: str
         "compliance": D,
     }
     path = write_bundle(out, arrays, manifest)
+    # D's hash was computed from its bytes on disk (BlockStore.finish) and the file moved, unchanged:
+    # record that, so that loading it does not read all of D again (hailstorm.runtime.stamps)
+    stamp(path / "compliance.npy", D.sha256)
     remove_work_dir(work_dir(out))
     log.info("wrote bundle %s (%d x %d compliance) in %.1f s", path, *D.shape, time.perf_counter() - t0)
     return path
@@ -394,8 +397,9 @@ def _stream_compliance(out: Path, problem: ColumnProblem, key: str, progress: bo
             bar.close()
     info: dict = {"blocks": len(blocks), "blocks_solved": stats.blocks, "blocks_resumed": done,
                   "columns_solved": stats.columns, "workers": stats.workers, "factorizations": stats.factorizations,
-                  "factor_s": stats.factor_s,
-                  "solve_s": stats.solve_s}
+                  "factor_s": stats.factor_s, "solve_s": stats.solve_s}
+    if np.isfinite(stats.first_block_s):
+        info["first_block_s"] = stats.first_block_s
     if nnz_l is not None and stats.columns:
         flops = 4.0 * nnz_l * stats.columns
         seconds = max(stats.solve_s - stats.factor_s, 1e-9)

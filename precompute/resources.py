@@ -63,9 +63,7 @@ def _estimate(n_surface: float, n_contactable: float, n_points: float, order: in
     # P2 adds a node per edge: about 7 edges per vertex in a tetrahedral mesh
     n_dofs = 3.0 * n_points * (1 if order == 1 else 8)
     d_bytes = 72.0 * n_surface * n_contactable
-    # a sparse Cholesky factor of a 3-D stiffness holds ~ n^(4/3) entries (nested dissection;
-    # measured 3.6 M = 1.0 n^(4/3) at 3 mm), K ~ 80 entries per row for P1; a few blocks of D
-    solver = 12.0 * 8.0 * n_dofs ** (4.0 / 3.0) + 80.0 * 12.0 * n_dofs
+    solver = _solver_bytes(n_dofs)
     blocks = BLOCKS_IN_MEMORY * min(d_bytes, DEFAULT_STORE_BYTES) + 8.0 * n_dofs * 32
     return Estimate(int(n_surface), int(n_contactable), int(n_dofs), int(d_bytes), int(BASE_BYTES + solver + blocks))
 
@@ -74,8 +72,18 @@ def estimate_memory(n_dofs: int, block_bytes: float, blocks_factor: int = 1) -> 
     """Peak memory of the solve: the stiffness, its factorization (estimated) and
     :data:`BLOCKS_IN_MEMORY` column blocks of ``block_bytes`` (times ``blocks_factor``
     in the client of a cluster, which holds two results per worker in flight)."""
-    return (BASE_BYTES + 12.0 * 8.0 * n_dofs ** (4.0 / 3.0) + 80.0 * 12.0 * n_dofs
-            + BLOCKS_IN_MEMORY * blocks_factor * block_bytes)
+    return BASE_BYTES + _solver_bytes(n_dofs) + BLOCKS_IN_MEMORY * blocks_factor * block_bytes
+
+
+def _solver_bytes(n_dofs: float) -> float:
+    """The stiffness and the largest factorization held at once.
+
+    A sparse Cholesky factor of a 3-D stiffness holds ~ c n^(4/3) entries of 12 bytes (measured
+    c = 6.9 at 3 mm, 10 at 1.6 mm on the default seat: 3.6 M and 24.7 M); the nnz(L) count
+    (:func:`hailstorm.precompute.greens.cholesky_nnz`, SuperLU's L and U, freed before CHOLMOD
+    factorizes) holds about 2.5 times that; K ~ 80 entries per row for P1.
+    """
+    return 2.5 * 12.0 * 10.0 * n_dofs ** (4.0 / 3.0) + 80.0 * 12.0 * n_dofs
 
 
 def estimate_geometry(area_top: float, area_all: float, volume: float, mesh_size: float, order: int = 1,

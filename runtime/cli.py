@@ -135,7 +135,7 @@ def _run_precompute(args: argparse.Namespace) -> int:
         )
     except OSError as exc:  # what the library did not already name (a full disk...): still the user's
         raise BundleError(f"precompute failed: {exc}") from exc
-    _print_bundle(path)
+    _print_bundle(path, rehash=False)  # just written and hashed: D is not read again
     if not args.quiet:
         print(f"done in {time.perf_counter() - t0:.1f} s")
     return 0
@@ -151,10 +151,10 @@ def _run_info(args: argparse.Namespace) -> int:
     return 0
 
 
-def _print_bundle(path: Path) -> None:
+def _print_bundle(path: Path, rehash: bool = True) -> None:
     from hailstorm.runtime.bundle import ARRAY_SPECS, load
 
-    gf = load(path, rehash=True)  # verifies: manifest hash and structure, array sizes and hashes, finite D, consistency
+    gf = load(path, rehash=rehash)  # verifies: manifest hash and structure, array sizes and hashes, finite D, consistency
     m = gf.manifest
     mesh = m.get("mesh", {})
     print(f"bundle   {path}")
