@@ -207,3 +207,16 @@ def test_interrupted_while_writing_the_bundle_keeps_D_and_solves_nothing_again(t
         gf = hailstorm.runtime.load(build_bundle(out, mesh=small_box, young=1e6, poisson=0.3, block_bytes=BLOCK))
     n = gf.manifest["solve_stats"]["blocks"]
     assert f"resuming: {n} of {n} blocks done" in caplog.text and calls == []
+
+
+def test_the_streamed_D_is_not_read_again_on_load(tmp_path, small_box, monkeypatch):
+    import hailstorm.runtime.bundle as bundle
+
+    out = build_bundle(tmp_path / "b", mesh=small_box, young=1e6, poisson=0.3, block_bytes=BLOCK)
+    scanned = []
+    real = bundle._scan
+    monkeypatch.setattr(bundle, "_scan", lambda a: scanned.append(a.shape) or real(a))
+    gf = hailstorm.runtime.load(out)
+    assert gf.D.shape not in scanned  # its hash came from its bytes on disk when it was written
+    hailstorm.runtime.load(out, rehash=True)
+    assert gf.D.shape in scanned  # and a rehash still reads it
