@@ -44,7 +44,15 @@ from hailstorm.precompute.greens import (
     hat_load_matrix,
     lumped_areas,
 )
-from hailstorm.precompute.resources import check_disk, check_fits, estimate_memory, estimate_mesh, gib
+from hailstorm.precompute.resources import (
+    BASE_BYTES,
+    available_memory,
+    check_disk,
+    check_fits,
+    estimate_memory,
+    estimate_mesh,
+    gib,
+)
 from hailstorm.runtime.bundle import (
     FORMAT_VERSION,
     BundleError,
@@ -359,7 +367,9 @@ def _stream_compliance(out: Path, problem: ColumnProblem, key: str, progress: bo
     check_disk(block_disk * len(todo), store.path, f"D ({n_rows} x {ncols})", allow_large=run.allow_large)
     n_dofs = problem.Kff.shape[0]
     est = estimate_memory(n_dofs, block_disk, 1 if run.scheduler is None and run.workers is None else 2)
-    nnz_l = cholesky_nnz(problem.Kff) if problem.solver != "amg" and todo else None
+    # the nnz(L) count factors K_ff once more here (SuperLU): skipped when that would not fit comfortably
+    count_fill = problem.solver != "amg" and bool(todo) and 2 * (est - BASE_BYTES) < available_memory()
+    nnz_l = cholesky_nnz(problem.Kff) if count_fill else None
     log.info("D: %d x %d float64, %s on disk (%d blocks of %d columns, %d to compute); "
              "peak memory about %s%s", n_rows, ncols, gib(d_disk), len(blocks), blocks[0][1] - blocks[0][0],
              len(todo), gib(est), "" if nnz_l is None else f"; nnz(L) about {nnz_l:,}")
