@@ -3,7 +3,9 @@
 The one entry point is :func:`build_bundle`; the pieces live in
 :mod:`hailstorm.precompute.geometry` (gmsh/meshio -> :class:`TetMesh`),
 :mod:`hailstorm.precompute.fem` (scikit-fem stiffness, clamp, dofs),
-:mod:`hailstorm.precompute.greens` (the compliance D, A and Ξ = D A) and
+:mod:`hailstorm.precompute.greens` (the compliance D, A and Ξ = D A),
+:mod:`hailstorm.precompute.blocks` (D's column blocks on disk, resumable),
+:mod:`hailstorm.precompute.cluster` (the blocks in this process or on Dask) and
 :mod:`hailstorm.precompute.pipeline` (surface extraction, cache key, bundle).
 """
 

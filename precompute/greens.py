@@ -18,8 +18,8 @@ K_ff u = e_(j,d), read at the output dofs. Three solvers share one interface
 
 from __future__ import annotations
 
-import os
-from typing import Callable, Iterator
+from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 import scipy.sparse as sp
@@ -28,8 +28,9 @@ from hailstorm.precompute.fem import free_dofs
 
 SOLVERS = ("cholmod", "splu", "amg")
 
-#: Bytes of dense right-hand-side/solution blocks held at once (memory bound).
-DEFAULT_BLOCK_BYTES = 256 * 2**20
+#: Bytes of one column block of D, the unit of work and of what is written to disk at once
+#: (32 MiB: a few hundred blocks for 10 000 contactable vertices, each worth one file write).
+DEFAULT_STORE_BYTES = 32 * 2**20
 #: Right-hand sides per block: measured fastest per column for CHOLMOD's
 #: supernodal solve on the default seat (blocks of 8-32 stay in cache; 1 is
 #: 2x slower, 1024 is 1.8x slower).
@@ -110,6 +111,145 @@ def factorize(A: sp.spmatrix, solver: str = "cholmod", *, near_null: np.ndarray 
     raise ValueError(f"unknown solver {solver!r}; choose one of {SOLVERS}")
 
 
+@dataclass(frozen=True, eq=False)
+class ColumnProblem:
+    """The clamped system and the columns of D to compute, in a form a worker can receive.
+
+    Everything a process needs to compute any column block of D: the free-dof
+    stiffness K_ff (shipped once per worker, factorized once there), the
+    solver choice, where each column's load goes and which rows are read.
+    Build it with :func:`column_problem`; solve blocks with :meth:`solve`.
+
+    Attributes
+    ----------
+    Kff : scipy.sparse.csr_matrix
+        Stiffness restricted to the free dofs.
+    solver, tol : str, float
+        See :func:`factorize`.
+    near_null : ndarray or None
+        Rigid-body modes on the free dofs (AMG only).
+    load_pos : (ncols,) int ndarray or None
+        Free-dof index of each column's unit force (``None`` with ``loads``).
+    loads : scipy.sparse.csc_matrix or None
+        (n_free, ncols) load vectors instead of unit forces.
+    read_pos : (n_rows,) int ndarray
+        Free-dof index read out by each row of D, -1 for clamped rows (zero).
+    batch : int
+        Right-hand sides per triangular solve (cache-sized; see
+        :data:`DEFAULT_BLOCK_COLUMNS`).
+    """
+
+    Kff: sp.csr_matrix
+    solver: str
+    tol: float
+    near_null: np.ndarray | None
+    load_pos: np.ndarray | None
+    loads: sp.csc_matrix | None
+    read_pos: np.ndarray
+    batch: int = DEFAULT_BLOCK_COLUMNS
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """Shape of D: (rows read, columns)."""
+        ncols = self.loads.shape[1] if self.loads is not None else self.load_pos.size  # type: ignore[union-attr]
+        return int(self.read_pos.size), int(ncols)
+
+    def factor(self):
+        """Factorize K_ff with this problem's solver (a solver object, ``.solve(B) -> X``)."""
+        return factorize(self.Kff, self.solver, near_null=self.near_null, tol=self.tol)
+
+    def solve(self, factor, start: int, stop: int) -> np.ndarray:
+        """Columns ``start:stop`` of D, (n_rows, stop - start), Fortran order.
+
+        ``factor`` is what :meth:`factor` returned (in this process). The
+        right-hand sides are solved ``batch`` at a time.
+        """
+        n_rows = self.read_pos.size
+        live = np.flatnonzero(self.read_pos >= 0)
+        rows = self.read_pos[live]
+        out = np.zeros((n_rows, stop - start), order="F")
+        for s in range(start, stop, self.batch):
+            e = min(stop, s + self.batch)
+            if self.loads is not None:
+                rhs = self.loads[:, s:e].toarray()
+            else:
+                rhs = np.zeros((self.Kff.shape[0], e - s))
+                rhs[self.load_pos[s:e], np.arange(e - s)] = 1.0  # type: ignore[index]
+            out[live, s - start:e - start] = factor.solve(rhs)[rows]
+        return out
+
+
+def column_problem(
+    K: sp.spmatrix,
+    fixed_dofs: np.ndarray,
+    load_dofs: np.ndarray,
+    read_dofs: np.ndarray,
+    *,
+    solver: str = "cholmod",
+    near_null: np.ndarray | None = None,
+    tol: float = 1e-10,
+    loads: sp.spmatrix | None = None,
+    batch: int = DEFAULT_BLOCK_COLUMNS,
+) -> ColumnProblem:
+    """The :class:`ColumnProblem` of D for a unit force on each of ``load_dofs``
+    (or each column of ``loads``), read at ``read_dofs``, clamped on ``fixed_dofs``.
+
+    See :func:`compliance_matrix` for the parameters. Raises ``ValueError`` if
+    a load dof is clamped.
+    """
+    if solver not in SOLVERS:
+        raise ValueError(f"unknown solver {solver!r}; choose one of {SOLVERS}")
+    n = K.shape[0]
+    free = free_dofs(n, fixed_dofs)
+    where = np.full(n, -1, dtype=np.int64)
+    where[free] = np.arange(free.size)
+    load_pos = free_loads = None
+    if loads is None:
+        load_pos = where[np.asarray(load_dofs)]
+        if np.any(load_pos < 0):
+            raise ValueError("a load dof is clamped: forces on the clamp never deform the solid")
+    else:
+        free_loads = sp.csc_matrix(loads)[free]
+    K = sp.csr_matrix(K)
+    Kff = K[free][:, free]
+    nn = None if near_null is None else near_null[free]
+    return ColumnProblem(Kff, solver, tol, nn, load_pos, free_loads, where[np.asarray(read_dofs)], int(max(1, batch)))
+
+
+def column_blocks(n_rows: int, ncols: int, block_bytes: int = DEFAULT_STORE_BYTES,
+                  batch: int = DEFAULT_BLOCK_COLUMNS) -> list[tuple[int, int]]:
+    """Split D's ``ncols`` columns into blocks of about ``block_bytes`` of float64 each.
+
+    A block is the unit of work (one task, one piece of D written to disk);
+    its width is a multiple of ``batch`` where possible.
+
+    Returns
+    -------
+    list of (start, stop)
+    """
+    width = max(1, int(block_bytes) // (8 * max(n_rows, 1)))
+    if width > batch:
+        width -= width % batch
+    width = min(width, max(ncols, 1))
+    return [(s, min(s + width, ncols)) for s in range(0, ncols, width)]
+
+
+def cholesky_nnz(A: sp.spmatrix) -> int:
+    """nnz(L) of a sparse Cholesky factor of the SPD ``A`` under a minimum-degree ordering.
+
+    CHOLMOD (through cholespy) does not report its factor, so this factors
+    ``A`` once more with SuperLU in symmetric mode (minimum degree on
+    A + Aᵀ, no pivoting: L has the Cholesky pattern of that ordering). The
+    ordering differs from CHOLMOD's AMD, so this is a close proxy, not the
+    exact count. Costs about one factorization (0.8 s at 3 mm, measured).
+    """
+    from scipy.sparse.linalg import splu
+
+    lu = splu(sp.csc_matrix(A), permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0,
+              options={"SymmetricMode": True})
+    return int(lu.L.nnz)
+
+
 def compliance_matrix(
     K: sp.spmatrix,
     fixed_dofs: np.ndarray,
@@ -119,14 +259,18 @@ def compliance_matrix(
     solver: str = "cholmod",
     near_null: np.ndarray | None = None,
     tol: float = 1e-10,
-    block_bytes: int = DEFAULT_BLOCK_BYTES,
+    block_bytes: int = DEFAULT_STORE_BYTES,
     block_columns: int = DEFAULT_BLOCK_COLUMNS,
     workers: int | None = None,
+    scheduler: str | None = None,
     loads: sp.spmatrix | None = None,
     progress: Callable[[int], None] | None = None,
 ) -> np.ndarray:
-    """The compliance D: ``D[:, k]`` = displacement at ``read_dofs`` for a unit
-    force on dof ``load_dofs[k]``, with zero displacement on ``fixed_dofs``.
+    """The compliance D in memory: ``D[:, k]`` = displacement at ``read_dofs``
+    for a unit force on dof ``load_dofs[k]``, with zero displacement on ``fixed_dofs``.
+
+    (The offline pipeline streams D to disk block by block instead,
+    :mod:`hailstorm.precompute.blocks`; this is for tests, studies and small meshes.)
 
     Parameters
     ----------
@@ -142,14 +286,16 @@ def compliance_matrix(
     solver, near_null, tol
         See :func:`factorize`. ``near_null`` is (n_dofs, 6) over *all* dofs.
     block_bytes, block_columns
-        Memory bound and column count of one block of dense right-hand sides.
+        Size of one block of D (the unit of work) and right-hand sides per
+        triangular solve.
+    workers, scheduler
+        Solve the blocks on a local Dask cluster of ``workers`` processes, or
+        on the Dask cluster at ``scheduler`` (:mod:`hailstorm.precompute.cluster`);
+        default: in this process. Results do not depend on it.
     loads
         (n_dofs, ncols) sparse load vectors, one column each, instead of
         unit forces (e.g. :func:`hat_load_matrix`); entries on clamped dofs
         are dropped (they go straight into the support).
-    workers
-        Processes solving blocks in parallel, each with its own factorization
-        (``None``: :func:`default_workers`). Results do not depend on it.
     progress
         Called with the number of columns finished after every block.
 
@@ -157,101 +303,23 @@ def compliance_matrix(
     -------
     ndarray, shape (len(read_dofs), len(load_dofs)), Fortran order
     """
-    n = K.shape[0]
-    free = free_dofs(n, fixed_dofs)
-    where = np.full(n, -1, dtype=np.int64)
-    where[free] = np.arange(free.size)
-    if loads is None:
-        load_pos = where[np.asarray(load_dofs)]
-        if np.any(load_pos < 0):
-            raise ValueError("a load dof is clamped: forces on the clamp never deform the solid")
-        ncols = load_pos.size
-        free_loads = None
-    else:
-        free_loads = sp.csc_matrix(loads)[free]
-        load_pos = None
-        ncols = free_loads.shape[1]
-    read_pos = where[np.asarray(read_dofs)]
-    read_live = np.flatnonzero(read_pos >= 0)
+    from hailstorm.precompute.cluster import cluster_client, solve_blocks
 
-    K = sp.csr_matrix(K)
-    Kff = K[free][:, free]
-    nn = None if near_null is None else near_null[free]
-    D = np.zeros((len(read_dofs), ncols), order="F")  # column-major: blocks of columns are contiguous
-    block = int(max(1, min(ncols, block_columns, block_bytes // (16 * max(free.size, 1)))))
-    blocks = [np.arange(s, min(s + block, ncols)) for s in range(0, ncols, block)]
-    if workers is None:
-        workers = default_workers(ncols, solver)
-    task = _BlockSolver(Kff, solver, nn, tol, load_pos, read_pos[read_live], free_loads)
-    results: Iterator[np.ndarray]
-    if workers <= 1:
-        results = map(task, blocks)
-        pool = None
-    else:
-        import multiprocessing as mp
+    problem = column_problem(K, fixed_dofs, load_dofs, read_dofs, solver=solver, near_null=near_null, tol=tol,
+                             loads=loads, batch=block_columns)
+    n_rows, ncols = problem.shape
+    D = np.zeros((n_rows, ncols), order="F")  # column-major: blocks of columns are contiguous
+    blocks = column_blocks(n_rows, ncols, block_bytes, problem.batch)
 
-        # spawn: a fresh interpreter per worker (fork after BLAS threads start is unsafe)
-        pool = mp.get_context("spawn").Pool(workers, initializer=_init_worker, initargs=(task,))
-        results = pool.imap(_run_worker, blocks)
-    try:
-        for cols, values in zip(blocks, results):
-            D[read_live[:, None], cols[None, :]] = values
-            if progress is not None:
-                progress(cols.size)
-    finally:
-        if pool is not None:
-            pool.terminate()
+    def put(i: int, values: np.ndarray) -> None:
+        start, stop = blocks[i]
+        D[:, start:stop] = values
+        if progress is not None:
+            progress(stop - start)
+
+    with cluster_client(workers=workers, scheduler=scheduler) as client:
+        solve_blocks(problem, blocks, range(len(blocks)), put, client=client)
     return D
-
-
-def default_workers(ncols: int, solver: str) -> int:
-    """Worker processes for ``ncols`` right-hand sides.
-
-    ``HAILSTORM_WORKERS`` if set, else one: on the 2-core reference machine a
-    second process did not pay for its start-up (~1 s) and its own
-    factorization at the default seat's size (see the README's benchmark).
-    """
-    env = os.environ.get("HAILSTORM_WORKERS")
-    if env:
-        return max(1, int(env))
-    return 1
-
-
-class _BlockSolver:
-    """Factor once (lazily, in whichever process runs it), then solve column blocks."""
-
-    def __init__(self, Kff, solver, near_null, tol, load_pos, read_rows, loads=None):
-        self.Kff, self.solver, self.near_null, self.tol = Kff, solver, near_null, tol
-        self.load_pos, self.read_rows, self.loads = load_pos, read_rows, loads
-        self._fact = None
-
-    def __getstate__(self):
-        state = dict(self.__dict__)
-        state["_fact"] = None
-        return state
-
-    def __call__(self, cols: np.ndarray) -> np.ndarray:
-        if self._fact is None:
-            self._fact = factorize(self.Kff, self.solver, near_null=self.near_null, tol=self.tol)
-        if self.loads is not None:
-            rhs = self.loads[:, cols].toarray()
-        else:
-            rhs = np.zeros((self.Kff.shape[0], cols.size))
-            rhs[self.load_pos[cols], np.arange(cols.size)] = 1.0
-        return self._fact.solve(rhs)[self.read_rows]
-
-
-_WORKER_TASK: _BlockSolver | None = None
-
-
-def _init_worker(task: _BlockSolver) -> None:
-    global _WORKER_TASK
-    _WORKER_TASK = task
-
-
-def _run_worker(cols: np.ndarray) -> np.ndarray:
-    assert _WORKER_TASK is not None
-    return _WORKER_TASK(cols)
 
 
 def hat_load_matrix(basis, nodes: np.ndarray, areas: np.ndarray) -> sp.csc_matrix:

@@ -15,6 +15,7 @@ import json
 import logging
 import os
 import time
+from contextlib import nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -31,11 +32,31 @@ from hailstorm.precompute.fem import (
     vertex_dofs,
 )
 from hailstorm.precompute.geometry import DEFAULT_MESH_SIZE, MeshError, TetMesh, boundary_triangles, check_mesh, load_seat
-from hailstorm.precompute.greens import SOLVERS, compliance_matrix, hat_load_matrix, lumped_areas
-from hailstorm.precompute.resources import check_fits, estimate_mesh
+from hailstorm.precompute.blocks import BlockStore, remove_work_dir, work_dir
+from hailstorm.precompute.cluster import SolveStats, check_scheduler, cluster_client, require_distributed, solve_blocks
+from hailstorm.precompute.greens import (
+    DEFAULT_STORE_BYTES,
+    SOLVERS,
+    ColumnProblem,
+    cholesky_nnz,
+    column_blocks,
+    column_problem,
+    hat_load_matrix,
+    lumped_areas,
+)
+from hailstorm.precompute.resources import (
+    BASE_BYTES,
+    available_memory,
+    check_disk,
+    check_fits,
+    estimate_memory,
+    estimate_mesh,
+    gib,
+)
 from hailstorm.runtime.bundle import (
     FORMAT_VERSION,
     BundleError,
+    StagedArray,
     bundle_lock,
     check_replaceable,
     check_writable,
@@ -44,7 +65,7 @@ from hailstorm.runtime.bundle import (
     read_manifest,
     write_bundle,
 )
-from hailstorm.runtime.stamps import default_cache_dir
+from hailstorm.runtime.stamps import default_cache_dir, stamp
 
 log = logging.getLogger(__name__)
 
@@ -126,6 +147,9 @@ def build_bundle(
     reuse: bool = True,
     progress: bool = False,
     allow_large: bool = False,
+    workers: int | None = None,
+    scheduler: str | None = None,
+    block_bytes: int = DEFAULT_STORE_BYTES,
 ) -> Path:
     """Compute the Green's functions of a seat and write them as a bundle.
 
@@ -164,12 +188,28 @@ def build_bundle(
         Return an existing bundle at ``out`` whose key matches, without
         recomputing.
     progress
-        Show a progress bar over the columns of D.
+        Show a progress bar over the column blocks of D.
     allow_large
         Skip the memory check: by default a run whose estimated memory (from
         the geometry before meshing, from the mesh before assembly; see
         :mod:`hailstorm.precompute.resources`) exceeds the memory available raises
-        :class:`hailstorm.precompute.resources.TooLargeError`.
+        :class:`hailstorm.precompute.resources.TooLargeError`; so does a D
+        larger than the free disk.
+    workers, scheduler
+        Solve the column blocks on a local Dask cluster of ``workers``
+        processes, or on the running Dask cluster at address ``scheduler``
+        (connected to first: an unreachable one raises
+        :class:`hailstorm.precompute.cluster.ClusterError` before any work).
+        Default: in this process. D does not depend on it.
+    block_bytes
+        Size of one column block of D: the unit of work, of what is written
+        to disk at once, and of what an interrupted run loses.
+
+    D is streamed to ``.NAME.work/`` beside ``out`` block by block, each
+    block durable and tagged with the cache key when it is written; a run
+    that is killed or interrupted leaves it there, and the same call resumes
+    it, computing only the missing blocks. It becomes the bundle's
+    ``compliance.npy`` unchanged (and the work directory goes).
 
     Returns
     -------
@@ -194,6 +234,13 @@ def build_bundle(
         check_writable(out.parent)
     else:
         check_writable(default_cache_dir())
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+        raise ValueError(f"workers must be a positive number of processes, got {workers!r}")
+    if scheduler is not None:
+        check_scheduler(scheduler)  # an unreachable cluster fails here, before any work
+    elif workers is not None:
+        require_distributed()
+    run = _RunSettings(scheduler, workers, int(block_bytes), allow_large)
     t0 = time.perf_counter()
     if mesh is None:
         mesh = load_seat(geometry, mesh_size, allow_large=allow_large, order=order)
@@ -228,13 +275,23 @@ def build_bundle(
             log.info("bundle %s was built for other inputs; recomputing", out)
         check_replaceable(out)
         try:
-            return _compute(out, mesh, surface, options, key, geometry, mesh_size, tol, t0, t_mesh, progress)
+            return _compute(out, mesh, surface, options, key, geometry, mesh_size, tol, t0, t_mesh, progress, run)
         except OSError as exc:
             raise BundleError(f"cannot write bundle {out}: {exc.strerror or exc} ({exc.filename or out})") from exc
 
 
+@dataclass(frozen=True)
+class _RunSettings:
+    """How D is computed (none of it changes D): where, in which blocks, with which checks."""
+
+    scheduler: str | None
+    workers: int | None
+    block_bytes: int
+    allow_large: bool
+
+
 def _compute(out: Path, mesh: TetMesh, surface: Surface, options: dict, key: str, geometry, mesh_size: float,
-             tol: float, t0: float, t_mesh: float, progress: bool) -> Path:
+             tol: float, t0: float, t_mesh: float, progress: bool, run: _RunSettings) -> Path:
     """Assemble, solve for D and write the bundle (``build_bundle``'s work once its checks passed)."""
     order, young, poisson = options["order"], options["young"], options["poisson"]
     solver, load = options["solver"], options["load"]
@@ -252,19 +309,8 @@ def _compute(out: Path, mesh: TetMesh, surface: Surface, options: dict, key: str
     t_assemble = time.perf_counter() - t1
 
     t2 = time.perf_counter()
-    bar = None
-    if progress:
-        from tqdm.auto import tqdm
-
-        bar = tqdm(total=load_dofs.size, desc=f"Green's functions (P{order}, {solver})", unit="col")
-    try:
-        D = compliance_matrix(
-            K, fixed, load_dofs, read, solver=solver, near_null=near_null, tol=tol, loads=loads,
-            progress=None if bar is None else bar.update,
-        )
-    finally:
-        if bar is not None:
-            bar.close()
+    problem = column_problem(K, fixed, load_dofs, read, solver=solver, near_null=near_null, tol=tol, loads=loads)
+    D, stats = _stream_compliance(out, problem, key, progress, run, f"P{order}, {solver}")
     t_solve = time.perf_counter() - t2
 
     manifest = {
@@ -283,6 +329,7 @@ def _compute(out: Path, mesh: TetMesh, surface: Surface, options: dict, key: str
             "n_contactable": int(surface.contactable.sum()),
         },
         "timings_s": {"mesh": t_mesh, "assemble": t_assemble, "solve": t_solve},
+        "solve_stats": stats,
     }
     arrays = {
         "vertices": mesh.points[surface.nodes],
@@ -296,8 +343,90 @@ def _compute(out: Path, mesh: TetMesh, surface: Surface, options: dict, key: str
         "compliance": D,
     }
     path = write_bundle(out, arrays, manifest)
+    # D's hash was computed from its bytes on disk (BlockStore.finish) and the file moved, unchanged:
+    # record that, so that loading it does not read all of D again (hailstorm.runtime.stamps)
+    stamp(path / "compliance.npy", D.sha256)
+    remove_work_dir(work_dir(out))
     log.info("wrote bundle %s (%d x %d compliance) in %.1f s", path, *D.shape, time.perf_counter() - t0)
     return path
+
+
+def _stream_compliance(out: Path, problem: ColumnProblem, key: str, progress: bool, run: _RunSettings,
+                       what: str) -> tuple[StagedArray, dict]:
+    """Solve D block by block into the work directory beside ``out``, resuming what a
+    previous run of the same key left; return the finished D (staged) and the run's statistics."""
+    n_rows, ncols = problem.shape
+    blocks = column_blocks(n_rows, ncols, run.block_bytes, problem.batch)
+    store = BlockStore(work_dir(out), key, (n_rows, ncols), blocks)
+    todo = store.missing
+    done = len(blocks) - len(todo)
+    if done:
+        log.info("resuming: %d of %d blocks done (in %s)", done, len(blocks), store.path)
+    d_disk = store.data_bytes
+    block_disk = d_disk / max(len(blocks), 1)
+    check_disk(block_disk * len(todo), store.path, f"D ({n_rows} x {ncols})", allow_large=run.allow_large)
+    n_dofs = problem.Kff.shape[0]
+    est = estimate_memory(n_dofs, block_disk, 1 if run.scheduler is None and run.workers is None else 2)
+    # the nnz(L) count factors K_ff once more here (SuperLU): skipped when that would not fit comfortably
+    count_fill = problem.solver != "amg" and bool(todo) and 2 * (est - BASE_BYTES) < available_memory()
+    nnz_l = cholesky_nnz(problem.Kff) if count_fill else None
+    log.info("D: %d x %d float64, %s on disk (%d blocks of %d columns, %d to compute); "
+             "peak memory about %s%s", n_rows, ncols, gib(d_disk), len(blocks), blocks[0][1] - blocks[0][0],
+             len(todo), gib(est), "" if nnz_l is None else f"; nnz(L) about {nnz_l:,}")
+    bar = None
+    if progress and todo:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=len(blocks), initial=done, desc=f"Green's functions ({what})", unit="block")
+
+    def on_first(stats: SolveStats) -> None:
+        rest = len(todo) - 1
+        per = stats.first_block_s - stats.factor_s
+        eta = per * rest / max(stats.workers, 1)
+        log.info("first block: %.2f s (factorization %.2f s); estimated %.0f s for the other %d blocks",
+                 stats.first_block_s, stats.factor_s, eta, rest)
+
+    def on_block(i: int, values: np.ndarray) -> None:
+        store.write(i, values)
+        if bar is not None:
+            bar.update(1)
+
+    try:
+        with cluster_client(workers=run.workers, scheduler=run.scheduler) if todo else nullcontext() as client, \
+                _logging_beside(bar):
+            stats = solve_blocks(problem, blocks, todo, on_block, client=client, key=key, on_first=on_first)
+    except KeyboardInterrupt:
+        log.warning("interrupted: %d of %d blocks of D are kept in %s; run the same command again to resume",
+                    len(store.done), len(blocks), store.path)
+        raise
+    except OSError as exc:
+        raise BundleError(f"cannot write D to {store.path}: {exc.strerror or exc}; {len(store.done)} of "
+                          f"{len(blocks)} finished blocks are kept there (the same command resumes)") from exc
+    finally:
+        if bar is not None:
+            bar.close()
+    info: dict = {"blocks": len(blocks), "blocks_solved": stats.blocks, "blocks_resumed": done,
+                  "columns_solved": stats.columns, "workers": stats.workers, "factorizations": stats.factorizations,
+                  "factor_s": stats.factor_s, "solve_s": stats.solve_s}
+    if np.isfinite(stats.first_block_s):
+        info["first_block_s"] = stats.first_block_s
+    if nnz_l is not None and stats.columns:
+        flops = 4.0 * nnz_l * stats.columns
+        seconds = max(stats.solve_s - stats.factor_s, 1e-9)
+        info.update(nnz_L=nnz_l, solve_flops=flops, solve_gflop_per_s=flops / seconds / 1e9)
+        log.info("solved %d blocks (%d columns) in %.1f s on %d worker(s): nnz(L) %s, triangular solves "
+                 "4 nnz(L) per column = %.3g GFLOP, %.2f GFLOP/s", stats.blocks, stats.columns, stats.solve_s,
+                 stats.workers, f"{nnz_l:,}", flops / 1e9, flops / seconds / 1e9)
+    return store.finish(), info
+
+
+def _logging_beside(bar):
+    """Log messages above the progress bar instead of through it."""
+    if bar is None:
+        return nullcontext()
+    from tqdm.contrib.logging import logging_redirect_tqdm
+
+    return logging_redirect_tqdm()
 
 
 def _rigid_modes_on_dofs(basis) -> np.ndarray:

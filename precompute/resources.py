@@ -2,23 +2,34 @@
 
 The compliance D is dense: 3 n_surface x 3 n_contactable float64 values, so
 its size grows as the fourth power of 1 / mesh size (D of the default seat is
-152 MB at 6 mm, measured; so about 2.4 GB at 3 mm and 40 GB at 1.5 mm). :func:`estimate_geometry`
-estimates it from a geometry's areas before meshing, :func:`estimate_mesh`
-from a mesh before assembly, and :func:`check_fits` refuses a run that would
-not fit in the memory available, unless overridden (``--allow-large``,
-``allow_large=True``).
+152 MB at 6 mm, measured; 1.4 GB at 3 mm and 7 GB for 10 000 contactable
+vertices at 1.9 mm). D is streamed to disk in column blocks
+(:mod:`hailstorm.precompute.blocks`), so it needs disk, not memory: the memory
+is the stiffness, its factorization and a few blocks. :func:`estimate_geometry`
+estimates both from a geometry's areas before meshing, :func:`estimate_mesh`
+from a mesh before assembly; :func:`check_fits` refuses a run that would not
+fit in the memory available and :func:`check_disk` one whose D would not fit
+on the disk, unless overridden (``--allow-large``, ``allow_large=True``).
 """
 
 from __future__ import annotations
 
+import os
+import shutil
 from dataclasses import dataclass
+from pathlib import Path
 
+from hailstorm.precompute.greens import DEFAULT_STORE_BYTES
 from hailstorm.runtime.scene import available_memory as runtime_available_memory
 
 #: surface vertices per unit area of a surface meshed at size h, times h^2: 2 / sqrt(3) = 1.15 for
 #: equilateral triangles; measured 0.99-1.48 on the default seat's top at 4-15 mm (coarse meshes
 #: have more, relatively, along edges): 1.5 errs on the safe side
 VERTICES_PER_AREA = 1.5
+#: memory of the process before any mesh: Python, numpy, scipy, gmsh, scikit-fem (measured 190-240 MiB)
+BASE_BYTES = 200 * 2**20
+#: column blocks of D held at once: one being solved, one being written, slack for a worker's result
+BLOCKS_IN_MEMORY = 4
 
 
 class TooLargeError(ValueError):
@@ -35,9 +46,10 @@ class Estimate:
         Surface vertices (rows of D / 3), contactable vertices (columns / 3),
         degrees of freedom of the stiffness.
     d_bytes : int
-        Size of D (float64).
+        Size of D (float64): what it needs on disk.
     total_bytes : int
-        D plus the stiffness, its factorization and the solve blocks.
+        Peak memory: the stiffness, its factorization and a few column blocks
+        of D (:data:`BLOCKS_IN_MEMORY`), not D.
     """
 
     n_surface: int
@@ -51,10 +63,27 @@ def _estimate(n_surface: float, n_contactable: float, n_points: float, order: in
     # P2 adds a node per edge: about 7 edges per vertex in a tetrahedral mesh
     n_dofs = 3.0 * n_points * (1 if order == 1 else 8)
     d_bytes = 72.0 * n_surface * n_contactable
-    # a sparse Cholesky factor of a 3-D stiffness holds ~ n^(4/3) entries (nested dissection),
-    # K ~ 80 entries per row for P1; 256 MiB of right-hand-side blocks (hailstorm.precompute.greens)
-    solver = 12.0 * 8.0 * n_dofs ** (4.0 / 3.0) + 80.0 * 12.0 * n_dofs + 256 * 2**20
-    return Estimate(int(n_surface), int(n_contactable), int(n_dofs), int(d_bytes), int(d_bytes + solver))
+    solver = _solver_bytes(n_dofs)
+    blocks = BLOCKS_IN_MEMORY * min(d_bytes, DEFAULT_STORE_BYTES) + 8.0 * n_dofs * 32
+    return Estimate(int(n_surface), int(n_contactable), int(n_dofs), int(d_bytes), int(BASE_BYTES + solver + blocks))
+
+
+def estimate_memory(n_dofs: int, block_bytes: float, blocks_factor: int = 1) -> float:
+    """Peak memory of the solve: the stiffness, its factorization (estimated) and
+    :data:`BLOCKS_IN_MEMORY` column blocks of ``block_bytes`` (times ``blocks_factor``
+    in the client of a cluster, which holds two results per worker in flight)."""
+    return BASE_BYTES + _solver_bytes(n_dofs) + BLOCKS_IN_MEMORY * blocks_factor * block_bytes
+
+
+def _solver_bytes(n_dofs: float) -> float:
+    """The stiffness and the largest factorization held at once.
+
+    A sparse Cholesky factor of a 3-D stiffness holds ~ c n^(4/3) entries of 12 bytes (measured
+    c = 6.9 at 3 mm, 10 at 1.6 mm on the default seat: 3.6 M and 24.7 M); the nnz(L) count
+    (:func:`hailstorm.precompute.greens.cholesky_nnz`, SuperLU's L and U, freed before CHOLMOD
+    factorizes) holds about 2.5 times that; K ~ 80 entries per row for P1.
+    """
+    return 2.5 * 12.0 * 10.0 * n_dofs ** (4.0 / 3.0) + 80.0 * 12.0 * n_dofs
 
 
 def estimate_geometry(area_top: float, area_all: float, volume: float, mesh_size: float, order: int = 1,
@@ -108,8 +137,34 @@ def check_fits(est: Estimate, what: str, *, allow_large: bool = False, available
     available = available_memory() if available is None else available
     if est.total_bytes > available:
         raise TooLargeError(
-            f"{what} would need about {gib(est.total_bytes)} of memory (D alone {gib(est.d_bytes)}: "
+            f"{what} would need about {gib(est.total_bytes)} of memory (D, on disk: {gib(est.d_bytes)}: "
             f"{est.n_surface:.3g} surface x {est.n_contactable:.3g} contactable vertices; {est.n_dofs:.3g} dofs), "
             f"more than the {gib(available)} available; use a larger --mesh-size, or --allow-large "
             "(allow_large=True) to try anyway"
         )
+
+
+def check_disk(need_bytes: float, directory: str | os.PathLike, what: str, *, allow_large: bool = False) -> None:
+    """Raise :class:`TooLargeError` if ``directory``'s file system has less than ``need_bytes`` free.
+
+    Parameters
+    ----------
+    need_bytes
+        Bytes still to write (D less the blocks already on disk).
+    directory
+        Where D is written (the nearest existing ancestor is asked).
+    what
+        The run, for the message.
+    allow_large
+        Skip the check.
+    """
+    if allow_large:
+        return
+    probe = Path(directory).absolute()
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    free = shutil.disk_usage(probe).free
+    if need_bytes > free:
+        raise TooLargeError(f"{what} needs about {gib(need_bytes)} of disk for D in {probe}, "
+                            f"more than the {gib(free)} free; free some space, write elsewhere (--out), "
+                            "or --allow-large (allow_large=True) to try anyway")

@@ -476,9 +476,24 @@ def _exchange(a: Path, b: Path) -> bool:
     raise OSError(err, os.strerror(err), str(b))
 
 
+@dataclass(frozen=True)
+class StagedArray:
+    """An array already written as a ``.npy`` file on the bundle's file system, with
+    its :func:`array_hash` (computed by its writer, who checked it is finite).
+
+    :func:`write_bundle` moves the file into the bundle instead of writing the
+    array again (the offline stage streams D to disk block by block).
+    """
+
+    path: Path
+    shape: tuple[int, ...]
+    dtype: str
+    sha256: str
+
+
 def write_bundle(
     out: str | os.PathLike,
-    arrays: Mapping[str, np.ndarray],
+    arrays: Mapping[str, np.ndarray | StagedArray],
     manifest: Mapping[str, Any],
 ) -> Path:
     """Write a bundle atomically.
@@ -494,7 +509,8 @@ def write_bundle(
         killed writer are removed first.
     arrays
         Every array named in :data:`ARRAY_SPECS`; floating-point arrays must be
-        finite.
+        finite. A :class:`StagedArray` is moved into the bundle as it is (and
+        moved back if the bundle cannot be completed).
     manifest
         Metadata (options, material, key, timings...). ``format``,
         ``format_version``, ``arrays`` and ``manifest_sha256`` entries are
@@ -511,6 +527,9 @@ def write_bundle(
         raise BundleError(f"cannot write bundle: arrays missing: {sorted(missing)}")
     prepared = {}
     for name in ARRAY_SPECS:
+        if isinstance(arrays[name], StagedArray):
+            prepared[name] = (arrays[name], arrays[name].sha256)
+            continue
         a = np.asarray(arrays[name])
         if not (a.flags.c_contiguous or a.flags.f_contiguous):
             a = np.ascontiguousarray(a)
@@ -526,6 +545,11 @@ def write_bundle(
             entries = {}
             for name, (a, digest) in prepared.items():
                 fname = f"{name}.npy"
+                if isinstance(a, StagedArray):
+                    os.replace(a.path, tmp / fname)
+                    entries[name] = {"file": fname, "shape": list(a.shape), "dtype": a.dtype, "sha256": digest,
+                                     "bytes": (tmp / fname).stat().st_size}
+                    continue
                 with open(tmp / fname, "wb") as fh:
                     np.save(fh, a, allow_pickle=False)
                     fh.flush()
@@ -558,6 +582,12 @@ def write_bundle(
             else:
                 os.replace(tmp, out)
         except BaseException:
+            for name, (a, _) in prepared.items():  # a staged array goes back where it came from
+                if isinstance(a, StagedArray) and (tmp / f"{name}.npy").is_file() and not a.path.exists():
+                    try:
+                        os.replace(tmp / f"{name}.npy", a.path)
+                    except OSError:
+                        pass
             shutil.rmtree(tmp, ignore_errors=True)
             raise
     return out

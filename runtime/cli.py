@@ -32,6 +32,16 @@ def _positive_float(text: str) -> float:
     return value
 
 
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {text}")
+    return value
+
+
 def _float(text: str) -> float:
     try:
         return float(text)
@@ -70,7 +80,15 @@ def _parser() -> argparse.ArgumentParser:
     pre.add_argument("--out", type=Path, required=True, help="bundle directory to write")
     pre.add_argument("--force", action="store_true", help="recompute even if --out holds an up-to-date bundle")
     pre.add_argument("--allow-large", action="store_true",
-                     help="run even if the estimated memory (D and the solver) exceeds the memory available")
+                     help="run even if the estimated memory (the solver and a few blocks of D) exceeds the memory "
+                     "available, or D the free disk")
+    where = pre.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=_positive_int, default=None, metavar="N",
+                       help="solve the column blocks of D on a local Dask cluster of N processes "
+                       "(needs the 'dask' extra; default: in this process, fastest for small meshes)")
+    where.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                       help="solve the column blocks on the running Dask cluster at ADDRESS "
+                       "(e.g. tcp://head:8786; every worker needs hailstorm installed)")
 
     storm = sub.add_parser("storm", parents=[common], help="run a hail storm and write an animation, a ParaView series and summary.json")
     _storm_args(storm)
@@ -113,10 +131,11 @@ def _run_precompute(args: argparse.Namespace) -> int:
             args.out, geometry=args.geometry, mesh_size=args.mesh_size, order=args.order,
             young=args.young, poisson=args.poisson, solver=args.solver, tol=args.tol, load=args.load,
             reuse=not args.force, progress=not args.quiet, allow_large=args.allow_large,
+            workers=args.workers, scheduler=args.scheduler,
         )
     except OSError as exc:  # what the library did not already name (a full disk...): still the user's
         raise BundleError(f"precompute failed: {exc}") from exc
-    _print_bundle(path)
+    _print_bundle(path, rehash=False)  # just written and hashed: D is not read again
     if not args.quiet:
         print(f"done in {time.perf_counter() - t0:.1f} s")
     return 0
@@ -132,10 +151,10 @@ def _run_info(args: argparse.Namespace) -> int:
     return 0
 
 
-def _print_bundle(path: Path) -> None:
+def _print_bundle(path: Path, rehash: bool = True) -> None:
     from hailstorm.runtime.bundle import ARRAY_SPECS, load
 
-    gf = load(path, rehash=True)  # verifies: manifest hash and structure, array sizes and hashes, finite D, consistency
+    gf = load(path, rehash=rehash)  # verifies: manifest hash and structure, array sizes and hashes, finite D, consistency
     m = gf.manifest
     mesh = m.get("mesh", {})
     print(f"bundle   {path}")

@@ -119,9 +119,10 @@ def test_parallel_workers_give_identical_columns(small_box):
     surf = extract_surface(small_box)
     load = vertex_dofs(basis, surf.nodes[surf.contactable]).ravel()
     read = vertex_dofs(basis, surf.nodes).ravel()
-    serial = compliance_matrix(K, fixed, load, read, workers=1, block_columns=16)
-    parallel = compliance_matrix(K, fixed, load, read, workers=2, block_columns=16)
-    assert np.array_equal(serial, parallel)
+    pytest.importorskip("distributed")
+    serial = compliance_matrix(K, fixed, load, read, block_columns=16)
+    parallel = compliance_matrix(K, fixed, load, read, workers=2, block_columns=16, block_bytes=20_000)
+    assert np.abs(serial - parallel).max() <= 1e-12 * np.abs(serial).max()
 
 
 @pytest.mark.slow

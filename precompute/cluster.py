@@ -1,0 +1,298 @@
+"""Column blocks of D solved in this process or on a Dask cluster.
+
+:func:`solve_blocks` runs a list of column blocks of a
+:class:`hailstorm.precompute.greens.ColumnProblem` and hands each finished
+block to a callback (the block store writes it to disk). Where they run:
+
+* in this process (``client=None``, the default): one factorization, then the
+  blocks in order. Nothing to start, so this is the default for every mesh
+  that one machine can do: a local Dask cluster costs seconds to start and a
+  second factorization per extra process;
+* on a Dask cluster (:func:`cluster_client`: ``workers=N`` starts a
+  ``distributed.LocalCluster`` of N single-threaded processes on this machine,
+  ``scheduler=ADDRESS`` connects to a running cluster). The problem (K_ff and
+  the load/read maps) is sent to every worker once (``scatter(broadcast=True)``);
+  each worker factorizes it on its first block and keeps the factorization in
+  a per-process cache keyed by the problem's key, so later blocks on that
+  worker only solve. A worker that dies takes its running blocks with it:
+  the scheduler reruns them elsewhere (and the nanny restarts the worker).
+  At most two blocks per worker are in flight, so the client holds a few
+  blocks at a time, never all of D.
+
+``distributed`` is the optional ``[dask]`` extra; asking for a cluster without
+it raises :class:`ClusterError` saying how to install it.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import threading
+import time
+import uuid
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+from typing import Any, Callable, Iterable, Iterator, Sequence
+
+import numpy as np
+
+from hailstorm.precompute.greens import ColumnProblem
+
+log = logging.getLogger(__name__)
+
+__all__ = ["ClusterError", "SolveStats", "check_scheduler", "cluster_client", "require_distributed", "solve_blocks", "solve_on_worker"]
+
+#: Seconds to wait for a scheduler (an unreachable one is refused after this).
+CONNECT_TIMEOUT_S = 10.0
+
+
+class ClusterError(ValueError):
+    """A Dask cluster cannot be used: ``distributed`` is missing, the scheduler is
+    unreachable, or blocks kept failing on the workers."""
+
+
+@dataclass
+class SolveStats:
+    """What :func:`solve_blocks` did.
+
+    Attributes
+    ----------
+    blocks, columns : int
+        Blocks and columns solved in this call.
+    factor_s : float
+        Wall time of the factorization (in this process; on a cluster the
+        workers' own, the largest).
+    solve_s : float
+        Wall time from the first block submitted to the last one written.
+    first_block_s : float
+        Wall time until the first block came back (factorization included).
+    workers : int
+        Processes that solved blocks (1 in this process).
+    factorizations : int
+        Factorizations of K_ff done (one per process that solved blocks,
+        unless a worker died and was restarted).
+    """
+
+    blocks: int = 0
+    columns: int = 0
+    factor_s: float = 0.0
+    solve_s: float = 0.0
+    first_block_s: float = float("nan")
+    workers: int = 1
+    factorizations: int = 0
+    factors: dict[str, float] = field(default_factory=dict)
+
+
+def require_distributed():
+    """The ``distributed`` module, or :class:`ClusterError` saying how to install it."""
+    try:
+        import distributed
+    except ImportError:
+        raise ClusterError("--workers and --scheduler need Dask's 'distributed' package: "
+                           "pip install 'hailstorm[dask]' (or pip install distributed)") from None
+    return distributed
+
+
+@contextmanager
+def cluster_client(*, workers: int | None = None, scheduler: str | None = None) -> Iterator[Any]:
+    """A ``distributed.Client`` for ``workers`` local processes or the cluster at ``scheduler``.
+
+    Yields ``None`` if neither is given (solve in this process). The local
+    cluster's workers are single-threaded processes (dashboard on a free port); the
+    cluster and client are closed on exit.
+
+    Raises
+    ------
+    ClusterError
+        ``distributed`` is not installed, both or a bad value were given, or
+        the scheduler did not answer within :data:`CONNECT_TIMEOUT_S`.
+    """
+    if workers is not None and scheduler is not None:
+        raise ClusterError("give --workers (a local cluster) or --scheduler (an existing one), not both")
+    if workers is None and scheduler is None:
+        yield None
+        return
+    if workers is not None and (not isinstance(workers, int) or workers < 1):
+        raise ClusterError(f"--workers must be a positive number of processes, got {workers!r}")
+    distributed = require_distributed()
+    if scheduler is not None:
+        try:
+            client = distributed.Client(scheduler, timeout=CONNECT_TIMEOUT_S, set_as_default=False)
+        except (OSError, TimeoutError, ValueError, TypeError) as exc:
+            raise ClusterError(f"cannot reach the Dask scheduler at {scheduler!r} "
+                               f"({type(exc).__name__}: {' '.join(str(exc).split())[:200]})") from None
+        try:
+            yield client
+        finally:
+            client.close()
+        return
+    # one BLAS thread per worker: the workers are the parallelism
+    env = {k: "1" for k in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")}
+    cluster = distributed.LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                       dashboard_address=":0", silence_logs=logging.ERROR, env=env)
+    try:
+        client = distributed.Client(cluster, set_as_default=False)
+        try:
+            yield client
+        finally:
+            client.close()
+    finally:
+        cluster.close()
+
+
+def check_scheduler(scheduler: str) -> None:
+    """Connect to the Dask scheduler at ``scheduler`` and disconnect: :class:`ClusterError`
+    (one line) if ``distributed`` is missing or nobody answers."""
+    with cluster_client(scheduler=scheduler):
+        pass
+
+
+def solve_blocks(
+    problem: ColumnProblem,
+    blocks: Sequence[tuple[int, int]],
+    todo: Iterable[int],
+    on_block: Callable[[int, np.ndarray], None],
+    *,
+    client: Any = None,
+    key: str = "",
+    on_first: Callable[[SolveStats], None] | None = None,
+) -> SolveStats:
+    """Solve the column blocks ``todo`` (indices into ``blocks``) and pass each to ``on_block``.
+
+    Parameters
+    ----------
+    problem
+        The system and columns (:func:`hailstorm.precompute.greens.column_problem`).
+    blocks
+        (start, stop) column range of every block.
+    todo
+        Which blocks to solve.
+    on_block
+        Called in this process as ``on_block(i, values)`` with block ``i``'s
+        (n_rows, stop - start) values, in completion order; an exception it
+        raises (a full disk) stops the run.
+    client
+        A ``distributed.Client`` (:func:`cluster_client`), or ``None``: here.
+    key
+        Identifies ``problem`` in the workers' factorization cache: equal keys
+        must mean equal K_ff (the bundle's cache key); a new key evicts the
+        old factorization. Default: a fresh one (no reuse across calls).
+    on_first
+        Called once after the first block, with the statistics so far (for
+        an estimate of the remaining time).
+
+    Returns
+    -------
+    SolveStats
+    """
+    todo = list(todo)
+    stats = SolveStats()
+    if not todo:
+        return stats
+    if client is None:
+        t0 = time.perf_counter()
+        factor = problem.factor()
+        stats.factor_s = time.perf_counter() - t0
+        stats.factorizations = 1
+        for n, i in enumerate(todo):
+            start, stop = blocks[i]
+            on_block(i, problem.solve(factor, start, stop))
+            stats.blocks += 1
+            stats.columns += stop - start
+            if n == 0:
+                stats.first_block_s = time.perf_counter() - t0
+                if on_first is not None:
+                    on_first(stats)
+        stats.solve_s = time.perf_counter() - t0
+        return stats
+    return _solve_on_cluster(problem, blocks, todo, on_block, client, key or uuid.uuid4().hex, on_first, stats)
+
+
+def _solve_on_cluster(problem, blocks, todo, on_block, client, key, on_first, stats: SolveStats) -> SolveStats:
+    distributed = require_distributed()
+    t0 = time.perf_counter()
+    n_workers = max(1, len(client.scheduler_info().get("workers", {})))
+    stats.workers = n_workers
+    shipped = client.scatter(problem, broadcast=True, hash=False)  # once per worker
+    queue = list(todo)
+    window = 2 * n_workers
+    meta: dict[Any, int] = {}
+
+    def submit(i: int):
+        start, stop = blocks[i]
+        fut = client.submit(solve_on_worker, shipped, key, start, stop, pure=False, key=f"hailstorm-block-{key[:12]}-{i}")
+        meta[fut] = i
+        return fut
+
+    pending = distributed.as_completed([submit(queue.pop(0)) for _ in range(min(window, len(queue)))], loop=client.loop)
+    try:
+        for fut in pending:
+            i = meta.pop(fut)
+            try:
+                values, worker, factor_s = fut.result()
+            except distributed.client.FutureCancelledError as exc:  # pragma: no cover - client shutting down
+                raise ClusterError(f"block {i} was cancelled on the cluster ({exc})") from None
+            except Exception as exc:
+                if type(exc).__name__ == "KilledWorker":
+                    raise ClusterError(f"block {i} killed the Dask workers that ran it several times "
+                                       f"(out of memory? each worker needs one factorization and one block): "
+                                       f"{' '.join(str(exc).split())[:200]}") from None
+                raise
+            fut.release()
+            if factor_s:
+                stats.factors[worker] = factor_s
+                stats.factorizations += 1
+            on_block(i, values)
+            del values
+            start, stop = blocks[i]
+            stats.blocks += 1
+            stats.columns += stop - start
+            if stats.blocks == 1:
+                stats.first_block_s = time.perf_counter() - t0
+                stats.factor_s = max(stats.factors.values(), default=0.0)
+                if on_first is not None:
+                    on_first(stats)
+            if queue:
+                pending.add(submit(queue.pop(0)))
+    finally:
+        for fut in list(meta):
+            fut.cancel()
+        shipped.release()
+    stats.factor_s = max(stats.factors.values(), default=stats.factor_s)
+    stats.solve_s = time.perf_counter() - t0
+    return stats
+
+
+# --------------------------------------------------------------------------- worker side
+
+_cache_lock = threading.Lock()
+_factors: dict[str, Any] = {}
+
+
+def solve_on_worker(problem: ColumnProblem, key: str, start: int, stop: int) -> tuple[np.ndarray, str, float]:
+    """The task a Dask worker runs: columns ``start:stop`` of D.
+
+    Factorizes ``problem`` on this worker's first block of ``key`` and keeps
+    the factorization for the next ones (one per process: a new key evicts
+    the old). Solves are serialized per process (run workers with one
+    thread: ``dask worker ADDRESS --nthreads 1``).
+
+    Returns
+    -------
+    values : (n_rows, stop - start) ndarray
+    worker : str
+        Which process computed it (host:pid).
+    factor_s : float
+        Seconds spent factorizing for this block (0 if the factorization was cached).
+    """
+    factor_s = 0.0
+    with _cache_lock:
+        factor = _factors.get(key)
+        if factor is None:
+            _factors.clear()
+            t0 = time.perf_counter()
+            factor = problem.factor()
+            factor_s = time.perf_counter() - t0
+            _factors[key] = factor
+        values = problem.solve(factor, start, stop)
+    return values, f"{os.uname().nodename}:{os.getpid()}", factor_s
