@@ -20,7 +20,19 @@ Layout (format version 2)::
     surface_nodes.npy        (n,)     index of each surface vertex in volume_points
     compliance.npy           (3n, 3c) D, column-major: displacement of every surface vertex
                                       per unit force at each contactable vertex
-                                      (vertex-major, x, y, z per vertex) [m/N]
+                                      (vertex-major, x, y, z per vertex) [m/N];
+                                      float64, or float32 (half the size: the storage
+                                      precision is a choice, see below)
+
+D's storage type is the ``dtype`` of its ``arrays.compliance`` entry (covered by
+the manifest hash), one of :data:`COMPLIANCE_DTYPES`; a bundle stored in another
+precision than float64 also says so in ``options.dtype`` (``"float32"``), which
+is part of what the cache key covers, and :func:`load` refuses a bundle whose
+file, ``arrays`` entry and ``options.dtype`` disagree. A float64 bundle needs no
+``options.dtype`` (every bundle written before the choice existed is one): the
+format version stays 2 and both precisions are format 2. The runtime reads
+either: its kernels read D in its own type and compute in float64
+(:func:`convert_bundle` writes a bundle's float32 copy).
 
 The bundle is written atomically: into a temporary sibling directory first,
 then renamed into place, so a reader never sees half a bundle. Writers of one
@@ -74,6 +86,11 @@ ARRAY_SPECS: dict[str, tuple[str, int]] = {
     "surface_nodes": ("i", 1),
     "compliance": ("f", 2),
 }
+
+
+#: The storage types D may have, by the name ``options.dtype`` gives them (native byte order:
+#: the compiled kernels read D in place). float64 is the default and needs no ``options.dtype``.
+COMPLIANCE_DTYPES: dict[str, np.dtype] = {"float64": np.dtype(np.float64), "float32": np.dtype(np.float32)}
 
 
 #: Every file a bundle writer writes into a bundle directory.
@@ -166,6 +183,9 @@ def _check_structure(manifest: Any, m: Path) -> None:
     need(manifest, "key", str, "")
     options = need(manifest, "options", dict, "")
     need(options, "order", int, "options.", lambda v: v in (1, 2), "1 or 2")
+    if "dtype" in options:
+        need(options, "dtype", str, "options.", lambda v: v in COMPLIANCE_DTYPES,
+             " or ".join(map(repr, COMPLIANCE_DTYPES)))
     material = need(manifest, "material", dict, "")
     for k in ("young", "poisson"):
         need(material, k, (int, float), "material.", _is_number, "a finite number")
@@ -185,6 +205,38 @@ def _check_structure(manifest: Any, m: Path) -> None:
         need(entry, "sha256", str, where, lambda v: len(v) == 64, "a SHA-256 hex digest")
         need(entry, "bytes", int, where, lambda v: v >= 0, "a file size")
     need(manifest, MANIFEST_HASH, str, "", lambda v: len(v) == 64, "a SHA-256 hex digest")
+
+
+def compliance_dtype(manifest: Mapping[str, Any]) -> np.dtype:
+    """The storage type of D a manifest declares (``options.dtype``; float64 if absent).
+
+    Raises
+    ------
+    BundleError
+        ``options.dtype`` names no storage type of :data:`COMPLIANCE_DTYPES`.
+    """
+    name = (manifest.get("options") or {}).get("dtype", "float64")
+    if name not in COMPLIANCE_DTYPES:
+        raise BundleError(f"options.dtype is {name!r}, expected {' or '.join(map(repr, COMPLIANCE_DTYPES))}")
+    return COMPLIANCE_DTYPES[name]
+
+
+def _check_compliance_dtype(manifest: Mapping[str, Any], dtype: np.dtype, where: Path) -> None:
+    """Raise :class:`BundleError` unless D's actual ``dtype`` is a storage type and the one
+    the manifest's ``arrays.compliance.dtype`` and ``options.dtype`` declare."""
+    dtype = np.dtype(dtype)
+    names = {v: k for k, v in COMPLIANCE_DTYPES.items()}
+    if dtype not in names:
+        raise BundleError(f"{where}: D (compliance) is stored as {dtype.str} ({dtype.name}); hailstorm reads D "
+                          f"in {' or '.join(COMPLIANCE_DTYPES)} (native byte order) only")
+    entry = manifest["arrays"]["compliance"]["dtype"]
+    declared = compliance_dtype(manifest)
+    if entry != dtype.str or declared != dtype:
+        raise BundleError(
+            f"{where}: D (compliance) is {names[dtype]}, but the manifest says arrays.compliance.dtype={entry!r}, "
+            f"options.dtype={manifest['options'].get('dtype', 'float64 (absent)')!r}; "
+            "the bundle is inconsistent (re-run `hailstorm precompute`)"
+        )
 
 
 def _plain_name(name: str) -> bool:
@@ -525,6 +577,9 @@ def write_bundle(
     missing = set(ARRAY_SPECS) - set(arrays)
     if missing:
         raise BundleError(f"cannot write bundle: arrays missing: {sorted(missing)}")
+    dtype = np.asarray(arrays["compliance"]).dtype  # before any hashing: D's storage type and the manifest agree
+    _check_compliance_dtype({"options": manifest.get("options") or {}, "arrays": {"compliance": {"dtype": dtype.str}}},
+                            dtype, out)
     prepared = {}
     for name in ARRAY_SPECS:
         if isinstance(arrays[name], StagedArray):
@@ -593,6 +648,91 @@ def write_bundle(
     return out
 
 
+#: Columns of D cast per block by :func:`convert_bundle` (bounds its float64 temporaries).
+CONVERT_BLOCK = 1024
+
+
+def convert_bundle(
+    src: str | os.PathLike,
+    out: str | os.PathLike,
+    dtype: str | np.dtype = "float32",
+    *,
+    key: str | None = None,
+) -> Path:
+    """Write a copy of the bundle ``src`` at ``out`` with D stored as ``dtype``.
+
+    The cast step of the bundle writer: everything but D is copied as is; D is
+    rounded to ``dtype`` (to nearest) column block by column block, and the copy
+    is written like any bundle (:func:`write_bundle`: hashed, atomic, locked), its
+    manifest saying ``options.dtype`` and, under ``dtype_cast``, the source's key
+    and storage type and the largest rounding of an entry of D, absolute [m/N] and
+    relative to the largest entry. The source is verified first.
+
+    Parameters
+    ----------
+    src
+        A bundle directory.
+    out
+        Where to write the copy (may be ``src`` itself: replaced atomically once
+        the copy is complete).
+    dtype : {"float32", "float64"} or numpy dtype
+        D's storage type (:data:`COMPLIANCE_DTYPES`).
+    key
+        The copy's cache key. Default: the source's key if ``dtype`` is its own,
+        else the SHA-256 of the source's key and ``dtype`` (a float32 copy never
+        passes for its float64 source, nor a float64 copy of a float32 one for the
+        float64 original). The offline stage passes the key it computed itself.
+
+    Returns
+    -------
+    pathlib.Path
+        The new bundle's directory.
+
+    Raises
+    ------
+    BundleError
+        ``src`` is not a valid bundle, ``dtype`` is not a storage type, an entry of
+        D does not fit in ``dtype`` (overflow), or ``out`` cannot be written.
+    """
+    names = {v: k for k, v in COMPLIANCE_DTYPES.items()}
+    try:
+        target = np.dtype(dtype)
+    except TypeError:
+        target = None
+    if target not in names:
+        raise BundleError(f"cannot store D as {dtype!r}: the storage types are {' and '.join(COMPLIANCE_DTYPES)}")
+    out = Path(out).absolute()
+    check_writable(out.parent)
+    gf = load(src, verify=True)
+    D = gf.D
+    name, source = names[target], names[D.dtype]
+    cast = np.empty(D.shape, dtype=target, order="F")
+    scale = err = 0.0
+    for j in range(0, D.shape[1], CONVERT_BLOCK):
+        block = np.asarray(D[:, j:j + CONVERT_BLOCK])
+        with np.errstate(over="ignore"):
+            cast[:, j:j + CONVERT_BLOCK] = block
+        if not np.isfinite(cast[:, j:j + CONVERT_BLOCK]).all():
+            raise BundleError(f"cannot store D of {gf.path} as {name}: its entries (up to "
+                              f"{np.abs(block).max():.3g}) overflow {name}")
+        if block.size:
+            scale = max(scale, float(np.abs(block).max()))
+            err = max(err, float(np.abs(cast[:, j:j + CONVERT_BLOCK] - block).max()))
+    manifest = {k: v for k, v in gf.manifest.items() if k not in ("format", "format_version", "arrays", MANIFEST_HASH)}
+    manifest["options"] = {k: v for k, v in manifest["options"].items() if k != "dtype"}
+    if name != "float64":
+        manifest["options"]["dtype"] = name
+    if key is None:
+        key = gf.manifest["key"] if target == D.dtype else hashlib.sha256(
+            f"{gf.manifest['key']}\0compliance dtype {name}".encode()).hexdigest()
+    manifest["key"] = key
+    manifest["dtype_cast"] = {"source_key": gf.manifest["key"], "source_dtype": source, "max_abs_error": err,
+                              "max_rel_error": err / scale if scale > 0 else 0.0}
+    arrays = {k: getattr(gf, k) for k in ARRAY_SPECS if k != "compliance"}
+    arrays["compliance"] = cast
+    return write_bundle(out, arrays, manifest)
+
+
 @dataclass(frozen=True, eq=False)
 class GreensFunctions:
     """A loaded Green's-function bundle (see :func:`load`).
@@ -614,6 +754,10 @@ class GreensFunctions:
         surface vertex -> volume point.
     young, poisson : float
         Material (Pa, -).
+    D : (3 n, 3 c) float64 or float32 ndarray
+        The compliance, column-major (memory-mapped by default), in its storage
+        type (:attr:`dtype`); read it through :meth:`compliance`, which returns
+        float64 blocks.
     manifest : dict
         Everything the offline stage recorded (options, key, timings).
     """
@@ -639,6 +783,11 @@ class GreensFunctions:
     @property
     def poisson(self) -> float:
         return float(self.manifest["material"]["poisson"])
+
+    @property
+    def dtype(self) -> np.dtype:
+        """D's storage type (float64 or float32; the contact results are float64 either way)."""
+        return self.D.dtype
 
     @property
     def order(self) -> int:
@@ -800,6 +949,8 @@ def load(path: str | os.PathLike, *, verify: bool = True, mmap: bool = True, reh
             )
         if a.dtype.kind != kind or a.ndim != ndim:
             raise BundleError(f"bundle {path}: {name} has dtype kind {a.dtype.kind}/ndim {a.ndim}, expected {kind}/{ndim}")
+        if name == "compliance":
+            _check_compliance_dtype(manifest, a.dtype, path)
         if verify and (rehash or not is_stamped(f, entry["sha256"])):
             digest, bad = _scan(a)
             if digest != entry["sha256"]:

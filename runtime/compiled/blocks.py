@@ -12,6 +12,12 @@ to dense algebra on D (fancy-indexed blocks, a dense B).
 * :func:`contact_compliance` -- ``W = G^T D_VV G`` from it;
 * :func:`columns_times` -- ``D[:, cols] g``;
 * :func:`point_contacts` -- a fresh solve of bilateral point contacts in one call.
+
+D (``Dt``, ``M``) is read in its storage type, float64 or float32 (numba compiles
+one specialisation per type, cached like the rest): every product and sum is
+formed in float64 (each float32 entry is widened as it is read, the outputs are
+float64 arrays), so a float32 D costs only its own rounding, never a float64
+copy of D.
 """
 
 from __future__ import annotations

@@ -46,11 +46,14 @@ class ComplianceSource(Protocol):
 
     Attributes
     ----------
-    D : (3n, 3c) float ndarray
+    D : (3n, 3c) float64 or float32 ndarray
         The compliance: column ``(j, e)`` is the displacement of every surface
         vertex (vertex-major rows) under a unit force at contactable vertex j
         in direction e [m/N]. Column-major (as bundles are written) is the fast
-        layout; any other is copied once for the compiled kernels.
+        layout; any other is copied once for the compiled kernels (in D's own
+        type). Read in its storage type, computed with in float64: blocks
+        gathered from a float32 D are float64, and the kernels accumulate in
+        float64.
     column_of : (n,) int ndarray
         D's column block of each surface vertex, -1 where not contactable.
     contactable, fixed : (n,) bool ndarrays
@@ -176,7 +179,7 @@ def _gather_vertex_rows(D: np.ndarray, V: np.ndarray, cols: np.ndarray) -> np.nd
     """
     nv = D.shape[0] // 3
     chunks = D.T.reshape(-1, 3)  # row c * nv + v: D[3v:3v+3, c]
-    Mt = np.empty((cols.size, V.size, 3))
+    Mt = np.empty((cols.size, V.size, 3), dtype=D.dtype)  # np.take's out= does not cast
     # in column blocks: the index array stays small (a large temporary costs page faults)
     step = max(1, GATHER_BLOCK // max(V.size, 1))
     for i in range(0, cols.size, step):
@@ -197,8 +200,9 @@ def gather(gf: ComplianceSource, rows: np.ndarray, cols: np.ndarray) -> np.ndarr
 
     Returns
     -------
-    (r, c) float ndarray
-        F-ordered for a column-major D (its transpose is C-contiguous).
+    (r, c) float64 ndarray
+        F-ordered for a column-major D (its transpose is C-contiguous); a float32
+        D's block is gathered in float32 and cast (the block, never D).
     """
     D = gf.D
     dead = cols < 0
@@ -212,6 +216,7 @@ def gather(gf: ComplianceSource, rows: np.ndarray, cols: np.ndarray) -> np.ndarr
         out = _gather_vertex_rows(D, V, cc)
     else:  # any other layout: contiguous column take first, then the rows
         out = np.asarray(D.T[np.ix_(cc, rows)]).T
+    out = out.astype(np.float64, copy=False)  # keeps the F order
     if dead.any():
         out[:, dead] = 0.0
     return out

@@ -5,6 +5,7 @@ Usage::
     python tests/benchmarks/bench_contacts.py                 # default seat, h = 0.01 (built/cached)
     python tests/benchmarks/bench_contacts.py --gf DIR        # an existing bundle
     python tests/benchmarks/bench_contacts.py --mesh-size 0.007 --repeat 200
+    python tests/benchmarks/bench_contacts.py --gf DIR --dtype-only   # float32 D against float64, alone
 
 For s in {1, 10, 100} random contacts on contactable triangles it times
 ``hailstorm.runtime.solve_contacts`` with full-surface deformation (min / median / max
@@ -14,6 +15,11 @@ one direct FEM saddle-point solve with the same constraints
 not timed), and a Sherman-Morrison-Woodbury ``Capacitance.add`` against a fresh
 ``capacitance`` build. Targets: s = 100 solve + full-surface deformation
 <= 1 ms median; s = 10 >= 1e4 x faster than the direct FEM solve.
+
+Last (``--dtype float32``, the default; ``--dtype none`` skips it): the same
+solves on a float32 copy of the bundle (:func:`hailstorm.runtime.bundle.convert_bundle`,
+in a temporary directory), timed interleaved with the float64 ones in the same
+run, and the float32 results' error against float64.
 """
 
 from __future__ import annotations
@@ -29,7 +35,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from hailstorm.runtime.bundle import load
+from hailstorm.runtime.bundle import convert_bundle, load
 from hailstorm.runtime.compiled import vertex_block
 from hailstorm.runtime.contact import capacitance, solve_contacts, triangle_normals
 
@@ -115,6 +121,9 @@ def main(argv=None) -> int:
     ap.add_argument("--sizes", type=int, nargs="+", default=[1, 10, 100])
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--no-fem", action="store_true", help="skip the direct FEM comparison")
+    ap.add_argument("--dtype", default="float32", choices=["float32", "none"],
+                    help="also time the solves on a copy of the bundle with D in this type (default float32)")
+    ap.add_argument("--dtype-only", action="store_true", help="only the float32 against float64 section")
     ap.add_argument("--threads", type=int, default=1,
                     help="BLAS threads (default 1: the dense systems are small; 0 = library default)")
     args = ap.parse_args(argv)
@@ -126,11 +135,15 @@ def main(argv=None) -> int:
         except ImportError:
             print("threadpoolctl not installed; set OMP_NUM_THREADS to limit BLAS threads", file=sys.stderr)
 
-    gf = load(get_bundle(args), mmap=False)
+    path = get_bundle(args)
+    gf = load(path, mmap=False)
     n, nc = gf.n_vertices, int(gf.contactable.sum())
     print(f"bundle: {n} surface vertices, {nc} contactable, D {gf.D.shape[0]} x {gf.D.shape[1]} "
-          f"({gf.D.nbytes / 2**20:.0f} MiB), order P{gf.order}")
+          f"{gf.dtype} ({gf.D.nbytes / 2**20:.0f} MiB), order P{gf.order}")
     tris = np.flatnonzero(gf.contactable[gf.triangles].all(axis=1))
+    if args.dtype_only:
+        print_dtype(path, gf, tris, args)
+        return 0
     rng = np.random.default_rng(args.seed)
     ref = None if args.no_fem else direct_fem_setup(gf)
     if ref is not None:
@@ -196,7 +209,79 @@ def main(argv=None) -> int:
         diff = np.abs(caps[-1].K - fresh.K).max() / np.abs(fresh.K).max()
         print(f"{s:4d} | {np.median(t_smw) * ms:19.3f} | {np.median(t_fresh) * ms:23.3f} | "
               f"{np.median(t_fresh) / np.median(t_smw):6.1f} | {diff:14.1e}")
+    if args.dtype != "none":
+        print_dtype(path, gf, tris, args)
     return 0
+
+
+def timeit_pair(fa, fb, repeat: int, warmup: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """Wall-clock seconds of ``repeat`` calls of each of ``fa`` and ``fb``, interleaved
+    (a, b, b, a, ...: a load change on the host hits both alike)."""
+    for _ in range(warmup):
+        fa(), fb()
+    ta, tb = np.empty(repeat), np.empty(repeat)
+    for i in range(repeat):
+        for f, t in ((fa, ta), (fb, tb)) if i % 2 == 0 else ((fb, tb), (fa, ta)):
+            t0 = time.perf_counter()
+            f()
+            t[i] = time.perf_counter() - t0
+    return ta, tb
+
+
+def print_dtype(path: Path, gf, tris: np.ndarray, args) -> None:
+    """D stored as float32 against float64: the same solves, their times and the rounding's effect.
+
+    For each s: fresh solves with full-surface u (sticky bilateral point contacts,
+    the one-call kernel) and the steady-state ``forces`` + ``surface_displacement``
+    of a kept capacitance, timed interleaved on both bundles; then the largest
+    relative error of the float32 forces and u against float64 (max-norm, relative
+    to the largest float64 value) for sticky bilateral, frictionless unilateral and
+    patch contacts, and the condition number of W.
+    """
+    ms = 1e3
+    with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.perf_counter()
+        p32 = convert_bundle(path, Path(tmp) / "f32", args.dtype)
+        t_conv = time.perf_counter() - t0
+        g32 = load(p32, mmap=False)
+        b64, b32 = (path / "compliance.npy").stat().st_size, (p32 / "compliance.npy").stat().st_size
+        cast = g32.manifest["dtype_cast"]
+        print()
+        print(f"D as {args.dtype} (convert_bundle {t_conv:.1f} s): compliance.npy {b64 / 2**20:.1f} -> "
+              f"{b32 / 2**20:.1f} MiB on disk, D in memory {gf.D.nbytes / 2**20:.1f} -> {g32.D.nbytes / 2**20:.1f} MiB; "
+              f"rounding of D: max abs {cast['max_abs_error']:.2e} m/N, {cast['max_rel_error']:.2e} of max |D|")
+        rng = np.random.default_rng(args.seed + 2)
+        print(f"{'s':>4} | {'fresh f64 min/med/max [ms]':>27} | {'fresh f32':>27} | {'ratio med':>9} "
+              f"{'ratio min':>9} | {'steady f64 med':>14} {'f32 med':>8} {'ratio':>6}")
+        cases = []
+        for s in args.sizes:
+            tri, bary, ubar = random_contacts(gf, tris, rng, s)
+            cases.append((s, tri, bary, ubar))
+            ta, tb = timeit_pair(lambda: solve_contacts(gf, tri, bary, ubar),
+                                 lambda: solve_contacts(g32, tri, bary, ubar), args.repeat)
+            caps = []
+            for g in (gf, g32):
+                c = capacitance(g, tri, bary)
+                c.keep_response()
+                caps.append(c)
+            sa, sb = timeit_pair(lambda: caps[0].surface_displacement(caps[0].forces(ubar)),
+                                 lambda: caps[1].surface_displacement(caps[1].forces(ubar)), args.repeat)
+            print(f"{s:4d} | {ta.min() * ms:8.3f} {np.median(ta) * ms:8.3f} {ta.max() * ms:9.3f} | "
+                  f"{tb.min() * ms:8.3f} {np.median(tb) * ms:8.3f} {tb.max() * ms:9.3f} | "
+                  f"{np.median(tb) / np.median(ta):9.2f} {tb.min() / ta.min():9.2f} | "
+                  f"{np.median(sa) * ms:14.4f} {np.median(sb) * ms:8.4f} {np.median(sb) / np.median(sa):6.2f}")
+        print()
+        print(f"{'s':>4} {'cond W':>9} | max rel error of float32 (forces / u): {'sticky':>19} | "
+              f"{'frictionless unil.':>19} | {'patch (r = 4 mm)':>19}")
+        for s, tri, bary, ubar in cases:
+            errs = []
+            for kw in ({}, dict(mode="frictionless", unilateral=True), dict(patch_radius=0.004)):
+                a, b = solve_contacts(gf, tri, bary, ubar, **kw), solve_contacts(g32, tri, bary, ubar, **kw)
+                errs.append((np.abs(b.forces - a.forces).max() / np.abs(a.forces).max(),
+                             np.abs(b.surface_displacement - a.surface_displacement).max()
+                             / np.abs(a.surface_displacement).max()))
+            cond = np.linalg.cond(capacitance(gf, tri, bary).W)
+            print(f"{s:4d} {cond:9.3g} | {'':>38} " + " | ".join(f"{ef:9.2e} {eu:9.2e}" for ef, eu in errs))
 
 
 def print_steady(gf, ref, tris: np.ndarray, args) -> None:
