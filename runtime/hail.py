@@ -70,7 +70,6 @@ __all__ = [
     "damping_ratio_for_restitution",
     "modal_damping",
     "drag_acceleration",
-    "free_flight",
     "restitution_for_damping_ratio",
     "stone_mass",
     "terminal_velocity",
@@ -132,31 +131,6 @@ def drag_acceleration(
     speed = np.sqrt(np.add.reduce(w * w, axis=1, keepdims=True))  # |w| (few numpy calls: called every step)
     coef = 3.0 * cd * rho_air / (8.0 * density * np.asarray(radius, dtype=np.float64))
     return -coef[:, None] * speed * w
-
-
-def free_flight(
-    pos: np.ndarray,
-    vel: np.ndarray,
-    dt: float,
-    *,
-    accel: np.ndarray | None = None,
-    g: float = GRAVITY,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Advance stones in free flight by ``dt``.
-
-    Exact for gravity alone (constant acceleration); an extra acceleration
-    (drag) is taken as constant over the step.
-
-    Returns
-    -------
-    pos, vel : (k, 3) ndarray
-        New arrays (inputs are not modified).
-    """
-    a = np.zeros_like(vel)
-    a[:, 2] -= g
-    if accel is not None:
-        a = a + accel
-    return pos + dt * vel + 0.5 * dt * dt * a, vel + dt * a
 
 
 @dataclass(frozen=True)

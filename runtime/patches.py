@@ -39,70 +39,7 @@ def radii(st: Storm, stones: np.ndarray, tris: np.ndarray) -> np.ndarray:
     falls. A contact keeps its radius until the target leaves the band
     ``[a / (1 + tol), a (1 + tol)]`` (``tol = patch_tolerance``).
     """
-    sc = st.scene
-    if st._compiled:
-        return radii_compiled(st, stones, tris)
-    from hailstorm.runtime.weights import hertz_radius
-
-    m, R = st.mass[stones], st.radius[stones]
-    n = st.index.normals[tris]
-    vn = np.einsum("ij,ij->i", st.vel[stones], n)
-    gn = np.einsum("ij,ij->i", st._accel(stones), n)
-    f_eq = m * np.clip(-gn, 0.0, None)
-    k = np.zeros(stones.size)
-    f = np.zeros(stones.size)
-    known = np.zeros(stones.size, dtype=bool)
-    cc = st.cache
-    if cc is not None and cc.stones.size and st.lam.size:
-        order = np.argsort(cc.stones)
-        pos = np.minimum(np.searchsorted(cc.stones[order], stones), cc.stones.size - 1)
-        idx = order[pos]
-        known = cc.stones[idx] == stones
-        if known.any():
-            ik = idx[known]
-            if sc.mode == "frictionless":
-                k[known] = np.diag(cc.K)[ik]
-                f[known] = np.abs(st.lam[ik])
-            else:
-                Kd = np.diag(cc.K).reshape(-1, 3)[ik]
-                k[known] = np.einsum("ij,ij->i", Kd, n[known] ** 2)
-                f[known] = np.abs(np.einsum("ij,ij->i", st.lam.reshape(-1, 3)[ik], n[known]))
-    def radius_for(kk: np.ndarray, sel: np.ndarray | slice = slice(None)) -> np.ndarray:
-        kk = np.clip(kk, 0.0, None)
-        fp = f_eq[sel] + np.sqrt((f[sel] - f_eq[sel]) ** 2 + kk * m[sel] * vn[sel] ** 2)
-        a_t = hertz_radius(fp, R[sel], float(st.gf.young), float(st.gf.poisson),
-                           a_min=sc.patch_min_radius, a_max=R[sel])
-        return np.maximum(a_t, sc.patch_min_radius)  # (a stone smaller than the floor: the floor)
-
-    target = np.zeros(stones.size)
-    if known.any():
-        target[known] = radius_for(k[known], known)
-    if (~known).any():
-        # a new contact: the impact's expected peak force with the point stiffness of the
-        # triangle, then once more with the stiffness of that patch alone (the patch is
-        # stiffer than the point; a ~ k^(1/6), so one fixed-point iteration suffices and
-        # the contact is not re-weighted in its second sub-step)
-        nw = ~known
-        a0 = radius_for(triangle_stiffness(st, tris[nw]), nw)
-        k1 = stiffness(st, stones[nw], tris[nw], a0, n[nw])
-        a1 = radius_for(k1, nw)
-        # within the tolerance: keep a0, whose weights are already cached
-        target[nw] = np.where((a1 > a0 * (1.0 + sc.patch_tolerance)) | (a1 * (1.0 + sc.patch_tolerance) < a0), a1, a0)
-    cur = np.where(known, st.crad[stones], 0.0)
-    tol = 1.0 + sc.patch_tolerance
-    # grow at once; shrink only once the stone rests: the contact
-    # damping removes most of an impact's energy while it lasts, and re-weighting during
-    # the rebound would change the stiffness the restitution was tuned for
-    # (resting: the oscillation amplitude about equilibrium, in velocity units, below rest_speed)
-    amp = np.sqrt((f - f_eq) ** 2 / np.maximum(np.clip(k, 0.0, None) * m, 1e-300) + vn * vn)
-    resting = known & (amp < sc.rest_speed)
-    resize = (cur <= 0.0) | (target > cur * tol) | ((target * tol < cur) & resting)
-    st.stats["patch_resizes"] += int((resize & (cur > 0.0)).sum())
-    a = np.where(resize, target, cur)
-    st.crad[stones] = a
-    if a.size:
-        st.stats["max_patch_radius_m"] = max(st.stats["max_patch_radius_m"], float(a.max()))
-    return a
+    return radii_compiled(st, stones, tris)
 
 
 def radii_compiled(st: Storm, stones: np.ndarray, tris: np.ndarray) -> np.ndarray:
@@ -137,21 +74,10 @@ def radii_compiled(st: Storm, stones: np.ndarray, tris: np.ndarray) -> np.ndarra
 def stiffness(st: Storm, stones: np.ndarray, tris: np.ndarray, radius: np.ndarray,
               normals: np.ndarray) -> np.ndarray:
     """Normal stiffness ``1 / (g^T D g)`` of each patch contact alone, (s,) [N/m]."""
-    from hailstorm.runtime.gather import _column_dofs, _dof3, _gather
-
     verts, w = cached_weights(st, stones, tris, st.cbary[stones], radius, normals)
     k = np.zeros(stones.size)
-    if st._compiled:
-        for i in range(stones.size):
-            c = patch_compliance(verts[i].astype(np.int64, copy=False), w[i], normals[i], st._D, st._col_of)
-            k[i] = 1.0 / c if c > 0 else 0.0
-        return k
     for i in range(stones.size):
-        keep = w[i] > 0.0
-        v, wi = verts[i][keep], w[i][keep]
-        g = (wi[:, None] * normals[i][None, :]).ravel()
-        Dv = _gather(st._gfD, _dof3(v), _column_dofs(st.gf, v))
-        c = float(g @ Dv @ g)
+        c = patch_compliance(verts[i].astype(np.int64, copy=False), w[i], normals[i], st._D, st._col_of)
         k[i] = 1.0 / c if c > 0 else 0.0
     return k
 
@@ -164,8 +90,6 @@ def cached_weights(st: Storm, stones: np.ndarray, tris: np.ndarray, bary: np.nda
     triangle and its radius while the force stays within the tolerance, so
     the weights are reused until one of them changes.
     """
-    from hailstorm.runtime.weights import patch_weights
-
     out: list[tuple[np.ndarray, np.ndarray] | None] = [None] * stones.size
     todo = []
     for i, (j, t, a) in enumerate(zip(stones.tolist(), tris.tolist(), radius.tolist())):
@@ -175,25 +99,13 @@ def cached_weights(st: Storm, stones: np.ndarray, tris: np.ndarray, bary: np.nda
         else:
             todo.append(i)
     st.stats["patch_weights_reused"] += stones.size - len(todo)
-    if todo and st._compiled:
+    if todo:
         st.stats["patch_weights_computed"] += len(todo)
         for i in todo:
             v, w_ = patch_one(int(tris[i]), bary[i], float(radius[i]), normals[i], 3.0, *st._disc,
                               PATCH_FACING, PATCH_DROP, st._pidx, st.X)
             st._wcache[int(stones[i])] = (int(tris[i]), bary[i].tobytes(), float(radius[i]), v, w_)
             out[i] = (v, w_)
-    elif todo:
-        ti = np.asarray(todo, dtype=np.intp)
-        pv, pw = patch_weights(st.gf, tris[ti], bary[ti], radius[ti], normals[ti], profile="hertz",
-                               backend=st.backend)
-        st.stats["patch_weights_computed"] += ti.size
-        for r, i in enumerate(todo):
-            keep = pw[r] > 0.0
-            v, w = pv[r][keep], pw[r][keep]
-            if v.size == 0:  # pragma: no cover (weights sum to one)
-                v, w = pv[r][:1], np.ones(1)
-            st._wcache[int(stones[i])] = (int(tris[i]), bary[i].tobytes(), float(radius[i]), v, w)
-            out[i] = (v, w)
     done = cast(list[tuple[np.ndarray, np.ndarray]], out)  # every slot is filled above
     P = max(3, max(o[0].size for o in done))
     verts = np.empty((stones.size, P), dtype=np.intp)
@@ -224,7 +136,7 @@ def all_triangle_stiffness(st: Storm, chunk: int = 4096) -> np.ndarray:
     tri = np.asarray(st.gf.triangles, dtype=np.intp)
     out = np.zeros(tri.shape[0])
     soft = np.flatnonzero(st.soft)
-    col_of = st._gfD.column_of
+    col_of = st._col_of
     third = np.full(3, 1.0 / 3.0)
     for s0 in range(0, soft.size, chunk):
         t = soft[s0:s0 + chunk]

@@ -30,9 +30,7 @@ from hailstorm.runtime.compiled import (
     substep_contacts,
     substep_damping,
 )
-from hailstorm.runtime.contact_capacitance import spd_inverse
 from hailstorm.runtime.hail import _X_GRID, _Z_GRID, GRAVITY, ContactStep, contact_modes, contact_step
-from hailstorm.runtime.hail import _explicit_modes, _modal_damping, _modal_stiffness
 
 if TYPE_CHECKING:  # pragma: no cover
     from hailstorm.runtime.storm import Storm
@@ -68,10 +66,6 @@ class ContactSet:
 def contact_set(st: Storm, stones: np.ndarray, tris: np.ndarray, bary: np.ndarray, key: tuple,
                 radius: np.ndarray | None = None) -> ContactSet:
     """The capacitance of the soft contacts ``stones`` (point contacts, or patches of ``radius``)."""
-    from hailstorm.runtime.contact_capacitance import _contact_compliance, _rigid
-    from hailstorm.runtime.gather import _column_dofs, _dof3, _gather
-    from hailstorm.runtime.weights import _dense_B, _dense_Bs, _locate_lists
-
     gf, mode = st.gf, st.scene.mode
     normals = st.index.normals[tris]
     s = stones.size
@@ -80,29 +74,11 @@ def contact_set(st: Storm, stones: np.ndarray, tris: np.ndarray, bary: np.ndarra
         radius = np.zeros(s)
     else:
         verts, w = patches.cached_weights(st, stones, tris, bary, radius, normals)
-    if st._compiled:
-        verts = verts.astype(np.int64, copy=False)
-        if rigid_contacts(verts, w, st._fixed):
-            raise RuntimeError("rigid contacts must be filtered before the capacitance")  # pragma: no cover
-        V, W, G, cols, DG = capacitance_blocks(verts, w, normals, mode == "sticky", st._D, st._col_of)
-        K = inv_spd(W, float(_policy.COND_LIMIT), float(_policy.PINV_RCOND))  # spd_inverse's policy
-    else:
-        if np.any(_rigid(gf, verts, w)):
-            raise RuntimeError("rigid contacts must be filtered before the capacitance")  # pragma: no cover
-        V, loc = _locate_lists(verts)
-        D_VV = _gather(st._gfD, _dof3(V), _column_dofs(gf, V))
-        W = _contact_compliance(D_VV, loc, w, normals, mode)
-        if mode == "sticky":
-            G = _dense_B(V.size, loc, w)
-        else:
-            # G = B N: row (i, d), column k = Bs[i, k] n_k[d] (B = Bs kron I3, without forming it)
-            G = (_dense_Bs(V.size, loc, w)[:, None, :] * normals.T[None, :, :]).reshape(3 * V.size, s)
-        DG = D_VV @ G
-        cb = np.asarray(gf.column_of)[V]
-        live = np.repeat(cb >= 0, 3)
-        cols = (3 * cb[:, None] + np.arange(3)).ravel()[live]  # D columns of the loaded dofs
-        G = G[live]
-        K = spd_inverse(W)  # the pseudo-inverse for (nearly) coincident contacts
+    verts = verts.astype(np.int64, copy=False)
+    if rigid_contacts(verts, w, st._fixed):
+        raise RuntimeError("rigid contacts must be filtered before the capacitance")  # pragma: no cover
+    V, W, G, cols, DG = capacitance_blocks(verts, w, normals, mode == "sticky", st._D, st._col_of)
+    K = inv_spd(W, float(_policy.COND_LIMIT), float(_policy.PINV_RCOND))  # spd_inverse's policy
     # reference point: the contact point (the patch centre). A patch contact prescribes the
     # pressure-weighted mean normal displacement of the surface under the disc, measured from
     # the tangent plane at the contact point (the plane of the disc): the stone's lowest point
@@ -121,7 +97,6 @@ def advance(st: Storm, near: np.ndarray, soft: np.ndarray, was_open: np.ndarray,
     """Advance the stones in soft contact by ``h`` through the capacitance of their
     contact set (rebuilt when the set of (stone, triangle[, patch radius]) changes),
     with unilateral release; update the seat's forces and the statistics."""
-    sc = st.scene
     tris = st.ctri[soft]
     key: tuple[tuple[Any, ...], ...]
     if st._patch:
@@ -132,87 +107,7 @@ def advance(st: Storm, near: np.ndarray, soft: np.ndarray, was_open: np.ndarray,
         key = tuple(zip(soft.tolist(), tris.tolist()))
     if st.cache is None or st.cache.key != key:
         st.cache = contact_set(st, soft, tris, st.cbary[soft].copy(), key, rad)
-    cc = st.cache
-    s = soft.size
-    nk = cc.normals
-    if st._compiled:
-        advance_compiled(st, near, soft, was_open, h, cc)
-        return
-    acc = st._accel(soft)
-    m = st.mass[soft]
-    if sc.mode == "frictionless":
-        q = np.einsum("ij,ij->i", nk, st.pos[soft])
-        a = np.einsum("ij,ij->i", nk, cc.X) + cc.rest
-        vq = np.einsum("ij,ij->i", nk, st.vel[soft])
-        gq = np.einsum("ij,ij->i", nk, acc)
-        mq, group, wts = m, None, None
-    else:
-        q = st.pos[soft].ravel()
-        a = (cc.X + cc.rest[:, None] * nk).ravel()
-        vq = st.vel[soft].ravel()
-        gq = acc.ravel()
-        mq, group, wts = np.repeat(m, 3), np.repeat(np.arange(s), 3), nk.ravel()
-    always = None
-    if sc.integrator == "exact":
-        C = exact_damping(st, cc, mq)
-        # resting contacts (oscillation amplitude below rest_speed): the dashpot acts
-        # both ways, no switching events; the residual oscillation decays
-        kd = np.clip(np.diag(cc.K), 0.0, None)
-        if sc.mode == "sticky":
-            kd = kd.reshape(-1, 3).max(axis=1)
-        om = np.sqrt(kd / m)
-        vn = np.einsum("ij,ij->i", st.vel[soft], nk)
-        ubar = np.einsum("ij,ij->i", st.pos[soft] - cc.X, nk) - cc.rest
-        u_eq = np.einsum("ij,ij->i", acc, nk) * m / np.maximum(kd, 1e-300)
-        rest = np.hypot(vn, om * (ubar - u_eq)) < sc.rest_speed
-        always = rest if sc.mode == "frictionless" else np.repeat(rest, 3)
-        K, W = cc.K, cc.W
-    else:
-        K, W, C = contact_matrices(st, cc, mq, h)
-    res = contact_step(q, vq, a, mq, gq, h, K=K, W=W, damping=C, integrator=sc.integrator,
-                       unilateral=sc.unilateral, group=group, normal_of=wts, always_damped=always)
-    if sc.mode == "frictionless":
-        # tangential motion: free (constant acceleration); normal: the contact step
-        vt0 = st.vel[soft] - vq[:, None] * nk
-        at = acc - gq[:, None] * nk
-        vnew = vt0 + h * at + res.v[:, None] * nk
-        pnew = (st.pos[soft] - q[:, None] * nk + h * vt0 + 0.5 * h * h * at + res.q[:, None] * nk)
-        fvec = res.seat_force[:, None] * nk
-        active_c = res.active
-    else:
-        vnew = res.v.reshape(s, 3)
-        pnew = res.q.reshape(s, 3)
-        fvec = res.seat_force.reshape(s, 3)
-        # numpy's stubs cannot tell that all(axis=1) of a 2-d array is an array, not a scalar
-        active_c = res.active.reshape(s, 3).all(axis=1)  # type: ignore[assignment]
-    if sc.integrator != "exact":
-        pnew = st.pos[soft] + h * vnew  # (semi-)implicit position update
-    # peaks inside the sub-step (exact: on the closed-form trajectory, so a contact that
-    # opens and is released within the sub-step still counts)
-    if sc.mode == "frictionless":
-        fpk = np.abs(res.peak_seat_force)
-        ubar_n = res.peak_ubar
-    else:
-        pf = res.peak_seat_force.reshape(s, 3)
-        fpk = np.sqrt(np.einsum("ij,ij->i", pf, pf))
-        ubar_n = np.einsum("ij,ij->i", res.peak_ubar.reshape(s, 3), nk)
-    fmag = np.maximum(np.sqrt(np.einsum("ij,ij->i", fvec, fvec)), fpk)
-    touched = active_c | (fpk > 0.0)  # carried force at some instant of the sub-step
-    # impacts: contacts that opened in this sub-step and pushed
-    fresh = touched & ~was_open[np.searchsorted(near, soft)]
-    if fresh.any():
-        vn_in = np.einsum("ij,ij->i", st.vel[soft[fresh]], nk[fresh])
-        st.stats["impacts"] += int((vn_in < -sc.rest_speed).sum())
-        st.hit[soft[fresh]] = True
-    st.vel[soft] = vnew
-    st.pos[soft] = pnew
-    st.ctri[soft[~active_c]] = -1
-    st.lam = res.seat_force
-    st._set_forces(cc, res.seat_force, res.peak_seat_force)
-    st.stats["max_contact_force"] = max(st.stats["max_contact_force"], float(fmag.max()))
-    if touched.any():
-        st.stats["max_indentation_m"] = max(st.stats["max_indentation_m"], float(-ubar_n[touched].min()))
-    st.stats["max_simultaneous_contacts"] = max(st.stats["max_simultaneous_contacts"], int(touched.sum()))
+    advance_compiled(st, near, soft, was_open, h, st.cache)
 
 
 def advance_compiled(st: Storm, near: np.ndarray, soft: np.ndarray, was_open: np.ndarray, h: float,
@@ -279,8 +174,7 @@ def exact_damping(st: Storm, cc: ContactSet, mq: np.ndarray) -> np.ndarray:
     cached with the set)."""
     if cc.C is None or cc.C.shape != (mq.size, mq.size):
         om2, Phi, sqm = _modes(cc, mq)
-        damping = substep_damping if st._compiled else _modal_damping
-        cc.C = damping(om2, Phi, sqm, float(st.scene.restitution), 0.0, False, _X_GRID, _Z_GRID)
+        cc.C = substep_damping(om2, Phi, sqm, float(st.scene.restitution), 0.0, False, _X_GRID, _Z_GRID)
     return cc.C
 
 
@@ -296,10 +190,9 @@ def contact_matrices(st: Storm, cc: ContactSet, mq: np.ndarray, h: float) -> tup
     om2, Phi, sqm = _modes(cc, mq)
     sc = st.scene
     K, W = cc.K, cc.W
-    fast = st._compiled
     if sc.integrator == "symplectic":
-        om2 = (explicit_modes if fast else _explicit_modes)(om2, float(h))
-        K, W = (modal_stiffness if fast else _modal_stiffness)(om2, Phi, sqm)
-    C = (substep_damping if fast else _modal_damping)(om2, Phi, sqm, float(sc.restitution), float(h), sc.integrator == "implicit", _X_GRID,
+        om2 = explicit_modes(om2, float(h))
+        K, W = modal_stiffness(om2, Phi, sqm)
+    C = substep_damping(om2, Phi, sqm, float(sc.restitution), float(h), sc.integrator == "implicit", _X_GRID,
                         _Z_GRID)
     return K, W, C

@@ -100,24 +100,18 @@ time integration.
 BLAS runs single-threaded inside :func:`run_storm` (``threadpoolctl``): the
 dense solves are tiny and threaded BLAS on a shared machine only adds latency.
 
-Backends (``[compute] backend``)
---------------------------------
-A step's arithmetic is small; in numpy its cost is the per-call overhead of a
-few hundred calls on arrays of a handful of stones. With numba installed
-(``backend = "auto"`` or ``"numba"``) the same phases run in compiled kernels
-(:mod:`hailstorm.runtime.compiled`): the broad phase and free flight, the queries on a
-uniform grid of the same samples (instead of the k-d tree), phases a–c of a
-sub-step in one kernel (every free near stone is queried: the numpy path's
-query reuse and gap prediction only save numpy calls), the patch sizing and
-weights, the capacitance blocks, and the exact integrator's step; the
-orchestration stays in this module and the numpy path stays the reference
-the tests hold the kernels to. The two backends compute the same contacts to
-rounding, except where two triangles share a stone's closest point (an edge
-or vertex): both then take the triangle of the nearer sample, but the two
-distances, equal in exact arithmetic, round differently in each backend, so
-the pick (hence the contact normal) can differ and a storm on a curved seat
-diverges between the backends after such a tie, as it would under any
-rounding change (same statistics; on the flat test plate, identical).
+Compiled kernels
+----------------
+A step's arithmetic is small; as numpy calls its cost would be the per-call
+overhead of a few hundred calls on arrays of a handful of stones. Each phase
+runs once, in compiled kernels (:mod:`hailstorm.runtime.compiled`, numba): the
+broad phase and free flight, the queries on a uniform grid of the triangles'
+samples, phases a-c of a sub-step in one kernel, the patch sizing and weights,
+the capacitance blocks and the integrators' steps; the orchestration stays in
+this module. The tests hold the kernels to plain statements of the same rules
+(``tests/reference/``) and to independent oracles (brute-force closest points
+over all triangles, analytic bounces). ``NUMBA_DISABLE_JIT=1`` runs them as
+Python, for debugging.
 """
 
 from __future__ import annotations
@@ -127,13 +121,12 @@ import logging
 import threading
 import time
 from dataclasses import dataclass, field
-from types import SimpleNamespace
 from typing import Any, Callable
 
 import numpy as np
 
-from hailstorm.runtime import narrow, patches, soft_contacts
-from hailstorm.runtime.collide import Closest, SurfaceIndex
+from hailstorm.runtime import patches, soft_contacts
+from hailstorm.runtime.collide import SurfaceIndex
 from hailstorm.runtime.compiled import (
     capacitance_blocks,
     contact_post,
@@ -146,20 +139,18 @@ from hailstorm.runtime.compiled import (
     patch_compliance,
     patch_one,
     penetration,
-    resolve_backend,
     retired,
     rigid_contacts,
     substep_contacts,
     substep_damping,
     substep_size,
 )
+from hailstorm.runtime.compiled._jit import KERNELS
 from hailstorm.runtime.compiled.grid import _surface
 from hailstorm.runtime.hail import (
     _X_GRID,
     _Z_GRID,
     GRAVITY,
-    drag_acceleration,
-    free_flight,
     stone_mass,
     terminal_velocity,
 )
@@ -258,7 +249,7 @@ class _CompileNotice:
 _STONE_FIELDS: tuple[tuple[str, Any], ...] = (
     ("pos", None), ("vel", None), ("radius", None), ("mass", None), ("alive", True), ("ctri", -1),
     ("cbary", 0.0), ("gap", np.inf), ("hit", False), ("near_tri", -1), ("crad", 0.0), ("budget", 0.0),
-    ("_bud_u", 0.0), ("_pgap", 0.0), ("_pstamp", -1),
+    ("_bud_u", 0.0),
 )
 
 
@@ -317,8 +308,6 @@ class Storm:
         # a plain ndarray view of a memmap (no copy): numpy.memmap's per-index overhead
         # (subclass wrapping) dominates the small gathers of the loop
         self._D = np.asarray(D)
-        #: the bundle as the D-gather helpers see it, reading through that view
-        self._gfD = SimpleNamespace(D=self._D, column_of=np.asarray(gf.column_of))
         self._col_of = np.ascontiguousarray(gf.column_of, dtype=np.int64)
         #: the surface as the compiled kernels take it, and their "no forces"
         self._surf = _surface(self.index.grid, self.index.sample_radius, self.index.vertices, self.index.triangles)
@@ -336,25 +325,17 @@ class Storm:
         self._peaks: dict[int, tuple[float, np.ndarray, np.ndarray]] = {}
         self.budget = np.zeros(0)  # lower bound of each stone's distance to the seat [m]
         self._bud_u = np.zeros(0)  # the displacement bound each budget allows for [m]
-        self._pgap = np.zeros(0)  # gap lower bound predicted for the next sub-step [m]
-        self._pstamp = np.zeros(0, dtype=np.int64)  # sub-step the prediction is valid for
         #: the per-stone arrays above are the first rows of these buffers (see :meth:`add_stones`)
         self._buffers = {name: getattr(self, name) for name, _ in _STONE_FIELDS}
         self._capacity = 0
-        self._pred_umax = 0.0
         self._umax_step = 0.0  # largest umax in the current step
         self._live: np.ndarray | None = None
         self._far = np.zeros(0, dtype=np.intp)  # live stones that are not near (set by _near_set)
         #: time-of-impact sub-steps (adaptive) and the gap within which a contact opens [radii]
         #: compiled kernels for the step's work (:mod:`hailstorm.runtime.compiled`), or numpy
-        try:
-            self.backend = resolve_backend(scene.backend)
-        except ValueError as exc:
-            raise SceneError(str(exc)) from None
-        self._compiled = self.backend == "numba"
         #: quadratic drag coefficient 3 C_d rho_air / (8 rho_ice) (0: no drag), for the kernels
         self._drag_coef = 3.0 * scene.cd * scene.rho_air / (8.0 * scene.density) if scene.drag else 0.0
-        if self._patch and self._compiled:
+        if self._patch:
             from hailstorm.runtime.weights import _disc_table, _triangle_index
 
             self._pidx = _triangle_index(gf).arrays
@@ -367,8 +348,6 @@ class Storm:
         self._toi = bool(scene.adaptive)
         self._toi_tol = 0.01
         self._hmin = scene.dt / scene.max_substeps
-        #: the end-of-step query: (sub-step stamp, stones, reach (-1: contact stones), result)
-        self._last_query: tuple[int, np.ndarray, np.ndarray, Closest] | None = None
         self.cache: ContactSet | None = None
         self.lam = np.zeros(0)
         self.t = 0.0
@@ -382,8 +361,7 @@ class Storm:
             max_patch_radius_m=0.0,
         )
         self._pending = self._plan_spawns() if spawn else np.zeros((0, 8))
-        if self._compiled:
-            self._warm_up()
+        self._warm_up()
         self._next_pending = 0
         #: spawn times as a plain list (one float comparison per step when nothing is due)
         self._pending_t = self._pending[:, 0].tolist()
@@ -498,23 +476,9 @@ class Storm:
             self.add_stones(p[j:k, 1:4], p[j:k, 4:7], p[j:k, 7])
             self._next_pending = k
 
-    def _accel(self, idx: np.ndarray) -> np.ndarray:
-        """Non-contact acceleration (gravity + drag) of stones ``idx``."""
-        a = np.empty((idx.size, 3))
-        a[:] = self.g
-        if self.scene.drag and idx.size:
-            sc = self.scene
-            a += drag_acceleration(self.vel[idx], self.radius[idx], wind=self.wind, cd=sc.cd,
-                                   rho_air=sc.rho_air, density=sc.density)
-        return a
-
     def _fly(self, idx: np.ndarray, h: float) -> None:
         """Free flight of stones ``idx`` over ``h`` (gravity and drag)."""
-        if self._compiled:
-            flight(idx, self.pos, self.vel, self.radius, h, GRAVITY, self.wind, self._drag_coef)
-            return
-        self.pos[idx], self.vel[idx] = free_flight(self.pos[idx], self.vel[idx], h,
-                                                   accel=self._accel(idx) - self.g, g=GRAVITY)
+        flight(idx, self.pos, self.vel, self.radius, h, GRAVITY, self.wind, self._drag_coef)
 
     # -- the seat's displacement (only where it is needed) ---------------------------
     def _set_forces(self, cc: ContactSet | None, lam: np.ndarray, peak: np.ndarray | None = None) -> None:
@@ -595,34 +559,16 @@ class Storm:
             self._u_cache = (self._u_version, u)
         return self._u_cache[1]
 
-    def _query(self, stones: np.ndarray, reach: np.ndarray, deformed: bool = True) -> Closest:
-        """Closest points for the numpy narrow phase (the compiled one queries inside its kernels)."""
-        deformed = deformed and self._fv is not None
-        return self.index.query(self.pos[stones], reach, displacement=self._u_at if deformed else None,
-                                max_displacement=self.umax if deformed else 0.0)
-
     def _substep(self, near: np.ndarray, h: float) -> float:
         """Advance the near stones by at most ``h``; returns the time actually taken
         (shorter when a stone is about to touch the seat: time of impact).
 
-        The phases, in order (numpy: :mod:`hailstorm.runtime.narrow`; compiled:
-        :meth:`_free_phase`): closest points, time of impact, gap predictions for
-        the next sub-step (numpy only), contacts that open, hard walls; then soft
+        The phases, in order (:meth:`_free_phase`): closest points, time of impact,
+        contacts that open, hard walls; then soft
         contacts through the capacitance (:func:`hailstorm.runtime.soft_contacts.advance`) and free flight.
         """
-        in_contact = self.ctri[near] >= 0
-        was_open = in_contact.copy()
-        if self._compiled:
-            h = self._free_phase(near, h)
-        else:
-            px = narrow.proximity(self, near, in_contact, h)
-            if self._toi and px.qi.size:
-                h = narrow.time_of_impact(self, px, h)
-            new = narrow.contacts_to_open(self, px)
-            if self._toi and px.qi.size:
-                narrow.predict_gaps(self, px, new, h)
-            narrow.open_contacts(self, px, new)
-            narrow.hard_walls(self, near, px.point)
+        was_open = self.ctri[near] >= 0
+        h = self._free_phase(near, h)
         soft = near[self.ctri[near] >= 0]
         if soft.size < near.size:
             free = near[self.ctri[near] < 0] if soft.size else near
@@ -640,9 +586,8 @@ class Storm:
         return h
 
     def _free_phase(self, near: np.ndarray, h: float) -> float:
-        """The compiled counterpart of :mod:`hailstorm.runtime.narrow`
-        (:func:`hailstorm.runtime.compiled.free_phase`; every stone is queried: no reuse or
-        prediction, which only save numpy calls). Returns the sub-step taken."""
+        """Closest points, time of impact, contacts that open, hard walls
+        (:func:`hailstorm.runtime.compiled.free_phase`). Returns the sub-step taken."""
         sc = self.scene
         use_u = self._fv is not None
         coef = self._drag_coef
@@ -660,50 +605,17 @@ class Storm:
         if not sc.adaptive or sc.integrator == "exact":
             return h  # exact: no stability/accuracy limit; impacts are caught by time of impact
         hmin = sc.dt / sc.max_substeps
-        if self._compiled:
-            cc = self.cache
-            if self._k_tri_all is None:
-                self._k_tri_all = patches.all_triangle_stiffness(self)
-            if cc is not None and cc.stones.size:
-                cs, kd, cn, cx, cr = cc.stones, cc.Kdiag, cc.normals, cc.X, cc.rest
-            else:
-                cs, kd, cn, cx, cr = self._no_cols, self._no_forces, self._no_e3, self._no_e3, self._no_forces
-            return float(substep_size(near, float(h_left), float(hmin), self.vel, self.radius, self.mass, self.pos,
-                                      self.gap, self.near_tri, self.ctri, self._k_tri_all,
-                                      float(sc.approach_fraction), float(sc.rest_speed), self._omega_dt,
-                                      sc.integrator == "symplectic", cs, kd, sc.mode == "sticky", cn, cx, cr, self.g))
-        speed = np.linalg.norm(self.vel[near], axis=1)
-        # gap unknown (inf: just became near) counts as close
-        close = ~(self.gap[near] >= speed * h + 1e-3)
-        close |= ~np.isfinite(self.gap[near])
-        if close.any():
-            cl = near[close]
-            lim = sc.approach_fraction * self.radius[cl] / np.maximum(speed[close], 1e-9)
-            h = min(h, float(lim.min()))
-            # resolve the coming impact from its first step (1.5: the stiffness varies over a triangle)
-            k = patches.triangle_stiffness(self, self.near_tri[cl])
-            fast = (speed[close] > sc.rest_speed) | (sc.integrator == "symplectic")
-            if np.any(fast & (k > 0)):
-                omega = 1.5 * np.sqrt(k[fast] / self.mass[cl][fast])
-                h = min(h, self._omega_dt / float(omega.max()))
         cc = self.cache
+        if self._k_tri_all is None:
+            self._k_tri_all = patches.all_triangle_stiffness(self)
         if cc is not None and cc.stones.size:
-            st = cc.stones
-            open_ = self.ctri[st] >= 0
-            if open_.any():
-                k = np.clip(np.diag(cc.K), 0.0, None)
-                if sc.mode == "sticky":
-                    k = k.reshape(-1, 3).max(axis=1)
-                omega = np.sqrt(k / self.mass[st])
-                vn = np.einsum("ij,ij->i", self.vel[st], cc.normals)
-                # oscillation amplitude about the static equilibrium, in velocity units
-                ubar = np.einsum("ij,ij->i", self.pos[st] - cc.X, cc.normals) - cc.rest
-                u_eq = np.einsum("j,ij->i", self.g, cc.normals) * self.mass[st] / np.maximum(k, 1e-300)
-                amp = np.hypot(vn, omega * (ubar - u_eq))
-                moving = open_ & ((amp > sc.rest_speed) | (sc.integrator == "symplectic"))
-                if moving.any():
-                    h = min(h, self._omega_dt / float(omega[moving].max()))
-        return float(min(max(h, hmin), h_left))
+            cs, kd, cn, cx, cr = cc.stones, cc.Kdiag, cc.normals, cc.X, cc.rest
+        else:
+            cs, kd, cn, cx, cr = self._no_cols, self._no_forces, self._no_e3, self._no_e3, self._no_forces
+        return float(substep_size(near, float(h_left), float(hmin), self.vel, self.radius, self.mass, self.pos,
+                                  self.gap, self.near_tri, self.ctri, self._k_tri_all,
+                                  float(sc.approach_fraction), float(sc.rest_speed), self._omega_dt,
+                                  sc.integrator == "symplectic", cs, kd, sc.mode == "sticky", cn, cx, cr, self.g))
 
     # -- the step ------------------------------------------------------------------
     def _near_set(self, live: np.ndarray, dt: float) -> np.ndarray:
@@ -716,97 +628,28 @@ class Storm:
         travel in a step; only when it runs out is the distance re-measured (a
         k-d tree query). Stones with budget left are not collision-tested.
         """
-        if self._compiled:
-            ix = self.index
-            m = near_set(ix.grid, ix.sample_radius, ix.bbox, live, self.pos, self.vel, self.radius, self.ctri,
-                         self.budget, self._bud_u, 1.5 * self._umax_step, dt, GRAVITY)
-            self._far = live[~m]
-            return live[m]
-        v = self.vel[live]
-        travel = np.sqrt(np.einsum("ij,ij->i", v, v)) * dt + GRAVITY * dt * dt + 1e-4
-        U = 1.5 * self._umax_step
-        inc = U - self._bud_u[live]
-        if np.any(inc > 0):
-            self.budget[live] -= np.clip(inc, 0.0, None)
-            self._bud_u[live] = np.maximum(self._bud_u[live], U)
-        b = self.budget[live]
-        incontact = self.ctri[live] >= 0
-        # stones in contact are near whatever their budget: no k-d query for them; their
-        # budget is spent (-inf), so they are re-measured in the first step after release
-        # (a measured budget of a touching stone is <= 0 < travel: the same decision)
-        chk = (b <= travel) & ~incontact
-        if incontact.any():
-            self.budget[live[incontact]] = -np.inf
-        if chk.any():
-            check = live[chk]
-            # the distance to the seat's bounding box bounds the distance to its nearest sample
-            # from below, so where the box alone leaves budget past this step's travel the k-d
-            # query would too: those stones take the box bound and are not queried. (A stone is
-            # near exactly when a k-d bound says so, whichever bounds were taken before.)
-            p = self.pos[check]
-            out = np.maximum(np.maximum(self.lo - p, p - self.hi), 0.0)
-            lb = (np.sqrt(np.einsum("ij,ij->i", out, out)) - self.index.sample_radius - self.radius[check]
-                  - U - 1e-4)
-            kd = lb <= travel[chk]
-            if kd.any():
-                d, _ = self.index.tree.query(p[kd], k=1)
-                lb[kd] = d - self.index.sample_radius - self.radius[check[kd]] - U - 1e-4
-            self.budget[check] = lb
-            self._bud_u[check] = U
-            b = self.budget[live]
-        near_m = (b <= travel) | incontact
-        # flying stones spend their budget
-        far = live[~near_m]
-        self.budget[far] -= travel[~near_m]
-        self._far = far  # the complement, for step() (saves an np.isin)
-        return live[near_m]
+        ix = self.index
+        m = near_set(ix.grid, ix.sample_radius, ix.bbox, live, self.pos, self.vel, self.radius, self.ctri,
+                     self.budget, self._bud_u, 1.5 * self._umax_step, dt, GRAVITY)
+        self._far = live[~m]
+        return live[m]
 
     def _step_query(self, near: np.ndarray, dt: float) -> None:
         """One narrow-phase query per step for the near stones: the penetration of the
         deformed surface (sphere vs surface) for the statistics, kept for the first
         sub-step to reuse (free stones with this step's reach, contact stones within r;
         free stones whose predicted gap shows they cannot touch in this step are skipped)."""
-        if self._compiled:
-            use_u = self._fv is not None
-            mp, mpc, mrc, spc, npc, mpf = penetration(
-                near, float(dt), self.pos, self.vel, self.radius, self.ctri, self._surf, self.umax, use_u, self._D,
-                self._fcols if use_u else self._no_cols, self._fv if use_u else self._no_forces)
-            st = self.stats
-            st["max_penetration_m"] = max(st["max_penetration_m"], mp)
-            st["max_penetration_contact_m"] = max(st["max_penetration_contact_m"], mpc)
-            st["max_penetration_contact_rel"] = max(st["max_penetration_contact_rel"], mrc)
-            st["max_penetration_free_m"] = max(st["max_penetration_free_m"], mpf)
-            st["_pen_contact_sum"] += spc
-            st["_pen_contact_n"] += int(npc)
-            return
-        vv = self.vel[near]
-        sp = np.sqrt(np.einsum("ij,ij->i", vv, vv))
-        free_m = self.ctri[near] < 0
-        pg = self._pgap[near] - abs(self.umax - self._pred_umax)
-        skip = free_m & (self._pstamp[near] == self.stats["substeps"]) & (pg > sp * dt + GRAVITY * dt * dt + 1e-4)
-        qs = near[~skip] if skip.any() else near
-        free_m = free_m[~skip] if skip.any() else free_m
-        # (free stones: the same expression, in the same order, as the first sub-step's reach,
-        # so that the sub-step reuses this query instead of missing it by a rounding error)
-        reach = np.where(free_m, self.radius[qs] + sp[~skip] * dt + 1e-3, self.radius[qs])
-        qf = self._query(qs, reach)
-        self._last_query = (self.stats["substeps"], qs, np.where(free_m, reach, -1.0), qf)
-        pen = self.radius[qs] - qf.distance
-        fin = np.isfinite(pen)
-        if fin.any():
-            self.stats["max_penetration_m"] = max(self.stats["max_penetration_m"], float(pen[fin].max()))
-            inc = ~free_m & fin
-            if inc.any():
-                key = "max_penetration_contact_m"
-                self.stats[key] = max(self.stats[key], float(pen[inc].max()))
-                rel = pen[inc] / self.radius[qs[inc]]
-                self.stats["max_penetration_contact_rel"] = max(self.stats["max_penetration_contact_rel"],
-                                                                float(rel.max()))
-                self.stats["_pen_contact_sum"] += float(np.clip(pen[inc], 0.0, None).sum())
-                self.stats["_pen_contact_n"] += int(inc.sum())
-            if (fin & free_m).any():
-                key = "max_penetration_free_m"
-                self.stats[key] = max(self.stats[key], float(pen[fin & free_m].max()))
+        use_u = self._fv is not None
+        mp, mpc, mrc, spc, npc, mpf = penetration(
+            near, float(dt), self.pos, self.vel, self.radius, self.ctri, self._surf, self.umax, use_u, self._D,
+            self._fcols if use_u else self._no_cols, self._fv if use_u else self._no_forces)
+        st = self.stats
+        st["max_penetration_m"] = max(st["max_penetration_m"], mp)
+        st["max_penetration_contact_m"] = max(st["max_penetration_contact_m"], mpc)
+        st["max_penetration_contact_rel"] = max(st["max_penetration_contact_rel"], mrc)
+        st["max_penetration_free_m"] = max(st["max_penetration_free_m"], mpf)
+        st["_pen_contact_sum"] += spc
+        st["_pen_contact_n"] += int(npc)
 
     def step(self) -> None:
         """Advance the storm by one step ``dt``."""
@@ -822,7 +665,6 @@ class Storm:
         else:
             near = far = live
         if far.size:
-            self._pstamp[far] = -1  # gap predictions are for near stones that stay near
             self._fly(far, dt)
             self.gap[far] = np.inf
         if near.size:
@@ -841,14 +683,7 @@ class Storm:
             self._set_forces(None, np.zeros(0))
         # retire stones that left the seat's region
         if live.size:
-            if self._compiled:
-                gone = retired(live, self.pos, self.radius, self.lo, self.hi, float(sc.margin))
-            else:
-                p = self.pos[live]
-                r = self.radius[live][:, None]
-                gone = (p[:, 2] < self.lo[2] - sc.margin) | np.any(
-                    (p[:, :2] < self.lo[:2] - 2 * sc.margin - r)
-                    | (p[:, :2] > self.hi[:2] + 2 * sc.margin + r), axis=1) & (p[:, 2] < self.hi[2])
+            gone = retired(live, self.pos, self.radius, self.lo, self.hi, float(sc.margin))
             if gone.any():
                 g = live[gone]
                 self.alive[g] = False
@@ -995,7 +830,7 @@ def run_storm(
     n_pen, pen_sum = st.pop("_pen_contact_n"), st.pop("_pen_contact_sum")
     st["mean_penetration_contact_m"] = pen_sum / n_pen if n_pen else 0.0
     st.update(
-        sim_time_s=float(storm.t), wall_time_s=float(wall), setup_time_s=float(setup), backend=storm.backend,
+        sim_time_s=float(storm.t), wall_time_s=float(wall), setup_time_s=float(setup), backend=KERNELS,
         real_time_factor=float(storm.t / wall) if wall > 0 else float("inf"),
         seed=scene.seed, dt=scene.dt, integrator=scene.integrator, mode=scene.mode,
         restitution=scene.restitution, n_vertices=int(storm.n), n_triangles=int(len(gf.triangles)),
