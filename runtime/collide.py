@@ -1,4 +1,4 @@
-"""The seat's surface as the storm's collision kernels see it: sample points in a grid.
+"""Collision of the stones with the seat: the surface's index and the broad and narrow phase.
 
 Every triangle is covered by sample points (centroids of a regular subdivision, so
 every point of a triangle lies within ``sample_radius`` of one of its samples), held
@@ -9,15 +9,29 @@ distances on the (locally deformed) candidate triangles. Built once per storm.
 
 The tests hold those kernels to a brute-force closest point over all triangles
 (``tests/reference/collide_ref.py``).
+
+:class:`Collision` runs them on a storm's :class:`~hailstorm.runtime.stones.Stones`
+against the :class:`~hailstorm.runtime.seat.SeatState`: the broad phase
+(conservative advancement, :meth:`Collision.near_set`), free flight, the free part
+of a sub-step (closest points, time of impact, contacts that open, hard walls:
+:meth:`Collision.free_phase`), the penetration statistics and retirement.
 """
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
-from hailstorm.runtime.compiled import SampleGrid
+from hailstorm.runtime.compiled import SampleGrid, flight, free_phase, near_set, penetration, retired
+from hailstorm.runtime.compiled.grid import surface_arrays
+from hailstorm.runtime.hail import GRAVITY, Air
+from hailstorm.runtime.recording import StormStats
+from hailstorm.runtime.scene import Scene
+from hailstorm.runtime.seat import SeatState
+from hailstorm.runtime.stones import Stones
 
-__all__ = ["SurfaceIndex"]
+__all__ = ["Collision", "SurfaceIndex"]
 
 
 class SurfaceIndex:
@@ -72,3 +86,91 @@ class SurfaceIndex:
         #: outward unit normals of the undeformed triangles
         self.normals = fn / np.where(ln > 0, ln, 1.0)
         self.bbox = (self.vertices.min(axis=0), self.vertices.max(axis=0))
+
+
+
+class Collision:
+    """Broad and narrow phase of a storm's stones against the (deformed) seat.
+
+    Parameters
+    ----------
+    gf : GreensFunctions
+        The bundle's surface (vertices, triangles, ``contactable``, ``fixed``).
+    scene : Scene
+        ``adaptive`` (time of impact), ``dt`` / ``max_substeps`` (the shortest
+        sub-step), ``restitution`` (hard walls), ``margin`` (retirement).
+    air : Air
+    """
+
+    #: the gap within which a contact opens [radii]
+    TOI_TOL = 0.01
+
+    def __init__(self, gf: Any, scene: Scene, air: Air) -> None:
+        self.index = SurfaceIndex(gf.vertices, gf.triangles)
+        tri = np.asarray(gf.triangles)
+        fixed = np.asarray(gf.fixed)
+        has_col = np.asarray(gf.contactable) | fixed
+        #: triangles that deform under a contact (others are a hard wall)
+        self.soft = has_col[tri].all(axis=1) & ~fixed[tri].all(axis=1)
+        #: clamped vertices, as the kernels take them
+        self.fixed = np.ascontiguousarray(gf.fixed, dtype=bool)
+        self.lo, self.hi = self.index.bbox
+        self.air = air
+        self.toi = bool(scene.adaptive)
+        self.hmin = scene.dt / scene.max_substeps
+        self.restitution = float(scene.restitution)
+        self.margin = float(scene.margin)
+        #: the surface as the compiled kernels take it
+        self.surface = surface_arrays(self.index.grid, self.index.sample_radius, self.index.vertices,
+                                      self.index.triangles)
+
+    def near_set(self, stones: Stones, live: np.ndarray, dt: float, umax: float) -> tuple[np.ndarray, np.ndarray]:
+        """The live stones that may touch the seat within ``dt`` and the others
+        (conservative advancement, :func:`hailstorm.runtime.compiled.near_set`;
+        ``umax``: the bound of the seat's displacement)."""
+        ix = self.index
+        m = near_set(ix.grid, ix.sample_radius, ix.bbox, live, stones.pos, stones.vel, stones.radius, stones.ctri,
+                     stones.budget, stones.bud_u, 1.5 * umax, dt, GRAVITY)
+        return live[m], live[~m]
+
+    def fly(self, stones: Stones, idx: np.ndarray, h: float) -> None:
+        """Free flight of stones ``idx`` over ``h`` (gravity and drag)."""
+        flight(idx, stones.pos, stones.vel, stones.radius, h, GRAVITY, self.air.wind, self.air.drag_coef)
+
+    def free_phase(self, stones: Stones, near: np.ndarray, h: float, seat: SeatState, stats: StormStats) -> float:
+        """Closest points, time of impact, contacts that open, hard walls
+        (:func:`hailstorm.runtime.compiled.free_phase`). Returns the sub-step taken."""
+        use_u, cols, forces = seat.kernel_load()
+        h, walls = free_phase(
+            near, h, self.toi, self.TOI_TOL, self.hmin, stones.pos, stones.vel, stones.radius, stones.ctri,
+            stones.cbary, stones.gap, stones.near_tri, self.surface, self.index.normals, self.soft, self.fixed,
+            seat.umax, use_u, seat.D, cols, forces, GRAVITY, self.air.wind, self.air.drag_coef, self.restitution)
+        stats.wall_contacts += int(walls)
+        return float(h)
+
+    def penetration(self, stones: Stones, near: np.ndarray, dt: float, seat: SeatState, stats: StormStats) -> None:
+        """The near stones' overlap with the deformed surface, into the statistics."""
+        use_u, cols, forces = seat.kernel_load()
+        mp, mpc, mrc, spc, npc, mpf = penetration(
+            near, float(dt), stones.pos, stones.vel, stones.radius, stones.ctri, self.surface, seat.umax, use_u,
+            seat.D, cols, forces)
+        stats.max_penetration_m = max(stats.max_penetration_m, mp)
+        stats.max_penetration_contact_m = max(stats.max_penetration_contact_m, mpc)
+        stats.max_penetration_contact_rel = max(stats.max_penetration_contact_rel, mrc)
+        stats.max_penetration_free_m = max(stats.max_penetration_free_m, mpf)
+        stats.pen_contact_sum += spc
+        stats.pen_contact_n += int(npc)
+
+    def retired(self, stones: Stones, live: np.ndarray) -> np.ndarray:
+        """The live stones that left the seat's region."""
+        return live[retired(live, stones.pos, stones.radius, self.lo, self.hi, self.margin)]
+
+    def warm_up(self, stones: Stones, seat: SeatState, dt: float) -> None:
+        """Load (or compile) the kernels with the storm loop's argument types."""
+        none = np.zeros(0, dtype=np.intp)
+        stats = StormStats()
+        self.fly(stones, none, 0.0)
+        self.retired(stones, none)
+        self.near_set(stones, none, dt, 0.0)
+        self.free_phase(stones, none, dt, seat, stats)
+        self.penetration(stones, none, dt, seat, stats)

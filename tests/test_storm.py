@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from hailstorm.runtime.scene import Scene, SceneError
-from hailstorm.runtime import patches
 from hailstorm.runtime.storm import Storm, run_storm
 from test_hail import plate_gf
 
@@ -140,7 +139,7 @@ def test_frame_displacement_is_the_full_surface_response(gf, exact_storm, patch)
     assert np.allclose(st.frame().displacement, u_ref, rtol=1e-4, atol=1e-9)
     # and a local evaluation agrees with the full one
     v = np.arange(0, st.n, 7)
-    assert np.allclose(st._u_at(v), st.u[v])
+    assert np.allclose(st.seat.u_at(v), st.u[v])
 
 
 def test_storm_sticky_symplectic_runs(gf):
@@ -290,13 +289,14 @@ def test_patch_weights_are_cached_per_contact(gf):
     t = np.flatnonzero(st.soft)[len(np.flatnonzero(st.soft)) // 2]
     st.add_stones(gf.vertices[gf.triangles[t]].mean(axis=0) + [0, 0, 0.01], [0, 0, -5.0], 0.006)
     st.ctri[0], st.cbary[0] = t, 1.0 / 3.0
-    k_patch = patches.stiffness(st, np.array([0]), np.array([t]), np.array([0.004]), st.index.normals[[t]])[0]
-    assert np.isfinite(k_patch) and k_patch > 0
-    verts, w = patches.cached_weights(st, np.array([0]), np.array([t]), st.cbary[[0]], np.array([0.004]), st.index.normals[[t]])
+    args = (np.array([0]), np.array([t]), st.cbary[[0]], np.array([0.004]), st.index.normals[[t]], st.stats)
+    verts, w = st.patches.weights(*args)
     assert (w > 0).sum() > 3 and w.sum() == pytest.approx(1.0)
+    k_patch = st.patches.stiffness(verts, w, st.index.normals[[t]])[0]
+    assert np.isfinite(k_patch) and k_patch > 0
     # cached: the same contact again costs nothing
     n0 = st.stats["patch_weights_computed"]
-    patches.cached_weights(st, np.array([0]), np.array([t]), st.cbary[[0]], np.array([0.004]), st.index.normals[[t]])
+    st.patches.weights(*args)
     assert st.stats["patch_weights_computed"] == n0 and st.stats["patch_weights_reused"] >= 1
 
 

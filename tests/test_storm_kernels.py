@@ -161,3 +161,122 @@ def test_retired_matches_reference(gf):
     got = C.retired(live, pos, r, lo, hi, 0.01)
     np.testing.assert_array_equal(got, retired_ref(live, pos, r, lo, hi, 0.01))
     assert 0 < got.sum() < live.size
+
+
+def test_sorted_ints_is_np_sort():
+    """The kernels' integer sort (a heapsort that compiles in a fraction of numba's
+    quicksort) gives np.sort's result: empty, one, duplicates, sorted, reversed, random."""
+    from hailstorm.runtime.compiled.grid import sorted_ints
+
+    rng = np.random.default_rng(10)
+    cases = [np.zeros(0, np.int64), np.array([7]), np.arange(20), np.arange(20)[::-1].copy(),
+             rng.integers(0, 5, 50), rng.integers(-10**9, 10**9, 1000)]
+    for a in cases:
+        a = np.ascontiguousarray(a, dtype=np.int64)
+        b = a.copy()
+        np.testing.assert_array_equal(sorted_ints(a), np.sort(a))
+        np.testing.assert_array_equal(a, b)  # a copy: the input is not touched
+
+
+def test_modal_damping_interpolation_is_np_interp():
+    """The dashpot's table look-up (compiled scalar interpolation, numpy's rule) equals
+    np.interp bit for bit on the restitution table: inside, at its nodes, beyond both
+    ends and on its flat (clipped) tail."""
+    from hailstorm.runtime.compiled.modal import interp1
+    from hailstorm.runtime.hail import _X_GRID, _Z_GRID
+
+    rng = np.random.default_rng(11)
+    xs = np.concatenate([rng.uniform(-1.0, _X_GRID[-1] + 1.0, 2000), _X_GRID[::37], [_X_GRID[-1], 0.0, -0.0],
+                         -np.log([0.5, 0.1, 0.9, 1e-300, 1.0])])
+    got = np.array([interp1(float(x), _X_GRID, _Z_GRID) for x in xs])
+    np.testing.assert_array_equal(got, np.interp(xs, _X_GRID, _Z_GRID))
+
+
+@pytest.mark.slow
+def test_each_storm_kernel_compiles_once(tmp_path):
+    """The warm-up calls every kernel with the loop's argument types: after a storm of
+    each integrator and contact model, no kernel (nor a kernel it calls) holds a second
+    type specialisation (each would be a second compile on a first run). In a fresh
+    interpreter with an empty numba cache (a cold compile: slow), so that the kernels
+    called from kernels are compiled, not loaded, and show their specialisations."""
+    import os
+    import subprocess
+    import sys
+
+    code = """
+import numpy as np, sys
+from numba.core.dispatcher import Dispatcher
+sys.path.insert(0, sys.argv[1])
+from test_hail import plate_gf
+from hailstorm.runtime import compiled
+from hailstorm.runtime.scene import Scene
+from hailstorm.runtime.storm import run_storm
+gf = plate_gf()
+for integ in ("implicit", "exact", "symplectic"):
+    for patch in ("hertz", "none"):
+        run_storm(gf, Scene(duration=0.03, stones=8, seed=3, spawn_height=0.02, r_min=0.003, r_max=0.006,
+                            integrator=integ, patch=patch), progress=False)
+many = {}
+for mod in (compiled.flight, compiled.narrow, compiled.patches, compiled.contacts, compiled.integrators,
+            compiled.grid, compiled.modal):
+    for name in dir(mod):
+        f = getattr(mod, name)
+        if isinstance(f, Dispatcher) and len(f.signatures) > 1:
+            many[mod.__name__ + "." + name] = [str(s) for s in f.signatures]
+assert not many, many
+"""
+    from pathlib import Path
+
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
+    subprocess.run([sys.executable, "-c", code, str(Path(__file__).parent)], check=True, env=env)
+
+
+@pytest.mark.parametrize("mode", ["frictionless", "sticky"])
+def test_patch_radii_match_reference(gf, mode):
+    """The compiled patch sizing gives the plain rule's radii and resizes, for new contacts
+    (point stiffness, then the patch's own) and known ones (a previous contact set with
+    forces, two of its radii out of date); the new contacts' weights are cached."""
+    from hailstorm.runtime.recording import StormStats
+    from hailstorm.runtime.scene import Scene
+    from hailstorm.runtime.storm import Storm
+    from reference.patches_ref import patch_radii_ref
+
+    sc = Scene(duration=0.1, stones=0, r_min=0.003, r_max=0.008, mode=mode)
+    st = Storm(gf, sc, spawn=False)
+    rng = np.random.default_rng(6)
+    tris = rng.choice(np.flatnonzero(st.soft), 6, replace=False)
+    bary = rng.dirichlet([2.0, 2.0, 2.0], 6)
+    X = np.einsum("kj,kjd->kd", bary, gf.vertices[gf.triangles[tris]])
+    r = rng.uniform(0.003, 0.008, 6)
+    ids = st.add_stones(X + r[:, None] * st.index.normals[tris], rng.normal(0.0, 2.0, (6, 3)), r)
+    stones = st.stones
+    stones.ctri[ids] = tris
+    stones.cbary[ids] = bary
+    wind = np.asarray(sc.wind, dtype=float)
+    coef = 3.0 * sc.cd * sc.rho_air / (8.0 * sc.density)
+    accel = drag_ref(stones.vel[ids], stones.radius[ids], wind, coef) + [0.0, 0.0, -GRAVITY]
+
+    def k_patch(i, t, a, n):
+        verts, w = st.patches.weights(i, t, stones.cbary[i], a, n, StormStats())
+        return st.patches.stiffness(verts, w, n)
+
+    for known in (False, True):
+        cs = K = None
+        lam = np.zeros(0)
+        if known:  # a previous set with the first four stones and some forces
+            prev = st.contacts.sets.build(ids[:4], tris[:4], bary[:4].copy(), ("prev",), r[:4].copy(),
+                                          StormStats(), stones.crad[ids[:4]])
+            cs, K = prev.stones, prev.K
+            lam = -rng.uniform(0.1, 20.0, 4 * (3 if mode == "sticky" else 1))
+            stones.crad[ids[:2]] *= 0.5  # two known contacts whose radius is out of date
+        crad0 = stones.crad.copy()
+        a_ref, resized_ref = patch_radii_ref(ids, tris, stones.mass, stones.radius, stones.vel, accel, crad0,
+                                             st.index.normals, cs, K, lam, mode == "sticky", st.patches.k_tri,
+                                             k_patch, gf.young, gf.poisson, sc.patch_min_radius,
+                                             sc.patch_tolerance, sc.rest_speed)
+        stats = StormStats()
+        a = st.patches.radii(stones, ids, tris, cs, None if K is None else np.diag(K).copy(), lam, stats)
+        np.testing.assert_allclose(a, a_ref, rtol=1e-12)
+        np.testing.assert_allclose(stones.crad[ids], a_ref, rtol=1e-12)
+        assert stats.patch_resizes == resized_ref >= (1 if known else 0)
+        assert stats.patch_weights_computed == (2 if known else 6) and np.all(a > 0)

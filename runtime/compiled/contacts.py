@@ -16,6 +16,7 @@ import numpy as np
 
 from hailstorm.runtime.compiled._jit import _njit
 from hailstorm.runtime.compiled.blocks import contact_compliance, vertex_block, weighted_rows
+from hailstorm.runtime.compiled.grid import sorted_ints
 
 __all__ = ["capacitance_blocks", "contact_post", "contact_prep", "inv_spd", "rigid_contacts"]
 
@@ -74,7 +75,7 @@ def capacitance_blocks(verts, w, normals, sticky, D, column_of):  # pragma: no c
                 pos[v] = 0
                 lst[nV] = v
                 nV += 1
-    V = np.sort(lst[:nV])
+    V = sorted_ints(lst[:nV])
     for i in range(nV):
         pos[V[i]] = i
     m = 3 * s if sticky else s
@@ -109,7 +110,8 @@ def capacitance_blocks(verts, w, normals, sticky, D, column_of):  # pragma: no c
             continue
         for d in range(3):
             cols[r] = 3 * cb + d
-            Gl[r] = G[3 * i + d]
+            for c in range(m):  # (an element loop: a row assignment compiles numba's shape-error formatting)
+                Gl[r, c] = G[3 * i + d, c]
             r += 1
     return V, W, Gl, cols, DG
 
@@ -144,7 +146,9 @@ def inv_spd(W, cond_limit, rcond):  # pragma: no cover (compiled)
                 K = Li.T @ Li
                 return np.ascontiguousarray(0.5 * (K + K.T))
     lam, Q = np.linalg.eigh(Ws)
-    top = max(lam.max(), 0.0)
+    top = 0.0
+    for j in range(n):
+        top = max(top, lam[j])
     K = np.zeros((n, n))
     for j in range(n):
         if lam[j] > rcond * top:

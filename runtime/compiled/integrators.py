@@ -13,20 +13,22 @@ import numpy as np
 
 from hailstorm.runtime.compiled._jit import _njit
 from hailstorm.runtime.compiled.contacts import inv_spd
-from hailstorm.runtime.hail import _equilibrium as _hail_equilibrium
-from hailstorm.runtime.hail import _explicit_modes as _hail_explicit_modes
-from hailstorm.runtime.hail import _modal_damping as _hail_modal_damping
-from hailstorm.runtime.hail import _modal_stiffness as _hail_modal_stiffness
-from hailstorm.runtime.hail import _scalar_exact as _hail_scalar_exact
+from hailstorm.runtime.compiled.modal import (
+    equilibrium_py,
+    explicit_modes_py,
+    modal_damping_py,
+    modal_stiffness_py,
+    scalar_exact_py,
+)
 
 __all__ = ["exact_step", "explicit_modes", "modal_stiffness", "substep_contacts", "substep_damping", "substep_size"]
 
 
-#: the static equilibrium of the exact step (hailstorm.runtime.hail's own function, compiled)
-_equilibrium = _njit(_hail_equilibrium)
+#: the static equilibrium of the exact step (the one definition in :mod:`hailstorm.runtime.compiled.modal`, compiled)
+_equilibrium = _njit(equilibrium_py)
 
-#: the closed-form single contact of the exact integrator: hailstorm.runtime.hail's own function, compiled
-_scalar_exact = _njit(_hail_scalar_exact)
+#: the closed-form single contact of the exact integrator: the one definition in :mod:`hailstorm.runtime.compiled.modal`, compiled
+_scalar_exact = _njit(scalar_exact_py)
 
 
 @_njit
@@ -402,14 +404,14 @@ def substep_size(near, h_left, hmin, vel, radius, mass, pos, gap, near_tri, ctri
     return min(max(h, hmin), h_left)
 
 
-#: the contact set's modal dashpot (hailstorm.runtime.hail's own function, compiled):
+#: the contact set's modal dashpot (the one definition in :mod:`hailstorm.runtime.compiled.modal`, compiled):
 #: ``substep_damping(om2, Phi, sqm, restitution, dt, implicit, x_grid, z_grid)`` -> (n, n)
 #: (``x_grid``, ``z_grid``: the restitution table of :func:`hailstorm.runtime.hail.damping_ratio_for_restitution`)
-substep_damping = _njit(_hail_modal_damping)
+substep_damping = _njit(modal_damping_py)
 #: the modal frequencies an explicit step carries (hailstorm.runtime.hail's, compiled)
-explicit_modes = _njit(_hail_explicit_modes)
+explicit_modes = _njit(explicit_modes_py)
 #: K and its pseudo-inverse W from modes (hailstorm.runtime.hail's, compiled)
-modal_stiffness = _njit(_hail_modal_stiffness)
+modal_stiffness = _njit(modal_stiffness_py)
 
 
 @_njit

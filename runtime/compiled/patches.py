@@ -13,7 +13,7 @@ import numpy as np
 
 from hailstorm.runtime.compiled._jit import _njit
 from hailstorm.runtime.compiled.flight import _drag_dot
-from hailstorm.runtime.compiled.grid import _cell_range
+from hailstorm.runtime.compiled.grid import _cell_range, sorted_ints
 
 __all__ = ["patch_compliance", "patch_one", "patch_radii"]
 
@@ -43,7 +43,7 @@ def _one_patch(x, n, a, h, qx, qy, qw, facing, drop, pidx):  # pragma: no cover 
                         nc += 1
     if nc == 0:
         return np.zeros(0, np.int64), np.zeros(0)
-    cand = np.sort(cand[:nc])
+    cand = sorted_ints(cand[:nc])
     # inverse of [e1 e2 -n] per candidate (projection along n onto its plane)
     Minv = np.empty((nc, 3, 3))
     for m in range(nc):
@@ -104,9 +104,12 @@ def _one_patch(x, n, a, h, qx, qy, qw, facing, drop, pidx):  # pragma: no cover 
             wv[v] += (lk / sm) * qw[q]
     if ntouch == 0:
         return np.zeros(0, np.int64), np.zeros(0)
-    V = np.sort(tlist[:ntouch])
+    V = sorted_ints(tlist[:ntouch])
     w = wv[V]
-    keep = w > drop * w.max()
+    wmax = 0.0  # (a loop, not w.max(): ~1 s less of a first run's compile)
+    for iw in range(w.size):
+        wmax = max(wmax, w[iw])
+    keep = w > drop * wmax
     V = V[keep]
     w = w[keep]
     return V, w / w.sum()
