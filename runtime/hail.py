@@ -218,6 +218,8 @@ def restitution_for_damping_ratio(zeta: np.ndarray | float) -> np.ndarray | floa
 _Z_GRID = np.concatenate([[0.0], np.logspace(-6, 3, 4000)])
 _E_GRID = restitution_for_damping_ratio(_Z_GRID)  # decreasing from 1
 _X_GRID = -np.log(np.clip(_E_GRID, 1e-300, 1.0))  # the look-up's abscissae (increasing), computed once
+#: the restitution table of the dashpot, as the kernels take it: -log(e) (increasing) and the damping ratio
+X_GRID, Z_GRID = _X_GRID, _Z_GRID
 
 
 def damping_ratio_for_restitution(e: np.ndarray | float) -> np.ndarray | float:

@@ -23,7 +23,7 @@ from hailstorm.runtime.compiled import (
     substep_size,
 )
 from hailstorm.runtime.contact_set import ContactSet
-from hailstorm.runtime.hail import _X_GRID, _Z_GRID, ContactStep, contact_modes, contact_step
+from hailstorm.runtime.hail import X_GRID, Z_GRID, ContactStep, contact_modes, contact_step
 from hailstorm.runtime.scene import Scene
 from hailstorm.runtime.stones import Stones
 
@@ -95,7 +95,7 @@ class ContactIntegrator:
         cached with the set)."""
         if cc.C is None or cc.C.shape != (mq.size, mq.size):
             om2, Phi, sqm = self._modes(cc, mq)
-            cc.C = substep_damping(om2, Phi, sqm, self.restitution, 0.0, False, _X_GRID, _Z_GRID)
+            cc.C = substep_damping(om2, Phi, sqm, self.restitution, 0.0, False, X_GRID, Z_GRID)
         return cc.C
 
     def contact_matrices(self, cc: ContactSet, mq: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -112,7 +112,7 @@ class ContactIntegrator:
         if self.name == "symplectic":
             om2 = explicit_modes(om2, float(h))
             K, W = modal_stiffness(om2, Phi, sqm)
-        C = substep_damping(om2, Phi, sqm, self.restitution, float(h), self.name == "implicit", _X_GRID, _Z_GRID)
+        C = substep_damping(om2, Phi, sqm, self.restitution, float(h), self.name == "implicit", X_GRID, Z_GRID)
         return K, W, C
 
     def substep_size(self, stones: Stones, near: np.ndarray, h_left: float, cc: ContactSet | None,
@@ -138,9 +138,11 @@ class ContactIntegrator:
         if self.exact:
             exact_step(one, one, one, one, one, 1e-4, np.eye(1), np.eye(1), np.eye(1), True, np.arange(1), one,
                        np.zeros(1, dtype=bool), 1e10, 1e-10)
+            # its dashpot (formerly compiled silently at the first contact)
+            substep_damping(one, np.eye(1), one, 0.5, 0.0, False, X_GRID, Z_GRID)
             return
         substep_contacts(one, one, one, one, one, 1e-4, np.eye(1), np.eye(1), np.eye(1), True, True,
                          np.arange(1), one, 1e10, 1e-10)
-        substep_damping(one, np.eye(1), one, 0.5, 1e-4, True, _X_GRID, _Z_GRID)
+        substep_damping(one, np.eye(1), one, 0.5, 1e-4, True, X_GRID, Z_GRID)
         if self.sizes_substeps and k_tri is not None:
             self.substep_size(stones, np.zeros(0, dtype=np.intp), dt, None, k_tri, g)

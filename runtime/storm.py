@@ -139,7 +139,7 @@ from typing import Any, Callable
 import numpy as np
 
 from hailstorm.runtime.collide import Collision, SurfaceIndex
-from hailstorm.runtime.compiled._jit import KERNELS
+from hailstorm.runtime.compiled import KERNELS
 from hailstorm.runtime.contact_set import ContactSet, ContactSets
 from hailstorm.runtime.hail import GRAVITY, Air
 from hailstorm.runtime.integrators import ContactIntegrator
@@ -306,7 +306,7 @@ class Storm:
             t = int(soft[0])
             self.contacts.sets.warm_up(t)
             self.patches.warm_up(t, np.full((1, 3), 1.0 / 3.0), self.collision.index.normals[[t]], stones)
-        notice.stage(f"the {sc.integrator} integrator's kernels", 25 if sc.integrator == "exact" else 15)
+        notice.stage(f"the {sc.integrator} integrator's kernels", 45 if sc.integrator == "exact" else 15)
         self.contacts.warm_up(stones)
         self.integrator.warm_up(stones, self._k_tri(), self.g, float(sc.dt))
         notice.done()

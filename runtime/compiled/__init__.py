@@ -37,7 +37,7 @@ for debugging.
 
 from __future__ import annotations
 
-from hailstorm.runtime.compiled._jit import HAVE_NUMBA
+from hailstorm.runtime.compiled._jit import HAVE_NUMBA, KERNELS
 from hailstorm.runtime.compiled.blocks import columns_times, contact_compliance, point_contacts, vertex_block, weighted_rows
 from hailstorm.runtime.compiled.contacts import capacitance_blocks, contact_post, contact_prep, inv_spd, rigid_contacts
 from hailstorm.runtime.compiled.flight import flight, near_set, retired
@@ -55,6 +55,7 @@ from hailstorm.runtime.compiled.patches import patch_compliance, patch_one, patc
 
 __all__ = [
     "HAVE_NUMBA",
+    "KERNELS",
     "SampleGrid",
     "capacitance_blocks",
     "closest_points",

@@ -1,7 +1,7 @@
 """A storm contact set's blocks and the stones' constrained coordinates around a contact step.
 
 * :func:`capacitance_blocks` -- all of a storm contact set's blocks in one call
-  (numpy reference: :func:`hailstorm.runtime.soft_contacts.contact_set`);
+  (called by :meth:`hailstorm.runtime.contact_set.ContactSets.build`);
 * :func:`contact_prep`, :func:`contact_post` -- the two halves of a storm's
   contact step around the integrator.
 
@@ -162,10 +162,10 @@ def inv_spd(W, cond_limit, rcond):  # pragma: no cover (compiled)
 def contact_prep(soft, pos, vel, radius, mass, g, wind, drag_coef, nk, Xc, rest, Kdiag, sticky, exact,
                  rest_speed):  # pragma: no cover (compiled)
     """The constrained coordinates of a contact set for :func:`hailstorm.runtime.hail.contact_step`
-    (compiled first half of ``Storm._soft_contacts``): ``(q, anchor, v, accel, mass,
+    (the first half of :meth:`hailstorm.runtime.soft_contacts.SoftContacts.advance`): ``(q, anchor, v, accel, mass,
     always_damped, acc)``, per contact (frictionless, normal components) or
     per component (sticky); ``acc`` (s, 3) is the stones' gravity + drag. (The
-    dashpot is the contact set's, per mode: ``soft_contacts.exact_damping`` and
+    dashpot is the contact set's, per mode: ``ContactIntegrator.exact_damping`` and
     ``contact_matrices``.)"""
     s = soft.size
     nq = 3 * s if sticky else s
@@ -217,7 +217,7 @@ def contact_prep(soft, pos, vel, radius, mass, g, wind, drag_coef, nk, Xc, rest,
 def contact_post(soft, pos, vel, ctri, hit, was_open, nk, acc, q, a, vq, gq, rq, rv, ractive, rseat, rpeak,
                  rpubar, sticky, exact, h, rest_speed):  # pragma: no cover (compiled)
     """Apply a contact step to the stones, in place (compiled second half of
-    :func:`hailstorm.runtime.soft_contacts.advance`): new positions and velocities (frictionless: free
+    :meth:`hailstorm.runtime.soft_contacts.SoftContacts.advance`): new positions and velocities (frictionless: free
     tangential motion), released contacts closed, impacts marked. ``rpeak``, ``rpubar``:
     the step's ``peak_seat_force`` and ``peak_ubar`` (:class:`hailstorm.runtime.hail.ContactStep`);
     a contact that carried force at some instant of the step counts as touched.

@@ -1,8 +1,7 @@
 """Spatial queries inside compiled code: the surface's sample points in a uniform grid,
 nearest samples and closest points of the (deformed) surface.
 
-The numpy reference is :meth:`hailstorm.runtime.collide.SurfaceIndex.query` (a k-d tree
-over the same samples).
+The tests hold them to brute force over every triangle (``tests/reference/collide_ref.py``).
 """
 
 from __future__ import annotations
@@ -100,7 +99,7 @@ def _cell_ids(points: np.ndarray, lo: np.ndarray, h: float, dims: np.ndarray) ->
 
 @_njit
 def _closest_on_triangle(p, a, b, c, out_bary):  # pragma: no cover (compiled)
-    """Closest point of triangle (a, b, c) to p (Ericson 5.1.5, as the numpy reference):
+    """Closest point of triangle (a, b, c) to p (Ericson 5.1.5, as ``tests/reference/collide_ref.py``):
     writes the clipped, normalised barycentric coordinates to ``out_bary``."""
     ab0 = b[0] - a[0]; ab1 = b[1] - a[1]; ab2 = b[2] - a[2]
     ac0 = c[0] - a[0]; ac1 = c[1] - a[1]; ac2 = c[2] - a[2]
@@ -315,8 +314,7 @@ def closest_points(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Closest points of the (deformed) surface to ``points``, within ``reach``.
 
-    The compiled counterpart of :meth:`hailstorm.runtime.collide.SurfaceIndex.query`:
-    the same candidate bound and the same exact point-triangle distances.
+    Candidates from the nearest sample's bound, then exact point-triangle distances.
     The surface is deformed by ``u = D[:, cols] @ forces`` (evaluated only at
     candidate vertices) when ``forces`` is given.
 

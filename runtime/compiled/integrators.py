@@ -1,8 +1,9 @@
 """The contact integrators' steps: exact (closed form, modal with events) and the
 sub-stepped backward Euler / symplectic Euler with their step sizing and dashpot.
 
-The numpy references are :func:`hailstorm.runtime.hail.contact_step`,
-:func:`hailstorm.runtime.hail.damping_coefficients` and ``Storm._substep_size``.
+The tests hold them to :func:`hailstorm.runtime.hail.contact_step` and
+:func:`hailstorm.runtime.hail.modal_damping`; the step sizing's rules are in
+:mod:`hailstorm.runtime.storm`.
 """
 
 from __future__ import annotations
@@ -186,6 +187,9 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond
             pub = np.empty(1)
             pub[0] = umin
             return q, v, active, force, seat, peak, pub, True
+    # (kernels called with one type each: a literal 1 or a strided view as an argument
+    # would compile a second specialisation of _track / _advance / _gsum on a first run)
+    one = np.int64(1)
     ident = ng == n
     for i in range(n):
         if group[i] != i or wts[i] != 1.0:
@@ -225,7 +229,7 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond
         if _seg == 0:
             ia = np.flatnonzero(active)
             if ia.size:
-                _track(ia, Ka, (q[ia] - a[ia]).reshape(ia.size, 1), 1, group, wts, ng, pk2, pk_f, dmin, dmin_u)
+                _track(ia, Ka, (q[ia] - a[ia]).reshape(ia.size, 1), one, group, wts, ng, pk2, pk_f, dmin, dmin_u)
         h = dt - t
         if h <= 1e-12 * dt:
             break
@@ -272,7 +276,7 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond
             Z = _modal_at(lam, V, Vi, z0, tau)
             y = Z[:na]
             vv = Z[na:]
-            vng = _gsum(vv, gi, wi, ng, ident_a)
+            vng = _gsum(np.ascontiguousarray(vv), gi, wi, ng, ident_a)
             fl = -(Ka @ (y + off_eq.reshape(na, 1))) - ce @ np.ascontiguousarray(vv)
             fng = _gsum(fl, gi, wi, ng, ident_a)
             j = -1
@@ -337,10 +341,10 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond
                 lam, V, Vi, ok = _modal(Ka, m[idx], ce)
                 if not ok:
                     return q, v, active, v0, v0, v0, v0, False
-                ze = _modal_at(lam, V, Vi, np.concatenate((q[idx] - q_eq, v[idx])), np.array([h]))[:, 0]
+                ze = np.ascontiguousarray(_modal_at(lam, V, Vi, np.concatenate((q[idx] - q_eq, v[idx])), np.array([h]))[:, 0])
             _advance(q, v, g, idx, ze, q_eq, free, h)
             if idx.size:
-                _track(idx, Ka, (q[idx] - a[idx]).reshape(idx.size, 1), 1, group, wts, ng, pk2, pk_f, dmin, dmin_u)
+                _track(idx, Ka, (q[idx] - a[idx]).reshape(idx.size, 1), one, group, wts, ng, pk2, pk_f, dmin, dmin_u)
     force = np.zeros(n)
     seat = np.zeros(n)
     idx = np.flatnonzero(active)
@@ -362,8 +366,8 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond
 def substep_size(near, h_left, hmin, vel, radius, mass, pos, gap, near_tri, ctri, k_tri, approach_fraction,
                  rest_speed, omega_dt, symplectic, cc_stones, Kdiag, sticky, cc_normals, cc_X, cc_rest,
                  g):  # pragma: no cover (compiled)
-    """Compiled ``Storm._substep_size`` for the adaptive implicit and symplectic
-    integrators (see there): approaching stones travel at most ``approach_fraction``
+    """The sub-step of the adaptive implicit and symplectic integrators
+    (:meth:`hailstorm.runtime.integrators.ContactIntegrator.substep_size`): approaching stones travel at most ``approach_fraction``
     radii, an impact about to start and moving contacts are resolved to ``omega_dt``."""
     h = h_left
     om_close = 0.0

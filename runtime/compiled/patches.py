@@ -1,8 +1,8 @@
 """Patch contacts: the weights of a Hertz pressure disc, a patch's normal compliance and
 the storm's patch sizing.
 
-The numpy references are :func:`hailstorm.runtime.weights.patch_weights` and
-``Storm._patch_stiffness`` / ``Storm._patch_radii``.
+The contact API's :func:`hailstorm.runtime.weights.patch_weights` is the weights' numpy
+statement; the sizing rule's is ``tests/reference/patches_ref.py``.
 """
 
 from __future__ import annotations
@@ -191,7 +191,7 @@ def _hertz_target(kk, f, f_eq, m, vn, R, e_star, a_min):  # pragma: no cover (co
 def patch_radii(stones, tris, mass, radius, vel, cbary, crad, tnormals, g, wind, drag_coef, cc_stones, Kdiag,
                 lam, sticky, k_tri, e_star, a_min, tol, rest_speed, rule_off, rule_x, rule_y, rule_w, facing,
                 drop, pidx, X, D, column_of):  # pragma: no cover (compiled)
-    """Compiled ``Storm._patch_radii`` (see there for the rule): the patch radius of
+    """The storm's patch sizing (:meth:`hailstorm.runtime.patches.Patches.radii`, the rule): the patch radius of
     each soft contact, written to ``crad``.
 
     ``cc_stones``, ``Kdiag``, ``lam``: the previous contact set's stones, the diagonal
