@@ -162,7 +162,7 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond
     REFINE = 2
     MAX_SEGMENTS = 12
     n = q.size
-    ng = 0
+    ng = np.int64(0)  # (not the literal 0: a literal argument is a second specialisation of _gsum, _track)
     for i in range(n):
         ng = max(ng, group[i] + 1)
     v0 = v.copy()
@@ -426,7 +426,7 @@ def substep_contacts(q, v, a, m, g, dt, K, W, C, implicit, unilateral, group, wt
     only, unilateral release by active-set iteration (``cond_limit``, ``rcond``: the
     policy of :func:`inv_spd`). Returns ``(q, v, active, force, seat_force)``."""
     n = q.size
-    ng = 0
+    ng = np.int64(0)  # (not the literal 0: a literal argument is a second specialisation of _gsum, _track)
     for i in range(n):
         ng = max(ng, group[i] + 1)
     vn_g = np.zeros(ng)

@@ -109,6 +109,8 @@ def main() -> None:
             f = getattr(mod, name)
             if isinstance(f, Dispatcher) and f.signatures:
                 spec[f"{mod.__name__.rsplit('.', 1)[1]}.{name}"] = len(f.signatures)
+                if len(f.signatures) > 1:
+                    print(f"{name}: " + " | ".join(str(sg) for sg in f.signatures))
     if args.tree:
         for d0, n0, sec in tree:
             if sec >= 0.2:
