@@ -32,11 +32,12 @@ import time
 import uuid
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import Any, Callable, Iterable, Iterator, Sequence
+from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator, Sequence
 
 import numpy as np
 
-from hailstorm.precompute.greens import ColumnProblem
+if TYPE_CHECKING:  # pragma: no cover - greens imports this module to dispatch the blocks
+    from hailstorm.precompute.greens import ColumnProblem
 
 log = logging.getLogger(__name__)
 

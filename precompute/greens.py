@@ -25,12 +25,10 @@ import numpy as np
 import scipy.sparse as sp
 
 from hailstorm.precompute.fem import free_dofs
+from hailstorm.precompute.resources import DEFAULT_STORE_BYTES
 
 SOLVERS = ("cholmod", "splu", "amg")
 
-#: Bytes of one column block of D, the unit of work and of what is written to disk at once
-#: (32 MiB: a few hundred blocks for 10 000 contactable vertices, each worth one file write).
-DEFAULT_STORE_BYTES = 32 * 2**20
 #: Right-hand sides per block: measured fastest per column for CHOLMOD's
 #: supernodal solve on the default seat (blocks of 8-32 stay in cache; 1 is
 #: 2x slower, 1024 is 1.8x slower).

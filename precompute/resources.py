@@ -19,8 +19,11 @@ import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
-from hailstorm.precompute.greens import DEFAULT_STORE_BYTES
 from hailstorm.runtime.scene import available_memory as runtime_available_memory
+
+#: Bytes of one column block of D, the unit of work and of what is written to disk at once
+#: (32 MiB: a few hundred blocks for 10 000 contactable vertices, each worth one file write).
+DEFAULT_STORE_BYTES = 32 * 2**20
 
 #: surface vertices per unit area of a surface meshed at size h, times h^2: 2 / sqrt(3) = 1.15 for
 #: equilateral triangles; measured 0.99-1.48 on the default seat's top at 4-15 mm (coarse meshes

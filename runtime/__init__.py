@@ -1,9 +1,8 @@
 """Runtime stage: load a Green's-function bundle, resolve contacts, run the storm.
 
-Imports numpy and scipy only (no gmsh, no scikit-fem): a bundle written by
-``hailstorm precompute`` is all it needs. With numba installed (the ``fast``
-extra) the storm runs its per-step geometry and contact kernels compiled
-(:mod:`hailstorm.runtime.compiled`); without it, the same in numpy.
+Imports numpy, scipy and numba only (no gmsh, no scikit-fem): a bundle written by
+``hailstorm precompute`` is all it needs. The storm runs its per-step geometry and
+contact work in compiled kernels (:mod:`hailstorm.runtime.compiled`).
 
 * :func:`load` -> :class:`GreensFunctions` (D, surface, ``compliance(rows, cols)``);
 * :func:`barycentric_matrix` (B), :func:`patch_weights`, :func:`hertz_radius`;

@@ -577,7 +577,9 @@ def write_bundle(
     missing = set(ARRAY_SPECS) - set(arrays)
     if missing:
         raise BundleError(f"cannot write bundle: arrays missing: {sorted(missing)}")
-    dtype = np.asarray(arrays["compliance"]).dtype  # before any hashing: D's storage type and the manifest agree
+    d_in = arrays["compliance"]
+    # before any hashing: D's storage type and the manifest agree (a staged D names its own)
+    dtype = np.dtype(d_in.dtype) if isinstance(d_in, StagedArray) else np.asarray(d_in).dtype
     _check_compliance_dtype({"options": manifest.get("options") or {}, "arrays": {"compliance": {"dtype": dtype.str}}},
                             dtype, out)
     prepared = {}

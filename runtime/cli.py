@@ -111,8 +111,6 @@ def _storm_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--integrator", choices=("implicit", "symplectic", "exact"), default=None,
                    help=f"time integrator of the contacts (default: the scene's, {d.integrator})")
     p.add_argument("--dt", type=_positive_float, default=None, help=f"time step in seconds (default: the scene's, {d.dt:g})")
-    p.add_argument("--backend", choices=("auto", "numba", "numpy"), default=None,
-                   help=f"compiled kernels (numba, from the 'fast' extra) or numpy (default: the scene's, {d.backend})")
     p.add_argument("--gf", type=Path, default=None, help="bundle directory (default: build/cache the default seat)")
     p.add_argument("--scene", type=Path, default=None, help="TOML scene file holding every storm setting")
     p.add_argument("--out", type=Path, default=Path("hailstorm-out"), help="output directory (default ./hailstorm-out)")
@@ -181,8 +179,7 @@ def _run_storm(args: argparse.Namespace) -> int:
     scene = Scene.from_toml(args.scene) if args.scene is not None else Scene.default()
     data = scene.to_dict()
     changed = False
-    for section, options in (("storm", ("duration", "stones", "seed")), ("time", ("integrator", "dt")),
-                             ("compute", ("backend",))):
+    for section, options in (("storm", ("duration", "stones", "seed")), ("time", ("integrator", "dt"))):
         for k in options:
             if getattr(args, k) is not None:
                 data[section][k] = getattr(args, k)

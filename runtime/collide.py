@@ -1,114 +1,41 @@
-"""Closest points on a (deformed) triangle surface, with a spatial index.
+"""Collision of the stones with the seat: the surface's index and the broad and narrow phase.
 
-The index is a :class:`scipy.spatial.cKDTree` over sample points of the
-*undeformed* triangles (centroids of a regular subdivision, so every point of
-a triangle is within ``sample_radius`` of one of its samples), built once. A
-query at a stone centre gathers the triangles with a sample within
-``min(reach, d0 + displacement_max) + displacement_max + sample_radius`` (``d0`` the nearest
-sample: so no triangle within ``reach`` of the point on the *deformed* surface
-is missed),
-then computes exact point-triangle distances on the deformed triangles,
-vectorised over all (point, candidate) pairs.
+Every triangle is covered by sample points (centroids of a regular subdivision, so
+every point of a triangle lies within ``sample_radius`` of one of its samples), held
+in a uniform grid (:class:`hailstorm.runtime.compiled.SampleGrid`) that the compiled
+broad and narrow phase query (:mod:`hailstorm.runtime.compiled.flight`,
+:mod:`hailstorm.runtime.compiled.narrow`): nearest sample, then exact point-triangle
+distances on the (locally deformed) candidate triangles. Built once per storm.
+
+The tests hold those kernels to a brute-force closest point over all triangles
+(``tests/reference/collide_ref.py``).
+
+:class:`Collision` runs them on a storm's :class:`~hailstorm.runtime.stones.Stones`
+against the :class:`~hailstorm.runtime.seat.SeatState`: the broad phase
+(conservative advancement, :meth:`Collision.near_set`), free flight, the free part
+of a sub-step (closest points, time of impact, contacts that open, hard walls:
+:meth:`Collision.free_phase`), the penetration statistics and retirement.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Callable
+from typing import Any
 
 import numpy as np
-from scipy.spatial import cKDTree
 
-from hailstorm.runtime.compiled import SampleGrid
-from hailstorm.runtime.gather import _unique_inverse
+from hailstorm.runtime.compiled import SampleGrid, flight, free_phase, near_set, penetration, retired
+from hailstorm.runtime.compiled.grid import surface_arrays
+from hailstorm.runtime.hail import GRAVITY, Air
+from hailstorm.runtime.recording import StormStats
+from hailstorm.runtime.scene import Scene
+from hailstorm.runtime.seat import SeatState
+from hailstorm.runtime.stones import Stones
 
-__all__ = ["Closest", "SurfaceIndex", "closest_point_on_triangles"]
-
-
-def closest_point_on_triangles(
-    p: np.ndarray, a: np.ndarray, b: np.ndarray, c: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
-    """Closest points on triangles ``(a, b, c)`` to points ``p`` (row-wise).
-
-    Vectorised Voronoi-region test (Ericson, *Real-Time Collision Detection*,
-    5.1.5).
-
-    Parameters
-    ----------
-    p, a, b, c : (k, 3) ndarray
-
-    Returns
-    -------
-    point : (k, 3) ndarray
-        Closest points.
-    bary : (k, 3) ndarray
-        Their barycentric coordinates (non-negative, summing to one).
-    """
-    p, a, b, c = (np.asarray(x, dtype=np.float64) for x in (p, a, b, c))
-    # (written for few numpy calls: the arrays are short, the cost is per call)
-    ab = b - a
-    ac = c - a
-    ap = p - a
-    d1 = np.einsum("ki,ki->k", ab, ap)
-    d2 = np.einsum("ki,ki->k", ac, ap)
-    gaa = np.einsum("ki,ki->k", ab, ab)
-    gab = np.einsum("ki,ki->k", ab, ac)
-    gbb = np.einsum("ki,ki->k", ac, ac)
-    d3 = d1 - gaa; d4 = d2 - gab
-    d5 = d1 - gab; d6 = d2 - gbb
-    va = d3 * d6 - d5 * d4
-    vb = d5 * d2 - d1 * d6
-    vc = d1 * d4 - d3 * d2
-    e1 = d4 - d3; e2 = d5 - d6
-    k = d1.size
-    num = np.empty((5, k)); den = np.empty((5, k))
-    num[0] = d1; num[1] = d2; num[2] = e1; num[3] = vb; num[4] = vc
-    den[0] = d1 - d3; den[1] = d2 - d6; den[2] = e1 + e2
-    np.add(va + vb, vc, out=den[3]); den[4] = den[3]
-    den[den == 0] = 1.0
-    t = num / den
-    # Voronoi regions in Ericson's order, applied last to first (the first true one wins)
-    m = (va <= 0) & (e1 >= 0) & (e2 >= 0)  # edge BC
-    v = np.where(m, 1.0 - t[2], t[3]); w = np.where(m, t[2], t[4])
-    m = (vb <= 0) & (d2 >= 0) & (d6 <= 0)  # edge AC
-    v = np.where(m, 0.0, v); w = np.where(m, t[1], w)
-    m = (d6 >= 0) & (d5 <= d6)  # vertex C
-    v = np.where(m, 0.0, v); w = np.where(m, 1.0, w)
-    m = (vc <= 0) & (d1 >= 0) & (d3 <= 0)  # edge AB
-    v = np.where(m, t[0], v); w = np.where(m, 0.0, w)
-    m = (d3 >= 0) & (d4 <= d3)  # vertex B
-    v = np.where(m, 1.0, v); w = np.where(m, 0.0, w)
-    m = (d1 <= 0) & (d2 <= 0)  # vertex A
-    v = np.where(m, 0.0, v); w = np.where(m, 0.0, w)
-    bary = np.empty((k, 3))
-    bary[:, 1] = v
-    bary[:, 2] = w
-    bary[:, 0] = 1.0 - v - w
-    np.minimum(np.maximum(bary, 0.0, out=bary), 1.0, out=bary)  # np.clip, without its overhead
-    bary /= np.add.reduce(bary, axis=1, keepdims=True)
-    point = bary[:, :1] * a + bary[:, 1:2] * b + bary[:, 2:] * c
-    return point, bary
-
-
-@dataclass
-class Closest:
-    """Result of :meth:`SurfaceIndex.query` (one row per query point).
-
-    ``triangle`` is -1 (and ``distance`` inf) where no triangle lies within
-    the reach.
-    """
-
-    triangle: np.ndarray  # (k,) int
-    bary: np.ndarray  # (k, 3)
-    point: np.ndarray  # (k, 3) on the (deformed) surface
-    distance: np.ndarray  # (k,)
+__all__ = ["Collision", "SurfaceIndex"]
 
 
 class SurfaceIndex:
-    """Spatial index over a triangle surface for closest-point queries.
-
-    ``KNN``: samples fetched per query point in one dense k-d tree call
-    (a ball query is the fallback when more lie within reach).
+    """The surface's samples, their grid, the triangle normals and the bounding box.
 
     Parameters
     ----------
@@ -116,8 +43,6 @@ class SurfaceIndex:
         Undeformed vertex positions.
     triangles : (m, 3) int ndarray
     """
-
-    KNN = 48
 
     def __init__(self, vertices: np.ndarray, triangles: np.ndarray) -> None:
         self.vertices = np.asarray(vertices, dtype=np.float64)
@@ -148,118 +73,104 @@ class SurfaceIndex:
             samples.append(pts)
             owners.append(np.repeat(ts, w.shape[0]))
             srad[ts] = cr[ts] / L
-        self._sample_tri = np.concatenate(owners) if owners else np.zeros(0, np.intp)
+        #: the triangle of each sample
+        self.sample_tri = np.concatenate(owners) if owners else np.zeros(0, np.intp)
         #: every point of a triangle lies within this of one of its samples
         self.sample_radius = float(srad.max()) if len(p) else 0.0
-        spts = np.concatenate(samples) if samples else np.zeros((0, 3))
-        self.tree = cKDTree(spts)
-        #: the same samples in a uniform grid, for the compiled kernels (:mod:`hailstorm.runtime.compiled`)
-        self.grid = SampleGrid.build(spts, self._sample_tri, max(2.0 * self.sample_radius, 1e-6))
+        #: the sample points (m, 3)
+        self.samples = np.concatenate(samples) if samples else np.zeros((0, 3))
+        #: the samples in a uniform grid, for the compiled kernels (:mod:`hailstorm.runtime.compiled`)
+        self.grid = SampleGrid.build(self.samples, self.sample_tri, max(2.0 * self.sample_radius, 1e-6))
         fn = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
         ln = np.linalg.norm(fn, axis=1, keepdims=True)
         #: outward unit normals of the undeformed triangles
         self.normals = fn / np.where(ln > 0, ln, 1.0)
         self.bbox = (self.vertices.min(axis=0), self.vertices.max(axis=0))
 
-    def query(
-        self,
-        points: np.ndarray,
-        reach: np.ndarray | float,
-        *,
-        deformed: np.ndarray | None = None,
-        displacement: "Callable[[np.ndarray], np.ndarray] | None" = None,
-        max_displacement: float = 0.0,
-    ) -> Closest:
-        """Closest point on the (deformed) surface to each point, within ``reach``.
 
-        Parameters
-        ----------
-        points : (k, 3) ndarray
-        reach : float or (k,) ndarray
-            Search radius per point [m]; farther surfaces are not reported.
-        deformed : (n, 3) ndarray, optional
-            Deformed vertex positions ``X + u``; default the undeformed ones.
-        displacement : callable, optional
-            ``displacement(vertices) -> (k, 3)``: the displacement of the
-            given vertices. Evaluated only at the candidate triangles'
-            vertices (the surface is never deformed as a whole).
-        max_displacement : float
-            Upper bound of ``|u|`` over the surface (widens the candidate
-            search so that moved triangles are not missed).
 
-        Returns
-        -------
-        Closest
-        """
-        pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        k = pts.shape[0]
-        reach = np.asarray(reach, dtype=np.float64)
-        if reach.shape != (k,):
-            reach = np.broadcast_to(reach, (k,))
-        out = Closest(
-            triangle=np.full(k, -1, dtype=np.intp),
-            bary=np.zeros((k, 3)),
-            point=np.full((k, 3), np.nan),
-            distance=np.full(k, np.inf),
-        )
-        if k == 0:
-            return out
-        # the closest surface point is no farther than the nearest centroid (d0): triangles
-        # that can hold it have their centroid within min(reach, d0) + circumradius (+ |u|)
-        # d0 (distance to the nearest sample, a point of the undeformed surface) bounds the
-        # distance to the closest point: candidates lie within min(reach, d0) + sample radius
-        md = float(max_displacement)
-        # one k-d tree call: the KNN nearest samples within the widest bound; the first is
-        # d0 (when none is within the bound, nothing is within reach)
-        kk = max(2, min(self.KNN, self.tree.n))
-        bound = float(reach.max()) + 2.0 * md + self.sample_radius
-        dd, ii = self.tree.query(pts, k=kk, distance_upper_bound=bound)
-        d0 = dd[:, 0]
-        lim = np.minimum(reach, d0 + md) + md + self.sample_radius
-        inside = dd <= lim[:, None]
-        inside[d0 - self.sample_radius - md > reach] = False
-        # rows whose KNN-th sample is still within lim may miss some: ball query for those
-        full = inside[:, -1].copy()
-        inside[full] = False
-        owner, col = np.nonzero(inside)
-        smp = ii[owner, col]
-        if full.any():
-            sel = np.flatnonzero(full)
-            lists = self.tree.query_ball_point(pts[sel], lim[sel])
-            counts = np.fromiter((len(x) for x in lists), dtype=np.intp, count=sel.size)
-            owner = np.concatenate([owner, np.repeat(sel, counts)])
-            smp = np.concatenate([smp, np.fromiter((t for x in lists for t in x), dtype=np.intp,
-                                                   count=int(counts.sum()))])
-            order = np.argsort(owner, kind="stable")
-            owner, smp = owner[order], smp[order]
-        if smp.size == 0:
-            return out
-        # (owner, triangle) pairs sorted by owner; a triangle seen through several of its
-        # samples is tested several times (harmless: cheaper than de-duplicating)
-        tri = self._sample_tri[smp]
-        corners = self.triangles[tri]
-        if displacement is not None:
-            verts, corners = _unique_inverse(corners, self.vertices.shape[0])
-            Xl = self.vertices[verts] + displacement(verts)
-        else:
-            Xl = self.vertices if deformed is None else np.asarray(deformed, dtype=np.float64)
-        po = pts[owner]
-        T = Xl[corners]  # (pairs, 3, 3): one gather for the three corners
-        cp, bary = closest_point_on_triangles(po, T[:, 0], T[:, 1], T[:, 2])
-        dv = po - cp
-        d = np.sqrt(np.einsum("ij,ij->i", dv, dv))
-        # the minimum per owner (the first pair among equal distances: stable sort)
-        order = np.lexsort((d, owner))
-        so = owner[order]
-        head = np.empty(so.size, dtype=bool)
-        head[0] = True
-        np.not_equal(so[1:], so[:-1], out=head[1:])
-        first = order[head]
-        o = so[head]
-        ok = d[first] <= reach[o]
-        first, o = first[ok], o[ok]
-        out.triangle[o] = tri[first]
-        out.bary[o] = bary[first]
-        out.point[o] = cp[first]
-        out.distance[o] = d[first]
-        return out
+class Collision:
+    """Broad and narrow phase of a storm's stones against the (deformed) seat.
+
+    Parameters
+    ----------
+    gf : GreensFunctions
+        The bundle's surface (vertices, triangles, ``contactable``, ``fixed``).
+    scene : Scene
+        ``adaptive`` (time of impact), ``dt`` / ``max_substeps`` (the shortest
+        sub-step), ``restitution`` (hard walls), ``margin`` (retirement).
+    air : Air
+    """
+
+    #: the gap within which a contact opens [radii]
+    TOI_TOL = 0.01
+
+    def __init__(self, gf: Any, scene: Scene, air: Air) -> None:
+        self.index = SurfaceIndex(gf.vertices, gf.triangles)
+        tri = np.asarray(gf.triangles)
+        fixed = np.asarray(gf.fixed)
+        has_col = np.asarray(gf.contactable) | fixed
+        #: triangles that deform under a contact (others are a hard wall)
+        self.soft = has_col[tri].all(axis=1) & ~fixed[tri].all(axis=1)
+        #: clamped vertices, as the kernels take them
+        self.fixed = np.ascontiguousarray(gf.fixed, dtype=bool)
+        self.lo, self.hi = self.index.bbox
+        self.air = air
+        self.toi = bool(scene.adaptive)
+        self.hmin = scene.dt / scene.max_substeps
+        self.restitution = float(scene.restitution)
+        self.margin = float(scene.margin)
+        #: the surface as the compiled kernels take it
+        self.surface = surface_arrays(self.index.grid, self.index.sample_radius, self.index.vertices,
+                                      self.index.triangles)
+
+    def near_set(self, stones: Stones, live: np.ndarray, dt: float, umax: float) -> tuple[np.ndarray, np.ndarray]:
+        """The live stones that may touch the seat within ``dt`` and the others
+        (conservative advancement, :func:`hailstorm.runtime.compiled.near_set`;
+        ``umax``: the bound of the seat's displacement)."""
+        ix = self.index
+        m = near_set(ix.grid, ix.sample_radius, ix.bbox, live, stones.pos, stones.vel, stones.radius, stones.ctri,
+                     stones.budget, stones.bud_u, 1.5 * umax, dt, GRAVITY)
+        return live[m], live[~m]
+
+    def fly(self, stones: Stones, idx: np.ndarray, h: float) -> None:
+        """Free flight of stones ``idx`` over ``h`` (gravity and drag)."""
+        flight(idx, stones.pos, stones.vel, stones.radius, h, GRAVITY, self.air.wind, self.air.drag_coef)
+
+    def free_phase(self, stones: Stones, near: np.ndarray, h: float, seat: SeatState, stats: StormStats) -> float:
+        """Closest points, time of impact, contacts that open, hard walls
+        (:func:`hailstorm.runtime.compiled.free_phase`). Returns the sub-step taken."""
+        use_u, cols, forces = seat.kernel_load()
+        h, walls = free_phase(
+            near, h, self.toi, self.TOI_TOL, self.hmin, stones.pos, stones.vel, stones.radius, stones.ctri,
+            stones.cbary, stones.gap, stones.near_tri, self.surface, self.index.normals, self.soft, self.fixed,
+            seat.umax, use_u, seat.D, cols, forces, GRAVITY, self.air.wind, self.air.drag_coef, self.restitution)
+        stats.wall_contacts += int(walls)
+        return float(h)
+
+    def penetration(self, stones: Stones, near: np.ndarray, dt: float, seat: SeatState, stats: StormStats) -> None:
+        """The near stones' overlap with the deformed surface, into the statistics."""
+        use_u, cols, forces = seat.kernel_load()
+        mp, mpc, mrc, spc, npc, mpf = penetration(
+            near, float(dt), stones.pos, stones.vel, stones.radius, stones.ctri, self.surface, seat.umax, use_u,
+            seat.D, cols, forces)
+        stats.max_penetration_m = max(stats.max_penetration_m, mp)
+        stats.max_penetration_contact_m = max(stats.max_penetration_contact_m, mpc)
+        stats.max_penetration_contact_rel = max(stats.max_penetration_contact_rel, mrc)
+        stats.max_penetration_free_m = max(stats.max_penetration_free_m, mpf)
+        stats.pen_contact_sum += spc
+        stats.pen_contact_n += int(npc)
+
+    def retired(self, stones: Stones, live: np.ndarray) -> np.ndarray:
+        """The live stones that left the seat's region."""
+        return live[retired(live, stones.pos, stones.radius, self.lo, self.hi, self.margin)]
+
+    def warm_up(self, stones: Stones, seat: SeatState, dt: float) -> None:
+        """Load (or compile) the kernels with the storm loop's argument types."""
+        none = np.zeros(0, dtype=np.intp)
+        stats = StormStats()
+        self.fly(stones, none, 0.0)
+        self.retired(stones, none)
+        self.near_set(stones, none, dt, 0.0)
+        self.free_phase(stones, none, dt, seat, stats)
+        self.penetration(stones, none, dt, seat, stats)

@@ -53,14 +53,19 @@ would pull it towards the seat is released and the step is re-solved
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
 
+from hailstorm.runtime.compiled.modal import equilibrium_py as _equilibrium
+from hailstorm.runtime.compiled.modal import explicit_modes_py as _explicit_modes
+from hailstorm.runtime.compiled.modal import modal_damping_py as _modal_damping
+from hailstorm.runtime.compiled.modal import scalar_exact_py as _scalar_exact
+
 __all__ = [
     "GRAVITY",
+    "Air",
     "RHO_AIR",
     "RHO_ICE",
     "ContactStep",
@@ -70,7 +75,6 @@ __all__ = [
     "damping_ratio_for_restitution",
     "modal_damping",
     "drag_acceleration",
-    "free_flight",
     "restitution_for_damping_ratio",
     "stone_mass",
     "terminal_velocity",
@@ -132,31 +136,6 @@ def drag_acceleration(
     speed = np.sqrt(np.add.reduce(w * w, axis=1, keepdims=True))  # |w| (few numpy calls: called every step)
     coef = 3.0 * cd * rho_air / (8.0 * density * np.asarray(radius, dtype=np.float64))
     return -coef[:, None] * speed * w
-
-
-def free_flight(
-    pos: np.ndarray,
-    vel: np.ndarray,
-    dt: float,
-    *,
-    accel: np.ndarray | None = None,
-    g: float = GRAVITY,
-) -> tuple[np.ndarray, np.ndarray]:
-    """Advance stones in free flight by ``dt``.
-
-    Exact for gravity alone (constant acceleration); an extra acceleration
-    (drag) is taken as constant over the step.
-
-    Returns
-    -------
-    pos, vel : (k, 3) ndarray
-        New arrays (inputs are not modified).
-    """
-    a = np.zeros_like(vel)
-    a[:, 2] -= g
-    if accel is not None:
-        a = a + accel
-    return pos + dt * vel + 0.5 * dt * dt * a, vel + dt * a
 
 
 @dataclass(frozen=True)
@@ -239,6 +218,8 @@ def restitution_for_damping_ratio(zeta: np.ndarray | float) -> np.ndarray | floa
 _Z_GRID = np.concatenate([[0.0], np.logspace(-6, 3, 4000)])
 _E_GRID = restitution_for_damping_ratio(_Z_GRID)  # decreasing from 1
 _X_GRID = -np.log(np.clip(_E_GRID, 1e-300, 1.0))  # the look-up's abscissae (increasing), computed once
+#: the restitution table of the dashpot, as the kernels take it: -log(e) (increasing) and the damping ratio
+X_GRID, Z_GRID = _X_GRID, _Z_GRID
 
 
 def damping_ratio_for_restitution(e: np.ndarray | float) -> np.ndarray | float:
@@ -325,9 +306,9 @@ class ContactStep:
 
 def _inv_spd(W: np.ndarray) -> np.ndarray:
     """Inverse of a small symmetric positive (semi-)definite matrix: the contact API's
-    policy (:func:`hailstorm.runtime.contact_capacitance.spd_inverse`; the pseudo-inverse when
+    policy (:func:`hailstorm.runtime.contact.policy.spd_inverse`; the pseudo-inverse when
     ``W`` is ill conditioned, e.g. coincident contacts)."""
-    from hailstorm.runtime.contact_capacitance import spd_inverse  # (import cycle: it imports hailstorm.runtime.compiled)
+    from hailstorm.runtime.contact.policy import spd_inverse  # (import cycle: it imports hailstorm.runtime.compiled)
 
     return spd_inverse(W)
 
@@ -358,63 +339,6 @@ def contact_modes(K: np.ndarray, mass: np.ndarray) -> tuple[np.ndarray, np.ndarr
     Kt = K / sqm[:, None] / sqm[None, :]
     om2, Phi = np.linalg.eigh(0.5 * (Kt + Kt.T))
     return np.clip(om2, 0.0, None), np.ascontiguousarray(Phi), sqm
-
-
-def _modal_damping(om2, Phi, sqm, restitution, dt, implicit, x_grid, z_grid):
-    """The dashpot matrix ``M^1/2 Phi diag(2 zeta_j omega_j) Phi^T M^1/2`` (plain numpy that
-    :mod:`hailstorm.runtime.compiled` also compiles): every mode ``j`` gets the damping ratio of
-    the target restitution (implicit: less backward Euler's numerical ``omega_j dt / 2``),
-    zero modes none."""
-    n = om2.size
-    c = np.zeros(n)
-    for j in range(n):
-        om = math.sqrt(max(om2[j], 0.0))
-        if om <= 0.0:
-            continue
-        e = restitution
-        zn = 0.0
-        if implicit:
-            zn = 0.5 * om * dt
-            # the restitution phase loses exp(-zn pi/2); beyond the target no dashpot
-            x = -math.log(min(max(e, 1e-300), 1.0)) - zn * math.pi / 2.0
-            if x <= 0.0:
-                continue
-        else:
-            x = -math.log(min(max(e, 1e-300), 1.0))
-        z = np.interp(x, x_grid, z_grid)
-        c[j] = 2.0 * max(z - zn, 0.0) * om
-    P = np.ascontiguousarray(Phi * sqm.reshape(-1, 1))
-    C = np.ascontiguousarray(P * c.reshape(1, -1)) @ np.ascontiguousarray(P.T)
-    return 0.5 * (C + C.T)
-
-
-def _explicit_modes(om2, dt):
-    """Squared modal frequencies an explicit step of ``dt`` can carry:
-    ``omega^2 / sqrt(1 + (omega dt)^4)`` (unchanged to 1e-3 at ``omega dt = 0.2``;
-    at most ``1 / dt^2``, inside symplectic Euler's stability limit ``omega dt < 2``).
-    Stiff modes (contacts closer than the mesh resolves, whose relative motion the
-    stones do not excite) would otherwise need sub-steps no storm can afford."""
-    out = np.empty(om2.size)
-    for j in range(om2.size):
-        x = om2[j] * dt * dt
-        out[j] = om2[j] / math.sqrt(1.0 + x * x)
-    return out
-
-
-def _modal_stiffness(om2, Phi, sqm):
-    """``K = M^1/2 Phi diag(om2) Phi^T M^1/2`` and its (pseudo-)inverse ``W`` (zero modes dropped)."""
-    P = np.ascontiguousarray(Phi * sqm.reshape(-1, 1))
-    Q = np.ascontiguousarray(Phi / sqm.reshape(-1, 1))
-    inv = np.zeros(om2.size)
-    top = 0.0
-    for j in range(om2.size):
-        top = max(top, om2[j])
-    for j in range(om2.size):
-        if om2[j] > 1e-10 * top:
-            inv[j] = 1.0 / om2[j]
-    K = np.ascontiguousarray(P * om2.reshape(1, -1)) @ np.ascontiguousarray(P.T)
-    W = np.ascontiguousarray(Q * inv.reshape(1, -1)) @ np.ascontiguousarray(Q.T)
-    return 0.5 * (K + K.T), 0.5 * (W + W.T)
 
 
 def modal_damping(
@@ -613,118 +537,6 @@ class _Modal:
         from scipy.linalg import expm
 
         return np.stack([expm(self.A * ti) @ z0 for ti in np.atleast_1d(t)], axis=1)
-
-
-def _scalar_exact(q: float, v: float, a: float, m: float, g: float, dt: float, k: float, c: float,
-                  unilateral: bool, always: bool) -> tuple[float, float, bool, bool, float, float]:
-    """One frictionless contact, closed form (plain floats; :mod:`hailstorm.runtime.compiled`
-    compiles this same function for its exact step). Returns ``(q, v, active, ok, umin, umax)``;
-    ``ok`` is False when the case is not covered (overdamped, or release from an
-    always-damped state): the general path then takes the step. ``umin``, ``umax``
-    are the smallest and largest ``q - a`` (the deepest compression; the largest
-    stretch of a bilateral contact) while the contact is closed during the step,
-    located analytically: the closed form's extrema in each segment lie at its ends or
-    at the zeros of ``v``, and a damped oscillation's first minimum (maximum) is its
-    deepest (highest), so the ends and the first two zeros of ``v`` in the segment
-    suffice."""
-    t = 0.0
-    umin = umax = q - a
-    damp = always or v < 0.0
-    if unilateral and not damp and -k * (q - a) < 0.0 and v >= 0.0:
-        return q, v, True, False, umin, umax  # pulls at the start: let the general path release it
-    w2 = k / m
-    if w2 <= 0.0:
-        return q, v, True, False, umin, umax
-    off = a + g / w2  # equilibrium q_eq
-    finished = False
-    for _ in range(6):
-        h = dt - t
-        if h <= 0.0:
-            finished = True
-            break
-        ce = c if damp else 0.0
-        sig = 0.5 * ce / m
-        wd2 = w2 - sig * sig
-        if wd2 <= 1e-6 * w2:
-            return q, v, True, False, umin, umax
-        wd = math.sqrt(wd2)
-        y0 = q - off
-        A, B = y0, (v + sig * y0) / wd
-        P, Q = v, A * wd + sig * B  # v(t) = e^{-sig t} (P cos wd t - Q sin wd t)
-        te = h
-        kind = 0
-        # first zero of v (wd t = atan2(P, Q) mod pi); the next one is pi / wd later
-        tv0 = (math.atan2(P, Q) % math.pi) / wd
-        if c > 0.0 and not always:
-            # v(t) = 0: wd t = atan2(P, Q) mod pi (first positive root)
-            th = math.atan2(P, Q) % math.pi
-            if th <= 1e-12:
-                th += math.pi
-            tv = th / wd
-            if tv < te:
-                te, kind = tv, 1
-        if unilateral and ce == 0.0:
-            # release: q = a while moving out (undamped: y = R cos(wd t - phi))
-            R = math.hypot(A, B)
-            ystar = a - off
-            if R > abs(ystar) and R > 0.0:
-                phi = math.atan2(B, A)
-                al = math.acos(max(-1.0, min(1.0, ystar / R)))
-                # y = ystar with v >= 0 (y increasing): wd t - phi = -al (mod 2 pi)
-                tr = ((-al + phi) % (2.0 * math.pi)) / wd
-                if tr <= 1e-15 * dt:
-                    tr += 2.0 * math.pi / wd
-                if tr < te:
-                    te, kind = tr, 2
-        # deepest compression inside the segment (its ends are covered below and above)
-        for j in range(2):
-            tz = tv0 + j * math.pi / wd
-            if 0.0 < tz < te:
-                qz = off + math.exp(-sig * tz) * (A * math.cos(wd * tz) + B * math.sin(wd * tz))
-                umin = min(umin, qz - a)
-                umax = max(umax, qz - a)
-        e = math.exp(-sig * te)
-        cs, sn = math.cos(wd * te), math.sin(wd * te)
-        q = off + e * (A * cs + B * sn)
-        v = e * (P * cs - Q * sn)
-        t += te
-        umin = min(umin, q - a)
-        umax = max(umax, q - a)
-        if kind == 1:
-            damp = False
-        elif kind == 2:
-            # released: free flight for the rest of the step
-            h = dt - t
-            q += h * v + 0.5 * h * h * g
-            v += h * g
-            return q, v, False, True, umin, umax
-        else:
-            finished = True
-            break
-    if not finished:
-        return q, v, True, False, umin, umax
-    if unilateral and always and -k * (q - a) - c * v < 0.0 and v >= 0.0:
-        return q, v, True, False, umin, umax
-    return q, v, True, True, umin, umax
-
-
-def _equilibrium(K, f):
-    """``K x = f`` for the static equilibrium; for a singular ``K`` (coincident contacts:
-    the pseudo-inverse capacitance has zero modes) the least-squares, min-norm ``x``
-    (the part of ``f`` on the zero modes, which moves coincident stones relative to
-    each other, is not carried). Plain numpy that :mod:`hailstorm.runtime.compiled` also compiles."""
-    ok = True
-    try:
-        x = np.linalg.solve(K, f)
-    except Exception:
-        ok = False
-        x = f.copy()
-    if ok:
-        r = K @ x - f
-        ok = np.all(np.isfinite(x)) and np.sqrt(np.sum(r * r)) <= 1e-9 * np.sqrt(np.sum(f * f)) + 1e-300
-    if not ok:
-        x = np.linalg.lstsq(K, f, rcond=1e-10)[0]
-    return x
 
 
 def _exact_step(q, v, a, m, g, dt, K, W, C, unilateral, group, wts, always_damped) -> ContactStep:
@@ -934,3 +746,19 @@ def _exact_step(q, v, a, m, g, dt, K, W, C, unilateral, group, wts, always_dampe
     dmin_u[untouched] = (q - a)[untouched]
     return ContactStep(q=q, v=v, active=active, force=force, seat_force=seat, peak_seat_force=pk_f,
                        peak_ubar=dmin_u)
+
+
+@dataclass(frozen=True)
+class Air:
+    """What acts on a flying stone besides gravity: the wind and quadratic drag, as the
+    compiled kernels take them (``drag_coef = 3 C_d rho_air / (8 rho_ice)``, 0 without
+    drag: the acceleration is ``-(drag_coef / r) |v - wind| (v - wind)``)."""
+
+    wind: np.ndarray
+    drag_coef: float
+
+    @classmethod
+    def of(cls, wind: object, drag: bool, cd: float, rho_air: float, density: float) -> "Air":
+        """From a scene's ``wind``, ``drag``, ``cd``, ``rho_air`` and ``density``."""
+        coef = 3.0 * cd * rho_air / (8.0 * density) if drag else 0.0
+        return cls(wind=np.asarray(wind, dtype=np.float64), drag_coef=coef)

@@ -134,7 +134,7 @@ def summary(result: Any, gf: Any = None) -> dict[str, Any]:
 
 
 def write_summary(result: Any, path: str | os.PathLike, gf: Any = None) -> Path:
-    """Write ``summary.json`` for a :class:`hailstorm.runtime.storm.StormResult`; returns the path.
+    """Write ``summary.json`` for a :class:`hailstorm.runtime.recording.StormResult`; returns the path.
     ``gf``: see :func:`summary`."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -184,7 +184,7 @@ class ParaviewSeries:
         return len(self.entries)
 
     def add(self, frame: Any) -> None:
-        """Write one :class:`hailstorm.runtime.storm.Frame` (both files)."""
+        """Write one :class:`hailstorm.runtime.recording.Frame` (both files)."""
         import meshio
 
         i = len(self.entries)
@@ -230,7 +230,7 @@ class ParaviewSeries:
 
 class FrameSeries(Sequence):
     """The frames of a :class:`ParaviewSeries`, read back from its files on access
-    (a sequence of :class:`hailstorm.runtime.storm.Frame`; nothing is cached)."""
+    (a sequence of :class:`hailstorm.runtime.recording.Frame`; nothing is cached)."""
 
     def __init__(self, series: ParaviewSeries) -> None:
         self._series = series
@@ -245,7 +245,7 @@ class FrameSeries(Sequence):
     def __getitem__(self, i: int) -> Any:  # type: ignore[override]
         import meshio
 
-        from hailstorm.runtime.storm import Frame
+        from hailstorm.runtime.recording import Frame
 
         t, sname, stname, contacts, _ = self._series.entries[i]
         s = meshio.read(self._series.outdir / sname)
@@ -439,7 +439,7 @@ class StormOutput:
             for f in result.frames:
                 series.add(f)
         series.close()
-        result.stats["frames"] = len(series)  # the summary counts the files it describes
+        result.stats.frames = len(series)  # the summary counts the files it describes
         write_summary(result, staging / "summary.json", self.gf)
         files = [*series.files(), "summary.json"]
         video = None

@@ -27,7 +27,7 @@ from typing import Any, Mapping
 import numpy as np
 
 from hailstorm.runtime.atomic import write_text_atomic
-from hailstorm.runtime.contact_capacitance import Mode
+from hailstorm.runtime.contact.validate import Mode
 from hailstorm.runtime.hail import GRAVITY, Integrator, SizeDistribution, terminal_velocity
 
 __all__ = ["Scene", "SceneError", "StormEstimate", "StormTooLarge"]
@@ -148,7 +148,6 @@ _SECTIONS: dict[str, tuple[str, ...]] = {
     "contact": ("mode", "unilateral", "restitution", "patch", "patch_min_radius", "patch_tolerance"),
     "time": ("dt", "integrator", "adaptive", "omega_dt", "approach_fraction", "max_substeps", "rest_speed"),
     "output": ("fps",),
-    "compute": ("backend",),
     "seat": ("mesh_size", "order", "young", "poisson"),
 }
 
@@ -195,8 +194,8 @@ class Scene:
     patch : {"hertz", "none"}
         Force distribution of a soft contact. ``"hertz"`` (default): a patch
         contact, the stone's force spread over a disc with the Hertz pressure
-        profile (:func:`hailstorm.runtime.weights.patch_weights`), of radius
-        :func:`hailstorm.runtime.weights.hertz_radius` of the contact's *peak* force
+        profile (:func:`hailstorm.runtime.contact.weights.patch_weights`), of radius
+        :func:`hailstorm.runtime.contact.weights.hertz_radius` of the contact's *peak* force
         (see the module notes); ``"none"``: a point contact (barycentric
         weights on the contacted triangle; the dent is a one-vertex spike).
     patch_min_radius : float
@@ -231,12 +230,6 @@ class Scene:
         Normal speed below which a contact counts as resting [m/s].
     fps : float
         Recorded frames per simulated second.
-    backend : {"auto", "numba", "numpy"}
-        Closest-point queries and the broad phase in compiled kernels
-        (:mod:`hailstorm.runtime.compiled`, needs numba: ``pip install "hailstorm[fast]"``)
-        or in numpy. ``"auto"`` (default): numba when it is installed. Both
-        compute the same contacts (ties between triangles that share the
-        closest point aside); ``"numba"`` is several times faster per query.
     mesh_size, order, young, poisson
         The default seat's Green's functions when no bundle is given
         (``hailstorm storm`` without ``--gf``): element size on the top [m],
@@ -272,7 +265,6 @@ class Scene:
     max_substeps: int = 64
     rest_speed: float = 0.05
     fps: float = 250.0
-    backend: str = "auto"
     mesh_size: float = 0.006
     order: int = 1
     young: float = 2.0e6
@@ -314,8 +306,6 @@ class Scene:
             raise SceneError(f"poisson must satisfy -1 < poisson < 0.5, got {self.poisson!r}")
         if self.mode not in ("frictionless", "sticky"):
             raise SceneError(f"mode must be 'frictionless' or 'sticky', got {self.mode!r}")
-        if self.backend not in ("auto", "numba", "numpy"):
-            raise SceneError(f"backend must be 'auto', 'numba' or 'numpy', got {self.backend!r}")
         if self.patch not in ("hertz", "none"):
             raise SceneError(f"patch must be 'hertz' or 'none', got {self.patch!r}")
         if self.integrator not in ("implicit", "symplectic", "exact"):
@@ -466,6 +456,10 @@ class Scene:
         """
         kwargs: dict[str, Any] = {}
         for sec, body in data.items():
+            if sec == "compute":
+                raise SceneError(f"{source}: [compute] backend is gone: the storm always runs its compiled (numba) "
+                                 "kernels; remove the [compute] section (NUMBA_DISABLE_JIT=1 runs them as Python, "
+                                 "for debugging)")
             if sec not in _SECTIONS:
                 raise SceneError(f"{source}: unknown section [{sec}]; known sections: {', '.join(_SECTIONS)}")
             if not isinstance(body, Mapping):

@@ -1,305 +1,132 @@
-"""The storm's soft contacts: the capacitance of the current contact set (rebuilt when
-the set changes) and one contact step of its stones.
+"""The storm's soft contacts: the current contact set and one contact step of its stones.
 
-Functions of a :class:`hailstorm.runtime.storm.Storm`'s state (``st``), called by
-``Storm._substep``. :func:`contact_set` forms W = Bᵀ D B, K = W⁻¹ and the
-force and displacement blocks of the set (:class:`ContactSet`); :func:`advance`
-moves the stones in contact by one sub-step through
-:func:`hailstorm.runtime.hail.contact_step` with unilateral release, in numpy or, on the
-numba backend, with the per-contact work in kernels (:func:`advance_compiled`).
+:class:`SoftContacts` keeps the capacitance of the current set of soft contacts
+(:class:`~hailstorm.runtime.contact_set.ContactSet`, rebuilt when the set of
+(stone, triangle[, patch radius]) changes) and the seat forces of its last step;
+:meth:`SoftContacts.advance` moves the stones in contact by one sub-step through
+the scene's integrator (:class:`~hailstorm.runtime.integrators.ContactIntegrator`)
+with unilateral release, the per-contact work in kernels
+(:func:`hailstorm.runtime.compiled.contact_prep` / :func:`~hailstorm.runtime.compiled.contact_post`),
+and hands the forces to the seat.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
-from hailstorm.runtime import contact_capacitance as _policy
-from hailstorm.runtime import patches
-from hailstorm.runtime.compiled import (
-    capacitance_blocks,
-    contact_post,
-    contact_prep,
-    exact_step,
-    explicit_modes,
-    inv_spd,
-    modal_stiffness,
-    rigid_contacts,
-    substep_contacts,
-    substep_damping,
-)
-from hailstorm.runtime.contact_capacitance import spd_inverse
-from hailstorm.runtime.hail import _X_GRID, _Z_GRID, GRAVITY, ContactStep, contact_modes, contact_step
-from hailstorm.runtime.hail import _explicit_modes, _modal_damping, _modal_stiffness
+from hailstorm.runtime.compiled import contact_post, contact_prep
+from hailstorm.runtime.contact_set import ContactSet, ContactSets
+from hailstorm.runtime.hail import GRAVITY, Air
+from hailstorm.runtime.integrators import ContactIntegrator
+from hailstorm.runtime.patches import Patches
+from hailstorm.runtime.recording import StormStats
+from hailstorm.runtime.scene import Scene
+from hailstorm.runtime.seat import SeatState
+from hailstorm.runtime.stones import Stones
 
-if TYPE_CHECKING:  # pragma: no cover
-    from hailstorm.runtime.storm import Storm
-
-__all__ = ["ContactSet", "advance", "advance_compiled", "contact_matrices", "contact_set", "exact_damping"]
+__all__ = ["ContactSet", "SoftContacts"]
 
 
-@dataclass
-class ContactSet:
-    """The capacitance of the storm's current set of soft contacts (:func:`contact_set`),
-    kept while the set (stones, triangles, patch radii) is unchanged."""
+class SoftContacts:
+    """The storm's soft contacts (the current set, its forces) and their step.
 
-    key: tuple
-    W: np.ndarray
-    K: np.ndarray
-    G: np.ndarray  # (c, m) forces at the loaded (non-clamped) dofs of V per unit multiplier
-    cols: np.ndarray  # (c,) their columns of D
-    DVV: np.ndarray  # (3|V|, m) displacement of V per unit multiplier
-    stones: np.ndarray
-    tris: np.ndarray
-    bary: np.ndarray
-    normals: np.ndarray
-    X: np.ndarray  # undeformed contact points (s, 3) (the patch centres)
-    rest: np.ndarray  # (s,) distance along the normal from the reference point to the stone's centre at contact
-    patch_radius: np.ndarray  # (s,) patch radius [m] (0: point contact)
-    verts: np.ndarray  # (s, P) vertices carrying each contact's force
-    weights: np.ndarray  # (s, P) their weights (B: block (verts[k, p], k) = weights[k, p] I3)
-    Kdiag: np.ndarray  # diag(K), a contiguous writable copy (what the compiled kernels take)
-    C: np.ndarray | None = None  # exact-integrator dashpot (cached)
-    modes: tuple | None = None  # (omega^2, Phi, sqrt(m)) of M^-1/2 K M^-1/2 (cached, contact_modes)
-
-
-def contact_set(st: Storm, stones: np.ndarray, tris: np.ndarray, bary: np.ndarray, key: tuple,
-                radius: np.ndarray | None = None) -> ContactSet:
-    """The capacitance of the soft contacts ``stones`` (point contacts, or patches of ``radius``)."""
-    from hailstorm.runtime.contact_capacitance import _contact_compliance, _rigid
-    from hailstorm.runtime.gather import _column_dofs, _dof3, _gather
-    from hailstorm.runtime.weights import _dense_B, _dense_Bs, _locate_lists
-
-    gf, mode = st.gf, st.scene.mode
-    normals = st.index.normals[tris]
-    s = stones.size
-    if radius is None:
-        verts, w = np.asarray(gf.triangles)[tris], bary
-        radius = np.zeros(s)
-    else:
-        verts, w = patches.cached_weights(st, stones, tris, bary, radius, normals)
-    if st._compiled:
-        verts = verts.astype(np.int64, copy=False)
-        if rigid_contacts(verts, w, st._fixed):
-            raise RuntimeError("rigid contacts must be filtered before the capacitance")  # pragma: no cover
-        V, W, G, cols, DG = capacitance_blocks(verts, w, normals, mode == "sticky", st._D, st._col_of)
-        K = inv_spd(W, float(_policy.COND_LIMIT), float(_policy.PINV_RCOND))  # spd_inverse's policy
-    else:
-        if np.any(_rigid(gf, verts, w)):
-            raise RuntimeError("rigid contacts must be filtered before the capacitance")  # pragma: no cover
-        V, loc = _locate_lists(verts)
-        D_VV = _gather(st._gfD, _dof3(V), _column_dofs(gf, V))
-        W = _contact_compliance(D_VV, loc, w, normals, mode)
-        if mode == "sticky":
-            G = _dense_B(V.size, loc, w)
-        else:
-            # G = B N: row (i, d), column k = Bs[i, k] n_k[d] (B = Bs kron I3, without forming it)
-            G = (_dense_Bs(V.size, loc, w)[:, None, :] * normals.T[None, :, :]).reshape(3 * V.size, s)
-        DG = D_VV @ G
-        cb = np.asarray(gf.column_of)[V]
-        live = np.repeat(cb >= 0, 3)
-        cols = (3 * cb[:, None] + np.arange(3)).ravel()[live]  # D columns of the loaded dofs
-        G = G[live]
-        K = spd_inverse(W)  # the pseudo-inverse for (nearly) coincident contacts
-    # reference point: the contact point (the patch centre). A patch contact prescribes the
-    # pressure-weighted mean normal displacement of the surface under the disc, measured from
-    # the tangent plane at the contact point (the plane of the disc): the stone's lowest point
-    # follows it. (Measuring from the weighted mean undeformed surface point sum_p w_p X_p
-    # instead, which lies below the tangent plane on the convex seat, opens every contact with
-    # a small gap: measured restitution 0.488 instead of 0.499 for the single drop.)
-    X = np.einsum("kj,kjd->kd", bary, st.X[gf.triangles[tris]])
-    st.stats["capacitance_rebuilds"] += 1
-    return ContactSet(key=key, W=W, K=K, G=G, cols=cols, DVV=DG, stones=stones, tris=tris, bary=bary,
-                      normals=normals, X=X, rest=st.radius[stones].copy(),
-                      patch_radius=np.asarray(radius, dtype=np.float64).copy(), verts=verts, weights=w,
-                      Kdiag=np.diag(K).copy())
-
-
-def advance(st: Storm, near: np.ndarray, soft: np.ndarray, was_open: np.ndarray, h: float) -> None:
-    """Advance the stones in soft contact by ``h`` through the capacitance of their
-    contact set (rebuilt when the set of (stone, triangle[, patch radius]) changes),
-    with unilateral release; update the seat's forces and the statistics."""
-    sc = st.scene
-    tris = st.ctri[soft]
-    key: tuple[tuple[Any, ...], ...]
-    if st._patch:
-        rad = patches.radii(st, soft, tris)
-        key = tuple(zip(soft.tolist(), tris.tolist(), rad.tolist()))
-    else:
-        rad = None
-        key = tuple(zip(soft.tolist(), tris.tolist()))
-    if st.cache is None or st.cache.key != key:
-        st.cache = contact_set(st, soft, tris, st.cbary[soft].copy(), key, rad)
-    cc = st.cache
-    s = soft.size
-    nk = cc.normals
-    if st._compiled:
-        advance_compiled(st, near, soft, was_open, h, cc)
-        return
-    acc = st._accel(soft)
-    m = st.mass[soft]
-    if sc.mode == "frictionless":
-        q = np.einsum("ij,ij->i", nk, st.pos[soft])
-        a = np.einsum("ij,ij->i", nk, cc.X) + cc.rest
-        vq = np.einsum("ij,ij->i", nk, st.vel[soft])
-        gq = np.einsum("ij,ij->i", nk, acc)
-        mq, group, wts = m, None, None
-    else:
-        q = st.pos[soft].ravel()
-        a = (cc.X + cc.rest[:, None] * nk).ravel()
-        vq = st.vel[soft].ravel()
-        gq = acc.ravel()
-        mq, group, wts = np.repeat(m, 3), np.repeat(np.arange(s), 3), nk.ravel()
-    always = None
-    if sc.integrator == "exact":
-        C = exact_damping(st, cc, mq)
-        # resting contacts (oscillation amplitude below rest_speed): the dashpot acts
-        # both ways, no switching events; the residual oscillation decays
-        kd = np.clip(np.diag(cc.K), 0.0, None)
-        if sc.mode == "sticky":
-            kd = kd.reshape(-1, 3).max(axis=1)
-        om = np.sqrt(kd / m)
-        vn = np.einsum("ij,ij->i", st.vel[soft], nk)
-        ubar = np.einsum("ij,ij->i", st.pos[soft] - cc.X, nk) - cc.rest
-        u_eq = np.einsum("ij,ij->i", acc, nk) * m / np.maximum(kd, 1e-300)
-        rest = np.hypot(vn, om * (ubar - u_eq)) < sc.rest_speed
-        always = rest if sc.mode == "frictionless" else np.repeat(rest, 3)
-        K, W = cc.K, cc.W
-    else:
-        K, W, C = contact_matrices(st, cc, mq, h)
-    res = contact_step(q, vq, a, mq, gq, h, K=K, W=W, damping=C, integrator=sc.integrator,
-                       unilateral=sc.unilateral, group=group, normal_of=wts, always_damped=always)
-    if sc.mode == "frictionless":
-        # tangential motion: free (constant acceleration); normal: the contact step
-        vt0 = st.vel[soft] - vq[:, None] * nk
-        at = acc - gq[:, None] * nk
-        vnew = vt0 + h * at + res.v[:, None] * nk
-        pnew = (st.pos[soft] - q[:, None] * nk + h * vt0 + 0.5 * h * h * at + res.q[:, None] * nk)
-        fvec = res.seat_force[:, None] * nk
-        active_c = res.active
-    else:
-        vnew = res.v.reshape(s, 3)
-        pnew = res.q.reshape(s, 3)
-        fvec = res.seat_force.reshape(s, 3)
-        # numpy's stubs cannot tell that all(axis=1) of a 2-d array is an array, not a scalar
-        active_c = res.active.reshape(s, 3).all(axis=1)  # type: ignore[assignment]
-    if sc.integrator != "exact":
-        pnew = st.pos[soft] + h * vnew  # (semi-)implicit position update
-    # peaks inside the sub-step (exact: on the closed-form trajectory, so a contact that
-    # opens and is released within the sub-step still counts)
-    if sc.mode == "frictionless":
-        fpk = np.abs(res.peak_seat_force)
-        ubar_n = res.peak_ubar
-    else:
-        pf = res.peak_seat_force.reshape(s, 3)
-        fpk = np.sqrt(np.einsum("ij,ij->i", pf, pf))
-        ubar_n = np.einsum("ij,ij->i", res.peak_ubar.reshape(s, 3), nk)
-    fmag = np.maximum(np.sqrt(np.einsum("ij,ij->i", fvec, fvec)), fpk)
-    touched = active_c | (fpk > 0.0)  # carried force at some instant of the sub-step
-    # impacts: contacts that opened in this sub-step and pushed
-    fresh = touched & ~was_open[np.searchsorted(near, soft)]
-    if fresh.any():
-        vn_in = np.einsum("ij,ij->i", st.vel[soft[fresh]], nk[fresh])
-        st.stats["impacts"] += int((vn_in < -sc.rest_speed).sum())
-        st.hit[soft[fresh]] = True
-    st.vel[soft] = vnew
-    st.pos[soft] = pnew
-    st.ctri[soft[~active_c]] = -1
-    st.lam = res.seat_force
-    st._set_forces(cc, res.seat_force, res.peak_seat_force)
-    st.stats["max_contact_force"] = max(st.stats["max_contact_force"], float(fmag.max()))
-    if touched.any():
-        st.stats["max_indentation_m"] = max(st.stats["max_indentation_m"], float(-ubar_n[touched].min()))
-    st.stats["max_simultaneous_contacts"] = max(st.stats["max_simultaneous_contacts"], int(touched.sum()))
-
-
-def advance_compiled(st: Storm, near: np.ndarray, soft: np.ndarray, was_open: np.ndarray, h: float,
-                     cc: ContactSet) -> None:
-    """:func:`advance` after the contact set is known, with the per-contact
-    work in compiled kernels (:func:`hailstorm.runtime.compiled.contact_prep`,
-    :func:`hailstorm.runtime.compiled.contact_post`) around the same :func:`contact_step`."""
-    sc = st.scene
-    exact = sc.integrator == "exact"
-    sticky = sc.mode == "sticky"
-    s = soft.size
-    nk = cc.normals
-    q, a, vq, gq, mq, always, acc = contact_prep(
-        soft, st.pos, st.vel, st.radius, st.mass, GRAVITY, st.wind, st._drag_coef, nk, cc.X, cc.rest,
-        cc.Kdiag, sticky, exact, float(sc.rest_speed))
-    group, wts = (np.repeat(np.arange(s), 3), nk.ravel()) if sticky else (None, None)
-    if group is None:
-        group, wts = np.arange(s), np.ones(s)
-    res = None
-    lim, rcond = float(_policy.COND_LIMIT), float(_policy.PINV_RCOND)
-    K, W = cc.K, cc.W
-    if exact:
-        C = exact_damping(st, cc, mq)
-        qn, vn, act, force, seat, peak, pub, ok = exact_step(q, vq, a, mq, gq, h, cc.K, cc.W, C,
-                                                              bool(sc.unilateral), group, wts, always, lim,
-                                                              rcond)
-        if ok:
-            res = ContactStep(q=qn, v=vn, active=act, force=force, seat_force=seat, peak_seat_force=peak,
-                              peak_ubar=pub)
-    else:
-        implicit = sc.integrator == "implicit"
-        K, W, C = contact_matrices(st, cc, mq, h)
-        qn, vn, act, force, seat = substep_contacts(q, vq, a, mq, gq, h, K, W, C, implicit,
-                                                    bool(sc.unilateral), group, wts, lim, rcond)
-        res = ContactStep(q=qn, v=vn, active=act, force=force, seat_force=seat, peak_seat_force=seat,
-                          peak_ubar=qn - a)
-    if res is None:
-        res = contact_step(q, vq, a, mq, gq, h, K=K, W=W, damping=C, integrator=sc.integrator,
-                           unilateral=sc.unilateral, group=group, normal_of=wts,
-                           always_damped=always if exact else None)
-    impacts, fmax, indent, n_active = contact_post(
-        soft, st.pos, st.vel, st.ctri, st.hit, was_open[np.searchsorted(near, soft)], nk, acc, q, a, vq,
-        gq, res.q, res.v, res.active, res.seat_force, res.peak_seat_force, res.peak_ubar, sticky, exact, h,
-        float(sc.rest_speed))
-    stats = st.stats
-    stats["impacts"] += int(impacts)
-    st.lam = res.seat_force
-    st._set_forces(cc, res.seat_force, res.peak_seat_force)
-    stats["max_contact_force"] = max(stats["max_contact_force"], float(fmax))
-    if n_active:
-        stats["max_indentation_m"] = max(stats["max_indentation_m"], float(indent))
-    stats["max_simultaneous_contacts"] = max(stats["max_simultaneous_contacts"], int(n_active))
-
-
-def _modes(cc: ContactSet, mq: np.ndarray) -> tuple:
-    """The contact set's normal modes (cached with the set)."""
-    if cc.modes is None or cc.modes[2].shape != mq.shape:
-        cc.modes = contact_modes(cc.K, mq)
-    return cc.modes
-
-
-def exact_damping(st: Storm, cc: ContactSet, mq: np.ndarray) -> np.ndarray:
-    """Exact-integrator dashpot of a contact set, per mode (:func:`hailstorm.runtime.hail.modal_damping`;
-    cached with the set)."""
-    if cc.C is None or cc.C.shape != (mq.size, mq.size):
-        om2, Phi, sqm = _modes(cc, mq)
-        damping = substep_damping if st._compiled else _modal_damping
-        cc.C = damping(om2, Phi, sqm, float(st.scene.restitution), 0.0, False, _X_GRID, _Z_GRID)
-    return cc.C
-
-
-def contact_matrices(st: Storm, cc: ContactSet, mq: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(K, W, C)`` of a sub-step ``h`` of the implicit or symplectic integrator.
-
-    ``C`` is the dashpot per mode (:func:`hailstorm.runtime.hail.modal_damping`: backward
-    Euler's numerical damping compensated). For the symplectic (explicit) step, ``K``
-    and ``W`` carry the modes it can resolve (:func:`hailstorm.runtime.hail._explicit_modes`:
-    unchanged at ``omega h`` <~ 0.3, at most ``1 / h^2``); the implicit step takes the
-    set's own.
+    Parameters
+    ----------
+    scene : Scene
+        ``mode``, ``patch``, ``rest_speed`` (and the integrator's settings).
+    sets : ContactSets
+        Builds a set's capacitance.
+    patches : Patches
+        The patch radii (``patch = "hertz"``).
+    integrator : ContactIntegrator
+    seat : SeatState
+        Receives the contact forces.
+    air : Air
     """
-    om2, Phi, sqm = _modes(cc, mq)
-    sc = st.scene
-    K, W = cc.K, cc.W
-    fast = st._compiled
-    if sc.integrator == "symplectic":
-        om2 = (explicit_modes if fast else _explicit_modes)(om2, float(h))
-        K, W = (modal_stiffness if fast else _modal_stiffness)(om2, Phi, sqm)
-    C = (substep_damping if fast else _modal_damping)(om2, Phi, sqm, float(sc.restitution), float(h), sc.integrator == "implicit", _X_GRID,
-                        _Z_GRID)
-    return K, W, C
+
+    def __init__(self, scene: Scene, sets: ContactSets, patches: Patches, integrator: ContactIntegrator,
+                 seat: SeatState, air: Air) -> None:
+        self.sets = sets
+        self.patches = patches
+        self.integrator = integrator
+        self.seat = seat
+        self.air = air
+        self.sticky = scene.mode == "sticky"
+        self.patch = scene.patch != "none"
+        self.rest_speed = float(scene.rest_speed)
+        #: the current contact set (None: no soft contact) and its multipliers (the seat forces)
+        self.current: ContactSet | None = None
+        self.lam = np.zeros(0)
+        self._no_e3 = np.zeros((0, 3))
+        self._no_forces = np.zeros(0)
+
+    def release(self) -> None:
+        """No soft contact: the set and the seat's load are gone."""
+        self.current = None
+        self.lam = np.zeros(0)
+        self.seat.set_forces(None, self.lam)
+
+    def advance(self, stones: Stones, near: np.ndarray, soft: np.ndarray, was_open: np.ndarray, h: float,
+                stats: StormStats) -> None:
+        """Advance the stones in soft contact ``soft`` (of the ``near`` stones, whose contacts
+        were open at the sub-step's start where ``was_open``) by ``h`` through the
+        capacitance of their contact set, with unilateral release; update the seat's
+        forces and the statistics."""
+        tris = stones.ctri[soft]
+        key: tuple[tuple[Any, ...], ...]
+        cc = self.current
+        if self.patch:
+            rad = self.patches.radii(stones, soft, tris, cc.stones if cc is not None else None,
+                                     cc.Kdiag if cc is not None else None, self.lam, stats)
+            key = tuple(zip(soft.tolist(), tris.tolist(), rad.tolist()))
+        else:
+            rad = None
+            key = tuple(zip(soft.tolist(), tris.tolist()))
+        if cc is None or cc.key != key:
+            cc = self.current = self.sets.build(soft, tris, stones.cbary[soft].copy(), key,
+                                                stones.radius[soft].copy(), stats, rad)
+        exact = self.integrator.exact
+        s = soft.size
+        nk = cc.normals
+        q, a, vq, gq, mq, always, acc = contact_prep(
+            soft, stones.pos, stones.vel, stones.radius, stones.mass, GRAVITY, self.air.wind, self.air.drag_coef,
+            nk, cc.X, cc.rest, cc.Kdiag, self.sticky, exact, self.rest_speed)
+        if self.sticky:
+            group, wts = np.repeat(np.arange(s), 3), nk.ravel()
+        else:
+            group, wts = np.arange(s), np.ones(s)
+        res = self.integrator.step(cc, q, vq, a, mq, gq, h, group, wts, always)
+        impacts, fmax, indent, n_active = contact_post(
+            soft, stones.pos, stones.vel, stones.ctri, stones.hit, was_open[np.searchsorted(near, soft)], nk, acc,
+            q, a, vq, gq, res.q, res.v, res.active, res.seat_force, res.peak_seat_force, res.peak_ubar,
+            self.sticky, exact, h, self.rest_speed)
+        stats.impacts += int(impacts)
+        self.lam = res.seat_force
+        self.seat.set_forces(cc, res.seat_force, res.peak_seat_force)
+        stats.max_contact_force = max(stats.max_contact_force, float(fmax))
+        if n_active:
+            stats.max_indentation_m = max(stats.max_indentation_m, float(indent))
+        stats.max_simultaneous_contacts = max(stats.max_simultaneous_contacts, int(n_active))
+
+    def forces(self, ctri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Stone ids in soft contact and the forces they apply to the seat, (s,), (s, 3)
+        (``ctri``: the stones' contact triangles, -1 where released)."""
+        cc = self.current
+        if cc is None or self.lam.size == 0:
+            return np.zeros(0, dtype=np.intp), np.zeros((0, 3))
+        f = self.lam.reshape(-1, 3) if self.sticky else self.lam[:, None] * cc.normals
+        keep = ctri[cc.stones] >= 0
+        return cc.stones[keep], f[keep]
+
+    def warm_up(self, stones: Stones) -> None:
+        """Load (or compile) the contact step's kernels with the storm loop's argument types."""
+        none = np.zeros(0, dtype=np.intp)
+        e3, e = self._no_e3, self._no_forces
+        b = np.zeros(0, dtype=bool)
+        q, a, vq, gq, _, _, acc = contact_prep(none, stones.pos, stones.vel, stones.radius, stones.mass, GRAVITY,
+                                               self.air.wind, self.air.drag_coef, e3, e3, e, e, self.sticky, True,
+                                               1.0)
+        contact_post(none, stones.pos, stones.vel, stones.ctri, stones.hit, b, e3, acc, q, a, vq, gq, e, e, b, e, e,
+                     e, self.sticky, True, 0.0, 1.0)

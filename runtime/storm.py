@@ -36,7 +36,7 @@ Algorithm of one step (``dt`` = :attr:`Scene.dt`)
       compliance columns) are a hard wall (projection + restitution);
    d. the other contacts share one capacitance (``hailstorm.runtime.contact``), rebuilt
       only when the set of (stone, triangle[, patch radius]) changes; the stones are
-      advanced by :func:`hailstorm.runtime.hail.contact_step` with unilateral release.
+      advanced by the scene's integrator with unilateral release.
       ``integrator = "exact"`` solves the damped linear contact dynamics in
       closed form over the whole sub-step (maximum compression and release
       located inside it), so one sub-step per step suffices whatever
@@ -46,11 +46,26 @@ Algorithm of one step (``dt`` = :attr:`Scene.dt`)
       displacement ``u = D[:, V] B f`` is formed only for frames (:attr:`Storm.u`).
 4. Retire stones that left the seat's region; record a frame if one is due.
 
+The parts (each with explicit inputs; this module composes them)
+-----------------------------------------------------------------
+* :class:`~hailstorm.runtime.stones.Stones`, :class:`~hailstorm.runtime.stones.SpawnPlan`
+  -- the stones' arrays, spawning, retirement;
+* :class:`~hailstorm.runtime.seat.SeatState` -- vertex forces, displacement
+  queries, peaks;
+* :class:`~hailstorm.runtime.collide.Collision` -- broad phase, free flight, the
+  free part of a sub-step (narrow phase), penetration, retirement rule;
+* :class:`~hailstorm.runtime.soft_contacts.SoftContacts` -- the contact set
+  (:class:`~hailstorm.runtime.contact_set.ContactSets`), patch sizing
+  (:class:`~hailstorm.runtime.patches.Patches`) and the contact step
+  (:class:`~hailstorm.runtime.integrators.ContactIntegrator`);
+* :mod:`~hailstorm.runtime.recording` -- frames, the force history, the
+  statistics (:class:`~hailstorm.runtime.recording.StormStats`).
+
 Patch contacts (``patch = "hertz"``, the default)
 -------------------------------------------------
 Each soft contact spreads its force over a disc of radius ``a`` around the
 contact point, with the Hertz pressure profile (consistent P1 nodal loads,
-:func:`hailstorm.runtime.weights.patch_weights`); the contact prescribes the
+:func:`hailstorm.runtime.contact.weights.patch_weights`); the contact prescribes the
 pressure-weighted mean normal displacement of the surface under the disc
 (measured from the tangent plane at the contact point), which the stone's
 lowest point follows. ``patch = "none"`` gives the point contacts of the
@@ -72,7 +87,7 @@ course hint (barycentric weights on one triangle).
   that the damping was tuned for (the restitution), while the damping itself
   halves the amplitude within one impact.
 * Caching: a contact keeps ``(triangle, beta)`` while its stone stays over
-  the triangle, so its weights are cached per stone (:func:`hailstorm.runtime.patches.cached_weights`) and
+  the triangle, so its weights are cached per stone (:meth:`hailstorm.runtime.patches.Patches.weights`) and
   only recomputed when the contact moves to another triangle or is resized;
   a capacitance rebuild (set change) reuses the cached weights of every other
   contact.
@@ -100,130 +115,42 @@ time integration.
 BLAS runs single-threaded inside :func:`run_storm` (``threadpoolctl``): the
 dense solves are tiny and threaded BLAS on a shared machine only adds latency.
 
-Backends (``[compute] backend``)
---------------------------------
-A step's arithmetic is small; in numpy its cost is the per-call overhead of a
-few hundred calls on arrays of a handful of stones. With numba installed
-(``backend = "auto"`` or ``"numba"``) the same phases run in compiled kernels
-(:mod:`hailstorm.runtime.compiled`): the broad phase and free flight, the queries on a
-uniform grid of the same samples (instead of the k-d tree), phases a–c of a
-sub-step in one kernel (every free near stone is queried: the numpy path's
-query reuse and gap prediction only save numpy calls), the patch sizing and
-weights, the capacitance blocks, and the exact integrator's step; the
-orchestration stays in this module and the numpy path stays the reference
-the tests hold the kernels to. The two backends compute the same contacts to
-rounding, except where two triangles share a stone's closest point (an edge
-or vertex): both then take the triangle of the nearer sample, but the two
-distances, equal in exact arithmetic, round differently in each backend, so
-the pick (hence the contact normal) can differ and a storm on a curved seat
-diverges between the backends after such a tie, as it would under any
-rounding change (same statistics; on the flat test plate, identical).
+Compiled kernels
+----------------
+A step's arithmetic is small; as numpy calls its cost would be the per-call
+overhead of a few hundred calls on arrays of a handful of stones. Each phase
+runs once, in compiled kernels (:mod:`hailstorm.runtime.compiled`, numba): the
+broad phase and free flight, the queries on a uniform grid of the triangles'
+samples, phases a-c of a sub-step in one kernel, the patch sizing and weights,
+the capacitance blocks and the integrators' steps; the orchestration stays in
+this module. The tests hold the kernels to plain statements of the same rules
+(``tests/reference/``) and to independent oracles (brute-force closest points
+over all triangles, analytic bounces). ``NUMBA_DISABLE_JIT=1`` runs them as
+Python, for debugging.
 """
 
 from __future__ import annotations
 
-import bisect
 import logging
 import threading
 import time
-from dataclasses import dataclass, field
-from types import SimpleNamespace
 from typing import Any, Callable
 
 import numpy as np
 
-from hailstorm.runtime import narrow, patches, soft_contacts
-from hailstorm.runtime.collide import Closest, SurfaceIndex
-from hailstorm.runtime.compiled import (
-    capacitance_blocks,
-    contact_post,
-    contact_prep,
-    exact_step,
-    flight,
-    free_phase,
-    inv_spd,
-    near_set,
-    patch_compliance,
-    patch_one,
-    penetration,
-    resolve_backend,
-    retired,
-    rigid_contacts,
-    substep_contacts,
-    substep_damping,
-    substep_size,
-)
-from hailstorm.runtime.compiled.grid import _surface
-from hailstorm.runtime.hail import (
-    _X_GRID,
-    _Z_GRID,
-    GRAVITY,
-    drag_acceleration,
-    free_flight,
-    stone_mass,
-    terminal_velocity,
-)
+from hailstorm.runtime.collide import Collision, SurfaceIndex
+from hailstorm.runtime.compiled import KERNELS
+from hailstorm.runtime.contact_set import ContactSet, ContactSets
+from hailstorm.runtime.hail import GRAVITY, Air
+from hailstorm.runtime.integrators import ContactIntegrator
+from hailstorm.runtime.patches import Patches
+from hailstorm.runtime.recording import Frame, Recorder, StormResult, StormStats
 from hailstorm.runtime.scene import Scene, SceneError
-from hailstorm.runtime.soft_contacts import ContactSet
-from hailstorm.runtime.weights import PATCH_DROP, PATCH_FACING
+from hailstorm.runtime.seat import SeatState
+from hailstorm.runtime.soft_contacts import SoftContacts
+from hailstorm.runtime.stones import SpawnPlan, Stones
 
-__all__ = ["Frame", "Scene", "SceneError", "Storm", "StormResult", "run_storm"]
-
-
-@dataclass
-class Frame:
-    """One recorded instant.
-
-    Attributes
-    ----------
-    t : float
-        Time [s].
-    displacement : (n, 3) float32 ndarray
-        Surface displacement [m].
-    positions : (k, 3) ndarray
-        Centres of the live stones [m].
-    radii : (k,) ndarray
-    ids : (k,) int ndarray
-        Stone ids (spawn order).
-    contacts : int
-        Open contacts.
-    peak_displacement : (n, 3) float32 ndarray or None
-        Per vertex, the largest displacement seen since the previous frame
-        (see :meth:`Storm.frame`): an impact lasts about a millisecond, much
-        less than a frame interval, so ``displacement`` alone rarely shows
-        the dents. ``None`` when not recorded.
-    forces : (k, 3) ndarray or None
-        Per live stone (the rows of ``positions``), the force it applies to
-        the seat at the frame's instant [N] (zero when not in soft contact);
-        ``np.linalg.norm(forces, axis=1).sum()`` is the total contact force of
-        :attr:`StormResult.history` at this instant. ``None`` when not recorded.
-    """
-
-    t: float
-    displacement: np.ndarray
-    positions: np.ndarray
-    radii: np.ndarray
-    ids: np.ndarray
-    contacts: int
-    peak_displacement: np.ndarray | None = None
-    forces: np.ndarray | None = None
-
-
-@dataclass
-class StormResult:
-    """What :func:`run_storm` returns: the scene, the frames and the statistics.
-
-    ``frames`` holds the recorded frames when they were kept (``run_storm``'s
-    ``keep_frames``), else it is empty: they were streamed to ``on_frame``.
-    ``stats["frames"]`` counts them either way.
-    """
-
-    scene: Scene
-    frames: list[Frame]
-    stats: dict[str, Any]
-    #: contact-force history: (time, total normal force on the seat [N], open contacts) per step
-    history: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
-
+__all__ = ["Frame", "Scene", "SceneError", "Storm", "StormResult", "StormStats", "run_storm"]
 
 _log = logging.getLogger(__name__)
 
@@ -239,17 +166,23 @@ class _CompileNotice:
     after :data:`COMPILE_NOTICE_DELAY` seconds, numba is compiling and one INFO
     line says so."""
 
-    def __init__(self) -> None:
+    def __init__(self, stages: int) -> None:
         self._timer: threading.Timer | None = None
         self._t0 = time.perf_counter()
         self.times: dict[str, float] = {}
         self._what = ""
+        self._stages = stages
+        self._stage = 0
 
     def stage(self, what: str, seconds: float) -> None:
+        """The kernels loaded next and the CPU seconds their first compile takes (measured
+        with ``tests/benchmarks/compile_time.py``; more on a loaded machine)."""
         self.done()
+        self._stage += 1
         self._what, self._t0 = what, time.perf_counter()
         self._timer = threading.Timer(COMPILE_NOTICE_DELAY, _log.info, args=(
-            "compiling %s (numba, once after an install: about %.0f s)...", what, seconds))
+            "compiling %s [%d/%d] (numba, once after an install: about %.0f s)...", what, self._stage,
+            self._stages, seconds))
         self._timer.daemon = True
         self._timer.start()
 
@@ -259,17 +192,8 @@ class _CompileNotice:
             self.times[self._what] = time.perf_counter() - self._t0
             self._timer = None
 
-#: the per-stone arrays of a :class:`Storm` and the value a new stone starts with
-#: (None: given to :meth:`Storm.add_stones`)
-_STONE_FIELDS: tuple[tuple[str, Any], ...] = (
-    ("pos", None), ("vel", None), ("radius", None), ("mass", None), ("alive", True), ("ctri", -1),
-    ("cbary", 0.0), ("gap", np.inf), ("hit", False), ("near_tri", -1), ("crad", 0.0), ("budget", 0.0),
-    ("_bud_u", 0.0), ("_pgap", 0.0), ("_pstamp", -1),
-)
-
-
 class Storm:
-    """A running storm (stateful). :func:`run_storm` drives one from start to end.
+    """A running storm (stateful): the parts composed; :func:`run_storm` drives one from start to end.
 
     Parameters
     ----------
@@ -279,593 +203,122 @@ class Storm:
     spawn : bool
         Spawn the scene's random stones (``False``: only stones added with
         :meth:`add_stones`, e.g. for a single drop).
+
+    Attributes
+    ----------
+    stones : Stones
+    seat : SeatState
+    collision : Collision
+    contacts : SoftContacts
+    stats : StormStats
+    t : float
+        Simulated time [s].
     """
 
     def __init__(self, gf: Any, scene: Scene, *, spawn: bool = True) -> None:
         self.gf = gf
         self.scene = scene
-        self.index = SurfaceIndex(gf.vertices, gf.triangles)
-        self.X = np.asarray(gf.vertices, dtype=np.float64)
-        self.n = self.X.shape[0]
-        tri = np.asarray(gf.triangles)
-        has_col = np.asarray(gf.contactable) | np.asarray(gf.fixed)
-        #: triangles that deform under a contact (others are a hard wall)
-        self.soft = has_col[tri].all(axis=1) & ~np.asarray(gf.fixed)[tri].all(axis=1)
-        self._fixed = np.ascontiguousarray(gf.fixed, dtype=bool)
-        lo, hi = self.index.bbox
-        self.lo, self.hi = lo, hi
+        air = Air.of(scene.wind, scene.drag, scene.cd, scene.rho_air, scene.density)
         self.g = np.array([0.0, 0.0, -GRAVITY])
-        self.wind = np.asarray(scene.wind, dtype=np.float64)
-        self.rng = np.random.default_rng(scene.seed)
-        # stones (growable arrays)
-        self.pos = np.zeros((0, 3))
-        self.vel = np.zeros((0, 3))
-        self.radius = np.zeros(0)
-        self.mass = np.zeros(0)
-        self.alive = np.zeros(0, dtype=bool)
-        self.ctri = np.zeros(0, dtype=np.intp)  # contact triangle, -1 none
-        self.cbary = np.zeros((0, 3))
-        self.gap = np.zeros(0)  # last known distance to the surface minus radius
-        self.hit = np.zeros(0, dtype=bool)
-        self.near_tri = np.zeros(0, dtype=np.intp)  # closest triangle at the last query
-        # patch contacts: radius of each stone's contact (0: none yet) and its cached weights
-        self._patch = scene.patch != "none"
-        self.crad = np.zeros(0)
-        self._wcache: dict[int, tuple[int, bytes, float, np.ndarray, np.ndarray]] = {}
-        self._k_tri_all: np.ndarray | None = None  # normal stiffness per triangle (lazy)
-        # seat state: the contact forces at the loaded vertices; the displacement is
-        # evaluated only where needed (candidate triangles, frames)
-        D = gf.D
-        if isinstance(D, np.memmap) and not D.flags.f_contiguous and D.nbytes <= (1 << 30):
-            # column gathers D[:, cols] from a row-major memmap read the whole file each time:
-            # hold a column-major copy (a no-op once bundles store D column-major)
-            D = np.asfortranarray(D)
-        # a plain ndarray view of a memmap (no copy): numpy.memmap's per-index overhead
-        # (subclass wrapping) dominates the small gathers of the loop
-        self._D = np.asarray(D)
-        #: the bundle as the D-gather helpers see it, reading through that view
-        self._gfD = SimpleNamespace(D=self._D, column_of=np.asarray(gf.column_of))
-        self._col_of = np.ascontiguousarray(gf.column_of, dtype=np.int64)
-        #: the surface as the compiled kernels take it, and their "no forces"
-        self._surf = _surface(self.index.grid, self.index.sample_radius, self.index.vertices, self.index.triangles)
-        self._no_cols = np.zeros(0, dtype=np.int64)
-        self._no_forces = np.zeros(0)
-        self._no_e3 = np.zeros((0, 3))
-        self._fv: np.ndarray | None = None
-        self._fcols: np.ndarray | None = None
-        self._u_version = 0
-        self._u_cache: tuple[int, np.ndarray] = (-1, np.zeros((self.n, 3)))
-        self.umax = 0.0
-        self._umax_seen = 0.0
-        #: per stone, its deepest dent since the previous frame and the vertex forces
-        #: then: stone id -> (dent [m], D columns, vertex forces) (see :meth:`frame`)
-        self._peaks: dict[int, tuple[float, np.ndarray, np.ndarray]] = {}
-        self.budget = np.zeros(0)  # lower bound of each stone's distance to the seat [m]
-        self._bud_u = np.zeros(0)  # the displacement bound each budget allows for [m]
-        self._pgap = np.zeros(0)  # gap lower bound predicted for the next sub-step [m]
-        self._pstamp = np.zeros(0, dtype=np.int64)  # sub-step the prediction is valid for
-        #: the per-stone arrays above are the first rows of these buffers (see :meth:`add_stones`)
-        self._buffers = {name: getattr(self, name) for name, _ in _STONE_FIELDS}
-        self._capacity = 0
-        self._pred_umax = 0.0
-        self._umax_step = 0.0  # largest umax in the current step
-        self._live: np.ndarray | None = None
-        self._far = np.zeros(0, dtype=np.intp)  # live stones that are not near (set by _near_set)
-        #: time-of-impact sub-steps (adaptive) and the gap within which a contact opens [radii]
-        #: compiled kernels for the step's work (:mod:`hailstorm.runtime.compiled`), or numpy
-        try:
-            self.backend = resolve_backend(scene.backend)
-        except ValueError as exc:
-            raise SceneError(str(exc)) from None
-        self._compiled = self.backend == "numba"
-        #: quadratic drag coefficient 3 C_d rho_air / (8 rho_ice) (0: no drag), for the kernels
-        self._drag_coef = 3.0 * scene.cd * scene.rho_air / (8.0 * scene.density) if scene.drag else 0.0
-        if self._patch and self._compiled:
-            from hailstorm.runtime.weights import _disc_table, _triangle_index
-
-            self._pidx = _triangle_index(gf).arrays
-            self._disc = _disc_table("hertz")
-        #: the sub-steps' omega h target: symplectic Euler's explicit dashpot makes its peak force
-        #: first order in omega h (-21 % at 0.2, -5 % at 0.05 on one impact), so it takes half the
-        #: scene's (measured, default scene: max force 68.8 / 72.9 N at dt 0.05 / 0.5 ms with the
-        #: full target, 71.93 / 71.89 N with half, for 30 % more sub-steps)
-        self._omega_dt = float(scene.omega_dt) * (0.5 if scene.integrator == "symplectic" else 1.0)
-        self._toi = bool(scene.adaptive)
-        self._toi_tol = 0.01
-        self._hmin = scene.dt / scene.max_substeps
-        #: the end-of-step query: (sub-step stamp, stones, reach (-1: contact stones), result)
-        self._last_query: tuple[int, np.ndarray, np.ndarray, Closest] | None = None
-        self.cache: ContactSet | None = None
-        self.lam = np.zeros(0)
+        self.stones = Stones(scene.density)
+        self.seat = SeatState(gf)
+        self.collision = Collision(gf, scene, air)
+        normals = self.collision.index.normals
+        self.patches = Patches(gf, scene, self.seat, normals, self.collision.soft, air)
+        sets = ContactSets(gf, scene.mode == "sticky", self.seat, normals, self.collision.fixed, self.patches)
+        self.integrator = ContactIntegrator(scene)
+        self.contacts = SoftContacts(scene, sets, self.patches, self.integrator, self.seat, air)
+        self.stats = StormStats(patch=scene.patch)
         self.t = 0.0
-        self.stats: dict[str, Any] = dict(
-            hailstones=0, impacts=0, stones_hit=0, max_contact_force=0.0, max_indentation_m=0.0,
-            max_simultaneous_contacts=0, max_penetration_m=0.0, steps=0, substeps=0,
-            capacitance_rebuilds=0, wall_contacts=0, retired=0, queries_reused=0, queries_predicted=0,
-            max_penetration_contact_m=0.0, max_penetration_free_m=0.0, max_penetration_contact_rel=0.0,
-            _pen_contact_sum=0.0, _pen_contact_n=0,
-            patch=scene.patch, patch_weights_computed=0, patch_weights_reused=0, patch_resizes=0,
-            max_patch_radius_m=0.0,
-        )
-        self._pending = self._plan_spawns() if spawn else np.zeros((0, 8))
-        if self._compiled:
-            self._warm_up()
-        self._next_pending = 0
-        #: spawn times as a plain list (one float comparison per step when nothing is due)
-        self._pending_t = self._pending[:, 0].tolist()
+        self.plan = SpawnPlan(scene, self.collision.lo, self.collision.hi, np.random.default_rng(scene.seed)) \
+            if spawn else SpawnPlan.empty()
+        self._warm_up()
+
+    def step(self) -> None:
+        """Advance the storm by one step ``dt``."""
+        dt, st, stones, seat = self.scene.dt, self.stats, self.stones, self.seat
+        due = self.plan.due(self.t + dt)
+        if due is not None:
+            self.add_stones(due[:, 1:4], due[:, 4:7], due[:, 7])
+        live = stones.live()
+        near, far = self.collision.near_set(stones, live, dt, seat.umax_step) if live.size else (live, live)
+        if far.size:
+            self.collision.fly(stones, far, dt)
+            stones.gap[far] = np.inf
+        if near.size:
+            self.collision.penetration(stones, near, dt, seat, st)
+            t_left, n_sub = dt, 0
+            while t_left > 1e-12 * dt:
+                h = self.integrator.substep_size(stones, near, t_left, self.contacts.current, self._k_tri(), self.g)
+                if n_sub >= 4 * self.scene.max_substeps:
+                    h = t_left  # safety net: never stall
+                t_left -= self._substep(near, h)
+                n_sub += 1
+        elif seat.loaded:
+            self.contacts.release()
+        gone = self.collision.retired(stones, live) if live.size else live
+        if gone.size:
+            stones.retire(gone)
+            self.patches.forget(gone.tolist())
+            st.retired += int(gone.size)
+        seat.end_step()
+        self.t += dt
+        st.steps += 1
+
+    def _k_tri(self) -> np.ndarray | None:
+        """The triangles' point stiffness when the integrator sizes sub-steps by it (computed once)."""
+        return self.patches.k_tri if self.integrator.sizes_substeps else None
+
+    def _substep(self, near: np.ndarray, h: float) -> float:
+        """Advance the near stones by at most ``h``; returns the time actually taken
+        (shorter when a stone is about to touch the seat: time of impact): the free
+        phase (closest points, time of impact, contacts that open, hard walls), then the
+        soft contacts through their capacitance and free flight of the others."""
+        stones = self.stones
+        was_open = stones.ctri[near] >= 0
+        h = self.collision.free_phase(stones, near, h, self.seat, self.stats)
+        in_contact = stones.ctri[near] >= 0
+        soft = near[in_contact]
+        free = near[~in_contact] if soft.size else near
+        if soft.size:
+            self.contacts.advance(stones, near, soft, was_open, h, self.stats)
+        else:
+            self.contacts.release()
+        if free.size:
+            self.collision.fly(stones, free, h)
+        self.stats.substeps += 1
+        return h
 
     def _warm_up(self) -> None:
         """Load (or compile, the first time after an install) every kernel the loop calls,
         with the loop's argument types, so that the stepping itself runs compiled code
-        from its first step (loading takes ~0.3 s; compiling ~40 s, once: numba caches
-        the machine code on disk). Each group of kernels that compiles says so in one
-        INFO line (:class:`_CompileNotice`)."""
-        none = np.zeros(0, dtype=np.intp)
-        sc = self.scene
+        from its first step (loading takes ~0.3 s; compiling takes a while, once: numba
+        caches the machine code on disk). Each group of kernels that compiles says so in
+        one INFO line (:class:`_CompileNotice`)."""
+        sc, stones = self.scene, self.stones
         t0 = time.perf_counter()
-        notice = _CompileNotice()
-        notice.stage("the storm's free-flight and broad-phase kernels", 3)
-        self._fly(none, 0.0)
-        retired(none, self.pos, self.radius, self.lo, self.hi, float(sc.margin))
-        near_set(self.index.grid, self.index.sample_radius, self.index.bbox, none, self.pos, self.vel, self.radius,
-                 self.ctri, self.budget, self._bud_u, 0.0, float(sc.dt), GRAVITY)
-        notice.stage("the storm's closest-point and narrow-phase kernels", 8)
-        self._free_phase(none, float(sc.dt))
-        self._step_query(none, float(sc.dt))
-        notice.stage("the storm's contact-set kernels", 30)
-        soft = np.flatnonzero(self.soft)
+        notice = _CompileNotice(3)
+        notice.stage("the storm's free-flight, broad- and narrow-phase kernels", 13)
+        self.collision.warm_up(stones, self.seat, float(sc.dt))
+        notice.stage("the storm's contact-set kernels", 20 if self.patches.enabled else 12)
+        soft = np.flatnonzero(self.collision.soft)
         if soft.size:
             t = int(soft[0])
-            verts = np.asarray(self.gf.triangles)[[t]].astype(np.int64)
-            w = np.full((1, 3), 1.0 / 3.0)
-            n = self.index.normals[[t]]
-            rigid_contacts(verts, w, self._fixed)
-            inv_spd(capacitance_blocks(verts, w, n, sc.mode == "sticky", self._D, self._col_of)[1], 1e10, 1e-10)
-            patch_compliance(verts[0], w[0], n[0], self._D, self._col_of)
-            if self._patch:
-                patch_one(t, w[0], float(sc.patch_min_radius), n[0], 3.0, *self._disc, PATCH_FACING, PATCH_DROP,
-                          self._pidx, self.X)
-                patches.radii_compiled(self, none, none)
-        e3, e = self._no_e3, self._no_forces
-        b = np.zeros(0, dtype=bool)
-        notice.stage(f"the {sc.integrator} integrator's kernels", 25 if sc.integrator == "exact" else 15)
-        args = contact_prep(none, self.pos, self.vel, self.radius, self.mass, GRAVITY, self.wind, self._drag_coef,
-                            e3, e3, e, e, sc.mode == "sticky", True, 1.0)
-        q, a, vq, gq, _, _, acc = args
-        contact_post(none, self.pos, self.vel, self.ctri, self.hit, b, e3, acc, q, a, vq, gq, e, e, b, e, e, e,
-                     sc.mode == "sticky", True, 0.0, 1.0)
-        one = np.ones(1)
-        if sc.integrator == "exact":
-            exact_step(one, one, one, one, one, 1e-4, np.eye(1), np.eye(1), np.eye(1), True, np.arange(1), one,
-                       np.zeros(1, dtype=bool), 1e10, 1e-10)
-        else:
-            substep_contacts(one, one, one, one, one, 1e-4, np.eye(1), np.eye(1), np.eye(1), True, True,
-                             np.arange(1), one, 1e10, 1e-10)
-            substep_damping(one, np.eye(1), one, 0.5, 1e-4, True, _X_GRID, _Z_GRID)
-            if sc.adaptive:
-                self._substep_size(none, float(sc.dt))
+            self.contacts.sets.warm_up(t)
+            self.patches.warm_up(t, np.full((1, 3), 1.0 / 3.0), self.collision.index.normals[[t]], stones)
+        notice.stage(f"the {sc.integrator} integrator's kernels", 45 if sc.integrator == "exact" else 15)
+        self.contacts.warm_up(stones)
+        self.integrator.warm_up(stones, self._k_tri(), self.g, float(sc.dt))
         notice.done()
         _log.debug("storm kernels ready in %.2f s (%s)", time.perf_counter() - t0,
                    ", ".join(f"{k}: {v:.2f} s" for k, v in notice.times.items()))
 
-    # -- stones ------------------------------------------------------------------
-    def _plan_spawns(self) -> np.ndarray:
-        """All random stones of the storm: rows (t, x, y, z, vx, vy, vz, r)."""
-        sc, rng = self.scene, self.rng
-        n = sc.stones if sc.stones is not None else int(rng.poisson(sc.rate * sc.duration))
-        t = np.sort(rng.random(n) * sc.duration)
-        r = sc.size_distribution().sample(rng, n)
-        xy = np.stack([rng.uniform(self.lo[0] - sc.margin, self.hi[0] + sc.margin, n),
-                       rng.uniform(self.lo[1] - sc.margin, self.hi[1] + sc.margin, n)], axis=1)
-        vt = terminal_velocity(r, cd=sc.cd, rho_air=sc.rho_air, density=sc.density)
-        z0 = self.hi[2] + sc.spawn_height + r
-        t_fall = (z0 - 0.5 * (self.lo[2] + self.hi[2])) / np.maximum(vt, 1e-9)
-        xy = xy - self.wind[None, :2] * t_fall[:, None]  # upwind, so they land on the seat
-        vel = np.column_stack([np.broadcast_to(self.wind[:2], (n, 2)), -vt])
-        return np.column_stack([t, xy, z0, vel, r])
-
+    # -- the public face (stones, seat, contacts) -----------------------------------
     def add_stones(self, pos: np.ndarray, vel: np.ndarray, radius: np.ndarray) -> np.ndarray:
         """Add stones now; returns their ids."""
-        pos = np.atleast_2d(np.asarray(pos, dtype=np.float64))
-        vel = np.broadcast_to(np.asarray(vel, dtype=np.float64), pos.shape)
-        radius = np.broadcast_to(np.asarray(radius, dtype=np.float64), (pos.shape[0],))
-        k = pos.shape[0]
-        n = self.pos.shape[0]
-        ids = np.arange(n, n + k)
-        if n + k > self._capacity:  # grow the per-stone buffers (doubling: O(1) per stone)
-            cap = max(2 * self._capacity, n + k, 64)
-            for name, _ in _STONE_FIELDS:
-                old = getattr(self, name)
-                buf = np.empty((cap,) + old.shape[1:], dtype=old.dtype)
-                buf[:n] = old
-                self._buffers[name] = buf
-            self._capacity = cap
-        for name, new in _STONE_FIELDS:
-            arr = self._buffers[name][:n + k]
-            setattr(self, name, arr)
-            if new is not None:
-                arr[n:] = new
-        self.pos[n:] = pos
-        self.vel[n:] = vel
-        self.radius[n:] = radius
-        self.mass[n:] = stone_mass(radius, self.scene.density)
-        self._live = None
-        self.stats["hailstones"] += k
+        ids = self.stones.add(pos, vel, radius)
+        self.stats.hailstones += ids.size
         return ids
-
-    def _spawn_until(self, t_end: float) -> None:
-        j = self._next_pending
-        pt = self._pending_t
-        if j >= len(pt) or not pt[j] < t_end:
-            return  # nothing due (the times are sorted)
-        p = self._pending
-        k = bisect.bisect_left(pt, t_end, j)  # = np.searchsorted(p[:, 0], t_end, side="left")
-        if k > j:
-            self.add_stones(p[j:k, 1:4], p[j:k, 4:7], p[j:k, 7])
-            self._next_pending = k
-
-    def _accel(self, idx: np.ndarray) -> np.ndarray:
-        """Non-contact acceleration (gravity + drag) of stones ``idx``."""
-        a = np.empty((idx.size, 3))
-        a[:] = self.g
-        if self.scene.drag and idx.size:
-            sc = self.scene
-            a += drag_acceleration(self.vel[idx], self.radius[idx], wind=self.wind, cd=sc.cd,
-                                   rho_air=sc.rho_air, density=sc.density)
-        return a
-
-    def _fly(self, idx: np.ndarray, h: float) -> None:
-        """Free flight of stones ``idx`` over ``h`` (gravity and drag)."""
-        if self._compiled:
-            flight(idx, self.pos, self.vel, self.radius, h, GRAVITY, self.wind, self._drag_coef)
-            return
-        self.pos[idx], self.vel[idx] = free_flight(self.pos[idx], self.vel[idx], h,
-                                                   accel=self._accel(idx) - self.g, g=GRAVITY)
-
-    # -- the seat's displacement (only where it is needed) ---------------------------
-    def _set_forces(self, cc: ContactSet | None, lam: np.ndarray, peak: np.ndarray | None = None) -> None:
-        """Contact multipliers -> vertex forces; displacement bound ``umax``. ``peak``: the
-        multipliers of each contact's largest force within the sub-step (default ``lam``),
-        kept for the frames' peak displacement."""
-        self._u_version += 1
-        if cc is None or lam.size == 0 or not np.any(lam):
-            self._fv = None
-            self._fcols = None
-            self.umax = 0.0
-            if cc is not None and peak is not None and np.any(peak):
-                self._track_peaks(cc, peak)  # released within the sub-step: its dent still counts
-            return
-        self._fv = cc.G @ lam
-        self._fcols = cc.cols
-        uV = (cc.DVV @ lam).reshape(-1, 3)
-        # |u| peaks under the loads; 1.5x covers superposition between nearby loads
-        self.umax = 1.5 * float(np.sqrt((uV**2).sum(axis=1).max())) if uV.size else 0.0
-        self._umax_seen = max(self._umax_seen, self.umax)
-        self._umax_step = max(self._umax_step, self.umax)
-        self._track_peaks(cc, lam if peak is None else peak)
-
-    def _track_peaks(self, cc: ContactSet, lam: np.ndarray) -> None:
-        """Keep, per stone, the vertex forces of its deepest dent since the last frame.
-
-        The dent is the largest displacement of the contact's own load at the loaded
-        vertices (``D_VV G``): for fixed weights it grows with the force, and across
-        a re-weighting (a patch resized) it still ranks the fields by what they show,
-        which the force alone does not (a wider patch carries more force in a shallower dent).
-        """
-        s = cc.stones.size
-        m = lam.size // s  # multipliers per contact (1 frictionless, 3 sticky)
-        L = lam.reshape(-1, m)
-        if m == 1:
-            U = cc.DVV * L[:, 0]  # (3|V|, s): each contact's own displacement of V
-        else:
-            U = np.einsum("rkj,kj->rk", cc.DVV.reshape(-1, s, m), L)
-        U = U.reshape(-1, 3, s)
-        dent = np.sqrt((U * U).sum(axis=1).max(axis=0)) if U.size else np.zeros(s)
-        peaks = self._peaks
-        for k in np.flatnonzero(dent > 0.0).tolist():
-            sid = int(cc.stones[k])
-            prev = peaks.get(sid)
-            if prev is None or dent[k] > prev[0]:
-                fk = cc.G[:, m * k:m * k + m] @ L[k]
-                nz = np.flatnonzero(fk)
-                peaks[sid] = (float(dent[k]), cc.cols[nz], fk[nz])
-
-    def _peak_field(self) -> np.ndarray:
-        """Per vertex, the largest of the current displacement and each stone's displacement
-        at its deepest dent since the previous frame (each stone's field alone: impacts rarely
-        overlap within a frame, and superposing peaks of different instants would overstate)."""
-        u = self.u
-        if not self._peaks:
-            return u
-        fields = [u] + [(self._D[:, cols] @ fv).reshape(self.n, 3) for _, cols, fv in self._peaks.values()]
-        F = np.stack(fields)  # (m + 1, n, 3)
-        pick = np.argmax(np.einsum("mnd,mnd->mn", F, F), axis=0)
-        return F[pick, np.arange(self.n)]
-
-    def _u_at(self, verts: np.ndarray) -> np.ndarray:
-        """Displacement (k, 3) of surface vertices ``verts`` under the current contact forces."""
-        if self._fv is None or verts.size == 0:
-            return np.zeros((verts.size, 3))
-        assert self._fcols is not None  # set together with _fv (_set_forces)
-        rows = (3 * verts[:, None] + np.arange(3)).ravel()
-        return (self._D[np.ix_(rows, self._fcols)] @ self._fv).reshape(-1, 3)
-
-    @property
-    def u(self) -> np.ndarray:
-        """Displacement (n, 3) of the whole surface (computed on demand, e.g. for frames)."""
-        if self._u_cache[0] != self._u_version:
-            if self._fv is None:
-                u = np.zeros((self.n, 3))
-            else:
-                u = (self._D[:, self._fcols] @ self._fv).reshape(self.n, 3)
-            self._u_cache = (self._u_version, u)
-        return self._u_cache[1]
-
-    def _query(self, stones: np.ndarray, reach: np.ndarray, deformed: bool = True) -> Closest:
-        """Closest points for the numpy narrow phase (the compiled one queries inside its kernels)."""
-        deformed = deformed and self._fv is not None
-        return self.index.query(self.pos[stones], reach, displacement=self._u_at if deformed else None,
-                                max_displacement=self.umax if deformed else 0.0)
-
-    def _substep(self, near: np.ndarray, h: float) -> float:
-        """Advance the near stones by at most ``h``; returns the time actually taken
-        (shorter when a stone is about to touch the seat: time of impact).
-
-        The phases, in order (numpy: :mod:`hailstorm.runtime.narrow`; compiled:
-        :meth:`_free_phase`): closest points, time of impact, gap predictions for
-        the next sub-step (numpy only), contacts that open, hard walls; then soft
-        contacts through the capacitance (:func:`hailstorm.runtime.soft_contacts.advance`) and free flight.
-        """
-        in_contact = self.ctri[near] >= 0
-        was_open = in_contact.copy()
-        if self._compiled:
-            h = self._free_phase(near, h)
-        else:
-            px = narrow.proximity(self, near, in_contact, h)
-            if self._toi and px.qi.size:
-                h = narrow.time_of_impact(self, px, h)
-            new = narrow.contacts_to_open(self, px)
-            if self._toi and px.qi.size:
-                narrow.predict_gaps(self, px, new, h)
-            narrow.open_contacts(self, px, new)
-            narrow.hard_walls(self, near, px.point)
-        soft = near[self.ctri[near] >= 0]
-        if soft.size < near.size:
-            free = near[self.ctri[near] < 0] if soft.size else near
-        else:
-            free = near[:0]
-        if soft.size:
-            soft_contacts.advance(self, near, soft, was_open, h)
-        else:
-            self.cache = None
-            self.lam = np.zeros(0)
-            self._set_forces(None, self.lam)
-        if free.size:
-            self._fly(free, h)
-        self.stats["substeps"] += 1
-        return h
-
-    def _free_phase(self, near: np.ndarray, h: float) -> float:
-        """The compiled counterpart of :mod:`hailstorm.runtime.narrow`
-        (:func:`hailstorm.runtime.compiled.free_phase`; every stone is queried: no reuse or
-        prediction, which only save numpy calls). Returns the sub-step taken."""
-        sc = self.scene
-        use_u = self._fv is not None
-        coef = self._drag_coef
-        h, walls = free_phase(
-            near, h, self._toi, self._toi_tol, self._hmin, self.pos, self.vel, self.radius, self.ctri, self.cbary,
-            self.gap, self.near_tri, self._surf, self.index.normals, self.soft, self._fixed, self.umax, use_u,
-            self._D, self._fcols if use_u else self._no_cols, self._fv if use_u else self._no_forces,
-            GRAVITY, self.wind, coef, float(sc.restitution))
-        self.stats["wall_contacts"] += int(walls)
-        return float(h)
-
-    def _substep_size(self, near: np.ndarray, h_left: float) -> float:
-        sc = self.scene
-        h = h_left
-        if not sc.adaptive or sc.integrator == "exact":
-            return h  # exact: no stability/accuracy limit; impacts are caught by time of impact
-        hmin = sc.dt / sc.max_substeps
-        if self._compiled:
-            cc = self.cache
-            if self._k_tri_all is None:
-                self._k_tri_all = patches.all_triangle_stiffness(self)
-            if cc is not None and cc.stones.size:
-                cs, kd, cn, cx, cr = cc.stones, cc.Kdiag, cc.normals, cc.X, cc.rest
-            else:
-                cs, kd, cn, cx, cr = self._no_cols, self._no_forces, self._no_e3, self._no_e3, self._no_forces
-            return float(substep_size(near, float(h_left), float(hmin), self.vel, self.radius, self.mass, self.pos,
-                                      self.gap, self.near_tri, self.ctri, self._k_tri_all,
-                                      float(sc.approach_fraction), float(sc.rest_speed), self._omega_dt,
-                                      sc.integrator == "symplectic", cs, kd, sc.mode == "sticky", cn, cx, cr, self.g))
-        speed = np.linalg.norm(self.vel[near], axis=1)
-        # gap unknown (inf: just became near) counts as close
-        close = ~(self.gap[near] >= speed * h + 1e-3)
-        close |= ~np.isfinite(self.gap[near])
-        if close.any():
-            cl = near[close]
-            lim = sc.approach_fraction * self.radius[cl] / np.maximum(speed[close], 1e-9)
-            h = min(h, float(lim.min()))
-            # resolve the coming impact from its first step (1.5: the stiffness varies over a triangle)
-            k = patches.triangle_stiffness(self, self.near_tri[cl])
-            fast = (speed[close] > sc.rest_speed) | (sc.integrator == "symplectic")
-            if np.any(fast & (k > 0)):
-                omega = 1.5 * np.sqrt(k[fast] / self.mass[cl][fast])
-                h = min(h, self._omega_dt / float(omega.max()))
-        cc = self.cache
-        if cc is not None and cc.stones.size:
-            st = cc.stones
-            open_ = self.ctri[st] >= 0
-            if open_.any():
-                k = np.clip(np.diag(cc.K), 0.0, None)
-                if sc.mode == "sticky":
-                    k = k.reshape(-1, 3).max(axis=1)
-                omega = np.sqrt(k / self.mass[st])
-                vn = np.einsum("ij,ij->i", self.vel[st], cc.normals)
-                # oscillation amplitude about the static equilibrium, in velocity units
-                ubar = np.einsum("ij,ij->i", self.pos[st] - cc.X, cc.normals) - cc.rest
-                u_eq = np.einsum("j,ij->i", self.g, cc.normals) * self.mass[st] / np.maximum(k, 1e-300)
-                amp = np.hypot(vn, omega * (ubar - u_eq))
-                moving = open_ & ((amp > sc.rest_speed) | (sc.integrator == "symplectic"))
-                if moving.any():
-                    h = min(h, self._omega_dt / float(omega[moving].max()))
-        return float(min(max(h, hmin), h_left))
-
-    # -- the step ------------------------------------------------------------------
-    def _near_set(self, live: np.ndarray, dt: float) -> np.ndarray:
-        """Stones that may touch the seat within this step (conservative advancement).
-
-        Every stone carries a ``budget``: a lower bound of its distance to the
-        deformed surface, valid while ``|u| <= umax_i`` (the displacement bound
-        it was measured with; if the seat's ``umax`` grows beyond it the budget
-        shrinks by the difference). Flying stones spend it by what they can
-        travel in a step; only when it runs out is the distance re-measured (a
-        k-d tree query). Stones with budget left are not collision-tested.
-        """
-        if self._compiled:
-            ix = self.index
-            m = near_set(ix.grid, ix.sample_radius, ix.bbox, live, self.pos, self.vel, self.radius, self.ctri,
-                         self.budget, self._bud_u, 1.5 * self._umax_step, dt, GRAVITY)
-            self._far = live[~m]
-            return live[m]
-        v = self.vel[live]
-        travel = np.sqrt(np.einsum("ij,ij->i", v, v)) * dt + GRAVITY * dt * dt + 1e-4
-        U = 1.5 * self._umax_step
-        inc = U - self._bud_u[live]
-        if np.any(inc > 0):
-            self.budget[live] -= np.clip(inc, 0.0, None)
-            self._bud_u[live] = np.maximum(self._bud_u[live], U)
-        b = self.budget[live]
-        incontact = self.ctri[live] >= 0
-        # stones in contact are near whatever their budget: no k-d query for them; their
-        # budget is spent (-inf), so they are re-measured in the first step after release
-        # (a measured budget of a touching stone is <= 0 < travel: the same decision)
-        chk = (b <= travel) & ~incontact
-        if incontact.any():
-            self.budget[live[incontact]] = -np.inf
-        if chk.any():
-            check = live[chk]
-            # the distance to the seat's bounding box bounds the distance to its nearest sample
-            # from below, so where the box alone leaves budget past this step's travel the k-d
-            # query would too: those stones take the box bound and are not queried. (A stone is
-            # near exactly when a k-d bound says so, whichever bounds were taken before.)
-            p = self.pos[check]
-            out = np.maximum(np.maximum(self.lo - p, p - self.hi), 0.0)
-            lb = (np.sqrt(np.einsum("ij,ij->i", out, out)) - self.index.sample_radius - self.radius[check]
-                  - U - 1e-4)
-            kd = lb <= travel[chk]
-            if kd.any():
-                d, _ = self.index.tree.query(p[kd], k=1)
-                lb[kd] = d - self.index.sample_radius - self.radius[check[kd]] - U - 1e-4
-            self.budget[check] = lb
-            self._bud_u[check] = U
-            b = self.budget[live]
-        near_m = (b <= travel) | incontact
-        # flying stones spend their budget
-        far = live[~near_m]
-        self.budget[far] -= travel[~near_m]
-        self._far = far  # the complement, for step() (saves an np.isin)
-        return live[near_m]
-
-    def _step_query(self, near: np.ndarray, dt: float) -> None:
-        """One narrow-phase query per step for the near stones: the penetration of the
-        deformed surface (sphere vs surface) for the statistics, kept for the first
-        sub-step to reuse (free stones with this step's reach, contact stones within r;
-        free stones whose predicted gap shows they cannot touch in this step are skipped)."""
-        if self._compiled:
-            use_u = self._fv is not None
-            mp, mpc, mrc, spc, npc, mpf = penetration(
-                near, float(dt), self.pos, self.vel, self.radius, self.ctri, self._surf, self.umax, use_u, self._D,
-                self._fcols if use_u else self._no_cols, self._fv if use_u else self._no_forces)
-            st = self.stats
-            st["max_penetration_m"] = max(st["max_penetration_m"], mp)
-            st["max_penetration_contact_m"] = max(st["max_penetration_contact_m"], mpc)
-            st["max_penetration_contact_rel"] = max(st["max_penetration_contact_rel"], mrc)
-            st["max_penetration_free_m"] = max(st["max_penetration_free_m"], mpf)
-            st["_pen_contact_sum"] += spc
-            st["_pen_contact_n"] += int(npc)
-            return
-        vv = self.vel[near]
-        sp = np.sqrt(np.einsum("ij,ij->i", vv, vv))
-        free_m = self.ctri[near] < 0
-        pg = self._pgap[near] - abs(self.umax - self._pred_umax)
-        skip = free_m & (self._pstamp[near] == self.stats["substeps"]) & (pg > sp * dt + GRAVITY * dt * dt + 1e-4)
-        qs = near[~skip] if skip.any() else near
-        free_m = free_m[~skip] if skip.any() else free_m
-        # (free stones: the same expression, in the same order, as the first sub-step's reach,
-        # so that the sub-step reuses this query instead of missing it by a rounding error)
-        reach = np.where(free_m, self.radius[qs] + sp[~skip] * dt + 1e-3, self.radius[qs])
-        qf = self._query(qs, reach)
-        self._last_query = (self.stats["substeps"], qs, np.where(free_m, reach, -1.0), qf)
-        pen = self.radius[qs] - qf.distance
-        fin = np.isfinite(pen)
-        if fin.any():
-            self.stats["max_penetration_m"] = max(self.stats["max_penetration_m"], float(pen[fin].max()))
-            inc = ~free_m & fin
-            if inc.any():
-                key = "max_penetration_contact_m"
-                self.stats[key] = max(self.stats[key], float(pen[inc].max()))
-                rel = pen[inc] / self.radius[qs[inc]]
-                self.stats["max_penetration_contact_rel"] = max(self.stats["max_penetration_contact_rel"],
-                                                                float(rel.max()))
-                self.stats["_pen_contact_sum"] += float(np.clip(pen[inc], 0.0, None).sum())
-                self.stats["_pen_contact_n"] += int(inc.sum())
-            if (fin & free_m).any():
-                key = "max_penetration_free_m"
-                self.stats[key] = max(self.stats[key], float(pen[fin & free_m].max()))
-
-    def step(self) -> None:
-        """Advance the storm by one step ``dt``."""
-        sc = self.scene
-        dt = sc.dt
-        self._spawn_until(self.t + dt)
-        live = self._live
-        if live is None:
-            live = self._live = np.flatnonzero(self.alive)
-        if live.size:
-            near = self._near_set(live, dt)
-            far = self._far
-        else:
-            near = far = live
-        if far.size:
-            self._pstamp[far] = -1  # gap predictions are for near stones that stay near
-            self._fly(far, dt)
-            self.gap[far] = np.inf
-        if near.size:
-            self._step_query(near, dt)
-            t_left = dt
-            n_sub = 0
-            while t_left > 1e-12 * dt:
-                h = self._substep_size(near, t_left)
-                if n_sub >= 4 * self.scene.max_substeps:
-                    h = t_left  # safety net: never stall
-                h = self._substep(near, h)
-                t_left -= h
-                n_sub += 1
-        elif self._fv is not None:
-            self.cache = None
-            self._set_forces(None, np.zeros(0))
-        # retire stones that left the seat's region
-        if live.size:
-            if self._compiled:
-                gone = retired(live, self.pos, self.radius, self.lo, self.hi, float(sc.margin))
-            else:
-                p = self.pos[live]
-                r = self.radius[live][:, None]
-                gone = (p[:, 2] < self.lo[2] - sc.margin) | np.any(
-                    (p[:, :2] < self.lo[:2] - 2 * sc.margin - r)
-                    | (p[:, :2] > self.hi[:2] + 2 * sc.margin + r), axis=1) & (p[:, 2] < self.hi[2])
-            if gone.any():
-                g = live[gone]
-                self.alive[g] = False
-                for j in g.tolist():
-                    self._wcache.pop(j, None)
-                self.ctri[g] = -1
-                self._live = None
-                self.stats["retired"] += int(gone.sum())
-        self._umax_step = self.umax
-        self.t += dt
-        self.stats["steps"] += 1
 
     def frame(self) -> Frame:
         """The current state as a :class:`Frame`.
@@ -873,27 +326,66 @@ class Storm:
         Its ``peak_displacement`` covers the time since the previous call (the
         start, for the first): calling this starts a new peak interval.
         """
-        live = np.flatnonzero(self.alive)
-        peak = self._peak_field().astype(np.float32)
-        self._peaks = {}
+        stones = self.stones
+        live = np.flatnonzero(stones.alive)
+        peak = self.seat.peak_field().astype(np.float32)
         forces = np.zeros((live.size, 3))
         ids, f = self.contact_forces()
         np.add.at(forces, np.searchsorted(live, ids), f)  # stones in contact are live
-        return Frame(t=self.t, displacement=self.u.astype(np.float32), positions=self.pos[live].copy(),
-                     radii=self.radius[live].copy(), ids=live.copy(), contacts=int((self.ctri[live] >= 0).sum()),
-                     peak_displacement=peak, forces=forces)
+        return Frame(t=self.t, displacement=self.seat.u.astype(np.float32), positions=stones.pos[live].copy(),
+                     radii=stones.radius[live].copy(), ids=live.copy(),
+                     contacts=int((stones.ctri[live] >= 0).sum()), peak_displacement=peak, forces=forces)
 
     def contact_forces(self) -> tuple[np.ndarray, np.ndarray]:
         """Stone ids in soft contact and the forces they apply to the seat, (s,), (s, 3)."""
-        if self.cache is None or self.lam.size == 0:
-            return np.zeros(0, dtype=np.intp), np.zeros((0, 3))
-        cc = self.cache
-        if self.scene.mode == "frictionless":
-            f = self.lam[:, None] * cc.normals
-        else:
-            f = self.lam.reshape(-1, 3)
-        keep = self.ctri[cc.stones] >= 0
-        return cc.stones[keep], f[keep]
+        return self.contacts.forces(self.stones.ctri)
+
+    @property
+    def u(self) -> np.ndarray:
+        """Displacement (n, 3) of the whole surface (computed on demand, e.g. for frames)."""
+        return self.seat.u
+
+    @property
+    def index(self) -> SurfaceIndex:
+        """The surface's index (samples, grid, triangle normals, bounding box)."""
+        return self.collision.index
+
+    @property
+    def soft(self) -> np.ndarray:
+        """Triangles that deform under a contact (others are a hard wall)."""
+        return self.collision.soft
+
+    @property
+    def cache(self) -> ContactSet | None:
+        """The current contact set."""
+        return self.contacts.current
+
+    @property
+    def lam(self) -> np.ndarray:
+        """The current contact set's multipliers (seat forces)."""
+        return self.contacts.lam
+
+    @property
+    def n(self) -> int:
+        """Surface vertices."""
+        return self.seat.n
+
+    @property
+    def lo(self) -> np.ndarray:
+        return self.collision.lo
+
+    @property
+    def hi(self) -> np.ndarray:
+        return self.collision.hi
+
+
+def _stone_array(name: str) -> property:
+    return property(lambda self: getattr(self.stones, name),
+                    doc=f"The stones' ``{name}`` (:class:`~hailstorm.runtime.stones.Stones`).")
+
+
+for _name in ("pos", "vel", "radius", "mass", "alive", "ctri", "cbary", "gap", "hit", "near_tri", "crad", "budget"):
+    setattr(Storm, _name, _stone_array(_name))
 
 
 def run_storm(
@@ -949,26 +441,8 @@ def run_storm(
     setup0 = time.perf_counter()
     storm = Storm(gf, scene)
     setup = time.perf_counter() - setup0
-    n_steps = scene.n_steps()
-    frame_dt = 1.0 / scene.fps
-    frames: list[Frame] = []
-    n_frames = 0
-    sink_time = 0.0  # spent in on_frame (writing files): not the storm's wall time
-
-    def record() -> None:
-        nonlocal n_frames, sink_time
-        f = storm.frame()
-        n_frames += 1
-        if on_frame is not None:
-            t0 = time.perf_counter()
-            on_frame(f)
-            sink_time += time.perf_counter() - t0
-        if keep:
-            frames.append(f)
-
-    record()
-    next_frame = frame_dt
-    history = np.zeros((n_steps, 3))
+    rec = Recorder(scene.n_steps(), scene.fps, on_frame, keep)
+    rec.record(storm.frame())
     bar = None
     if progress is True:
         from tqdm.auto import tqdm
@@ -978,36 +452,32 @@ def run_storm(
     from threadpoolctl import threadpool_limits
 
     limiter = threadpool_limits(1)  # small dense solves: threaded BLAS only adds overhead
-    wall0, sink0 = time.perf_counter(), sink_time
+    wall0, sink0 = time.perf_counter(), rec.sink_time
     shown = 0.0
     try:
-        for i in range(n_steps):
+        for i in range(rec.n_steps):
             storm.step()
-            _, f = storm.contact_forces()
-            history[i] = (storm.t, float(np.linalg.norm(f, axis=1).sum()) if f.size else 0.0, f.shape[0])
-            if storm.t >= next_frame - 1e-12 or i == n_steps - 1:
-                record()
-                next_frame += frame_dt
+            rec.forces(i, storm.t, storm.contact_forces()[1])
+            if rec.frame_due(storm.t, i):
+                rec.record(storm.frame())
             if bar is not None:
-                if storm.t - shown >= 0.002 * scene.duration or i == n_steps - 1:
+                if storm.t - shown >= 0.002 * scene.duration or i == rec.n_steps - 1:
                     bar.update(min(storm.t, scene.duration) - shown)
                     shown = min(storm.t, scene.duration)
             elif callable(progress):
                 progress(storm.t, scene.duration)
     finally:
-        wall = time.perf_counter() - wall0 - (sink_time - sink0)
+        wall = time.perf_counter() - wall0 - (rec.sink_time - sink0)
         limiter.restore_original_limits()
         if bar is not None:
             bar.close()
-    st = storm.stats
-    st["stones_hit"] = int(storm.hit.sum())
-    n_pen, pen_sum = st.pop("_pen_contact_n"), st.pop("_pen_contact_sum")
-    st["mean_penetration_contact_m"] = pen_sum / n_pen if n_pen else 0.0
-    st.update(
-        sim_time_s=float(storm.t), wall_time_s=float(wall), setup_time_s=float(setup), backend=storm.backend,
-        real_time_factor=float(storm.t / wall) if wall > 0 else float("inf"),
-        seed=scene.seed, dt=scene.dt, integrator=scene.integrator, mode=scene.mode,
-        restitution=scene.restitution, n_vertices=int(storm.n), n_triangles=int(len(gf.triangles)),
-        resting_at_end=int((storm.ctri[storm.alive] >= 0).sum()), frames=n_frames, output_time_s=float(sink_time),
-    )
-    return StormResult(scene=scene, frames=frames, stats=st, history=history)
+    st, stones = storm.stats, storm.stones
+    st.stones_hit = int(stones.hit.sum())
+    st.sim_time_s, st.wall_time_s, st.setup_time_s, st.backend = float(storm.t), float(wall), float(setup), KERNELS
+    st.real_time_factor = float(storm.t / wall) if wall > 0 else float("inf")
+    st.seed, st.dt, st.integrator, st.mode, st.restitution = (scene.seed, scene.dt, scene.integrator, scene.mode,
+                                                              scene.restitution)
+    st.n_vertices, st.n_triangles = int(storm.n), int(len(gf.triangles))
+    st.resting_at_end = int((stones.ctri[stones.alive] >= 0).sum())
+    st.frames, st.output_time_s = rec.n_frames, float(rec.sink_time)
+    return StormResult(scene=scene, frames=rec.frames, stats=st, history=rec.history)

@@ -173,7 +173,7 @@ def test_the_runtime_stage_runs_a_storm_without_the_offline_stage(box_bundle):
     code = (
         "import dataclasses, sys\n"
         "from hailstorm.runtime import Scene, load, run_storm\n"
-        "sc = dataclasses.replace(Scene.default(), duration=0.02, backend='numpy')\n"
+        "sc = dataclasses.replace(Scene.default(), duration=0.02)\n"
         "res = run_storm(load(sys.argv[1]), sc, progress=False)\n"
         "assert res.stats['hailstones'] >= 0\n"
         "bad = [m for m in sys.modules if m.split('.')[0] in ('gmsh', 'skfem')"

@@ -134,18 +134,14 @@ def test_unknown_command_is_a_usage_error(tmp_path):
     assert not (tmp_path / "o").exists()
 
 
-def test_storm_backend_from_the_command_line(seat_bundle, tmp_path):
-    import json
-
-    from hailstorm.runtime.compiled import HAVE_NUMBA
-
-    for backend in ("numpy", "auto"):
-        out = tmp_path / backend
-        run = run_cli("storm", "--duration", 0.01, "--stones", 2, "--backend", backend, "--gf", seat_bundle,
-                        "--out", out, "-q", "--no-video")
-        assert run.returncode == 0, run.stderr
-        s = json.loads((out / "summary.json").read_text())
-        assert s["scene"]["compute"]["backend"] == backend
-        assert s["backend"] == ("numba" if backend == "auto" and HAVE_NUMBA else "numpy")
-    run = run_cli("storm", "--backend", "cuda", "--out", tmp_path / "o", check=False)
-    assert run.returncode == 2 and "invalid choice" in run.stderr
+def test_backend_option_is_gone(tmp_path):
+    """The storm always runs its compiled kernels: no --backend, and a scene's old
+    [compute] section is refused in one line that says what to do."""
+    run = run_cli("storm", "--backend", "numpy", "--out", tmp_path / "o", check=False)
+    assert run.returncode == 2 and "--backend" in run.stderr
+    scene = tmp_path / "old.toml"
+    scene.write_text('[compute]\nbackend = "numpy"\n')
+    run = run_cli("storm", "--scene", scene, "--out", tmp_path / "o", check=False)
+    assert run.returncode == 3 and "Traceback" not in run.stderr
+    assert "[compute]" in run.stderr and "remove" in run.stderr and len(run.stderr.strip().splitlines()) == 1
+    assert not (tmp_path / "o").exists()

@@ -5,7 +5,7 @@ the storm takes its capacitance under the contact API's one policy (the
 pseudo-inverse beyond ``COND_LIMIT``: the min-norm, symmetric split of the common
 force) and damps every normal mode of it to the target restitution. Each stone
 must then rebound like a single stone: finite, symmetric, e on target, on every
-integrator and backend.
+integrator.
 """
 
 from __future__ import annotations
@@ -13,24 +13,19 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hailstorm.runtime.compiled import HAVE_NUMBA
 from hailstorm.runtime.scene import Scene
 from hailstorm.runtime.storm import Storm
 from test_hail import plate_gf
-
-BACKENDS = ["numpy"] + (["numba"] if HAVE_NUMBA else [])
-
 
 @pytest.fixture(scope="module")
 def gf():
     return plate_gf()
 
 
-def _drop_pair(gf, integrator, backend, d, patch, r=0.002, v0=5.0, dt=2e-4):
+def _drop_pair(gf, integrator, d, patch, r=0.002, v0=5.0, dt=2e-4):
     """Two stones of radius ``r`` side by side ``d`` apart onto the flat plate at ``v0``:
     each stone's restitution (rebound / impact normal speed) and the storm."""
-    sc = Scene(duration=0.05, stones=0, drag=False, dt=dt, integrator=integrator, restitution=0.5, patch=patch,
-               backend=backend)
+    sc = Scene(duration=0.05, stones=0, drag=False, dt=dt, integrator=integrator, restitution=0.5, patch=patch)
     st = Storm(gf, sc, spawn=False)
     c = np.array([0.0613, 0.0011, 0.0])  # inside a triangle, off its centre
     st.add_stones(np.array([c + [-d / 2, 0, r + 1e-3], c + [d / 2, 0, r + 1e-3]]), np.tile([0.0, 0.0, -v0], (2, 1)),
@@ -54,12 +49,11 @@ def _drop_pair(gf, integrator, backend, d, patch, r=0.002, v0=5.0, dt=2e-4):
     return np.array(v_out) / np.array(v_in), st
 
 
-@pytest.mark.parametrize("backend", BACKENDS)
 @pytest.mark.parametrize("integrator", ["implicit", "symplectic", "exact"])
 @pytest.mark.parametrize("d", [0.0, 1e-9, 1e-5, 1e-3])
 @pytest.mark.parametrize("patch", ["hertz", "none"])
-def test_coincident_stones_rebound_with_the_target_restitution(gf, backend, integrator, d, patch):
-    e, st = _drop_pair(gf, integrator, backend, d, patch)
+def test_coincident_stones_rebound_with_the_target_restitution(gf, integrator, d, patch):
+    e, st = _drop_pair(gf, integrator, d, patch)
     assert np.isfinite(st.pos).all() and np.isfinite(st.vel).all() and np.isfinite(st.u).all()
     assert np.all(np.abs(e - 0.5) < 0.1), e
     # symmetric: the two stones behave alike (exactly so when they share the point)
@@ -71,7 +65,7 @@ def test_spd_inverse_is_the_contact_api_policy():
     factor -- the exact inverse of a well-conditioned W, the pseudo-inverse of a
     (nearly) singular one (coincident contacts: symmetric, finite)."""
     from hailstorm.runtime.compiled import inv_spd
-    from hailstorm.runtime.contact_capacitance import COND_LIMIT, PINV_RCOND, spd_inverse
+    from hailstorm.runtime.contact.policy import COND_LIMIT, PINV_RCOND, spd_inverse
 
     W1 = np.array([[2.0, 0.5], [0.5, 1.0]])
     np.testing.assert_allclose(spd_inverse(W1), np.linalg.inv(W1), rtol=1e-12)

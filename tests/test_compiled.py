@@ -1,4 +1,5 @@
-"""The compiled kernels (numba) against their numpy references."""
+"""The compiled kernels (numba) against their numpy references: the contact steps (the
+storm's geometry kernels are in test_storm_kernels) and the contact API's blocks."""
 
 from __future__ import annotations
 
@@ -10,102 +11,12 @@ import pytest
 pytest.importorskip("numba")
 
 from hailstorm.runtime import compiled as C  # noqa: E402
-from hailstorm.runtime import patches, soft_contacts  # noqa: E402
-from hailstorm.runtime.collide import SurfaceIndex  # noqa: E402
-from hailstorm.runtime.scene import Scene, SceneError  # noqa: E402
-from hailstorm.runtime.storm import Storm, run_storm  # noqa: E402
 from test_hail import plate_gf  # noqa: E402
 
 
 @pytest.fixture(scope="module")
 def gf():
     return plate_gf()
-
-
-def _bumpy(gf):
-    """A lifted, bumpy copy of the plate (no two triangles coplanar)."""
-    V = gf.vertices.copy()
-    V[:, 2] = 0.01 * np.sin(40 * V[:, 0]) * np.cos(30 * V[:, 1])
-    return V, np.asarray(gf.triangles)
-
-
-def test_nearest_sample_is_exact(gf):
-    """The grid's nearest-sample search equals the k-d tree's, inside and far outside the grid."""
-    V, T = _bumpy(gf)
-    idx = SurfaceIndex(V, T)
-    g = idx.grid
-    rng = np.random.default_rng(1)
-    P = rng.uniform(V.min(axis=0) - 0.05, V.max(axis=0) + 0.05, (500, 3))
-    ref, _ = idx.tree.query(P, k=1)
-    from hailstorm.runtime.compiled.grid import _nearest_sample
-
-    got = np.array([_nearest_sample(p, g.lo, g.h, g.dims, g.start, g.items, g.points) for p in P])
-    np.testing.assert_allclose(got, ref, rtol=1e-14, atol=1e-15)
-
-
-@pytest.mark.parametrize("deformed", [False, True])
-def test_closest_points_match_the_numpy_query(gf, deformed):
-    """Same hits, distances and points as SurfaceIndex.query (the triangle may differ only
-    where two triangles share the closest point: a tie)."""
-    V, T = _bumpy(gf)
-    idx = SurfaceIndex(V, T)
-    rng = np.random.default_rng(2)
-    Q = rng.uniform(V.min(axis=0) - 0.01, V.max(axis=0) + 0.01, (400, 3))
-    reach = rng.uniform(0.001, 0.03, 400)
-    D = np.asfortranarray(gf.D)
-    cols = np.array([3 * 40 + 2, 3 * 41 + 2, 3 * 60 + 0])
-    fv = np.array([-20.0, -15.0, 7.0])
-    u = (D[:, cols] @ fv).reshape(-1, 3)
-    kw, md = {}, 0.0
-    if deformed:
-        md = 1.5 * float(np.linalg.norm(u, axis=1).max())
-        assert md > 1e-3  # the deformation moves the surface by more than the rounding
-        kw = dict(D=D, cols=cols, forces=fv, max_displacement=md)
-    ref = idx.query(Q, reach, displacement=(lambda v: u[v]) if deformed else None, max_displacement=md)
-    tri, bary, point, dist = C.closest_points(idx.grid, idx.sample_radius, idx.vertices, idx.triangles, Q, reach,
-                                              **kw)
-    hit = ref.triangle >= 0
-    assert 50 < hit.sum() < 350  # hits and misses
-    np.testing.assert_array_equal(tri >= 0, hit)
-    np.testing.assert_allclose(dist[hit], ref.distance[hit], rtol=1e-12, atol=1e-15)
-    np.testing.assert_allclose(point[hit], ref.point[hit], atol=1e-12)
-    assert np.all(np.isinf(dist[~hit])) and np.all(np.isnan(point[~hit]))
-    assert np.mean(tri[hit] == ref.triangle[hit]) > 0.95
-    np.testing.assert_allclose(bary[hit].sum(axis=1), 1.0, rtol=1e-14)
-    # the barycentric coordinates reproduce the point on the (deformed) triangle they name
-    X = V + ((D[:, cols] @ fv).reshape(-1, 3) if deformed else 0.0)
-    np.testing.assert_allclose(np.einsum("kj,kjd->kd", bary[hit], X[T[tri[hit]]]), point[hit], atol=1e-12)
-
-
-def test_near_set_matches_numpy(gf):
-    """The compiled broad phase decides near/far and updates the budgets as the numpy one."""
-    sc = Scene(duration=0.1, stones=0, r_min=0.003, r_max=0.008, backend="numpy")
-    st = Storm(gf, sc, spawn=False)
-    rng = np.random.default_rng(3)
-    lo, hi = st.lo, st.hi
-    n = 300
-    pos = rng.uniform(lo - 0.03, hi + np.array([0.03, 0.03, 0.08]), (n, 3))
-    vel = rng.normal(0.0, 5.0, (n, 3))
-    st.add_stones(pos, vel, rng.uniform(0.003, 0.008, n))
-    st.ctri[rng.random(n) < 0.05] = 0  # a few stones in contact
-    st.budget[:] = rng.uniform(-0.01, 0.05, n)
-    st._bud_u[:] = rng.uniform(0.0, 0.002, n)
-    st._umax_step = 0.001
-    live = np.flatnonzero(st.alive)
-    b0, u0 = st.budget.copy(), st._bud_u.copy()
-    for dt in (5e-4, 5e-3):
-        st.budget[:], st._bud_u[:] = b0, u0
-        st._compiled = False
-        near_ref = st._near_set(live, dt)
-        far_ref, b_ref, u_ref = st._far.copy(), st.budget.copy(), st._bud_u.copy()
-        st.budget[:], st._bud_u[:] = b0, u0
-        st._compiled = True
-        near = st._near_set(live, dt)
-        np.testing.assert_array_equal(near, near_ref)
-        np.testing.assert_array_equal(st._far, far_ref)
-        np.testing.assert_allclose(st.budget, b_ref, rtol=1e-13, atol=1e-15)
-        np.testing.assert_array_equal(st._bud_u, u_ref)
-        assert 0 < near.size < n
 
 
 def test_patch_weights_match_the_reference(seat_bundle):
@@ -134,86 +45,6 @@ def test_patch_weights_match_the_reference(seat_bundle):
         np.testing.assert_allclose(d1, d0, atol=1e-13)
     np.testing.assert_array_equal(w1[:5, :3], b[:5])
     assert (w1 > 0).sum(axis=1).max() > 10  # some patches span many vertices
-
-
-@pytest.mark.parametrize("integrator, mode, patch, dt, rel", [
-    ("exact", "frictionless", "hertz", 5e-4, 1e-6),
-    ("exact", "sticky", "none", 5e-4, 1e-6),
-    ("implicit", "frictionless", "hertz", 2e-4, 0.05),
-    ("symplectic", "sticky", "hertz", 2e-5, 0.05),
-])
-def test_storm_backends_agree(gf, integrator, mode, patch, dt, rel):
-    """The same storm on the flat plate (no ties that change a normal) on both backends.
-
-    ``exact`` takes one sub-step per step on both: the same impacts, sub-steps and
-    forces to rounding. The adaptive implicit and symplectic integrators size their
-    sub-steps from the gaps, which the compiled path measures where the numpy one
-    reuses or bounds them: the same impacts, forces within a few percent."""
-    sc = Scene(duration=0.06, stones=15, seed=5, spawn_height=0.02, r_min=0.003, r_max=0.008, dt=dt,
-               integrator=integrator, mode=mode, patch=patch)
-    res = {b: run_storm(gf, dataclasses.replace(sc, backend=b), progress=False).stats for b in ("numpy", "numba")}
-    a, b = res["numpy"], res["numba"]
-    assert b["backend"] == "numba" and a["backend"] == "numpy"
-    assert a["impacts"] == b["impacts"] >= 5
-    assert a["hailstones"] == b["hailstones"] and a["retired"] == b["retired"] and a["stones_hit"] == b["stones_hit"]
-    assert b["max_contact_force"] == pytest.approx(a["max_contact_force"], rel=rel)
-    assert b["max_indentation_m"] == pytest.approx(a["max_indentation_m"], rel=rel)
-    assert b["max_penetration_m"] == pytest.approx(a["max_penetration_m"], rel=10 * rel, abs=1e-7)
-    if integrator == "exact":
-        assert a["substeps"] == b["substeps"]
-        assert a["capacitance_rebuilds"] == b["capacitance_rebuilds"]
-
-
-def test_patch_radii_match_numpy(gf):
-    """The compiled patch sizing gives the numpy radii, resizes and cached weights, for
-    new contacts and for known ones (with a previous contact set and its forces)."""
-    sc = Scene(duration=0.1, stones=0, r_min=0.003, r_max=0.008, backend="numba")
-    st = Storm(gf, sc, spawn=False)
-    rng = np.random.default_rng(6)
-    tris = rng.choice(np.flatnonzero(st.soft), 6, replace=False)
-    bary = rng.dirichlet([2.0, 2.0, 2.0], 6)
-    X = np.einsum("kj,kjd->kd", bary, gf.vertices[gf.triangles[tris]])
-    r = rng.uniform(0.003, 0.008, 6)
-    ids = st.add_stones(X + r[:, None] * st.index.normals[tris], rng.normal(0.0, 2.0, (6, 3)), r)
-    st.ctri[ids] = tris
-    st.cbary[ids] = bary
-    for known in (False, True):
-        if known:  # a previous set with the first four stones and some forces
-            st.cache = soft_contacts.contact_set(st, ids[:4], tris[:4], bary[:4].copy(), ("prev",), st.crad[ids[:4]])
-            st.lam = -rng.uniform(0.1, 20.0, 4)
-            st.crad[ids[:2]] *= 0.5  # two known contacts whose radius is out of date
-        crad0, stats0 = st.crad.copy(), dict(st.stats)
-        out = {}
-        for compiled in (False, True):
-            st.crad[:] = crad0
-            st.stats = dict(stats0)
-            st._wcache.clear()
-            st._compiled = compiled
-            a = patches.radii(st, ids, tris)
-            out[compiled] = (a, st.crad.copy(), st.stats["patch_resizes"], dict(st._wcache))
-        (a0, c0, r0, w0), (a1, c1, r1, w1) = out[False], out[True]
-        np.testing.assert_allclose(a1, a0, rtol=1e-12)
-        np.testing.assert_allclose(c1, c0, rtol=1e-12)
-        assert r1 == r0
-        assert r0 >= (1 if known else 0) and np.all(a0 > 0)
-        for j in w1:  # the new contacts' weights at their first radius, as numpy cached them
-            assert w1[j][:2] == w0[j][:2]
-            assert w1[j][2] == pytest.approx(w0[j][2], rel=1e-14)  # the radius (cbrt rounds differently)
-            np.testing.assert_array_equal(w1[j][3], w0[j][3])
-            np.testing.assert_allclose(w1[j][4], w0[j][4], atol=1e-14)
-        assert len(w1) == (2 if known else 6)
-
-
-def test_backend_choice(gf, monkeypatch):
-    """'auto' takes numba when installed; asking for numba without it is a clear error."""
-    assert Storm(gf, Scene(backend="auto"), spawn=False).backend == "numba"
-    assert Storm(gf, Scene(backend="numpy"), spawn=False).backend == "numpy"
-    with pytest.raises(SceneError, match="backend"):
-        Scene(backend="fortran")
-    monkeypatch.setattr(C, "HAVE_NUMBA", False)
-    assert Storm(gf, Scene(backend="auto"), spawn=False).backend == "numpy"
-    with pytest.raises(SceneError, match=r"pip install"):
-        Storm(gf, Scene(backend="numba"), spawn=False)
 
 
 def _random_contact_set(rng):

@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 
 from hailstorm.runtime.scene import Scene, SceneError
-from hailstorm.runtime import patches
 from hailstorm.runtime.storm import Storm, run_storm
 from test_hail import plate_gf
 
@@ -140,7 +139,7 @@ def test_frame_displacement_is_the_full_surface_response(gf, exact_storm, patch)
     assert np.allclose(st.frame().displacement, u_ref, rtol=1e-4, atol=1e-9)
     # and a local evaluation agrees with the full one
     v = np.arange(0, st.n, 7)
-    assert np.allclose(st._u_at(v), st.u[v])
+    assert np.allclose(st.seat.u_at(v), st.u[v])
 
 
 def test_storm_sticky_symplectic_runs(gf):
@@ -163,13 +162,12 @@ def test_clamped_triangle_is_a_hard_wall(gf):
     assert st.vel[0, 2] > 0.3  # bounced with e = 0.5 (minus gravity)
 
 
-@pytest.mark.parametrize("backend", ["numpy", "auto"])
 @pytest.mark.parametrize("mode, patch", [("sticky", "none"), ("frictionless", "hertz")])
-def test_contact_on_a_clamped_edge_of_a_soft_triangle_is_a_hard_wall(gf, backend, mode, patch):
+def test_contact_on_a_clamped_edge_of_a_soft_triangle_is_a_hard_wall(gf, mode, patch):
     """A stone that lands exactly on the clamped edge of a soft triangle (its barycentric
     weight all on clamped vertices: nothing there can move) bounces as off a wall
     instead of asking the capacitance for a rigid contact."""
-    sc = Scene(duration=0.05, stones=0, drag=False, restitution=0.5, mode=mode, patch=patch, backend=backend)
+    sc = Scene(duration=0.05, stones=0, drag=False, restitution=0.5, mode=mode, patch=patch)
     st = Storm(gf, sc, spawn=False)
     T = np.asarray(gf.triangles)
     t = int(np.flatnonzero(st.soft & (gf.fixed[T].sum(axis=1) == 2))[0])
@@ -228,45 +226,6 @@ def test_short_storm_on_the_seat(seat_bundle):
     assert all(np.all(np.isfinite(f.displacement)) for f in res.frames)
     assert st["max_penetration_m"] < 0.25 * sc.r_min  # curved seat, coarse dents: looser than the plate
     assert np.isfinite(st["max_contact_force"]) and st["max_contact_force"] > 0
-
-
-def test_closest_point_and_index_match_brute_force(gf):
-    """Narrow phase: the vectorised closest point (against dense sampling of each
-    triangle) and the sampled k-d index query (against all triangles), including the
-    ball-query fallback and a local displacement callback."""
-    from hailstorm.runtime.collide import SurfaceIndex, closest_point_on_triangles
-
-    rng = np.random.default_rng(0)
-    A, B, C, P = (rng.normal(size=(300, 3)) for _ in range(4))
-    cp, bc = closest_point_on_triangles(P, A, B, C)
-    assert np.all(bc >= 0) and np.allclose(bc.sum(axis=1), 1.0)
-    uv = rng.random((4000, 2))
-    uv = np.where(uv.sum(axis=1, keepdims=True) > 1, 1 - uv, uv)
-    for i in range(300):
-        S = A[i] + uv[:, :1] * (B[i] - A[i]) + uv[:, 1:] * (C[i] - A[i])
-        assert np.linalg.norm(cp[i] - P[i]) <= np.linalg.norm(S - P[i], axis=1).min() + 1e-12
-    # a lifted, bumpy copy of the plate (a non-flat surface) and brute force over all triangles
-    V = gf.vertices.copy()
-    V[:, 2] = 0.01 * np.sin(40 * V[:, 0]) * np.cos(30 * V[:, 1])
-    T = np.asarray(gf.triangles)
-    u = np.zeros_like(V)
-    u[:, 2] = -0.002 * np.exp(-((V[:, 0] - 0.06) ** 2 + V[:, 1] ** 2) / 2e-4)
-    Q = rng.uniform(V.min(axis=0) - 0.01, V.max(axis=0) + 0.01, (200, 3))
-    reach = rng.uniform(0.001, 0.03, 200)
-    for knn in (48, 3):  # 3: every query takes the ball-query fallback
-        idx = SurfaceIndex(V, T)
-        idx.KNN = knn
-        for disp in (None, lambda v: u[v]):
-            q = idx.query(Q, reach, displacement=disp, max_displacement=0.002 if disp else 0.0)
-            X = V + (u if disp else 0.0)
-            assert np.isfinite(q.distance).sum() > 30  # the test sees hits and misses
-            for i in range(200):
-                cpi, _ = closest_point_on_triangles(np.repeat(Q[i:i + 1], len(T), 0), X[T[:, 0]], X[T[:, 1]], X[T[:, 2]])
-                d = np.linalg.norm(cpi - Q[i], axis=1).min()
-                if d <= reach[i]:
-                    assert q.distance[i] == pytest.approx(d, rel=1e-9, abs=1e-12)
-                else:
-                    assert q.triangle[i] == -1 and np.isinf(q.distance[i])
 
 
 # --------------------------------------------------------------------------
@@ -330,13 +289,14 @@ def test_patch_weights_are_cached_per_contact(gf):
     t = np.flatnonzero(st.soft)[len(np.flatnonzero(st.soft)) // 2]
     st.add_stones(gf.vertices[gf.triangles[t]].mean(axis=0) + [0, 0, 0.01], [0, 0, -5.0], 0.006)
     st.ctri[0], st.cbary[0] = t, 1.0 / 3.0
-    k_patch = patches.stiffness(st, np.array([0]), np.array([t]), np.array([0.004]), st.index.normals[[t]])[0]
-    assert np.isfinite(k_patch) and k_patch > 0
-    verts, w = patches.cached_weights(st, np.array([0]), np.array([t]), st.cbary[[0]], np.array([0.004]), st.index.normals[[t]])
+    args = (np.array([0]), np.array([t]), st.cbary[[0]], np.array([0.004]), st.index.normals[[t]], st.stats)
+    verts, w = st.patches.weights(*args)
     assert (w > 0).sum() > 3 and w.sum() == pytest.approx(1.0)
+    k_patch = st.patches.stiffness(verts, w, st.index.normals[[t]])[0]
+    assert np.isfinite(k_patch) and k_patch > 0
     # cached: the same contact again costs nothing
     n0 = st.stats["patch_weights_computed"]
-    patches.cached_weights(st, np.array([0]), np.array([t]), st.cbary[[0]], np.array([0.004]), st.index.normals[[t]])
+    st.patches.weights(*args)
     assert st.stats["patch_weights_computed"] == n0 and st.stats["patch_weights_reused"] >= 1
 
 
@@ -355,7 +315,7 @@ def test_resting_stone_reuses_its_patch(gf):
     assert S["patch_weights_computed"] <= 4  # 300 steps in contact: the weights are not recomputed
     assert S["capacitance_rebuilds"] <= 4  # nor the capacitance (the key does not change)
     # at rest the radius is the Hertz radius of the stone's weight (floored)
-    from hailstorm.runtime.weights import hertz_radius
+    from hailstorm.runtime.contact.weights import hertz_radius
 
     a_rest = float(hertz_radius(st.mass[0] * 9.81, 0.005, gf.young, gf.poisson, a_min=sc.patch_min_radius))
     assert st.crad[0] == pytest.approx(a_rest, rel=sc.patch_tolerance + 0.01)

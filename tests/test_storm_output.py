@@ -209,7 +209,7 @@ def test_every_kernel_group_announces_its_compile(gf, caplog, monkeypatch, integ
 
     monkeypatch.setattr(storm_mod, "COMPILE_NOTICE_DELAY", 0.0)
     with caplog.at_level(logging.INFO, logger="hailstorm.runtime.storm"):
-        storm_mod.Storm(gf, _scene(integrator=integrator, backend="numba"))
+        storm_mod.Storm(gf, _scene(integrator=integrator))
         import time
 
         time.sleep(0.2)  # the notices come from timer threads

@@ -7,7 +7,7 @@ in ``notebooks/mesh_dependence.ipynb``):
     Effective normal stiffness ``k`` of one stone at fixed points of the seat
     against the mesh size, for a point contact (force on one triangle's
     vertices) and a patch contact (force spread over a Hertz pressure disc of
-    fixed physical radius, :func:`hailstorm.runtime.weights.patch_weights`). A point
+    fixed physical radius, :func:`hailstorm.runtime.contact.weights.patch_weights`). A point
     load on an elastic body is singular (Boussinesq: ``u ~ 1/r``), so the
     point stiffness keeps falling as the mesh is refined (like ``h`` on a
     half-space); the patch stiffness converges.
@@ -53,7 +53,7 @@ from hailstorm.precompute.geometry import TetMesh, box_mesh
 from hailstorm.precompute.pipeline import build_bundle, default_cache_dir
 from hailstorm.runtime.bundle import load as load_bundle
 from hailstorm.runtime.contact import capacitance, hertz_radius, solve_contacts, triangle_normals
-from hailstorm.runtime.contact_capacitance import Mode
+from hailstorm.runtime.contact.validate import Mode
 from hailstorm.runtime.hail import Integrator
 
 __all__ = [
@@ -263,7 +263,7 @@ def contact_stiffness_vs_mesh(
     patch_radius
         Fixed physical patch radius [m]; default the Hertz radius of a rigid
         sphere of ``stone_radius`` pressed with ``load`` on the material
-        (:func:`hailstorm.runtime.weights.hertz_radius`).
+        (:func:`hailstorm.runtime.contact.weights.hertz_radius`).
     order
         Element order of the bundles.
     mesh

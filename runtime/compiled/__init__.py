@@ -1,12 +1,12 @@
-"""Optional compiled kernels (numba) for the storm's per-step work and the contact solves.
+"""Compiled kernels (numba) for the storm's per-step work and the contact solves.
 
-A storm step is hundreds of numpy calls on arrays of a few stones; their
-per-call overhead, not arithmetic, is what a step costs. A fresh contact solve
-with many contacts is scattered reads of D, which numpy's fancy indexing does
-slowly. The kernels here do the same work in compiled loops when `numba
-<https://numba.pydata.org>`_ is installed (``pip install "hailstorm[fast]"``). Without numba nothing here is
-called and the runtime stays numpy/scipy only. Every kernel has a numpy
-counterpart elsewhere in :mod:`runtime`, the reference the tests hold it to.
+A storm step is hundreds of small operations on arrays of a few stones; as numpy
+calls their per-call overhead, not arithmetic, would be what a step costs. A
+fresh contact solve with many contacts is scattered reads of D, which numpy's
+fancy indexing does slowly. The kernels here do that work in compiled loops;
+numba is a core dependency, and each storm phase exists once, here. The tests
+hold them to plain statements of the same algorithms (``tests/reference/``) and
+to independent oracles (brute-force closest points, analytic bounces).
 
 Modules, in the order of a storm step:
 
@@ -30,13 +30,14 @@ Modules, in the order of a storm step:
 
 The kernels are compiled on first use and cached on disk (``cache=True``,
 beside the modules' bytecode, or numba's user cache if that is read-only), so
-only the first run after an install pays the compilation (about 40 s for a
-storm's set); later processes load them in ~0.3 s.
+only the first run after an install pays the compilation; later processes load
+them in ~0.3 s. ``NUMBA_DISABLE_JIT=1`` (numba's own switch) runs them as Python,
+for debugging.
 """
 
 from __future__ import annotations
 
-from hailstorm.runtime.compiled._jit import HAVE_NUMBA
+from hailstorm.runtime.compiled._jit import HAVE_NUMBA, KERNELS
 from hailstorm.runtime.compiled.blocks import columns_times, contact_compliance, point_contacts, vertex_block, weighted_rows
 from hailstorm.runtime.compiled.contacts import capacitance_blocks, contact_post, contact_prep, inv_spd, rigid_contacts
 from hailstorm.runtime.compiled.flight import flight, near_set, retired
@@ -54,6 +55,7 @@ from hailstorm.runtime.compiled.patches import patch_compliance, patch_one, patc
 
 __all__ = [
     "HAVE_NUMBA",
+    "KERNELS",
     "SampleGrid",
     "capacitance_blocks",
     "closest_points",

@@ -1,18 +1,24 @@
-"""numba, if installed: the decorator every kernel of :mod:`hailstorm.runtime.compiled` uses."""
+"""The decorator every kernel of :mod:`hailstorm.runtime.compiled` uses (numba is a core dependency).
+
+Debugging: numba's own switch ``NUMBA_DISABLE_JIT=1`` runs every kernel as plain
+Python (slow: minutes for a storm that takes seconds), so that a debugger or a
+print reaches inside them.
+"""
 
 from __future__ import annotations
 
 from typing import Any, Callable
 
-try:  # pragma: no cover - exercised by whichever of the two environments runs the tests
-    import numba
+import numba
 
-    HAVE_NUMBA = True
-except ImportError:  # pragma: no cover
-    HAVE_NUMBA = False
+#: numba is a core dependency since 0.1 (kept for code that still asks)
+HAVE_NUMBA = True
+
+#: what the kernels run as: ``"numba"``, or ``"python"`` under ``NUMBA_DISABLE_JIT=1``
+#: (the storm's statistics record it as ``backend``)
+KERNELS = "python" if numba.config.DISABLE_JIT else "numba"
 
 
 def _njit(f: Callable) -> Any:
-    """``numba.njit(cache=True)`` when numba is installed, else the plain function
-    (never called then: the storm takes the numpy path)."""
-    return numba.njit(cache=True, nogil=True)(f) if HAVE_NUMBA else f
+    """``numba.njit(cache=True, nogil=True)``: compiled on first call, cached on disk."""
+    return numba.njit(cache=True, nogil=True)(f)

@@ -1,7 +1,7 @@
 """A storm contact set's blocks and the stones' constrained coordinates around a contact step.
 
 * :func:`capacitance_blocks` -- all of a storm contact set's blocks in one call
-  (numpy reference: :func:`hailstorm.runtime.soft_contacts.contact_set`);
+  (called by :meth:`hailstorm.runtime.contact_set.ContactSets.build`);
 * :func:`contact_prep`, :func:`contact_post` -- the two halves of a storm's
   contact step around the integrator.
 
@@ -16,6 +16,7 @@ import numpy as np
 
 from hailstorm.runtime.compiled._jit import _njit
 from hailstorm.runtime.compiled.blocks import contact_compliance, vertex_block, weighted_rows
+from hailstorm.runtime.compiled.grid import sorted_ints
 
 __all__ = ["capacitance_blocks", "contact_post", "contact_prep", "inv_spd", "rigid_contacts"]
 
@@ -23,7 +24,7 @@ __all__ = ["capacitance_blocks", "contact_post", "contact_prep", "inv_spd", "rig
 @_njit
 def rigid_contacts(verts, w, fixed):  # pragma: no cover (compiled)
     """True if some contact's weight lies entirely on clamped vertices
-    (``hailstorm.runtime.contact_capacitance._rigid``, any)."""
+    (``hailstorm.runtime.contact.policy.is_rigid``, any)."""
     for k in range(verts.shape[0]):
         free_w = 0.0
         for p in range(verts.shape[1]):
@@ -74,7 +75,7 @@ def capacitance_blocks(verts, w, normals, sticky, D, column_of):  # pragma: no c
                 pos[v] = 0
                 lst[nV] = v
                 nV += 1
-    V = np.sort(lst[:nV])
+    V = sorted_ints(lst[:nV])
     for i in range(nV):
         pos[V[i]] = i
     m = 3 * s if sticky else s
@@ -109,7 +110,8 @@ def capacitance_blocks(verts, w, normals, sticky, D, column_of):  # pragma: no c
             continue
         for d in range(3):
             cols[r] = 3 * cb + d
-            Gl[r] = G[3 * i + d]
+            for c in range(m):  # (an element loop: a row assignment compiles numba's shape-error formatting)
+                Gl[r, c] = G[3 * i + d, c]
             r += 1
     return V, W, Gl, cols, DG
 
@@ -117,7 +119,7 @@ def capacitance_blocks(verts, w, normals, sticky, D, column_of):  # pragma: no c
 @_njit
 def inv_spd(W, cond_limit, rcond):  # pragma: no cover (compiled)
     """Inverse of a small symmetric positive (semi-)definite matrix under the contact
-    API's policy (:func:`hailstorm.runtime.contact_capacitance.spd_inverse`; pass its
+    API's policy (:func:`hailstorm.runtime.contact.policy.spd_inverse`; pass its
     ``COND_LIMIT`` and ``PINV_RCOND``): Cholesky if the condition estimate from the
     factor's diagonal is below ``cond_limit``, else the pseudo-inverse (eigenvalues
     below ``rcond`` times the largest dropped)."""
@@ -144,7 +146,9 @@ def inv_spd(W, cond_limit, rcond):  # pragma: no cover (compiled)
                 K = Li.T @ Li
                 return np.ascontiguousarray(0.5 * (K + K.T))
     lam, Q = np.linalg.eigh(Ws)
-    top = max(lam.max(), 0.0)
+    top = 0.0
+    for j in range(n):
+        top = max(top, lam[j])
     K = np.zeros((n, n))
     for j in range(n):
         if lam[j] > rcond * top:
@@ -158,10 +162,10 @@ def inv_spd(W, cond_limit, rcond):  # pragma: no cover (compiled)
 def contact_prep(soft, pos, vel, radius, mass, g, wind, drag_coef, nk, Xc, rest, Kdiag, sticky, exact,
                  rest_speed):  # pragma: no cover (compiled)
     """The constrained coordinates of a contact set for :func:`hailstorm.runtime.hail.contact_step`
-    (compiled first half of ``Storm._soft_contacts``): ``(q, anchor, v, accel, mass,
+    (the first half of :meth:`hailstorm.runtime.soft_contacts.SoftContacts.advance`): ``(q, anchor, v, accel, mass,
     always_damped, acc)``, per contact (frictionless, normal components) or
     per component (sticky); ``acc`` (s, 3) is the stones' gravity + drag. (The
-    dashpot is the contact set's, per mode: ``soft_contacts.exact_damping`` and
+    dashpot is the contact set's, per mode: ``ContactIntegrator.exact_damping`` and
     ``contact_matrices``.)"""
     s = soft.size
     nq = 3 * s if sticky else s
@@ -213,7 +217,7 @@ def contact_prep(soft, pos, vel, radius, mass, g, wind, drag_coef, nk, Xc, rest,
 def contact_post(soft, pos, vel, ctri, hit, was_open, nk, acc, q, a, vq, gq, rq, rv, ractive, rseat, rpeak,
                  rpubar, sticky, exact, h, rest_speed):  # pragma: no cover (compiled)
     """Apply a contact step to the stones, in place (compiled second half of
-    :func:`hailstorm.runtime.soft_contacts.advance`): new positions and velocities (frictionless: free
+    :meth:`hailstorm.runtime.soft_contacts.SoftContacts.advance`): new positions and velocities (frictionless: free
     tangential motion), released contacts closed, impacts marked. ``rpeak``, ``rpubar``:
     the step's ``peak_seat_force`` and ``peak_ubar`` (:class:`hailstorm.runtime.hail.ContactStep`);
     a contact that carried force at some instant of the step counts as touched.

@@ -1,8 +1,7 @@
 """Stones in flight: free flight with drag, the broad phase (conservative advancement)
 and retirement.
 
-The numpy references are :func:`hailstorm.runtime.hail.free_flight` and
-``Storm._near_set`` / ``Storm.step``.
+Plain statements of the same rules (the tests' oracles): ``tests/reference/flight_ref.py``.
 """
 
 from __future__ import annotations
@@ -22,7 +21,7 @@ def flight(idx, pos, vel, radius, h, g, wind, drag_coef):  # pragma: no cover (c
     """Free flight of stones ``idx`` over ``h``, in place: gravity ``g`` [m/s^2] plus,
     if ``drag_coef > 0``, quadratic drag ``-(drag_coef / r) |v - wind| (v - wind)``
     (``drag_coef = 3 C_d rho_air / (8 rho_ice)``), taken constant over the step as
-    :func:`hailstorm.runtime.hail.free_flight` does."""
+    ``tests/reference/flight_ref.free_flight_ref`` does."""
     a = np.empty(3)
     for q in range(idx.size):
         i = idx[q]
@@ -85,9 +84,13 @@ def _near_set(live, pos, vel, radius, ctri, budget, bud_u, U, dt, g, lo, hi, sr,
 def near_set(grid: SampleGrid, sample_radius: float, bbox: tuple[np.ndarray, np.ndarray], live: np.ndarray,
              pos: np.ndarray, vel: np.ndarray, radius: np.ndarray, ctri: np.ndarray, budget: np.ndarray,
              bud_u: np.ndarray, U: float, dt: float, gravity: float) -> np.ndarray:
-    """The storm's broad phase (compiled ``Storm._near_set``): mask of the ``live``
+    """The storm's broad phase : mask of the ``live``
     stones that may touch the seat within ``dt``. Updates ``budget`` and ``bud_u``
-    in place (see ``Storm._near_set`` for the budget rule)."""
+    in place. Every stone carries a ``budget``, a lower bound of its distance to the
+    deformed surface valid while ``|u| <= bud_u`` (when the bound ``U`` grows beyond
+    it the budget shrinks by the difference); flying stones spend it by what they can
+    travel in a step, and only when it runs out is the distance re-measured (the
+    bounding box, else the nearest sample). Stones in contact are near."""
     return _near_set(live, pos, vel, radius, ctri, budget, bud_u, float(U), float(dt), float(gravity),
                      bbox[0], bbox[1], float(sample_radius), grid.lo, grid.h, grid.dims, grid.start,
                      grid.items, grid.points)

@@ -1,8 +1,7 @@
 """Spatial queries inside compiled code: the surface's sample points in a uniform grid,
 nearest samples and closest points of the (deformed) surface.
 
-The numpy reference is :meth:`hailstorm.runtime.collide.SurfaceIndex.query` (a k-d tree
-over the same samples).
+The tests hold them to brute force over every triangle (``tests/reference/collide_ref.py``).
 """
 
 from __future__ import annotations
@@ -14,7 +13,36 @@ import numpy as np
 
 from hailstorm.runtime.compiled._jit import _njit
 
-__all__ = ["SampleGrid", "closest_points"]
+__all__ = ["SampleGrid", "closest_points", "sorted_ints", "surface_arrays"]
+
+
+@_njit
+def sorted_ints(a):  # pragma: no cover (compiled)
+    """A sorted copy of an int64 array (heapsort: the same result as ``np.sort`` for
+    integers, without compiling numba's quicksort, ~5 s of a first run)."""
+    b = a.copy()
+    n = b.size
+    for start in range(n // 2 - 1, -1, -1):
+        _sift(b, start, n)
+    root = np.int64(0)  # (not the literal 0: a literal argument is a second specialisation of _sift)
+    for end in range(n - 1, 0, -1):
+        t = b[0]; b[0] = b[end]; b[end] = t
+        _sift(b, root, end)
+    return b
+
+
+@_njit
+def _sift(b, root, n):  # pragma: no cover (compiled)
+    while True:
+        child = 2 * root + 1
+        if child >= n:
+            return
+        if child + 1 < n and b[child] < b[child + 1]:
+            child += 1
+        if b[root] >= b[child]:
+            return
+        t = b[root]; b[root] = b[child]; b[child] = t
+        root = child
 
 
 @dataclass(frozen=True)
@@ -71,7 +99,7 @@ def _cell_ids(points: np.ndarray, lo: np.ndarray, h: float, dims: np.ndarray) ->
 
 @_njit
 def _closest_on_triangle(p, a, b, c, out_bary):  # pragma: no cover (compiled)
-    """Closest point of triangle (a, b, c) to p (Ericson 5.1.5, as the numpy reference):
+    """Closest point of triangle (a, b, c) to p (Ericson 5.1.5, as ``tests/reference/collide_ref.py``):
     writes the clipped, normalised barycentric coordinates to ``out_bary``."""
     ab0 = b[0] - a[0]; ab1 = b[1] - a[1]; ab2 = b[2] - a[2]
     ac0 = c[0] - a[0]; ac1 = c[1] - a[1]; ac2 = c[2] - a[2]
@@ -260,7 +288,7 @@ def _closest_points(pts, reach, md, use_u, surf, D, fcols, fv):  # pragma: no co
     return out_tri, out_bary, out_pt, out_d
 
 
-def _surface(grid: SampleGrid, sample_radius: float, vertices: np.ndarray, triangles: np.ndarray) -> tuple:
+def surface_arrays(grid: SampleGrid, sample_radius: float, vertices: np.ndarray, triangles: np.ndarray) -> tuple:
     """The surface as the kernels take it (a tuple of arrays)."""
     return (grid.lo, grid.h, grid.dims, grid.start, grid.items, grid.points, grid.owner, float(sample_radius),
             np.ascontiguousarray(vertices, dtype=np.float64), np.ascontiguousarray(triangles, dtype=np.int64))
@@ -286,8 +314,7 @@ def closest_points(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Closest points of the (deformed) surface to ``points``, within ``reach``.
 
-    The compiled counterpart of :meth:`hailstorm.runtime.collide.SurfaceIndex.query`:
-    the same candidate bound and the same exact point-triangle distances.
+    Candidates from the nearest sample's bound, then exact point-triangle distances.
     The surface is deformed by ``u = D[:, cols] @ forces`` (evaluated only at
     candidate vertices) when ``forces`` is given.
 
@@ -327,5 +354,5 @@ def closest_points(
     pts = np.ascontiguousarray(points, dtype=np.float64).reshape(-1, 3)
     return _closest_points(
         pts, np.ascontiguousarray(np.broadcast_to(np.asarray(reach, dtype=np.float64), (pts.shape[0],))),
-        float(max_displacement) if use_u else 0.0, use_u, _surface(grid, sample_radius, vertices, triangles),
+        float(max_displacement) if use_u else 0.0, use_u, surface_arrays(grid, sample_radius, vertices, triangles),
         D, np.asarray(cols, dtype=np.int64), np.asarray(forces, dtype=np.float64))

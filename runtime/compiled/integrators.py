@@ -1,8 +1,9 @@
 """The contact integrators' steps: exact (closed form, modal with events) and the
 sub-stepped backward Euler / symplectic Euler with their step sizing and dashpot.
 
-The numpy references are :func:`hailstorm.runtime.hail.contact_step`,
-:func:`hailstorm.runtime.hail.damping_coefficients` and ``Storm._substep_size``.
+The tests hold them to :func:`hailstorm.runtime.hail.contact_step` and
+:func:`hailstorm.runtime.hail.modal_damping`; the step sizing's rules are in
+:mod:`hailstorm.runtime.storm`.
 """
 
 from __future__ import annotations
@@ -13,20 +14,22 @@ import numpy as np
 
 from hailstorm.runtime.compiled._jit import _njit
 from hailstorm.runtime.compiled.contacts import inv_spd
-from hailstorm.runtime.hail import _equilibrium as _hail_equilibrium
-from hailstorm.runtime.hail import _explicit_modes as _hail_explicit_modes
-from hailstorm.runtime.hail import _modal_damping as _hail_modal_damping
-from hailstorm.runtime.hail import _modal_stiffness as _hail_modal_stiffness
-from hailstorm.runtime.hail import _scalar_exact as _hail_scalar_exact
+from hailstorm.runtime.compiled.modal import (
+    equilibrium_py,
+    explicit_modes_py,
+    modal_damping_py,
+    modal_stiffness_py,
+    scalar_exact_py,
+)
 
 __all__ = ["exact_step", "explicit_modes", "modal_stiffness", "substep_contacts", "substep_damping", "substep_size"]
 
 
-#: the static equilibrium of the exact step (hailstorm.runtime.hail's own function, compiled)
-_equilibrium = _njit(_hail_equilibrium)
+#: the static equilibrium of the exact step (the one definition in :mod:`hailstorm.runtime.compiled.modal`, compiled)
+_equilibrium = _njit(equilibrium_py)
 
-#: the closed-form single contact of the exact integrator: hailstorm.runtime.hail's own function, compiled
-_scalar_exact = _njit(_hail_scalar_exact)
+#: the closed-form single contact of the exact integrator: the one definition in :mod:`hailstorm.runtime.compiled.modal`, compiled
+_scalar_exact = _njit(scalar_exact_py)
 
 
 @_njit
@@ -159,7 +162,7 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond
     REFINE = 2
     MAX_SEGMENTS = 12
     n = q.size
-    ng = 0
+    ng = np.int64(0)  # (not the literal 0: a literal argument is a second specialisation of _gsum, _track)
     for i in range(n):
         ng = max(ng, group[i] + 1)
     v0 = v.copy()
@@ -184,6 +187,9 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond
             pub = np.empty(1)
             pub[0] = umin
             return q, v, active, force, seat, peak, pub, True
+    # (kernels called with one type each: a literal 1 or a strided view as an argument
+    # would compile a second specialisation of _track / _advance / _gsum on a first run)
+    one = np.int64(1)
     ident = ng == n
     for i in range(n):
         if group[i] != i or wts[i] != 1.0:
@@ -223,7 +229,7 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond
         if _seg == 0:
             ia = np.flatnonzero(active)
             if ia.size:
-                _track(ia, Ka, (q[ia] - a[ia]).reshape(ia.size, 1), 1, group, wts, ng, pk2, pk_f, dmin, dmin_u)
+                _track(ia, Ka, (q[ia] - a[ia]).reshape(ia.size, 1), one, group, wts, ng, pk2, pk_f, dmin, dmin_u)
         h = dt - t
         if h <= 1e-12 * dt:
             break
@@ -270,7 +276,7 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond
             Z = _modal_at(lam, V, Vi, z0, tau)
             y = Z[:na]
             vv = Z[na:]
-            vng = _gsum(vv, gi, wi, ng, ident_a)
+            vng = _gsum(np.ascontiguousarray(vv), gi, wi, ng, ident_a)
             fl = -(Ka @ (y + off_eq.reshape(na, 1))) - ce @ np.ascontiguousarray(vv)
             fng = _gsum(fl, gi, wi, ng, ident_a)
             j = -1
@@ -335,10 +341,10 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond
                 lam, V, Vi, ok = _modal(Ka, m[idx], ce)
                 if not ok:
                     return q, v, active, v0, v0, v0, v0, False
-                ze = _modal_at(lam, V, Vi, np.concatenate((q[idx] - q_eq, v[idx])), np.array([h]))[:, 0]
+                ze = np.ascontiguousarray(_modal_at(lam, V, Vi, np.concatenate((q[idx] - q_eq, v[idx])), np.array([h]))[:, 0])
             _advance(q, v, g, idx, ze, q_eq, free, h)
             if idx.size:
-                _track(idx, Ka, (q[idx] - a[idx]).reshape(idx.size, 1), 1, group, wts, ng, pk2, pk_f, dmin, dmin_u)
+                _track(idx, Ka, (q[idx] - a[idx]).reshape(idx.size, 1), one, group, wts, ng, pk2, pk_f, dmin, dmin_u)
     force = np.zeros(n)
     seat = np.zeros(n)
     idx = np.flatnonzero(active)
@@ -360,8 +366,8 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond
 def substep_size(near, h_left, hmin, vel, radius, mass, pos, gap, near_tri, ctri, k_tri, approach_fraction,
                  rest_speed, omega_dt, symplectic, cc_stones, Kdiag, sticky, cc_normals, cc_X, cc_rest,
                  g):  # pragma: no cover (compiled)
-    """Compiled ``Storm._substep_size`` for the adaptive implicit and symplectic
-    integrators (see there): approaching stones travel at most ``approach_fraction``
+    """The sub-step of the adaptive implicit and symplectic integrators
+    (:meth:`hailstorm.runtime.integrators.ContactIntegrator.substep_size`): approaching stones travel at most ``approach_fraction``
     radii, an impact about to start and moving contacts are resolved to ``omega_dt``."""
     h = h_left
     om_close = 0.0
@@ -402,14 +408,14 @@ def substep_size(near, h_left, hmin, vel, radius, mass, pos, gap, near_tri, ctri
     return min(max(h, hmin), h_left)
 
 
-#: the contact set's modal dashpot (hailstorm.runtime.hail's own function, compiled):
+#: the contact set's modal dashpot (the one definition in :mod:`hailstorm.runtime.compiled.modal`, compiled):
 #: ``substep_damping(om2, Phi, sqm, restitution, dt, implicit, x_grid, z_grid)`` -> (n, n)
 #: (``x_grid``, ``z_grid``: the restitution table of :func:`hailstorm.runtime.hail.damping_ratio_for_restitution`)
-substep_damping = _njit(_hail_modal_damping)
+substep_damping = _njit(modal_damping_py)
 #: the modal frequencies an explicit step carries (hailstorm.runtime.hail's, compiled)
-explicit_modes = _njit(_hail_explicit_modes)
+explicit_modes = _njit(explicit_modes_py)
 #: K and its pseudo-inverse W from modes (hailstorm.runtime.hail's, compiled)
-modal_stiffness = _njit(_hail_modal_stiffness)
+modal_stiffness = _njit(modal_stiffness_py)
 
 
 @_njit
@@ -420,7 +426,7 @@ def substep_contacts(q, v, a, m, g, dt, K, W, C, implicit, unilateral, group, wt
     only, unilateral release by active-set iteration (``cond_limit``, ``rcond``: the
     policy of :func:`inv_spd`). Returns ``(q, v, active, force, seat_force)``."""
     n = q.size
-    ng = 0
+    ng = np.int64(0)  # (not the literal 0: a literal argument is a second specialisation of _gsum, _track)
     for i in range(n):
         ng = max(ng, group[i] + 1)
     vn_g = np.zeros(ng)

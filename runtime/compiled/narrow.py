@@ -1,8 +1,9 @@
 """The storm's narrow phase: the free part of a sub-step (closest points, time of impact,
 contacts that open, hard walls) and the penetration statistics.
 
-The numpy references are ``Storm._proximity``, ``_time_of_impact``,
-``_contacts_to_open``, ``_open_contacts``, ``_hard_walls`` and ``_step_query``.
+The rules are in the module notes of :mod:`hailstorm.runtime.storm`; the tests hold the
+closest points to brute force over every triangle (``tests/reference/collide_ref.py``)
+and the whole to analytic bounces.
 """
 
 from __future__ import annotations
@@ -29,9 +30,8 @@ def _unit(x, out):  # pragma: no cover (compiled)
 @_njit
 def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, ctri, cbary, gap, near_tri, surf, tri_normals,
                soft, fixed, umax, use_u, D, fcols, fv, g, wind, drag_coef, restitution):  # pragma: no cover
-    """The first phases of one storm sub-step for the near stones, in place (compiled
-    ``Storm._proximity``, ``_time_of_impact``, ``_contacts_to_open``, ``_open_contacts``
-    and ``_hard_walls``; see those for the rules).
+    """The first phases of one storm sub-step for the near stones, in place: closest
+    points, time of impact, contacts that open, hard walls.
 
     Stones without a contact query the deformed surface; an open contact keeps its
     ``(t, beta)`` while its stone stays over the triangle, else moves to the closest
@@ -56,6 +56,9 @@ def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, ctri, cbary, gap, 
     Y = np.empty((nv if use_u else 0, 3))
     done0 = np.zeros(0, np.bool_)
     Y0 = np.empty((0, 3))
+    # a bool variable, not the literal False: a literal argument compiles a second
+    # specialisation of _closest_one (~4 s of a first run)
+    undeformed = use_u and not use_u
     in_contact = np.zeros(k, np.bool_)
     dist = np.full(k, np.inf)
     tri = np.full(k, -1, np.int64)
@@ -88,7 +91,7 @@ def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, ctri, cbary, gap, 
             b2 = (d00 * d21 - d01 * d20) / den
             if not (b1 >= -1e-3 and b2 >= -1e-3 and b1 + b2 <= 1.0 + 1e-3):
                 # slid off: the closest point of the undeformed surface (the contact stays open)
-                tt, dd = _closest_one(pos[i], 2.0 * radius[i] + umax + 1e-3, 0.0, False, surf, D, fcols, fv,
+                tt, dd = _closest_one(pos[i], 2.0 * radius[i] + umax + 1e-3, 0.0, undeformed, surf, D, fcols, fv,
                                       done0, Y0, bary[j], point[j])
                 ctri[i] = tt
                 if tt >= 0:
@@ -191,7 +194,7 @@ def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, ctri, cbary, gap, 
 @_njit
 def penetration(near, dt, pos, vel, radius, ctri, surf, umax, use_u, D, fcols, fv):  # pragma: no cover
     """Overlap of the near stones with the deformed surface, for the statistics
-    (compiled ``Storm._step_query``): free stones within this step's reach, stones in
+    (:meth:`hailstorm.runtime.collide.Collision.penetration`): free stones within this step's reach, stones in
     contact within their radius.
 
     Returns

@@ -1,8 +1,8 @@
 """Patch contacts: the weights of a Hertz pressure disc, a patch's normal compliance and
 the storm's patch sizing.
 
-The numpy references are :func:`hailstorm.runtime.weights.patch_weights` and
-``Storm._patch_stiffness`` / ``Storm._patch_radii``.
+The contact API's :func:`hailstorm.runtime.contact.weights.patch_weights` is the weights' numpy
+statement; the sizing rule's is ``tests/reference/patches_ref.py``.
 """
 
 from __future__ import annotations
@@ -13,15 +13,15 @@ import numpy as np
 
 from hailstorm.runtime.compiled._jit import _njit
 from hailstorm.runtime.compiled.flight import _drag_dot
-from hailstorm.runtime.compiled.grid import _cell_range
+from hailstorm.runtime.compiled.grid import _cell_range, sorted_ints
 
 __all__ = ["patch_compliance", "patch_one", "patch_radii"]
 
 
 @_njit
 def _one_patch(x, n, a, h, qx, qy, qw, facing, drop, pidx):  # pragma: no cover (compiled)
-    """Compiled ``hailstorm.runtime.weights._one_patch``: (vertices, weights) of one patch, both
-    empty if the disc hits no usable triangle. ``pidx``: :func:`hailstorm.runtime.weights._patch_index_arrays`."""
+    """Compiled ``hailstorm.runtime.contact.weights._one_patch``: (vertices, weights) of one patch, both
+    empty if the disc hits no usable triangle. ``pidx``: :func:`hailstorm.runtime.contact.weights._patch_index_arrays`."""
     glo, gh, gdims, gstart, gitems, cent, radii, tnorm, p0, e1, e2, reach, tris, T, nv = pidx
     tol = 1e-12 * max(a, 1.0)
     lim = a + reach + tol
@@ -43,7 +43,7 @@ def _one_patch(x, n, a, h, qx, qy, qw, facing, drop, pidx):  # pragma: no cover 
                         nc += 1
     if nc == 0:
         return np.zeros(0, np.int64), np.zeros(0)
-    cand = np.sort(cand[:nc])
+    cand = sorted_ints(cand[:nc])
     # inverse of [e1 e2 -n] per candidate (projection along n onto its plane)
     Minv = np.empty((nc, 3, 3))
     for m in range(nc):
@@ -59,7 +59,7 @@ def _one_patch(x, n, a, h, qx, qy, qw, facing, drop, pidx):  # pragma: no cover 
                 r1 = (c + 1) % 3; r2 = (c + 2) % 3
                 c1 = (r + 1) % 3; c2 = (r + 2) % 3
                 Minv[m, r, c] = (A[r1, c1] * A[r2, c2] - A[r1, c2] * A[r2, c1]) / det
-    # tangents of the disc, as hailstorm.runtime.weights._tangents
+    # tangents of the disc, as hailstorm.runtime.contact.weights._tangents
     if abs(n[0]) < 0.9:
         ax, ay, az = 1.0, 0.0, 0.0
     else:
@@ -104,9 +104,12 @@ def _one_patch(x, n, a, h, qx, qy, qw, facing, drop, pidx):  # pragma: no cover 
             wv[v] += (lk / sm) * qw[q]
     if ntouch == 0:
         return np.zeros(0, np.int64), np.zeros(0)
-    V = np.sort(tlist[:ntouch])
+    V = sorted_ints(tlist[:ntouch])
     w = wv[V]
-    keep = w > drop * w.max()
+    wmax = 0.0  # (a loop, not w.max(): ~1 s less of a first run's compile)
+    for iw in range(w.size):
+        wmax = max(wmax, w[iw])
+    keep = w > drop * wmax
     V = V[keep]
     w = w[keep]
     return V, w / w.sum()
@@ -116,7 +119,7 @@ def _one_patch(x, n, a, h, qx, qy, qw, facing, drop, pidx):  # pragma: no cover 
 def patch_one(t, bary, a, n, resolution, rule_off, rule_x, rule_y, rule_w, facing, drop,
               pidx, X):  # pragma: no cover (compiled)
     """Weights of one patch contact on triangle ``t`` at ``bary`` with radius ``a`` and
-    normal ``n`` (``hailstorm.runtime.weights.patch_weights`` for one contact, positive weights
+    normal ``n`` (``hailstorm.runtime.contact.weights.patch_weights`` for one contact, positive weights
     only): (vertices, weights). ``rule_*``: the disc rules of ``n_r`` = 0..40 points per
     radius, concatenated (rule ``n_r`` is ``rule_off[n_r]:rule_off[n_r + 1]``)."""
     T = pidx[13]
@@ -188,7 +191,7 @@ def _hertz_target(kk, f, f_eq, m, vn, R, e_star, a_min):  # pragma: no cover (co
 def patch_radii(stones, tris, mass, radius, vel, cbary, crad, tnormals, g, wind, drag_coef, cc_stones, Kdiag,
                 lam, sticky, k_tri, e_star, a_min, tol, rest_speed, rule_off, rule_x, rule_y, rule_w, facing,
                 drop, pidx, X, D, column_of):  # pragma: no cover (compiled)
-    """Compiled ``Storm._patch_radii`` (see there for the rule): the patch radius of
+    """The storm's patch sizing (:meth:`hailstorm.runtime.patches.Patches.radii`, the rule): the patch radius of
     each soft contact, written to ``crad``.
 
     ``cc_stones``, ``Kdiag``, ``lam``: the previous contact set's stones, the diagonal

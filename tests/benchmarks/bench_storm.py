@@ -6,7 +6,6 @@ Usage::
     python tests/benchmarks/bench_storm.py --stones 400 --duration 0.4 --repeat 1
     python tests/benchmarks/bench_storm.py --gf DIR --configs exact,implicit,baseline
     python tests/benchmarks/bench_storm.py --configs exact-point,exact    # patch vs point contact
-    python tests/benchmarks/bench_storm.py --configs exact --backends numba,numpy   # compiled vs numpy
 
 Each configuration runs the same storm (same seed) ``--repeat`` times and
 prints RTF (simulated / wall time, video excluded) min / median / max, steps,
@@ -20,11 +19,8 @@ is ~50x slower; RTF is a rate, so the ratio is fair.
 
 Target (issue): 2000 stones / 2 s / dt <= 0.5 ms at RTF >= 1 on 2 cores.
 
-Backends: every configuration runs on each of ``--backends`` (default numba
-and numpy when numba is installed); ``xnumpy`` is the median RTF over the
-numpy backend's in the same run. The compiled kernels are loaded (or, the
-first time after an install, compiled) when the storm is built: ``setup``,
-not part of the RTF.
+The compiled kernels are loaded (or, the first time after an install,
+compiled) when the storm is built: ``setup``, not part of the RTF.
 
 Contact model: every configuration uses the scene default ``patch = "hertz"``
 (patch contacts) unless its name ends in ``-point`` (``patch = "none"``: the
@@ -60,13 +56,13 @@ def config(name: str) -> tuple[str, bool, str]:
 
 
 def seat_drop(gf, integrator: str, adaptive: bool, dt: float, r: float = 0.005, v0: float = 9.0,
-              patch: str = "hertz", backend: str = "auto") -> dict:
+              patch: str = "hertz") -> dict:
     """One stone (no drag) hits the seat's top at v0: achieved restitution (normal exit /
     impact speed, target 0.5) and the largest penetration of that impact."""
     from hailstorm.runtime.storm import Scene, Storm
 
     sc = Scene(duration=0.05, stones=0, drag=False, dt=dt, integrator=integrator, adaptive=adaptive, restitution=0.5,
-               patch=patch, backend=backend)
+               patch=patch)
     st = Storm(gf, sc, spawn=False)
     soft_v = np.unique(gf.triangles[st.soft])
     top = soft_v[np.argmax(gf.vertices[soft_v, 2])]
@@ -98,16 +94,10 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--configs", default="exact-point,exact,baseline-point,baseline")
     ap.add_argument("--baseline-duration", type=float, default=0.2)
-    ap.add_argument("--backends", default=None,
-                    help="comma-separated storm backends to run every configuration on (default: numba,numpy "
-                         "when numba is installed, else numpy)")
     args = ap.parse_args()
 
     import hailstorm.runtime
-    from hailstorm.runtime.compiled import HAVE_NUMBA
     from hailstorm.runtime.storm import Scene, run_storm
-
-    backends = (args.backends or ("numba,numpy" if HAVE_NUMBA else "numpy")).split(",")
 
     if args.gf:
         path = args.gf
@@ -118,7 +108,7 @@ def main() -> None:
     gf = hailstorm.runtime.load(path)
     rows = []
     base_rtf = None
-    for name, backend in ((c, b) for c in args.configs.split(",") for b in backends):
+    for name in args.configs.split(","):
         integ, adaptive, patch = config(name)
         base = name[:-6] if name.endswith("-point") else name
         d = Scene.default().to_dict()
@@ -130,7 +120,6 @@ def main() -> None:
         d["storm"].update(stones=stones, duration=dur, seed=args.seed)
         d["time"].update(dt=dt, adaptive=adaptive, integrator=integ)
         d["contact"].update(patch=patch)
-        d["compute"] = {"backend": backend}
         sc = Scene.from_dict(d)
         rtf, setup, st = [], [], None
         for _ in range(args.repeat if base != "baseline" else 1):
@@ -139,18 +128,17 @@ def main() -> None:
             rtf.append(st["real_time_factor"])
             setup.append(st["setup_time_s"])
             assert all(np.isfinite(f.displacement).all() and np.isfinite(f.positions).all() for f in res.frames)
-        drop = seat_drop(gf, integ, adaptive, dt, patch=patch, backend=backend)
+        drop = seat_drop(gf, integ, adaptive, dt, patch=patch)
         st = dict(st, drop_e=drop["e"], drop_pen=drop["pen"], setup=statistics.median(setup))
         med = statistics.median(rtf)
-        if base == "baseline" and backend == "numpy" and (base_rtf is None or patch == "none"):
-            base_rtf = med  # the previous default: implicit, point contacts (if run), numpy
-        rows.append((f"{name}/{backend}", integ, adaptive, patch, stones, dur, dt, min(rtf), med, max(rtf), st))
+        if base == "baseline" and (base_rtf is None or patch == "none"):
+            base_rtf = med  # the previous default: implicit, point contacts (if run)
+        rows.append((name, integ, adaptive, patch, stones, dur, dt, min(rtf), med, max(rtf), st))
     r_min = Scene.default().r_min
     print(f"bundle {path}: {gf.n_vertices} surface vertices, D {gf.D.shape}")
-    point_rtf = {r[0].replace("-point/", "/"): r[8] for r in rows if "-point/" in r[0]}
-    numpy_rtf = {r[0].replace("/numpy", ""): r[8] for r in rows if r[0].endswith("/numpy")}
-    hdr = (f"{'config/backend':25s} {'integr.':10s} {'adapt':5s} {'patch':5s} {'stones':>6s} {'T[s]':>5s} {'dt[ms]':>6s} "
-           f"{'RTF min':>8s} {'median':>8s} {'max':>8s} {'xbase':>7s} {'xpoint':>7s} {'xnumpy':>7s} {'setup[s]':>8s} "
+    point_rtf = {r[0][:-6]: r[8] for r in rows if r[0].endswith("-point")}
+    hdr = (f"{'config':25s} {'integr.':10s} {'adapt':5s} {'patch':5s} {'stones':>6s} {'T[s]':>5s} {'dt[ms]':>6s} "
+           f"{'RTF min':>8s} {'median':>8s} {'max':>8s} {'xbase':>7s} {'xpoint':>7s} {'setup[s]':>8s} "
            f"{'steps':>6s} {'substeps':>8s} "
            f"{'impacts':>7s} {'hit':>5s} {'pen[mm]':>8s} {'pen/rmin':>8s} {'indent[mm]':>10s} "
            f"{'pen free':>8s} {'pen cont':>8s} {'drop e':>7s} {'drop pen[mm]':>12s}")
@@ -158,10 +146,8 @@ def main() -> None:
     for name, integ, adaptive, patch, stones, dur, dt, lo, med, hi, st in rows:
         ratio = f"{med / base_rtf:7.1f}" if base_rtf else "    n/a"
         pr = f"{med / point_rtf[name]:7.2f}" if name in point_rtf and point_rtf[name] else "    n/a"
-        cfg = name.rsplit("/", 1)[0]
-        xn = f"{med / numpy_rtf[cfg]:7.2f}" if cfg in numpy_rtf and numpy_rtf[cfg] else "    n/a"
         print(f"{name:25s} {integ:10s} {str(adaptive):5s} {patch:5s} {stones:6d} {dur:5.2f} {dt * 1e3:6.2f} "
-              f"{lo:8.3f} {med:8.3f} {hi:8.3f} {ratio} {pr} {xn} {st['setup']:8.2f} {st['steps']:6d} {st['substeps']:8d} "
+              f"{lo:8.3f} {med:8.3f} {hi:8.3f} {ratio} {pr} {st['setup']:8.2f} {st['steps']:6d} {st['substeps']:8d} "
               f"{st['impacts']:7d} {st['stones_hit']:5d} {st['max_penetration_m'] * 1e3:8.3f} "
               f"{st['max_penetration_m'] / r_min:8.1%} {st['max_indentation_m'] * 1e3:10.3f} "
               f"{st.get('max_penetration_free_m', float('nan')) * 1e3:8.3f} "
@@ -175,8 +161,7 @@ def main() -> None:
             print(f"  {name}: capacitance rebuilds {st['capacitance_rebuilds']}, patch weights computed "
                   f"{st['patch_weights_computed']} / reused {st['patch_weights_reused']}, resizes {st['patch_resizes']}, "
                   f"largest patch radius {st['max_patch_radius_m'] * 1e3:.2f} mm")
-    print("xnumpy: median RTF / the same configuration on the numpy backend, in this run; setup: building the "
-          "storm (index, spawn plan, loading the compiled kernels), not in the RTF")
+    print("setup: building the storm (index, spawn plan, loading the compiled kernels), not in the RTF")
     print("drop: one 5 mm stone at 9 m/s onto the seat's top, no drag; restitution target 0.5")
     print(f"load average during the run: {os.getloadavg()[0]:.2f} (2-core machine; RTF is wall-clock)")
 
