@@ -4,7 +4,8 @@ Small plain functions in the scikit-fem style:
 
 * :func:`check_material` - E > 0, -1 < nu < 1/2, with clear errors;
 * :func:`elasticity_basis` - vector P1 or P2 tetrahedra on a :class:`TetMesh`;
-* :func:`stiffness_matrix` - the symmetric positive semi-definite K;
+* :func:`stiffness_matrix` - the symmetric positive semi-definite K, for one
+  material or one (E, nu) per tetrahedron;
 * :func:`clamp_dofs`, :func:`vertex_dofs` - where the clamp is, and the x, y, z
   degrees of freedom of mesh vertices (for point loads and read-outs);
 * :func:`solve_direct` - one direct solve with the clamp (the reference every
@@ -82,13 +83,40 @@ def elasticity_basis(mesh: TetMesh, order: int = 1):
     return Basis(skfem_mesh(mesh), elem, intorder=2)
 
 
-def stiffness_matrix(basis, young: float, poisson: float) -> sp.csr_matrix:
-    """Assemble the linear-elastic stiffness K (symmetric, singular before clamping)."""
-    from skfem import asm
+def stiffness_matrix(basis, young, poisson) -> sp.csr_matrix:
+    """Assemble the linear-elastic stiffness K (symmetric, singular before clamping).
+
+    Parameters
+    ----------
+    basis
+        From :func:`elasticity_basis`.
+    young, poisson : float or (T,) array_like
+        One material for the whole body, or one (E [Pa], nu) per tetrahedron
+        (element-wise constant Lamé parameters: a body of several materials).
+    """
+    from skfem import BilinearForm, asm
+    from skfem.helpers import ddot, sym_grad, trace
     from skfem.models.elasticity import linear_elasticity
 
-    lam, mu = lame_parameters(young, poisson)
-    return asm(linear_elasticity(Lambda=lam, Mu=mu), basis).tocsr()
+    if np.ndim(young) == 0 and np.ndim(poisson) == 0:
+        lam, mu = lame_parameters(young, poisson)
+        return asm(linear_elasticity(Lambda=lam, Mu=mu), basis).tocsr()
+    n = basis.nelems
+    young = np.broadcast_to(np.asarray(young, dtype=float), (n,))
+    poisson = np.broadcast_to(np.asarray(poisson, dtype=float), (n,))
+    pairs = np.unique(np.column_stack([young, poisson]), axis=0)
+    for e, nu in pairs:
+        check_material(e, nu)
+    lam = young * poisson / ((1 + poisson) * (1 - 2 * poisson))
+    mu = young / (2 * (1 + poisson))
+    nqp = basis.X.shape[1]
+
+    @BilinearForm
+    def form(u, v, w):
+        eu, ev = sym_grad(u), sym_grad(v)
+        return 2.0 * w["mu"] * ddot(eu, ev) + w["lam"] * trace(eu) * trace(ev)
+
+    return asm(form, basis, lam=np.repeat(lam[:, None], nqp, axis=1), mu=np.repeat(mu[:, None], nqp, axis=1)).tocsr()
 
 
 def _facet_ids(basis, triangles: np.ndarray) -> np.ndarray:

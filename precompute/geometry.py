@@ -56,12 +56,17 @@ class TetMesh:
         Named boundary triangles (node indices), e.g. ``"top"``, ``"clamp"``.
     source : str
         Where the mesh came from (for the manifest).
+    volumes : dict of str -> (k,) int ndarray
+        Named volume groups: indices into ``tets`` (gmsh Physical Volumes, meshio
+        tetra cell sets). Materials are given per volume group
+        (:mod:`hailstorm.precompute.materials`); empty for an unnamed body.
     """
 
     points: np.ndarray
     tets: np.ndarray
     groups: dict[str, np.ndarray] = field(default_factory=dict)
     source: str = ""
+    volumes: dict[str, np.ndarray] = field(default_factory=dict)
 
     def content_hash(self) -> str:
         """SHA-256 of points, tets and groups: the mesh part of the cache key."""
@@ -72,6 +77,9 @@ class TetMesh:
         for name in sorted(self.groups):
             g = np.ascontiguousarray(np.sort(self.groups[name], axis=1), dtype=np.int64)
             h.update(name.encode() + g.tobytes())
+        for name in sorted(self.volumes):
+            v = np.ascontiguousarray(np.sort(self.volumes[name]), dtype=np.int64)
+            h.update(b"volume:" + name.encode() + v.tobytes())
         return h.hexdigest()
 
     def group_vertices(self, name: str) -> np.ndarray:
@@ -123,6 +131,11 @@ def check_mesh(mesh: TetMesh, required=REQUIRED_GROUPS) -> TetMesh:
             f"{mesh.source}: {' and '.join(kinds)} tetrahedra, e.g. tet {idx[0]} with nodes "
             f"{tets[idx[0]].tolist()} (volume {vol[idx[0]]:.3g} m^3); fix the mesh orientation/quality"
         )
+    for name, ids in mesh.volumes.items():
+        ids = np.asarray(ids)
+        if ids.ndim != 1 or (ids.size and (not np.issubdtype(ids.dtype, np.integer) or ids.min() < 0
+                                           or ids.max() >= tets.shape[0])):
+            raise MeshError(f"{mesh.source}: volume group {name!r} must list tetrahedra by index in 0..{tets.shape[0] - 1}")
     _check_duplicates(mesh)
     surf = boundary_triangles(tets)
     surf_keys = set(map(tuple, np.sort(surf, axis=1).tolist()))
@@ -381,13 +394,23 @@ def _mesh_from_gmsh(gmsh, names: dict, source: str) -> TetMesh:
     index = np.full(int(tags.max()) + 1, -1, dtype=np.int64)
     index[tags] = np.arange(tags.size)
 
-    etypes, _, enodes = gmsh.model.mesh.getElements(3)
+    etypes, etags, enodes = gmsh.model.mesh.getElements(3)
     tet_nodes = [n for t, n in zip(etypes, enodes) if t == 4]  # 4 = 4-node tetrahedron
     if not tet_nodes:
         raise MeshError(f"{source}: meshing produced no tetrahedra")
     tets = index[np.concatenate(tet_nodes).astype(np.int64)].reshape(-1, 4)
-    groups = {}
+    tet_tags = np.concatenate([g for t, g in zip(etypes, etags) if t == 4]).astype(np.int64)
+    tag_order = np.argsort(tet_tags)
+    groups, volumes = {}, {}
     for name, (dim, tag) in names.items():
+        if dim == 3:
+            ids = []
+            for ent in gmsh.model.getEntitiesForPhysicalGroup(dim, tag):
+                et, eg, _ = gmsh.model.mesh.getElements(3, ent)
+                ids += [g.astype(np.int64) for t, g in zip(et, eg) if t == 4]
+            tags_here = np.concatenate(ids) if ids else np.zeros(0, np.int64)
+            volumes[name] = np.sort(tag_order[np.searchsorted(tet_tags, tags_here, sorter=tag_order)])
+            continue
         if dim != 2:
             continue
         tris = []
@@ -399,7 +422,7 @@ def _mesh_from_gmsh(gmsh, names: dict, source: str) -> TetMesh:
     used = np.unique(tets)
     remap = np.full(points.shape[0], -1, dtype=np.int64)
     remap[used] = np.arange(used.size)
-    mesh = TetMesh(points[used], remap[tets], {k: remap[v] for k, v in groups.items()}, source)
+    mesh = TetMesh(points[used], remap[tets], {k: remap[v] for k, v in groups.items()}, source, volumes)
     return check_mesh(mesh)
 
 
@@ -413,7 +436,8 @@ def read_mesh(path: str | os.PathLike) -> TetMesh:
     """Read a tetrahedral mesh with meshio, taking groups from its physical names.
 
     Groups come from gmsh physical names (``field_data`` + ``gmsh:physical``)
-    or from meshio ``cell_sets`` of triangles.
+    or from meshio ``cell_sets`` of triangles; volume groups (for materials) from
+    gmsh physical volumes or ``cell_sets`` of tetrahedra.
     """
     import meshio
 
@@ -441,24 +465,40 @@ def read_mesh(path: str | os.PathLike) -> TetMesh:
     if points.shape[1] == 2:
         raise MeshError(f"{path}: the mesh is 2-D; a solid needs 3-D points")
     groups: dict[str, list[np.ndarray]] = {}
+    volumes: dict[str, list[np.ndarray]] = {}
+    # row of each tetra block's first cell in the concatenated tets
+    starts, n_tets = [], 0
+    for block in m.cells:
+        starts.append(n_tets)
+        n_tets += len(block.data) if block.type == "tetra" else 0
     phys = m.cell_data.get("gmsh:physical")
     if phys is not None and m.field_data:
         by_tag = {int(v[0]): k for k, v in m.field_data.items() if int(v[1]) == 2}
-        for block, tags in zip(m.cells, phys):
+        vol_tag = {int(v[0]): k for k, v in m.field_data.items() if int(v[1]) == 3}
+        for block, tags, start in zip(m.cells, phys, starts):
+            if block.type == "tetra":
+                for tag in np.unique(tags):
+                    if int(tag) in vol_tag:
+                        volumes.setdefault(vol_tag[int(tag)], []).append(start + np.flatnonzero(tags == tag))
             if block.type != "triangle":
                 continue
             for tag in np.unique(tags):
                 if int(tag) in by_tag:
                     groups.setdefault(by_tag[int(tag)], []).append(block.data[tags == tag])
     for name, per_block in (m.cell_sets or {}).items():
-        for block, ids in zip(m.cells, per_block):
-            if block.type == "triangle" and ids is not None and len(ids):
+        for block, ids, start in zip(m.cells, per_block, starts):
+            if ids is None or not len(ids):
+                continue
+            if block.type == "triangle":
                 groups.setdefault(name, []).append(block.data[np.asarray(ids)])
+            elif block.type == "tetra" and not name.startswith("gmsh:"):
+                volumes.setdefault(name, []).append(start + np.asarray(ids, dtype=np.int64))
     mesh = TetMesh(
         points,
         np.concatenate(tets).astype(np.int64),
         {k: np.concatenate(v).astype(np.int64) for k, v in groups.items()},
         source=path.name,
+        volumes={k: np.unique(np.concatenate(v)).astype(np.int64) for k, v in volumes.items()},
     )
     return check_mesh(mesh)
 

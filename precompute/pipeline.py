@@ -3,7 +3,7 @@
 :func:`build_bundle` is the one entry point (the CLI's ``hailstorm
 precompute`` calls it). Its cache key covers everything that changes D - the
 mesh itself (hashed after meshing, so a different gmsh that meshes
-differently also misses), element order, material, contactable selection,
+differently also misses), element order, the material of every volume, contactable selection,
 solver and tolerance, and the bundle format - so asking again for the same
 seat reuses the bundle and asking for a different one never returns the old.
 """
@@ -17,14 +17,12 @@ import os
 import time
 from contextlib import nullcontext
 from dataclasses import dataclass
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
 
 from hailstorm.precompute.fem import (
-    DEFAULT_POISSON,
-    DEFAULT_YOUNG,
-    check_material,
     clamp_dofs,
     elasticity_basis,
     rigid_body_modes,
@@ -52,6 +50,14 @@ from hailstorm.precompute.resources import (
     estimate_memory,
     estimate_mesh,
     gib,
+)
+from hailstorm.precompute.materials import (
+    MaterialMap,
+    check_layers,
+    check_material_input,
+    contact_material,
+    resolve_materials,
+    sort_tets_by_material,
 )
 from hailstorm.runtime.bundle import (
     FORMAT_VERSION,
@@ -138,8 +144,9 @@ def build_bundle(
     geometry: str | os.PathLike | None = None,
     mesh_size: float = DEFAULT_MESH_SIZE,
     order: int = 1,
-    young: float = DEFAULT_YOUNG,
-    poisson: float = DEFAULT_POISSON,
+    young: float | None = None,
+    poisson: float | None = None,
+    materials: Mapping[str, tuple[float, float]] | None = None,
     contact_group: str = "top",
     solver: str = "cholmod",
     tol: float = 1e-10,
@@ -172,7 +179,16 @@ def build_bundle(
         1 or 2: P1 or P2 tetrahedra. The bundle always lives on the corner
         vertices.
     young, poisson
-        Material [Pa], [-].
+        One material for the whole body [Pa], [-] (default
+        :data:`hailstorm.precompute.fem.DEFAULT_YOUNG`, ``DEFAULT_POISSON``).
+    materials
+        Instead of ``young``/``poisson``: ``{volume group: (E, nu)}`` for every
+        volume group of the mesh (gmsh Physical Volume names), e.g.
+        ``{"pad": (0.5e6, 0.3), "shell": (2e9, 0.4)}``
+        (:func:`hailstorm.precompute.materials.resolve_materials` lists what is refused).
+        The bundle's ``young``/``poisson`` are then the material under the
+        ``contact_group`` surface; the manifest's ``materials`` records each
+        volume's (E, nu) and its range of ``volume_tets``.
     contact_group
         Surface group whose (unclamped) vertices get columns of D.
     solver, tol
@@ -216,7 +232,7 @@ def build_bundle(
     pathlib.Path
         The bundle directory; ``hailstorm.runtime.load`` reads it.
     """
-    young, poisson = check_material(young, poisson)
+    check_material_input(materials, young=young, poisson=poisson)  # before any meshing
     if order not in (1, 2):
         raise ValueError(f"element order must be 1 or 2, got {order!r}")
     if load not in LOADS:
@@ -246,6 +262,10 @@ def build_bundle(
         mesh = load_seat(geometry, mesh_size, allow_large=allow_large, order=order)
     else:
         check_mesh(mesh)
+    mats = resolve_materials(mesh, materials, young=young, poisson=poisson)
+    mesh, mats = sort_tets_by_material(mesh, mats)
+    check_layers(mesh, mats)
+    young, poisson = contact_material(mesh, mats, contact_group)
     t_mesh = time.perf_counter() - t0
     surface = extract_surface(mesh, contact_group)
     check_fits(estimate_mesh(surface.nodes.size, int(surface.contactable.sum()), mesh.points.shape[0], order),
@@ -255,6 +275,7 @@ def build_bundle(
         "order": int(order),
         "young": young,
         "poisson": poisson,
+        "materials": mats.key(),
         "contact_group": contact_group,
         "solver": solver,
         "tol": tol if solver == "amg" else None,
@@ -275,7 +296,7 @@ def build_bundle(
             log.info("bundle %s was built for other inputs; recomputing", out)
         check_replaceable(out)
         try:
-            return _compute(out, mesh, surface, options, key, geometry, mesh_size, tol, t0, t_mesh, progress, run)
+            return _compute(out, mesh, surface, options, key, geometry, mesh_size, tol, t0, t_mesh, progress, run, mats)
         except OSError as exc:
             raise BundleError(f"cannot write bundle {out}: {exc.strerror or exc} ({exc.filename or out})") from exc
 
@@ -291,13 +312,15 @@ class _RunSettings:
 
 
 def _compute(out: Path, mesh: TetMesh, surface: Surface, options: dict, key: str, geometry, mesh_size: float,
-             tol: float, t0: float, t_mesh: float, progress: bool, run: _RunSettings) -> Path:
+             tol: float, t0: float, t_mesh: float, progress: bool, run: _RunSettings,
+             mats: MaterialMap) -> Path:
     """Assemble, solve for D and write the bundle (``build_bundle``'s work once its checks passed)."""
     order, young, poisson = options["order"], options["young"], options["poisson"]
     solver, load = options["solver"], options["load"]
     t1 = time.perf_counter()
     basis = elasticity_basis(mesh, order)
-    K = stiffness_matrix(basis, young, poisson)
+    K = stiffness_matrix(basis, young, poisson) if len(mats.names) == 1 else \
+        stiffness_matrix(basis, mats.tet_young, mats.tet_poisson)
     fixed = clamp_dofs(basis, mesh)
     contact_nodes = surface.nodes[surface.contactable]
     load_dofs = vertex_dofs(basis, contact_nodes).ravel()
@@ -319,6 +342,7 @@ def _compute(out: Path, mesh: TetMesh, surface: Surface, options: dict, key: str
         "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         "options": {**options, "mesh_size": float(mesh_size), "geometry": None if geometry is None else str(geometry)},
         "material": {"young": young, "poisson": poisson},
+        "materials": mats.record(),
         "mesh": {
             "source": mesh.source,
             "hash": mesh.content_hash(),

@@ -755,7 +755,9 @@ class GreensFunctions:
         The volume mesh the bundle was computed on and the map
         surface vertex -> volume point.
     young, poisson : float
-        Material (Pa, -).
+        Material under the contactable surface (Pa, -).
+    tet_young, tet_poisson : (T,) float ndarray
+        Material of each volume tetrahedron (several for a layered body).
     D : (3 n, 3 c) float64 or float32 ndarray
         The compliance, column-major (memory-mapped by default), in its storage
         type (:attr:`dtype`); read it through :meth:`compliance`, which returns
@@ -790,6 +792,23 @@ class GreensFunctions:
     def dtype(self) -> np.dtype:
         """D's storage type (float64 or float32; the contact results are float64 either way)."""
         return self.D.dtype
+
+    @property
+    def tet_young(self) -> np.ndarray:
+        """(T,) Young's modulus of each volume tetrahedron [Pa] (the manifest's ``materials`` ranges)."""
+        return self._tet_material_field("young")
+
+    @property
+    def tet_poisson(self) -> np.ndarray:
+        """(T,) Poisson's ratio of each volume tetrahedron."""
+        return self._tet_material_field("poisson")
+
+    def _tet_material_field(self, name: str) -> np.ndarray:
+        out = np.full(self.volume_tets.shape[0], float(self.manifest["material"][name]))
+        for m in self.manifest.get("materials") or ():  # bundles before materials per volume: one material
+            start, stop = m["tets"]
+            out[start:stop] = float(m[name])
+        return out
 
     @property
     def order(self) -> int:

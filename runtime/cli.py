@@ -66,8 +66,13 @@ def _parser() -> argparse.ArgumentParser:
     pre.add_argument("--mesh-size", type=_positive_float, default=DEFAULT_MESH_SIZE,
                      help=f"element size on the hail-facing surface in metres (default {DEFAULT_MESH_SIZE})")
     pre.add_argument("--order", type=int, choices=(1, 2), default=1, help="P1 or P2 tetrahedra (default 1)")
-    pre.add_argument("--young", type=_float, default=DEFAULT_YOUNG, help=f"Young's modulus in Pa (default {DEFAULT_YOUNG:g})")
-    pre.add_argument("--poisson", type=_float, default=DEFAULT_POISSON, help=f"Poisson's ratio (default {DEFAULT_POISSON})")
+    pre.add_argument("--young", type=_float, default=None,
+                     help=f"Young's modulus in Pa of a one-material body (default {DEFAULT_YOUNG:g})")
+    pre.add_argument("--poisson", type=_float, default=None,
+                     help=f"Poisson's ratio of a one-material body (default {DEFAULT_POISSON})")
+    pre.add_argument("--material", action="append", default=[], metavar="NAME=E,nu",
+                     help="material of the volume group NAME (a gmsh Physical Volume): Young's modulus E in Pa "
+                     "and Poisson's ratio nu, e.g. pad=0.5e6,0.3; repeat for each volume (instead of --young/--poisson)")
     pre.add_argument("--geometry", type=Path, default=None,
                      help="geometry (.geo/.step/.brep) or tetrahedral mesh (any meshio format) with "
                      "surface groups 'top' and 'clamp' (default: the built-in saddle)")
@@ -123,11 +128,20 @@ def _run_precompute(args: argparse.Namespace) -> int:
     from hailstorm.precompute.pipeline import build_bundle
     from hailstorm.runtime.bundle import BundleError
 
+    from hailstorm.precompute.materials import parse_material
+
     t0 = time.perf_counter()
+    materials: dict[str, tuple[float, float]] = {}
+    for text in args.material:
+        name, young, poisson = parse_material(text)
+        if name in materials:
+            raise ValueError(f"--material {text!r}: volume {name!r} was already given a material")
+        materials[name] = (young, poisson)
     try:
         path = build_bundle(
             args.out, geometry=args.geometry, mesh_size=args.mesh_size, order=args.order,
-            young=args.young, poisson=args.poisson, solver=args.solver, tol=args.tol, load=args.load,
+            young=args.young, poisson=args.poisson, materials=materials or None,
+            solver=args.solver, tol=args.tol, load=args.load,
             reuse=not args.force, progress=not args.quiet, allow_large=args.allow_large,
             workers=args.workers, scheduler=args.scheduler,
         )
@@ -161,7 +175,12 @@ def _print_bundle(path: Path, rehash: bool = True) -> None:
           f"P{gf.order}, {mesh.get('n_dofs')} dofs")
     print(f"surface  {gf.n_vertices} vertices, {len(gf.triangles)} triangles, "
           f"{int(gf.contactable.sum())} contactable, {int(gf.fixed.sum())} clamped")
-    print(f"material E = {gf.young:g} Pa, nu = {gf.poisson:g}")
+    print(f"material E = {gf.young:g} Pa, nu = {gf.poisson:g}" + (" (under the contactable surface)"
+                                                                   if len(m.get("materials") or ()) > 1 else ""))
+    for mat in m.get("materials") or ():
+        if len(m["materials"]) > 1:
+            start, stop = mat["tets"]
+            print(f"  volume {mat['volume']}: E = {mat['young']:g} Pa, nu = {mat['poisson']:g}, {stop - start} tets")
     print(f"D        {gf.D.shape[0]} x {gf.D.shape[1]} float64 ({gf.D.nbytes / 2**20:.1f} MiB)")
     t = m.get("timings_s", {})
     if t:

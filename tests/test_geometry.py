@@ -22,8 +22,17 @@ def test_default_seat_is_a_saddle(seat):
     top = seat.points[seat.group_vertices("top")]
     nose = top[top[:, 0] < 0.05]
     assert np.ptp(nose[:, 1]) <= 0.045  # narrow nose
+    # the clamp is the pad's underside, on the shell: 12-15 mm of foam under the top everywhere
+    # (meshes/saddle.geo: the shell's top rises 3-24 mm, the pad is 12 mm at the edges, 15 on the crown)
+    from scipy.spatial import cKDTree
+
     clamp = seat.points[seat.group_vertices("clamp")]
-    assert np.allclose(clamp[:, 2], 0.0)  # the clamp is on the underside
+    assert 0.003 - 1e-9 <= clamp[:, 2].min() and clamp[:, 2].max() <= 0.0245  # 24 mm, and the spline's overshoot between stations
+    # away from the side walls and end caps, the top above a clamp vertex is the crown
+    inner = clamp[(np.abs(clamp[:, 1]) < 0.008) & (clamp[:, 0] > 0.03) & (clamp[:, 0] < 0.25)]
+    near = cKDTree(top[:, :2]).query_ball_point(inner[:, :2], r=0.004)
+    gap = np.array([top[n, 2].mean() - c[2] for n, c in zip(near, inner) if n])
+    assert gap.size >= 5 and np.all((gap > 0.010) & (gap < 0.017))
     assert (tet_volumes(seat.points, seat.tets) > 0).all()
 
 

@@ -254,6 +254,11 @@ def _drop(gf, patch, r=0.005, v0=9.0, integrator="exact", dt=5e-4, at_vertex=Tru
         if was and not now and v_in is not None:
             v_out = float(st.vel[0] @ nrm)
             break
+        if not was and not now and vb @ nrm < 0 < st.vel[0] @ nrm:
+            # the whole impact inside one step's sub-steps (a stiff seat): in and out of it
+            # (gravity over one step changes the speeds by g dt, < 0.1 % of them)
+            v_in, v_out = float(-vb @ nrm), float(st.vel[0] @ nrm)
+            break
         was = now
     assert v_in is not None and v_out is not None, "the stone did not bounce"
     return st, v_out / v_in
