@@ -97,7 +97,8 @@ class Patches:
         tends to the resting force afterwards, so the patch is sized for the deepest
         dent of the impact and is not re-weighted while the force rises and
         falls. A contact keeps its radius until the target leaves the band
-        ``[a / (1 + tol), a (1 + tol)]`` (``tol = patch_tolerance``). One kernel
+        ``[a / (1 + tol), a (1 + tol)]`` (``tol = patch_tolerance``); a resting one is
+        re-sized to its target once it is ``REST_TOLERANCE`` (1 %) off. One kernel
         (:func:`hailstorm.runtime.compiled.patch_radii`); the new contacts' weights at
         their first radius go to the weights cache.
         """

@@ -346,7 +346,11 @@ def test_patch_and_point_storms_on_the_seat(seat_bundle):
     assert ph["patch_weights_computed"] > 0 and pn["patch_weights_computed"] == 0
     # stated tolerance: in contact, no stone overlaps the deformed surface by more than 1% of its radius
     assert ph["max_penetration_contact_rel"] < 0.01
-    assert ph["max_penetration_contact_m"] <= pn["max_penetration_contact_m"] + 1e-6
+    # a patch prescribes Hertz's secant law: its weighted mean surface lies up to a^2 / (5 R) = 0.2 delta
+    # short of the stone's lowest point (runtime/contact_set.py), so the stone may overlap the
+    # interpolated surface at its contact point by that much more than a point contact, not more
+    assert ph["max_penetration_contact_m"] <= pn["max_penetration_contact_m"] + 0.2 * ph["max_indentation_m"]
+    assert ph["max_penetration_contact_m"] > 0.0
     again = run_storm(gf, out["hertz"].scene, progress=False)
     assert np.array_equal(again.frames[-1].positions, out["hertz"].frames[-1].positions)
     assert np.array_equal(again.frames[-1].displacement, out["hertz"].frames[-1].displacement)

@@ -6,8 +6,8 @@ from its state as a linear oscillator about its static equilibrium:
 set) takes ``k`` from the set's capacitance and ``F`` from its force; a new one
 takes the triangle's point stiffness, then once more the stiffness of that patch
 alone (one fixed-point iteration). A contact keeps its radius until the target
-leaves the band ``[a / (1 + tol), a (1 + tol)]``; it grows at once and shrinks only
-once the stone rests.
+leaves the band ``[a / (1 + tol), a (1 + tol)]``; it grows at once, and once the stone
+rests it follows the target to ``REST_TOLERANCE`` (both ways).
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ from typing import Callable
 import numpy as np
 
 from hailstorm.runtime.contact.weights import hertz_radius
+from hailstorm.runtime.compiled.patches import REST_TOLERANCE
 
 
 def patch_radii_ref(ids: np.ndarray, tris: np.ndarray, mass: np.ndarray, radius: np.ndarray, vel: np.ndarray,
@@ -67,5 +68,5 @@ def patch_radii_ref(ids: np.ndarray, tris: np.ndarray, mass: np.ndarray, radius:
     tol = 1.0 + tolerance
     amp = np.sqrt((f - f_eq) ** 2 / np.maximum(np.clip(k, 0.0, None) * m, 1e-300) + vn * vn)
     resting = known & (amp < rest_speed)
-    resize = (cur <= 0.0) | (target > cur * tol) | ((target * tol < cur) & resting)
+    resize = (cur <= 0.0) | (target > cur * tol) | (resting & (np.abs(target - cur) > REST_TOLERANCE * cur))
     return np.where(resize, target, cur), int((resize & (cur > 0.0)).sum())
