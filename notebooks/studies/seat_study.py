@@ -45,7 +45,7 @@ from hailstorm.precompute.fem import (
 )
 from hailstorm.precompute.geometry import DEFAULT_MESH_SIZE, TetMesh, boundary_triangles, check_mesh, mesh_default_seat, tet_volumes
 from hailstorm.precompute.greens import factorize
-from hailstorm.studies.study import LoadCase, locate_probes, nodal_loads, trace_shape
+from hailstorm.studies.study import LoadCase, locate_probes, nodal_loads, trace_nodes, trace_shape
 
 #: Load sites on the crown (plan x, y) [m]: rear, middle, nose.
 SITES = {"rear": (0.235, 0.0), "middle": (0.150, 0.0), "nose": (0.035, 0.0)}
@@ -69,21 +69,6 @@ class Site:
     @property
     def ratio(self) -> float:
         return self.far / self.under
-
-
-def _trace_nodes(basis, triangles: np.ndarray, order: int) -> tuple[np.ndarray, np.ndarray]:
-    """Per-triangle node numbers (3 corners, then 3 edge nodes for P2) and the (n_nodes, 3) dof table."""
-    nv = basis.mesh.p.shape[1]
-    if order == 1:
-        return triangles, np.asarray(basis.nodal_dofs.T, dtype=np.int64)
-    edges = np.sort(np.asarray(basis.mesh.edges.T, dtype=np.int64), axis=1)
-    ke = edges[:, 0] * nv + edges[:, 1]
-    srt = np.argsort(ke)
-    cols = []
-    for i, j in ((0, 1), (1, 2), (2, 0)):
-        e = np.sort(triangles[:, [i, j]].astype(np.int64), axis=1)
-        cols.append(nv + srt[np.searchsorted(ke[srt], e[:, 0] * nv + e[:, 1])])
-    return np.column_stack([triangles, *cols]), np.concatenate([basis.nodal_dofs.T, basis.edge_dofs.T]).astype(np.int64)
 
 
 def with_shell(mesh: TetMesh, thickness: float = SHELL_THICKNESS, layers: int = 2,
@@ -139,7 +124,7 @@ def measure(mesh: TetMesh, order: int, young, poisson, *, sites=SITES, radius: f
     top = mesh.groups["top"]
     topkey = set(map(tuple, np.sort(top, axis=1).tolist()))
     tris = tris[[tuple(t) in topkey for t in np.sort(tris, axis=1).tolist()]]  # outward top triangles
-    nodes, table = _trace_nodes(basis, tris, order)
+    nodes, table = trace_nodes(basis, tris, order)
     surf = np.unique(boundary_triangles(mesh.tets))
     out = []
     for name, c in sites.items():

@@ -318,8 +318,9 @@ def work_error(qoi: QoI, ref: QoI) -> float:
     return float(np.max(np.abs(qoi.work - ref.work) / np.abs(ref.work)))
 
 
-def _trace_nodes(basis, triangles: np.ndarray, order: int) -> tuple[np.ndarray, np.ndarray]:
-    """Per-triangle node numbers for :func:`trace_shape` and the (n_nodes, 3) dof table."""
+def trace_nodes(basis, triangles: np.ndarray, order: int) -> tuple[np.ndarray, np.ndarray]:
+    """Per-triangle node numbers (3 corners, then 3 edge nodes for P2; for :func:`trace_shape`)
+    and the (n_nodes, 3) dof table."""
     nv = basis.mesh.p.shape[1]
     if order == 1:
         return triangles, np.asarray(basis.nodal_dofs.T, dtype=np.int64)
@@ -373,7 +374,7 @@ def direct_qoi(
     K = stiffness_matrix(basis, young, poisson)
     fixed = clamp_dofs(basis, mesh)
     tris = boundary_triangles(mesh.tets)
-    nodes, table = _trace_nodes(basis, tris, order)
+    nodes, table = trace_nodes(basis, tris, order)
     F = np.zeros((K.shape[0], len(scenario.loads)))
     for c, load in enumerate(scenario.loads):
         f = nodal_loads(mesh.points, tris, nodes, table.shape[0], load, order=order, min_nz=scenario.min_nz)
