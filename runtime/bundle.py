@@ -577,7 +577,8 @@ def write_bundle(
     missing = set(ARRAY_SPECS) - set(arrays)
     if missing:
         raise BundleError(f"cannot write bundle: arrays missing: {sorted(missing)}")
-    dtype = np.asarray(arrays["compliance"]).dtype  # before any hashing: D's storage type and the manifest agree
+    D = arrays["compliance"]  # before any hashing: D's storage type and the manifest agree (a staged D: its file's)
+    dtype = np.dtype(D.dtype) if isinstance(D, StagedArray) else np.asarray(D).dtype
     _check_compliance_dtype({"options": manifest.get("options") or {}, "arrays": {"compliance": {"dtype": dtype.str}}},
                             dtype, out)
     prepared = {}
