@@ -172,3 +172,46 @@ def test_cli_dtype_float32_and_info(tmp_path, capsys):
     with pytest.raises(SystemExit) as exc:
         main(["precompute", "--dtype", "float16", "--out", str(tmp_path / "c")])
     assert exc.value.code == 2
+
+
+@pytest.mark.parametrize("order", [1, 2])
+def test_the_estimate_counts_the_assembly_it_measures(small_box, order):
+    """The FE basis and the assembly's triplets (tracemalloc sees numpy's allocations) fit in the
+    per-dof allowance, which the estimate includes (it was missing: the peak was the solve's only)."""
+    import tracemalloc
+
+    from hailstorm.precompute.fem import elasticity_basis, stiffness_matrix
+    from hailstorm.precompute.resources import ASSEMBLY_BYTES_PER_DOF, BASE_BYTES
+
+    tracemalloc.start()
+    try:
+        K = stiffness_matrix(elasticity_basis(small_box, order), 1e6, 0.3)
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    assert peak <= ASSEMBLY_BYTES_PER_DOF * K.shape[0]
+    est = estimate_mesh(100, 50, small_box.points.shape[0], order)
+    assert est.n_dofs >= K.shape[0] and est.total_bytes >= BASE_BYTES + ASSEMBLY_BYTES_PER_DOF * est.n_dofs
+
+
+def test_the_fe_basis_is_freed_before_the_solve(tmp_path, small_box, monkeypatch):
+    import weakref
+
+    import hailstorm.precompute.pipeline as pipeline
+
+    refs, alive = [], []
+    real_basis, real_solve = pipeline.elasticity_basis, ColumnProblem.solve
+
+    def basis(*a, **k):
+        b = real_basis(*a, **k)
+        refs.append(weakref.ref(b))
+        return b
+
+    def solve(self, factor, start, stop):
+        alive.append(refs[0]() is not None)
+        return real_solve(self, factor, start, stop)
+
+    monkeypatch.setattr(pipeline, "elasticity_basis", basis)
+    monkeypatch.setattr(ColumnProblem, "solve", solve)
+    build_bundle(tmp_path / "b", mesh=small_box, **BOX)
+    assert alive and not any(alive)
