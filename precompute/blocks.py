@@ -10,14 +10,23 @@ The store is a work directory beside the bundle (``.NAME.work/``) holding
     block) and flushed to disk (``fdatasync``) before it counts as done.
 ``blocks/NNNNNN.json``
     One record per finished block, written atomically after its data is on
-    disk: the cache key, the column range and the SHA-256 of the block's
-    bytes. A block without a record, or whose record names another key,
+    disk: the cache key, the column range, the SHA-256 of the block's
+    bytes, and the block's largest entry and largest rounding error (the
+    cast from the solve's float64 to D's storage type: zero for float64). A block without a record, or whose record names another key,
     another range, or does not match the bytes, is not done and is computed
     again. So after a kill, a reboot or Ctrl-C a rerun computes only the
     missing blocks, and a block from another mesh or material is never used.
 ``work.json``
-    The key, shape and block layout; a work directory of other inputs is
-    cleared (its own files only) and started afresh.
+    The key, shape, storage type and block layout; a work directory of other
+    inputs is cleared (its own files only) and started afresh.
+
+D is stored as float64 or float32 (:data:`hailstorm.runtime.bundle.COMPLIANCE_DTYPES`).
+Blocks are solved in float64 and each is rounded to the storage type as it is
+written, so a float32 D is the float64 D rounded entry by entry, and the
+solver's memory is the same for both. A float32 run's key differs from the
+float64 run's (``options.dtype`` is in it), so a work directory of float64
+blocks is never resumed as float32 (nor the other way round): it is started
+afresh, like any other inputs'.
 
 When every block is done, :meth:`BlockStore.finish` reads D once in order
 (plain reads, so file pages do not count as the process's memory), computes
@@ -39,7 +48,7 @@ from typing import Sequence
 import numpy as np
 
 from hailstorm.runtime.atomic import write_text_atomic
-from hailstorm.runtime.bundle import StagedArray
+from hailstorm.runtime.bundle import COMPLIANCE_DTYPES, StagedArray
 
 log = logging.getLogger(__name__)
 
@@ -59,7 +68,7 @@ def work_dir(out: str | os.PathLike) -> Path:
 
 
 class BlockStore:
-    """Column blocks of a column-major float64 D on disk, each finished block durable and tagged.
+    """Column blocks of a column-major D on disk, each finished block durable and tagged.
 
     Parameters
     ----------
@@ -71,18 +80,24 @@ class BlockStore:
         (n_rows, n_cols) of D.
     blocks
         (start, stop) column range of every block, covering 0..n_cols in order.
+    dtype : {"float64", "float32"}
+        D's storage type: :meth:`write` rounds each (float64) block to it.
 
     Opening a store with the same key, shape and blocks as the one on disk
     resumes it (:attr:`done`); anything else starts afresh.
     """
 
     def __init__(self, path: str | os.PathLike, key: str, shape: tuple[int, int],
-                 blocks: Sequence[tuple[int, int]]):
+                 blocks: Sequence[tuple[int, int]], dtype: str | np.dtype = "float64"):
         self.path = Path(path)
         self.key = key
         self.shape = (int(shape[0]), int(shape[1]))
         self.blocks = [(int(a), int(b)) for a, b in blocks]
-        self.dtype = np.dtype(np.float64)
+        self.dtype = np.dtype(dtype)
+        if self.dtype not in COMPLIANCE_DTYPES.values():
+            raise ValueError(f"D cannot be stored as {dtype!r}: the storage types are {' and '.join(COMPLIANCE_DTYPES)}")
+        #: per finished block: (largest |entry|, largest |rounding error|) of its float64 values
+        self._rounding: dict[int, tuple[float, float]] = {}
         meta = {"key": key, "shape": list(self.shape), "dtype": self.dtype.str, "blocks": [list(b) for b in self.blocks]}
         self.path.mkdir(parents=True, exist_ok=True)
         (self.path / RECORDS).mkdir(exist_ok=True)
@@ -90,8 +105,9 @@ class BlockStore:
         data = self.path / DATA
         if old != meta or not data.is_file():
             if old is not None:
-                log.info("work directory %s was for other inputs (key %s); starting afresh", self.path,
-                         str(old.get("key"))[:12] if isinstance(old, dict) else "?")
+                old = old if isinstance(old, dict) else {}
+                log.info("work directory %s was for other inputs (key %s, D as %s); starting afresh", self.path,
+                         str(old.get("key"))[:12], _dtype_name(old.get("dtype")))
             self._clear_records()
             data.unlink(missing_ok=True)
             np.lib.format.open_memmap(data, mode="w+", dtype=self.dtype, shape=self.shape, fortran_order=True)
@@ -143,11 +159,18 @@ class BlockStore:
                     continue
                 if rec.get("columns") != [start, stop]:
                     continue
+                rounding = (rec.get("max_abs"), rec.get("max_abs_error"))
+                if not all(isinstance(v, (int, float)) and np.isfinite(v) for v in rounding):
+                    if self.dtype != np.float64:  # a rounded block must say by how much
+                        log.warning("block %d: its record lacks its rounding error; computing it again", i)
+                        continue
+                    rounding = (0.0, 0.0)
                 off, n = self._byte_range(i)
                 if off + n > size or _sha256(fh, off, n) != rec.get("sha256"):
                     log.warning("block %d: its bytes do not match its record; computing it again", i)
                     continue
                 done.add(i)
+                self._rounding[i] = (float(rounding[0]), float(rounding[1]))
         return done
 
     @property
@@ -156,15 +179,29 @@ class BlockStore:
         return [i for i in range(len(self.blocks)) if i not in self.done]
 
     def write(self, i: int, values: np.ndarray) -> None:
-        """Write block ``i`` (its (n_rows, stop - start) values) durably, then record it done.
+        """Write block ``i`` (its (n_rows, stop - start) values, float64) durably, rounded to
+        the storage type, then record it done.
 
-        Raises ``OSError`` (a full disk...) with the blocks written before intact.
+        Raises ``OSError`` (a full disk...) with the blocks written before intact, and
+        ``ValueError`` if an entry does not fit in the storage type (overflow).
         """
         start, stop = self.blocks[i]
-        values = np.asarray(values, dtype=self.dtype)
+        values = np.asarray(values, dtype=np.float64)
         if values.shape != (self.shape[0], stop - start):
             raise ValueError(f"block {i}: shape {values.shape}, expected {(self.shape[0], stop - start)}")
-        raw = memoryview(np.asfortranarray(values).T.reshape(-1)).cast("B")  # column-major bytes
+        with np.errstate(over="ignore"):
+            stored = np.asfortranarray(values, dtype=self.dtype)  # the one cast: round to nearest
+        scale = float(np.abs(values).max()) if values.size else 0.0
+        err = 0.0
+        if stored.dtype != values.dtype and values.size:
+            if np.isfinite(values).all() and not np.isfinite(stored).all():
+                raise ValueError(f"block {i} of D does not fit in {self.dtype.name}: its entries (up to "
+                                 f"{scale:.3g}) overflow it")
+            diff = stored.astype(np.float64)
+            diff -= values
+            err = float(np.abs(diff).max())
+            del diff
+        raw = memoryview(stored.T.reshape(-1)).cast("B")  # column-major bytes
         off, n = self._byte_range(i)
         fd = os.open(self.path / DATA, os.O_WRONLY)
         try:
@@ -174,9 +211,19 @@ class BlockStore:
             os.fdatasync(fd)
         finally:
             os.close(fd)
-        rec = {"key": self.key, "columns": [start, stop], "sha256": hashlib.sha256(raw).hexdigest()}
+        rec = {"key": self.key, "columns": [start, stop], "sha256": hashlib.sha256(raw).hexdigest(),
+               "max_abs": scale, "max_abs_error": err}
         write_text_atomic(self._record(i), json.dumps(rec))
         self.done.add(i)
+        self._rounding[i] = (scale, err)
+
+    @property
+    def rounding(self) -> tuple[float, float]:
+        """(largest |entry|, largest |rounding error|) of D's float64 values over the finished
+        blocks: what storing D in :attr:`dtype` cost (zeros for float64)."""
+        if not self._rounding:
+            return 0.0, 0.0
+        return max(v[0] for v in self._rounding.values()), max(v[1] for v in self._rounding.values())
 
     def finish(self) -> StagedArray:
         """Hash the finished D as the bundle does and check it is finite.
@@ -244,6 +291,15 @@ def remove_work_dir(path: str | os.PathLike) -> None:
         path.rmdir()
     except OSError:
         log.warning("left %s: it holds files hailstorm did not write", path)
+
+
+def _dtype_name(code) -> str:
+    if not isinstance(code, str):
+        return "?"
+    try:
+        return np.dtype(code).name
+    except TypeError:
+        return "?"
 
 
 def _sha256(fh, offset: int, n: int) -> str:

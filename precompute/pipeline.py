@@ -60,6 +60,7 @@ from hailstorm.precompute.materials import (
     sort_tets_by_material,
 )
 from hailstorm.runtime.bundle import (
+    COMPLIANCE_DTYPES,
     FORMAT_VERSION,
     BundleError,
     StagedArray,
@@ -157,6 +158,7 @@ def build_bundle(
     workers: int | None = None,
     scheduler: str | None = None,
     block_bytes: int = DEFAULT_STORE_BYTES,
+    dtype: str = "float64",
 ) -> Path:
     """Compute the Green's functions of a seat and write them as a bundle.
 
@@ -218,8 +220,16 @@ def build_bundle(
         :class:`hailstorm.precompute.cluster.ClusterError` before any work).
         Default: in this process. D does not depend on it.
     block_bytes
-        Size of one column block of D: the unit of work, of what is written
-        to disk at once, and of what an interrupted run loses.
+        Size of one column block of D as solved (float64): the unit of work,
+        of what is written to disk at once, and of what an interrupted run loses.
+    dtype : {"float64", "float32"}
+        D's storage type. Columns are always solved in float64; for
+        ``"float32"`` each block is rounded to nearest as it is written (half
+        the disk and the runtime's memory for D; each entry off by at most
+        2^-24 of itself, the largest rounding recorded in the manifest's
+        ``dtype_cast``) and ``options.dtype = "float32"`` goes into the cache
+        key (float64 adds nothing to it: the keys of float64 bundles stay as
+        they were).
 
     D is streamed to ``.NAME.work/`` beside ``out`` block by block, each
     block durable and tagged with the cache key when it is written; a run
@@ -243,6 +253,8 @@ def build_bundle(
         raise ValueError(f"solver tolerance must be in (0, 1), got {tol!r}")
     if not (np.isfinite(mesh_size) and mesh_size > 0):
         raise ValueError(f"mesh size must be a positive length in metres, got {mesh_size!r}")
+    if not isinstance(dtype, str) or dtype not in COMPLIANCE_DTYPES:
+        raise ValueError(f"D's storage type must be one of {' or '.join(COMPLIANCE_DTYPES)}, got {dtype!r}")
     # the output first: an occupied or unwritable place is refused before any work
     if out is not None:
         out = Path(out).absolute()
@@ -256,7 +268,7 @@ def build_bundle(
         check_scheduler(scheduler)  # an unreachable cluster fails here, before any work
     elif workers is not None:
         require_distributed()
-    run = _RunSettings(scheduler, workers, int(block_bytes), allow_large)
+    run = _RunSettings(scheduler, workers, int(block_bytes), allow_large, dtype)
     t0 = time.perf_counter()
     if mesh is None:
         mesh = load_seat(geometry, mesh_size, allow_large=allow_large, order=order)
@@ -268,7 +280,7 @@ def build_bundle(
     young, poisson = contact_material(mesh, mats, contact_group)
     t_mesh = time.perf_counter() - t0
     surface = extract_surface(mesh, contact_group)
-    check_fits(estimate_mesh(surface.nodes.size, int(surface.contactable.sum()), mesh.points.shape[0], order),
+    check_fits(estimate_mesh(surface.nodes.size, int(surface.contactable.sum()), mesh.points.shape[0], order, dtype),
                f"{mesh.source} (P{order})", allow_large=allow_large)
 
     options = {
@@ -281,6 +293,8 @@ def build_bundle(
         "tol": tol if solver == "amg" else None,
         "load": load,
     }
+    if dtype != "float64":  # float64 adds nothing: the keys of the bundles written before stay valid
+        options["dtype"] = dtype
     key = cache_key(mesh, options)
     if out is None:
         out = (default_cache_dir() / key[:16]).absolute()
@@ -309,6 +323,7 @@ class _RunSettings:
     workers: int | None
     block_bytes: int
     allow_large: bool
+    dtype: str = "float64"
 
 
 def _compute(out: Path, mesh: TetMesh, surface: Surface, options: dict, key: str, geometry, mesh_size: float,
@@ -333,8 +348,15 @@ def _compute(out: Path, mesh: TetMesh, surface: Surface, options: dict, key: str
 
     t2 = time.perf_counter()
     problem = column_problem(K, fixed, load_dofs, read, solver=solver, near_null=near_null, tol=tol, loads=loads)
-    D, stats = _stream_compliance(out, problem, key, progress, run, f"P{order}, {solver}")
+    n_dofs = int(K.shape[0])
+    del basis, K  # the solve needs only the problem: the FE basis is most of the assembly's memory
+    D, stats, (scale, err) = _stream_compliance(out, problem, key, progress, run, f"P{order}, {solver}")
     t_solve = time.perf_counter() - t2
+    cast = None
+    if run.dtype != "float64":  # what the rounding of each block to D's storage type cost, as convert_bundle records
+        float64_options = {k: v for k, v in options.items() if k != "dtype"}
+        cast = {"source_key": cache_key(mesh, float64_options), "source_dtype": "float64", "max_abs_error": err,
+                "max_rel_error": err / scale if scale > 0 else 0.0}
 
     manifest = {
         "key": key,
@@ -348,13 +370,15 @@ def _compute(out: Path, mesh: TetMesh, surface: Surface, options: dict, key: str
             "hash": mesh.content_hash(),
             "n_points": int(mesh.points.shape[0]),
             "n_tets": int(mesh.tets.shape[0]),
-            "n_dofs": int(K.shape[0]),
+            "n_dofs": n_dofs,
             "n_surface_vertices": int(surface.nodes.size),
             "n_contactable": int(surface.contactable.sum()),
         },
         "timings_s": {"mesh": t_mesh, "assemble": t_assemble, "solve": t_solve},
         "solve_stats": stats,
     }
+    if cast is not None:
+        manifest["dtype_cast"] = cast
     arrays = {
         "vertices": mesh.points[surface.nodes],
         "triangles": surface.triangles.astype(np.int64),
@@ -376,12 +400,13 @@ def _compute(out: Path, mesh: TetMesh, surface: Surface, options: dict, key: str
 
 
 def _stream_compliance(out: Path, problem: ColumnProblem, key: str, progress: bool, run: _RunSettings,
-                       what: str) -> tuple[StagedArray, dict]:
+                       what: str) -> tuple[StagedArray, dict, tuple[float, float]]:
     """Solve D block by block into the work directory beside ``out``, resuming what a
-    previous run of the same key left; return the finished D (staged) and the run's statistics."""
+    previous run of the same key left; return the finished D (staged), the run's statistics
+    and (largest |entry|, largest rounding error) of the cast to D's storage type."""
     n_rows, ncols = problem.shape
     blocks = column_blocks(n_rows, ncols, run.block_bytes, problem.batch)
-    store = BlockStore(work_dir(out), key, (n_rows, ncols), blocks)
+    store = BlockStore(work_dir(out), key, (n_rows, ncols), blocks, run.dtype)
     todo = store.missing
     done = len(blocks) - len(todo)
     if done:
@@ -390,12 +415,13 @@ def _stream_compliance(out: Path, problem: ColumnProblem, key: str, progress: bo
     block_disk = d_disk / max(len(blocks), 1)
     check_disk(block_disk * len(todo), store.path, f"D ({n_rows} x {ncols})", allow_large=run.allow_large)
     n_dofs = problem.Kff.shape[0]
-    est = estimate_memory(n_dofs, block_disk, 1 if run.scheduler is None and run.workers is None else 2)
+    block_solved = 8 * n_rows * (blocks[0][1] - blocks[0][0])  # a block is solved in float64 whatever D's type
+    est = estimate_memory(n_dofs, block_solved, 1 if run.scheduler is None and run.workers is None else 2)
     # the nnz(L) count factors K_ff once more here (SuperLU): skipped when that would not fit comfortably
     count_fill = problem.solver != "amg" and bool(todo) and 2 * (est - BASE_BYTES) < available_memory()
     nnz_l = cholesky_nnz(problem.Kff) if count_fill else None
-    log.info("D: %d x %d float64, %s on disk (%d blocks of %d columns, %d to compute); "
-             "peak memory about %s%s", n_rows, ncols, gib(d_disk), len(blocks), blocks[0][1] - blocks[0][0],
+    log.info("D: %d x %d %s, %s on disk (%d blocks of %d columns, %d to compute); "
+             "peak memory about %s%s", n_rows, ncols, run.dtype, gib(d_disk), len(blocks), blocks[0][1] - blocks[0][0],
              len(todo), gib(est), "" if nnz_l is None else f"; nnz(L) about {nnz_l:,}")
     bar = None
     if progress and todo:
@@ -441,7 +467,7 @@ def _stream_compliance(out: Path, problem: ColumnProblem, key: str, progress: bo
         log.info("solved %d blocks (%d columns) in %.1f s on %d worker(s): nnz(L) %s, triangular solves "
                  "4 nnz(L) per column = %.3g GFLOP, %.2f GFLOP/s", stats.blocks, stats.columns, stats.solve_s,
                  stats.workers, f"{nnz_l:,}", flops / 1e9, flops / seconds / 1e9)
-    return store.finish(), info
+    return store.finish(), info, store.rounding
 
 
 def _logging_beside(bar):

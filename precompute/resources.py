@@ -1,11 +1,12 @@
 """Up-front estimates of what a precompute run needs, checked against the machine.
 
-The compliance D is dense: 3 n_surface x 3 n_contactable float64 values, so
-its size grows as the fourth power of 1 / mesh size (D of the default seat is
+The compliance D is dense: 3 n_surface x 3 n_contactable values of its storage
+type (float64, or float32: half), so its size grows as the fourth power of 1 / mesh size (D of the default seat is
 152 MB at 6 mm, measured; 1.4 GB at 3 mm and 7 GB for 10 000 contactable
 vertices at 1.9 mm). D is streamed to disk in column blocks
 (:mod:`hailstorm.precompute.blocks`), so it needs disk, not memory: the memory
-is the stiffness, its factorization and a few blocks. :func:`estimate_geometry`
+is the stiffness, its factorization and a few blocks (solved in float64 whatever
+D's storage type, so a float32 D halves the disk, not the memory). :func:`estimate_geometry`
 estimates both from a geometry's areas before meshing, :func:`estimate_mesh`
 from a mesh before assembly; :func:`check_fits` refuses a run that would not
 fit in the memory available and :func:`check_disk` one whose D would not fit
@@ -19,6 +20,8 @@ import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from hailstorm.runtime.scene import available_memory as runtime_available_memory
 
 #: Bytes of one column block of D, the unit of work and of what is written to disk at once
@@ -31,6 +34,11 @@ DEFAULT_STORE_BYTES = 32 * 2**20
 VERTICES_PER_AREA = 1.5
 #: memory of the process before any mesh: Python, numpy, scipy, gmsh, scikit-fem (measured 190-240 MiB)
 BASE_BYTES = 200 * 2**20
+#: peak memory of building the FE basis and assembling the stiffness, per dof: scikit-fem's basis
+#: (values and gradients at every quadrature point of every element) and the COO triplets of the
+#: assembly (measured above the process's base: 278 MiB for 19 458 dofs, P1 at 3 mm, 14.6 KB;
+#: 355 MiB for 35 637 dofs, P2 at 6 mm, 10.4 KB). Freed before the solve.
+ASSEMBLY_BYTES_PER_DOF = 15_000
 #: column blocks of D held at once: one being solved, one being written, slack for a worker's result
 BLOCKS_IN_MEMORY = 4
 
@@ -49,10 +57,12 @@ class Estimate:
         Surface vertices (rows of D / 3), contactable vertices (columns / 3),
         degrees of freedom of the stiffness.
     d_bytes : int
-        Size of D (float64): what it needs on disk.
+        Size of D in its storage type: what it needs on disk.
     total_bytes : int
-        Peak memory: the stiffness, its factorization and a few column blocks
-        of D (:data:`BLOCKS_IN_MEMORY`), not D.
+        Peak memory: the larger of the assembly (the FE basis and the
+        stiffness' triplets, :data:`ASSEMBLY_BYTES_PER_DOF`) and the solve (the
+        stiffness, its factorization and a few column blocks of D,
+        :data:`BLOCKS_IN_MEMORY`), never D.
     """
 
     n_surface: int
@@ -62,19 +72,24 @@ class Estimate:
     total_bytes: int
 
 
-def _estimate(n_surface: float, n_contactable: float, n_points: float, order: int) -> Estimate:
+def _estimate(n_surface: float, n_contactable: float, n_points: float, order: int,
+              dtype: str | np.dtype = "float64") -> Estimate:
     # P2 adds a node per edge: about 7 edges per vertex in a tetrahedral mesh
     n_dofs = 3.0 * n_points * (1 if order == 1 else 8)
-    d_bytes = 72.0 * n_surface * n_contactable
+    entries = 9.0 * n_surface * n_contactable
+    d_bytes = entries * np.dtype(dtype).itemsize
     solver = _solver_bytes(n_dofs)
-    blocks = BLOCKS_IN_MEMORY * min(d_bytes, DEFAULT_STORE_BYTES) + 8.0 * n_dofs * 32
-    return Estimate(int(n_surface), int(n_contactable), int(n_dofs), int(d_bytes), int(BASE_BYTES + solver + blocks))
+    # blocks are solved in float64 whatever D's storage type
+    blocks = BLOCKS_IN_MEMORY * min(8.0 * entries, DEFAULT_STORE_BYTES) + 8.0 * n_dofs * 32
+    peak = max(ASSEMBLY_BYTES_PER_DOF * n_dofs, solver + blocks)
+    return Estimate(int(n_surface), int(n_contactable), int(n_dofs), int(d_bytes), int(BASE_BYTES + peak))
 
 
 def estimate_memory(n_dofs: int, block_bytes: float, blocks_factor: int = 1) -> float:
     """Peak memory of the solve: the stiffness, its factorization (estimated) and
-    :data:`BLOCKS_IN_MEMORY` column blocks of ``block_bytes`` (times ``blocks_factor``
-    in the client of a cluster, which holds two results per worker in flight)."""
+    :data:`BLOCKS_IN_MEMORY` column blocks of ``block_bytes`` (a block as solved, in
+    float64; times ``blocks_factor`` in the client of a cluster, which holds two results
+    per worker in flight)."""
     return BASE_BYTES + _solver_bytes(n_dofs) + BLOCKS_IN_MEMORY * blocks_factor * block_bytes
 
 
@@ -90,21 +105,23 @@ def _solver_bytes(n_dofs: float) -> float:
 
 
 def estimate_geometry(area_top: float, area_all: float, volume: float, mesh_size: float, order: int = 1,
-                      coarsening: float = 2.5) -> Estimate:
+                      coarsening: float = 2.5, dtype: str | np.dtype = "float64") -> Estimate:
     """Estimate a bundle's needs from a geometry's areas [m^2] and volume [m^3], before meshing.
 
     Every surface is counted at ``mesh_size`` (an upper bound: sizes grow away
-    from ``top``); the interior at ``coarsening * mesh_size``.
+    from ``top``); the interior at ``coarsening * mesh_size``. ``dtype``: D's storage type.
     """
     n_contactable = VERTICES_PER_AREA * area_top / mesh_size**2
     n_surface = VERTICES_PER_AREA * area_all / mesh_size**2
     n_points = 1.3 * n_surface + 1.5 * volume / (coarsening * mesh_size) ** 3
-    return _estimate(n_surface, n_contactable, n_points, order)
+    return _estimate(n_surface, n_contactable, n_points, order, dtype)
 
 
-def estimate_mesh(n_surface: int, n_contactable: int, n_points: int, order: int = 1) -> Estimate:
-    """A bundle's needs for a mesh with these counts (D exact, the solver's share estimated)."""
-    return _estimate(n_surface, n_contactable, n_points, order)
+def estimate_mesh(n_surface: int, n_contactable: int, n_points: int, order: int = 1,
+                  dtype: str | np.dtype = "float64") -> Estimate:
+    """A bundle's needs for a mesh with these counts (D exact in D's storage type ``dtype``,
+    the solver's share estimated)."""
+    return _estimate(n_surface, n_contactable, n_points, order, dtype)
 
 
 def available_memory() -> int:

@@ -87,6 +87,9 @@ def _parser() -> argparse.ArgumentParser:
     pre.add_argument("--allow-large", action="store_true",
                      help="run even if the estimated memory (the solver and a few blocks of D) exceeds the memory "
                      "available, or D the free disk")
+    pre.add_argument("--dtype", choices=("float64", "float32"), default="float64",
+                     help="storage type of D (default float64; float32 halves D on disk and in the runtime, "
+                     "each entry rounded by at most 2^-24 of itself; solved in float64 either way)")
     where = pre.add_mutually_exclusive_group()
     where.add_argument("--workers", type=_positive_int, default=None, metavar="N",
                        help="solve the column blocks of D on a local Dask cluster of N processes "
@@ -143,7 +146,7 @@ def _run_precompute(args: argparse.Namespace) -> int:
             young=args.young, poisson=args.poisson, materials=materials or None,
             solver=args.solver, tol=args.tol, load=args.load,
             reuse=not args.force, progress=not args.quiet, allow_large=args.allow_large,
-            workers=args.workers, scheduler=args.scheduler,
+            workers=args.workers, scheduler=args.scheduler, dtype=args.dtype,
         )
     except OSError as exc:  # what the library did not already name (a full disk...): still the user's
         raise BundleError(f"precompute failed: {exc}") from exc
@@ -181,7 +184,7 @@ def _print_bundle(path: Path, rehash: bool = True) -> None:
         if len(m["materials"]) > 1:
             start, stop = mat["tets"]
             print(f"  volume {mat['volume']}: E = {mat['young']:g} Pa, nu = {mat['poisson']:g}, {stop - start} tets")
-    print(f"D        {gf.D.shape[0]} x {gf.D.shape[1]} float64 ({gf.D.nbytes / 2**20:.1f} MiB)")
+    print(f"D        {gf.D.shape[0]} x {gf.D.shape[1]} {gf.dtype} ({gf.D.nbytes / 2**20:.1f} MiB)")
     t = m.get("timings_s", {})
     if t:
         print("timings  " + ", ".join(f"{k} {v:.2f} s" for k, v in t.items()))
