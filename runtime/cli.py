@@ -111,14 +111,14 @@ def _storm_args(p: argparse.ArgumentParser) -> None:
 
     d = Scene.default()
     p.add_argument("--duration", type=_positive_float, default=None,
-                   help=f"simulated time in seconds (default: the scene's, {d.duration:g})")
+                   help=f"simulated time in seconds (default: the scene's, {d.storm.duration:g})")
     p.add_argument("--stones", type=int, default=None,
-                   help=f"number of hailstones (default: the scene's rate, {d.rate:g} per second, over the duration)")
+                   help=f"number of hailstones (default: the scene's rate, {d.storm.rate:g} per second, over the duration)")
     p.add_argument("--seed", type=int, default=None,
-                   help=f"random seed; runs are reproducible from it (default: the scene's, {d.seed})")
+                   help=f"random seed; runs are reproducible from it (default: the scene's, {d.storm.seed})")
     p.add_argument("--integrator", choices=("implicit", "symplectic", "exact"), default=None,
-                   help=f"time integrator of the contacts (default: the scene's, {d.integrator})")
-    p.add_argument("--dt", type=_positive_float, default=None, help=f"time step in seconds (default: the scene's, {d.dt:g})")
+                   help=f"time integrator of the contacts (default: the scene's, {d.time.integrator})")
+    p.add_argument("--dt", type=_positive_float, default=None, help=f"time step in seconds (default: the scene's, {d.time.dt:g})")
     p.add_argument("--gf", type=Path, default=None, help="bundle directory (default: build/cache the default seat)")
     p.add_argument("--scene", type=Path, default=None, help="TOML scene file holding every storm setting")
     p.add_argument("--out", type=Path, default=Path("hailstorm-out"), help="output directory (default ./hailstorm-out)")
@@ -195,7 +195,7 @@ def _print_bundle(path: Path, rehash: bool = True) -> None:
 def _run_storm(args: argparse.Namespace) -> int:
     from hailstorm.runtime.bundle import load
     from hailstorm.runtime.output import StormOutput, check_storm_out
-    from hailstorm.runtime.scene import Scene
+    from hailstorm.runtime.scene import Scene, SeatSettings
     from hailstorm.runtime.storm import run_storm
 
     scene = Scene.from_toml(args.scene) if args.scene is not None else Scene.default()
@@ -209,6 +209,8 @@ def _run_storm(args: argparse.Namespace) -> int:
     if changed:
         scene = Scene.from_dict(data, source="command line")
     # everything that can be refused cheaply, before the bundle and the storm
+    # the default seat's precompute settings: the scene file's [seat], not part of the scene
+    seat = SeatSettings.from_toml(args.scene) if args.scene is not None else SeatSettings.default()
     scene.estimate().check(allow_large=args.allow_large)
     out = args.out
     check_storm_out(out)
@@ -218,12 +220,12 @@ def _run_storm(args: argparse.Namespace) -> int:
         from hailstorm.precompute.pipeline import build_bundle
 
         if not args.quiet:
-            print(f"default seat: building or reusing the cached bundle (mesh size {scene.mesh_size} m)...")
-        gf_path = build_bundle(None, mesh_size=scene.mesh_size, order=scene.order, young=scene.young,
-                               poisson=scene.poisson, progress=not args.quiet)
+            print(f"default seat: building or reusing the cached bundle (mesh size {seat.mesh_size} m)...")
+        gf_path = build_bundle(None, mesh_size=seat.mesh_size, order=seat.order, young=seat.young,
+                               poisson=seat.poisson, progress=not args.quiet)
     gf = load(gf_path)
     if args.gf is not None:
-        _warn_seat_ignored(args, scene, gf)
+        _warn_seat_ignored(args, seat, gf)
     estimate = scene.estimate(gf.n_vertices)  # run_storm logs it
     with StormOutput(out, gf, video=not args.no_video, disk_bytes=estimate.disk_bytes,
                      progress=not args.quiet) as sink:
@@ -243,7 +245,7 @@ def _run_storm(args: argparse.Namespace) -> int:
     return 0
 
 
-def _warn_seat_ignored(args: argparse.Namespace, scene: Any, gf: Any) -> None:
+def _warn_seat_ignored(args: argparse.Namespace, seat: Any, gf: Any) -> None:
     """With --gf the bundle is the seat: say so if the scene file asked for another one."""
     import tomllib
 
@@ -252,7 +254,7 @@ def _warn_seat_ignored(args: argparse.Namespace, scene: Any, gf: Any) -> None:
     m = gf.manifest
     have = {"mesh_size": m.get("options", {}).get("mesh_size"), "order": gf.order, "young": gf.young,
             "poisson": gf.poisson}
-    differ = [f"{k} = {getattr(scene, k)!r} (bundle: {v!r})" for k, v in have.items() if v != getattr(scene, k)]
+    differ = [f"{k} = {getattr(seat, k)!r} (bundle: {v!r})" for k, v in have.items() if v != getattr(seat, k)]
     if differ:
         logging.getLogger("hailstorm").warning(
             "warning: the scene's [seat] settings are ignored with --gf (the bundle %s is the seat): %s",

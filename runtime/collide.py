@@ -97,8 +97,9 @@ class Collision:
     gf : GreensFunctions
         The bundle's surface (vertices, triangles, ``contactable``, ``fixed``).
     scene : Scene
-        ``adaptive`` (time of impact), ``dt`` / ``max_substeps`` (the shortest
-        sub-step), ``restitution`` (hard walls), ``margin`` (retirement).
+        ``time.adaptive`` (time of impact), ``time.dt`` / ``time.max_substeps``
+        (the shortest sub-step), ``contact.restitution`` (hard walls),
+        ``storm.margin`` (retirement).
     air : Air
     """
 
@@ -116,10 +117,10 @@ class Collision:
         self.fixed = np.ascontiguousarray(gf.fixed, dtype=bool)
         self.lo, self.hi = self.index.bbox
         self.air = air
-        self.toi = bool(scene.adaptive)
-        self.hmin = scene.dt / scene.max_substeps
-        self.restitution = float(scene.restitution)
-        self.margin = float(scene.margin)
+        self.toi = bool(scene.time.adaptive)
+        self.hmin = scene.time.dt / scene.time.max_substeps
+        self.restitution = float(scene.contact.restitution)
+        self.margin = float(scene.storm.margin)
         #: the surface as the compiled kernels take it
         self.surface = surface_arrays(self.index.grid, self.index.sample_radius, self.index.vertices,
                                       self.index.triangles)

@@ -24,7 +24,7 @@ from hailstorm.runtime.compiled import (
 )
 from hailstorm.runtime.contact_set import ContactSet
 from hailstorm.runtime.hail import X_GRID, Z_GRID, ContactStep, contact_modes, contact_step
-from hailstorm.runtime.scene import Scene
+from hailstorm.runtime.scene import ContactSettings, TimeSettings
 from hailstorm.runtime.stones import Stones
 
 __all__ = ["ContactIntegrator"]
@@ -35,28 +35,30 @@ class ContactIntegrator:
 
     Parameters
     ----------
-    scene : Scene
-        ``integrator``, ``restitution``, ``unilateral``, ``adaptive``, ``omega_dt``,
-        ``approach_fraction``, ``rest_speed``, ``mode``, ``dt``, ``max_substeps``.
+    time : TimeSettings
+        ``integrator``, ``adaptive``, ``omega_dt``, ``approach_fraction``,
+        ``rest_speed``, ``dt``, ``max_substeps``.
+    contact : ContactSettings
+        ``restitution``, ``unilateral``, ``mode``.
     """
 
-    def __init__(self, scene: Scene) -> None:
-        self.name = scene.integrator
-        self.exact = scene.integrator == "exact"
-        self.restitution = float(scene.restitution)
-        self.unilateral = bool(scene.unilateral)
-        self.adaptive = bool(scene.adaptive)
-        self.sticky = scene.mode == "sticky"
-        self.approach_fraction = float(scene.approach_fraction)
-        self.rest_speed = float(scene.rest_speed)
-        self.hmin = scene.dt / scene.max_substeps
+    def __init__(self, time: TimeSettings, contact: ContactSettings) -> None:
+        self.name = time.integrator
+        self.exact = time.integrator == "exact"
+        self.restitution = float(contact.restitution)
+        self.unilateral = bool(contact.unilateral)
+        self.adaptive = bool(time.adaptive)
+        self.sticky = contact.sticky
+        self.approach_fraction = float(time.approach_fraction)
+        self.rest_speed = float(time.rest_speed)
+        self.hmin = time.dt / time.max_substeps
         #: the sub-steps are sized (adaptive implicit / symplectic), by the triangles' stiffness among others
         self.sizes_substeps = self.adaptive and not self.exact
         #: the sub-steps' omega h target: symplectic Euler's explicit dashpot makes its peak force
         #: first order in omega h (-21 % at 0.2, -5 % at 0.05 on one impact), so it takes half the
         #: scene's (measured, default scene: max force 68.8 / 72.9 N at dt 0.05 / 0.5 ms with the
         #: full target, 71.93 / 71.89 N with half, for 30 % more sub-steps)
-        self.omega_dt = float(scene.omega_dt) * (0.5 if scene.integrator == "symplectic" else 1.0)
+        self.omega_dt = float(time.omega_dt) * (0.5 if time.integrator == "symplectic" else 1.0)
         self._none = np.zeros(0, dtype=np.int64)
         self._no_forces = np.zeros(0)
         self._no_e3 = np.zeros((0, 3))

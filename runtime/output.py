@@ -101,7 +101,7 @@ def summary(result: Any, gf: Any = None) -> dict[str, Any]:
 
     Keys (every key and its unit is listed in the README, "Storm outputs"):
     ``hailstones`` (spawned), ``impacts`` (contact onsets faster than
-    the scene's ``rest_speed``), ``stones_hit`` (stones that touched the seat
+    the scene's ``time.rest_speed``), ``stones_hit`` (stones that touched the seat
     at least once, slow touches included), ``max_contact_force`` [N],
     ``max_indentation_m`` (largest normal contact displacement),
     ``max_simultaneous_contacts``, ``max_penetration_m`` (deepest overlap of a
@@ -121,8 +121,10 @@ def summary(result: Any, gf: Any = None) -> dict[str, Any]:
     gf : GreensFunctions, optional
         The bundle the storm ran on. Given, the scene's ``[seat]`` section
         records the seat the bundle was computed for (its manifest: mesh size,
-        order, material), not the scene's ``[seat]`` request, and ``bundle``
-        records its path and key.
+        order, material; the scene file's ``[seat]`` request,
+        :class:`~hailstorm.runtime.scene.SeatSettings`, is not part of the
+        :class:`~hailstorm.runtime.scene.Scene`), and ``bundle`` records its
+        path and key. Without it the scene has no ``[seat]``.
     """
     d = dict(result.stats)
     d["scene"] = result.scene.to_dict()

@@ -19,7 +19,7 @@ import numpy as np
 from hailstorm.runtime.compiled import patch_compliance, patch_one, patch_radii
 from hailstorm.runtime.hail import GRAVITY, Air
 from hailstorm.runtime.recording import StormStats
-from hailstorm.runtime.scene import Scene
+from hailstorm.runtime.scene import ContactSettings, TimeSettings
 from hailstorm.runtime.seat import SeatState
 from hailstorm.runtime.stones import Stones
 from hailstorm.runtime.contact.weights import PATCH_DROP, PATCH_FACING, disc_table, triangle_index
@@ -37,8 +37,10 @@ class Patches:
     ----------
     gf : GreensFunctions
         The bundle: surface, material (``young``, ``poisson``).
-    scene : Scene
-        ``mode``, ``patch_min_radius``, ``patch_tolerance``, ``rest_speed``.
+    contact : ContactSettings
+        ``mode``, ``patch``, ``patch_min_radius``, ``patch_tolerance``.
+    time : TimeSettings
+        ``rest_speed``.
     seat : SeatState
         D and its columns (read only).
     normals : (m, 3) ndarray
@@ -48,7 +50,7 @@ class Patches:
     air : Air
     """
 
-    def __init__(self, gf: Any, scene: Scene, seat: SeatState, normals: np.ndarray, soft: np.ndarray,
+    def __init__(self, gf: Any, contact: ContactSettings, time: TimeSettings, seat: SeatState, normals: np.ndarray, soft: np.ndarray,
                  air: Air) -> None:
         self.triangles = np.asarray(gf.triangles)
         self.X = np.asarray(gf.vertices, dtype=np.float64)
@@ -56,12 +58,12 @@ class Patches:
         self.soft = soft
         self.seat = seat
         self.air = air
-        self.sticky = scene.mode == "sticky"
-        self.min_radius = float(scene.patch_min_radius)
-        self.tolerance = float(scene.patch_tolerance)
-        self.rest_speed = float(scene.rest_speed)
+        self.sticky = contact.sticky
+        self.min_radius = float(contact.patch_min_radius)
+        self.tolerance = float(contact.patch_tolerance)
+        self.rest_speed = float(time.rest_speed)
         self.e_star = float(gf.young) / (1.0 - float(gf.poisson) ** 2)
-        self.enabled = scene.patch != "none"
+        self.enabled = contact.patch != "none"
         if self.enabled:
             self._pidx = triangle_index(gf).arrays
             self._disc = disc_table("hertz")

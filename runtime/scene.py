@@ -9,8 +9,10 @@ raise :class:`SceneError` naming the file, the key and the problem.
 Use::
 
     from hailstorm.runtime.scene import Scene
-    scene = Scene.from_toml("scene.toml")      # or Scene.default(), Scene(duration=0.2, ...)
-    scene.to_toml("copy.toml")
+    scene = Scene.from_toml("scene.toml")      # or Scene.default(), Scene.from_flat(duration=0.2, ...)
+    scene.storm.duration, scene.time.dt        # one typed record per section
+    scene.with_(dt=1e-4).to_toml("copy.toml")  # a flat key goes to its section
+    seat = SeatSettings.from_toml("scene.toml")  # [seat]: the default seat's precompute settings
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ import tomllib
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, ClassVar, Mapping
 
 import numpy as np
 
@@ -30,7 +32,8 @@ from hailstorm.runtime.atomic import write_text_atomic
 from hailstorm.runtime.contact.validate import Mode
 from hailstorm.runtime.hail import GRAVITY, Integrator, SizeDistribution, terminal_velocity
 
-__all__ = ["Scene", "SceneError", "StormEstimate", "StormTooLarge"]
+__all__ = ["ContactSettings", "HailSettings", "OutputSettings", "Scene", "SceneError", "SeatSettings", "StormEstimate",
+           "StormSettings", "StormTooLarge", "TimeSettings"]
 
 
 class SceneError(ValueError):
@@ -141,20 +144,79 @@ _TYPES: dict[str, tuple[type, ...]] = {
 }
 
 
-#: TOML section of every Scene field.
-_SECTIONS: dict[str, tuple[str, ...]] = {
-    "storm": ("duration", "rate", "stones", "seed", "spawn_height", "margin", "wind"),
-    "hail": ("distribution", "r_min", "r_max", "scale", "density", "drag", "cd", "rho_air"),
-    "contact": ("mode", "unilateral", "restitution", "patch", "patch_min_radius", "patch_tolerance"),
-    "time": ("dt", "integrator", "adaptive", "omega_dt", "approach_fraction", "max_substeps", "rest_speed"),
-    "output": ("fps",),
-    "seat": ("mesh_size", "order", "young", "poisson"),
-}
+def _check_types(record: Any) -> None:
+    """Raise :class:`SceneError` for a field whose value has the wrong Python type."""
+    for f in dataclasses.fields(record):
+        types = _TYPES.get(str(f.type))
+        v = getattr(record, f.name)
+        if types is not None and (not isinstance(v, types) or (isinstance(v, bool) and bool not in types)):
+            kind = {"float": "a number", "int": "an integer", "bool": "true or false",
+                    "int | None": "an integer"}.get(str(f.type), "a string")
+            raise SceneError(f"{f.name} must be {kind}, got {v!r}")
 
 
-@dataclass
-class Scene:
-    """Storm settings (all SI units). Load with :meth:`from_toml` / :meth:`default`.
+def _positive(record: Any, names: tuple[str, ...], allow_zero: bool = False) -> None:
+    """Raise :class:`SceneError` unless every named field is a finite positive
+    (or, with ``allow_zero``, non-negative) number."""
+    for name in names:
+        v = getattr(record, name)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or (v < 0 or (v == 0 and not allow_zero)):
+            raise SceneError(f"{name} must be a {'non-negative' if allow_zero else 'positive'} number, got {v!r}")
+
+
+def _bool(record: Any, names: tuple[str, ...]) -> None:
+    for name in names:
+        if not isinstance(getattr(record, name), bool):
+            raise SceneError(f"{name} must be true or false, got {getattr(record, name)!r}")
+
+
+class _Section:
+    """TOML layout of a settings record (one ``[section]`` of the scene file)."""
+
+    #: the record's TOML section
+    SECTION: ClassVar[str] = ""
+
+    @classmethod
+    def keys(cls) -> tuple[str, ...]:
+        """The record's keys (its fields), in TOML order."""
+        return tuple(f.name for f in dataclasses.fields(cls))  # type: ignore[arg-type]
+
+    def to_dict(self) -> dict[str, Any]:
+        """``{key: value}`` as in the TOML section (None values omitted, tuples as lists)."""
+        out = {}
+        for k in self.keys():
+            v = getattr(self, k)
+            if v is not None:
+                out[k] = list(v) if isinstance(v, tuple) else v
+        return out
+
+    @classmethod
+    def from_dict(cls, body: Any, *, source: str = "scene") -> Any:
+        """Build from the TOML section's ``{key: value}`` (integers accepted for numbers).
+
+        Raises
+        ------
+        SceneError
+            On an unknown key or a bad value (the message names ``source``).
+        """
+        if not isinstance(body, Mapping):
+            raise SceneError(f"{source}: [{cls.SECTION}] must be a table")
+        kinds = {f.name: str(f.type) for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+        kwargs: dict[str, Any] = {}
+        for k, v in body.items():
+            if k not in kinds:
+                raise SceneError(f"{source}: unknown key {k!r} in [{cls.SECTION}]; known keys: {', '.join(kinds)}")
+            # users write 1 for 1.0
+            kwargs[k] = float(v) if kinds[k] == "float" and isinstance(v, int) and not isinstance(v, bool) else v
+        try:
+            return cls(**kwargs)
+        except (SceneError, TypeError) as exc:
+            raise SceneError(f"{source}: {exc}") from None
+
+
+@dataclass(frozen=True)
+class StormSettings(_Section):
+    """``[storm]``: how many stones, where and when (SI units).
 
     Attributes
     ----------
@@ -176,6 +238,41 @@ class Scene:
         Air velocity [m/s] (drag acts on the velocity relative to it; stones
         start with its horizontal part and are spawned upwind so they land
         on the seat).
+    """
+
+    SECTION: ClassVar[str] = "storm"
+
+    duration: float = 0.2
+    rate: float = 200.0
+    stones: int | None = None
+    seed: int = 0
+    spawn_height: float = 0.05
+    margin: float = 0.01
+    wind: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        _check_types(self)
+        _positive(self, ("duration", "spawn_height"))
+        _positive(self, ("rate", "margin"), allow_zero=True)
+        if self.stones is not None and (isinstance(self.stones, bool) or not isinstance(self.stones, int) or self.stones < 0):
+            raise SceneError(f"stones must be a non-negative integer, got {self.stones!r}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise SceneError(f"seed must be a non-negative integer, got {self.seed!r}")
+        try:
+            w = tuple(float(x) for x in self.wind)
+        except (TypeError, ValueError):
+            raise SceneError(f"wind must be three numbers [m/s], got {self.wind!r}") from None
+        if len(w) != 3 or not all(math.isfinite(x) for x in w):
+            raise SceneError(f"wind must be three finite numbers [m/s], got {self.wind!r}")
+        object.__setattr__(self, "wind", w)
+
+
+@dataclass(frozen=True)
+class HailSettings(_Section):
+    """``[hail]``: the stones' sizes, ice and air.
+
+    Attributes
+    ----------
     distribution, r_min, r_max, scale
         Radius distribution (:class:`hailstorm.runtime.hail.SizeDistribution`) [m].
     density : float
@@ -184,6 +281,39 @@ class Scene:
         Quadratic air drag in flight (stones start at terminal velocity either way).
     cd, rho_air : float
         Drag coefficient and air density.
+    """
+
+    SECTION: ClassVar[str] = "hail"
+
+    distribution: str = "exponential"
+    r_min: float = 0.0025
+    r_max: float = 0.0125
+    scale: float = 0.002
+    density: float = 917.0
+    drag: bool = True
+    cd: float = 0.6
+    rho_air: float = 1.2
+
+    def __post_init__(self) -> None:
+        _check_types(self)
+        _positive(self, ("density", "cd", "rho_air"))
+        _bool(self, ("drag",))
+        try:
+            self.size_distribution()
+        except ValueError as exc:
+            raise SceneError(str(exc)) from None
+
+    def size_distribution(self) -> SizeDistribution:
+        """The radius distribution of these stones."""
+        return SizeDistribution(kind=self.distribution, r_min=float(self.r_min), r_max=float(self.r_max), scale=float(self.scale))
+
+
+@dataclass(frozen=True)
+class ContactSettings(_Section):
+    """``[contact]``: the contact model.
+
+    Attributes
+    ----------
     mode : {"frictionless", "sticky"}
         Contact model: normal force only, or all three components.
     unilateral : bool
@@ -209,6 +339,40 @@ class Scene:
         (default 0.2: 20%). Within it the contact keeps its weights and the
         capacitance is not rebuilt (a 20% radius error changes the patch's
         stiffness by ~20% but the radius itself only as ``F^(1/3)``).
+    """
+
+    SECTION: ClassVar[str] = "contact"
+
+    mode: Mode = "frictionless"
+    unilateral: bool = True
+    restitution: float = 0.5
+    patch: str = "hertz"
+    patch_min_radius: float = 1e-3
+    patch_tolerance: float = 0.2
+
+    def __post_init__(self) -> None:
+        _check_types(self)
+        _positive(self, ("patch_min_radius", "patch_tolerance"), allow_zero=True)
+        _bool(self, ("unilateral",))
+        if self.mode not in ("frictionless", "sticky"):
+            raise SceneError(f"mode must be 'frictionless' or 'sticky', got {self.mode!r}")
+        if self.patch not in ("hertz", "none"):
+            raise SceneError(f"patch must be 'hertz' or 'none', got {self.patch!r}")
+        if isinstance(self.restitution, bool) or not isinstance(self.restitution, (int, float)) or not 0.0 <= self.restitution <= 1.0:
+            raise SceneError(f"restitution must lie in [0, 1], got {self.restitution!r}")
+
+    @property
+    def sticky(self) -> bool:
+        """All three force components (``mode == "sticky"``)."""
+        return self.mode == "sticky"
+
+
+@dataclass(frozen=True)
+class TimeSettings(_Section):
+    """``[time]``: the step and the integrator.
+
+    Attributes
+    ----------
     dt : float
         Step [s] (frame/broad-phase step; near stones may be sub-stepped).
     integrator : {"implicit", "symplectic", "exact"}
@@ -217,7 +381,7 @@ class Scene:
         (no numerical damping, no stability limit, events located inside the
         step), so it needs no ``omega_dt`` sub-steps.
     adaptive : bool
-        Sub-step near stones (see the module notes). ``False``: fixed ``dt``.
+        Sub-step near stones (see :mod:`hailstorm.runtime.storm`). ``False``: fixed ``dt``.
     omega_dt : float
         Target ``omega dt`` for moving contacts (``"symplectic"`` sub-steps to
         half of it: its explicit dashpot's peak-force error is first order in
@@ -228,35 +392,10 @@ class Scene:
         Cap on sub-steps per step.
     rest_speed : float
         Normal speed below which a contact counts as resting [m/s].
-    fps : float
-        Recorded frames per simulated second.
-    mesh_size, order, young, poisson
-        The default seat's Green's functions when no bundle is given
-        (``hailstorm storm`` without ``--gf``): element size on the top [m],
-        element order, material [Pa], [-].
     """
 
-    duration: float = 0.2
-    rate: float = 200.0
-    stones: int | None = None
-    seed: int = 0
-    spawn_height: float = 0.05
-    margin: float = 0.01
-    wind: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    distribution: str = "exponential"
-    r_min: float = 0.0025
-    r_max: float = 0.0125
-    scale: float = 0.002
-    density: float = 917.0
-    drag: bool = True
-    cd: float = 0.6
-    rho_air: float = 1.2
-    mode: Mode = "frictionless"
-    unilateral: bool = True
-    restitution: float = 0.5
-    patch: str = "hertz"
-    patch_min_radius: float = 1e-3
-    patch_tolerance: float = 0.2
+    SECTION: ClassVar[str] = "time"
+
     dt: float = 2e-4
     integrator: Integrator = "implicit"
     adaptive: bool = True
@@ -264,70 +403,197 @@ class Scene:
     approach_fraction: float = 0.1
     max_substeps: int = 64
     rest_speed: float = 0.05
+
+    def __post_init__(self) -> None:
+        _check_types(self)
+        _positive(self, ("dt", "omega_dt", "approach_fraction"))
+        _positive(self, ("rest_speed",), allow_zero=True)
+        _bool(self, ("adaptive",))
+        if isinstance(self.max_substeps, bool) or not isinstance(self.max_substeps, int) or self.max_substeps < 1:
+            raise SceneError(f"max_substeps must be a positive integer, got {self.max_substeps!r}")
+        if self.integrator not in ("implicit", "symplectic", "exact"):
+            raise SceneError(f"integrator must be 'implicit', 'symplectic' or 'exact', got {self.integrator!r}")
+
+
+@dataclass(frozen=True)
+class OutputSettings(_Section):
+    """``[output]``: what is recorded.
+
+    Attributes
+    ----------
+    fps : float
+        Recorded frames per simulated second.
+    """
+
+    SECTION: ClassVar[str] = "output"
+
     fps: float = 250.0
+
+    def __post_init__(self) -> None:
+        _check_types(self)
+        _positive(self, ("fps",))
+
+
+@dataclass(frozen=True)
+class SeatSettings(_Section):
+    """``[seat]``: the default seat's precompute settings, used when no bundle
+    is given (``hailstorm storm`` without ``--gf`` builds, or reuses from the
+    cache, the default saddle's Green's functions with them). Not part of the
+    :class:`Scene`: a storm runs on whatever bundle it is given.
+
+    Attributes
+    ----------
+    mesh_size : float
+        Element size on the top [m].
+    order : {1, 2}
+        Element order.
+    young, poisson : float
+        Material [Pa], [-].
+    """
+
+    SECTION: ClassVar[str] = "seat"
+
     mesh_size: float = 0.006
     order: int = 1
     young: float = 2.0e6
     poisson: float = 0.35
 
     def __post_init__(self) -> None:
-        for f in dataclasses.fields(self):
-            types = _TYPES.get(str(f.type))
-            v = getattr(self, f.name)
-            if types is not None and (not isinstance(v, types) or (isinstance(v, bool) and bool not in types)):
-                kind = {"float": "a number", "int": "an integer", "bool": "true or false",
-                        "int | None": "an integer"}.get(str(f.type), "a string")
-                raise SceneError(f"{f.name} must be {kind}, got {v!r}")
-
-        def positive(name: str, allow_zero: bool = False) -> None:
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or (v < 0 or (v == 0 and not allow_zero)):
-                raise SceneError(f"{name} must be a {'non-negative' if allow_zero else 'positive'} number, got {v!r}")
-
-        for name in ("duration", "dt", "spawn_height", "omega_dt", "approach_fraction", "fps", "density", "cd", "rho_air",
-                     "mesh_size", "young"):
-            positive(name)
-        for name in ("rate", "margin", "rest_speed", "patch_min_radius", "patch_tolerance"):
-            positive(name, allow_zero=True)
-        if self.dt > self.duration:
-            raise SceneError(f"dt ({self.dt!r} s) must not exceed duration ({self.duration!r} s)")
-        for name in ("drag", "unilateral", "adaptive"):
-            if not isinstance(getattr(self, name), bool):
-                raise SceneError(f"{name} must be true or false, got {getattr(self, name)!r}")
-        if self.stones is not None and (isinstance(self.stones, bool) or not isinstance(self.stones, int) or self.stones < 0):
-            raise SceneError(f"stones must be a non-negative integer, got {self.stones!r}")
-        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
-            raise SceneError(f"seed must be a non-negative integer, got {self.seed!r}")
-        if isinstance(self.max_substeps, bool) or not isinstance(self.max_substeps, int) or self.max_substeps < 1:
-            raise SceneError(f"max_substeps must be a positive integer, got {self.max_substeps!r}")
+        _check_types(self)
+        _positive(self, ("mesh_size", "young"))
         if self.order not in (1, 2) or isinstance(self.order, bool):
             raise SceneError(f"order must be 1 or 2, got {self.order!r}")
         if isinstance(self.poisson, bool) or not isinstance(self.poisson, (int, float)) or not -1.0 < self.poisson < 0.5:
             raise SceneError(f"poisson must satisfy -1 < poisson < 0.5, got {self.poisson!r}")
-        if self.mode not in ("frictionless", "sticky"):
-            raise SceneError(f"mode must be 'frictionless' or 'sticky', got {self.mode!r}")
-        if self.patch not in ("hertz", "none"):
-            raise SceneError(f"patch must be 'hertz' or 'none', got {self.patch!r}")
-        if self.integrator not in ("implicit", "symplectic", "exact"):
-            raise SceneError(f"integrator must be 'implicit', 'symplectic' or 'exact', got {self.integrator!r}")
-        if isinstance(self.restitution, bool) or not isinstance(self.restitution, (int, float)) or not 0.0 <= self.restitution <= 1.0:
-            raise SceneError(f"restitution must lie in [0, 1], got {self.restitution!r}")
-        try:
-            w = tuple(float(x) for x in self.wind)
-        except (TypeError, ValueError):
-            raise SceneError(f"wind must be three numbers [m/s], got {self.wind!r}") from None
-        if len(w) != 3 or not all(math.isfinite(x) for x in w):
-            raise SceneError(f"wind must be three finite numbers [m/s], got {self.wind!r}")
-        self.wind = w
-        try:
-            self.size_distribution()
-        except ValueError as exc:
-            raise SceneError(str(exc)) from None
+
+    @classmethod
+    def default(cls) -> "SeatSettings":
+        """The packaged default scene file's ``[seat]``."""
+        return cls.from_dict(_packaged_toml().get("seat", {}), source="default_scene.toml")
+
+    @classmethod
+    def from_toml(cls, path: str | Path) -> "SeatSettings":
+        """The ``[seat]`` of a scene file; keys it does not set take the packaged defaults.
+
+        Raises
+        ------
+        SceneError
+            The file cannot be read, is not TOML, or its ``[seat]`` is invalid.
+        """
+        body = _read_toml(Path(path)).get("seat", {})
+        if not isinstance(body, Mapping):
+            raise SceneError(f"{path}: [seat] must be a table")
+        return cls.from_dict({**cls.default().to_dict(), **body}, source=str(path))
+
+
+#: the records of a :class:`Scene`, by TOML section
+_RECORDS: dict[str, type[_Section]] = {
+    "storm": StormSettings, "hail": HailSettings, "contact": ContactSettings, "time": TimeSettings,
+    "output": OutputSettings,
+}
+#: section of every flat key (:meth:`Scene.from_flat`, :meth:`Scene.with_`)
+_SECTION_OF: dict[str, str] = {k: sec for sec, rec in _RECORDS.items() for k in rec.keys()}
+
+
+def _read_toml(path: Path) -> dict[str, Any]:
+    try:
+        return tomllib.loads(path.read_text())
+    except OSError as exc:
+        raise SceneError(f"cannot read scene file {path}: {exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"{path} is not valid TOML: {exc}") from None
+
+
+def _packaged_toml() -> dict[str, Any]:
+    return tomllib.loads(resources.files("hailstorm.meshes").joinpath("default_scene.toml").read_text())
+
+
+@dataclass(frozen=True)
+class Scene:
+    """Storm settings (all SI units), one typed record per section of the TOML
+    file. Load with :meth:`from_toml` / :meth:`default`; build from flat keys
+    with :meth:`from_flat`, change with :meth:`with_`.
+
+    Attributes
+    ----------
+    storm : StormSettings
+        ``[storm]``: duration, rate or stones, seed, spawn height, margin, wind.
+    hail : HailSettings
+        ``[hail]``: radius distribution, ice density, drag.
+    contact : ContactSettings
+        ``[contact]``: mode, unilateral release, restitution, patch.
+    time : TimeSettings
+        ``[time]``: dt, integrator, sub-steps, rest speed.
+    output : OutputSettings
+        ``[output]``: frame rate.
+
+    The scene file's ``[seat]`` (the default seat's precompute settings) is
+    not part of the scene: see :class:`SeatSettings`.
+
+    Examples
+    --------
+    >>> sc = Scene.from_flat(duration=0.1, stones=12, dt=5e-4)   # each key to its section
+    >>> sc.storm.duration, sc.time.dt
+    (0.1, 0.0005)
+    >>> sc.with_(integrator="exact").time.integrator
+    'exact'
+    """
+
+    storm: StormSettings = dataclasses.field(default_factory=StormSettings)
+    hail: HailSettings = dataclasses.field(default_factory=HailSettings)
+    contact: ContactSettings = dataclasses.field(default_factory=ContactSettings)
+    time: TimeSettings = dataclasses.field(default_factory=TimeSettings)
+    output: OutputSettings = dataclasses.field(default_factory=OutputSettings)
+
+    def __post_init__(self) -> None:
+        for sec, rec in _RECORDS.items():
+            if not isinstance(getattr(self, sec), rec):
+                raise SceneError(f"{sec} must be a {rec.__name__}, got {getattr(self, sec)!r}")
+        if self.time.dt > self.storm.duration:
+            raise SceneError(f"dt ({self.time.dt!r} s) must not exceed duration ({self.storm.duration!r} s)")
+
+    @staticmethod
+    def _route(kw: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
+        by_section: dict[str, dict[str, Any]] = {sec: {} for sec in _RECORDS}
+        for k, v in kw.items():
+            if k not in _SECTION_OF:
+                hint = " (a [seat] setting: see SeatSettings)" if k in SeatSettings.keys() else ""
+                raise SceneError(f"unknown scene setting {k!r}{hint}")
+            by_section[_SECTION_OF[k]][k] = v
+        return by_section
+
+    @classmethod
+    def from_flat(cls, **kw: Any) -> "Scene":
+        """A scene from flat keys, each routed to its section; the rest take the
+        records' defaults (the values of :meth:`default`).
+
+        ``Scene.from_flat(duration=0.1, dt=5e-4)`` is
+        ``Scene(storm=StormSettings(duration=0.1), time=TimeSettings(dt=5e-4))``.
+
+        Raises
+        ------
+        SceneError
+            An unknown key, or a bad value.
+        """
+        return cls(**{sec: _RECORDS[sec](**body) for sec, body in cls._route(kw).items()})
+
+    def with_(self, **kw: Any) -> "Scene":
+        """A copy with flat keys changed, each in its section (like
+        :func:`dataclasses.replace`): ``scene.with_(dt=5e-4, stones=3)``.
+
+        Raises
+        ------
+        SceneError
+            An unknown key, or a bad value.
+        """
+        changes = {sec: dataclasses.replace(getattr(self, sec), **body)
+                   for sec, body in self._route(kw).items() if body}
+        return dataclasses.replace(self, **changes)
 
     # -- helpers ---------------------------------------------------------------
     def n_steps(self) -> int:
         """Time steps of the storm (as :func:`hailstorm.runtime.storm.run_storm` takes them)."""
-        return max(1, int(round(self.duration / self.dt)))
+        return max(1, int(round(self.storm.duration / self.time.dt)))
 
     def estimate(self, n_vertices: int | None = None, *, keep_frames: bool = False) -> StormEstimate:
         """Steps, stones, frames, memory and disk of this storm, before it runs.
@@ -340,11 +606,12 @@ class Scene:
             Frames held in memory (the Python API's default) rather than
             streamed to disk.
         """
+        sc = self.storm
         steps = self.n_steps()
-        stones = self.stones if self.stones is not None else int(round(self.rate * self.duration))
-        frames = min(steps, int(math.ceil(self.duration * self.fps - 1e-9))) + 1
+        stones = sc.stones if sc.stones is not None else int(round(sc.rate * sc.duration))
+        frames = min(steps, int(math.ceil(sc.duration * self.output.fps - 1e-9))) + 1
         # the stone count of a rate is Poisson: allow five standard deviations
-        high = stones if self.stones is not None else stones + 5 * math.sqrt(stones) + 16
+        high = stones if sc.stones is not None else stones + 5 * math.sqrt(stones) + 16
         memory = BYTES_PER_STEP * steps + BYTES_PER_STONE * high
         if keep_frames and n_vertices is not None:
             memory += frames * (24 * n_vertices + 64)  # two float32 fields per vertex
@@ -375,41 +642,43 @@ class Scene:
         X = np.asarray(vertices, dtype=np.float64)
         lo, hi = X.min(axis=0), X.max(axis=0)
         width = float(min(hi[0] - lo[0], hi[1] - lo[1]))
+        sc, hail, contact = self.storm, self.hail, self.contact
         out = []
-        if 2.0 * self.r_max > width:
-            out.append(f"stones are larger than the seat: diameters up to {2e3 * self.r_max:.4g} mm "
+        if 2.0 * hail.r_max > width:
+            out.append(f"stones are larger than the seat: diameters up to {2e3 * hail.r_max:.4g} mm "
                        f"on a seat {1e3 * width:.4g} mm wide ([hail] r_max)")
-        if self.patch != "none" and 2.0 * self.patch_min_radius > width:
-            out.append(f"the contact patch ({2e3 * self.patch_min_radius:.4g} mm across, [contact] "
+        if contact.patch != "none" and 2.0 * contact.patch_min_radius > width:
+            out.append(f"the contact patch ({2e3 * contact.patch_min_radius:.4g} mm across, [contact] "
                        f"patch_min_radius) is wider than the seat ({1e3 * width:.4g} mm): every contact "
                        "falls back to a point contact")
-        if (self.stones is None and self.rate == 0) or self.stones == 0:
+        if (sc.stones is None and sc.rate == 0) or sc.stones == 0:
             return out
         if not self._some_stone_lands(lo, hi):
             out.append("no stone reaches the seat within the storm: with this wind and drag "
-                       f"([storm] wind = {list(self.wind)}, [hail] drag = {str(self.drag).lower()}, "
-                       f"cd = {self.cd:g}, rho_air = {self.rho_air:g}) every stone misses or arrives after "
-                       f"{self.duration:g} s")
+                       f"([storm] wind = {list(sc.wind)}, [hail] drag = {str(hail.drag).lower()}, "
+                       f"cd = {hail.cd:g}, rho_air = {hail.rho_air:g}) every stone misses or arrives after "
+                       f"{sc.duration:g} s")
         return out
 
     def _some_stone_lands(self, lo: np.ndarray, hi: np.ndarray) -> bool:
         """Whether a stone dropped from the spawn plane over the middle of the seat
         (with the storm's upwind offset) reaches the seat's mid-height inside the
         spawn footprint within the duration, for some radius."""
-        r = np.linspace(self.r_min, self.r_max, 9) if self.distribution != "fixed" else np.array([self.r_min])
-        vt = terminal_velocity(r, cd=self.cd, rho_air=self.rho_air, density=self.density)
+        sc, hail = self.storm, self.hail
+        r = np.linspace(hail.r_min, hail.r_max, 9) if hail.distribution != "fixed" else np.array([hail.r_min])
+        vt = terminal_velocity(r, cd=hail.cd, rho_air=hail.rho_air, density=hail.density)
         zmid = 0.5 * (lo[2] + hi[2])
-        z0 = hi[2] + self.spawn_height + r
-        wind = np.asarray(self.wind, dtype=np.float64)
+        z0 = hi[2] + sc.spawn_height + r
+        wind = np.asarray(sc.wind, dtype=np.float64)
         t_fall = (z0 - zmid) / np.maximum(vt, 1e-9)
         centre = 0.5 * (lo[:2] + hi[:2])
         pos = np.column_stack([centre[None, :] - wind[None, :2] * t_fall[:, None], z0])
         vel = np.column_stack([np.broadcast_to(wind[:2], (len(r), 2)), -vt])
-        if self.drag and not np.any(wind):  # straight down at terminal speed
-            return bool(t_fall.min() <= self.duration)
-        k = 3.0 * self.cd * self.rho_air / (8.0 * self.density * r) if self.drag else np.zeros_like(r)
+        if hail.drag and not np.any(wind):  # straight down at terminal speed
+            return bool(t_fall.min() <= sc.duration)
+        k = 3.0 * hail.cd * hail.rho_air / (8.0 * hail.density * r) if hail.drag else np.zeros_like(r)
         n = 1000
-        h = self.duration / n
+        h = sc.duration / n
         g = np.array([0.0, 0.0, -GRAVITY])
         for _ in range(n):
             # drag implicit (stable for any h): v' = v + h (g - k |v - w| (v' - w))
@@ -419,7 +688,7 @@ class Scene:
             down = pos[:, 2] <= zmid
             if down.any():
                 xy = pos[down, :2]
-                inside = np.all((xy >= lo[:2] - self.margin) & (xy <= hi[:2] + self.margin), axis=1)
+                inside = np.all((xy >= lo[:2] - sc.margin) & (xy <= hi[:2] + sc.margin), axis=1)
                 if inside.any():
                     return True
                 pos[down, 2] = np.inf  # missed: stop following it
@@ -428,85 +697,66 @@ class Scene:
                 return False
         return False
 
-    def size_distribution(self) -> SizeDistribution:
-        """The radius distribution of this scene."""
-        return SizeDistribution(kind=self.distribution, r_min=float(self.r_min), r_max=float(self.r_max), scale=float(self.scale))
-
     def to_dict(self) -> dict[str, dict[str, Any]]:
-        """Nested ``{section: {key: value}}`` as in the TOML file (``stones`` omitted if None)."""
-        out: dict[str, dict[str, Any]] = {}
-        for sec, keys in _SECTIONS.items():
-            d = {}
-            for k in keys:
-                v = getattr(self, k)
-                if v is None:
-                    continue
-                d[k] = list(v) if isinstance(v, tuple) else v
-            out[sec] = d
-        return out
+        """Nested ``{section: {key: value}}`` as in the TOML file (``stones`` omitted if None;
+        no ``[seat]``: see :class:`SeatSettings`)."""
+        return {sec: getattr(self, sec).to_dict() for sec in _RECORDS}
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any], *, source: str = "scene") -> "Scene":
-        """Build from a nested ``{section: {key: value}}`` mapping (TOML layout).
+        """Build from a nested ``{section: {key: value}}`` mapping (TOML layout);
+        absent sections and keys take the records' defaults. A ``[seat]``
+        section is validated (:class:`SeatSettings`) but not kept.
 
         Raises
         ------
         SceneError
             On an unknown section or key, or a bad value.
         """
-        kwargs: dict[str, Any] = {}
+        records: dict[str, Any] = {}
         for sec, body in data.items():
             if sec == "compute":
                 raise SceneError(f"{source}: [compute] backend is gone: the storm always runs its compiled (numba) "
                                  "kernels; remove the [compute] section (NUMBA_DISABLE_JIT=1 runs them as Python, "
                                  "for debugging)")
-            if sec not in _SECTIONS:
-                raise SceneError(f"{source}: unknown section [{sec}]; known sections: {', '.join(_SECTIONS)}")
-            if not isinstance(body, Mapping):
-                raise SceneError(f"{source}: [{sec}] must be a table")
-            for k, v in body.items():
-                if k not in _SECTIONS[sec]:
-                    raise SceneError(f"{source}: unknown key {k!r} in [{sec}]; known keys: {', '.join(_SECTIONS[sec])}")
-                kwargs[k] = v
-        # TOML has no ints-as-floats distinction issue for floats, but users write 1 for 1.0
-        for f in dataclasses.fields(cls):
-            if f.name in kwargs and f.type in ("float",) and isinstance(kwargs[f.name], int) and not isinstance(kwargs[f.name], bool):
-                kwargs[f.name] = float(kwargs[f.name])
+            if sec == SeatSettings.SECTION:
+                SeatSettings.from_dict(body, source=source)
+                continue
+            if sec not in _RECORDS:
+                raise SceneError(f"{source}: unknown section [{sec}]; known sections: "
+                                 f"{', '.join([*_RECORDS, SeatSettings.SECTION])}")
+            records[sec] = _RECORDS[sec].from_dict(body, source=source)
         try:
-            return cls(**kwargs)
-        except (SceneError, TypeError) as exc:
+            return cls(**records)
+        except SceneError as exc:
             raise SceneError(f"{source}: {exc}") from None
 
     @classmethod
     def from_toml(cls, path: str | Path, *, base: "Scene | None" = None) -> "Scene":
         """Load a scene TOML file. Keys it does not set take the values of ``base``
-        (default: :meth:`default`, the packaged ``default_scene.toml``)."""
+        (default: :meth:`default`, the packaged ``default_scene.toml``). Its
+        ``[seat]`` is checked, not kept (read it with :meth:`SeatSettings.from_toml`)."""
         path = Path(path)
-        try:
-            data = tomllib.loads(path.read_text())
-        except OSError as exc:
-            raise SceneError(f"cannot read scene file {path}: {exc}") from None
-        except tomllib.TOMLDecodeError as exc:
-            raise SceneError(f"{path} is not valid TOML: {exc}") from None
-        merged = (base or cls.default()).to_dict()
+        data = _read_toml(path)
+        merged: dict[str, Any] = (base or cls.default()).to_dict()
         for sec, body in data.items():
             if isinstance(body, Mapping) and sec in merged:
                 merged[sec] = {**merged[sec], **body}
             else:
                 merged[sec] = body
         storm = data.get("storm", {})
-        if isinstance(storm, Mapping) and "stones" not in storm and (base is None or base.stones is None):
+        if isinstance(storm, Mapping) and "stones" not in storm and (base is None or base.storm.stones is None):
             merged["storm"].pop("stones", None)
         return cls.from_dict(merged, source=str(path))
 
     @classmethod
     def default(cls) -> "Scene":
         """The packaged default scene (``hailstorm.meshes/default_scene.toml``)."""
-        text = resources.files("hailstorm.meshes").joinpath("default_scene.toml").read_text()
-        return cls.from_dict(tomllib.loads(text), source="default_scene.toml")
+        return cls.from_dict(_packaged_toml(), source="default_scene.toml")
 
-    def to_toml(self, path: str | Path | None = None) -> str:
-        """TOML text of this scene (written to ``path`` if given)."""
+    def to_toml(self, path: str | Path | None = None, *, seat: SeatSettings | None = None) -> str:
+        """TOML text of this scene (written to ``path`` if given), with ``seat``
+        as its ``[seat]`` section if given."""
 
         def fmt(v: Any) -> str:
             if isinstance(v, bool):
@@ -519,8 +769,11 @@ class Scene:
                 return repr(v)
             return str(v)
 
+        sections = self.to_dict()
+        if seat is not None:
+            sections[SeatSettings.SECTION] = seat.to_dict()
         lines = []
-        for sec, body in self.to_dict().items():
+        for sec, body in sections.items():
             lines.append(f"[{sec}]")
             lines += [f"{k} = {fmt(v)}" for k, v in body.items()]
             lines.append("")

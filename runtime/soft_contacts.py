@@ -22,7 +22,7 @@ from hailstorm.runtime.hail import GRAVITY, Air
 from hailstorm.runtime.integrators import ContactIntegrator
 from hailstorm.runtime.patches import Patches
 from hailstorm.runtime.recording import StormStats
-from hailstorm.runtime.scene import Scene
+from hailstorm.runtime.scene import ContactSettings, TimeSettings
 from hailstorm.runtime.seat import SeatState
 from hailstorm.runtime.stones import Stones
 
@@ -34,8 +34,10 @@ class SoftContacts:
 
     Parameters
     ----------
-    scene : Scene
-        ``mode``, ``patch``, ``rest_speed`` (and the integrator's settings).
+    contact : ContactSettings
+        ``mode``, ``patch``.
+    time : TimeSettings
+        ``rest_speed``.
     sets : ContactSets
         Builds a set's capacitance.
     patches : Patches
@@ -46,16 +48,16 @@ class SoftContacts:
     air : Air
     """
 
-    def __init__(self, scene: Scene, sets: ContactSets, patches: Patches, integrator: ContactIntegrator,
+    def __init__(self, contact: ContactSettings, time: TimeSettings, sets: ContactSets, patches: Patches, integrator: ContactIntegrator,
                  seat: SeatState, air: Air) -> None:
         self.sets = sets
         self.patches = patches
         self.integrator = integrator
         self.seat = seat
         self.air = air
-        self.sticky = scene.mode == "sticky"
-        self.patch = scene.patch != "none"
-        self.rest_speed = float(scene.rest_speed)
+        self.sticky = contact.sticky
+        self.patch = contact.patch != "none"
+        self.rest_speed = float(time.rest_speed)
         #: the current contact set (None: no soft contact) and its multipliers (the seat forces)
         self.current: ContactSet | None = None
         self.lam = np.zeros(0)

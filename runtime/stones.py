@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from hailstorm.runtime.hail import stone_mass, terminal_velocity
-from hailstorm.runtime.scene import Scene
+from hailstorm.runtime.scene import HailSettings, StormSettings
 
 __all__ = ["SpawnPlan", "Stones"]
 
@@ -135,21 +135,25 @@ class SpawnPlan:
 
     Parameters
     ----------
-    scene : Scene
+    storm : StormSettings
+        Count or rate, duration, margin, spawn height, wind.
+    hail : HailSettings
+        Radii, and the air and ice of the terminal velocity.
     lo, hi : (3,) ndarray
         The seat's bounding box.
     rng : numpy.random.Generator
     """
 
-    def __init__(self, scene: Scene, lo: np.ndarray, hi: np.ndarray, rng: np.random.Generator) -> None:
-        sc = scene
+    def __init__(self, storm: StormSettings, hail: HailSettings, lo: np.ndarray, hi: np.ndarray,
+                 rng: np.random.Generator) -> None:
+        sc = storm
         wind = np.asarray(sc.wind, dtype=np.float64)
         n = sc.stones if sc.stones is not None else int(rng.poisson(sc.rate * sc.duration))
         t = np.sort(rng.random(n) * sc.duration)
-        r = sc.size_distribution().sample(rng, n)
+        r = hail.size_distribution().sample(rng, n)
         xy = np.stack([rng.uniform(lo[0] - sc.margin, hi[0] + sc.margin, n),
                        rng.uniform(lo[1] - sc.margin, hi[1] + sc.margin, n)], axis=1)
-        vt = terminal_velocity(r, cd=sc.cd, rho_air=sc.rho_air, density=sc.density)
+        vt = terminal_velocity(r, cd=hail.cd, rho_air=hail.rho_air, density=hail.density)
         z0 = hi[2] + sc.spawn_height + r
         t_fall = (z0 - 0.5 * (lo[2] + hi[2])) / np.maximum(vt, 1e-9)
         xy = xy - wind[None, :2] * t_fall[:, None]  # upwind, so they land on the seat

@@ -5,10 +5,10 @@ Use::
     from hailstorm.runtime.bundle import load
     from hailstorm.runtime.storm import Scene, run_storm
     gf = load("bundle/")
-    scene = Scene.from_toml("scene.toml")      # or Scene.default(), Scene(duration=0.2, ...)
+    scene = Scene.from_toml("scene.toml")      # or Scene.default(), Scene.from_flat(duration=0.2, ...)
     result = run_storm(gf, scene, progress=True)
 
-Algorithm of one step (``dt`` = :attr:`Scene.dt`)
+Algorithm of one step (``dt`` = ``scene.time.dt``)
 -------------------------------------------------
 1. Spawn the stones due in this step.
 2. Broad phase by *conservative advancement*: every flying stone carries a
@@ -218,25 +218,26 @@ class Storm:
     def __init__(self, gf: Any, scene: Scene, *, spawn: bool = True) -> None:
         self.gf = gf
         self.scene = scene
-        air = Air.of(scene.wind, scene.drag, scene.cd, scene.rho_air, scene.density)
+        hail, contact = scene.hail, scene.contact
+        air = Air.of(scene.storm.wind, hail.drag, hail.cd, hail.rho_air, hail.density)
         self.g = np.array([0.0, 0.0, -GRAVITY])
-        self.stones = Stones(scene.density)
+        self.stones = Stones(hail.density)
         self.seat = SeatState(gf)
         self.collision = Collision(gf, scene, air)
         normals = self.collision.index.normals
-        self.patches = Patches(gf, scene, self.seat, normals, self.collision.soft, air)
-        sets = ContactSets(gf, scene.mode == "sticky", self.seat, normals, self.collision.fixed, self.patches)
-        self.integrator = ContactIntegrator(scene)
-        self.contacts = SoftContacts(scene, sets, self.patches, self.integrator, self.seat, air)
-        self.stats = StormStats(patch=scene.patch)
+        self.patches = Patches(gf, contact, scene.time, self.seat, normals, self.collision.soft, air)
+        sets = ContactSets(gf, contact.sticky, self.seat, normals, self.collision.fixed, self.patches)
+        self.integrator = ContactIntegrator(scene.time, contact)
+        self.contacts = SoftContacts(contact, scene.time, sets, self.patches, self.integrator, self.seat, air)
+        self.stats = StormStats(patch=contact.patch)
         self.t = 0.0
-        self.plan = SpawnPlan(scene, self.collision.lo, self.collision.hi, np.random.default_rng(scene.seed)) \
-            if spawn else SpawnPlan.empty()
+        self.plan = SpawnPlan(scene.storm, hail, self.collision.lo, self.collision.hi,
+                              np.random.default_rng(scene.storm.seed)) if spawn else SpawnPlan.empty()
         self._warm_up()
 
     def step(self) -> None:
         """Advance the storm by one step ``dt``."""
-        dt, st, stones, seat = self.scene.dt, self.stats, self.stones, self.seat
+        dt, st, stones, seat = self.scene.time.dt, self.stats, self.stones, self.seat
         due = self.plan.due(self.t + dt)
         if due is not None:
             self.add_stones(due[:, 1:4], due[:, 4:7], due[:, 7])
@@ -250,7 +251,7 @@ class Storm:
             t_left, n_sub = dt, 0
             while t_left > 1e-12 * dt:
                 h = self.integrator.substep_size(stones, near, t_left, self.contacts.current, self._k_tri(), self.g)
-                if n_sub >= 4 * self.scene.max_substeps:
+                if n_sub >= 4 * self.scene.time.max_substeps:
                     h = t_left  # safety net: never stall
                 t_left -= self._substep(near, h)
                 n_sub += 1
@@ -295,7 +296,7 @@ class Storm:
         from its first step (loading takes ~0.3 s; compiling takes a while, once: numba
         caches the machine code on disk). Each group of kernels that compiles says so in
         one INFO line (:class:`_CompileNotice`)."""
-        sc, stones = self.scene, self.stones
+        sc, stones = self.scene.time, self.stones
         t0 = time.perf_counter()
         notice = _CompileNotice(3)
         notice.stage("the storm's free-flight, broad- and narrow-phase kernels", 13)
@@ -423,7 +424,7 @@ def run_storm(
     Returns
     -------
     StormResult
-        Frames at ``scene.fps`` (plus the first and last instants; empty
+        Frames at ``scene.output.fps`` (plus the first and last instants; empty
         unless kept) and statistics (see :func:`hailstorm.runtime.output.summary`).
 
     Raises
@@ -441,13 +442,14 @@ def run_storm(
     setup0 = time.perf_counter()
     storm = Storm(gf, scene)
     setup = time.perf_counter() - setup0
-    rec = Recorder(scene.n_steps(), scene.fps, on_frame, keep)
+    rec = Recorder(scene.n_steps(), scene.output.fps, on_frame, keep)
     rec.record(storm.frame())
     bar = None
+    duration = scene.storm.duration
     if progress is True:
         from tqdm.auto import tqdm
 
-        bar = tqdm(total=float(scene.duration), desc="hail storm", unit="s sim", leave=False,
+        bar = tqdm(total=float(duration), desc="hail storm", unit="s sim", leave=False,
                    bar_format="{l_bar}{bar}| {n:.3g}/{total:.3g} s simulated [{elapsed}<{remaining}]")
     from threadpoolctl import threadpool_limits
 
@@ -461,11 +463,11 @@ def run_storm(
             if rec.frame_due(storm.t, i):
                 rec.record(storm.frame())
             if bar is not None:
-                if storm.t - shown >= 0.002 * scene.duration or i == rec.n_steps - 1:
-                    bar.update(min(storm.t, scene.duration) - shown)
-                    shown = min(storm.t, scene.duration)
+                if storm.t - shown >= 0.002 * duration or i == rec.n_steps - 1:
+                    bar.update(min(storm.t, duration) - shown)
+                    shown = min(storm.t, duration)
             elif callable(progress):
-                progress(storm.t, scene.duration)
+                progress(storm.t, duration)
     finally:
         wall = time.perf_counter() - wall0 - (rec.sink_time - sink0)
         limiter.restore_original_limits()
@@ -475,8 +477,8 @@ def run_storm(
     st.stones_hit = int(stones.hit.sum())
     st.sim_time_s, st.wall_time_s, st.setup_time_s, st.backend = float(storm.t), float(wall), float(setup), KERNELS
     st.real_time_factor = float(storm.t / wall) if wall > 0 else float("inf")
-    st.seed, st.dt, st.integrator, st.mode, st.restitution = (scene.seed, scene.dt, scene.integrator, scene.mode,
-                                                              scene.restitution)
+    st.seed, st.dt, st.integrator = scene.storm.seed, scene.time.dt, scene.time.integrator
+    st.mode, st.restitution = scene.contact.mode, scene.contact.restitution
     st.n_vertices, st.n_triangles = int(storm.n), int(len(gf.triangles))
     st.resting_at_end = int((stones.ctri[stones.alive] >= 0).sum())
     st.frames, st.output_time_s = rec.n_frames, float(rec.sink_time)

@@ -284,9 +284,9 @@ def test_mesh_size_larger_than_the_body_warns(caplog):
 def test_one_default_mesh_size():
     from hailstorm.precompute.pipeline import DEFAULT_MESH_SIZE
     from hailstorm.runtime.cli import _parser
-    from hailstorm.runtime.scene import Scene
+    from hailstorm.runtime.scene import SeatSettings
 
-    assert Scene.default().mesh_size == DEFAULT_MESH_SIZE
+    assert SeatSettings.default().mesh_size == DEFAULT_MESH_SIZE
     assert _parser().parse_args(["precompute", "--out", "x"]).mesh_size == DEFAULT_MESH_SIZE
 
 

@@ -171,9 +171,9 @@ def test_the_runtime_stage_runs_a_storm_without_the_offline_stage(box_bundle):
     """The stages stay apart: the default scene and a storm load nothing of the offline
     stage (hailstorm.precompute, gmsh, scikit-fem), in a fresh interpreter."""
     code = (
-        "import dataclasses, sys\n"
+        "import sys\n"
         "from hailstorm.runtime import Scene, load, run_storm\n"
-        "sc = dataclasses.replace(Scene.default(), duration=0.02)\n"
+        "sc = Scene.default().with_(duration=0.02)\n"
         "res = run_storm(load(sys.argv[1]), sc, progress=False)\n"
         "assert res.stats['hailstones'] >= 0\n"
         "bad = [m for m in sys.modules if m.split('.')[0] in ('gmsh', 'skfem')"

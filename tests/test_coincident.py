@@ -25,7 +25,7 @@ def gf():
 def _drop_pair(gf, integrator, d, patch, r=0.002, v0=5.0, dt=2e-4):
     """Two stones of radius ``r`` side by side ``d`` apart onto the flat plate at ``v0``:
     each stone's restitution (rebound / impact normal speed) and the storm."""
-    sc = Scene(duration=0.05, stones=0, drag=False, dt=dt, integrator=integrator, restitution=0.5, patch=patch)
+    sc = Scene.from_flat(duration=0.05, stones=0, drag=False, dt=dt, integrator=integrator, restitution=0.5, patch=patch)
     st = Storm(gf, sc, spawn=False)
     c = np.array([0.0613, 0.0011, 0.0])  # inside a triangle, off its centre
     st.add_stones(np.array([c + [-d / 2, 0, r + 1e-3], c + [d / 2, 0, r + 1e-3]]), np.tile([0.0, 0.0, -v0], (2, 1)),

@@ -364,7 +364,7 @@ def test_storm_runs_on_a_float32_bundle(seat_bundle, tmp_path):
     dents equal to float32 rounding amplified by the run (compared loosely: a storm is chaotic)."""
     from hailstorm.runtime import Scene, run_storm
 
-    scene = dataclasses.replace(Scene.default(), duration=0.1)
+    scene = Scene.default().with_(duration=0.1)
     g32 = load(convert_bundle(seat_bundle, tmp_path / "seat32", "float32"))
     a = run_storm(load(seat_bundle), scene, progress=False).stats
     b = run_storm(g32, scene, progress=False).stats

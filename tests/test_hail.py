@@ -215,7 +215,7 @@ def _drop(e: float, h0: float, r: float = 0.005, integrator: str = "implicit", t
     from hailstorm.runtime.storm import Scene, Storm
 
     gf = plate_gf()
-    sc = Scene(duration=t_end, dt=5e-4, restitution=e, drag=False, integrator=integrator, stones=0)
+    sc = Scene.from_flat(duration=t_end, dt=5e-4, restitution=e, drag=False, integrator=integrator, stones=0)
     st = Storm(gf, sc, spawn=False)
     x0 = np.array([0.061, 0.003, r + h0])
     st.add_stones(x0, np.zeros(3), r)

@@ -171,11 +171,9 @@ STONE = 0.02  # radius of the resting stone [m] (a = 1.26 mm under its weight: 3
 def _storm_rest_depth(gf) -> tuple[float, float, float, float]:
     """A 20 mm stone let down onto the block's top by the storm (exact integrator, patch
     contacts): (depth of its lowest point, its contact force, m g, patch radius) once at rest."""
-    import dataclasses
-
     from hailstorm.runtime.storm import Storm
 
-    scene = dataclasses.replace(hailstorm.runtime.Scene.default(), integrator="exact", dt=5e-4)
+    scene = hailstorm.runtime.Scene.default().with_(integrator="exact", dt=5e-4)
     st = Storm(gf, scene, spawn=False)
     st.add_stones(np.array([[1e-4, -2e-4, STONE + 1e-4]]), np.zeros((1, 3)), np.array([STONE]))
     for _ in range(800):  # 0.4 s: the bounces die out and the stone rests

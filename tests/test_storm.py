@@ -19,29 +19,29 @@ def gf():
 
 @pytest.fixture(scope="module")
 def short_storm(gf):
-    sc = Scene(duration=0.1, stones=12, seed=7, spawn_height=0.02, r_min=0.003, r_max=0.008, fps=100.0)
+    sc = Scene.from_flat(duration=0.1, stones=12, seed=7, spawn_height=0.02, r_min=0.003, r_max=0.008, fps=100.0)
     return run_storm(gf, sc, progress=False)
 
 
 def test_scene_default_and_round_trip(tmp_path):
     sc = Scene.default()
-    assert sc.integrator == "implicit" and sc.mode == "frictionless"
+    assert sc.time.integrator == "implicit" and sc.contact.mode == "frictionless"
     # patch contact is the default for hail, in the packaged scene and the dataclass alike
-    assert sc.patch == Scene().patch == "hertz"
-    assert sc.patch_min_radius == Scene().patch_min_radius == 1e-3
-    assert sc.patch_tolerance == Scene().patch_tolerance == 0.2
-    pt = Scene(patch="none", patch_min_radius=5e-4, patch_tolerance=0.5)
+    assert sc.contact.patch == Scene().contact.patch == "hertz"
+    assert sc.contact.patch_min_radius == Scene().contact.patch_min_radius == 1e-3
+    assert sc.contact.patch_tolerance == Scene().contact.patch_tolerance == 0.2
+    pt = Scene.from_flat(patch="none", patch_min_radius=5e-4, patch_tolerance=0.5)
     pp = tmp_path / "point.toml"
     pt.to_toml(pp)
     assert Scene.from_toml(pp) == pt
-    custom = Scene(duration=0.05, stones=3, seed=11, wind=(1.0, 0.0, 0.0), mode="sticky", integrator="symplectic")
+    custom = Scene.from_flat(duration=0.05, stones=3, seed=11, wind=(1.0, 0.0, 0.0), mode="sticky", integrator="symplectic")
     p = tmp_path / "scene.toml"
     custom.to_toml(p)
     assert Scene.from_toml(p) == custom
     # a partial file keeps the defaults for the rest
     p.write_text("[storm]\nduration = 1\n")
     s2 = Scene.from_toml(p)
-    assert s2.duration == 1.0 and s2.rate == sc.rate and s2.stones is None
+    assert s2.storm.duration == 1.0 and s2.storm.rate == sc.storm.rate and s2.storm.stones is None
 
 
 @pytest.mark.parametrize(
@@ -91,7 +91,7 @@ def test_storm_reproducible(gf, short_storm):
 
 @pytest.fixture(scope="module")
 def exact_storm(gf):
-    sc = Scene(duration=0.1, stones=12, seed=7, spawn_height=0.02, r_min=0.003, r_max=0.008, fps=100.0,
+    sc = Scene.from_flat(duration=0.1, stones=12, seed=7, spawn_height=0.02, r_min=0.003, r_max=0.008, fps=100.0,
                integrator="exact", dt=5e-4)
     return run_storm(gf, sc, progress=False)
 
@@ -113,9 +113,7 @@ def test_frame_displacement_is_the_full_surface_response(gf, exact_storm, patch)
     """Only candidate vertices are deformed in the loop; the recorded frame is the
     full-surface response D[:, V] B f of the contact forces at that instant
     (B: the patch weights, or the barycentric ones of a point contact)."""
-    import dataclasses
-
-    sc = dataclasses.replace(exact_storm.scene, patch=patch)
+    sc = exact_storm.scene.with_(patch=patch)
     st = Storm(gf, sc)
     while st.t < 0.1 - 1e-12:
         st.step()
@@ -132,7 +130,7 @@ def test_frame_displacement_is_the_full_surface_response(gf, exact_storm, patch)
             assert cc.patch_radius[k] == 0.0
             u_ref += gf.displacement(gf.triangles[cc.tris[k]], np.outer(cc.bary[k], fk))
         else:
-            assert cc.patch_radius[k] >= sc.patch_min_radius
+            assert cc.patch_radius[k] >= sc.contact.patch_min_radius
             w = cc.weights[k]
             assert w.sum() == pytest.approx(1.0) and (w > 0).sum() > 3  # a real patch on this plate
             u_ref += gf.displacement(cc.verts[k][w > 0], np.outer(w[w > 0], fk))
@@ -143,7 +141,7 @@ def test_frame_displacement_is_the_full_surface_response(gf, exact_storm, patch)
 
 
 def test_storm_sticky_symplectic_runs(gf):
-    sc = Scene(duration=0.03, stones=4, seed=1, spawn_height=0.01, mode="sticky", integrator="symplectic", r_min=0.004)
+    sc = Scene.from_flat(duration=0.03, stones=4, seed=1, spawn_height=0.01, mode="sticky", integrator="symplectic", r_min=0.004)
     res = run_storm(gf, sc, progress=False)
     assert all(np.all(np.isfinite(f.displacement)) for f in res.frames)
     assert res.stats["max_penetration_m"] < 0.05 * 0.004
@@ -151,7 +149,7 @@ def test_storm_sticky_symplectic_runs(gf):
 
 def test_clamped_triangle_is_a_hard_wall(gf):
     # a corner triangle of the plate has all its vertices clamped: the stone bounces off it
-    sc = Scene(duration=0.05, stones=0, drag=False, restitution=0.5)
+    sc = Scene.from_flat(duration=0.05, stones=0, drag=False, restitution=0.5)
     st = Storm(gf, sc, spawn=False)
     t = int(np.flatnonzero(gf.fixed[gf.triangles].all(axis=1))[0])
     c = gf.vertices[gf.triangles[t]].mean(axis=0)
@@ -167,7 +165,7 @@ def test_contact_on_a_clamped_edge_of_a_soft_triangle_is_a_hard_wall(gf, mode, p
     """A stone that lands exactly on the clamped edge of a soft triangle (its barycentric
     weight all on clamped vertices: nothing there can move) bounces as off a wall
     instead of asking the capacitance for a rigid contact."""
-    sc = Scene(duration=0.05, stones=0, drag=False, restitution=0.5, mode=mode, patch=patch)
+    sc = Scene.from_flat(duration=0.05, stones=0, drag=False, restitution=0.5, mode=mode, patch=patch)
     st = Storm(gf, sc, spawn=False)
     T = np.asarray(gf.triangles)
     t = int(np.flatnonzero(st.soft & (gf.fixed[T].sum(axis=1) == 2))[0])
@@ -219,12 +217,12 @@ def test_short_storm_on_the_seat(seat_bundle):
     from hailstorm.runtime.bundle import load
 
     gf = load(seat_bundle)
-    sc = Scene(duration=0.04, stones=6, seed=3, spawn_height=0.01)
+    sc = Scene.from_flat(duration=0.04, stones=6, seed=3, spawn_height=0.01)
     res = run_storm(gf, sc, progress=False)
     st = res.stats
     assert st["impacts"] >= 1
     assert all(np.all(np.isfinite(f.displacement)) for f in res.frames)
-    assert st["max_penetration_m"] < 0.25 * sc.r_min  # curved seat, coarse dents: looser than the plate
+    assert st["max_penetration_m"] < 0.25 * sc.hail.r_min  # curved seat, coarse dents: looser than the plate
     assert np.isfinite(st["max_contact_force"]) and st["max_contact_force"] > 0
 
 
@@ -233,7 +231,7 @@ def test_short_storm_on_the_seat(seat_bundle):
 # --------------------------------------------------------------------------
 def _drop(gf, patch, r=0.005, v0=9.0, integrator="exact", dt=5e-4, at_vertex=True):
     """One stone (no drag) onto the seat's top: (storm, restitution)."""
-    sc = Scene(duration=0.05, stones=0, drag=False, dt=dt, integrator=integrator, restitution=0.5, patch=patch)
+    sc = Scene.from_flat(duration=0.05, stones=0, drag=False, dt=dt, integrator=integrator, restitution=0.5, patch=patch)
     st = Storm(gf, sc, spawn=False)
     soft_v = np.unique(gf.triangles[st.soft])
     top = soft_v[np.argmax(gf.vertices[soft_v, 2])]
@@ -289,7 +287,7 @@ def test_patch_drop_on_the_seat_restitution_and_one_weighting(seat_bundle, integ
 def test_patch_weights_are_cached_per_contact(gf):
     """On the plate the patch disc covers several vertices (weights summing to one, a
     stiffness of its own); the same contact again reuses the cached weights."""
-    sc = Scene(duration=0.05, stones=0, drag=False, dt=5e-4, integrator="exact")
+    sc = Scene.from_flat(duration=0.05, stones=0, drag=False, dt=5e-4, integrator="exact")
     st = Storm(gf, sc, spawn=False)
     t = np.flatnonzero(st.soft)[len(np.flatnonzero(st.soft)) // 2]
     st.add_stones(gf.vertices[gf.triangles[t]].mean(axis=0) + [0, 0, 0.01], [0, 0, -5.0], 0.006)
@@ -308,7 +306,7 @@ def test_patch_weights_are_cached_per_contact(gf):
 def test_resting_stone_reuses_its_patch(gf):
     """A stone that comes to rest keeps its contact: its weights are computed a few times
     (impact, then one shrink to the resting force) and kept for every later sub-step."""
-    sc = Scene(duration=0.2, stones=0, drag=False, dt=5e-4, integrator="exact", restitution=0.0)
+    sc = Scene.from_flat(duration=0.2, stones=0, drag=False, dt=5e-4, integrator="exact", restitution=0.0)
     st = Storm(gf, sc, spawn=False)
     c = gf.vertices[~gf.fixed].mean(axis=0)
     c[2] = gf.vertices[:, 2].max()
@@ -322,8 +320,8 @@ def test_resting_stone_reuses_its_patch(gf):
     # at rest the radius is the Hertz radius of the stone's weight (floored)
     from hailstorm.runtime.contact.weights import hertz_radius
 
-    a_rest = float(hertz_radius(st.mass[0] * 9.81, 0.005, gf.young, gf.poisson, a_min=sc.patch_min_radius))
-    assert st.crad[0] == pytest.approx(a_rest, rel=sc.patch_tolerance + 0.01)
+    a_rest = float(hertz_radius(st.mass[0] * 9.81, 0.005, gf.young, gf.poisson, a_min=sc.contact.patch_min_radius))
+    assert st.crad[0] == pytest.approx(a_rest, rel=sc.contact.patch_tolerance + 0.01)
 
 
 def test_patch_and_point_storms_on_the_seat(seat_bundle):
@@ -334,7 +332,7 @@ def test_patch_and_point_storms_on_the_seat(seat_bundle):
     gf = load(seat_bundle)
     out = {}
     for patch in ("hertz", "none"):
-        sc = Scene(duration=0.1, stones=30, seed=5, spawn_height=0.01, integrator="exact", dt=5e-4, patch=patch)
+        sc = Scene.from_flat(duration=0.1, stones=30, seed=5, spawn_height=0.01, integrator="exact", dt=5e-4, patch=patch)
         res = run_storm(gf, sc, progress=False)
         st = res.stats
         assert st["patch"] == patch
@@ -360,7 +358,7 @@ def test_frame_peak_displacement_keeps_the_dent_of_a_finished_impact(gf):
     """An impact (~1 ms) ends between two frames: the frame's displacement is back to
     zero, but its peak_displacement holds the dent, equal per vertex to the largest
     full-surface response sampled at every step (finer than the frame interval)."""
-    sc = Scene(duration=0.05, stones=0, drag=False, dt=5e-5, integrator="implicit", restitution=0.5)
+    sc = Scene.from_flat(duration=0.05, stones=0, drag=False, dt=5e-5, integrator="implicit", restitution=0.5)
     st = Storm(gf, sc, spawn=False)
     top = int(np.argmax(gf.vertices[:, 2] - 1e3 * np.abs(gf.vertices[:, :2] - gf.vertices[:, :2].mean(0)).sum(1)))
     st.add_stones(gf.vertices[top] + [0.0, 0.0, 0.006], [0.0, 0.0, -5.0], 0.005)
@@ -389,7 +387,7 @@ def test_frame_peak_displacement_keeps_the_dent_of_a_finished_impact(gf):
 
 @pytest.mark.parametrize("stones", [0, 12])
 def test_summary_has_no_internal_counters(gf, short_storm, stones):
-    res = short_storm if stones else run_storm(gf, Scene(duration=0.01, stones=0), progress=False)
+    res = short_storm if stones else run_storm(gf, Scene.from_flat(duration=0.01, stones=0), progress=False)
     assert not [k for k in res.stats if k.startswith("_")]
     assert res.stats["mean_penetration_contact_m"] >= 0.0
 
@@ -397,8 +395,8 @@ def test_summary_has_no_internal_counters(gf, short_storm, stones):
 def test_scene_to_toml_replaces_atomically(tmp_path):
     p = tmp_path / "scene.toml"
     p.write_text("old")
-    Scene(duration=0.07).to_toml(p)
-    assert Scene.from_toml(p).duration == 0.07
+    Scene.from_flat(duration=0.07).to_toml(p)
+    assert Scene.from_toml(p).storm.duration == 0.07
     assert sorted(x.name for x in tmp_path.iterdir()) == ["scene.toml"]  # no temporary left behind
     with pytest.raises(OSError):
         Scene().to_toml(tmp_path / "missing-dir" / "scene.toml")

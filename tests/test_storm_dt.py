@@ -8,7 +8,6 @@ the frames must see it (issue #11, item 1).
 
 from __future__ import annotations
 
-import dataclasses
 
 import numpy as np
 import pytest
@@ -71,7 +70,7 @@ def test_exact_step_peaks_of_a_coupled_set():
 def _drop(gf, dt, integrator="exact", r=0.0025, v0=3.0):
     """A small stone onto the plate: the storm after the bounce, its frame, and whether
     the contact was still open at the end of some step."""
-    sc = Scene(duration=0.05, stones=0, drag=False, dt=dt, integrator=integrator, restitution=0.5)
+    sc = Scene.from_flat(duration=0.05, stones=0, drag=False, dt=dt, integrator=integrator, restitution=0.5)
     st = Storm(gf, sc, spawn=False)
     c = gf.vertices[gf.triangles[100]].mean(axis=0)
     st.add_stones(c + [0.0, 0.0, r + 1e-3], [0.0, 0.0, -v0], r)
@@ -113,11 +112,11 @@ def default_seat(tmp_path_factory):
 
 
 def _storm(gf, dt, integrator, stones=None):
-    sc = dataclasses.replace(Scene.default(), dt=dt, integrator=integrator)
+    sc = Scene.default().with_(dt=dt, integrator=integrator)
     if stones is not None:
-        sc = dataclasses.replace(sc, stones=stones)
+        sc = sc.with_(stones=stones)
     st = Storm(gf, sc)
-    for _ in range(int(round(sc.duration / dt))):
+    for _ in range(int(round(sc.storm.duration / dt))):
         st.step()
     return set(np.flatnonzero(st.hit).tolist()), st.stats
 

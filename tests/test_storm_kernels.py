@@ -214,7 +214,7 @@ from hailstorm.runtime.storm import run_storm
 gf = plate_gf()
 for integ in ("implicit", "exact", "symplectic"):
     for patch in ("hertz", "none"):
-        run_storm(gf, Scene(duration=0.03, stones=8, seed=3, spawn_height=0.02, r_min=0.003, r_max=0.006,
+        run_storm(gf, Scene.from_flat(duration=0.03, stones=8, seed=3, spawn_height=0.02, r_min=0.003, r_max=0.006,
                             integrator=integ, patch=patch), progress=False)
 many = {}
 for mod in (compiled.flight, compiled.narrow, compiled.patches, compiled.contacts, compiled.integrators,
@@ -241,7 +241,7 @@ def test_patch_radii_match_reference(gf, mode):
     from hailstorm.runtime.storm import Storm
     from reference.patches_ref import patch_radii_ref
 
-    sc = Scene(duration=0.1, stones=0, r_min=0.003, r_max=0.008, mode=mode)
+    sc = Scene.from_flat(duration=0.1, stones=0, r_min=0.003, r_max=0.008, mode=mode)
     st = Storm(gf, sc, spawn=False)
     rng = np.random.default_rng(6)
     tris = rng.choice(np.flatnonzero(st.soft), 6, replace=False)
@@ -252,8 +252,8 @@ def test_patch_radii_match_reference(gf, mode):
     stones = st.stones
     stones.ctri[ids] = tris
     stones.cbary[ids] = bary
-    wind = np.asarray(sc.wind, dtype=float)
-    coef = 3.0 * sc.cd * sc.rho_air / (8.0 * sc.density)
+    wind = np.asarray(sc.storm.wind, dtype=float)
+    coef = 3.0 * sc.hail.cd * sc.hail.rho_air / (8.0 * sc.hail.density)
     accel = drag_ref(stones.vel[ids], stones.radius[ids], wind, coef) + [0.0, 0.0, -GRAVITY]
 
     def k_patch(i, t, a, n):
@@ -272,8 +272,8 @@ def test_patch_radii_match_reference(gf, mode):
         crad0 = stones.crad.copy()
         a_ref, resized_ref = patch_radii_ref(ids, tris, stones.mass, stones.radius, stones.vel, accel, crad0,
                                              st.index.normals, cs, K, lam, mode == "sticky", st.patches.k_tri,
-                                             k_patch, gf.young, gf.poisson, sc.patch_min_radius,
-                                             sc.patch_tolerance, sc.rest_speed)
+                                             k_patch, gf.young, gf.poisson, sc.contact.patch_min_radius,
+                                             sc.contact.patch_tolerance, sc.time.rest_speed)
         stats = StormStats()
         a = st.patches.radii(stones, ids, tris, cs, None if K is None else np.diag(K).copy(), lam, stats)
         np.testing.assert_allclose(a, a_ref, rtol=1e-12)

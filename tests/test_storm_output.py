@@ -26,7 +26,7 @@ def gf():
 
 def _scene(**kw) -> Scene:
     base = dict(duration=0.06, stones=6, seed=2, spawn_height=0.02, r_min=0.003, r_max=0.008, fps=100.0)
-    return Scene(**{**base, **kw})
+    return Scene.from_flat(**{**base, **kw})
 
 
 def _run_into(out: Path, gf, scene: Scene, *, video: bool = False) -> dict:
@@ -153,7 +153,7 @@ def test_disk_estimate_bounds_the_written_output(seat_bundle, tmp_path):
     from hailstorm.runtime.bundle import load
 
     g = load(seat_bundle)
-    sc = Scene(duration=0.04, stones=4, seed=3, spawn_height=0.01)
+    sc = Scene.from_flat(duration=0.04, stones=4, seed=3, spawn_height=0.01)
     _run_into(tmp_path / "run", g, sc)
     written = sum(p.stat().st_size for p in (tmp_path / "run").rglob("*") if p.is_file())
     est = sc.estimate(g.n_vertices).disk_bytes

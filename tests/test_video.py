@@ -22,7 +22,7 @@ def gf(box_bundle):
 @pytest.fixture(scope="module")
 def storm(gf):
     """A short storm on the box, its frames close enough (0.5 ms) to catch impacts (~1 ms)."""
-    res = run_storm(gf, Scene(duration=0.04, stones=6, seed=2, spawn_height=0.005, margin=0.0, fps=2000.0),
+    res = run_storm(gf, Scene.from_flat(duration=0.04, stones=6, seed=2, spawn_height=0.005, margin=0.0, fps=2000.0),
                     progress=False)
     assert any(f.contacts for f in res.frames)
     return res
@@ -188,7 +188,7 @@ def test_force_panel_ends_at_the_frame_total(gf, storm, tmp_path):
 def test_frame_forces_hold_a_resting_stone(gf):
     """Independent of the storm's bookkeeping: a stone at rest on the seat presses with m g."""
     r = 0.006
-    st = Storm(gf, Scene(duration=0.2, stones=0, drag=False), spawn=False)
+    st = Storm(gf, Scene.from_flat(duration=0.2, stones=0, drag=False), spawn=False)
     st.add_stones(np.array([0.05, 0.05, 0.05 + r + 0.002]), np.array([0.0, 0.0, -0.2]), r)
     while st.t < 0.1:
         st.step()

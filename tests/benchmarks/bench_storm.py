@@ -61,7 +61,7 @@ def seat_drop(gf, integrator: str, adaptive: bool, dt: float, r: float = 0.005, 
     impact speed, target 0.5) and the largest penetration of that impact."""
     from hailstorm.runtime.storm import Scene, Storm
 
-    sc = Scene(duration=0.05, stones=0, drag=False, dt=dt, integrator=integrator, adaptive=adaptive, restitution=0.5,
+    sc = Scene.from_flat(duration=0.05, stones=0, drag=False, dt=dt, integrator=integrator, adaptive=adaptive, restitution=0.5,
                patch=patch)
     st = Storm(gf, sc, spawn=False)
     soft_v = np.unique(gf.triangles[st.soft])
@@ -134,7 +134,7 @@ def main() -> None:
         if base == "baseline" and (base_rtf is None or patch == "none"):
             base_rtf = med  # the previous default: implicit, point contacts (if run)
         rows.append((name, integ, adaptive, patch, stones, dur, dt, min(rtf), med, max(rtf), st))
-    r_min = Scene.default().r_min
+    r_min = Scene.default().hail.r_min
     print(f"bundle {path}: {gf.n_vertices} surface vertices, D {gf.D.shape}")
     point_rtf = {r[0][:-6]: r[8] for r in rows if r[0].endswith("-point")}
     hdr = (f"{'config':25s} {'integr.':10s} {'adapt':5s} {'patch':5s} {'stones':>6s} {'T[s]':>5s} {'dt[ms]':>6s} "

@@ -34,7 +34,7 @@ def main() -> None:
     from numba.core import event
 
     import hailstorm.runtime
-    from hailstorm.runtime import Scene
+    from hailstorm.runtime.scene import Scene, SeatSettings
 
     class CpuClock(event.Listener):
         """Records (process CPU time, event): compile seconds on a loaded machine (numba compiles in one thread)."""
@@ -63,7 +63,8 @@ def main() -> None:
     else:
         from hailstorm.precompute import build_bundle
 
-        path = build_bundle(None, mesh_size=sc.mesh_size, order=sc.order, young=sc.young, poisson=sc.poisson)
+        seat = SeatSettings.default()
+        path = build_bundle(None, mesh_size=seat.mesh_size, order=seat.order, young=seat.young, poisson=seat.poisson)
     gf = hailstorm.runtime.load(path)
     logging.basicConfig(level=logging.DEBUG, format="%(message)s")
     for name in ("numba", "matplotlib", "PIL"):
@@ -115,7 +116,7 @@ def main() -> None:
         for d0, n0, sec in tree:
             if sec >= 0.2:
                 print(f"{'  ' * d0}{n0} {sec:.2f} s")
-    print(f"scene: integrator {sc.integrator}, patch {sc.patch}, mode {sc.mode}")
+    print(f"scene: integrator {sc.time.integrator}, patch {sc.contact.patch}, mode {sc.contact.mode}")
     print(f"import {import_s:.2f} s; Storm() (loads/compiles the kernels) {build:.2f} s wall, {build_cpu:.2f} s CPU; "
           f"{args.steps} steps {stepping:.2f} s")
     print(f"load average {os.getloadavg()[0]:.2f}; times below are process CPU seconds")

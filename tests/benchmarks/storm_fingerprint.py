@@ -124,15 +124,15 @@ def main() -> None:
     args = ap.parse_args()
 
     import hailstorm.runtime
-    from hailstorm.runtime import Scene
+    from hailstorm.runtime.scene import SeatSettings
 
     if args.gf:
         path = args.gf
     else:
         from hailstorm.precompute import build_bundle
 
-        sc = Scene.default()
-        path = build_bundle(None, mesh_size=sc.mesh_size, order=sc.order, young=sc.young, poisson=sc.poisson)
+        seat = SeatSettings.default()
+        path = build_bundle(None, mesh_size=seat.mesh_size, order=seat.order, young=seat.young, poisson=seat.poisson)
     gf = hailstorm.runtime.load(path)
     fp, raw = fingerprint(gf, args.configs.split(","))
     if args.write:
