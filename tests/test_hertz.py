@@ -222,3 +222,18 @@ def test_storm_rest_depth_converges_to_hertz(tmp_path):
     q = (e[0] - e[1]) / (e[1] - e[2])
     limit = e[2] - (e[1] - e[2]) / (q - 1.0)
     assert abs(limit) < 0.05, limit
+
+
+def test_hertz_secant_factor_is_hertz_secant_on_a_half_space():
+    """On an ideal half-space a Hertz-pressure patch of radius a has the weighted-mean
+    compliance c = 0.6 / (E* a) (Johnson: delta = a^2/R at F = 4 E* a^3 / (3 R), and the
+    weighted mean is 0.8 delta) and the offset a^2 / (5 R): kappa = F / (k delta) = 0.8 exactly,
+    for any a and R; a point contact (a = 0) keeps kappa = 1."""
+    from hailstorm.runtime.contact.weights import hertz_secant_factor
+
+    e_star = E / (1 - NU**2)
+    a = np.array([0.5e-3, 1.3e-3, 4e-3, 0.0])
+    Rs = np.array([0.005, 0.01, 0.02, 0.01])
+    c = np.where(a > 0, 0.6 / (e_star * np.where(a > 0, a, 1.0)), 1e-5)
+    kappa = hertz_secant_factor(hertz_mean_offset(a, Rs), a, Rs, c, E, NU)
+    np.testing.assert_allclose(kappa, [0.8, 0.8, 0.8, 1.0], rtol=1e-12)
