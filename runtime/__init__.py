@@ -9,7 +9,9 @@ contact work in compiled kernels (:mod:`hailstorm.runtime.compiled`).
 * :func:`capacitance` -> :class:`Capacitance` (W = Bᵀ D B, K = W⁻¹, low-rank updates);
 * :func:`solve_contacts` -> :class:`ContactSolution`;
 * :func:`press_spheres` -> :class:`SphereContacts` (rigid spheres, Hertz-consistent patches);
-* :class:`Scene`, :func:`run_storm` -> :class:`StormResult` (the hail storm).
+* :class:`Scene` (its sections :class:`StormSettings`, :class:`HailSettings`,
+  :class:`ContactSettings`, :class:`TimeSettings`, :class:`OutputSettings`; the default seat's
+  precompute settings :class:`SeatSettings`), :func:`run_storm` -> :class:`StormResult` (the hail storm).
 """
 
 from hailstorm.runtime.bundle import BundleError, GreensFunctions, load
@@ -23,18 +25,33 @@ from hailstorm.runtime.contact import (
     solve_contacts,
 )
 from hailstorm.runtime.hertz import SphereContacts, hertz_force, press_spheres
-from hailstorm.runtime.scene import Scene, SceneError
+from hailstorm.runtime.scene import (
+    ContactSettings,
+    HailSettings,
+    OutputSettings,
+    Scene,
+    SceneError,
+    SeatSettings,
+    StormSettings,
+    TimeSettings,
+)
 from hailstorm.runtime.storm import StormResult, run_storm
 
 __all__ = [
     "BundleError",
     "Capacitance",
+    "ContactSettings",
     "ContactSolution",
     "GreensFunctions",
+    "HailSettings",
+    "OutputSettings",
     "Scene",
     "SceneError",
+    "SeatSettings",
     "SphereContacts",
     "StormResult",
+    "StormSettings",
+    "TimeSettings",
     "barycentric_matrix",
     "capacitance",
     "hertz_force",

@@ -21,12 +21,12 @@ from hailstorm.runtime.compiled.grid import _cell_range, sorted_ints
 #: patches up to 20 % too large, hence too stiff).
 REST_TOLERANCE = 0.01
 
-__all__ = ["patch_compliance", "patch_one", "patch_radii"]
+__all__ = ["disc_patch", "patch_compliance", "patch_one", "patch_radii"]
 
 
 @_njit
-def _one_patch(x, n, a, h, qx, qy, qw, facing, drop, pidx):  # pragma: no cover (compiled)
-    """Compiled ``hailstorm.runtime.contact.weights._one_patch``: (vertices, weights) of one patch, both
+def disc_patch(x, n, a, h, qx, qy, qw, facing, drop, pidx):  # pragma: no cover (compiled)
+    """Compiled ``hailstorm.runtime.contact.weights._one_patch`` for one disc: (vertices, weights) of one patch, both
     empty if the disc hits no usable triangle. ``pidx``: :func:`hailstorm.runtime.contact.weights._patch_index_arrays`."""
     glo, gh, gdims, gstart, gitems, cent, radii, tnorm, p0, e1, e2, reach, tris, T, nv = pidx
     tol = 1e-12 * max(a, 1.0)
@@ -143,7 +143,7 @@ def patch_one(t, bary, a, n, resolution, rule_off, rule_x, rule_y, rule_w, facin
         n_r = int(min(max(math.ceil(resolution * a / max(h, 1e-300)) + 4, 4), 40))
         o0 = rule_off[n_r]
         o1 = rule_off[n_r + 1]
-        V, w = _one_patch(x, n, a, h, rule_x[o0:o1], rule_y[o0:o1], rule_w[o0:o1], facing, drop, pidx)
+        V, w = disc_patch(x, n, a, h, rule_x[o0:o1], rule_y[o0:o1], rule_w[o0:o1], facing, drop, pidx)
         if V.size:
             keep = w > 0.0
             return V[keep], w[keep]

@@ -51,7 +51,7 @@ from typing import Any
 import numpy as np
 
 from hailstorm.runtime.compiled import SampleGrid
-from hailstorm.runtime.compiled.patches import _one_patch as one_patch_kernel
+from hailstorm.runtime.compiled.patches import disc_patch as one_patch_kernel
 from hailstorm.runtime.contact.compliance import ComplianceSource, unique_inverse
 
 __all__ = [

@@ -1,7 +1,7 @@
 """Reference (numpy) patch weights: the consistent nodal load of a pressure disc.
 
 The library computes them in the compiled kernel
-:func:`hailstorm.runtime.compiled.patches._one_patch` (through
+:func:`hailstorm.runtime.compiled.patches.disc_patch` (through
 :func:`hailstorm.runtime.contact.weights.patch_weights`); this is the same
 algorithm in vectorised numpy, written for reading, with its own candidate
 search (a k-d tree over the triangle centroids instead of the kernel's grid).
