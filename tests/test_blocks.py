@@ -27,7 +27,7 @@ class Interrupt(KeyboardInterrupt):
     pass
 
 
-def _count_solves(monkeypatch):
+def count_solves(monkeypatch):
     """Count the column blocks solved (in this process) from now on."""
     calls = []
     real = ColumnProblem.solve
@@ -40,7 +40,7 @@ def _count_solves(monkeypatch):
     return calls
 
 
-def _interrupt_after(monkeypatch, n):
+def interrupt_after(monkeypatch, n):
     """Make the block store raise Ctrl-C after ``n`` blocks were written (they stay written)."""
     real = BlockStore.write
     written = []
@@ -75,12 +75,12 @@ def test_streamed_bundle_equals_in_memory_D_and_its_hash(tmp_path, small_box, bo
 def test_interrupted_run_resumes_computing_only_the_missing_blocks(tmp_path, small_box, monkeypatch, caplog):
     out = tmp_path / "b"
     with monkeypatch.context() as m:
-        written = _interrupt_after(m, 3)
+        written = interrupt_after(m, 3)
         with pytest.raises(KeyboardInterrupt):
             build_bundle(out, mesh=small_box, young=1e6, poisson=0.3, block_bytes=BLOCK)
     assert written == [0, 1, 2] and not out.exists()
     assert len(list((work_dir(out) / "blocks").iterdir())) == 3
-    calls = _count_solves(monkeypatch)
+    calls = count_solves(monkeypatch)
     with caplog.at_level(logging.INFO):
         build_bundle(out, mesh=small_box, young=1e6, poisson=0.3, block_bytes=BLOCK)
     n = hailstorm.runtime.load(out).manifest["solve_stats"]["blocks"]
@@ -93,10 +93,10 @@ def test_interrupted_run_resumes_computing_only_the_missing_blocks(tmp_path, sma
 def test_blocks_of_another_material_are_never_used(tmp_path, small_box, monkeypatch, caplog):
     out = tmp_path / "b"
     with monkeypatch.context() as m:
-        _interrupt_after(m, 3)
+        interrupt_after(m, 3)
         with pytest.raises(KeyboardInterrupt):
             build_bundle(out, mesh=small_box, young=1e6, poisson=0.3, block_bytes=BLOCK)
-    calls = _count_solves(monkeypatch)
+    calls = count_solves(monkeypatch)
     with caplog.at_level(logging.INFO):
         gf = hailstorm.runtime.load(build_bundle(out, mesh=small_box, young=2e6, poisson=0.3, block_bytes=BLOCK))
     assert "starting afresh" in caplog.text and "resuming" not in caplog.text
@@ -108,7 +108,7 @@ def test_blocks_of_another_material_are_never_used(tmp_path, small_box, monkeypa
 def test_a_block_tagged_with_another_key_or_damaged_is_computed_again(tmp_path, small_box, monkeypatch, caplog):
     out = tmp_path / "b"
     with monkeypatch.context() as m:
-        _interrupt_after(m, 3)
+        interrupt_after(m, 3)
         with pytest.raises(KeyboardInterrupt):
             build_bundle(out, mesh=small_box, young=1e6, poisson=0.3, block_bytes=BLOCK)
     work = work_dir(out)
@@ -125,7 +125,7 @@ def test_a_block_tagged_with_another_key_or_damaged_is_computed_again(tmp_path, 
         b = fh.read(1)
         fh.seek(-1, os.SEEK_CUR)
         fh.write(bytes([b[0] ^ 0xFF]))
-    calls = _count_solves(monkeypatch)
+    calls = count_solves(monkeypatch)
     with caplog.at_level(logging.INFO):
         gf = hailstorm.runtime.load(build_bundle(out, mesh=small_box, young=1e6, poisson=0.3, block_bytes=BLOCK))
     assert "another cache key" in caplog.text and "do not match" in caplog.text
@@ -153,7 +153,7 @@ def test_full_disk_is_a_clear_error_and_keeps_finished_blocks(tmp_path, small_bo
         with pytest.raises(BundleError, match="No space left on device.*2 of .* finished blocks are kept"):
             build_bundle(out, mesh=small_box, young=1e6, poisson=0.3, block_bytes=BLOCK)
     assert not out.exists()
-    calls = _count_solves(monkeypatch)
+    calls = count_solves(monkeypatch)
     gf = hailstorm.runtime.load(build_bundle(out, mesh=small_box, young=1e6, poisson=0.3, block_bytes=BLOCK))
     assert len(calls) == gf.manifest["solve_stats"]["blocks"] - 2
 
@@ -180,7 +180,7 @@ def test_too_little_disk_is_refused_before_solving(tmp_path, small_box, monkeypa
 
     import hailstorm.precompute.resources as resources
 
-    calls = _count_solves(monkeypatch)
+    calls = count_solves(monkeypatch)
     monkeypatch.setattr(resources.shutil, "disk_usage", lambda p: shutil._ntuple_diskusage(10**9, 10**9, 1000))
     with pytest.raises(resources.TooLargeError, match="of disk for D"):
         build_bundle(tmp_path / "b", mesh=small_box, young=1e6, poisson=0.3)
@@ -202,7 +202,7 @@ def test_interrupted_while_writing_the_bundle_keeps_D_and_solves_nothing_again(t
             build_bundle(out, mesh=small_box, young=1e6, poisson=0.3, block_bytes=BLOCK)
     assert not out.exists() and (work_dir(out) / "compliance.npy").is_file()  # D moved back to the work directory
     assert bundle.manifest_hash is real
-    calls = _count_solves(monkeypatch)
+    calls = count_solves(monkeypatch)
     with caplog.at_level(logging.INFO):
         gf = hailstorm.runtime.load(build_bundle(out, mesh=small_box, young=1e6, poisson=0.3, block_bytes=BLOCK))
     n = gf.manifest["solve_stats"]["blocks"]

@@ -11,42 +11,13 @@ from hailstorm.precompute.blocks import BlockStore, work_dir
 from hailstorm.precompute.greens import ColumnProblem
 from hailstorm.precompute.resources import estimate_geometry, estimate_mesh
 from hailstorm.runtime.bundle import read_manifest
+from test_blocks import count_solves, interrupt_after  # the block-store test helpers
 
 #: small blocks, so that the 216-node box has several (as in test_blocks)
 BLOCK = 40_000
 #: unit roundoff of float32 (round to nearest)
 U32 = 2.0**-24
 BOX = dict(young=1e6, poisson=0.3, block_bytes=BLOCK)
-
-
-class Interrupt(KeyboardInterrupt):
-    pass
-
-
-def _count_solves(monkeypatch):
-    calls = []
-    real = ColumnProblem.solve
-
-    def counting(self, factor, start, stop):
-        calls.append((start, stop))
-        return real(self, factor, start, stop)
-
-    monkeypatch.setattr(ColumnProblem, "solve", counting)
-    return calls
-
-
-def _interrupt_after(monkeypatch, n):
-    real = BlockStore.write
-    written = []
-
-    def write(self, i, values):
-        if len(written) == n:
-            raise Interrupt()
-        real(self, i, values)
-        written.append(i)
-
-    monkeypatch.setattr(BlockStore, "write", write)
-    return written
 
 
 @pytest.fixture(scope="module")
@@ -90,7 +61,7 @@ def test_float32_build_is_the_float64_build_rounded_entry_by_entry(tmp_path, sma
 def test_float32_and_float64_bundles_at_one_out_are_not_confused(tmp_path, small_box, monkeypatch):
     out = tmp_path / "b"
     build_bundle(out, mesh=small_box, **BOX)
-    calls = _count_solves(monkeypatch)
+    calls = count_solves(monkeypatch)
     g = hailstorm.runtime.load(build_bundle(out, mesh=small_box, dtype="float32", **BOX))
     assert g.dtype == np.float32 and len(calls) == g.manifest["solve_stats"]["blocks"]  # not reused
 
@@ -99,11 +70,11 @@ def test_a_float32_run_does_not_resume_float64_blocks(tmp_path, small_box, box64
     """The decision: a work directory of float64 blocks is another run's (another key): started afresh."""
     out = tmp_path / "b"
     with monkeypatch.context() as m:
-        written = _interrupt_after(m, 3)
+        written = interrupt_after(m, 3)
         with pytest.raises(KeyboardInterrupt):
             build_bundle(out, mesh=small_box, **BOX)  # float64, interrupted
     assert written == [0, 1, 2] and len(list((work_dir(out) / "blocks").iterdir())) == 3
-    calls = _count_solves(monkeypatch)
+    calls = count_solves(monkeypatch)
     with caplog.at_level(logging.INFO):
         g = hailstorm.runtime.load(build_bundle(out, mesh=small_box, dtype="float32", **BOX))
     assert "starting afresh" in caplog.text and "D as float64" in caplog.text and "resuming" not in caplog.text
@@ -115,10 +86,10 @@ def test_a_float32_run_does_not_resume_float64_blocks(tmp_path, small_box, box64
 def test_an_interrupted_float32_run_resumes_its_own_blocks(tmp_path, small_box, box64, monkeypatch, caplog):
     out = tmp_path / "b"
     with monkeypatch.context() as m:
-        _interrupt_after(m, 3)
+        interrupt_after(m, 3)
         with pytest.raises(KeyboardInterrupt):
             build_bundle(out, mesh=small_box, dtype="float32", **BOX)
-    calls = _count_solves(monkeypatch)
+    calls = count_solves(monkeypatch)
     with caplog.at_level(logging.INFO):
         g = hailstorm.runtime.load(build_bundle(out, mesh=small_box, dtype="float32", **BOX), rehash=True)
     n = g.manifest["solve_stats"]["blocks"]
@@ -142,7 +113,7 @@ def test_a_block_overflowing_float32_is_refused_and_not_recorded(tmp_path):
 
 
 def test_bad_dtype_is_refused_before_any_work(tmp_path, small_box, monkeypatch):
-    calls = _count_solves(monkeypatch)
+    calls = count_solves(monkeypatch)
     for bad in ("float16", "f4", np.float32, None):
         with pytest.raises(ValueError, match="storage type"):
             build_bundle(tmp_path / "b", mesh=small_box, dtype=bad, **BOX)
