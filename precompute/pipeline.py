@@ -68,6 +68,7 @@ from hailstorm.runtime.bundle import (
     check_replaceable,
     check_writable,
     clean_stale_temporaries,
+    dtype_cast_record,
     is_bundle,
     read_manifest,
     write_bundle,
@@ -355,8 +356,7 @@ def _compute(out: Path, mesh: TetMesh, surface: Surface, options: dict, key: str
     cast = None
     if run.dtype != "float64":  # what the rounding of each block to D's storage type cost, as convert_bundle records
         float64_options = {k: v for k, v in options.items() if k != "dtype"}
-        cast = {"source_key": cache_key(mesh, float64_options), "source_dtype": "float64", "max_abs_error": err,
-                "max_rel_error": err / scale if scale > 0 else 0.0}
+        cast = dtype_cast_record(cache_key(mesh, float64_options), "float64", err, scale)
 
     manifest = {
         "key": key,

@@ -654,6 +654,20 @@ def write_bundle(
 CONVERT_BLOCK = 1024
 
 
+def dtype_cast_record(source_key: str, source_dtype: str, max_abs_error: float, max_abs: float) -> dict[str, Any]:
+    """The manifest's ``dtype_cast`` entry of a D stored in a narrower type than it was computed in.
+
+    Parameters
+    ----------
+    source_key, source_dtype : str
+        The cache key and storage type of the D it was rounded from.
+    max_abs_error, max_abs : float
+        The largest rounding of an entry and the largest |entry| [m/N].
+    """
+    return {"source_key": source_key, "source_dtype": source_dtype, "max_abs_error": max_abs_error,
+            "max_rel_error": max_abs_error / max_abs if max_abs > 0 else 0.0}
+
+
 def convert_bundle(
     src: str | os.PathLike,
     out: str | os.PathLike,
@@ -728,8 +742,7 @@ def convert_bundle(
         key = gf.manifest["key"] if target == D.dtype else hashlib.sha256(
             f"{gf.manifest['key']}\0compliance dtype {name}".encode()).hexdigest()
     manifest["key"] = key
-    manifest["dtype_cast"] = {"source_key": gf.manifest["key"], "source_dtype": source, "max_abs_error": err,
-                              "max_rel_error": err / scale if scale > 0 else 0.0}
+    manifest["dtype_cast"] = dtype_cast_record(gf.manifest["key"], source, err, scale)
     arrays = {k: getattr(gf, k) for k in ARRAY_SPECS if k != "compliance"}
     arrays["compliance"] = cast
     return write_bundle(out, arrays, manifest)

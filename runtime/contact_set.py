@@ -117,7 +117,7 @@ class ContactSets:
         stats.capacitance_rebuilds += 1
         return ContactSet(key=key, W=W, K=K, G=G, cols=cols, DVV=DG, stones=stones, tris=tris, bary=bary,
                           normals=normals, X=X, rest=rest,
-                          patch_radius=np.asarray(radius, dtype=np.float64).copy(), verts=verts, weights=w,
+                          patch_radius=radius.copy(), verts=verts, weights=w,
                           Kdiag=np.diag(K).copy())
 
     def _hertz_secant(self, K: np.ndarray, W: np.ndarray, verts: np.ndarray, w: np.ndarray, X: np.ndarray,
