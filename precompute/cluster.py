@@ -5,7 +5,8 @@
 block to a callback (the block store writes it to disk). Where they run:
 
 * in this process (``client=None``, the default): one factorization, then the
-  blocks in order. Nothing to start, so this is the default for every mesh
+  blocks in order, each handed to the callback in a writer thread while the
+  next one is solved (the disk time overlaps the solves). Nothing to start, so this is the default for every mesh
   that one machine can do: a local Dask cluster costs seconds to start and a
   second factorization per extra process;
 * on a Dask cluster (:func:`cluster_client`: ``workers=N`` starts a
@@ -30,6 +31,7 @@ import os
 import threading
 import time
 import uuid
+from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator, Sequence
@@ -170,8 +172,10 @@ def solve_blocks(
         Which blocks to solve.
     on_block
         Called in this process as ``on_block(i, values)`` with block ``i``'s
-        (n_rows, stop - start) values, in completion order; an exception it
-        raises (a full disk) stops the run.
+        (n_rows, stop - start) values, in completion order, one call at a
+        time; an exception it raises (a full disk) stops the run. In this
+        process (``client=None``) it runs in a writer thread while the next
+        block is solved, so its error surfaces after that solve.
     client
         A ``distributed.Client`` (:func:`cluster_client`), or ``None``: here.
     key
@@ -191,22 +195,40 @@ def solve_blocks(
     if not todo:
         return stats
     if client is None:
-        t0 = time.perf_counter()
-        factor = problem.factor()
-        stats.factor_s = time.perf_counter() - t0
-        stats.factorizations = 1
+        return _solve_here(problem, blocks, todo, on_block, on_first, stats)
+    return _solve_on_cluster(problem, blocks, todo, on_block, client, key or uuid.uuid4().hex, on_first, stats)
+
+
+def _solve_here(problem, blocks, todo, on_block, on_first, stats: SolveStats) -> SolveStats:
+    # Write-behind: block k is handed to on_block (the store: cast, pwrite, fdatasync, SHA-256, all of
+    # which release the GIL) in a writer thread while block k + 1 is solved here, so the disk time
+    # (measured 15-25 % of the solve at 3 mm) overlaps the solves instead of adding to them. One
+    # write in flight at most: two blocks in memory (resources.BLOCKS_IN_MEMORY counts them). A
+    # write that fails is raised here when the next block is solved; an interruption waits for the
+    # write in flight, so every block handed over is on disk or reported.
+    t0 = time.perf_counter()
+    factor = problem.factor()
+    stats.factor_s = time.perf_counter() - t0
+    stats.factorizations = 1
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="hailstorm-writer") as writer:
+        pending = None
         for n, i in enumerate(todo):
             start, stop = blocks[i]
-            on_block(i, problem.solve(factor, start, stop))
+            values = problem.solve(factor, start, stop)
+            if pending is not None:
+                pending.result()  # the previous block is on disk, or its error is raised here
+            pending = writer.submit(on_block, i, values)
+            del values
             stats.blocks += 1
             stats.columns += stop - start
             if n == 0:
                 stats.first_block_s = time.perf_counter() - t0
                 if on_first is not None:
                     on_first(stats)
-        stats.solve_s = time.perf_counter() - t0
-        return stats
-    return _solve_on_cluster(problem, blocks, todo, on_block, client, key or uuid.uuid4().hex, on_first, stats)
+        if pending is not None:
+            pending.result()
+    stats.solve_s = time.perf_counter() - t0
+    return stats
 
 
 def _solve_on_cluster(problem, blocks, todo, on_block, client, key, on_first, stats: SolveStats) -> SolveStats:
