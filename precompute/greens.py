@@ -7,7 +7,10 @@ K_ff u = e_(j,d), read at the output dofs. Three solvers share one interface
 
 ``"cholmod"`` (default)
     Sparse Cholesky of K_ff (CHOLMOD through ``cholespy``, fill-reducing
-    ordering), right-hand sides solved in memory-bounded blocks.
+    ordering), right-hand sides solved in memory-bounded blocks. cholespy
+    builds a simplicial LLᵀ factor (METIS ordering), which CHOLMOD solves at
+    most four right-hand sides at a time, without BLAS: the time per column
+    does not depend on the block width past 4 (README, "Near the FLOP bound").
 ``"splu"``
     SciPy's SuperLU, one factorization, blocked solves. Portable fallback.
 ``"amg"``
@@ -29,8 +32,8 @@ from hailstorm.precompute.resources import DEFAULT_STORE_BYTES
 
 SOLVERS = ("cholmod", "splu", "amg")
 
-#: Right-hand sides per block: measured fastest per column for CHOLMOD's
-#: supernodal solve on the default seat (blocks of 8-32 stay in cache; 1 is
+#: Right-hand sides per triangular solve: measured fastest per column for cholespy's
+#: (simplicial) CHOLMOD solve on the default seat (blocks of 8-32 stay in cache; 1 is
 #: 2x slower, 1024 is 1.8x slower).
 DEFAULT_BLOCK_COLUMNS = 32
 
@@ -237,9 +240,13 @@ def cholesky_nnz(A: sp.spmatrix) -> int:
 
     CHOLMOD (through cholespy) does not report its factor, so this factors
     ``A`` once more with SuperLU in symmetric mode (minimum degree on
-    A + Aᵀ, no pivoting: L has the Cholesky pattern of that ordering). The
-    ordering differs from CHOLMOD's AMD, so this is a close proxy, not the
-    exact count. Costs about one factorization (0.8 s at 3 mm, measured).
+    A + Aᵀ, no pivoting: L has the Cholesky pattern of that ordering).
+    cholespy orders with METIS nested dissection (``CHOLMOD_NESDIS``), so
+    this is a close proxy, not the exact count: on the default seat at 3 mm
+    it gives 1 294 319, against the exact 1 312 708 of CHOLMOD with AMD
+    (simplicial), 1 435 443 (AMD, supernodal, with its padding) and
+    1 454 528 of MKL PARDISO with METIS (measured). Costs about one
+    factorization (0.8 s at 3 mm, measured).
     """
     from scipy.sparse.linalg import splu
 

@@ -20,11 +20,16 @@ splu       the same factorization, blocked right-hand sides
 cholmod    CHOLMOD sparse Cholesky (cholespy), fill-reducing ordering, blocks
 cholmod-N  the same on a local Dask cluster of N processes
 amg        pyamg smoothed aggregation + CG per column (tol 1e-8), optional
+pardiso    MKL PARDISO (pypardiso, not a project dependency: ``pip install pypardiso``),
+           supernodal LLᵀ, METIS ordering, no iterative refinement, blocks of 128
+           columns: the supernodal multi-right-hand-side floor (``MKL_NUM_THREADS``
+           decides its threads)
 
 ``dask`` and ``resume`` also print the FLOP bound of the triangular solves:
 4 nnz(L) per column at the machine's dense matrix-multiply rate (measured
 here, both cores) and the time to stream L twice per batch of right-hand
-sides at the measured memory bandwidth, against the solve time achieved.
+sides (4: cholespy's simplicial solve) at the measured memory bandwidth, against the
+solve time achieved. ``solvers --bound`` prints each method's time against the FLOP term.
 """
 
 from __future__ import annotations
@@ -80,11 +85,39 @@ def _baseline(K, fixed, load, read):
     return D
 
 
+def _pardiso(K, fixed, load, read, batch: int = 128):
+    """D by MKL PARDISO's supernodal Cholesky (SPD, mtype 2), ``batch`` right-hand sides per solve."""
+    import pypardiso
+    import scipy.sparse as sp
+
+    from hailstorm.precompute.greens import column_problem
+
+    problem = column_problem(K, fixed, load, read)
+    upper = sp.triu(problem.Kff, format="csr")
+    upper.sort_indices()
+    solver = pypardiso.PyPardisoSolver(mtype=2)
+    for i, v in ((1, 1), (2, 2), (8, 0), (18, -1), (19, -1)):  # own iparm, METIS, no refinement, report nnz(L)
+        solver.set_iparm(i, v)
+    solver.factorize(upper)
+    print(f"pardiso: nnz(L) {solver.iparm[17]:,}", file=sys.stderr)
+    n_rows, ncols = problem.shape
+    live = np.flatnonzero(problem.read_pos >= 0)
+    D = np.zeros((n_rows, ncols), order="F")
+    for s in range(0, ncols, batch):
+        e = min(ncols, s + batch)
+        rhs = np.zeros((upper.shape[0], e - s), order="F")
+        rhs[problem.load_pos[s:e], np.arange(e - s)] = 1.0
+        D[live, s:e] = solver.solve(upper, rhs)[problem.read_pos[live]]
+    return D
+
+
 def _one(method: str, mesh_size: float, order: int, queue) -> None:
     basis, K, fixed, load, read = _setup(mesh_size, order)
     t0 = time.perf_counter()
     if method == "baseline":
         D = _baseline(K, fixed, load, read)
+    elif method == "pardiso":
+        D = _pardiso(K, fixed, load, read)
     else:
         from hailstorm.precompute.greens import compliance_matrix
         from hailstorm.precompute.pipeline import _rigid_modes_on_dofs
@@ -134,6 +167,17 @@ def solvers(args) -> None:
         D = np.load(os.path.join(tmp, f"hailstorm-bench-D-{method}.npy"))
         diff = np.linalg.norm(D - ref) / np.linalg.norm(ref)
         print(f"{method:10s} {_mmm(t)} {base / statistics.median(t):8.1f}x {mem:9.0f} {diff:10.1e}")
+    if args.bound:
+        from hailstorm.precompute.greens import cholesky_nnz, column_problem
+
+        gflops, _ = _machine_rates()
+        _, K, fixed, load, read = _setup(args.mesh_size, args.order)
+        nnz = cholesky_nnz(column_problem(K, fixed, load, read).Kff)
+        t_flop = 4.0 * nnz * shape[1] / (gflops * 1e9)
+        print(f"FLOP bound: nnz(L) {nnz:,} (proxy), 4 nnz(L) per column at the dense multiply rate "
+              f"{gflops:.1f} GFLOP/s = {t_flop:.2f} s; median time (factorization included) / bound: "
+              + ", ".join(f"{m} {statistics.median(r[0] for r in results[m]) / t_flop:.1f}x" for m in methods)
+              + f"; load average {_load()}")
 
 
 # --------------------------------------------------------------------------- the CLI end to end
@@ -174,7 +218,9 @@ def _timed(f) -> float:
     return time.perf_counter() - t
 
 
-def _bound(stats: dict, gflops: float, bandwidth: float, batch: int = 32) -> str:
+def _bound(stats: dict, gflops: float, bandwidth: float, batch: int = 4) -> str:
+    # batch: right-hand sides per pass over L. cholespy's factor is simplicial (it sets
+    # CHOLMOD_SIMPLICIAL): CHOLMOD solves those at most 4 at a time, whatever the block width.
     if "nnz_L" not in stats:
         return ""
     cols = stats["columns_solved"]
@@ -283,6 +329,8 @@ def main() -> None:
         if name == "solvers":
             p.add_argument("--order", type=int, default=1)
             p.add_argument("--methods", default="baseline,cholmod")
+            p.add_argument("--bound", action="store_true",
+                           help="also print each method's time against the FLOP bound of its triangular solves")
         if name == "dask":
             p.add_argument("--configs", default="serial,workers-1,workers-2")
     args = ap.parse_args()
