@@ -19,17 +19,18 @@ of a sub-step (closest points, time of impact, contacts that open, hard walls:
 
 from __future__ import annotations
 
-from typing import Any
 
 import numpy as np
 
 from hailstorm.runtime.compiled import SampleGrid, flight, free_phase, near_set, penetration, retired
 from hailstorm.runtime.compiled.grid import surface_arrays
+from hailstorm.runtime.contact import policy
 from hailstorm.runtime.hail import GRAVITY, Air
 from hailstorm.runtime.recording import StormStats
 from hailstorm.runtime.scene import Scene
 from hailstorm.runtime.seat import SeatState
 from hailstorm.runtime.stones import Stones
+from hailstorm.runtime.contact.compliance import ComplianceSource
 
 __all__ = ["Collision", "SurfaceIndex"]
 
@@ -94,7 +95,7 @@ class Collision:
 
     Parameters
     ----------
-    gf : GreensFunctions
+    gf : ComplianceSource
         The bundle's surface (vertices, triangles, ``contactable``, ``fixed``).
     scene : Scene
         ``time.adaptive`` (time of impact), ``time.dt`` / ``time.max_substeps``
@@ -106,7 +107,7 @@ class Collision:
     #: the gap within which a contact opens [radii]
     TOI_TOL = 0.01
 
-    def __init__(self, gf: Any, scene: Scene, air: Air) -> None:
+    def __init__(self, gf: ComplianceSource, scene: Scene, air: Air) -> None:
         self.index = SurfaceIndex(gf.vertices, gf.triangles)
         tri = np.asarray(gf.triangles)
         fixed = np.asarray(gf.fixed)
@@ -115,6 +116,8 @@ class Collision:
         self.soft = has_col[tri].all(axis=1) & ~fixed[tri].all(axis=1)
         #: clamped vertices, as the kernels take them
         self.fixed = np.ascontiguousarray(gf.fixed, dtype=bool)
+        #: a triangle corner or edge carrying at most this weight on free vertices is a hard wall
+        self.rigid_weight = float(policy.RIGID_WEIGHT)
         self.lo, self.hi = self.index.bbox
         self.air = air
         self.toi = bool(scene.time.adaptive)
@@ -145,7 +148,7 @@ class Collision:
         h, walls = free_phase(
             near, h, self.toi, self.TOI_TOL, self.hmin, stones.pos, stones.vel, stones.radius, stones.ctri,
             stones.cbary, stones.gap, stones.near_tri, self.surface, self.index.normals, self.soft, self.fixed,
-            seat.umax, use_u, seat.D, cols, forces, GRAVITY, self.air.wind, self.air.drag_coef, self.restitution)
+            self.rigid_weight, seat.umax, use_u, seat.D, cols, forces, GRAVITY, self.air.wind, self.air.drag_coef, self.restitution)
         stats.wall_contacts += int(walls)
         return float(h)
 

@@ -19,7 +19,6 @@ Hertz's depth on the 0.35 mm block; now 0.91, the mesh's own stiffness).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
 import numpy as np
 
@@ -29,6 +28,7 @@ from hailstorm.runtime.compiled import capacitance_blocks, inv_spd, rigid_contac
 from hailstorm.runtime.patches import Patches
 from hailstorm.runtime.recording import StormStats
 from hailstorm.runtime.seat import SeatState
+from hailstorm.runtime.contact.compliance import ElasticSource
 
 __all__ = ["ContactSet", "ContactSets"]
 
@@ -63,7 +63,7 @@ class ContactSets:
 
     Parameters
     ----------
-    gf : GreensFunctions
+    gf : ElasticSource
         The bundle's surface.
     sticky : bool
         Three multipliers per contact (``mode = "sticky"``), else one (frictionless).
@@ -77,7 +77,7 @@ class ContactSets:
         The patch weights (cached per stone).
     """
 
-    def __init__(self, gf: Any, sticky: bool, seat: SeatState, normals: np.ndarray, fixed: np.ndarray,
+    def __init__(self, gf: ElasticSource, sticky: bool, seat: SeatState, normals: np.ndarray, fixed: np.ndarray,
                  patches: Patches) -> None:
         self.triangles = np.asarray(gf.triangles)
         self.young, self.poisson = float(gf.young), float(gf.poisson)
@@ -100,7 +100,7 @@ class ContactSets:
         else:
             verts, w = self.patches.weights(stones, tris, bary, radius, normals, stats)
         verts = verts.astype(np.int64, copy=False)
-        if rigid_contacts(verts, w, self.fixed):
+        if rigid_contacts(verts, w, self.fixed, float(policy.RIGID_WEIGHT)):
             raise RuntimeError("rigid contacts must be filtered before the capacitance")  # pragma: no cover
         V, W, G, cols, DG = capacitance_blocks(verts, w, normals, self.sticky, self.seat.D, self.seat.column_of)
         K = inv_spd(W, float(policy.COND_LIMIT), float(policy.PINV_RCOND))  # spd_inverse's policy
@@ -141,5 +141,6 @@ class ContactSets:
         verts = self.triangles[[t]].astype(np.int64)
         w = np.full((1, 3), 1.0 / 3.0)
         n = self.normals[[t]]
-        rigid_contacts(verts, w, self.fixed)
-        inv_spd(capacitance_blocks(verts, w, n, self.sticky, self.seat.D, self.seat.column_of)[1], 1e10, 1e-10)
+        rigid_contacts(verts, w, self.fixed, float(policy.RIGID_WEIGHT))
+        inv_spd(capacitance_blocks(verts, w, n, self.sticky, self.seat.D, self.seat.column_of)[1],
+                float(policy.COND_LIMIT), float(policy.PINV_RCOND))

@@ -29,11 +29,12 @@ no offset); the storm's patch contacts use the same function.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
-from hailstorm.runtime.contact import ComplianceSource, ContactSolution, solve_contacts
+from hailstorm.runtime.contact import ContactSolution, solve_contacts
+from hailstorm.runtime.contact.compliance import ElasticSource
 from hailstorm.runtime.contact.weights import (
     contact_points,
     hertz_radius,
@@ -72,16 +73,6 @@ class SphereContacts:
     patch_radius: np.ndarray
     normal_force: np.ndarray
     iterations: int
-
-
-class ElasticSource(ComplianceSource, Protocol):
-    """A :class:`~hailstorm.runtime.contact.ComplianceSource` that knows its material."""
-
-    @property
-    def young(self) -> float: ...
-
-    @property
-    def poisson(self) -> float: ...
 
 
 def press_spheres(

@@ -12,7 +12,7 @@ stones, stiffness and forces, and the statistics. The weights themselves are
 
 from __future__ import annotations
 
-from typing import Any, cast
+from typing import cast
 
 import numpy as np
 
@@ -23,6 +23,7 @@ from hailstorm.runtime.scene import ContactSettings, TimeSettings
 from hailstorm.runtime.seat import SeatState
 from hailstorm.runtime.stones import Stones
 from hailstorm.runtime.contact.weights import PATCH_DROP, PATCH_FACING, disc_table, triangle_index
+from hailstorm.runtime.contact.compliance import ElasticSource
 
 __all__ = ["Patches"]
 
@@ -35,7 +36,7 @@ class Patches:
 
     Parameters
     ----------
-    gf : GreensFunctions
+    gf : ElasticSource
         The bundle: surface, material (``young``, ``poisson``).
     contact : ContactSettings
         ``mode``, ``patch``, ``patch_min_radius``, ``patch_tolerance``.
@@ -50,7 +51,7 @@ class Patches:
     air : Air
     """
 
-    def __init__(self, gf: Any, contact: ContactSettings, time: TimeSettings, seat: SeatState, normals: np.ndarray, soft: np.ndarray,
+    def __init__(self, gf: ElasticSource, contact: ContactSettings, time: TimeSettings, seat: SeatState, normals: np.ndarray, soft: np.ndarray,
                  air: Air) -> None:
         self.triangles = np.asarray(gf.triangles)
         self.X = np.asarray(gf.vertices, dtype=np.float64)

@@ -11,9 +11,10 @@ the previous frame (an impact lasts about a millisecond, much less than a frame)
 
 from __future__ import annotations
 
-from typing import Any, Protocol
+from typing import Protocol
 
 import numpy as np
+from hailstorm.runtime.contact.compliance import ComplianceSource
 
 __all__ = ["LoadedSet", "SeatState"]
 
@@ -32,13 +33,13 @@ class SeatState:
 
     Parameters
     ----------
-    gf : GreensFunctions
+    gf : ComplianceSource
         The bundle: ``D`` (a column-major copy is held when D is a row-major
         memmap of at most 1 GiB: column gathers from a row-major file read all of
         it), ``column_of``, the vertex count.
     """
 
-    def __init__(self, gf: Any) -> None:
+    def __init__(self, gf: ComplianceSource) -> None:
         D = gf.D
         if isinstance(D, np.memmap) and not D.flags.f_contiguous and D.nbytes <= (1 << 30):
             # column gathers D[:, cols] from a row-major memmap read the whole file each time:

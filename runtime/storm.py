@@ -134,12 +134,13 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from typing import Any, Callable
+from typing import Callable
 
 import numpy as np
 
 from hailstorm.runtime.collide import Collision, SurfaceIndex
 from hailstorm.runtime.compiled import KERNELS
+from hailstorm.runtime.contact.compliance import ElasticSource
 from hailstorm.runtime.contact_set import ContactSet, ContactSets
 from hailstorm.runtime.hail import GRAVITY, Air
 from hailstorm.runtime.integrators import ContactIntegrator
@@ -197,7 +198,7 @@ class Storm:
 
     Parameters
     ----------
-    gf : GreensFunctions
+    gf : ElasticSource
         The bundle (:func:`hailstorm.runtime.bundle.load`).
     scene : Scene
     spawn : bool
@@ -215,7 +216,7 @@ class Storm:
         Simulated time [s].
     """
 
-    def __init__(self, gf: Any, scene: Scene, *, spawn: bool = True) -> None:
+    def __init__(self, gf: ElasticSource, scene: Scene, *, spawn: bool = True) -> None:
         self.gf = gf
         self.scene = scene
         hail, contact = scene.hail, scene.contact
@@ -390,7 +391,7 @@ for _name in ("pos", "vel", "radius", "mass", "alive", "ctri", "cbary", "gap", "
 
 
 def run_storm(
-    gf: Any,
+    gf: ElasticSource,
     scene: Scene | None = None,
     *,
     progress: bool | Callable[[float, float], None] = True,
@@ -402,7 +403,7 @@ def run_storm(
 
     Parameters
     ----------
-    gf : GreensFunctions
+    gf : ElasticSource
         The bundle (:func:`hailstorm.runtime.bundle.load`).
     scene : Scene, optional
         Default: :meth:`Scene.default`.

@@ -22,15 +22,16 @@ __all__ = ["capacitance_blocks", "contact_post", "contact_prep", "inv_spd", "rig
 
 
 @_njit
-def rigid_contacts(verts, w, fixed):  # pragma: no cover (compiled)
-    """True if some contact's weight lies entirely on clamped vertices
+def rigid_contacts(verts, w, fixed, rigid_weight):  # pragma: no cover (compiled)
+    """True if some contact's weight lies entirely on clamped vertices: at most
+    ``rigid_weight`` (:data:`hailstorm.runtime.contact.policy.RIGID_WEIGHT`) on free ones
     (``hailstorm.runtime.contact.policy.is_rigid``, any)."""
     for k in range(verts.shape[0]):
         free_w = 0.0
         for p in range(verts.shape[1]):
             if not fixed[verts[k, p]]:
                 free_w += abs(w[k, p])
-        if free_w <= 1e-12:
+        if free_w <= rigid_weight:
             return True
     return False
 

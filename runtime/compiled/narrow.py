@@ -29,7 +29,7 @@ def _unit(x, out):  # pragma: no cover (compiled)
 
 @_njit
 def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, ctri, cbary, gap, near_tri, surf, tri_normals,
-               soft, fixed, umax, use_u, D, fcols, fv, g, wind, drag_coef, restitution):  # pragma: no cover
+               soft, fixed, rigid_weight, umax, use_u, D, fcols, fv, g, wind, drag_coef, restitution):  # pragma: no cover
     """The first phases of one storm sub-step for the near stones, in place: closest
     points, time of impact, contacts that open, hard walls.
 
@@ -39,7 +39,8 @@ def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, ctri, cbary, gap, 
     approaching stone reaches the tangent plane at its closest point; contacts open
     within ``toi_tol`` radii (approaching or overlapping), the stone put on the
     surface; contacts on hard triangles (or on the clamped edge or corner of a soft
-    one) bounce at once.
+    one: at most ``rigid_weight`` of the closest point's barycentric weight on free
+    vertices, :data:`hailstorm.runtime.contact.policy.RIGID_WEIGHT`) bounce at once.
 
     Returns
     -------
@@ -169,7 +170,7 @@ def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, ctri, cbary, gap, 
             for m in range(3):
                 if not fixed[T[t, m]]:
                     free_w += cbary[i, m]
-            if free_w > 1e-12:
+            if free_w > rigid_weight:
                 continue
         for e in range(3):
             dvec[e] = pos[i, e] - point[j, e]

@@ -8,6 +8,7 @@ array (:func:`kernel_columns`), which is free for the column-major D that
 bundles hold.
 
 * :class:`ComplianceSource` -- what the contact core reads of a bundle;
+* :class:`ElasticSource` -- that and the contact surface's material (Hertz-sized patches, the storm);
 * :func:`dof3` -- vertex-major x, y, z dof indices of vertices;
 * :func:`column_dofs` -- column dofs of D for surface vertices (-1 at clamped ones);
 * :func:`gather` -- ``D[rows, cols]`` with zero clamped columns;
@@ -28,6 +29,7 @@ from hailstorm.runtime.compiled import blocks as kernels
 __all__ = [
     "GATHER_BLOCK",
     "ComplianceSource",
+    "ElasticSource",
     "apply_columns",
     "column_dofs",
     "dof3",
@@ -81,6 +83,26 @@ class ComplianceSource(Protocol):
 
     @property
     def triangles(self) -> np.ndarray: ...
+
+
+class ElasticSource(ComplianceSource, Protocol):
+    """A :class:`ComplianceSource` that also knows the material under its contact surface.
+
+    What Hertz-sized patches (:func:`hailstorm.runtime.hertz.press_spheres`) and the
+    storm's parts read; :class:`hailstorm.runtime.bundle.GreensFunctions` is one.
+
+    Attributes
+    ----------
+    young, poisson : float
+        Young's modulus [Pa] and Poisson's ratio of the material under the
+        contactable surface (the stones' contact stiffness follows from them).
+    """
+
+    @property
+    def young(self) -> float: ...
+
+    @property
+    def poisson(self) -> float: ...
 
 
 def dof3(idx: np.ndarray) -> np.ndarray:
