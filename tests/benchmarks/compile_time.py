@@ -127,6 +127,13 @@ def main() -> None:
     print(f"{len(own)} compiles of {len(top)} kernels; total compile time {total:.2f} s")
     multi = {k: v for k, v in spec.items() if v > 1}
     print("kernels with more than one type specialisation:", multi or "none")
+    rep = st.warm_report
+    print(f"warm-up: {rep.wall:.2f} s wall; helpers: {rep.helpers or 'none'}"
+          f"{' (failed)' if rep.helper_failed else ''}; per task, this process (wall / CPU s; "
+          "the estimates in Storm.warm_tasks are the CPU with HAILSTORM_COMPILE_WORKERS=1):")
+    for task in st.warm_tasks():
+        if task.name in rep.times:
+            print(f"  {rep.times[task.name]:7.2f} / {rep.cpu[task.name]:6.2f}  {task.name} (estimate {task.seconds:.0f} s)")
 
 
 if __name__ == "__main__":
