@@ -177,6 +177,8 @@ class Storm:
     collision : Collision
     contacts : SoftContacts
     stats : StormStats
+    warm_report : WarmReport or None
+        What the kernels' warm-up did (None with ``warm=False``).
     t : float
         Simulated time [s].
     """
@@ -260,7 +262,7 @@ class Storm:
         """The kernels the loop calls, in tasks that load (or compile) them with the loop's
         argument types; only those of this scene (integrator, patch model). Each task's
         ``seconds`` is its cold compile CPU in a fresh process, measured with
-        ``tests/benchmarks/compile_time.py --tasks`` (more on a loaded machine)."""
+        ``HAILSTORM_COMPILE_WORKERS=1 tests/benchmarks/compile_time.py`` (more on a loaded machine)."""
         sc, stones, col = self.scene.time, self.stones, self.collision
         dt = float(sc.dt)
         soft = np.flatnonzero(col.soft)

@@ -57,7 +57,7 @@ class WarmTask:
         What they are, for the announcement (``"the narrow-phase kernels"``).
     seconds : float
         CPU seconds their first compile takes in a fresh process (measured with
-        ``tests/benchmarks/compile_time.py --tasks``); plans the split and is announced.
+        ``HAILSTORM_COMPILE_WORKERS=1 tests/benchmarks/compile_time.py``); plans the split and is announced.
     run : callable
         Calls the kernels with the storm loop's argument types.
     """
