@@ -171,10 +171,19 @@ class Collision:
 
     def warm_up(self, stones: Stones, seat: SeatState, dt: float) -> None:
         """Load (or compile) the kernels with the storm loop's argument types."""
+        self.warm_up_flight(stones, dt)
+        self.warm_up_narrow(stones, seat, dt)
+
+    def warm_up_flight(self, stones: Stones, dt: float) -> None:
+        """Load (or compile) free flight, retirement and the broad phase (the loop's argument types)."""
         none = np.zeros(0, dtype=np.intp)
-        stats = StormStats()
         self.fly(stones, none, 0.0)
         self.retired(stones, none)
         self.near_set(stones, none, dt, 0.0)
+
+    def warm_up_narrow(self, stones: Stones, seat: SeatState, dt: float) -> None:
+        """Load (or compile) the narrow phase and the penetration statistics (the loop's argument types)."""
+        none = np.zeros(0, dtype=np.intp)
+        stats = StormStats()
         self.free_phase(stones, none, dt, seat, stats)
         self.penetration(stones, none, dt, seat, stats)

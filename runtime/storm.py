@@ -132,9 +132,8 @@ Python, for debugging.
 from __future__ import annotations
 
 import logging
-import threading
 import time
-from typing import Callable
+from typing import Any, Callable
 
 import numpy as np
 
@@ -150,48 +149,12 @@ from hailstorm.runtime.scene import Scene, SceneError
 from hailstorm.runtime.seat import SeatState
 from hailstorm.runtime.soft_contacts import SoftContacts
 from hailstorm.runtime.stones import SpawnPlan, Stones
+from hailstorm.runtime.warmup import HelperSpec, WarmReport, WarmTask, warm_up
 
-__all__ = ["Frame", "Scene", "SceneError", "Storm", "StormResult", "StormStats", "run_storm"]
+__all__ = ["Frame", "Scene", "SceneError", "Storm", "StormResult", "StormStats", "run_storm", "warm_up_worker"]
 
 _log = logging.getLogger(__name__)
 
-
-#: seconds after which a kernel group still loading is announced as compiling
-#: (loading a group from numba's on-disk cache takes milliseconds)
-COMPILE_NOTICE_DELAY = 2.0
-
-
-class _CompileNotice:
-    """Announces a first compile: :meth:`stage` names the kernels being loaded next
-    and roughly how long compiling them takes; if loading them has not finished
-    after :data:`COMPILE_NOTICE_DELAY` seconds, numba is compiling and one INFO
-    line says so."""
-
-    def __init__(self, stages: int) -> None:
-        self._timer: threading.Timer | None = None
-        self._t0 = time.perf_counter()
-        self.times: dict[str, float] = {}
-        self._what = ""
-        self._stages = stages
-        self._stage = 0
-
-    def stage(self, what: str, seconds: float) -> None:
-        """The kernels loaded next and the CPU seconds their first compile takes (measured
-        with ``tests/benchmarks/compile_time.py``; more on a loaded machine)."""
-        self.done()
-        self._stage += 1
-        self._what, self._t0 = what, time.perf_counter()
-        self._timer = threading.Timer(COMPILE_NOTICE_DELAY, _log.info, args=(
-            "compiling %s [%d/%d] (numba, once after an install: about %.0f s)...", what, self._stage,
-            self._stages, seconds))
-        self._timer.daemon = True
-        self._timer.start()
-
-    def done(self) -> None:
-        if self._timer is not None:
-            self._timer.cancel()
-            self.times[self._what] = time.perf_counter() - self._t0
-            self._timer = None
 
 class Storm:
     """A running storm (stateful): the parts composed; :func:`run_storm` drives one from start to end.
@@ -204,6 +167,9 @@ class Storm:
     spawn : bool
         Spawn the scene's random stones (``False``: only stones added with
         :meth:`add_stones`, e.g. for a single drop).
+    warm : bool
+        Load (or, the first time, compile) the kernels now (:meth:`warm_up`);
+        ``False``: later, e.g. on first use.
 
     Attributes
     ----------
@@ -212,11 +178,13 @@ class Storm:
     collision : Collision
     contacts : SoftContacts
     stats : StormStats
+    warm_report : WarmReport or None
+        What the kernels' warm-up did (None with ``warm=False``).
     t : float
         Simulated time [s].
     """
 
-    def __init__(self, gf: ElasticSource, scene: Scene, *, spawn: bool = True) -> None:
+    def __init__(self, gf: ElasticSource, scene: Scene, *, spawn: bool = True, warm: bool = True) -> None:
         self.gf = gf
         self.scene = scene
         hail, contact = scene.hail, scene.contact
@@ -234,7 +202,7 @@ class Storm:
         self.t = 0.0
         self.plan = SpawnPlan(scene.storm, hail, self.collision.lo, self.collision.hi,
                               np.random.default_rng(scene.storm.seed)) if spawn else SpawnPlan.empty()
-        self._warm_up()
+        self.warm_report: WarmReport | None = self.warm_up() if warm else None
 
     def step(self) -> None:
         """Advance the storm by one step ``dt``."""
@@ -291,29 +259,56 @@ class Storm:
         self.stats.substeps += 1
         return h
 
-    def _warm_up(self) -> None:
+    def warm_tasks(self) -> list[WarmTask]:
+        """The kernels the loop calls, in tasks that load (or compile) them with the loop's
+        argument types; only those of this scene (integrator, patch model). Each task's
+        ``seconds`` is its cold compile CPU in a fresh process, measured with
+        ``HAILSTORM_COMPILE_WORKERS=1 tests/benchmarks/compile_time.py`` (more on a loaded machine)."""
+        sc, stones, col = self.scene.time, self.stones, self.collision
+        dt = float(sc.dt)
+        soft = np.flatnonzero(col.soft)
+        t = int(soft[0]) if soft.size else -1
+        third = np.full((1, 3), 1.0 / 3.0)
+        exact = sc.integrator == "exact"
+        tasks = [
+            WarmTask("the free-flight and broad-phase kernels", 4, lambda: col.warm_up_flight(stones, dt)),
+            WarmTask("the narrow-phase kernels", 11, lambda: col.warm_up_narrow(stones, self.seat, dt)),
+            WarmTask("the contact-step kernels", 3, lambda: self.contacts.warm_up(stones)),
+            WarmTask(f"the {sc.integrator} integrator's kernels", 45 if exact else 16,
+                     lambda: self.integrator.warm_up(stones, self._k_tri(), self.g, dt)),
+        ]
+        if t >= 0:
+            tasks.insert(2, WarmTask("the contact-set kernels", 11, lambda: self.contacts.sets.warm_up(t)))
+            tasks.insert(3, WarmTask("the patch kernels" if self.patches.enabled else "the patch-compliance kernel",
+                                     11 if self.patches.enabled else 1,
+                                     lambda: self.patches.warm_up(t, third, col.index.normals[[t]], stones)))
+        return tasks
+
+    def warm_up(self, names: list[str] | None = None) -> WarmReport:
         """Load (or compile, the first time after an install) every kernel the loop calls,
-        with the loop's argument types, so that the stepping itself runs compiled code
-        from its first step (loading takes ~0.3 s; compiling takes a while, once: numba
-        caches the machine code on disk). Each group of kernels that compiles says so in
-        one INFO line (:class:`_CompileNotice`)."""
-        sc, stones = self.scene.time, self.stones
-        t0 = time.perf_counter()
-        notice = _CompileNotice(3)
-        notice.stage("the storm's free-flight, broad- and narrow-phase kernels", 13)
-        self.collision.warm_up(stones, self.seat, float(sc.dt))
-        notice.stage("the storm's contact-set kernels", 20 if self.patches.enabled else 12)
-        soft = np.flatnonzero(self.collision.soft)
-        if soft.size:
-            t = int(soft[0])
-            self.contacts.sets.warm_up(t)
-            self.patches.warm_up(t, np.full((1, 3), 1.0 / 3.0), self.collision.index.normals[[t]], stones)
-        notice.stage(f"the {sc.integrator} integrator's kernels", 45 if sc.integrator == "exact" else 15)
-        self.contacts.warm_up(stones)
-        self.integrator.warm_up(stones, self._k_tri(), self.g, float(sc.dt))
-        notice.done()
-        _log.debug("storm kernels ready in %.2f s (%s)", time.perf_counter() - t0,
-                   ", ".join(f"{k}: {v:.2f} s" for k, v in notice.times.items()))
+        with the loop's argument types, so that the stepping runs compiled code from its
+        first step (loading takes ~0.3 s; compiling takes a while, once: numba caches the
+        machine code on disk). A task that compiles says so in one INFO line; when one
+        does, a helper process compiles part of the tasks in parallel
+        (:func:`hailstorm.runtime.warmup.warm_up`; the helper rebuilds this storm from the
+        bundle's directory, :func:`warm_up_worker`).
+
+        Parameters
+        ----------
+        names : list of str, optional
+            Only these tasks (:meth:`warm_tasks` names), all here (a helper's part).
+        """
+        tasks = self.warm_tasks()
+        if names is not None:
+            tasks = [task for task in tasks if task.name in names]
+        helper = None if names is not None else _helper_spec(self.gf, self.scene)
+        report = warm_up(tasks, helper) if helper is not None else warm_up(tasks, None, workers=1)
+        if report.compiled:
+            _log.info("storm kernels compiled in %.1f s (%s); later runs load them", report.wall,
+                      f"{len(report.helpers) + 1} processes" if report.helpers else "1 process")
+        _log.debug("storm kernels ready in %.2f s (%s)", report.wall,
+                   ", ".join(f"{k}: {v:.2f} s" for k, v in report.times.items()))
+        return report
 
     # -- the public face (stones, seat, contacts) -----------------------------------
     def add_stones(self, pos: np.ndarray, vel: np.ndarray, radius: np.ndarray) -> np.ndarray:
@@ -388,6 +383,52 @@ def _stone_array(name: str) -> property:
 
 for _name in ("pos", "vel", "radius", "mass", "alive", "ctri", "cbary", "gap", "hit", "near_tri", "crad", "budget"):
     setattr(Storm, _name, _stone_array(_name))
+
+
+def _array_kinds(gf: Any) -> list[tuple]:
+    """What the kernels' argument types depend on in a bundle's arrays (dtype, layout, writeable, class)."""
+    out = []
+    for name in ("D", "vertices", "triangles", "fixed", "contactable", "areas", "column_of"):
+        a = getattr(gf, name)
+        out.append((name, a.dtype.str, a.ndim, bool(a.flags.c_contiguous), bool(a.flags.f_contiguous),
+                    bool(a.flags.writeable), type(a).__name__))
+    return out
+
+
+def _helper_spec(gf: Any, scene: Scene) -> HelperSpec | None:
+    """How a compile helper rebuilds this storm: from the bundle's directory (None if ``gf`` is
+    not a bundle on disk, e.g. built in memory)."""
+    from hailstorm.runtime.bundle import is_bundle
+
+    path = getattr(gf, "path", None)
+    if path is None or not is_bundle(path):
+        return None
+    try:
+        kinds = _array_kinds(gf)
+    except AttributeError:
+        return None
+    return HelperSpec("hailstorm.runtime.storm:warm_up_worker",
+                      {"bundle": str(path), "mmap": isinstance(gf.D, np.memmap), "kinds": kinds,
+                       "scene": scene.to_dict()})
+
+
+def warm_up_worker(payload: dict[str, Any], names: list[str]) -> None:
+    """A compile helper's body (:mod:`hailstorm.runtime.warmup`): rebuild the storm of
+    ``payload`` (bundle directory, memory-mapped or not, the scene's dict) and warm up
+    the tasks ``names``.
+
+    Raises
+    ------
+    RuntimeError
+        The bundle's arrays differ in type or layout from the caller's (the kernels
+        would get other argument types).
+    """
+    from hailstorm.runtime.bundle import load
+
+    gf = load(payload["bundle"], verify=False, mmap=bool(payload["mmap"]))
+    if [list(k) for k in _array_kinds(gf)] != [list(k) for k in payload["kinds"]]:
+        raise RuntimeError("the bundle's arrays differ from the caller's")
+    Storm(gf, Scene.from_dict(payload["scene"]), spawn=False, warm=False).warm_up(names)
 
 
 def run_storm(

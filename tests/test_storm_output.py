@@ -200,21 +200,19 @@ def test_physical_warnings(gf, caplog):
 
 
 @pytest.mark.parametrize("integrator", ["implicit", "exact", "symplectic"])
-def test_every_kernel_group_announces_its_compile(gf, caplog, monkeypatch, integrator):
-    """Each group of storm kernels that is still loading after the notice delay says so
-    in one INFO line (delay 0 here: every group is announced, whether it compiles or
-    loads from numba's cache)."""
-    pytest.importorskip("numba")
+def test_the_warm_up_covers_the_scenes_kernels_in_announced_tasks(gf, integrator):
+    """The storm warms up its kernels in tasks (each announced when it compiles, with
+    its measured seconds: hailstorm.runtime.warmup; tests/test_warmup.py): those of the
+    scene's integrator and contact model only, and all of them run."""
     import hailstorm.runtime.storm as storm_mod
 
-    monkeypatch.setattr(storm_mod, "COMPILE_NOTICE_DELAY", 0.0)
-    with caplog.at_level(logging.INFO, logger="hailstorm.runtime.storm"):
-        storm_mod.Storm(gf, _scene(integrator=integrator))
-        import time
-
-        time.sleep(0.2)  # the notices come from timer threads
-    lines = [r.getMessage() for r in caplog.records if r.getMessage().startswith("compiling")]
-    assert any("free-flight" in m for m in lines) and any("narrow-phase" in m for m in lines)
-    assert any("contact-set" in m for m in lines)
-    assert any(f"the {integrator} integrator" in m for m in lines)
-    assert all("about" in m and " s)" in m for m in lines)
+    st = storm_mod.Storm(gf, _scene(integrator=integrator))
+    names = [t.name for t in st.warm_tasks()]
+    assert any("free-flight" in m for m in names) and any("narrow-phase" in m for m in names)
+    assert any("contact-set" in m for m in names) and any("the patch kernels" == m for m in names)
+    assert [m for m in names if "integrator" in m] == [f"the {integrator} integrator's kernels"]
+    assert all(t.seconds > 0 for t in st.warm_tasks())
+    assert list(st.warm_report.times) and set(st.warm_report.times) == set(names)
+    point = storm_mod.Storm(gf, _scene(integrator=integrator, patch="none"), warm=False)
+    assert point.warm_report is None
+    assert "the patch-compliance kernel" in [t.name for t in point.warm_tasks()]

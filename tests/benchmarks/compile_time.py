@@ -3,14 +3,21 @@
 Usage (a clean cache: an empty NUMBA_CACHE_DIR, and no *.nbi / *.nbc beside the modules)::
 
     find runtime -name '*.nbi' -delete -o -name '*.nbc' -delete
-    NUMBA_CACHE_DIR=$(mktemp -d) python tests/benchmarks/compile_time.py [--gf DIR] [--integrator exact]
+    NUMBA_CACHE_DIR=$(mktemp -d) HAILSTORM_COMPILE_WORKERS=1 python tests/benchmarks/compile_time.py [--gf DIR] [--integrator exact]
 
 Builds the storm of the default scene (or with ``--integrator`` / ``--patch``
 changed) and runs a few steps; prints, for every kernel numba compiled, its
 compile time (a kernel's own compile includes the kernels it calls that were not
 compiled before it), the number of type specialisations each kernel ended with
 (more than one: a second compile of the same kernel), the total, and the storm's
-own per-group timing (the groups that :class:`hailstorm.runtime.storm` announces).
+own per-task timing (the tasks that :mod:`hailstorm.runtime.warmup` announces; wall and
+this process's CPU).
+
+Only this process's compiles are listed: with a compile helper (two usable CPUs, the
+default) the helper's part is compiled in another process and only loaded here. For
+the per-kernel figures and the tasks' ``seconds`` estimates (``Storm.warm_tasks``),
+run with ``HAILSTORM_COMPILE_WORKERS=1``; for the parallel figure, time the whole
+command (``/usr/bin/time``: the helper's CPU is counted in the children's).
 """
 
 from __future__ import annotations
@@ -127,6 +134,13 @@ def main() -> None:
     print(f"{len(own)} compiles of {len(top)} kernels; total compile time {total:.2f} s")
     multi = {k: v for k, v in spec.items() if v > 1}
     print("kernels with more than one type specialisation:", multi or "none")
+    rep = st.warm_report
+    print(f"warm-up: {rep.wall:.2f} s wall; helpers: {rep.helpers or 'none'}"
+          f"{' (failed)' if rep.helper_failed else ''}; per task, this process (wall / CPU s; "
+          "the estimates in Storm.warm_tasks are the CPU with HAILSTORM_COMPILE_WORKERS=1):")
+    for task in st.warm_tasks():
+        if task.name in rep.times:
+            print(f"  {rep.times[task.name]:7.2f} / {rep.cpu[task.name]:6.2f}  {task.name} (estimate {task.seconds:.0f} s)")
 
 
 if __name__ == "__main__":
