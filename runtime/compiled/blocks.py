@@ -24,7 +24,11 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
+from llvmlite import ir
+from numba.core import cgutils, types
+from numba.extending import intrinsic
 
 from hailstorm.runtime.compiled._jit import _njit
 
@@ -134,6 +138,40 @@ def weighted_rows(M, blocks, loc, w, normals, sticky):  # pragma: no cover (comp
     return Y
 
 
+#: How many vertices of V ahead :func:`constraint_rows` asks for the rows it will read
+#: (measured on the default seat at s = 100: none 1.01 ms, 4 ahead 0.88, 8 ahead 0.72, 16 0.82).
+PREFETCH_AHEAD = 8
+
+if numba.config.DISABLE_JIT:  # the kernels run as Python: nothing to ask the memory for
+
+    def prefetch(arr, i):  # pragma: no cover
+        """No-op (``NUMBA_DISABLE_JIT=1``)."""
+
+else:
+
+    @intrinsic
+    def prefetch(typingctx, arr, i):  # pragma: no cover (compiled)
+        """Hint the CPU to fetch ``arr[i]`` into the caches (LLVM's ``prefetch``: read, keep,
+        data); no effect on results, no fault on any address. The scattered reads of
+        :func:`constraint_rows` wait on memory one after another; issuing them a few
+        vertices ahead keeps more of them in flight."""
+        sig = types.void(arr, i)
+
+        def codegen(context, builder, signature, args):
+            aryty = signature.args[0]
+            ary = context.make_array(aryty)(context, builder, args[0])
+            ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [args[1]], wraparound=False)
+            i8p = ir.IntType(8).as_pointer()
+            i32 = ir.IntType(32)
+            fnty = ir.FunctionType(ir.VoidType(), [i8p, i32, i32, i32])
+            fn = cgutils.get_or_insert_function(builder.module, fnty, "llvm.prefetch.p0i8")
+            builder.call(fn, [builder.bitcast(ptr, i8p), ir.Constant(i32, 0), ir.Constant(i32, 3),
+                              ir.Constant(i32, 1)])
+            return context.get_dummy_value()
+
+        return sig, codegen
+
+
 @_njit
 def _add_sticky3(d0, d1, d2, rows, wa, a, wb, b, wc, c):  # pragma: no cover (compiled)
     """``d_e += wa a_e + wb b_e + wc c_e`` at the rows of V (added in that order): three
@@ -141,7 +179,19 @@ def _add_sticky3(d0, d1, d2, rows, wa, a, wb, b, wc, c):  # pragma: no cover (co
     a0, a1, a2 = a
     b0, b1, b2 = b
     c0, c1, c2 = c
-    for i in range(rows.size):
+    n = rows.size
+    for i in range(n):
+        if i + PREFETCH_AHEAD < n:  # ask for the rows a few vertices ahead (see PREFETCH_AHEAD)
+            rp = rows[i + PREFETCH_AHEAD]
+            prefetch(a0, rp)
+            prefetch(a1, rp)
+            prefetch(a2, rp)
+            prefetch(b0, rp)
+            prefetch(b1, rp)
+            prefetch(b2, rp)
+            prefetch(c0, rp)
+            prefetch(c1, rp)
+            prefetch(c2, rp)
         r = rows[i]
         j = 3 * i
         for o in range(3):
@@ -170,7 +220,19 @@ def _add_normal3(dst, rows, ca, a, cb, b, cc, c):  # pragma: no cover (compiled)
     a0, a1, a2 = a
     b0, b1, b2 = b
     c0, c1, c2 = c
-    for i in range(rows.size):
+    n = rows.size
+    for i in range(n):
+        if i + PREFETCH_AHEAD < n:  # ask for the rows a few vertices ahead (see PREFETCH_AHEAD)
+            rp = rows[i + PREFETCH_AHEAD]
+            prefetch(a0, rp)
+            prefetch(a1, rp)
+            prefetch(a2, rp)
+            prefetch(b0, rp)
+            prefetch(b1, rp)
+            prefetch(b2, rp)
+            prefetch(c0, rp)
+            prefetch(c1, rp)
+            prefetch(c2, rp)
         r = rows[i]
         for o in range(3):
             j = 3 * i + o
@@ -327,10 +389,12 @@ def contact_compliance(Y, loc, w, normals, sticky):  # pragma: no cover (compile
 def columns_times(Dt, cols, g):  # pragma: no cover (compiled)
     """``D[:, cols] @ g`` for a column-major D (``Dt = D.T`` C-contiguous); ``cols < 0`` skipped.
 
-    Four columns per pass over the output: each column of D is read once, in
-    order, and the output is read and written a quarter as often as by one
-    column at a time (memory-bound: about 1.1 ms for 795 columns of 4671
-    rows on the reference machine, against 2-3.5 ms for numpy's blocked product).
+    Eight columns per pass over the output (summed as two groups of four, the
+    grouping of the sums unchanged since four per pass): each column of D is read
+    once, in order, and the output is read and written an eighth as often as by
+    one column at a time (memory-bound: 0.75 ms for 795 columns of 4428 rows on
+    the default seat, 0.86 ms four per pass, 1.2 ms for a single-threaded BLAS
+    product over a contiguous block of D of the same size).
     """
     n = Dt.shape[1]
     u = np.zeros(n)
@@ -343,6 +407,27 @@ def columns_times(Dt, cols, g):  # pragma: no cover (compiled)
             gl[nl] = g[j]
             nl += 1
     j = 0
+    while j + 8 <= nl:  # two groups of four per pass: u is read and written half as often
+        c0 = Dt[live[j]]
+        c1 = Dt[live[j + 1]]
+        c2 = Dt[live[j + 2]]
+        c3 = Dt[live[j + 3]]
+        c4 = Dt[live[j + 4]]
+        c5 = Dt[live[j + 5]]
+        c6 = Dt[live[j + 6]]
+        c7 = Dt[live[j + 7]]
+        g0 = gl[j]
+        g1 = gl[j + 1]
+        g2 = gl[j + 2]
+        g3 = gl[j + 3]
+        g4 = gl[j + 4]
+        g5 = gl[j + 5]
+        g6 = gl[j + 6]
+        g7 = gl[j + 7]
+        for i in range(n):  # the sums of two passes of four, in the same order
+            u[i] = ((u[i] + (g0 * c0[i] + g1 * c1[i] + g2 * c2[i] + g3 * c3[i]))
+                    + (g4 * c4[i] + g5 * c5[i] + g6 * c6[i] + g7 * c7[i]))
+        j += 8
     while j + 4 <= nl:
         c0 = Dt[live[j]]
         c1 = Dt[live[j + 1]]
