@@ -192,6 +192,57 @@ def test_contact_blocks_match_dense_algebra(gf, s, patch):
     np.testing.assert_allclose(C.columns_times(gf.D.T, cols, g), u_ref, rtol=0, atol=1e-13 * np.abs(u_ref).max())
 
 
+def test_contact_kernels_grouping_edges(gf):
+    """The kernels' grouped passes (constraint_rows: three vertices per pass, the rest one
+    at a time, prefetching ahead; columns_times: eight columns, then four, then one) on
+    contacts with 1 to 8 live vertices, zero weights and clamped vertices among them, and
+    sets of 0 to 17 columns with clamped (-1) entries: W and (D_VV G)^T equal the dense
+    products with G to rounding, constraint_rows is weighted_rows of vertex_block exactly
+    (the same sums in the same order), columns_times is D[:, cols] g."""
+    from hailstorm.runtime.contact.compliance import column_dofs, dof3
+    from hailstorm.runtime.contact.weights import dense_B, locate
+
+    gf = dataclasses.replace(gf, D=np.asfortranarray(gf.D))
+    rng = np.random.default_rng(11)
+    free = np.flatnonzero(gf.contactable)
+    clamped = np.flatnonzero(gf.fixed & ~gf.contactable)
+    assert clamped.size and free.size > 40
+    s, P = 8, 8
+    verts = np.empty((s, P), dtype=np.intp)
+    w = np.zeros((s, P))
+    for k in range(s):  # contact k: k + 1 weighted vertices (some clamped, one zero weight)
+        vk = rng.choice(free, P, replace=False)
+        if k % 3 == 1:
+            vk[k // 2] = rng.choice(clamped)
+        verts[k] = vk
+        w[k, :k + 1] = rng.dirichlet(np.ones(k + 1))
+        if k >= 4:
+            w[k, 1] = 0.0  # a zero weight inside the list
+    V, loc = locate(verts)
+    cols = column_dofs(gf, V)
+    assert (cols < 0).any()
+    n = rng.normal(size=(s, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    D_VV = _dense_block(gf, dof3(V), cols)
+    M = C.vertex_block(V, gf.D.T, gf.column_of)
+    B = dense_B(V.size, loc, w)
+    for sticky in (True, False):
+        G = B if sticky else np.einsum("rkj,kj->rk", B.reshape(B.shape[0], s, 3), n)
+        Y = C.blocks.constraint_rows(gf.D.T, gf.column_of, V, loc, w, n, sticky)
+        np.testing.assert_array_equal(Y, C.weighted_rows(M, np.arange(V.size), loc, w, n, sticky))
+        np.testing.assert_allclose(Y.T, D_VV @ G, rtol=0, atol=1e-13 * np.abs(D_VV).max())
+        W = C.contact_compliance(Y, loc, w, n, sticky)
+        W_ref = G.T @ D_VV @ G
+        np.testing.assert_allclose(W, 0.5 * (W_ref + W_ref.T), rtol=0, atol=1e-13 * np.abs(W_ref).max())
+    all_cols = column_dofs(gf, np.concatenate([free[:5], clamped[:1]]))
+    for k in range(18):
+        c = all_cols[:k]
+        g = rng.normal(size=k)
+        u_ref = _dense_block(gf, np.arange(gf.D.shape[0]), c) @ g
+        np.testing.assert_allclose(C.columns_times(gf.D.T, c, g), u_ref, rtol=0,
+                                   atol=1e-13 * max(np.abs(u_ref).max(initial=0.0), 1e-300))
+
+
 def test_contact_api_calls_the_kernels(gf, monkeypatch):
     """Bilateral point contacts take the one-call point_contacts, everything else the block
     kernels (also for a row-major D, read through a column-major copy); the two paths agree

@@ -31,6 +31,7 @@ import tempfile
 import time
 from pathlib import Path
 
+import numba
 import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
@@ -338,25 +339,52 @@ def print_steady(gf, ref, tris: np.ndarray, args) -> None:
               f"{t_f.min() * ms:8.4f} {np.median(t_f) * ms:8.4f} {t_f.max() * ms:8.4f} | {fem}")
 
 
+@numba.njit(fastmath=True, nogil=True)
+def stream_sum(x: np.ndarray) -> float:  # pragma: no cover (compiled)
+    """Sum of a contiguous 1-D array, read as eight contiguous streams at once: the least
+    work that reads every byte once, with as many reads in flight as the solve's product
+    (eight columns of D per pass). A reference read for :func:`print_floor`, not library code."""
+    n = x.size // 8
+    a0 = a1 = a2 = a3 = a4 = a5 = a6 = a7 = 0.0
+    for i in range(n):
+        a0 += x[i]
+        a1 += x[n + i]
+        a2 += x[2 * n + i]
+        a3 += x[3 * n + i]
+        a4 += x[4 * n + i]
+        a5 += x[5 * n + i]
+        a6 += x[6 * n + i]
+        a7 += x[7 * n + i]
+    for i in range(8 * n, x.size):
+        a0 += x[i]
+    return a0 + a1 + a2 + a3 + a4 + a5 + a6 + a7
+
+
 def print_floor(gf, s: int, tri: np.ndarray, bary: np.ndarray, t_fresh: np.ndarray, repeat: int) -> None:
     """Lower bound of an exact (float64) solve + full-surface deformation for the last contact set.
 
     Whatever the algorithm, three costs cannot be avoided:
 
-    * the deformation ``u = D[:, cols] B f`` reads every column of D that a
-      contacted vertex owns (``|cols| x n_rows x 8`` bytes). The fastest this
-      machine reads that many bytes of D is one BLAS product over a
-      *contiguous* block of D of the same size, with every BLAS thread and the
-      block warm in cache (as it is when the benchmark repeats one contact set);
-    * the forces need ``W = B^T D_VV B``: its entries lie scattered over the same
+    * (a) the deformation ``u = D[:, cols] B f`` reads every column of D that a
+      contacted vertex owns (``|cols| x n_rows x 8`` bytes). The fastest one core
+      reads that many bytes of D is the faster of one BLAS product (one thread) and a
+      compiled sum (:func:`stream_sum`) over a *contiguous* block of D of the same
+      size, warm in cache (as it is when the benchmark repeats one contact set);
+    * (b) the forces need ``W = B^T D_VV B``: its entries lie scattered over the same
       columns, so at least the cache lines holding ``D_VV`` are read (counted
-      here, at the rate of that contiguous product);
-    * the Cholesky factorisation of W (``3s x 3s``).
+      here, at the rate of (a));
+    * (c) the Cholesky factorisation of W (``3s x 3s``), at the benchmark's BLAS threads.
 
     Their sum is printed as the floor, next to a plain numpy ``D[:, cols] @ g``,
     a column copy ``D[:, cols]`` and the cold streaming bandwidth of a full ``D @ x``,
     and the fresh solve's times ``t_fresh`` (solve + full-surface u of this set) as a
     ratio to it: from the medians, and from the minima (less sensitive to a loaded host).
+
+    One core, because the solve is serial: its kernels are single-threaded and the
+    benchmark pins BLAS to ``--threads`` (default 1) for it. The product (a') of the
+    same block with every BLAS thread, and the ratio to the floor built on it, are
+    printed too: the bound of a parallel solve (before issue 12's second round the
+    floor used (a'), so it bounded a program the benchmark does not run).
     """
     import os
 
@@ -380,8 +408,15 @@ def print_floor(gf, s: int, tri: np.ndarray, bary: np.ndarray, t_fresh: np.ndarr
     f_order = D.flags.f_contiguous
     block = D[:, :cols.size] if f_order else D[:cols.size, :]
     gb = g if f_order else np.random.default_rng(1).normal(size=D.shape[1])
+    flat = block.ravel(order="K")  # the block's memory, in order (a view)
+    with threadpool_limits(limits=1, user_api="blas"):
+        t_blas1 = timeit(lambda: block @ gb, repeat)
+    t_sum = timeit(lambda: stream_sum(flat), repeat)
     with threadpool_limits(limits=os.cpu_count() or 1, user_api="blas"):
-        t_blk = timeit(lambda: block @ gb, repeat)
+        t_par = timeit(lambda: block @ gb, repeat)
+    # (a): the faster reference read on one core, by median (its minimum for the minima's floor)
+    t_blk = t_blas1 if np.median(t_blas1) <= np.median(t_sum) else t_sum
+    a_min = min(t_blas1.min(), t_sum.min())
     # cache lines of D that hold D_VV (the live contacted vertices' rows of those columns)
     rows = (3 * V[:, None] + np.arange(3)).ravel()
     if f_order:
@@ -389,30 +424,39 @@ def print_floor(gf, s: int, tri: np.ndarray, bary: np.ndarray, t_fresh: np.ndarr
     else:
         offs = rows[:, None].astype(np.int64) * D.shape[1] + cols[None, :]
     lines = np.unique(offs.ravel() * D.itemsize // 64).size
-    rate = block.nbytes / np.median(t_blk)  # bytes/s of the contiguous product
+    extra = lines * 64 / block.nbytes  # (b) in units of (a)
+    rate = block.nbytes / np.median(t_blk)  # bytes/s of the serial reference read
     t_vv = lines * 64 / rate
     t_gather = None
     if f_order:  # the same cache lines as scattered reads, in one compiled loop
         t_gather = timeit(lambda: vertex_block(V, D.T, gf.column_of), repeat)
     W = capacitance(gf, tri, bary).W
     t_chol = timeit(lambda: sla.cho_factor(W, check_finite=False), repeat)
-    floor = np.median(t_blk) + t_vv + np.median(t_chol)
-    floor_min = t_blk.min() * (1.0 + lines * 64 / block.nbytes) + t_chol.min()  # (b) at the fastest rate
+    floor = np.median(t_blk) * (1.0 + extra) + np.median(t_chol)
+    floor_min = a_min * (1.0 + extra) + t_chol.min()
+    floor_par = np.median(t_par) * (1.0 + extra) + np.median(t_chol)
+    floor_par_min = t_par.min() * (1.0 + extra) + t_chol.min()
     print()
     print(f"floor (s = {s}: {cols.size} columns of D x {D.shape[0]} rows = {mb:.1f} MB read; min/med/max [ms]):")
     print(f"  numpy D[:, cols] @ g  {t_mv.min() * ms:9.3f} {np.median(t_mv) * ms:10.3f} {t_mv.max() * ms:10.3f}")
     print(f"  column copy D[:, cols] {t_cp.min() * ms:8.3f} {np.median(t_cp) * ms:10.3f} {t_cp.max() * ms:10.3f}")
     print(f"  full D @ x ({D.nbytes / 1e6:.0f} MB, cold) {t_all.min() * ms:7.3f} {np.median(t_all) * ms:10.3f} "
           f"{t_all.max() * ms:10.3f}  -> {gbs:.1f} GB/s")
-    print(f"  (a) contiguous block of D, same {mb:.1f} MB, {os.cpu_count()} BLAS threads, warm: "
-          f"{t_blk.min() * ms:.3f} {np.median(t_blk) * ms:.3f} {t_blk.max() * ms:.3f}  -> {rate / 1e9:.1f} GB/s")
+    print(f"  (a) contiguous block of D, same {mb:.1f} MB, one core, warm: BLAS product "
+          f"{t_blas1.min() * ms:.3f} {np.median(t_blas1) * ms:.3f} {t_blas1.max() * ms:.3f}, "
+          f"compiled sum {t_sum.min() * ms:.3f} {np.median(t_sum) * ms:.3f} {t_sum.max() * ms:.3f}"
+          f"  -> {rate / 1e9:.1f} GB/s")
     print(f"  (b) D_VV: {lines} cache lines ({lines * 64 / 1e6:.1f} MB) at that rate: {t_vv * ms:.3f}")
     print(f"  (c) Cholesky of W ({W.shape[0]} x {W.shape[0]}): "
           f"{t_chol.min() * ms:.3f} {np.median(t_chol) * ms:.3f} {t_chol.max() * ms:.3f}")
-    print(f"  lower bound (a) + (b) + (c), medians: {floor * ms:.3f} ms (exact float64 D on this machine)")
+    print(f"  lower bound (a) + (b) + (c), medians: {floor * ms:.3f} ms (exact float64 D, one core, on this machine)")
     print(f"  fresh solve + u(all) / floor: medians {np.median(t_fresh) / floor:.2f} "
           f"({np.median(t_fresh) * ms:.3f} / {floor * ms:.3f} ms), minima {t_fresh.min() / floor_min:.2f} "
           f"({t_fresh.min() * ms:.3f} / {floor_min * ms:.3f} ms)")
+    print(f"  (a') the block's BLAS product on {os.cpu_count()} threads: {t_par.min() * ms:.3f} "
+          f"{np.median(t_par) * ms:.3f} {t_par.max() * ms:.3f}; floor on it {floor_par * ms:.3f} ms, "
+          f"fresh solve / it: medians {np.median(t_fresh) / floor_par:.2f}, minima {t_fresh.min() / floor_par_min:.2f} "
+          f"({t_fresh.min() * ms:.3f} / {floor_par_min * ms:.3f} ms)")
     if t_gather is not None:
         print(f"  (b') the same D_VV as scattered reads (compiled vertex_block), measured: "
               f"{t_gather.min() * ms:.3f} {np.median(t_gather) * ms:.3f} {t_gather.max() * ms:.3f}"
