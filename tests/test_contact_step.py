@@ -1,6 +1,7 @@
-"""The contact step (the compiled kernels) against independent oracles: the matrix
-exponential of the state matrix (scipy) for critically damped, repeated-eigenvalue and
-overdamped sets, and the analytic bounce of one damped contact."""
+"""The contact step (the compiled kernels behind hail.contact_step) against independent
+oracles: the matrix exponential of the state matrix (scipy) for critically damped,
+repeated-eigenvalue and overdamped sets, the analytic bounce of one damped contact, and
+the capacitance of a released subset."""
 
 from __future__ import annotations
 
@@ -9,7 +10,7 @@ import pytest
 import scipy.linalg as sla
 
 from hailstorm.runtime import compiled as C
-from hailstorm.runtime.hail import restitution_for_damping_ratio
+from hailstorm.runtime.hail import contact_step, restitution_for_damping_ratio
 
 
 def _set(name):
@@ -120,3 +121,35 @@ def test_one_contact_bounces_as_the_damped_oscillator(zeta, omega_dt):
     assert v[0] == pytest.approx(v_out, rel=1e-5)
     assert deepest == pytest.approx(u_max, rel=1e-6)
     assert peak == pytest.approx(k * abs(u_max), rel=1e-6)
+
+
+def test_contact_step_with_k_alone_releases_with_the_subsets_compliance():
+    """Given K alone, a released subset's capacitance is inv(W[a, a]) with W = K^-1 (the
+    physically exact one: the released contact carries no force), whatever the integrator;
+    K and W give the same step."""
+    W = np.array([[1.0, 0.8], [0.8, 1.0]]) * 1e-4
+    K = np.linalg.inv(W)
+    m = np.array([1e-3, 1e-3])
+    q = np.array([-1e-5, -1e-9])  # the coupling pulls the second contact
+    for integrator in ("implicit", "symplectic", "exact"):
+        dt = 1e-7
+        res = contact_step(q, np.zeros(2), np.zeros(2), m, np.zeros(2), dt, K=K, integrator=integrator)
+        assert res.active.tolist() == [True, False]
+        assert res.seat_force[0] == pytest.approx(res.q[0] / W[0, 0], rel=1e-12)
+        assert res.seat_force[1] == 0.0 and res.force[1] == 0.0
+        by_w = contact_step(q, np.zeros(2), np.zeros(2), m, np.zeros(2), dt, W=W, integrator=integrator)
+        np.testing.assert_allclose(by_w.q, res.q, rtol=1e-12, atol=1e-20)
+        np.testing.assert_allclose(by_w.seat_force, res.seat_force, rtol=1e-10)
+
+
+def test_contact_step_rejects_bad_arguments():
+    """Shapes are checked before the kernels see them (a compiled kernel would read out of bounds)."""
+    one = np.zeros(1)
+    with pytest.raises(ValueError, match="integrator"):
+        contact_step(one, one, one, one + 1e-3, one, 1e-4, K=np.eye(1), integrator="rk4")
+    with pytest.raises(ValueError, match="K or"):
+        contact_step(one, one, one, one + 1e-3, one, 1e-4)
+    with pytest.raises(ValueError, match="mass"):
+        contact_step(one, one, one, np.ones(2), one, 1e-4, K=np.eye(1))
+    with pytest.raises(ValueError, match="K must be"):
+        contact_step(np.zeros(2), np.zeros(2), np.zeros(2), np.ones(2), np.zeros(2), 1e-4, K=np.eye(3))
