@@ -1,7 +1,9 @@
 """Hailstones: size distribution, spawning, free flight and contact integrators.
 
 Stones are rigid ice spheres. Everything here is vectorised numpy over stones
-or contacts; nothing knows about the seat's mesh (see :mod:`hailstorm.runtime.collide`
+or contacts, except the contact step, a wrapper over the compiled kernels
+(:mod:`hailstorm.runtime.compiled.integrators`, the one implementation, which the
+storm calls too); nothing knows about the seat's mesh (see :mod:`hailstorm.runtime.collide`
 and :mod:`hailstorm.runtime.storm`).
 
 Contact dynamics in *constrained coordinates*
@@ -40,7 +42,10 @@ step with either
   zero: it is released), located on the exact trajectory (grid + bisection,
   relative accuracy ~1e-4 of the step). The external acceleration is
   constant over the step. It therefore realises the restitution of
-  :func:`restitution_for_damping_ratio` at any ``omega dt``.
+  :func:`restitution_for_damping_ratio` at any ``omega dt``. Where the modal
+  basis is (nearly) defective (critically damped modes) the step takes the
+  matrix exponential ``z(t) = exp(A t) z0`` instead; one frictionless contact
+  that is not overdamped, the scalar closed form.
 
 The dashpot ``C`` acts in compression only (normal velocity < 0), so it never
 pulls and a contact opens exactly when its spring relaxes; its size comes
@@ -58,10 +63,10 @@ from typing import Literal
 
 import numpy as np
 
-from hailstorm.runtime.compiled.modal import equilibrium_py as _equilibrium
+from hailstorm.runtime.compiled.integrators import exact_step, substep_contacts
 from hailstorm.runtime.compiled.modal import explicit_modes_py as _explicit_modes
 from hailstorm.runtime.compiled.modal import modal_damping_py as _modal_damping
-from hailstorm.runtime.compiled.modal import scalar_exact_py as _scalar_exact
+from hailstorm.runtime.contact import policy
 
 __all__ = [
     "GRAVITY",
@@ -304,15 +309,6 @@ class ContactStep:
     peak_ubar: np.ndarray
 
 
-def _inv_spd(W: np.ndarray) -> np.ndarray:
-    """Inverse of a small symmetric positive (semi-)definite matrix: the contact API's
-    policy (:func:`hailstorm.runtime.contact.policy.spd_inverse`; the pseudo-inverse when
-    ``W`` is ill conditioned, e.g. coincident contacts)."""
-    from hailstorm.runtime.contact.policy import spd_inverse  # (import cycle: it imports hailstorm.runtime.compiled)
-
-    return spd_inverse(W)
-
-
 def contact_modes(K: np.ndarray, mass: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Normal modes of a contact set: ``M^-1/2 K M^-1/2 = Phi diag(omega^2) Phi^T``.
 
@@ -399,10 +395,13 @@ def contact_step(
     dt : float
         Time step [s].
     K : (m, m) ndarray, optional
-        Capacitance of the full set. Give either ``K`` or ``W``. With ``W``
-        (the contact compliance), the capacitance of an active subset is
-        ``inv(W[a, a])`` (exact); with ``K`` alone, subsets use ``K[a, a]``
-        (exact only when nothing is released).
+        Capacitance of the full set. Give ``K``, ``W`` or both (the storm gives
+        both). The capacitance of an active subset ``a`` (after releases) is
+        ``inv(W[a, a])``, the physically exact one: the released contacts carry
+        no force, so the others see the compliance of their own subset. With
+        ``K`` alone, ``W`` is its inverse under the contact core's policy
+        (:func:`hailstorm.runtime.contact.policy.spd_inverse`: the pseudo-inverse
+        of a singular ``K``); with ``W`` alone, ``K = spd_inverse(W)``.
     W : (m, m) ndarray, optional
         Contact compliance ``K^-1``.
     damping : (m,) ndarray, float or (m, m) ndarray
@@ -427,325 +426,59 @@ def contact_step(
     Returns
     -------
     ContactStep
+
+    Raises
+    ------
+    ValueError
+        An unknown integrator, neither ``K`` nor ``W``, or arrays whose shapes do not match.
+
+    Notes
+    -----
+    A thin wrapper over the one implementation, the compiled kernels
+    :func:`hailstorm.runtime.compiled.exact_step` (``"exact"``) and
+    :func:`hailstorm.runtime.compiled.substep_contacts` (``"implicit"``,
+    ``"symplectic"``), with the contact core's condition policy
+    (:data:`~hailstorm.runtime.contact.policy.COND_LIMIT`,
+    :data:`~hailstorm.runtime.contact.policy.PINV_RCOND`) for the subsets'
+    inverses: the storm's contact step, the studies' and the tests' are one.
+    The first call of a process loads (the first after an install compiles)
+    the kernel.
     """
-    q = np.asarray(q, dtype=np.float64)
-    v = np.asarray(v, dtype=np.float64)
-    a = np.asarray(anchor, dtype=np.float64)
-    m = np.asarray(mass, dtype=np.float64)
-    g = np.asarray(accel, dtype=np.float64)
+    q = np.ascontiguousarray(q, dtype=np.float64)
+    v = np.ascontiguousarray(v, dtype=np.float64)
+    a = np.ascontiguousarray(anchor, dtype=np.float64)
+    m = np.ascontiguousarray(mass, dtype=np.float64)
+    g = np.ascontiguousarray(accel, dtype=np.float64)
     n = q.size
-    C = np.asarray(damping, dtype=np.float64)
-    if C.ndim < 2:  # a diagonal dashpot
-        C = np.diag(np.broadcast_to(C, (n,)))
-    if K is None and W is None:
-        raise ValueError("give the capacitance K or the contact compliance W")
     if integrator not in INTEGRATORS:
         raise ValueError(f"integrator must be one of {', '.join(INTEGRATORS)}, got {integrator!r}")
-    group = np.arange(n) if group is None else np.asarray(group)
-    wts = np.ones(n) if normal_of is None else np.asarray(normal_of, dtype=np.float64)
+    if K is None and W is None:
+        raise ValueError("give the capacitance K or the contact compliance W")
+    if q.ndim != 1:
+        raise ValueError(f"q must be one-dimensional, got shape {q.shape}")
+    for name, x in (("v", v), ("anchor", a), ("mass", m), ("accel", g)):
+        if x.shape != q.shape:
+            raise ValueError(f"{name} must have the shape of q, {q.shape}, got {x.shape}")
+    C = np.asarray(damping, dtype=np.float64)
+    C = np.diag(np.broadcast_to(C, (n,))) if C.ndim < 2 else np.ascontiguousarray(C)  # a diagonal dashpot
+    K = policy.spd_inverse(W) if K is None else np.ascontiguousarray(K, dtype=np.float64)
+    W = policy.spd_inverse(K) if W is None else np.ascontiguousarray(W, dtype=np.float64)
+    for name, x in (("K", K), ("W", W), ("damping", C)):
+        if x.shape != (n, n):
+            raise ValueError(f"{name} must be ({n}, {n}), got {x.shape}")
+    grp = np.arange(n, dtype=np.int64) if group is None else np.ascontiguousarray(group, dtype=np.int64)
+    wts = np.ones(n) if normal_of is None else np.ascontiguousarray(normal_of, dtype=np.float64)
+    lim, rcond = float(policy.COND_LIMIT), float(policy.PINV_RCOND)
     if integrator == "exact":
-        return _exact_step(q, v, np.asarray(anchor, dtype=np.float64), m, g, float(dt), K, W, C, unilateral,
-                           group, wts, always_damped)
-    # the dashpot acts in compression only (normal velocity of the contact < 0)
-    vn_g = np.zeros(group.max() + 1 if n else 0)
-    np.add.at(vn_g, group, wts * v)
-    on = vn_g[group] < 0.0
-    C = C * (on[:, None] & on[None, :])
-    active = np.ones(n, dtype=bool)
-    ubar = q - a
-    if K is None:
-        assert W is not None  # checked above: K or W is given
-        K_full = _inv_spd(W)
-    else:
-        K_full = np.asarray(K, dtype=np.float64)
-    while True:
-        idx = np.flatnonzero(active)
-        if W is not None and idx.size < n:
-            Ka = _inv_spd(W[np.ix_(idx, idx)])
-        else:
-            Ka = K_full[np.ix_(idx, idx)]
-        v_new = v + dt * g  # free motion of released components
-        if idx.size:
-            ma, ua, va, ga, ca = m[idx], ubar[idx], v[idx], g[idx], C[np.ix_(idx, idx)]
-            if integrator == "implicit":
-                A = dt * dt * Ka + dt * ca
-                A[np.diag_indices_from(A)] += ma
-                rhs = ma * va + dt * (ma * ga - Ka @ ua)
-                v_new[idx] = np.linalg.solve(A, rhs)
-            else:
-                f = -(Ka @ ua) - ca @ va
-                v_new[idx] = va + dt * (ga + f / ma)
-        force = np.zeros(n)
-        force[idx] = m[idx] * ((v_new[idx] - v[idx]) / dt - g[idx])
-        if not unilateral or idx.size == 0:
-            break
-        # normal force per contact group (positive = pushes the stone out)
-        fn = np.zeros(group.max() + 1)
-        np.add.at(fn, group, wts * force)
-        pulling = active & (fn[group] < 0.0)
-        if not pulling.any():
-            break
-        active &= ~pulling
-    q_new = q + dt * v_new
-    seat = np.zeros(n)
-    idx = np.flatnonzero(active)
-    if idx.size:
-        if W is not None and idx.size < n:
-            Ka = _inv_spd(W[np.ix_(idx, idx)])
-        else:
-            Ka = K_full[np.ix_(idx, idx)]
-        seat[idx] = Ka @ (q_new[idx] - a[idx])
-    force[~active] = 0.0
-    return ContactStep(q=q_new, v=v_new, active=active, force=force, seat_force=seat, peak_seat_force=seat.copy(),
-                       peak_ubar=q_new - a)
-
-
-# --------------------------------------------------------------------------
-# the exact (modal) integrator
-# --------------------------------------------------------------------------
-_GRID = 32  # samples per bracket when locating an event
-_REFINE = 2  # bracket refinements: event time to dt / 32**(_REFINE + 1)
-_MAX_SEGMENTS = 12
-
-
-class _Modal:
-    """Closed-form solution of ``M y'' + C y' + K y = 0``, ``z = (y, y')``."""
-
-    __slots__ = ("lam", "V", "Vi", "A", "n", "real")
-
-    def __init__(self, K: np.ndarray, m: np.ndarray, c: np.ndarray) -> None:
-        n = m.size
-        A = np.zeros((2 * n, 2 * n))
-        A[:n, n:] = np.eye(n)
-        A[n:, :n] = -K / m[:, None]
-        A[n:, n:] = -c / m[:, None]  # (n, n) dashpot
-        self.n, self.A = n, A
-        lam, V = np.linalg.eig(A)
-        self.lam, self.V = lam, V
-        try:
-            Vi = np.linalg.inv(V)
-            ok = np.isfinite(Vi).all() and np.abs(V).max() * np.abs(Vi).max() < 1e7
-        except np.linalg.LinAlgError:
-            ok = False
-        self.Vi = Vi if ok else None  # None: (nearly) defective, use expm
-
-    def at(self, z0: np.ndarray, t: np.ndarray) -> np.ndarray:
-        """States (2n, len(t)) at times ``t`` from ``z0``."""
-        if self.Vi is not None:
-            c = self.Vi @ z0
-            return (self.V @ (np.exp(np.multiply.outer(self.lam, t)) * c[:, None])).real
-        from scipy.linalg import expm
-
-        return np.stack([expm(self.A * ti) @ z0 for ti in np.atleast_1d(t)], axis=1)
-
-
-def _exact_step(q, v, a, m, g, dt, K, W, C, unilateral, group, wts, always_damped) -> ContactStep:
-    n = q.size
-    if n == 1 and group[0] == 0 and wts[0] == 1.0:
-        k = float((_inv_spd(W) if K is None else np.asarray(K, dtype=np.float64))[0, 0])
-        al = bool(always_damped[0]) if always_damped is not None else False
-        qn, vn, act, ok, umin, umax = _scalar_exact(float(q[0]), float(v[0]), float(a[0]), float(m[0]),
-                                                    float(g[0]), dt, k, float(np.asarray(C)[0, 0]), unilateral, al)
-        if ok:
-            force = m * ((vn - v) / dt - g) if act else np.zeros(1)
-            seat = np.array([k * (qn - a[0])]) if act else np.zeros(1)
-            peak = np.array([k * (umin if -umin >= umax else umax)])
-            return ContactStep(q=np.array([qn]), v=np.array([vn]), active=np.array([act]), force=force,
-                               seat_force=seat, peak_seat_force=peak, peak_ubar=np.array([umin]))
-    ng = int(group.max()) + 1 if n else 0
-    K_full = _inv_spd(W) if K is None else np.asarray(K, dtype=np.float64)
-    Cn = np.asarray(C, dtype=np.float64).copy()  # nominal dashpot (m, m)
-
-    def dashpot(idx: np.ndarray) -> np.ndarray:  # of the components idx: on while compressing (or always)
-        on = (damp_g[group] | always)[idx]
-        return Cn[np.ix_(idx, idx)] * (on[:, None] & on[None, :])
-    always = np.zeros(n, bool) if always_damped is None else np.asarray(always_damped, bool)
-    v0 = v
-    q, v = q.copy(), v.copy()
-    active = np.ones(n, dtype=bool)
-
-    ident = ng == n and np.array_equal(group, np.arange(n)) and np.all(wts == 1.0)
-
-    def gsum(x: np.ndarray) -> np.ndarray:  # (n, ...) -> (ng, ...) normal sums per group
-        if ident:
-            return x
-        out = np.zeros((ng,) + x.shape[1:])
-        np.add.at(out, group, wts.reshape((-1,) + (1,) * (x.ndim - 1)) * x)
-        return out
-
-    def vn_of(vv):
-        return gsum(vv)
-
-    # dashpot on at the start where the contact is compressing (or always for resting ones)
-    damp_g = vn_of(v) < 0.0
-    t = 0.0
-    Ka = K_full
-    # peaks inside the step, per contact group: the largest |elastic seat force| (squared) and the
-    # most negative normal q - a, with the components at those instants, over the closed-form
-    # states the event search evaluates (its samples and the located events)
-    pk2 = np.zeros(ng)
-    pk_f = np.zeros(n)
-    dmin = np.full(ng, np.inf)
-    dmin_u = q - a
-
-    def track(comp: np.ndarray, Ka_: np.ndarray, ub: np.ndarray) -> None:
-        """Update the peaks from states of the active components ``comp`` (ub: their q - a, (na, T))."""
-        F = Ka_ @ ub
-        gc = group[comp]
-        mag2 = np.zeros((ng, ub.shape[1]))
-        np.add.at(mag2, gc, F * F)
-        un = np.full((ng, ub.shape[1]), np.inf)
-        un[gc] = 0.0
-        np.add.at(un, gc, wts[comp][:, None] * ub)
-        cb = np.argmax(mag2, axis=1)
-        best = mag2[np.arange(ng), cb]
-        up = best > pk2
-        if up.any():
-            pk2[up] = best[up]
-            sel = up[gc]
-            pk_f[comp[sel]] = F[sel, cb[gc[sel]]]
-        cd = np.argmin(un, axis=1)
-        deep = un[np.arange(ng), cd]
-        dn = deep < dmin
-        if dn.any():
-            dmin[dn] = deep[dn]
-            sel = dn[gc]
-            dmin_u[comp[sel]] = ub[sel, cd[gc[sel]]]
-    for _seg in range(_MAX_SEGMENTS):
-        # unilateral: release contacts that pull now and do not approach (active-set iteration)
-        while True:
-            idx = np.flatnonzero(active)
-            if W is not None and idx.size < n:
-                Ka = _inv_spd(W[np.ix_(idx, idx)])
-            else:
-                Ka = K_full[np.ix_(idx, idx)]
-            if not unilateral or idx.size == 0:
-                break
-            ce = dashpot(idx)
-            f = np.zeros(n)
-            f[idx] = -(Ka @ (q[idx] - a[idx])) - ce @ v[idx]
-            fn = gsum(f)
-            vn = vn_of(v)
-            pull = (fn < 0.0) & (vn >= 0.0) & np.bincount(group, active, minlength=ng).astype(bool)
-            if not pull.any():
-                break
-            active &= ~pull[group]
-        if _seg == 0 and active.any():
-            ia = np.flatnonzero(active)
-            track(ia, Ka, (q[ia] - a[ia])[:, None])
-        h = dt - t
-        if h <= 1e-12 * dt:
-            break
-        idx = np.flatnonzero(active)
-        free = np.flatnonzero(~active)
-        if idx.size == 0:
-            q[free] += h * v[free] + 0.5 * h * h * g[free]
-            v[free] += h * g[free]
-            t = dt
-            break
-        ma, ga, aa = m[idx], g[idx], a[idx]
-        ce = dashpot(idx)
-        q_eq = aa + _equilibrium(Ka, ma * ga)
-        modal = _Modal(Ka, ma, ce)
-        z0 = np.concatenate([q[idx] - q_eq, v[idx]])
-        na = idx.size
-        gi = group[idx]
-        wi = wts[idx]
-        # event functions on the group level, evaluated on times tau (columns)
-        sw_on = np.zeros(ng, bool)
-        sw_on[gi] = True
-
-        switchable = sw_on & np.bincount(gi, (np.diag(Cn)[idx] > 0) & ~always[idx], minlength=ng).astype(bool)
-        off_mask = (switchable & damp_g)[:, None]
-        on_mask = (switchable & ~damp_g)[:, None]
-        ident_a = ident and na == n
-        off_eq = (q_eq - aa)[:, None]
-
-        def gsum_a(x: np.ndarray) -> np.ndarray:
-            if ident_a:
-                return x
-            out = np.zeros((ng, x.shape[1]))
-            np.add.at(out, gi, wi[:, None] * x)
-            return out
-
-        def events(tau: np.ndarray):
-            Z = modal.at(z0, tau)
-            y, vv = Z[:na], Z[na:]
-            vng = gsum_a(vv)
-            fng = gsum_a(-(Ka @ (y + off_eq)) - ce @ vv)
-            ev = np.zeros((ng, tau.size), bool)
-            ev |= off_mask & (vng >= 0.0)  # maximum compression: dashpot off
-            ev |= on_mask & (vng < 0.0)  # compresses again: dashpot on
-            if unilateral:
-                ev |= sw_on[:, None] & (fng < 0.0) & (vng >= 0.0)  # released
-            return Z, ev
-
-        lo, hi = 0.0, h
-        tau = h * np.arange(1, _GRID + 1) / _GRID
-        Z, ev = events(tau)
-        anyev = ev.any(axis=0)
-        if not anyev.any():
-            t_e, ze, evg = h, Z[:, -1], None
-            track(idx, Ka, Z[:na] + off_eq)
-        else:
-            j = int(np.argmax(anyev))
-            lo, hi = (tau[j - 1] if j else 0.0), tau[j]
-            ze, evg = Z[:, j], ev[:, j]
-            track(idx, Ka, Z[:na, :j + 1] + off_eq)  # the states up to the event (after it: another pattern)
-            for _ in range(_REFINE):
-                tau = lo + (hi - lo) * np.arange(1, _GRID + 1) / _GRID
-                Z, ev = events(tau)
-                anyev = ev.any(axis=0)
-                j = int(np.argmax(anyev))  # the bracket's right end has an event
-                lo, hi = (tau[j - 1] if j else lo), tau[j]
-                ze, evg = Z[:, j], ev[:, j]
-                track(idx, Ka, Z[:na, :j + 1] + off_eq)
-            t_e = hi
-        # advance to t_e
-        q[idx] = ze[:na] + q_eq
-        v[idx] = ze[na:]
-        if free.size:
-            q[free] += t_e * v[free] + 0.5 * t_e * t_e * g[free]
-            v[free] += t_e * g[free]
-        t += t_e
-        if evg is None:
-            break
-        vng = vn_of(v)
-        ea = evg & sw_on
-        f = np.zeros(n)
-        f[idx] = -(Ka @ (q[idx] - aa)) - ce @ v[idx]
-        fng = gsum(f)
-        rel = ea & (fng < 0.0) & (vng >= 0.0) if unilateral else np.zeros(ng, bool)
-        damp_g = np.where(ea & ~rel, vng < 0.0, damp_g)
-        if rel.any():
-            active &= ~rel[group]
-    else:
-        # too many events in one step: finish it with the pattern frozen (rare)
-        h = dt - t
-        if h > 0:
-            idx = np.flatnonzero(active)
-            free = np.flatnonzero(~active)
-            if idx.size:
-                # (the last segment may have released contacts: the capacitance of those left)
-                Ka = _inv_spd(W[np.ix_(idx, idx)]) if W is not None and idx.size < n else K_full[np.ix_(idx, idx)]
-                ce = dashpot(idx)
-                q_eq = a[idx] + _equilibrium(Ka, m[idx] * g[idx])
-                ze = _Modal(Ka, m[idx], ce).at(np.concatenate([q[idx] - q_eq, v[idx]]), np.array([h]))[:, 0]
-                q[idx], v[idx] = ze[:idx.size] + q_eq, ze[idx.size:]
-                track(idx, Ka, (q[idx] - a[idx])[:, None])
-            q[free] += h * v[free] + 0.5 * h * h * g[free]
-            v[free] += h * g[free]
-    force = np.where(active, m * ((v - v0) / dt - g), 0.0)
-    seat = np.zeros(n)
-    idx = np.flatnonzero(active)
-    if idx.size:
-        if Ka.shape[0] != idx.size:  # released at the last event
-            Ka = _inv_spd(W[np.ix_(idx, idx)]) if W is not None and idx.size < n else K_full[np.ix_(idx, idx)]
-        seat[idx] = Ka @ (q[idx] - a[idx])
-    untouched = ~np.isfinite(dmin)[group]
-    dmin_u[untouched] = (q - a)[untouched]
-    return ContactStep(q=q, v=v, active=active, force=force, seat_force=seat, peak_seat_force=pk_f,
-                       peak_ubar=dmin_u)
+        always = np.zeros(n, dtype=bool) if always_damped is None else np.ascontiguousarray(always_damped, dtype=bool)
+        qn, vn, act, force, seat, peak, pub = exact_step(q, v, a, m, g, float(dt), K, W, C, bool(unilateral), grp,
+                                                         wts, always, lim, rcond)
+        return ContactStep(q=qn, v=vn, active=act, force=force, seat_force=seat, peak_seat_force=peak,
+                           peak_ubar=pub)
+    qn, vn, act, force, seat = substep_contacts(q, v, a, m, g, float(dt), K, W, C, integrator == "implicit",
+                                                bool(unilateral), grp, wts, lim, rcond)
+    return ContactStep(q=qn, v=vn, active=act, force=force, seat_force=seat, peak_seat_force=seat.copy(),
+                       peak_ubar=qn - a)
 
 
 @dataclass(frozen=True)

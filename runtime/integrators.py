@@ -23,7 +23,7 @@ from hailstorm.runtime.compiled import (
     substep_size,
 )
 from hailstorm.runtime.contact_set import ContactSet
-from hailstorm.runtime.hail import X_GRID, Z_GRID, ContactStep, contact_modes, contact_step
+from hailstorm.runtime.hail import X_GRID, Z_GRID, ContactStep, contact_modes
 from hailstorm.runtime.scene import ContactSettings, TimeSettings
 from hailstorm.runtime.stones import Stones
 
@@ -70,15 +70,10 @@ class ContactIntegrator:
         lim, rcond = float(policy.COND_LIMIT), float(policy.PINV_RCOND)
         if self.exact:
             C = self.exact_damping(cc, mq)
-            qn, vn, act, force, seat, peak, pub, ok = exact_step(q, vq, a, mq, gq, h, cc.K, cc.W, C,
-                                                                  self.unilateral, group, wts, always, lim, rcond)
-            if ok:
-                return ContactStep(q=qn, v=vn, active=act, force=force, seat_force=seat, peak_seat_force=peak,
-                                   peak_ubar=pub)
-            # the rare cases the kernel does not cover (a nearly defective modal basis, an
-            # overdamped single contact): the matrix exponential of hailstorm.runtime.hail
-            return contact_step(q, vq, a, mq, gq, h, K=cc.K, W=cc.W, damping=C, integrator="exact",
-                                unilateral=self.unilateral, group=group, normal_of=wts, always_damped=always)
+            qn, vn, act, force, seat, peak, pub = exact_step(q, vq, a, mq, gq, h, cc.K, cc.W, C, self.unilateral,
+                                                             group, wts, always, lim, rcond)
+            return ContactStep(q=qn, v=vn, active=act, force=force, seat_force=seat, peak_seat_force=peak,
+                               peak_ubar=pub)
         K, W, C = self.contact_matrices(cc, mq, h)
         qn, vn, act, force, seat = substep_contacts(q, vq, a, mq, gq, h, K, W, C, self.name == "implicit",
                                                     self.unilateral, group, wts, lim, rcond)

@@ -50,7 +50,7 @@ def test_patch_weights_match_the_reference(seat_bundle):
 def _random_contact_set(rng):
     """A random coupled contact set in constrained coordinates: frictionless (one
     component per contact) or sticky (three, with the contact normals as weights)."""
-    from hailstorm.runtime.hail import _inv_spd
+    from hailstorm.runtime.contact.policy import spd_inverse
 
     s = int(rng.integers(1, 5))
     sticky = bool(rng.random() < 0.3)
@@ -61,7 +61,7 @@ def _random_contact_set(rng):
     nk /= np.linalg.norm(nk, axis=1, keepdims=True)
     a = rng.normal(size=n) * 1e-3
     return dict(
-        sticky=sticky, W=W, K=_inv_spd(W), a=a, q=a + rng.normal(size=n) * 1e-3, v=rng.normal(size=n) * 2.0,
+        sticky=sticky, W=W, K=spd_inverse(W), a=a, q=a + rng.normal(size=n) * 1e-3, v=rng.normal(size=n) * 2.0,
         g=rng.normal(size=n) * 5.0,
         m=np.repeat(rng.uniform(5e-4, 2e-3, s), 3) if sticky else rng.uniform(5e-4, 2e-3, n),
         group=np.repeat(np.arange(s), 3) if sticky else np.arange(n),
@@ -70,9 +70,29 @@ def _random_contact_set(rng):
     )
 
 
-def _assert_same_step(got, ref):
+def _critical_damping(K, m):
+    """The dashpot that damps every normal mode of ``M^-1/2 K M^-1/2`` critically
+    (zeta = 1): the state matrix is defective (the exact step's matrix exponential)."""
+    from hailstorm.runtime.hail import contact_modes
+
+    om2, Phi, sqm = contact_modes(K, m)
+    P = Phi * sqm[:, None]
+    C = (P * (2.0 * np.sqrt(om2))) @ P.T
+    return 0.5 * (C + C.T)
+
+
+def _assert_same_step(got, ref, rel=None):
+    """The kernel's step ``got`` is the reference's: to rounding (``rel`` None), or to ``rel``
+    of each array's largest entry (another evaluation of the same trajectory)."""
     qn, vn, act, force, seat, *peaks = got
     np.testing.assert_array_equal(act, ref.active)
+    if rel is not None:
+        pairs = [(qn, ref.q), (vn, ref.v), (seat, ref.seat_force), (force, ref.force)]
+        if peaks:
+            pairs += [(peaks[0], ref.peak_seat_force), (peaks[1], ref.peak_ubar)]
+        for x, y in pairs:
+            np.testing.assert_allclose(x, y, rtol=0, atol=rel * np.abs(y).max())
+        return int((~act).any())
     np.testing.assert_allclose(qn, ref.q, rtol=0, atol=1e-14)
     np.testing.assert_allclose(vn, ref.v, rtol=1e-10, atol=1e-12)
     np.testing.assert_allclose(seat, ref.seat_force, rtol=1e-9, atol=1e-9)
@@ -83,48 +103,78 @@ def _assert_same_step(got, ref):
     return int((~act).any())
 
 
-def test_exact_step_matches_numpy():
-    """The compiled exact integrator reproduces hailstorm.runtime.hail's on random coupled contact
-    sets: frictionless and sticky, s = 1..4, unilateral releases, resting (always damped)
-    components, the same active sets and the same peaks inside the step."""
+def _as_tuple(res):
+    return (res.q, res.v, res.active, res.force, res.seat_force, res.peak_seat_force, res.peak_ubar)
+
+
+def test_exact_step_matches_the_reference():
+    """The compiled exact integrator (and hail.contact_step, its wrapper) reproduces the numpy
+    statement of the algorithm (tests/reference/contact_step_ref.py) on random coupled contact
+    sets: frictionless and sticky, s = 1..4, unilateral on and off, dashpot on and off, resting
+    (always damped) components, critically damped sets (a defective modal basis: the kernel's
+    matrix exponential, the reference's scipy.linalg.expm); the same active sets and the same
+    peaks inside the step."""
     from hailstorm.runtime.hail import contact_step, damping_coefficients
+    from reference.contact_step_ref import contact_step_ref
 
     rng = np.random.default_rng(7)
-    released = 0
-    for _ in range(300):
+    released = critical = 0
+    for it in range(400):
         c = _random_contact_set(rng)
-        damping = damping_coefficients(c["K"], c["m"], 0.5, integrator="exact")
-        ref = contact_step(c["q"], c["v"], c["a"], c["m"], c["g"], 5e-4, K=c["K"], W=c["W"], damping=damping,
-                           integrator="exact", unilateral=True, group=c["group"] if c["sticky"] else None,
-                           normal_of=c["wts"] if c["sticky"] else None, always_damped=c["always"])
-        *got, ok = C.exact_step(c["q"], c["v"], c["a"], c["m"], c["g"], 5e-4, c["K"], c["W"], np.diag(damping), True,
-                                c["group"], c["wts"], c["always"], 1e10, 1e-10)
-        assert ok
-        released += _assert_same_step(got, ref)
-    assert released > 20  # the active-set (release) path is exercised
+        unilateral = bool(it % 4)
+        kind = rng.choice(["restitution", "none", "critical"], p=[0.6, 0.15, 0.25])
+        if kind == "restitution":
+            damping = np.diag(damping_coefficients(c["K"], c["m"], 0.5, integrator="exact"))
+        elif kind == "none":
+            damping = np.zeros((c["m"].size,) * 2)
+        else:
+            damping = _critical_damping(c["K"], c["m"])
+            critical += 1
+        kw = dict(K=c["K"], W=c["W"], damping=damping, integrator="exact", unilateral=unilateral,
+                  group=c["group"], normal_of=c["wts"], always_damped=c["always"])
+        ref = contact_step_ref(c["q"], c["v"], c["a"], c["m"], c["g"], 5e-4, **kw)
+        got = C.exact_step(c["q"], c["v"], c["a"], c["m"], c["g"], 5e-4, c["K"], c["W"], damping, unilateral,
+                           c["group"], c["wts"], c["always"], 1e10, 1e-10)
+        assert len(got) == 7  # every case covered: no "not covered" flag
+        # (repeated products of one expm against scipy's expm at each sample time: rounding apart)
+        released += _assert_same_step(got, ref, rel=1e-8 if kind == "critical" else None)
+        wrapped = contact_step(c["q"], c["v"], c["a"], c["m"], c["g"], 5e-4, **kw)
+        for x, y in zip(_as_tuple(wrapped), got):
+            np.testing.assert_array_equal(x, y)
+    assert released > 20 and critical > 50  # the active-set (release) path and the expm path are exercised
 
 
 @pytest.mark.parametrize("integrator", ["implicit", "symplectic"])
-def test_substep_contacts_and_damping_match_numpy(integrator):
-    """The compiled backward-Euler / symplectic contact step and its dashpot reproduce
-    hailstorm.runtime.hail's on random coupled sets (frictionless and sticky, releases)."""
+def test_substep_contacts_and_damping_match_the_reference(integrator):
+    """The compiled backward-Euler / symplectic contact step (and hail.contact_step, its wrapper)
+    reproduces the numpy statement (tests/reference/contact_step_ref.py) on random coupled sets
+    (frictionless and sticky, unilateral on and off, dashpot on and off, releases); the compiled
+    dashpot is hail.modal_damping."""
     from hailstorm.runtime.hail import _X_GRID, _Z_GRID, contact_modes, contact_step, modal_damping
+    from reference.contact_step_ref import contact_step_ref
 
     rng = np.random.default_rng(8)
     released = 0
-    for _ in range(200):
+    for it in range(200):
         c = _random_contact_set(rng)
+        unilateral = bool(it % 4)
         dt = float(rng.choice([2e-5, 2e-4]))
         e = float(rng.uniform(0.2, 0.9))
         damping = modal_damping(c["K"], c["m"], e, dt=dt, integrator="implicit" if integrator == "implicit" else "exact")
         got = C.substep_damping(*contact_modes(c["K"], c["m"]), e, dt, integrator == "implicit", _X_GRID, _Z_GRID)
         np.testing.assert_allclose(got, damping, rtol=1e-12, atol=1e-12 * np.abs(damping).max())
-        ref = contact_step(c["q"], c["v"], c["a"], c["m"], c["g"], dt, K=c["K"], W=c["W"], damping=damping,
-                           integrator=integrator, unilateral=True, group=c["group"] if c["sticky"] else None,
-                           normal_of=c["wts"] if c["sticky"] else None)
-        released += _assert_same_step(
-            C.substep_contacts(c["q"], c["v"], c["a"], c["m"], c["g"], dt, c["K"], c["W"], damping,
-                               integrator == "implicit", True, c["group"], c["wts"], 1e10, 1e-10), ref)
+        if it % 5 == 0:
+            damping = np.zeros_like(damping)
+        kw = dict(K=c["K"], W=c["W"], damping=damping, integrator=integrator, unilateral=unilateral,
+                  group=c["group"], normal_of=c["wts"])
+        ref = contact_step_ref(c["q"], c["v"], c["a"], c["m"], c["g"], dt, **kw)
+        got = C.substep_contacts(c["q"], c["v"], c["a"], c["m"], c["g"], dt, c["K"], c["W"], damping,
+                                 integrator == "implicit", unilateral, c["group"], c["wts"], 1e10, 1e-10)
+        released += _assert_same_step(got, ref)
+        wrapped = contact_step(c["q"], c["v"], c["a"], c["m"], c["g"], dt, **kw)
+        for x, y in zip(_as_tuple(wrapped)[:5], got):
+            np.testing.assert_array_equal(x, y)
+        np.testing.assert_array_equal(wrapped.peak_seat_force, got[4])
     assert released > 20
 
 

@@ -871,15 +871,18 @@ def test_rigid_threshold_is_the_policy_constant(box, monkeypatch, fast):
 
 
 def test_contact_api_has_no_backend_switch(box):
-    """One implementation: the contact API takes no backend= (issue 12)."""
+    """One implementation: the contact API takes no backend= (issue 12), and the kernels'
+    package has no backend switch left to resolve."""
     import inspect
 
-    from hailstorm.runtime import press_spheres
+    from hailstorm.runtime import compiled, press_spheres
 
     for fn in (solve_contacts, capacitance, patch_weights, patch_matrix, press_spheres):
         assert "backend" not in inspect.signature(fn).parameters, fn.__name__
     with pytest.raises(TypeError):
         solve_contacts(box["gf"], [int(box["touchable"][0])], [[0.2, 0.3, 0.5]], [[0, 0, -1e-3]], backend="numpy")
+    for name in ("resolve_backend", "HAVE_NUMBA"):
+        assert not hasattr(compiled, name) and name not in compiled.__all__, name
 
 
 def test_contact_core_imports_no_private_names():

@@ -26,7 +26,9 @@ Modules, in the order of a storm step:
 * :mod:`~hailstorm.runtime.compiled.contacts` — a storm contact set's blocks (W, K, G,
   D_VV G) and the constrained coordinates around a contact step;
 * :mod:`~hailstorm.runtime.compiled.integrators` — the exact, implicit and symplectic
-  contact steps, the sub-step sizing and the dashpot.
+  contact steps, the sub-step sizing and the dashpot (with :mod:`~hailstorm.runtime.compiled.modal`,
+  the modal algebra, and :mod:`~hailstorm.runtime.compiled.expm`, the matrix exponential
+  of a (nearly) defective set).
 
 The kernels are compiled on first use and cached on disk (``cache=True``,
 beside the modules' bytecode, or numba's user cache if that is read-only), so
@@ -37,7 +39,7 @@ for debugging.
 
 from __future__ import annotations
 
-from hailstorm.runtime.compiled._jit import HAVE_NUMBA, KERNELS
+from hailstorm.runtime.compiled._jit import KERNELS
 from hailstorm.runtime.compiled.blocks import columns_times, contact_compliance, point_contacts, vertex_block, weighted_rows
 from hailstorm.runtime.compiled.contacts import capacitance_blocks, contact_post, contact_prep, inv_spd, rigid_contacts
 from hailstorm.runtime.compiled.flight import flight, near_set, retired
@@ -54,7 +56,6 @@ from hailstorm.runtime.compiled.narrow import free_phase, penetration
 from hailstorm.runtime.compiled.patches import patch_compliance, patch_one, patch_radii
 
 __all__ = [
-    "HAVE_NUMBA",
     "KERNELS",
     "SampleGrid",
     "capacitance_blocks",
@@ -75,7 +76,6 @@ __all__ = [
     "patch_radii",
     "penetration",
     "point_contacts",
-    "resolve_backend",
     "retired",
     "rigid_contacts",
     "substep_contacts",
@@ -85,24 +85,3 @@ __all__ = [
     "weighted_rows",
 ]
 
-
-def resolve_backend(backend: str) -> str:
-    """The backend a storm or a contact solve runs on: ``"numba"`` or ``"numpy"``.
-
-    Parameters
-    ----------
-    backend : {"auto", "numba", "numpy"}
-        ``"auto"`` takes numba when it is installed.
-
-    Raises
-    ------
-    ValueError
-        ``"numba"`` asked for but numba is not installed, or an unknown name.
-    """
-    if backend == "auto":
-        return "numba" if HAVE_NUMBA else "numpy"
-    if backend == "numba" and not HAVE_NUMBA:
-        raise ValueError('backend "numba" needs numba: pip install "hailstorm[fast]" (or use backend "auto")')
-    if backend not in ("numba", "numpy"):
-        raise ValueError(f'backend must be "auto", "numba" or "numpy", not {backend!r}')
-    return backend

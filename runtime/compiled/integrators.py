@@ -1,8 +1,11 @@
 """The contact integrators' steps: exact (closed form, modal with events) and the
 sub-stepped backward Euler / symplectic Euler with their step sizing and dashpot.
 
-The tests hold them to :func:`hailstorm.runtime.hail.contact_step` and
-:func:`hailstorm.runtime.hail.modal_damping`; the step sizing's rules are in
+They are the one implementation of :func:`hailstorm.runtime.hail.contact_step` (a thin
+wrapper over :func:`exact_step` and :func:`substep_contacts`) and of the storm's contact
+step. The tests hold them to the numpy statement of the same algorithms
+(``tests/reference/contact_step_ref.py``), to :func:`scipy.linalg.expm` of the state
+matrix and to the analytic bounce of one contact; the step sizing's rules are in
 :mod:`hailstorm.runtime.storm`.
 """
 
@@ -14,6 +17,7 @@ import numpy as np
 
 from hailstorm.runtime.compiled._jit import _njit
 from hailstorm.runtime.compiled.contacts import inv_spd
+from hailstorm.runtime.compiled.expm import expm
 from hailstorm.runtime.compiled.modal import (
     equilibrium_py,
     explicit_modes_py,
@@ -82,24 +86,63 @@ def _advance(q, v, g, idx, ze, q_eq, free, h):  # pragma: no cover (compiled)
 
 
 @_njit
-def _modal(Ka, ma, ce):  # pragma: no cover (compiled)
-    """Eigen-decomposition of ``z' = A z`` for ``M y'' + C y' + K y = 0``: (lam, V, Vi, ok);
-    ``ok`` False for a (nearly) defective system (the numpy path then uses expm)."""
+def _state_matrix(Ka, ma, ce):  # pragma: no cover (compiled)
+    """``A`` of ``z' = A z``, ``z = (y, y')``, for ``M y'' + C y' + K y = 0``."""
     n = ma.size
-    A = np.zeros((2 * n, 2 * n), np.complex128)
+    A = np.zeros((2 * n, 2 * n))
     for i in range(n):
         A[i, n + i] = 1.0
         for j in range(n):
             A[n + i, j] = -Ka[i, j] / ma[i]
         for j in range(n):
             A[n + i, n + j] = -ce[i, j] / ma[i]
-    lam, V = np.linalg.eig(A)
+    return A
+
+
+@_njit
+def _modal(A):  # pragma: no cover (compiled)
+    """Eigen-decomposition ``A = V diag(lam) Vi``: (lam, V, Vi, ok); ``ok`` False for a
+    (nearly) defective system (critically damped modes: ``cond(V)`` too large), which
+    the exact step then advances with :func:`hailstorm.runtime.compiled.expm.expm`."""
+    lam, V = np.linalg.eig(A.astype(np.complex128))
     try:
         Vi = np.linalg.inv(V)
     except Exception:
         return lam, V, V, False
     ok = np.all(np.isfinite(Vi.real)) and np.all(np.isfinite(Vi.imag)) and np.abs(V).max() * np.abs(Vi).max() < 1e7
     return lam, V, Vi, ok
+
+
+@_njit
+def _expm_states(A, z, d, count):  # pragma: no cover (compiled)
+    """States (2n, count) at ``d, 2 d, ..., count d`` from ``z``: ``E z, E^2 z, ...`` with
+    ``E = expm(A d)`` (a defective modal basis). The velocities are scaled by the set's
+    stiffest frequency ``sigma`` first (``A`` similar to ``[[0, sigma I], [-M^-1 K / sigma,
+    -M^-1 C]]``, whose blocks are of one size), so that the exponential's normwise
+    accuracy holds for positions and velocities alike."""
+    n = A.shape[0] // 2
+    top = 0.0
+    for i in range(n):
+        for j in range(n):
+            top = max(top, abs(A[n + i, j]))
+    sig = math.sqrt(top) if top > 0.0 else 1.0
+    As = A * d
+    for i in range(n):
+        for j in range(n):
+            As[i, n + j] *= sig
+            As[n + i, j] /= sig
+    E = expm(As)
+    zk = z.copy()
+    for i in range(n):
+        zk[n + i] /= sig
+    Z = np.empty((2 * n, count))
+    for k in range(count):
+        zk = E @ zk
+        Z[:, k] = zk
+    for i in range(n):
+        for k in range(count):
+            Z[n + i, k] *= sig
+    return Z
 
 
 @_njit
@@ -115,7 +158,7 @@ def _modal_at(lam, V, Vi, z0, tau):  # pragma: no cover (compiled)
 
 @_njit
 def _track(idx, Ka, ub, ncol, group, wts, ng, pk2, pk_f, dmin, dmin_u):  # pragma: no cover (compiled)
-    """Update the step's peaks (``hailstorm.runtime.hail._exact_step``'s ``track``) from the first
+    """Update the step's peaks from the first
     ``ncol`` states of the active components ``idx`` (``ub``: their q - a, (na, T)):
     per contact group the largest |elastic seat force| and the most negative normal q - a."""
     na = idx.size
@@ -150,13 +193,21 @@ def _track(idx, Ka, ub, ncol, group, wts, ng, pk2, pk_f, dmin, dmin_u):  # pragm
 @_njit
 def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond_limit,
                rcond):  # pragma: no cover (compiled)
-    """Compiled ``hailstorm.runtime.hail._exact_step`` (the exact integrator's step; see there):
-    ``Cn`` the (n, n) dashpot, ``cond_limit``, ``rcond`` the policy of :func:`inv_spd`.
+    """The exact integrator's step of a contact set (see :func:`hailstorm.runtime.hail.contact_step`):
+    the damped linear dynamics in closed form, split at the instants the dashpot pattern
+    or the active set changes (located on the trajectory: a grid of 32 samples, refined
+    twice). One frictionless contact takes the scalar closed form (where it applies: not
+    overdamped); a set goes through its modes, or where the modal basis is (nearly)
+    defective (critically damped or repeated modes) through the matrix exponential
+    (:func:`~hailstorm.runtime.compiled.expm.expm`: one ``expm(A d)`` per grid of
+    spacing ``d``, and its powers). Every case is covered.
 
-    Returns ``(q, v, active, force, seat_force, peak_seat_force, peak_ubar, ok)``
-    (see :class:`hailstorm.runtime.hail.ContactStep`); ``ok`` is False in the rare
-    cases the compiled version does not cover (a nearly defective modal basis, an
-    overdamped single contact): the caller then runs the numpy version.
+    ``K`` the capacitance of the full set, ``W`` its compliance (the capacitance of an
+    active subset ``a`` is ``inv(W[a, a])``), ``Cn`` the (n, n) dashpot, ``cond_limit``,
+    ``rcond`` the policy of :func:`inv_spd`.
+
+    Returns ``(q, v, active, force, seat_force, peak_seat_force, peak_ubar)``
+    (see :class:`hailstorm.runtime.hail.ContactStep`).
     """
     GRID = 32
     REFINE = 2
@@ -186,7 +237,7 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond
             peak[0] = k * (umin if -umin >= umax else umax)
             pub = np.empty(1)
             pub[0] = umin
-            return q, v, active, force, seat, peak, pub, True
+            return q, v, active, force, seat, peak, pub
     # (kernels called with one type each: a literal 1 or a strided view as an argument
     # would compile a second specialisation of _track / _advance / _gsum on a first run)
     one = np.int64(1)
@@ -247,10 +298,10 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond
         aa = a[idx]
         ce = _dashpot(idx, Cn, damp_g, group, always)
         q_eq = aa + _equilibrium(Ka, ma * ga)
-        lam, V, Vi, ok = _modal(Ka, ma, ce)
-        if not ok:
-            return q, v, active, v0, v0, v0, v0, False
+        A = _state_matrix(Ka, ma, ce)
+        lam, V, Vi, ok = _modal(A)
         z0 = np.concatenate((q[idx] - q_eq, v[idx]))
+        zlo = z0  # (defective basis: the state at the bracket's left end)
         gi = group[idx]
         wi = wts[idx]
         ident_a = ident and na == n
@@ -273,7 +324,10 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond
         evg = np.zeros(ng, np.bool_)
         found = False
         for ref in range(REFINE + 1):
-            Z = _modal_at(lam, V, Vi, z0, tau)
+            if ok:
+                Z = _modal_at(lam, V, Vi, z0, tau)
+            else:
+                Z = _expm_states(A, zlo, (hi - lo) / GRID, GRID)
             y = Z[:na]
             vv = Z[na:]
             vng = _gsum(np.ascontiguousarray(vv), gi, wi, ng, ident_a)
@@ -298,6 +352,8 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond
             # the states up to the event (after it: another pattern)
             _track(idx, Ka, y + off_eq.reshape(na, 1), j + 1, group, wts, ng, pk2, pk_f, dmin, dmin_u)
             found = True
+            if j:
+                zlo = np.ascontiguousarray(Z[:, j - 1])
             lo, hi = (tau[j - 1] if j else lo), tau[j]
             ze[:] = Z[:, j]
             for gg in range(ng):
@@ -338,10 +394,13 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond
                 Ka = inv_spd(_sub(W, idx), cond_limit, rcond) if idx.size < n else K
                 ce = _dashpot(idx, Cn, damp_g, group, always)
                 q_eq = a[idx] + _equilibrium(Ka, m[idx] * g[idx])
-                lam, V, Vi, ok = _modal(Ka, m[idx], ce)
-                if not ok:
-                    return q, v, active, v0, v0, v0, v0, False
-                ze = np.ascontiguousarray(_modal_at(lam, V, Vi, np.concatenate((q[idx] - q_eq, v[idx])), np.array([h]))[:, 0])
+                A = _state_matrix(Ka, m[idx], ce)
+                lam, V, Vi, ok = _modal(A)
+                z0 = np.concatenate((q[idx] - q_eq, v[idx]))
+                if ok:
+                    ze = np.ascontiguousarray(_modal_at(lam, V, Vi, z0, np.array([h]))[:, 0])
+                else:
+                    ze = np.ascontiguousarray(_expm_states(A, z0, h, one)[:, 0])
             _advance(q, v, g, idx, ze, q_eq, free, h)
             if idx.size:
                 _track(idx, Ka, (q[idx] - a[idx]).reshape(idx.size, 1), one, group, wts, ng, pk2, pk_f, dmin, dmin_u)
@@ -359,7 +418,7 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond
     for i in range(n):
         if not np.isfinite(dmin[group[i]]):
             dmin_u[i] = q[i] - a[i]
-    return q, v, active, force, seat, pk_f, dmin_u, True
+    return q, v, active, force, seat, pk_f, dmin_u
 
 
 @_njit

@@ -1,6 +1,7 @@
 """Plain-Python statements of the modal contact algebra that numba compiles
-(:mod:`hailstorm.runtime.compiled.integrators`) and that :mod:`hailstorm.runtime.hail`'s
-numpy integrator calls as they are: one definition of each.
+(:mod:`hailstorm.runtime.compiled.integrators`) and that :func:`hailstorm.runtime.hail.modal_damping`
+(the dashpot) and the tests' numpy contact step (``tests/reference/contact_step_ref.py``)
+call as they are: one definition of each.
 
 * :func:`modal_damping_py` -- the dashpot per normal mode (target restitution);
 * :func:`explicit_modes_py`, :func:`modal_stiffness_py` -- the modes an explicit step carries;
