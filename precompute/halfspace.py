@@ -26,12 +26,13 @@ __all__ = ["halfspace_block"]
 
 def halfspace_block(
     *,
-    half_width: float = 0.05,
-    depth: float = 0.05,
-    top_half_width: float = 0.004,
+    half_width: float = 0.15,
+    depth: float = 0.15,
+    top_half_width: float = 0.0022,
     fine_size: float = 2.5e-4,
     fine_radius: float = 0.003,
-    coarse_size: float = 0.008,
+    coarse_size: float = 0.03,
+    growth: float = 0.15,
 ) -> TetMesh:
     """Mesh a block graded towards the centre of its top face.
 
@@ -49,6 +50,10 @@ def halfspace_block(
         is sensible).
     coarse_size : float
         Element size far from the origin [m].
+    growth : float
+        Rate at which the element size grows with the distance beyond
+        ``fine_radius`` (``dh/dr``; 0.3: about 30 % per element layer) until
+        it reaches ``coarse_size``.
 
     Returns
     -------
@@ -61,7 +66,7 @@ def halfspace_block(
         Inconsistent sizes.
     """
     sizes = dict(half_width=half_width, depth=depth, top_half_width=top_half_width, fine_size=fine_size,
-                 fine_radius=fine_radius, coarse_size=coarse_size)
+                 fine_radius=fine_radius, coarse_size=coarse_size, growth=growth)
     for name, v in sizes.items():
         if not (v > 0):
             raise MeshError(f"halfspace_block: {name} must be positive, got {v!r}")
@@ -108,8 +113,8 @@ def halfspace_block(
         gmsh.model.mesh.field.setNumber(f_thr, "SizeMin", fine_size)
         gmsh.model.mesh.field.setNumber(f_thr, "SizeMax", coarse_size)
         gmsh.model.mesh.field.setNumber(f_thr, "DistMin", fine_radius)
-        # grow by about 30 % per element layer: (coarse - fine) over (coarse + fine) / 2 / 0.3 lengths
-        grow = (coarse_size - fine_size) / (0.15 * (coarse_size + fine_size)) * 0.5 * (coarse_size + fine_size)
+        # the size grows linearly with the distance, dh/dr = growth (a fraction growth per element layer)
+        grow = (coarse_size - fine_size) / growth
         gmsh.model.mesh.field.setNumber(f_thr, "DistMax", fine_radius + max(grow, coarse_size))
         gmsh.model.mesh.field.setAsBackgroundMesh(f_thr)
         gmsh.option.setNumber("Mesh.MeshSizeMax", coarse_size)
