@@ -3,26 +3,26 @@
 Reference: a rigid sphere of radius R pressed a depth delta into an elastic
 half-space carries F = (4/3) E* sqrt(R) delta^(3/2) (Johnson, ch. 4).
 
-Tolerances come from the measured convergence of this block (P1, E = 2 MPa,
-nu = 0.35, R = 10 mm, force ratio F / F_Hertz at delta/R = 0.01 / 0.02 / 0.04):
+The block (hailstorm.studies.hertz_study.block_bundle: halfspace_block's defaults, P1,
+E = 2 MPa, nu = 0.35, R = 10 mm) and its measured force ratios F / F_Hertz at
+delta/R = 0.01 / 0.02 / 0.04 (python -m hailstorm.studies.hertz_study):
 
-=========  ===========================  ===========================  =====================
-fine size  offset a^2/(5R), unscaled    press_spheres (resolved)     delta as the mean (old)
-=========  ===========================  ===========================  =====================
-0.35 mm    1.145 / 1.122 / 1.122        1.170 / 1.134 / 1.128        1.407 / 1.378 / 1.376
-0.25 mm    1.101 / 1.092 / 1.101                                     1.358 / 1.346 / 1.353
-0.177 mm   1.073 / 1.074 / 1.089                                     1.326 / 1.327 / 1.341
-=========  ===========================  ===========================  =====================
+=========  ========================  =======================================
+fine size  press_spheres             the old block (50 mm, 30 % growth, 8 mm)
+=========  ========================  =======================================
+0.35 mm    1.136 / 1.092 / 1.070     1.170 / 1.134 / 1.128
+0.25 mm    1.084 / 1.060 / 1.050
+0.177 mm   1.054 / 1.041 / 1.038
+=========  ========================  =======================================
 
-With the unscaled offset the error falls as h^1.25 towards ~1.02
-(Richardson), the remaining 2 % being the block's clamped bottom at 50 mm (a
-Boussinesq estimate gives 1.5 %); the old prescription converges to ~1.3, the
-1/0.8 of prescribing delta instead of the Hertz-weighted mean
-delta - a^2/(5R). press_spheres scales the offset by how well the mesh
-resolves the patch (hailstorm.runtime.contact.weights.sphere_mean_offset), which costs 1-2 %
-on the coarse block and vanishes with refinement. The default-run test uses
-the 0.35 mm block (20 % tolerance, and the old prescription must be 30 %
-off); the slow test refines twice and extrapolates (see its docstring).
+The error under the load falls as h^p (p ~ 1.3, P1); what stays in the limit is the
+far field and the clamp. On the 0.35 mm block at delta/R = 0.04 (a = 2 mm): the old block
+1.128, clamped at 150 mm instead of 50 mm 1.101 (a Boussinesq estimate of the clamp:
+0.75 a / H, 3 % at 50 mm), far-field elements growing 15 % per layer instead of 30 %
+1.095, both 1.070, and a 300 mm block 1.064: the old block's Richardson limit (+2.5 /
++5.0 / +7.6 %) grew with the contact radius for that reason. The default-run tests use
+the 0.35 mm block (15 % tolerance, and prescribing delta as the patch mean, the old
+model, must be 30 % off); the slow tests refine twice and extrapolate.
 """
 
 from __future__ import annotations
@@ -78,7 +78,7 @@ def test_hertz_mean_offset_is_the_weighted_mean_of_the_sphere_profile():
 
 def test_press_spheres_matches_hertz_on_a_coarse_block(coarse_block):
     new, old = _force_ratios(coarse_block)
-    assert np.all(np.abs(new - 1.0) < 0.2), new
+    assert np.all(np.abs(new - 1.0) < 0.15), new  # measured 1.136 / 1.092 / 1.070
     assert np.all(old > 1.3), old  # prescribing delta as the patch mean: the old, too-stiff model
 
 
@@ -110,21 +110,22 @@ def test_press_spheres_bad_input(coarse_block, bad, match):
 
 @pytest.mark.slow
 def test_press_spheres_converges_to_hertz(tmp_path):
-    """Three meshes; the Richardson limit of the force ratio approaches Hertz.
+    """Three meshes; the Richardson limit of the force ratio is within 5 % of Hertz for
+    delta/R = 0.01 to 0.04 (the issue's requirement).
 
-    Measured limits at delta/R = 0.01 / 0.02 / 0.04: +2.5 / +5.0 / +7.6 %. The sequence
-    refines only the region within 3 mm of the load (the far field stays at 8 mm), so the
-    limit keeps the far field's and the clamped bottom's stiffening, which grows with the
-    contact radius (2 mm at delta/R = 0.04). The issue's 5 % holds up to delta/R = 0.02.
+    Measured limits at delta/R = 0.01 / 0.02 / 0.04: +1.3 / +1.3 / +2.0 % (the 0.177 mm block itself
+    +5.4 / +4.1 / +3.8 %). On the old block (50 mm,
+    clamped at 50 mm, 30 % growth to 8 mm) they were +2.5 / +5.0 / +7.6 %: the sequence
+    refines only the elements under the load, so the limit kept the far field's and the
+    clamp's stiffening, which grows with the contact radius (module docstring).
     """
     h = (3.5e-4, 2.5e-4, 1.77e-4)
     e = np.array([_force_ratios(_block_bundle(tmp_path / f"b{i}", hi))[0] - 1.0 for i, hi in enumerate(h)])
     assert np.all(np.abs(e[1]) < np.abs(e[0])) and np.all(np.abs(e[2]) < np.abs(e[1]))  # it converges
     q = (e[0] - e[1]) / (e[1] - e[2])  # ratio of successive differences (equal refinement steps)
     limit = e[2] - (e[1] - e[2]) / (q - 1.0)
-    assert np.all(np.abs(limit) < 0.08), limit
-    assert np.all(np.abs(limit[:2]) < 0.051), limit
-
+    assert np.all(np.abs(limit) < 0.05), limit
+    assert np.all(np.abs(e[2]) < 0.06), e[2]  # the finest block itself
 
 
 def test_boussinesq_point_load_on_the_block(coarse_block):
@@ -179,13 +180,13 @@ def _hertz_depth(force: float) -> float:
 
 
 def test_storm_stone_rests_at_the_hertz_depth(coarse_block):
-    """Measured on the 0.35 / 0.25 / 0.177 mm blocks: depth / Hertz 0.909 / 0.933 / 0.947 (the
-    slow test extrapolates); press_spheres at the same force 0.913 / 0.938 / 0.952. The old
-    prescription (delta as the patch mean) rested at 0.69 on the 0.35 mm block."""
+    """Measured on the 0.35 / 0.25 / 0.177 mm blocks: depth / Hertz 0.930 / 0.956 / 0.970 (the
+    slow test extrapolates; the old block 0.909 / 0.933 / 0.947), force / m g 1.0000. The old
+    prescription (delta as the patch mean) rested at 0.69 on the old 0.35 mm block."""
     depth, force, mg, a = _storm_rest_depth(coarse_block)
     assert force == pytest.approx(mg, rel=1e-2)  # the seat carries the stone
     dH = _hertz_depth(mg)
-    assert abs(depth / dH - 1.0) < 0.15, depth / dH  # the coarse block is ~9 % stiff (press_spheres too)
+    assert abs(depth / dH - 1.0) < 0.10, depth / dH  # the coarse block is ~7 % stiff (press_spheres too)
     assert depth == pytest.approx(_api_rest_depth(coarse_block, mg), rel=0.02)  # the storm and the API agree
     assert a == pytest.approx(hailstorm.runtime.hertz_radius(mg, STONE, E, NU), rel=0.02)  # radius from the weight
 
@@ -193,7 +194,7 @@ def test_storm_stone_rests_at_the_hertz_depth(coarse_block):
 @pytest.mark.slow
 def test_storm_rest_depth_converges_to_hertz(tmp_path):
     """Three blocks; the Richardson limit of the storm's rest depth is within 5 % of Hertz
-    (measured: 0.967)."""
+    (measured: 0.986; the old block 0.967)."""
     h = (3.5e-4, 2.5e-4, 1.77e-4)
     r = []
     for i, hi in enumerate(h):
@@ -254,7 +255,7 @@ def test_hertz_impact_matches_the_equation_of_motion():
 def test_storm_drop_against_hertz_impact(coarse_block):
     """A 10 mm stone dropped at 0.4 m/s on the block (exact integrator, Hertz-secant patches,
     restitution 1): peak indentation, peak force and contact duration against Hertz's
-    quasi-static impact (with gravity: 370.5 um, 2.167 N, 2.701 ms).
+    quasi-static impact (with gravity: 370.5 um, 2.168 N, 2.701 ms).
 
     The storm's patch keeps one radius a through an impact (sized for its expected peak
     force) and its law is linear, Hertz's secant F = (4/3) E* a delta. Any linear spring

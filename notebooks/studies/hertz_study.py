@@ -92,12 +92,11 @@ def hertz_depth(force: float, sphere_radius: float, young: float, poisson: float
 
 def _storm(gf: Any, dt: float, restitution: float | None = None) -> Any:
     import hailstorm.runtime
-    from hailstorm.runtime.storm import Storm
 
     kw: dict[str, Any] = dict(integrator="exact", dt=dt, drag=False)
     if restitution is not None:
         kw["restitution"] = restitution
-    return Storm(gf, hailstorm.runtime.Scene.default().with_(**kw), spawn=False)
+    return hailstorm.runtime.Storm(gf, hailstorm.runtime.Scene.default().with_(**kw), spawn=False)
 
 
 def rest_stone(gf: Any, stone_radius: float = 0.02, steps: int = 800, dt: float = 5e-4) -> tuple[float, float, float, float]:
