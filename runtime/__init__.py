@@ -9,9 +9,11 @@ contact work in compiled kernels (:mod:`hailstorm.runtime.compiled`).
 * :func:`capacitance` -> :class:`Capacitance` (W = Bᵀ D B, K = W⁻¹, low-rank updates);
 * :func:`solve_contacts` -> :class:`ContactSolution`;
 * :func:`press_spheres` -> :class:`SphereContacts` (rigid spheres, Hertz-consistent patches);
+  :func:`hertz_impact` -> :class:`HertzImpact` (Hertz's quasi-static impact, the reference);
 * :class:`Scene` (its sections :class:`StormSettings`, :class:`HailSettings`,
   :class:`ContactSettings`, :class:`TimeSettings`, :class:`OutputSettings`; the default seat's
-  precompute settings :class:`SeatSettings`), :func:`run_storm` -> :class:`StormResult` (the hail storm).
+  precompute settings :class:`SeatSettings`), :func:`run_storm` -> :class:`StormResult` (the hail storm);
+  :class:`Storm`, the storm driver stepped by hand (studies, tests).
 """
 
 from hailstorm.runtime.bundle import BundleError, GreensFunctions, load
@@ -24,7 +26,7 @@ from hailstorm.runtime.contact import (
     patch_weights,
     solve_contacts,
 )
-from hailstorm.runtime.hertz import SphereContacts, hertz_force, press_spheres
+from hailstorm.runtime.hertz import HertzImpact, SphereContacts, hertz_force, hertz_impact, press_spheres
 from hailstorm.runtime.scene import (
     ContactSettings,
     HailSettings,
@@ -35,7 +37,7 @@ from hailstorm.runtime.scene import (
     StormSettings,
     TimeSettings,
 )
-from hailstorm.runtime.storm import StormResult, run_storm
+from hailstorm.runtime.storm import Storm, StormResult, run_storm
 
 __all__ = [
     "BundleError",
@@ -43,18 +45,21 @@ __all__ = [
     "ContactSettings",
     "ContactSolution",
     "GreensFunctions",
+    "HertzImpact",
     "HailSettings",
     "OutputSettings",
     "Scene",
     "SceneError",
     "SeatSettings",
     "SphereContacts",
+    "Storm",
     "StormResult",
     "StormSettings",
     "TimeSettings",
     "barycentric_matrix",
     "capacitance",
     "hertz_force",
+    "hertz_impact",
     "hertz_radius",
     "load",
     "patch_weights",

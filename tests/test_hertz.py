@@ -3,26 +3,26 @@
 Reference: a rigid sphere of radius R pressed a depth delta into an elastic
 half-space carries F = (4/3) E* sqrt(R) delta^(3/2) (Johnson, ch. 4).
 
-Tolerances come from the measured convergence of this block (P1, E = 2 MPa,
-nu = 0.35, R = 10 mm, force ratio F / F_Hertz at delta/R = 0.01 / 0.02 / 0.04):
+The block (hailstorm.studies.hertz_study.block_bundle: halfspace_block's defaults, P1,
+E = 2 MPa, nu = 0.35, R = 10 mm) and its measured force ratios F / F_Hertz at
+delta/R = 0.01 / 0.02 / 0.04 (python -m hailstorm.studies.hertz_study):
 
-=========  ===========================  ===========================  =====================
-fine size  offset a^2/(5R), unscaled    press_spheres (resolved)     delta as the mean (old)
-=========  ===========================  ===========================  =====================
-0.35 mm    1.145 / 1.122 / 1.122        1.170 / 1.134 / 1.128        1.407 / 1.378 / 1.376
-0.25 mm    1.101 / 1.092 / 1.101                                     1.358 / 1.346 / 1.353
-0.177 mm   1.073 / 1.074 / 1.089                                     1.326 / 1.327 / 1.341
-=========  ===========================  ===========================  =====================
+=========  ========================  =======================================
+fine size  press_spheres             the old block (50 mm, 30 % growth, 8 mm)
+=========  ========================  =======================================
+0.35 mm    1.136 / 1.092 / 1.070     1.170 / 1.134 / 1.128
+0.25 mm    1.084 / 1.060 / 1.050
+0.177 mm   1.054 / 1.041 / 1.038
+=========  ========================  =======================================
 
-With the unscaled offset the error falls as h^1.25 towards ~1.02
-(Richardson), the remaining 2 % being the block's clamped bottom at 50 mm (a
-Boussinesq estimate gives 1.5 %); the old prescription converges to ~1.3, the
-1/0.8 of prescribing delta instead of the Hertz-weighted mean
-delta - a^2/(5R). press_spheres scales the offset by how well the mesh
-resolves the patch (hailstorm.runtime.contact.weights.sphere_mean_offset), which costs 1-2 %
-on the coarse block and vanishes with refinement. The default-run test uses
-the 0.35 mm block (20 % tolerance, and the old prescription must be 30 %
-off); the slow test refines twice and extrapolates (see its docstring).
+The error under the load falls as h^p (p ~ 1.3, P1); what stays in the limit is the
+far field and the clamp. On the 0.35 mm block at delta/R = 0.04 (a = 2 mm): the old block
+1.128, clamped at 150 mm instead of 50 mm 1.101 (a Boussinesq estimate of the clamp:
+0.75 a / H, 3 % at 50 mm), far-field elements growing 15 % per layer instead of 30 %
+1.095, both 1.070, and a 300 mm block 1.064: the old block's Richardson limit (+2.5 /
++5.0 / +7.6 %) grew with the contact radius for that reason. The default-run tests use
+the 0.35 mm block (15 % tolerance, and prescribing delta as the patch mean, the old
+model, must be 30 % off); the slow tests refine twice and extrapolate.
 """
 
 from __future__ import annotations
@@ -33,30 +33,17 @@ import pytest
 pytest.importorskip("gmsh")
 
 import hailstorm.runtime  # noqa: E402
-from hailstorm.precompute import build_bundle  # noqa: E402
-from hailstorm.precompute.halfspace import halfspace_block  # noqa: E402
-from hailstorm.runtime.hertz import hertz_force, press_spheres  # noqa: E402
+from hailstorm.runtime.hertz import hertz_force, hertz_impact, press_spheres  # noqa: E402
 from hailstorm.runtime.contact.weights import hertz_mean_offset  # noqa: E402
+from hailstorm.studies.hertz_study import (  # noqa: E402
+    block_bundle, drop_stone, hertz_depth, origin_contact, rest_stone)
 
 E, NU, R = 2.0e6, 0.35, 0.01
 RATIOS = (0.01, 0.02, 0.04)
 
 
-def origin_contact(gf) -> tuple[int, np.ndarray]:
-    """The top-face triangle holding the origin and the origin's barycentric coordinates."""
-    V, T = np.asarray(gf.vertices), np.asarray(gf.triangles)
-    for t in np.flatnonzero(np.abs(V[T][:, :, 2]).max(axis=1) < 1e-9):
-        P = V[T[t], :2]
-        lam = np.linalg.solve((P[:2] - P[2]).T, -P[2])
-        b = np.array([lam[0], lam[1], 1.0 - lam.sum()])
-        if b.min() >= -1e-12:
-            return int(t), np.clip(b, 0.0, None) / np.clip(b, 0.0, None).sum()
-    raise AssertionError("no top triangle holds the origin")
-
-
 def _block_bundle(path, fine: float):
-    mesh = halfspace_block(fine_size=fine, top_half_width=0.0025, fine_radius=0.003)
-    return hailstorm.runtime.load(build_bundle(path, mesh=mesh, order=1, young=E, poisson=NU))
+    return block_bundle(path, fine)
 
 
 def _force_ratios(gf) -> tuple[np.ndarray, np.ndarray]:
@@ -91,7 +78,7 @@ def test_hertz_mean_offset_is_the_weighted_mean_of_the_sphere_profile():
 
 def test_press_spheres_matches_hertz_on_a_coarse_block(coarse_block):
     new, old = _force_ratios(coarse_block)
-    assert np.all(np.abs(new - 1.0) < 0.2), new
+    assert np.all(np.abs(new - 1.0) < 0.15), new  # measured 1.136 / 1.092 / 1.070
     assert np.all(old > 1.3), old  # prescribing delta as the patch mean: the old, too-stiff model
 
 
@@ -123,28 +110,32 @@ def test_press_spheres_bad_input(coarse_block, bad, match):
 
 @pytest.mark.slow
 def test_press_spheres_converges_to_hertz(tmp_path):
-    """Three meshes; the Richardson limit of the force ratio approaches Hertz.
+    """Three meshes; the Richardson limit of the force ratio is within 5 % of Hertz for
+    delta/R = 0.01 to 0.04 (the issue's requirement).
 
-    Measured limits at delta/R = 0.01 / 0.02 / 0.04: +2.5 / +5.0 / +7.6 %. The sequence
-    refines only the region within 3 mm of the load (the far field stays at 8 mm), so the
-    limit keeps the far field's and the clamped bottom's stiffening, which grows with the
-    contact radius (2 mm at delta/R = 0.04). The issue's 5 % holds up to delta/R = 0.02.
+    Measured limits at delta/R = 0.01 / 0.02 / 0.04: +1.3 / +1.3 / +2.0 % (the 0.177 mm block itself
+    +5.4 / +4.1 / +3.8 %). On the old block (50 mm,
+    clamped at 50 mm, 30 % growth to 8 mm) they were +2.5 / +5.0 / +7.6 %: the sequence
+    refines only the elements under the load, so the limit kept the far field's and the
+    clamp's stiffening, which grows with the contact radius (module docstring).
     """
     h = (3.5e-4, 2.5e-4, 1.77e-4)
     e = np.array([_force_ratios(_block_bundle(tmp_path / f"b{i}", hi))[0] - 1.0 for i, hi in enumerate(h)])
     assert np.all(np.abs(e[1]) < np.abs(e[0])) and np.all(np.abs(e[2]) < np.abs(e[1]))  # it converges
     q = (e[0] - e[1]) / (e[1] - e[2])  # ratio of successive differences (equal refinement steps)
     limit = e[2] - (e[1] - e[2]) / (q - 1.0)
-    assert np.all(np.abs(limit) < 0.08), limit
-    assert np.all(np.abs(limit[:2]) < 0.051), limit
-
+    assert np.all(np.abs(limit) < 0.05), limit
+    assert np.all(np.abs(e[2]) < 0.06), e[2]  # the finest block itself
 
 
 def test_boussinesq_point_load_on_the_block(coarse_block):
     """A unit normal point force on the block's top: u_z(r) = (1 - nu^2) F / (pi E r) + const
     over 3-30 mm (the constant: the finite, clamped block). Measured on the 0.35 mm block:
-    coefficient 0.90 of Boussinesq's (P1 on a mesh graded from 0.35 mm at the load to ~5 mm
-    at 30 mm is stiff), the same in each band of r within 2 %, fit residual 1.6 %."""
+    coefficient 0.970 of Boussinesq's, bands 0.969 / 0.969 / 0.971, fit residual 1.0 %. The
+    old block (50 mm, clamped at 50 mm, far field growing 30 % per element layer to 8 mm)
+    gave 0.90: P1 elements at h ~ 0.3 r are 10 % stiff there, and that far field carried
+    the force-indentation drift at large delta/R; the block now grows 15 % per layer
+    (h ~ 0.15 r: P1's energy error ~ (h/r)^2 quarters) out to 150 mm."""
     gf = coarse_block
     V = np.asarray(gf.vertices)
     j = int(np.argmin(np.where(gf.contactable, np.linalg.norm(V, axis=1), np.inf)))
@@ -155,11 +146,11 @@ def test_boussinesq_point_load_on_the_block(coarse_block):
     A = np.stack([1.0 / r[m], np.ones(m.sum())], axis=1)
     (c, off), *_ = np.linalg.lstsq(A, uz[m], rcond=None)
     c_b = (1 - NU**2) / (np.pi * E)
-    assert 0.85 < c / c_b < 1.0, c / c_b
-    assert np.abs(A @ [c, off] - uz[m]).max() < 0.03 * np.abs(uz[m]).max()  # the 1/r shape
+    assert 0.95 < c / c_b < 1.0, c / c_b  # P1 is stiff (never softer than the continuum); the old block: 0.90
+    assert np.abs(A @ [c, off] - uz[m]).max() < 0.02 * np.abs(uz[m]).max()  # the 1/r shape
     bands = [np.median((uz[b] - off) * r[b]) / c_b for b in
              (top & (r >= lo) & (r < hi) for lo, hi in ((3e-3, 6e-3), (6e-3, 12e-3), (12e-3, 30e-3)))]
-    assert max(bands) - min(bands) < 0.04, bands
+    assert max(bands) - min(bands) < 0.02, bands
 
 
 # --------------------------------------------------------------------------
@@ -171,15 +162,7 @@ STONE = 0.02  # radius of the resting stone [m] (a = 1.26 mm under its weight: 3
 def _storm_rest_depth(gf) -> tuple[float, float, float, float]:
     """A 20 mm stone let down onto the block's top by the storm (exact integrator, patch
     contacts): (depth of its lowest point, its contact force, m g, patch radius) once at rest."""
-    from hailstorm.runtime.storm import Storm
-
-    scene = hailstorm.runtime.Scene.default().with_(integrator="exact", dt=5e-4)
-    st = Storm(gf, scene, spawn=False)
-    st.add_stones(np.array([[1e-4, -2e-4, STONE + 1e-4]]), np.zeros((1, 3)), np.array([STONE]))
-    for _ in range(800):  # 0.4 s: the bounces die out and the stone rests
-        st.step()
-    _, f = st.contact_forces()
-    return STONE - float(st.pos[0, 2]), float(np.linalg.norm(f)), float(st.mass[0]) * 9.81, float(st.crad[0])
+    return rest_stone(gf, STONE, steps=800, dt=5e-4)  # 0.4 s: the bounces die out and the stone rests
 
 
 def _api_rest_depth(gf, force: float) -> float:
@@ -193,17 +176,17 @@ def _api_rest_depth(gf, force: float) -> float:
 
 
 def _hertz_depth(force: float) -> float:
-    return (3.0 * force / (4.0 * E / (1.0 - NU**2) * np.sqrt(STONE))) ** (2.0 / 3.0)
+    return hertz_depth(force, STONE, E, NU)
 
 
 def test_storm_stone_rests_at_the_hertz_depth(coarse_block):
-    """Measured on the 0.35 / 0.25 / 0.177 mm blocks: depth / Hertz 0.909 / 0.933 / 0.947 (the
-    slow test extrapolates); press_spheres at the same force 0.913 / 0.938 / 0.952. The old
-    prescription (delta as the patch mean) rested at 0.69 on the 0.35 mm block."""
+    """Measured on the 0.35 / 0.25 / 0.177 mm blocks: depth / Hertz 0.930 / 0.956 / 0.970 (the
+    slow test extrapolates; the old block 0.909 / 0.933 / 0.947), force / m g 1.0000. The old
+    prescription (delta as the patch mean) rested at 0.69 on the old 0.35 mm block."""
     depth, force, mg, a = _storm_rest_depth(coarse_block)
     assert force == pytest.approx(mg, rel=1e-2)  # the seat carries the stone
     dH = _hertz_depth(mg)
-    assert abs(depth / dH - 1.0) < 0.15, depth / dH  # the coarse block is ~9 % stiff (press_spheres too)
+    assert abs(depth / dH - 1.0) < 0.10, depth / dH  # the coarse block is ~7 % stiff (press_spheres too)
     assert depth == pytest.approx(_api_rest_depth(coarse_block, mg), rel=0.02)  # the storm and the API agree
     assert a == pytest.approx(hailstorm.runtime.hertz_radius(mg, STONE, E, NU), rel=0.02)  # radius from the weight
 
@@ -211,7 +194,7 @@ def test_storm_stone_rests_at_the_hertz_depth(coarse_block):
 @pytest.mark.slow
 def test_storm_rest_depth_converges_to_hertz(tmp_path):
     """Three blocks; the Richardson limit of the storm's rest depth is within 5 % of Hertz
-    (measured: 0.967)."""
+    (measured: 0.986; the old block 0.967)."""
     h = (3.5e-4, 2.5e-4, 1.77e-4)
     r = []
     for i, hi in enumerate(h):
@@ -237,3 +220,59 @@ def test_hertz_secant_factor_is_hertz_secant_on_a_half_space():
     c = np.where(a > 0, 0.6 / (e_star * np.where(a > 0, a, 1.0)), 1e-5)
     kappa = hertz_secant_factor(hertz_mean_offset(a, Rs), a, Rs, c, E, NU)
     np.testing.assert_allclose(kappa, [0.8, 0.8, 0.8, 1.0], rtol=1e-12)
+
+
+# --------------------------------------------------------------------------
+# the storm's contacts against Hertz's impact theory
+# --------------------------------------------------------------------------
+def test_hertz_impact_matches_the_equation_of_motion():
+    """hertz_impact against an independent integration of m delta'' = m g - K delta^(3/2)
+    (K = (4/3) E* sqrt(R), delta(0) = 0, delta'(0) = v) until release; without gravity
+    the closed form (15 m v^2 / (16 E* sqrt(R)))^(2/5) and t_c = 2.9432 delta_max / v."""
+    from scipy.integrate import solve_ivp
+
+    m, v, Rs = 3.84e-3, 0.4, 0.01
+    K = 4.0 / 3.0 * E / (1 - NU**2) * np.sqrt(Rs)
+    for g in (0.0, 9.81):
+        def rhs(t, y):
+            return [y[1], g - K / m * max(y[0], 0.0) ** 1.5]
+        out = lambda t, y: y[0] + 1e-12 * (t == 0)  # noqa: E731  (release: delta back to 0)
+        out.terminal, out.direction = True, -1
+        sol = solve_ivp(rhs, (0.0, 1.0), [0.0, v], events=out, rtol=1e-11, atol=1e-15, max_step=1e-5)
+        ref = hertz_impact(m, v, Rs, E, NU, gravity=g)
+        assert ref.max_depth == pytest.approx(sol.y[0].max(), rel=1e-6)
+        assert ref.max_force == pytest.approx(K * sol.y[0].max() ** 1.5, rel=1e-6)
+        assert ref.duration == pytest.approx(sol.t_events[0][0], rel=1e-6)
+    e_star = E / (1 - NU**2)
+    d0 = (15 * m * v * v / (16 * e_star * np.sqrt(Rs))) ** 0.4
+    h0 = hertz_impact(m, v, Rs, E, NU)
+    assert h0.max_depth == pytest.approx(d0, rel=1e-12)
+    assert h0.duration == pytest.approx(2.9432 * d0 / v, rel=1e-4)
+    with pytest.raises(ValueError, match="speed"):
+        hertz_impact(m, 0.0, Rs, E, NU)
+
+
+def test_storm_drop_against_hertz_impact(coarse_block):
+    """A 10 mm stone dropped at 0.4 m/s on the block (exact integrator, Hertz-secant patches,
+    restitution 1): peak indentation, peak force and contact duration against Hertz's
+    quasi-static impact (with gravity: 370.5 um, 2.168 N, 2.701 ms).
+
+    The storm's patch keeps one radius a through an impact (sized for its expected peak
+    force) and its law is linear, Hertz's secant F = (4/3) E* a delta. Any linear spring
+    has F_max delta_max = m v^2, Hertz 1.25 m v^2: the secant law at its self-consistent
+    radius (a^5 = 3 R^2 m v^2 / (4 E*)) misses Hertz by 0.8^(2/5) = 0.915 in delta_max,
+    0.8^(3/5) = 0.875 in F_max and 0.977 in t_c, on an ideal half-space. Measured on the
+    0.35 mm block: storm / Hertz 0.887 / 0.898 / 0.948; storm / the secant spring at the
+    storm's radius (1.86 mm) 0.976 / 1.024 / 0.975, the block being 5 % stiff at that radius
+    (press_spheres: +7 % at a = 2 mm; delta and t_c go as k^(-1/2), F as k^(1/2)). The
+    exact integrator has no step error in a linear spring; the peak is sampled at steps of
+    dt = 20 us over t_c = 2.7 ms: < 1e-3."""
+    dr = drop_stone(coarse_block, stone_radius=0.01, speed=0.4, dt=2e-5)
+    s, h, sec = dr.storm, dr.hertz, dr.secant
+    assert dr.rebound == pytest.approx(1.0, abs=2e-3)  # restitution 1: no energy lost
+    for got, want in ((s.max_depth, sec.max_depth), (s.max_force, sec.max_force), (s.duration, sec.duration)):
+        assert got == pytest.approx(want, rel=0.04)  # the mesh's stiffness at a = 1.86 mm (+5 %) halved, + margin
+    assert 0.85 < s.max_depth / h.max_depth < 0.95  # 0.915 (linear law) x (0.976: the mesh)
+    assert 0.85 < s.max_force / h.max_force < 0.95  # 0.875 x 1.024
+    assert 0.92 < s.duration / h.duration < 0.99  # 0.977 x 0.975
+    assert dr.patch_radius == pytest.approx(np.sqrt(0.01 * h.max_depth), rel=0.1)  # near Hertz's sqrt(R delta_max)

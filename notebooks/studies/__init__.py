@@ -4,6 +4,8 @@
   (mesh size, element order, load type, solver, storage);
 * :mod:`hailstorm.studies.contact_study` - mesh dependence of contact stiffness,
   stability of the integrators, degenerate contacts, P1 locking.
+* :mod:`hailstorm.studies.hertz_study` - patch contacts against Hertz on a graded
+  half-space block: force-indentation, a stone at rest, a stone's impact.
 
 They use both stages (:mod:`hailstorm.precompute`, :mod:`hailstorm.runtime`);
 neither stage imports them.
