@@ -439,8 +439,8 @@ def test_add_remove_equal_fresh_build(box, mode):
 
 @pytest.mark.parametrize("pos", [[0, 1, 2, 6, 7, 8], [3, 4, 5, 9, 10, 11, 12, 13, 14], [1, 2, 3], [0, 2, 4, 6]])
 def test_embed_block_copies(pos, monkeypatch):
-    import hailstorm.runtime.contact.contact_set as rc
-    from hailstorm.runtime.contact.contact_set import _embed
+    import hailstorm.runtime.contact.contact_capacitance as rc
+    from hailstorm.runtime.contact.contact_capacitance import _embed
 
     monkeypatch.setattr(rc, "EMBED_BLOCKS_FROM", 0)
     pos = np.array(pos)
@@ -451,7 +451,7 @@ def test_embed_block_copies(pos, monkeypatch):
 
 def test_add_remove_block_copy_path(box, monkeypatch):
     """Same as a fresh build when D_VV is grown by block copies."""
-    import hailstorm.runtime.contact.contact_set as rc
+    import hailstorm.runtime.contact.contact_capacitance as rc
 
     monkeypatch.setattr(rc, "EMBED_BLOCKS_FROM", 0)
     gf = box["gf"]

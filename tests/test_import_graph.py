@@ -92,3 +92,29 @@ def test_no_storm_part_takes_the_storm():
     for name in parts:
         text = (ROOT / "runtime" / f"{name}.py").read_text()
         assert not re.search(r":\s*Storm\b|import\s+Storm\b|\bStorm\)|\bst\._", text), name
+
+
+def _private_imports(path: Path) -> list[str]:
+    """``from hailstorm... import _name`` and imports of ``hailstorm...._module`` in a file."""
+    out = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.module and node.level == 0 and node.module.startswith("hailstorm"):
+            if any(p.startswith("_") and not p.startswith("__") for p in node.module.split(".")):
+                out.append(node.module)
+            out.extend(f"{node.module}.{a.name}" for a in node.names
+                       if a.name.startswith("_") and not a.name.startswith("__"))
+        elif isinstance(node, ast.Import):
+            out.extend(a.name for a in node.names if a.name.startswith("hailstorm")
+                       and any(p.startswith("_") and not p.startswith("__") for p in a.name.split(".")))
+    return out
+
+
+def test_no_module_imports_another_modules_private_names():
+    found = {m: bad for m, p in _modules().items() if (bad := _private_imports(p))}
+    assert not found, f"private names imported across modules: {found}"
+
+
+def test_the_private_import_check_sees_one(tmp_path):
+    f = tmp_path / "m.py"
+    f.write_text("from hailstorm.runtime.compiled.grid import _hidden, public\nimport hailstorm.runtime._secret\n")
+    assert _private_imports(f) == ["hailstorm.runtime.compiled.grid._hidden", "hailstorm.runtime._secret"]

@@ -54,7 +54,7 @@ def test_samples_cover_every_triangle(gf):
 
 def test_nearest_sample_is_exact(gf):
     """The grid's nearest-sample search equals brute force over all samples, inside and far outside the grid."""
-    from hailstorm.runtime.compiled.grid import _nearest_sample
+    from hailstorm.runtime.compiled.grid import nearest_sample
 
     V, T = _bumpy(gf)
     idx = SurfaceIndex(V, T)
@@ -62,7 +62,7 @@ def test_nearest_sample_is_exact(gf):
     rng = np.random.default_rng(1)
     P = rng.uniform(V.min(axis=0) - 0.05, V.max(axis=0) + 0.05, (500, 3))
     ref = np.linalg.norm(P[:, None, :] - idx.samples[None], axis=2).min(axis=1)
-    got = np.array([_nearest_sample(p, g.lo, g.h, g.dims, g.start, g.items, g.points) for p in P])
+    got = np.array([nearest_sample(p, g.lo, g.h, g.dims, g.start, g.items, g.points) for p in P])
     np.testing.assert_allclose(got, ref, rtol=1e-14, atol=1e-15)
 
 

@@ -39,7 +39,7 @@ for debugging.
 
 from __future__ import annotations
 
-from hailstorm.runtime.compiled._jit import KERNELS
+from hailstorm.runtime.compiled.jit import KERNELS
 from hailstorm.runtime.compiled.blocks import columns_times, contact_compliance, point_contacts, vertex_block, weighted_rows
 from hailstorm.runtime.compiled.contacts import capacitance_blocks, contact_post, contact_prep, inv_spd, rigid_contacts
 from hailstorm.runtime.compiled.flight import flight, near_set, retired

@@ -30,12 +30,12 @@ from llvmlite import ir
 from numba.core import cgutils, types
 from numba.extending import intrinsic
 
-from hailstorm.runtime.compiled._jit import _njit
+from hailstorm.runtime.compiled.jit import kernel
 
 __all__ = ["columns_times", "constraint_rows", "contact_compliance", "point_contacts", "vertex_block", "weighted_rows"]
 
 
-@_njit
+@kernel
 def vertex_block(V, Dt, column_of):  # pragma: no cover (compiled)
     """The compliance block ``D_VV`` of the vertices ``V``, transposed.
 
@@ -84,7 +84,7 @@ def vertex_block(V, Dt, column_of):  # pragma: no cover (compiled)
     return out
 
 
-@_njit
+@kernel
 def weighted_rows(M, blocks, loc, w, normals, sticky):  # pragma: no cover (compiled)
     """``Y = G^T M``: the rows of ``M`` combined with the weights of the contact constraints.
 
@@ -172,7 +172,7 @@ else:
         return sig, codegen
 
 
-@_njit
+@kernel
 def _add_sticky3(d0, d1, d2, rows, wa, a, wb, b, wc, c):  # pragma: no cover (compiled)
     """``d_e += wa a_e + wb b_e + wc c_e`` at the rows of V (added in that order): three
     vertices' columns ``a``, ``b``, ``c`` (three rows of ``D.T`` each) in one pass."""
@@ -200,7 +200,7 @@ def _add_sticky3(d0, d1, d2, rows, wa, a, wb, b, wc, c):  # pragma: no cover (co
             d2[j + o] = ((d2[j + o] + wa * a2[r + o]) + wb * b2[r + o]) + wc * c2[r + o]
 
 
-@_njit
+@kernel
 def _add_sticky1(d0, d1, d2, rows, wa, a):  # pragma: no cover (compiled)
     """``d_e += wa a_e`` at the rows of V: one vertex's three columns."""
     a0, a1, a2 = a
@@ -213,7 +213,7 @@ def _add_sticky1(d0, d1, d2, rows, wa, a):  # pragma: no cover (compiled)
             d2[j + o] += wa * a2[r + o]
 
 
-@_njit
+@kernel
 def _add_normal3(dst, rows, ca, a, cb, b, cc, c):  # pragma: no cover (compiled)
     """``dst += sum_e ca_e a_e + sum_e cb_e b_e + sum_e cc_e c_e`` at the rows of V, each
     term added in that order (frictionless: the weights times the normal's components)."""
@@ -249,7 +249,7 @@ def _add_normal3(dst, rows, ca, a, cb, b, cc, c):  # pragma: no cover (compiled)
             dst[j] = x
 
 
-@_njit
+@kernel
 def _add_normal1(dst, rows, ca, a):  # pragma: no cover (compiled)
     """``dst += sum_e ca_e a_e`` at the rows of V (added in that order)."""
     a0, a1, a2 = a
@@ -264,7 +264,7 @@ def _add_normal1(dst, rows, ca, a):  # pragma: no cover (compiled)
             dst[j] = x
 
 
-@_njit
+@kernel
 def constraint_rows(Dt, column_of, V, loc, w, normals, sticky):  # pragma: no cover (compiled)
     """``Y = (D_VV G)^T`` straight from the columns of D: :func:`weighted_rows` of
     :func:`vertex_block`, fused (the same sums in the same order, bit for bit), without
@@ -332,7 +332,7 @@ def constraint_rows(Dt, column_of, V, loc, w, normals, sticky):  # pragma: no co
     return Y
 
 
-@_njit
+@kernel
 def contact_compliance(Y, loc, w, normals, sticky):  # pragma: no cover (compiled)
     """The contact compliance ``W = G^T D_VV G`` from ``Y = (D_VV G)^T``, symmetrised.
 
@@ -385,7 +385,7 @@ def contact_compliance(Y, loc, w, normals, sticky):  # pragma: no cover (compile
     return W
 
 
-@_njit
+@kernel
 def columns_times(Dt, cols, g):  # pragma: no cover (compiled)
     """``D[:, cols] @ g`` for a column-major D (``Dt = D.T`` C-contiguous); ``cols < 0`` skipped.
 
@@ -449,7 +449,7 @@ def columns_times(Dt, cols, g):  # pragma: no cover (compiled)
     return u
 
 
-@_njit
+@kernel
 def _cholesky_solve(A, rhs, cond_limit):  # pragma: no cover (compiled)
     """``A^-1 rhs`` by Cholesky (LAPACK) for a symmetric A, or None if A is not positive
     definite or its condition estimate ``(max L_ii / min L_ii)^2`` reaches ``cond_limit``
@@ -486,7 +486,7 @@ def _cholesky_solve(A, rhs, cond_limit):  # pragma: no cover (compiled)
     return z
 
 
-@_njit
+@kernel
 def point_contacts(Dt, column_of, contactable, fixed, triangles, vertices, tri, bary, ubar, sticky, want_u,
                    bary_sum_tol, bary_neg_tol, cond_limit, rigid_weight):  # pragma: no cover (compiled)
     """One fresh solve of bilateral point contacts, whole: :func:`hailstorm.runtime.contact.solve_contacts`

@@ -14,14 +14,14 @@ import math
 
 import numpy as np
 
-from hailstorm.runtime.compiled._jit import _njit
+from hailstorm.runtime.compiled.jit import kernel
 from hailstorm.runtime.compiled.blocks import contact_compliance, vertex_block, weighted_rows
 from hailstorm.runtime.compiled.grid import sorted_ints
 
 __all__ = ["capacitance_blocks", "contact_post", "contact_prep", "inv_spd", "rigid_contacts"]
 
 
-@_njit
+@kernel
 def rigid_contacts(verts, w, fixed, rigid_weight):  # pragma: no cover (compiled)
     """True if some contact's weight lies entirely on clamped vertices: at most
     ``rigid_weight`` (:data:`hailstorm.runtime.contact.policy.RIGID_WEIGHT`) on free ones
@@ -36,7 +36,7 @@ def rigid_contacts(verts, w, fixed, rigid_weight):  # pragma: no cover (compiled
     return False
 
 
-@_njit
+@kernel
 def capacitance_blocks(verts, w, normals, sticky, D, column_of):  # pragma: no cover (compiled)
     """The dense blocks of a contact set (the storm's ``_build_cache``) in one pass.
 
@@ -117,7 +117,7 @@ def capacitance_blocks(verts, w, normals, sticky, D, column_of):  # pragma: no c
     return V, W, Gl, cols, DG
 
 
-@_njit
+@kernel
 def inv_spd(W, cond_limit, rcond):  # pragma: no cover (compiled)
     """Inverse of a small symmetric positive (semi-)definite matrix under the contact
     API's policy (:func:`hailstorm.runtime.contact.policy.spd_inverse`; pass its
@@ -159,7 +159,7 @@ def inv_spd(W, cond_limit, rcond):  # pragma: no cover (compiled)
     return np.ascontiguousarray(0.5 * (K + K.T))
 
 
-@_njit
+@kernel
 def contact_prep(soft, pos, vel, radius, mass, g, wind, drag_coef, nk, Xc, rest, Kdiag, sticky, exact,
                  rest_speed):  # pragma: no cover (compiled)
     """The constrained coordinates of a contact set for :func:`hailstorm.runtime.hail.contact_step`
@@ -214,7 +214,7 @@ def contact_prep(soft, pos, vel, radius, mass, g, wind, drag_coef, nk, Xc, rest,
     return q, a, vq, gq, mq, always, acc
 
 
-@_njit
+@kernel
 def contact_post(soft, pos, vel, ctri, hit, was_open, nk, acc, q, a, vq, gq, rq, rv, ractive, rseat, rpeak,
                  rpubar, sticky, exact, h, rest_speed):  # pragma: no cover (compiled)
     """Apply a contact step to the stones, in place (compiled second half of

@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from hailstorm.runtime.compiled._jit import _njit
+from hailstorm.runtime.compiled.jit import kernel
 
 __all__ = ["expm"]
 
@@ -27,7 +27,7 @@ _B13 = np.array([64764752532480000.0, 32382376266240000.0, 7771770303897600.0, 1
                  960960.0, 16380.0, 182.0, 1.0])
 
 
-@_njit
+@kernel
 def expm(A):  # pragma: no cover (compiled)
     """``exp(A)`` of a real square matrix ``A`` (an (n, n) float ndarray; returns a new one).
 

@@ -10,13 +10,13 @@ import math
 
 import numpy as np
 
-from hailstorm.runtime.compiled._jit import _njit
-from hailstorm.runtime.compiled.grid import SampleGrid, _nearest_sample
+from hailstorm.runtime.compiled.jit import kernel
+from hailstorm.runtime.compiled.grid import SampleGrid, nearest_sample
 
 __all__ = ["flight", "near_set", "retired"]
 
 
-@_njit
+@kernel
 def flight(idx, pos, vel, radius, h, g, wind, drag_coef):  # pragma: no cover (compiled)
     """Free flight of stones ``idx`` over ``h``, in place: gravity ``g`` [m/s^2] plus,
     if ``drag_coef > 0``, quadratic drag ``-(drag_coef / r) |v - wind| (v - wind)``
@@ -35,8 +35,8 @@ def flight(idx, pos, vel, radius, h, g, wind, drag_coef):  # pragma: no cover (c
             vel[i, d] += h * a[d]
 
 
-@_njit
-def _drag_dot(i, vel, radius, nrm, g, wind, drag_coef):  # pragma: no cover (compiled)
+@kernel
+def drag_dot(i, vel, radius, nrm, g, wind, drag_coef):  # pragma: no cover (compiled)
     """``accel . nrm`` of stone i in flight (gravity + drag)."""
     a0 = 0.0; a1 = 0.0; a2 = -g
     if drag_coef > 0.0:
@@ -46,7 +46,7 @@ def _drag_dot(i, vel, radius, nrm, g, wind, drag_coef):  # pragma: no cover (com
     return a0 * nrm[0] + a1 * nrm[1] + a2 * nrm[2]
 
 
-@_njit
+@kernel
 def _near_set(live, pos, vel, radius, ctri, budget, bud_u, U, dt, g, lo, hi, sr,
               glo, h, dims, start, items, spts):  # pragma: no cover (compiled)
     n = live.size
@@ -70,7 +70,7 @@ def _near_set(live, pos, vel, radius, ctri, budget, bud_u, U, dt, g, lo, hi, sr,
                 o2 += o * o
             lb = math.sqrt(o2) - sr - radius[i] - U - 1e-4
             if lb <= travel:
-                d0 = _nearest_sample(pos[i], glo, h, dims, start, items, spts)
+                d0 = nearest_sample(pos[i], glo, h, dims, start, items, spts)
                 lb = d0 - sr - radius[i] - U - 1e-4
             budget[i] = lb
             bud_u[i] = U
@@ -96,7 +96,7 @@ def near_set(grid: SampleGrid, sample_radius: float, bbox: tuple[np.ndarray, np.
                      grid.items, grid.points)
 
 
-@_njit
+@kernel
 def retired(live, pos, radius, lo, hi, margin):  # pragma: no cover (compiled)
     """Mask of the ``live`` stones that left the seat's region (compiled rule of
     ``Storm.step``): below the seat by ``margin``, or beyond its footprint grown by

@@ -11,12 +11,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hailstorm.runtime.compiled._jit import _njit
+from hailstorm.runtime.compiled.jit import kernel
 
 __all__ = ["SampleGrid", "closest_points", "sorted_ints", "surface_arrays"]
 
 
-@_njit
+@kernel
 def sorted_ints(a):  # pragma: no cover (compiled)
     """A sorted copy of an int64 array (heapsort: the same result as ``np.sort`` for
     integers, without compiling numba's quicksort, ~5 s of a first run)."""
@@ -31,7 +31,7 @@ def sorted_ints(a):  # pragma: no cover (compiled)
     return b
 
 
-@_njit
+@kernel
 def _sift(b, root, n):  # pragma: no cover (compiled)
     while True:
         child = 2 * root + 1
@@ -97,7 +97,7 @@ def _cell_ids(points: np.ndarray, lo: np.ndarray, h: float, dims: np.ndarray) ->
     return (ijk[:, 0] * dims[1] + ijk[:, 1]) * dims[2] + ijk[:, 2]
 
 
-@_njit
+@kernel
 def _closest_on_triangle(p, a, b, c, out_bary):  # pragma: no cover (compiled)
     """Closest point of triangle (a, b, c) to p (Ericson 5.1.5, as ``tests/reference/collide_ref.py``):
     writes the clipped, normalised barycentric coordinates to ``out_bary``."""
@@ -146,8 +146,8 @@ def _closest_on_triangle(p, a, b, c, out_bary):  # pragma: no cover (compiled)
     out_bary[0] = b0 / s; out_bary[1] = b1 / s; out_bary[2] = b2 / s
 
 
-@_njit
-def _cell_range(p, lim, lo, h, dims):  # pragma: no cover (compiled)
+@kernel
+def cell_range(p, lim, lo, h, dims):  # pragma: no cover (compiled)
     """First and last cell index per axis of the box ``p +- lim`` (clipped to the grid;
     an axis with ``ilo > ihi`` means the box misses the grid)."""
     ilo = np.empty(3, np.int64)
@@ -158,8 +158,8 @@ def _cell_range(p, lim, lo, h, dims):  # pragma: no cover (compiled)
     return ilo, ihi
 
 
-@_njit
-def _nearest_sample(p, lo, h, dims, start, items, spts):  # pragma: no cover (compiled)
+@kernel
+def nearest_sample(p, lo, h, dims, start, items, spts):  # pragma: no cover (compiled)
     """Distance from ``p`` to its nearest sample (inf without samples): rings of cells
     around p's (clamped) cell until the ring's distance bound passes the best."""
     ci = np.empty(3, np.int64)
@@ -200,18 +200,18 @@ def _nearest_sample(p, lo, h, dims, start, items, spts):  # pragma: no cover (co
     return math.sqrt(best2)
 
 
-@_njit
-def _closest_one(p, r, md, use_u, surf, D, fcols, fv, done, Y, bary_out, point_out):  # pragma: no cover
+@kernel
+def closest_one(p, r, md, use_u, surf, D, fcols, fv, done, Y, bary_out, point_out):  # pragma: no cover
     """Closest point of the (deformed) surface to ``p`` within ``r``: (triangle, distance),
     (-1, inf) if none; writes ``bary_out`` and ``point_out``. ``done``/``Y`` cache the
     deformed positions of the vertices met so far (the forces are those of the call)."""
     lo, h, dims, start, items, spts, owner, sr, X, T = surf
-    d0 = _nearest_sample(p, lo, h, dims, start, items, spts)
+    d0 = nearest_sample(p, lo, h, dims, start, items, spts)
     if d0 - sr - md > r:
         return -1, np.inf
     lim = min(r, d0 + md) + md + sr
     lim2 = lim * lim
-    ilo, ihi = _cell_range(p, lim, lo, h, dims)
+    ilo, ihi = cell_range(p, lim, lo, h, dims)
     corner = np.empty((3, 3))
     bc = np.empty(3)
     best = np.inf
@@ -271,7 +271,7 @@ def _closest_one(p, r, md, use_u, surf, D, fcols, fv, done, Y, bary_out, point_o
     return best_t, best
 
 
-@_njit
+@kernel
 def _closest_points(pts, reach, md, use_u, surf, D, fcols, fv):  # pragma: no cover (compiled)
     k = pts.shape[0]
     out_tri = np.full(k, -1, np.int64)
@@ -282,7 +282,7 @@ def _closest_points(pts, reach, md, use_u, surf, D, fcols, fv):  # pragma: no co
     done = np.zeros(nv if use_u else 0, np.bool_)
     Y = np.empty((nv if use_u else 0, 3))
     for i in range(k):
-        t, d = _closest_one(pts[i], reach[i], md, use_u, surf, D, fcols, fv, done, Y, out_bary[i], out_pt[i])
+        t, d = closest_one(pts[i], reach[i], md, use_u, surf, D, fcols, fv, done, Y, out_bary[i], out_pt[i])
         out_tri[i] = t
         out_d[i] = d
     return out_tri, out_bary, out_pt, out_d

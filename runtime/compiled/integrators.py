@@ -15,7 +15,7 @@ import math
 
 import numpy as np
 
-from hailstorm.runtime.compiled._jit import _njit
+from hailstorm.runtime.compiled.jit import kernel
 from hailstorm.runtime.compiled.contacts import inv_spd
 from hailstorm.runtime.compiled.expm import expm
 from hailstorm.runtime.compiled.modal import (
@@ -30,13 +30,13 @@ __all__ = ["exact_step", "explicit_modes", "modal_stiffness", "substep_contacts"
 
 
 #: the static equilibrium of the exact step (the one definition in :mod:`hailstorm.runtime.compiled.modal`, compiled)
-_equilibrium = _njit(equilibrium_py)
+_equilibrium = kernel(equilibrium_py)
 
 #: the closed-form single contact of the exact integrator: the one definition in :mod:`hailstorm.runtime.compiled.modal`, compiled
-_scalar_exact = _njit(scalar_exact_py)
+_scalar_exact = kernel(scalar_exact_py)
 
 
-@_njit
+@kernel
 def _gsum(x, group, wts, ng, ident):  # pragma: no cover (compiled)
     """Normal sums per contact group of per-component rows ``x`` (n, T) -> (ng, T)."""
     if ident:
@@ -47,7 +47,7 @@ def _gsum(x, group, wts, ng, ident):  # pragma: no cover (compiled)
     return out
 
 
-@_njit
+@kernel
 def _sub(M, idx):  # pragma: no cover (compiled)
     out = np.empty((idx.size, idx.size))
     for r in range(idx.size):
@@ -56,7 +56,7 @@ def _sub(M, idx):  # pragma: no cover (compiled)
     return out
 
 
-@_njit
+@kernel
 def _dashpot(idx, Cn, damp_g, group, always):  # pragma: no cover (compiled)
     """Dashpot (a, a) of the components ``idx``: on while their contact compresses (or always)."""
     na = idx.size
@@ -73,7 +73,7 @@ def _dashpot(idx, Cn, damp_g, group, always):  # pragma: no cover (compiled)
     return ce
 
 
-@_njit
+@kernel
 def _advance(q, v, g, idx, ze, q_eq, free, h):  # pragma: no cover (compiled)
     """Components ``idx`` to the modal state ``ze`` (about ``q_eq``); ``free`` ones fly for ``h``."""
     na = idx.size
@@ -85,7 +85,7 @@ def _advance(q, v, g, idx, ze, q_eq, free, h):  # pragma: no cover (compiled)
         v[i] += h * g[i]
 
 
-@_njit
+@kernel
 def _state_matrix(Ka, ma, ce):  # pragma: no cover (compiled)
     """``A`` of ``z' = A z``, ``z = (y, y')``, for ``M y'' + C y' + K y = 0``."""
     n = ma.size
@@ -99,7 +99,7 @@ def _state_matrix(Ka, ma, ce):  # pragma: no cover (compiled)
     return A
 
 
-@_njit
+@kernel
 def _modal(A):  # pragma: no cover (compiled)
     """Eigen-decomposition ``A = V diag(lam) Vi``: (lam, V, Vi, ok); ``ok`` False for a
     (nearly) defective system (critically damped modes: ``cond(V)`` too large), which
@@ -113,7 +113,7 @@ def _modal(A):  # pragma: no cover (compiled)
     return lam, V, Vi, ok
 
 
-@_njit
+@kernel
 def _expm_states(A, z, d, count):  # pragma: no cover (compiled)
     """States (2n, count) at ``d, 2 d, ..., count d`` from ``z``: ``E z, E^2 z, ...`` with
     ``E = expm(A d)`` (a defective modal basis). The velocities are scaled by the set's
@@ -145,7 +145,7 @@ def _expm_states(A, z, d, count):  # pragma: no cover (compiled)
     return Z
 
 
-@_njit
+@kernel
 def _modal_at(lam, V, Vi, z0, tau):  # pragma: no cover (compiled)
     """States (2n, len(tau)) at times ``tau`` from ``z0``."""
     c = Vi @ z0.astype(np.complex128)
@@ -156,7 +156,7 @@ def _modal_at(lam, V, Vi, z0, tau):  # pragma: no cover (compiled)
     return (V @ E).real
 
 
-@_njit
+@kernel
 def _track(idx, Ka, ub, ncol, group, wts, ng, pk2, pk_f, dmin, dmin_u):  # pragma: no cover (compiled)
     """Update the step's peaks from the first
     ``ncol`` states of the active components ``idx`` (``ub``: their q - a, (na, T)):
@@ -190,7 +190,7 @@ def _track(idx, Ka, ub, ncol, group, wts, ng, pk2, pk_f, dmin, dmin_u):  # pragm
                         dmin_u[idx[r]] = ub[r, col]
 
 
-@_njit
+@kernel
 def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond_limit,
                rcond):  # pragma: no cover (compiled)
     """The exact integrator's step of a contact set (see :func:`hailstorm.runtime.hail.contact_step`):
@@ -421,7 +421,7 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond
     return q, v, active, force, seat, pk_f, dmin_u
 
 
-@_njit
+@kernel
 def substep_size(near, h_left, hmin, vel, radius, mass, pos, gap, near_tri, ctri, k_tri, approach_fraction,
                  rest_speed, omega_dt, symplectic, cc_stones, Kdiag, sticky, cc_normals, cc_X, cc_rest,
                  g):  # pragma: no cover (compiled)
@@ -470,14 +470,14 @@ def substep_size(near, h_left, hmin, vel, radius, mass, pos, gap, near_tri, ctri
 #: the contact set's modal dashpot (the one definition in :mod:`hailstorm.runtime.compiled.modal`, compiled):
 #: ``substep_damping(om2, Phi, sqm, restitution, dt, implicit, x_grid, z_grid)`` -> (n, n)
 #: (``x_grid``, ``z_grid``: the restitution table of :func:`hailstorm.runtime.hail.damping_ratio_for_restitution`)
-substep_damping = _njit(modal_damping_py)
+substep_damping = kernel(modal_damping_py)
 #: the modal frequencies an explicit step carries (hailstorm.runtime.hail's, compiled)
-explicit_modes = _njit(explicit_modes_py)
+explicit_modes = kernel(explicit_modes_py)
 #: K and its pseudo-inverse W from modes (hailstorm.runtime.hail's, compiled)
-modal_stiffness = _njit(modal_stiffness_py)
+modal_stiffness = kernel(modal_stiffness_py)
 
 
-@_njit
+@kernel
 def substep_contacts(q, v, a, m, g, dt, K, W, C, implicit, unilateral, group, wts, cond_limit,
                      rcond):  # pragma: no cover
     """Compiled implicit (backward Euler) and symplectic Euler contact step of

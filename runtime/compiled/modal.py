@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from hailstorm.runtime.compiled._jit import _njit
+from hailstorm.runtime.compiled.jit import kernel
 
 __all__ = ["equilibrium_py", "explicit_modes_py", "interp1", "interp_py", "modal_damping_py", "modal_stiffness_py",
            "scalar_exact_py"]
@@ -54,7 +54,7 @@ def interp_py(x, xp, fp):
     return r
 
 
-interp1 = _njit(interp_py)
+interp1 = kernel(interp_py)
 
 
 def modal_damping_py(om2, Phi, sqm, restitution, dt, implicit, x_grid, z_grid):

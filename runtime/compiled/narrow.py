@@ -12,14 +12,14 @@ import math
 
 import numpy as np
 
-from hailstorm.runtime.compiled._jit import _njit
-from hailstorm.runtime.compiled.flight import _drag_dot
-from hailstorm.runtime.compiled.grid import _closest_one
+from hailstorm.runtime.compiled.jit import kernel
+from hailstorm.runtime.compiled.flight import drag_dot
+from hailstorm.runtime.compiled.grid import closest_one
 
 __all__ = ["free_phase", "penetration"]
 
 
-@_njit
+@kernel
 def _unit(x, out):  # pragma: no cover (compiled)
     ln = max(math.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2]), 1e-300)
     for e in range(3):
@@ -27,7 +27,7 @@ def _unit(x, out):  # pragma: no cover (compiled)
     return ln
 
 
-@_njit
+@kernel
 def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, ctri, cbary, gap, near_tri, surf, tri_normals,
                soft, fixed, rigid_weight, umax, use_u, D, fcols, fv, g, wind, drag_coef, restitution):  # pragma: no cover
     """The first phases of one storm sub-step for the near stones, in place: closest
@@ -58,7 +58,7 @@ def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, ctri, cbary, gap, 
     done0 = np.zeros(0, np.bool_)
     Y0 = np.empty((0, 3))
     # a bool variable, not the literal False: a literal argument compiles a second
-    # specialisation of _closest_one (~4 s of a first run)
+    # specialisation of closest_one (~4 s of a first run)
     undeformed = use_u and not use_u
     in_contact = np.zeros(k, np.bool_)
     dist = np.full(k, np.inf)
@@ -92,7 +92,7 @@ def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, ctri, cbary, gap, 
             b2 = (d00 * d21 - d01 * d20) / den
             if not (b1 >= -1e-3 and b2 >= -1e-3 and b1 + b2 <= 1.0 + 1e-3):
                 # slid off: the closest point of the undeformed surface (the contact stays open)
-                tt, dd = _closest_one(pos[i], 2.0 * radius[i] + umax + 1e-3, 0.0, undeformed, surf, D, fcols, fv,
+                tt, dd = closest_one(pos[i], 2.0 * radius[i] + umax + 1e-3, 0.0, undeformed, surf, D, fcols, fv,
                                       done0, Y0, bary[j], point[j])
                 ctri[i] = tt
                 if tt >= 0:
@@ -103,7 +103,7 @@ def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, ctri, cbary, gap, 
         else:
             queried = True
             sp = math.sqrt(vel[i, 0] ** 2 + vel[i, 1] ** 2 + vel[i, 2] ** 2)
-            tt, dd = _closest_one(pos[i], radius[i] + sp * h + 1e-3, umax if use_u else 0.0, use_u, surf, D,
+            tt, dd = closest_one(pos[i], radius[i] + sp * h + 1e-3, umax if use_u else 0.0, use_u, surf, D,
                                   fcols, fv, done, Y, bary[j], point[j])
             tri[j] = tt
             dist[j] = dd
@@ -122,7 +122,7 @@ def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, ctri, cbary, gap, 
                 dvec[e] = pos[i, e] - point[j, e]
             _unit(dvec, nrm)
             w = -(vel[i, 0] * nrm[0] + vel[i, 1] * nrm[1] + vel[i, 2] * nrm[2])
-            an = -_drag_dot(i, vel, radius, nrm, g, wind, drag_coef)
+            an = -drag_dot(i, vel, radius, nrm, g, wind, drag_coef)
             if w > 0.0 and gp[j] < w * h + 0.5 * abs(an) * h * h:
                 disc = math.sqrt(max(w * w + 2.0 * an * gp[j], 0.0))
                 tmin = min(tmin, 2.0 * gp[j] / max(w + disc, 1e-12))
@@ -192,7 +192,7 @@ def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, ctri, cbary, gap, 
     return h, walls
 
 
-@_njit
+@kernel
 def penetration(near, dt, pos, vel, radius, ctri, surf, umax, use_u, D, fcols, fv):  # pragma: no cover
     """Overlap of the near stones with the deformed surface, for the statistics
     (:meth:`hailstorm.runtime.collide.Collision.penetration`): free stones within this step's reach, stones in
@@ -219,7 +219,7 @@ def penetration(near, dt, pos, vel, radius, ctri, surf, umax, use_u, D, fcols, f
         if free:
             sp = math.sqrt(vel[i, 0] ** 2 + vel[i, 1] ** 2 + vel[i, 2] ** 2)
             reach += sp * dt + 1e-3
-        t, d = _closest_one(pos[i], reach, umax if use_u else 0.0, use_u, surf, D, fcols, fv, done, Y, bary, point)
+        t, d = closest_one(pos[i], reach, umax if use_u else 0.0, use_u, surf, D, fcols, fv, done, Y, bary, point)
         if t < 0:
             continue
         pen = radius[i] - d

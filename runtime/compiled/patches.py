@@ -11,9 +11,9 @@ import math
 
 import numpy as np
 
-from hailstorm.runtime.compiled._jit import _njit
-from hailstorm.runtime.compiled.flight import _drag_dot
-from hailstorm.runtime.compiled.grid import _cell_range, sorted_ints
+from hailstorm.runtime.compiled.jit import kernel
+from hailstorm.runtime.compiled.flight import drag_dot
+from hailstorm.runtime.compiled.grid import cell_range, sorted_ints
 
 #: A resting contact (oscillation amplitude below ``rest_speed``) is re-sized to the Hertz
 #: radius of its force once it is this far off (relative): the static dent follows the weight,
@@ -24,7 +24,7 @@ REST_TOLERANCE = 0.01
 __all__ = ["disc_patch", "patch_compliance", "patch_one", "patch_radii"]
 
 
-@_njit
+@kernel
 def disc_patch(x, n, a, h, qx, qy, qw, facing, drop, pidx):  # pragma: no cover (compiled)
     """Compiled ``hailstorm.runtime.contact.weights._one_patch`` for one disc: (vertices, weights) of one patch, both
     empty if the disc hits no usable triangle. ``pidx``: :func:`hailstorm.runtime.contact.weights._patch_index_arrays`."""
@@ -34,7 +34,7 @@ def disc_patch(x, n, a, h, qx, qy, qw, facing, drop, pidx):  # pragma: no cover 
     # candidate triangles: centroid within a + reach (grid), then within a + own radius, facing n
     nc = 0
     cand = np.empty(cent.shape[0], np.int64)
-    ilo, ihi = _cell_range(x, lim, glo, gh, gdims)
+    ilo, ihi = cell_range(x, lim, glo, gh, gdims)
     for ci in range(ilo[0], ihi[0] + 1):
         for cj in range(ilo[1], ihi[1] + 1):
             for ck in range(ilo[2], ihi[2] + 1):
@@ -121,7 +121,7 @@ def disc_patch(x, n, a, h, qx, qy, qw, facing, drop, pidx):  # pragma: no cover 
     return V, w / w.sum()
 
 
-@_njit
+@kernel
 def patch_one(t, bary, a, n, resolution, rule_off, rule_x, rule_y, rule_w, facing, drop,
               pidx, X):  # pragma: no cover (compiled)
     """Weights of one patch contact on triangle ``t`` at ``bary`` with radius ``a`` and
@@ -158,7 +158,7 @@ def patch_one(t, bary, a, n, resolution, rule_off, rule_x, rule_y, rule_w, facin
     return V[:k], w[:k]
 
 
-@_njit
+@kernel
 def patch_compliance(verts, w, normal, D, column_of):  # pragma: no cover (compiled)
     """Normal compliance ``g^T D_vv g`` of one contact alone, ``g = w kron normal``."""
     c = 0.0
@@ -182,7 +182,7 @@ def patch_compliance(verts, w, normal, D, column_of):  # pragma: no cover (compi
     return c
 
 
-@_njit
+@kernel
 def _hertz_target(kk, f, f_eq, m, vn, R, e_star, a_min):  # pragma: no cover (compiled)
     """Patch radius for the expected peak force ``f_eq + sqrt((f - f_eq)^2 + k m vn^2)``:
     the Hertz radius, clipped to ``[a_min, R]``, then at least ``a_min``."""
@@ -193,7 +193,7 @@ def _hertz_target(kk, f, f_eq, m, vn, R, e_star, a_min):  # pragma: no cover (co
     return max(a, a_min)
 
 
-@_njit
+@kernel
 def patch_radii(stones, tris, mass, radius, vel, cbary, crad, tnormals, g, wind, drag_coef, cc_stones, Kdiag,
                 lam, sticky, k_tri, e_star, a_min, tol, rest_speed, rule_off, rule_x, rule_y, rule_w, facing,
                 drop, pidx, X, D, column_of):  # pragma: no cover (compiled)
@@ -233,7 +233,7 @@ def patch_radii(stones, tris, mass, radius, vel, cbary, crad, tnormals, g, wind,
         m = mass[j]
         R = radius[j]
         vn = vel[j, 0] * n[0] + vel[j, 1] * n[1] + vel[j, 2] * n[2]
-        gn = _drag_dot(j, vel, radius, n, g, wind, drag_coef)
+        gn = drag_dot(j, vel, radius, n, g, wind, drag_coef)
         f_eq = m * max(-gn, 0.0)
         ik = -1
         for c in range(cc_stones.size):

@@ -13,7 +13,7 @@ Modules, one seam each:
   fast-path size), named once, and the one SPD factorisation
   :class:`SPDFactor` / :func:`spd_inverse`;
 * :mod:`~hailstorm.runtime.contact.validate` -- input checks;
-* :mod:`~hailstorm.runtime.contact.contact_set` -- :class:`Capacitance` /
+* :mod:`~hailstorm.runtime.contact.contact_capacitance` -- :class:`Capacitance` /
   :func:`capacitance` (``W``, its factorisation, low-rank
   :meth:`~Capacitance.add` / :meth:`~Capacitance.remove`, the active-set
   :meth:`~Capacitance.solve`);
@@ -79,7 +79,7 @@ Degenerate cases (documented choices)
   applied to well-conditioned systems, so the regular case is exact.
 """
 
-from hailstorm.runtime.contact.contact_set import ActiveSet, Capacitance, capacitance
+from hailstorm.runtime.contact.contact_capacitance import ActiveSet, Capacitance, capacitance
 from hailstorm.runtime.contact.compliance import ComplianceSource
 from hailstorm.runtime.contact.policy import COND_LIMIT, PINV_RCOND, SPDFactor, spd_inverse
 from hailstorm.runtime.contact.solve import ContactSolution, solve_contacts

@@ -1,7 +1,7 @@
 """The contact core's numerical policy: its constants, named once, and its one SPD factorisation.
 
 Every solve of a contact compliance ``W`` (the contact API's
-:class:`~hailstorm.runtime.contact.contact_set.Capacitance`, its one-call
+:class:`~hailstorm.runtime.contact.contact_capacitance.Capacitance`, its one-call
 compiled point-contact solve, the storm's contact set) follows one rule:
 Cholesky when ``W`` is safely positive definite, the pseudo-inverse when it is
 singular or ill conditioned (coincident contacts), and a contact whose weight

@@ -11,14 +11,11 @@ from typing import Any, Callable
 
 import numba
 
-#: numba is a core dependency since 0.1 (kept for code that still asks)
-HAVE_NUMBA = True
-
 #: what the kernels run as: ``"numba"``, or ``"python"`` under ``NUMBA_DISABLE_JIT=1``
 #: (the storm's statistics record it as ``backend``)
 KERNELS = "python" if numba.config.DISABLE_JIT else "numba"
 
 
-def _njit(f: Callable) -> Any:
+def kernel(f: Callable) -> Any:
     """``numba.njit(cache=True, nogil=True)``: compiled on first call, cached on disk."""
     return numba.njit(cache=True, nogil=True)(f)
