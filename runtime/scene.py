@@ -460,7 +460,7 @@ class SeatSettings(_Section):
     SECTION: ClassVar[str] = "seat"
 
     mesh_size: float = 0.006
-    order: int = 1
+    order: int = 2
     load: str = "point"
     volume_size: float | None = None
     young: float = 2.0e6
