@@ -32,8 +32,9 @@ its convergence and observed rate.
 
 Run::
 
-    python -m hailstorm.studies.defaults_study            # the table (about 10 min)
-    python -m hailstorm.studies.defaults_study --quick    # coarse levels only
+    python -m hailstorm.studies.defaults_study               # reference levels, the table, 3 timed precomputes each
+    python -m hailstorm.studies.defaults_study --no-timing   # accuracy only (the reference ~6 min on 2 loaded cores)
+    python -m hailstorm.studies.defaults_study --quick       # coarse reference levels, one timed run each
 """
 
 from __future__ import annotations
@@ -386,8 +387,8 @@ def format_convergence(conv: Convergence) -> str:
     """The reference's levels, rates and own-error estimate as text."""
     names = list(SITES)
     lines = ["reference: P2, consistent loads, refined around the sites",
-             "size [mm]  dofs     dent [um/N] " + " ".join(f"{n:>7}" for n in names[1:]) +
-             "   k [kN/m] " + " ".join(f"{n:>7}" for n in names[1:])]
+             "dent [um/N] and stone stiffness k [kN/m] at " + ", ".join(names),
+             "size [mm]     dofs  " + " ".join(f"{n:>7}" for n in names) + "    " + " ".join(f"{n:>7}" for n in names)]
     for h, f in zip(conv.sizes, conv.levels):
         lines.append(f"{h * 1e3:>8.2f} {f.n_dofs:>8d}  " + " ".join(f"{x * 1e6:>7.2f}" for x in f.dent) +
                      "    " + " ".join(f"{x / 1e3:>7.3f}" for x in f.stiffness))
