@@ -42,6 +42,26 @@ class MeshError(ValueError):
     """A geometry or mesh cannot be used (missing file or group, bad elements)."""
 
 
+@dataclass(frozen=True)
+class Refinement:
+    """A local refinement of a gmsh mesh: element size ``size`` [m] through the whole
+    thickness at the plan point (``x``, ``y``) [m], growing by ``growth`` metres per metre
+    of plan distance from it (surface and volume alike; for reference solutions)."""
+
+    x: float
+    y: float
+    size: float
+    growth: float = 0.3
+
+    def __post_init__(self) -> None:
+        for name in ("x", "y", "size", "growth"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, (int, float)) or not np.isfinite(v):
+                raise MeshError(f"refinement {name} must be a finite number, got {v!r}")
+        if not (self.size > 0 and self.growth > 0):
+            raise MeshError(f"refinement size and growth must be positive, got {self.size!r}, {self.growth!r}")
+
+
 @dataclass(eq=False)
 class TetMesh:
     """A linear tetrahedral mesh with named boundary groups.
@@ -295,8 +315,22 @@ def _measure(gmsh, names: dict) -> tuple[float, float, float, float]:
     return area_top, area_all, volume, float(ext.min())
 
 
+def check_volume_size(volume_size: float | None, mesh_size: float) -> None:
+    """Refuse a ``volume_size`` that is not a positive length at most ``mesh_size``
+    (:class:`MeshError`); ``None`` (no volume grading) passes."""
+    if volume_size is None:
+        return
+    if isinstance(volume_size, bool) or not isinstance(volume_size, (int, float)) or not np.isfinite(volume_size) \
+            or volume_size <= 0:
+        raise MeshError(f"volume size must be a positive length in metres, got {volume_size!r}")
+    if volume_size > mesh_size:
+        raise MeshError(f"volume size {volume_size:g} m must not exceed the surface mesh size {mesh_size:g} m "
+                        "(it refines the volume under the same surface)")
+
+
 def mesh_geometry(path: str | os.PathLike, mesh_size: float, *, coarsening: float = 2.5,
-                  allow_large: bool = False, order: int = 1) -> TetMesh:
+                  allow_large: bool = False, order: int = 1, volume_size: float | None = None,
+                  refine: tuple[Refinement, ...] = ()) -> TetMesh:
     """Mesh a gmsh-readable geometry with linear tetrahedra.
 
     Parameters
@@ -309,6 +343,13 @@ def mesh_geometry(path: str | os.PathLike, mesh_size: float, *, coarsening: floa
         than the body's smallest extent is logged as a warning.
     coarsening
         Elements grow to ``coarsening * mesh_size`` away from ``top``.
+    volume_size
+        Volume grading: tetrahedra inside the body are at most this size [m]
+        (``<= mesh_size``) while the surfaces keep their sizes, so the surface
+        (the bundle, and the runtime's cost) is the same as without it and only
+        the precompute grows. ``None``: the volume follows the surface sizes.
+    refine
+        :class:`Refinement` regions (finer surface and volume near plan points).
     allow_large, order
         Before meshing, the bundle's memory is estimated from the geometry's
         areas (:func:`hailstorm.precompute.resources.estimate_geometry`, for elements of
@@ -333,6 +374,7 @@ def mesh_geometry(path: str | os.PathLike, mesh_size: float, *, coarsening: floa
         raise MeshError(f"geometry file {path} does not exist")
     if not (np.isfinite(mesh_size) and mesh_size > 0):
         raise MeshError(f"mesh size must be a positive length in metres, got {mesh_size!r}")
+    check_volume_size(volume_size, mesh_size)
     gmsh = _gmsh_session()
     try:
         try:
@@ -352,7 +394,8 @@ def mesh_geometry(path: str | os.PathLike, mesh_size: float, *, coarsening: floa
         if mesh_size > smallest:
             log.warning("%s: mesh size %g m is larger than the body's smallest extent (%.3g m): the mesh cannot "
                         "resolve the body, and its Green's functions mean little", path.name, mesh_size, smallest)
-        check_fits(estimate_geometry(area_top, area_all, volume, mesh_size, order, coarsening),
+        check_fits(estimate_geometry(area_top, area_all, volume, mesh_size, order, coarsening,
+                                     volume_size=volume_size),
                    f"{path.name} at mesh size {mesh_size:g} m", allow_large=allow_large)
         fine = []
         if "top" in names:
@@ -361,7 +404,9 @@ def mesh_geometry(path: str | os.PathLike, mesh_size: float, *, coarsening: floa
         gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", 0)
         gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 0)
         gmsh.option.setNumber("Mesh.MeshSizeMax", coarsening * mesh_size)
-        gmsh.option.setNumber("Mesh.MeshSizeMin", 0.25 * mesh_size)
+        smallest_size = min([0.25 * mesh_size, volume_size or mesh_size] + [r.size for r in refine])
+        gmsh.option.setNumber("Mesh.MeshSizeMin", smallest_size)
+        extra = _grading_fields(gmsh, volume_size, refine)
         if fine:
             f_dist = gmsh.model.mesh.field.add("Distance")
             gmsh.model.mesh.field.setNumbers(f_dist, "SurfacesList", fine)
@@ -371,9 +416,15 @@ def mesh_geometry(path: str | os.PathLike, mesh_size: float, *, coarsening: floa
             gmsh.model.mesh.field.setNumber(f_thr, "SizeMax", coarsening * mesh_size)
             gmsh.model.mesh.field.setNumber(f_thr, "DistMin", 0.5 * mesh_size)
             gmsh.model.mesh.field.setNumber(f_thr, "DistMax", 3.0 * mesh_size)
-            gmsh.model.mesh.field.setAsBackgroundMesh(f_thr)
+            extra.append(f_thr)
         else:
             gmsh.option.setNumber("Mesh.MeshSizeMax", mesh_size)
+        if len(extra) == 1:
+            gmsh.model.mesh.field.setAsBackgroundMesh(extra[0])
+        elif extra:
+            f_min = gmsh.model.mesh.field.add("Min")
+            gmsh.model.mesh.field.setNumbers(f_min, "FieldsList", extra)
+            gmsh.model.mesh.field.setAsBackgroundMesh(f_min)
         gmsh.option.setNumber("Mesh.ElementOrder", 1)
         log.info("meshing %s at %g m ...", path.name, mesh_size)
         try:
@@ -381,9 +432,30 @@ def mesh_geometry(path: str | os.PathLike, mesh_size: float, *, coarsening: floa
                 gmsh.model.mesh.generate(3)
         except Exception as exc:
             raise MeshError(f"gmsh failed to mesh {path} at mesh size {mesh_size}: {exc}") from exc
-        return _mesh_from_gmsh(gmsh, names, source=f"{path.name}@h={mesh_size:g}")
+        tag = f"{path.name}@h={mesh_size:g}" + ("" if volume_size is None else f",volume={volume_size:g}") + \
+            "".join(f",refine=({r.x:g},{r.y:g},{r.size:g},{r.growth:g})" for r in refine)
+        return _mesh_from_gmsh(gmsh, names, source=tag)
     finally:
         gmsh.finalize()
+
+
+def _grading_fields(gmsh, volume_size: float | None, refine: tuple[Refinement, ...]) -> list[int]:
+    """gmsh size fields of the volume grading (a constant size inside the volumes only: the
+    surfaces keep theirs) and of the local refinements; their tags (for a Min field)."""
+    fields = []
+    if volume_size is not None:
+        const = gmsh.model.mesh.field.add("MathEval")
+        gmsh.model.mesh.field.setString(const, "F", repr(float(volume_size)))
+        inside = gmsh.model.mesh.field.add("Restrict")
+        gmsh.model.mesh.field.setNumber(inside, "InField", const)
+        gmsh.model.mesh.field.setNumbers(inside, "VolumesList", [t for _, t in gmsh.model.getEntities(3)])
+        gmsh.model.mesh.field.setNumber(inside, "IncludeBoundary", 0)  # not the surfaces: they keep their size
+        fields.append(inside)
+    for r in refine:
+        f = gmsh.model.mesh.field.add("MathEval")
+        gmsh.model.mesh.field.setString(f, "F", f"{r.size!r} + {r.growth!r} * Sqrt((x - ({r.x!r}))^2 + (y - ({r.y!r}))^2)")
+        fields.append(f)
+    return fields
 
 
 def _mesh_from_gmsh(gmsh, names: dict, source: str) -> TetMesh:
@@ -426,10 +498,12 @@ def _mesh_from_gmsh(gmsh, names: dict, source: str) -> TetMesh:
     return check_mesh(mesh)
 
 
-def mesh_default_seat(mesh_size: float = DEFAULT_MESH_SIZE, *, allow_large: bool = False, order: int = 1) -> TetMesh:
+def mesh_default_seat(mesh_size: float = DEFAULT_MESH_SIZE, *, allow_large: bool = False, order: int = 1,
+                      volume_size: float | None = None, refine: tuple[Refinement, ...] = ()) -> TetMesh:
     """Mesh the default saddle (``meshes/saddle.geo``) at ``mesh_size`` on top [m]
-    (``allow_large``, ``order``: see :func:`mesh_geometry`)."""
-    return mesh_geometry(default_seat_path(), mesh_size, allow_large=allow_large, order=order)
+    (``allow_large``, ``order``, ``volume_size``, ``refine``: see :func:`mesh_geometry`)."""
+    return mesh_geometry(default_seat_path(), mesh_size, allow_large=allow_large, order=order,
+                         volume_size=volume_size, refine=refine)
 
 
 def read_mesh(path: str | os.PathLike) -> TetMesh:
@@ -504,18 +578,22 @@ def read_mesh(path: str | os.PathLike) -> TetMesh:
 
 
 def load_seat(geometry: str | os.PathLike | None, mesh_size: float, *, allow_large: bool = False,
-              order: int = 1) -> TetMesh:
+              order: int = 1, volume_size: float | None = None) -> TetMesh:
     """The mesh for a precompute run: default seat, a geometry file or a mesh file
-    (``allow_large``, ``order``: see :func:`mesh_geometry`)."""
+    (``allow_large``, ``order``, ``volume_size``: see :func:`mesh_geometry`; a ready mesh
+    file is used as it is, and ``volume_size`` is refused with it)."""
     if geometry is None:
-        return mesh_default_seat(mesh_size, allow_large=allow_large, order=order)
+        return mesh_default_seat(mesh_size, allow_large=allow_large, order=order, volume_size=volume_size)
     path = Path(geometry)
     if path.is_dir():
         raise MeshError(f"--geometry {path} is a directory; give a geometry (.geo, .step, .brep...) or mesh file")
     if not path.exists():
         raise MeshError(f"geometry file {path} does not exist")
     if path.suffix.lower() in GEOMETRY_SUFFIXES:
-        return mesh_geometry(path, mesh_size, allow_large=allow_large, order=order)
+        return mesh_geometry(path, mesh_size, allow_large=allow_large, order=order, volume_size=volume_size)
+    if volume_size is not None:
+        raise MeshError(f"--volume-size grades a geometry as it is meshed; {path.name} is a ready mesh "
+                        "(give a .geo/.step/.brep, or leave out the volume size)")
     return read_mesh(path)
 
 

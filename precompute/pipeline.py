@@ -29,7 +29,15 @@ from hailstorm.precompute.fem import (
     stiffness_matrix,
     vertex_dofs,
 )
-from hailstorm.precompute.geometry import DEFAULT_MESH_SIZE, MeshError, TetMesh, boundary_triangles, check_mesh, load_seat
+from hailstorm.precompute.geometry import (
+    DEFAULT_MESH_SIZE,
+    MeshError,
+    TetMesh,
+    boundary_triangles,
+    check_mesh,
+    check_volume_size,
+    load_seat,
+)
 from hailstorm.precompute.blocks import BlockStore, remove_work_dir, work_dir
 from hailstorm.precompute.cluster import SolveStats, check_scheduler, cluster_client, require_distributed, solve_blocks
 from hailstorm.precompute.greens import (
@@ -146,6 +154,7 @@ def build_bundle(
     geometry: str | os.PathLike | None = None,
     mesh_size: float = DEFAULT_MESH_SIZE,
     order: int = 1,
+    volume_size: float | None = None,
     young: float | None = None,
     poisson: float | None = None,
     materials: Mapping[str, tuple[float, float]] | None = None,
@@ -181,6 +190,12 @@ def build_bundle(
     order
         1 or 2: P1 or P2 tetrahedra. The bundle always lives on the corner
         vertices.
+    volume_size
+        Volume grading of a meshed geometry [m]: tetrahedra inside the body at
+        most this size (``<= mesh_size``) under the same surface mesh, so D has
+        the same shape and the runtime the same cost
+        (:func:`hailstorm.precompute.geometry.mesh_geometry`). ``None``: none.
+        Refused with a ready ``mesh`` or a mesh file (they are used as they are).
     young, poisson
         One material for the whole body [Pa], [-] (default
         :data:`hailstorm.precompute.fem.DEFAULT_YOUNG`, ``DEFAULT_POISSON``).
@@ -254,6 +269,9 @@ def build_bundle(
         raise ValueError(f"solver tolerance must be in (0, 1), got {tol!r}")
     if not (np.isfinite(mesh_size) and mesh_size > 0):
         raise ValueError(f"mesh size must be a positive length in metres, got {mesh_size!r}")
+    check_volume_size(volume_size, mesh_size)
+    if volume_size is not None and mesh is not None:
+        raise ValueError("volume_size grades a geometry as it is meshed; a ready mesh is used as it is")
     if not isinstance(dtype, str) or dtype not in COMPLIANCE_DTYPES:
         raise ValueError(f"D's storage type must be one of {' or '.join(COMPLIANCE_DTYPES)}, got {dtype!r}")
     # the output first: an occupied or unwritable place is refused before any work
@@ -272,7 +290,7 @@ def build_bundle(
     run = _RunSettings(scheduler, workers, int(block_bytes), allow_large, dtype)
     t0 = time.perf_counter()
     if mesh is None:
-        mesh = load_seat(geometry, mesh_size, allow_large=allow_large, order=order)
+        mesh = load_seat(geometry, mesh_size, allow_large=allow_large, order=order, volume_size=volume_size)
     else:
         check_mesh(mesh)
     mats = resolve_materials(mesh, materials, young=young, poisson=poisson)
@@ -296,6 +314,8 @@ def build_bundle(
     }
     if dtype != "float64":  # float64 adds nothing: the keys of the bundles written before stay valid
         options["dtype"] = dtype
+    if volume_size is not None:  # the mesh's hash already differs; recorded for the reader (old keys unchanged)
+        options["volume_size"] = float(volume_size)
     key = cache_key(mesh, options)
     if out is None:
         out = (default_cache_dir() / key[:16]).absolute()

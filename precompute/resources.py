@@ -105,15 +105,18 @@ def _solver_bytes(n_dofs: float) -> float:
 
 
 def estimate_geometry(area_top: float, area_all: float, volume: float, mesh_size: float, order: int = 1,
-                      coarsening: float = 2.5, dtype: str | np.dtype = "float64") -> Estimate:
+                      coarsening: float = 2.5, dtype: str | np.dtype = "float64", *,
+                      volume_size: float | None = None) -> Estimate:
     """Estimate a bundle's needs from a geometry's areas [m^2] and volume [m^3], before meshing.
 
     Every surface is counted at ``mesh_size`` (an upper bound: sizes grow away
-    from ``top``); the interior at ``coarsening * mesh_size``. ``dtype``: D's storage type.
+    from ``top``); the interior at ``coarsening * mesh_size``, or at ``volume_size``
+    when the volume is graded finer. ``dtype``: D's storage type.
     """
     n_contactable = VERTICES_PER_AREA * area_top / mesh_size**2
     n_surface = VERTICES_PER_AREA * area_all / mesh_size**2
-    n_points = 1.3 * n_surface + 1.5 * volume / (coarsening * mesh_size) ** 3
+    interior = coarsening * mesh_size if volume_size is None else min(volume_size, coarsening * mesh_size)
+    n_points = 1.3 * n_surface + 1.5 * volume / interior ** 3
     return _estimate(n_surface, n_contactable, n_points, order, dtype)
 
 

@@ -140,7 +140,7 @@ class StormEstimate:
 #: Python types a scene value may have, per field annotation
 _TYPES: dict[str, tuple[type, ...]] = {
     "float": (int, float), "int": (int,), "bool": (bool,), "str": (str,), "Mode": (str,), "Integrator": (str,),
-    "int | None": (int, type(None)),
+    "int | None": (int, type(None)), "float | None": (int, float, type(None)),
 }
 
 
@@ -151,7 +151,7 @@ def _check_types(record: Any) -> None:
         v = getattr(record, f.name)
         if types is not None and (not isinstance(v, types) or (isinstance(v, bool) and bool not in types)):
             kind = {"float": "a number", "int": "an integer", "bool": "true or false",
-                    "int | None": "an integer"}.get(str(f.type), "a string")
+                    "int | None": "an integer", "float | None": "a number"}.get(str(f.type), "a string")
             raise SceneError(f"{f.name} must be {kind}, got {v!r}")
 
 
@@ -447,6 +447,12 @@ class SeatSettings(_Section):
         Element size on the top [m].
     order : {1, 2}
         Element order.
+    load : {"point", "hat"}
+        What a column of D answers (``hailstorm precompute --load``).
+    volume_size : float or None
+        Volume grading [m]: tetrahedra inside the pad at most this size under
+        the same surface mesh (``hailstorm precompute --volume-size``; at most
+        ``mesh_size``). None (the key left out): no grading.
     young, poisson : float
         Material [Pa], [-].
     """
@@ -454,7 +460,9 @@ class SeatSettings(_Section):
     SECTION: ClassVar[str] = "seat"
 
     mesh_size: float = 0.006
-    order: int = 1
+    order: int = 2
+    load: str = "point"
+    volume_size: float | None = None
     young: float = 2.0e6
     poisson: float = 0.35
 
@@ -463,6 +471,13 @@ class SeatSettings(_Section):
         _positive(self, ("mesh_size", "young"))
         if self.order not in (1, 2) or isinstance(self.order, bool):
             raise SceneError(f"order must be 1 or 2, got {self.order!r}")
+        if self.load not in ("point", "hat"):
+            raise SceneError(f"load must be 'point' or 'hat', got {self.load!r}")
+        if self.volume_size is not None:
+            _positive(self, ("volume_size",))
+            if self.volume_size > self.mesh_size:
+                raise SceneError(f"volume_size ({self.volume_size!r} m) must not exceed mesh_size "
+                                 f"({self.mesh_size!r} m): it refines the volume under the same surface")
         if isinstance(self.poisson, bool) or not isinstance(self.poisson, (int, float)) or not -1.0 < self.poisson < 0.5:
             raise SceneError(f"poisson must satisfy -1 < poisson < 0.5, got {self.poisson!r}")
 

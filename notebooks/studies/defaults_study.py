@@ -1,0 +1,440 @@
+"""The default discretization, chosen by measured accuracy (issue #14 item 5).
+
+Two quantities a storm on the padded saddle depends on, at three sites of the
+crown (rear, middle, nose: :data:`hailstorm.studies.seat_study.SITES`):
+
+Dent
+    The mean normal displacement of a 1 N load spread uniformly over a 5 mm
+    disc (radius 2.5 mm in plan, along the inward normal): the load's work
+    f . u, i.e. the pressure-weighted mean depth of the dent [m/N]. Also the
+    depth under the disc's centre (reported, not a criterion: a 6 mm surface
+    cannot resolve a 5 mm disc's centre).
+Stone contact stiffness
+    The capacitance k = 1 / (w^T N^T D N w) of a Hertz patch as the runtime
+    builds it (:func:`hailstorm.runtime.contact.weights.patch_weights`,
+    Hertz profile, along the contacted triangle's normal) for a 10 mm hailstone
+    (radius 5 mm) at the peak of its impact at terminal velocity: patch radius
+    :func:`stone_patch_radius` (3.8 mm on the default pad).
+
+A setting is what a bundle user gets: surface mesh size, element order, the
+load a column of D answers (``point``/``hat``) and the volume grading
+(``volume_size``: finer tetrahedra under the *same* surface, which costs
+precompute only). It is scored without forming D: u = D f is one direct solve
+with the right-hand side a column combination stands for (f on the corner
+nodes for ``point``, the hat tractions for ``hat``), read at the corner
+vertices, exactly what the bundle's columns hold.
+
+The reference is P2 with consistent loads (the disc's uniform pressure and
+the patch's Hertz pressure integrated on the P2 trace), on meshes refined
+around the three sites (:class:`hailstorm.precompute.geometry.Refinement`),
+at a few levels: the finest is the reference and the levels before it show
+its convergence and observed rate.
+
+Run::
+
+    python -m hailstorm.studies.defaults_study               # reference levels, the table, 3 timed precomputes each
+    python -m hailstorm.studies.defaults_study --no-timing   # accuracy only (the reference ~6 min on 2 loaded cores)
+    python -m hailstorm.studies.defaults_study --quick       # coarse reference levels, one timed run each
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import resource
+import sys
+import tempfile
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from types import SimpleNamespace
+
+import numpy as np
+
+from hailstorm.precompute.fem import (
+    DEFAULT_POISSON,
+    DEFAULT_YOUNG,
+    clamp_dofs,
+    elasticity_basis,
+    free_dofs,
+    stiffness_matrix,
+    vertex_dofs,
+)
+from hailstorm.precompute.geometry import Refinement, TetMesh, boundary_triangles, mesh_default_seat
+from hailstorm.precompute.greens import factorize, hat_load_matrix
+from hailstorm.precompute.pipeline import build_bundle, extract_surface
+from hailstorm.runtime.contact.weights import patch_weights, triangle_normals
+from hailstorm.runtime.hail import stone_mass, terminal_velocity
+from hailstorm.studies.seat_study import SITES
+from hailstorm.studies.study import LoadCase, locate_probes, nodal_loads, trace_nodes, trace_shape
+
+#: The dent load: 1 N uniform over a disc of this plan radius [m] (a 5 mm disc).
+DENT_RADIUS = 0.0025
+#: The stone of the contact stiffness: radius [m] (a 10 mm hailstone).
+STONE_RADIUS = 0.005
+#: Accuracy target of the default against the reference (issue #14).
+TARGET = 0.05
+
+
+def stone_patch_radius(stone_radius: float = STONE_RADIUS, young: float = DEFAULT_YOUNG,
+                       poisson: float = DEFAULT_POISSON) -> float:
+    """Hertz contact radius [m] of an ice sphere at the peak of an elastic impact at terminal velocity.
+
+    Hertz impact (Johnson, *Contact Mechanics*, §11.4): the largest indentation
+    is delta = (15 m v^2 / (16 E* sqrt(R)))^(2/5) and the radius a = sqrt(R delta),
+    with m the stone's mass, v its terminal velocity (default hail: ice, sphere
+    drag), E* = E / (1 - nu^2) for a rigid sphere.
+    """
+    m = float(stone_mass(stone_radius, 917.0))
+    v = float(terminal_velocity(stone_radius, cd=0.6, rho_air=1.2, density=917.0))
+    e_star = young / (1.0 - poisson**2)
+    delta = (15.0 * m * v**2 / (16.0 * e_star * math.sqrt(stone_radius))) ** 0.4
+    return math.sqrt(stone_radius * delta)
+
+
+@dataclass(frozen=True)
+class Setting:
+    """A discretization of the default seat.
+
+    Attributes
+    ----------
+    mesh_size : float
+        Element size on the hail-facing surface [m].
+    order : {1, 2}
+    load : {"point", "hat"}
+        What a column of D answers (``hailstorm precompute --load``).
+    volume_size : float or None
+        Volume grading [m] (``--volume-size``); None: none.
+    """
+
+    mesh_size: float = 0.006
+    order: int = 1
+    load: str = "point"
+    volume_size: float | None = None
+
+    @property
+    def label(self) -> str:
+        """e.g. ``P2 hat 6 mm / vol 3 mm``."""
+        vol = "" if self.volume_size is None else f" / vol {self.volume_size * 1e3:g} mm"
+        return f"P{self.order} {self.load} {self.mesh_size * 1e3:g} mm{vol}"
+
+    def mesh(self) -> TetMesh:
+        """The default saddle meshed for this setting."""
+        return mesh_default_seat(self.mesh_size, volume_size=self.volume_size)
+
+
+@dataclass
+class Figures:
+    """Per site (in :data:`SITES` order): dent [m/N] (mean and under the centre) and stone
+    stiffness [N/m]; the solve's size and cost."""
+
+    dent: np.ndarray
+    dent_centre: np.ndarray
+    stiffness: np.ndarray
+    n_dofs: int
+    seconds: float
+    extra: dict = field(default_factory=dict)
+
+    def errors(self, ref: "Figures") -> tuple[float, float]:
+        """Worst relative error over the sites of (stiffness, dent) against ``ref``."""
+        return (float(np.max(np.abs(self.stiffness / ref.stiffness - 1.0))),
+                float(np.max(np.abs(self.dent / ref.dent - 1.0))))
+
+
+class _Solver:
+    """One clamped, factorized stiffness of a mesh, and the top surface's trace."""
+
+    def __init__(self, mesh: TetMesh, order: int, young: float, poisson: float):
+        t0 = time.perf_counter()
+        self.mesh, self.order = mesh, order
+        self.basis = elasticity_basis(mesh, order)
+        K = stiffness_matrix(self.basis, young, poisson)
+        self.n = K.shape[0]
+        self.free = free_dofs(self.n, clamp_dofs(self.basis, mesh))
+        self.fact = factorize(K.tocsr()[self.free][:, self.free], "cholmod")
+        self.seconds = time.perf_counter() - t0
+
+    def solve(self, F: np.ndarray) -> np.ndarray:
+        u = np.zeros_like(F)
+        u[self.free] = self.fact.solve(F[self.free])
+        return u
+
+
+def _sites(sites) -> np.ndarray:
+    return np.array(list(sites.values()), dtype=float)
+
+
+def jittered(sites, radius: float, n: int = 6) -> dict[str, np.ndarray]:
+    """Each site and ``n`` points on a circle of ``radius`` around it (plan, (n + 1, 2)):
+    a stone lands anywhere relative to the vertices, and a bundle's answer depends on
+    where (the converged one barely does over a few millimetres)."""
+    th = 2 * np.pi * np.arange(n) / n
+    ring = radius * np.column_stack([np.cos(th), np.sin(th)])
+    return {k: np.vstack([np.asarray(c, float), np.asarray(c, float) + ring]) for k, c in sites.items()}
+
+
+def measure_setting(setting: Setting, *, mesh: TetMesh | None = None, sites=SITES, young: float = DEFAULT_YOUNG,
+                    poisson: float = DEFAULT_POISSON, patch_radius: float | None = None,
+                    jitter: float | None = None) -> Figures:
+    """Dent and stone stiffness as a bundle of ``setting`` gives them (see the module notes).
+
+    Each site's figure is the mean over the site and 6 points ``jitter`` [m] around it
+    (default half the mesh size; 0: the site alone); ``extra["spread"]`` holds, per
+    quantity, the largest relative deviation from that mean. ``mesh``: use this mesh
+    instead of meshing the default seat (tests)."""
+    t0 = time.perf_counter()
+    mesh = setting.mesh() if mesh is None else mesh
+    a_s = stone_patch_radius(young=young, poisson=poisson) if patch_radius is None else patch_radius
+    jitter = 0.5 * setting.mesh_size if jitter is None else jitter
+    sol = _Solver(mesh, setting.order, young, poisson)
+    surface = extract_surface(mesh)
+    V = mesh.points[surface.nodes]
+    T = surface.triangles
+    n_v = surface.nodes.size
+    vdofs = vertex_dofs(sol.basis, surface.nodes)  # (n, 3)
+    hat = None
+    if setting.load == "hat":
+        hat = hat_load_matrix(sol.basis, surface.nodes[surface.contactable], surface.areas[surface.contactable])
+
+    def respond(f: np.ndarray) -> np.ndarray:
+        """Vertex forces (n, 3) -> vertex displacements (n, 3) through the bundle's columns."""
+        f = np.where(surface.contactable[:, None], f, 0.0)  # a clamped vertex has no column
+        F = np.zeros(sol.n)
+        if hat is None:
+            F[vdofs.ravel()] = f.ravel()
+        else:
+            F = hat @ f[surface.contactable].ravel()
+        return sol.solve(F)[vdofs]
+
+    gf = SimpleNamespace(vertices=V, triangles=T, contactable=surface.contactable, fixed=surface.fixed)
+    dent, centre, k, spread = [], [], [], {"dent": [], "stiffness": []}
+    points = jittered(sites, jitter) if jitter > 0 else {n: np.asarray([c], float) for n, c in sites.items()}
+    for pts in points.values():
+        loc = locate_probes(V, T, pts)
+        normals = triangle_normals(V, T[loc.triangle])
+        verts, w = patch_weights(gf, loc.triangle, loc.lam, np.full(len(pts), a_s), normals, profile="hertz")
+        d_i, c_i, k_i = [], [], []
+        for i, c in enumerate(pts):
+            f = nodal_loads(V, T, T, n_v, LoadCase(tuple(c), DENT_RADIUS, 1.0), order=1)
+            f /= np.linalg.norm(f.sum(axis=0))
+            u = respond(f)
+            d_i.append(float(np.sum(f * u)))
+            c_i.append(float(-normals[i] @ (loc.lam[i] @ u[T[loc.triangle[i]]])))
+            fs = np.zeros((n_v, 3))
+            np.add.at(fs, verts[i], -w[i][:, None] * normals[i][None, :])
+            k_i.append(1.0 / float(np.sum(fs * respond(fs))))
+        for name, vals, out in (("dent", d_i, dent), ("stiffness", k_i, k)):
+            vals = np.asarray(vals)
+            out.append(float(vals.mean()))
+            spread[name].append(float(np.max(np.abs(vals / vals.mean() - 1.0))))
+        centre.append(float(np.mean(c_i)))
+    return Figures(np.array(dent), np.array(centre), np.array(k), int(sol.n), time.perf_counter() - t0,
+                   {"n_tets": int(mesh.tets.shape[0]), "n_surface": int(n_v), "patch_radius": a_s,
+                    "jitter": jitter, "spread": {k_: np.array(v) for k_, v in spread.items()}})
+
+
+def measure_consistent(mesh: TetMesh, order: int = 2, *, sites=SITES, young: float = DEFAULT_YOUNG,
+                       poisson: float = DEFAULT_POISSON, patch_radius: float | None = None,
+                       dent_radius: float = DENT_RADIUS) -> Figures:
+    """Dent and stone stiffness with consistent loads (the reference's definition): the disc's
+    uniform pressure (plan radius ``dent_radius``) and the patch's Hertz pressure (radius
+    ``patch_radius``, default :func:`stone_patch_radius`) integrated on the element trace, the
+    work F . u per newton (the pressure-weighted mean normal displacement)."""
+    t0 = time.perf_counter()
+    a_s = stone_patch_radius(young=young, poisson=poisson) if patch_radius is None else patch_radius
+    sol = _Solver(mesh, order, young, poisson)
+    tris = boundary_triangles(mesh.tets)
+    topkey = set(map(tuple, np.sort(mesh.groups["top"], axis=1).tolist()))
+    tris = tris[[tuple(t) in topkey for t in np.sort(tris, axis=1).tolist()]]
+    nodes, table = trace_nodes(sol.basis, tris, order)
+    centres = _sites(sites)
+    loc = locate_probes(mesh.points, tris, centres)
+    normals = triangle_normals(mesh.points, tris[loc.triangle])
+    n_nodes = table.shape[0]
+
+    def load(c, radius: float, profile: str) -> np.ndarray:
+        if profile == "uniform":
+            f = nodal_loads(mesh.points, tris, nodes, n_nodes, LoadCase(tuple(c), radius, 1.0), order=order)
+        else:
+            # Hertz p0 sqrt(1 - r^2/a^2) as a sum of uniform discs of equal pressure (Abel layering):
+            # radii r_k = a sqrt(1 - t_k^2), t_k the midpoints of 32 equal steps in t = p / p0
+            f = np.zeros((n_nodes, 3))
+            for r in radius * np.sqrt(1.0 - ((np.arange(32) + 0.5) / 32) ** 2):
+                f += nodal_loads(mesh.points, tris, nodes, n_nodes, LoadCase(tuple(c), float(r), 1.0), order=order)
+        F = np.zeros(sol.n)
+        F[table.ravel()] = f.ravel()
+        return F / np.linalg.norm(f.sum(axis=0))
+
+    dent, centre, k = [], [], []
+    for i, c in enumerate(centres):
+        F = load(c, dent_radius, "uniform")
+        u = sol.solve(F)
+        dent.append(float(F @ u))
+        N = trace_shape(loc.lam[i:i + 1], order)[0]
+        centre.append(float(-normals[i] @ (N @ u[table[nodes[loc.triangle[i]]]])))
+        F = load(c, a_s, "hertz")
+        k.append(1.0 / float(F @ sol.solve(F)))
+    return Figures(np.array(dent), np.array(centre), np.array(k), int(sol.n), time.perf_counter() - t0,
+                   {"n_tets": int(mesh.tets.shape[0]), "patch_radius": a_s})
+
+
+def reference_mesh(size: float, *, mesh_size: float = 0.006, sites=SITES, growth: float = 0.3) -> TetMesh:
+    """The saddle refined to ``size`` [m] around every site (growing by ``growth`` per metre away)."""
+    refine = tuple(Refinement(float(x), float(y), size, growth) for x, y in sites.values())
+    return mesh_default_seat(mesh_size, refine=refine)
+
+
+@dataclass
+class Convergence:
+    """The reference and the levels before it."""
+
+    sizes: list[float]
+    levels: list[Figures]
+
+    @property
+    def reference(self) -> Figures:
+        return self.levels[-1]
+
+    def rates(self) -> dict[str, np.ndarray]:
+        """Observed order per site from the last three levels, for dent and stiffness:
+        log(|q1 - q2| / |q2 - q3|) / log(h1/h2) (levels with a constant ratio h1/h2 = h2/h3)."""
+        if len(self.levels) < 3:
+            return {}
+        q = self.levels[-3:]
+        r = self.sizes[-3] / self.sizes[-2]
+        out = {}
+        for name in ("dent", "stiffness"):
+            a, b, c = (getattr(x, name) for x in q)
+            out[name] = np.log(np.abs(a - b) / np.maximum(np.abs(b - c), 1e-300)) / np.log(r)
+        return out
+
+    def extrapolation_error(self) -> dict[str, float]:
+        """Worst relative Richardson estimate of the reference's own error (rate from :meth:`rates`,
+        floored at 1): |q2 - q3| / (ratio^p - 1) / |q3|."""
+        rates = self.rates()
+        if not rates:
+            return {}
+        r = self.sizes[-2] / self.sizes[-1]
+        out = {}
+        for name, p in rates.items():
+            b, c = getattr(self.levels[-2], name), getattr(self.levels[-1], name)
+            p = np.maximum(np.nan_to_num(p, nan=1.0), 1.0)
+            out[name] = float(np.max(np.abs(b - c) / (r**p - 1.0) / np.abs(c)))
+        return out
+
+
+def converge_reference(sizes: Sequence[float] = (0.002, 0.0014, 0.001, 0.0007), *, sites=SITES) -> Convergence:
+    """P2 with consistent loads on :func:`reference_mesh` at each size (coarse to fine)."""
+    levels = [measure_consistent(reference_mesh(h, sites=sites), 2, sites=sites) for h in sizes]
+    return Convergence(list(sizes), levels)
+
+
+@dataclass
+class Row:
+    """One setting of the table: its cost and its errors against the reference."""
+
+    setting: Setting
+    figures: Figures
+    precompute_s: list[float]
+    peak_mb: float
+    stiffness_error: float
+    dent_error: float
+
+    @property
+    def ok(self) -> bool:
+        return self.stiffness_error <= TARGET and self.dent_error <= TARGET
+
+
+def precompute_cost(setting: Setting, repeats: int = 1) -> tuple[list[float], float]:
+    """Wall times [s] of ``build_bundle(reuse=False)`` (meshing included) and the peak RSS of
+    this process [MB] afterwards (a running maximum: measure the biggest setting last)."""
+    times = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for _ in range(repeats):
+            t = time.perf_counter()
+            build_bundle(f"{tmp}/b", mesh_size=setting.mesh_size, order=setting.order, load=setting.load,
+                         volume_size=setting.volume_size, reuse=False)
+            times.append(time.perf_counter() - t)
+    return times, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+
+
+def score(settings: Sequence[Setting], ref: Figures, *, repeats: int = 1, time_it: bool = True) -> list[Row]:
+    """Each setting measured against ``ref`` (and its precompute timed, unless not ``time_it``)."""
+    rows = []
+    for s in settings:
+        fig = measure_setting(s)
+        times, peak = precompute_cost(s, repeats) if time_it else ([math.nan], math.nan)
+        ek, ed = fig.errors(ref)
+        rows.append(Row(s, fig, times, peak, ek, ed))
+    return rows
+
+
+#: The settings the table compares: the old default first, then the new one.
+SETTINGS = (
+    Setting(0.006, 1, "point"),
+    Setting(0.006, 2, "point"),
+    Setting(0.006, 1, "hat"),
+    Setting(0.006, 2, "hat"),
+    Setting(0.006, 1, "point", 0.003),
+    Setting(0.006, 2, "point", 0.0055),
+    Setting(0.006, 2, "point", 0.005),
+    Setting(0.006, 2, "point", 0.0045),
+    Setting(0.005, 2, "point"),
+)
+
+
+def format_convergence(conv: Convergence) -> str:
+    """The reference's levels, rates and own-error estimate as text."""
+    names = list(SITES)
+    lines = ["reference: P2, consistent loads, refined around the sites",
+             "dent [um/N] and stone stiffness k [kN/m] at " + ", ".join(names),
+             "size [mm]     dofs  " + " ".join(f"{n:>7}" for n in names) + "    " + " ".join(f"{n:>7}" for n in names)]
+    for h, f in zip(conv.sizes, conv.levels):
+        lines.append(f"{h * 1e3:>8.2f} {f.n_dofs:>8d}  " + " ".join(f"{x * 1e6:>7.2f}" for x in f.dent) +
+                     "    " + " ".join(f"{x / 1e3:>7.3f}" for x in f.stiffness))
+    for name, p in conv.rates().items():
+        lines.append(f"observed rate ({name}): " + ", ".join(f"{n} {v:.2f}" for n, v in zip(names, p)))
+    for name, e in conv.extrapolation_error().items():
+        lines.append(f"reference's own error ({name}, Richardson): {e:.2%}")
+    return "\n".join(lines)
+
+
+def format_table(rows: Sequence[Row]) -> str:
+    """The settings table as text."""
+    lines = [f"{'setting':<26}{'precompute s (min/med/max)':>28}{'peak MB':>9}{'dofs':>8}"
+             f"{'stiffness err':>15}{'dent err':>10}{'centre err':>12}  within 5 %"]
+    for r in rows:
+        t = np.array(r.precompute_s)
+        ts = f"{t.min():.1f}/{np.median(t):.1f}/{t.max():.1f}"
+        lines.append(f"{r.setting.label:<26}{ts:>28}{r.peak_mb:>9.0f}{r.figures.n_dofs:>8d}"
+                     f"{r.stiffness_error:>15.1%}{r.dent_error:>10.1%}{r.figures.extra.get('centre_error', math.nan):>12.1%}"
+                     f"  {'yes' if r.ok else 'no'}")
+    return "\n".join(lines)
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--quick", action="store_true", help="coarse reference levels, no timing repeats")
+    ap.add_argument("--repeats", type=int, default=3, help="precompute runs per setting (min/median/max)")
+    ap.add_argument("--no-timing", action="store_true", help="accuracy only (no build_bundle runs)")
+    args = ap.parse_args(argv)
+    import logging
+
+    logging.basicConfig(level=logging.WARNING)
+    t0 = time.perf_counter()
+    sizes = (0.004, 0.0028, 0.002) if args.quick else (0.002, 0.0014, 0.001, 0.0007)
+    conv = converge_reference(sizes)
+    print(format_convergence(conv))
+    ref = conv.reference
+    rows = score(SETTINGS, ref, repeats=1 if args.quick else args.repeats, time_it=not args.no_timing)
+    for r in rows:
+        r.figures.extra["centre_error"] = float(np.max(np.abs(r.figures.dent_centre / ref.dent_centre - 1.0)))
+    print(f"\nstone: radius {STONE_RADIUS * 1e3:g} mm, Hertz patch radius {ref.extra['patch_radius'] * 1e3:.2f} mm; "
+          f"dent: 1 N over a {2e3 * DENT_RADIUS:g} mm disc")
+    print(format_table(rows))
+    print(f"({time.perf_counter() - t0:.0f} s)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
