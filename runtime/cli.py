@@ -65,7 +65,11 @@ def _parser() -> argparse.ArgumentParser:
     pre = sub.add_parser("precompute", parents=[common], help="compute a Green's-function bundle for a seat")
     pre.add_argument("--mesh-size", type=_positive_float, default=DEFAULT_MESH_SIZE,
                      help=f"element size on the hail-facing surface in metres (default {DEFAULT_MESH_SIZE})")
-    pre.add_argument("--order", type=int, choices=(1, 2), default=1, help="P1 or P2 tetrahedra (default 1)")
+    from hailstorm.runtime.scene import SeatSettings
+
+    seat = SeatSettings.default()
+    pre.add_argument("--order", type=int, choices=(1, 2), default=seat.order,
+                     help=f"P1 or P2 tetrahedra (default {seat.order}: the default seat's, chosen by measured accuracy)")
     pre.add_argument("--volume-size", type=_positive_float, default=None, metavar="H",
                      help="volume grading of a meshed geometry: tetrahedra inside the body at most H metres "
                      "(at most --mesh-size) under the same surface mesh; D and the runtime's cost stay the same")
@@ -82,8 +86,8 @@ def _parser() -> argparse.ArgumentParser:
     pre.add_argument("--solver", choices=("cholmod", "splu", "amg"), default="cholmod",
                      help="sparse Cholesky (default), SuperLU, or AMG-preconditioned CG for huge meshes")
     pre.add_argument("--tol", type=_positive_float, default=1e-10, help="relative residual of the AMG solver")
-    pre.add_argument("--load", choices=("point", "hat"), default="point",
-                     help="a column of D responds to a unit nodal force (point, default) or to one newton "
+    pre.add_argument("--load", choices=("point", "hat"), default=seat.load,
+                     help="a column of D responds to a unit nodal force (point, the default) or to one newton "
                      "spread over the vertex's hat function (hat: the consistent choice for --order 2)")
     pre.add_argument("--out", type=Path, required=True, help="bundle directory to write")
     pre.add_argument("--force", action="store_true", help="recompute even if --out holds an up-to-date bundle")

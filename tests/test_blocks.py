@@ -169,7 +169,7 @@ def test_full_disk_from_the_cli_is_one_line_and_exit_3(tmp_path, monkeypatch, ca
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
     monkeypatch.setattr(os, "pwrite", pwrite)
-    rc = main(["precompute", "--mesh-size", "0.03", "--out", str(tmp_path / "b"), "-q"])
+    rc = main(["precompute", "--mesh-size", "0.03", "--order", "1", "--out", str(tmp_path / "b"), "-q"])
     err = capsys.readouterr().err
     assert rc == 3
     assert err.count("\n") == 1 and "No space left on device" in err and "Traceback" not in err

@@ -301,7 +301,7 @@ def test_parse_material(text, name, e, nu):
 def test_cli_material_errors_one_line_exit_3(tmp_path, capsys, two_boxes, args, says):
     import re
 
-    rc = main(["precompute", "-q", "--geometry", str(two_boxes[1]), "--out", str(tmp_path / "out"), *args])
+    rc = main(["precompute", "-q", "--order", "1", "--geometry", str(two_boxes[1]), "--out", str(tmp_path / "out"), *args])
     err = capsys.readouterr().err
     assert rc == 3
     assert err.count("\n") == 1 and err.startswith("hailstorm: error: ") and re.search(says, err), err
@@ -309,7 +309,7 @@ def test_cli_material_errors_one_line_exit_3(tmp_path, capsys, two_boxes, args, 
 
 
 def test_cli_materials_build_and_info(tmp_path, capsys, two_boxes):
-    rc = main(["precompute", "-q", "--geometry", str(two_boxes[1]), "--out", str(tmp_path / "out"),
+    rc = main(["precompute", "-q", "--order", "1", "--geometry", str(two_boxes[1]), "--out", str(tmp_path / "out"),
                "--material", "pad=1e6,0.3", "--material", "shell=2e9,0.4"])
     assert rc == 0
     out = capsys.readouterr().out

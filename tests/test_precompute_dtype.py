@@ -133,7 +133,7 @@ def test_cli_dtype_float32_and_info(tmp_path, capsys):
     from hailstorm.runtime.cli import main
 
     out = tmp_path / "b"
-    assert main(["precompute", "--mesh-size", "0.03", "--dtype", "float32", "--out", str(out), "-q"]) == 0
+    assert main(["precompute", "--mesh-size", "0.03", "--order", "1", "--dtype", "float32", "--out", str(out), "-q"]) == 0
     g = hailstorm.runtime.load(out)
     assert g.dtype == np.float32 and g.manifest["options"]["dtype"] == "float32"
     capsys.readouterr()
