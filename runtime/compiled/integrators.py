@@ -241,6 +241,7 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond
     # (kernels called with one type each: a literal 1 or a strided view as an argument
     # would compile a second specialisation of _track / _advance / _gsum on a first run)
     one = np.int64(1)
+    ngrid = np.int64(GRID)  # (not the literal: one specialisation of _expm_states)
     ident = ng == n
     for i in range(n):
         if group[i] != i or wts[i] != 1.0:
@@ -327,7 +328,7 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond
             if ok:
                 Z = _modal_at(lam, V, Vi, z0, tau)
             else:
-                Z = _expm_states(A, zlo, (hi - lo) / GRID, GRID)
+                Z = _expm_states(A, zlo, (hi - lo) / GRID, ngrid)
             y = Z[:na]
             vv = Z[na:]
             vng = _gsum(np.ascontiguousarray(vv), gi, wi, ng, ident_a)
