@@ -173,6 +173,15 @@ else:
 
 
 @kernel
+def _prefetch_vertices(a, b, c, r):  # pragma: no cover (compiled)
+    """:func:`prefetch` row ``r`` of the three columns of each of three vertices ``a``, ``b``, ``c``."""
+    for x in (a, b, c):
+        prefetch(x[0], r)
+        prefetch(x[1], r)
+        prefetch(x[2], r)
+
+
+@kernel
 def _add_sticky3(d0, d1, d2, rows, wa, a, wb, b, wc, c):  # pragma: no cover (compiled)
     """``d_e += wa a_e + wb b_e + wc c_e`` at the rows of V (added in that order): three
     vertices' columns ``a``, ``b``, ``c`` (three rows of ``D.T`` each) in one pass."""
@@ -182,16 +191,7 @@ def _add_sticky3(d0, d1, d2, rows, wa, a, wb, b, wc, c):  # pragma: no cover (co
     n = rows.size
     for i in range(n):
         if i + PREFETCH_AHEAD < n:  # ask for the rows a few vertices ahead (see PREFETCH_AHEAD)
-            rp = rows[i + PREFETCH_AHEAD]
-            prefetch(a0, rp)
-            prefetch(a1, rp)
-            prefetch(a2, rp)
-            prefetch(b0, rp)
-            prefetch(b1, rp)
-            prefetch(b2, rp)
-            prefetch(c0, rp)
-            prefetch(c1, rp)
-            prefetch(c2, rp)
+            _prefetch_vertices(a, b, c, rows[i + PREFETCH_AHEAD])
         r = rows[i]
         j = 3 * i
         for o in range(3):
@@ -223,16 +223,7 @@ def _add_normal3(dst, rows, ca, a, cb, b, cc, c):  # pragma: no cover (compiled)
     n = rows.size
     for i in range(n):
         if i + PREFETCH_AHEAD < n:  # ask for the rows a few vertices ahead (see PREFETCH_AHEAD)
-            rp = rows[i + PREFETCH_AHEAD]
-            prefetch(a0, rp)
-            prefetch(a1, rp)
-            prefetch(a2, rp)
-            prefetch(b0, rp)
-            prefetch(b1, rp)
-            prefetch(b2, rp)
-            prefetch(c0, rp)
-            prefetch(c1, rp)
-            prefetch(c2, rp)
+            _prefetch_vertices(a, b, c, rows[i + PREFETCH_AHEAD])
         r = rows[i]
         for o in range(3):
             j = 3 * i + o
