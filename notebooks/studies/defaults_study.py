@@ -65,6 +65,7 @@ from hailstorm.precompute.greens import factorize, hat_load_matrix
 from hailstorm.precompute.pipeline import build_bundle, extract_surface
 from hailstorm.runtime.contact.weights import patch_weights, triangle_normals
 from hailstorm.runtime.hail import stone_mass, terminal_velocity
+from hailstorm.runtime.hertz import hertz_impact
 from hailstorm.studies.seat_study import SITES
 from hailstorm.studies.study import LoadCase, locate_probes, nodal_loads, trace_nodes, trace_shape
 
@@ -85,10 +86,9 @@ def stone_patch_radius(stone_radius: float = STONE_RADIUS, young: float = DEFAUL
     with m the stone's mass, v its terminal velocity (default hail: ice, sphere
     drag), E* = E / (1 - nu^2) for a rigid sphere.
     """
-    m = float(stone_mass(stone_radius, 917.0))
-    v = float(terminal_velocity(stone_radius, cd=0.6, rho_air=1.2, density=917.0))
-    e_star = young / (1.0 - poisson**2)
-    delta = (15.0 * m * v**2 / (16.0 * e_star * math.sqrt(stone_radius))) ** 0.4
+    m = float(stone_mass(stone_radius))
+    v = float(terminal_velocity(stone_radius))
+    delta = hertz_impact(m, v, stone_radius, young, poisson).max_depth
     return math.sqrt(stone_radius * delta)
 
 

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from hailstorm.runtime.hail import GRAVITY
+from hailstorm.runtime.contact.weights import hertz_radius
 from hailstorm.runtime.hertz import HertzImpact, hertz_force, hertz_impact, press_spheres
 
 __all__ = ["BLOCK", "DropResult", "block_bundle", "drop_stone", "force_ratios", "hertz_depth", "origin_contact",
@@ -87,7 +88,7 @@ def force_ratios(gf: Any, ratios: tuple[float, ...] = RATIOS) -> np.ndarray:
 
 def hertz_depth(force: float, sphere_radius: float, young: float, poisson: float) -> float:
     """Hertz's depth ``(3 F / (4 E* sqrt(R)))^(2/3)`` of a rigid sphere carrying ``force`` [m]."""
-    return float((3.0 * force / (4.0 * young / (1.0 - poisson**2) * math.sqrt(sphere_radius))) ** (2.0 / 3.0))
+    return float(hertz_radius(force, sphere_radius, young, poisson)) ** 2 / sphere_radius  # delta = a^2 / R
 
 
 def _storm(gf: Any, dt: float, restitution: float | None = None) -> Any:
