@@ -1,11 +1,13 @@
-"""The storm's contact set: the capacitance of its current soft contacts.
+"""The storm's contact set: a layer over the contact core's :class:`~hailstorm.runtime.contact.Capacitance`.
 
-:class:`ContactSet` is W = Bᵀ D B, K = W⁻¹ (under the contact API's one SPD policy:
-:data:`hailstorm.runtime.contact.policy.COND_LIMIT`,
-:data:`~hailstorm.runtime.contact.policy.PINV_RCOND`) and the force and
-displacement blocks of a set of (stone, triangle[, patch radius]), built by
-:meth:`ContactSets.build` (compiled blocks: :func:`hailstorm.runtime.compiled.capacitance_blocks`)
-and kept while the set is unchanged.
+:class:`ContactSet` holds the capacitance of a set of (stone, triangle[, patch
+radius]) -- W = Bᵀ D B and K = W⁻¹ from the one constructor
+:func:`hailstorm.runtime.contact.contact_capacitance.from_weights`, under the contact
+core's one SPD policy (:class:`hailstorm.runtime.contact.policy.SPDFactor`) --
+with what the storm adds: the stones, their reference points, the Hertz secant
+scaling of patch contacts and the integrators' cached damping and modes. It is
+built by :meth:`ContactSets.build` from the patch weights the storm caches per
+stone, and kept while the set is unchanged.
 
 A patch contact's K is Hertz's secant stiffness: W and K are scaled by
 ``sqrt(kappa)`` on both sides (:func:`hailstorm.runtime.contact.weights.hertz_secant_factor`),
@@ -22,12 +24,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hailstorm.runtime.contact import policy
+from hailstorm.runtime.contact.contact_capacitance import Capacitance, from_weights
 from hailstorm.runtime.contact.weights import hertz_secant_factor, sphere_mean_offset
-from hailstorm.runtime.compiled import capacitance_blocks, inv_spd, rigid_contacts
 from hailstorm.runtime.patches import Patches
 from hailstorm.runtime.recording import StormStats
-from hailstorm.runtime.seat import SeatState
 from hailstorm.runtime.contact.compliance import ElasticSource
 
 __all__ = ["ContactSet", "ContactSets"]
@@ -35,10 +35,16 @@ __all__ = ["ContactSet", "ContactSets"]
 
 @dataclass
 class ContactSet:
-    """The capacitance of the storm's current set of soft contacts (:func:`contact_set`),
-    kept while the set (stones, triangles, patch radii) is unchanged."""
+    """The capacitance of the storm's current set of soft contacts (:meth:`ContactSets.build`),
+    kept while the set (stones, triangles, patch radii) is unchanged.
+
+    ``W`` and ``K`` are the capacitance's (:attr:`capacitance`), with patch contacts
+    at Hertz's secant stiffness (module docstring); ``G``, ``cols`` and ``DVV`` are
+    :meth:`Capacitance.loaded_columns` and :meth:`Capacitance.vertex_response`.
+    """
 
     key: tuple
+    capacitance: Capacitance
     W: np.ndarray
     K: np.ndarray
     G: np.ndarray  # (c, m) forces at the loaded (non-clamped) dofs of V per unit multiplier
@@ -64,28 +70,23 @@ class ContactSets:
     Parameters
     ----------
     gf : ElasticSource
-        The bundle's surface.
+        The bundle (its D, surface and material).
     sticky : bool
         Three multipliers per contact (``mode = "sticky"``), else one (frictionless).
-    seat : SeatState
-        D and its columns (read only).
     normals : (m, 3) ndarray
         Outward unit normals of the triangles.
-    fixed : (n,) bool ndarray
-        Clamped vertices.
     patches : Patches
         The patch weights (cached per stone).
     """
 
-    def __init__(self, gf: ElasticSource, sticky: bool, seat: SeatState, normals: np.ndarray, fixed: np.ndarray,
-                 patches: Patches) -> None:
+    def __init__(self, gf: ElasticSource, sticky: bool, normals: np.ndarray, patches: Patches) -> None:
+        self.gf = gf
+        self.mode = "sticky" if sticky else "frictionless"
         self.triangles = np.asarray(gf.triangles)
         self.young, self.poisson = float(gf.young), float(gf.poisson)
         self.X = np.asarray(gf.vertices, dtype=np.float64)
         self.sticky = sticky
-        self.seat = seat
         self.normals = normals
-        self.fixed = fixed
         self.patches = patches
 
     def build(self, stones: np.ndarray, tris: np.ndarray, bary: np.ndarray, key: tuple, rest: np.ndarray,
@@ -99,11 +100,13 @@ class ContactSets:
             radius = np.zeros(s)
         else:
             verts, w = self.patches.weights(stones, tris, bary, radius, normals, stats)
+        radius = np.asarray(radius, dtype=np.float64)
         verts = verts.astype(np.int64, copy=False)
-        if rigid_contacts(verts, w, self.fixed, float(policy.RIGID_WEIGHT)):
+        cap = from_weights(self.gf, tris, bary, normals, self.mode, verts, w, radius if np.any(radius > 0) else None)
+        if cap.rigid.any():
             raise RuntimeError("rigid contacts must be filtered before the capacitance")  # pragma: no cover
-        V, W, G, cols, DG = capacitance_blocks(verts, w, normals, self.sticky, self.seat.D, self.seat.column_of)
-        K = inv_spd(W, float(policy.COND_LIMIT), float(policy.PINV_RCOND))  # spd_inverse's policy
+        W, K = cap.W, cap.K
+        cols, G = cap.loaded_columns()
         # reference point: the contact point (the patch centre). A patch contact prescribes the
         # pressure-weighted mean normal displacement of the surface under the disc, measured from
         # the tangent plane at the contact point (the plane of the disc): the stone's lowest point
@@ -111,13 +114,12 @@ class ContactSets:
         # instead, which lies below the tangent plane on the convex seat, opens every contact with
         # a small gap: measured restitution 0.488 instead of 0.499 for the single drop.)
         X = np.einsum("kj,kjd->kd", bary, self.X[self.triangles[tris]])
-        radius = np.asarray(radius, dtype=np.float64)
         if np.any(radius > 0):
-            K, W = self._hertz_secant(K, W, verts, w, X, normals, radius, rest)
+            K, W = self._hertz_secant(K, W, verts, cap.weights, X, normals, radius, rest)
         stats.capacitance_rebuilds += 1
-        return ContactSet(key=key, W=W, K=K, G=G, cols=cols, DVV=DG, stones=stones, tris=tris, bary=bary,
-                          normals=normals, X=X, rest=rest,
-                          patch_radius=radius.copy(), verts=verts, weights=w,
+        return ContactSet(key=key, capacitance=cap, W=W, K=K, G=G, cols=cols, DVV=cap.vertex_response(),
+                          stones=stones, tris=tris, bary=bary, normals=normals, X=X, rest=rest,
+                          patch_radius=radius.copy(), verts=verts, weights=cap.weights,
                           Kdiag=np.diag(K).copy())
 
     def _hertz_secant(self, K: np.ndarray, W: np.ndarray, verts: np.ndarray, w: np.ndarray, X: np.ndarray,
@@ -137,10 +139,8 @@ class ContactSets:
         return np.ascontiguousarray(K * scale), np.ascontiguousarray(W / scale)
 
     def warm_up(self, t: int) -> None:
-        """Load (or compile) the kernels with the storm loop's argument types (one contact on ``t``)."""
-        verts = self.triangles[[t]].astype(np.int64)
-        w = np.full((1, 3), 1.0 / 3.0)
-        n = self.normals[[t]]
-        rigid_contacts(verts, w, self.fixed, float(policy.RIGID_WEIGHT))
-        inv_spd(capacitance_blocks(verts, w, n, self.sticky, self.seat.D, self.seat.column_of)[1],
-                float(policy.COND_LIMIT), float(policy.PINV_RCOND))
+        """Load (or compile) the kernels of :meth:`build` with the storm loop's argument types (one
+        point contact on ``t``)."""
+        t1 = np.array([t])
+        from_weights(self.gf, t1, np.full((1, 3), 1.0 / 3.0), self.normals[t1], self.mode,
+                     self.triangles[t1].astype(np.int64), np.full((1, 3), 1.0 / 3.0)).K

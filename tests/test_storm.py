@@ -140,6 +140,41 @@ def test_frame_displacement_is_the_full_surface_response(gf, exact_storm, patch)
     assert np.allclose(st.seat.u_at(v), st.u[v])
 
 
+@pytest.mark.parametrize("patch,mode", [("hertz", "frictionless"), ("none", "frictionless"), ("none", "sticky")])
+def test_storm_contact_set_is_the_api_capacitance(gf, exact_storm, patch, mode):
+    """The storm's contact set is a layer over the contact API's Capacitance: its W is
+    G^T D G from the dense D (G = B or B N with the set's weights), its K inverts its W,
+    and a point-contact set's K is the API's capacitance of the same contacts."""
+    from hailstorm.runtime.contact import Capacitance, capacitance
+
+    sc = exact_storm.scene.with_(patch=patch, mode=mode)
+    st = Storm(gf, sc)
+    while st.t < 0.1 - 1e-12 and st.cache is None:
+        st.step()
+    cc = st.cache
+    assert cc is not None and isinstance(cc.capacitance, Capacitance)
+    s = cc.stones.size
+    n3 = 3 * st.n
+    B = np.zeros((n3, 3 * s))  # dense force distribution over the whole surface
+    for k in range(s):
+        for v, w in zip(cc.verts[k], cc.weights[k]):
+            B[3 * v:3 * v + 3, 3 * k:3 * k + 3] += w * np.eye(3)
+    G = B if mode == "sticky" else np.einsum("rkj,kj->rk", B.reshape(n3, s, 3), cc.normals)
+    Dfull = np.zeros((n3, n3))
+    col = np.asarray(gf.column_of)
+    for v in np.flatnonzero(col >= 0):
+        Dfull[:, 3 * v:3 * v + 3] = gf.D[:, 3 * col[v]:3 * col[v] + 3]
+    W = G.T @ Dfull @ G
+    np.testing.assert_allclose(cc.capacitance.W, W, rtol=1e-10, atol=1e-14 * np.abs(W).max())
+    np.testing.assert_allclose(cc.K @ cc.W, np.eye(W.shape[0]), atol=1e-8)
+    np.testing.assert_allclose(cc.DVV, (Dfull @ G)[np.repeat(3 * np.unique(cc.verts), 3)
+                                                   + np.tile(np.arange(3), np.unique(cc.verts).size)], rtol=1e-10,
+                               atol=1e-14 * np.abs(Dfull).max())
+    if patch == "none":  # no secant scaling: the API's capacitance of the same contacts
+        api = capacitance(gf, cc.tris, cc.bary, normals=cc.normals, mode=mode)
+        np.testing.assert_allclose(cc.K, api.K, rtol=1e-12)
+
+
 def test_storm_sticky_symplectic_runs(gf):
     sc = Scene.from_flat(duration=0.03, stones=4, seed=1, spawn_height=0.01, mode="sticky", integrator="symplectic", r_min=0.004)
     res = run_storm(gf, sc, progress=False)

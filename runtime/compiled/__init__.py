@@ -23,8 +23,8 @@ Modules, in the order of a storm step:
 * :mod:`~hailstorm.runtime.compiled.blocks` — blocks of D (D_VV, D_VV G, W, D[:, V] g)
   and one-call point-contact solves: the contact API's kernels
   (:func:`hailstorm.runtime.contact.solve_contacts`), also used by the storm;
-* :mod:`~hailstorm.runtime.compiled.contacts` — a storm contact set's blocks (W, K, G,
-  D_VV G) and the constrained coordinates around a contact step;
+* :mod:`~hailstorm.runtime.compiled.contacts` — the SPD policy inside the compiled steps
+  and the constrained coordinates around a contact step;
 * :mod:`~hailstorm.runtime.compiled.integrators` — the exact, implicit and symplectic
   contact steps, the sub-step sizing and the dashpot (with :mod:`~hailstorm.runtime.compiled.modal`,
   the modal algebra, and :mod:`~hailstorm.runtime.compiled.expm`, the matrix exponential
@@ -41,7 +41,7 @@ from __future__ import annotations
 
 from hailstorm.runtime.compiled.jit import KERNELS
 from hailstorm.runtime.compiled.blocks import columns_times, contact_compliance, point_contacts, vertex_block, weighted_rows
-from hailstorm.runtime.compiled.contacts import capacitance_blocks, contact_post, contact_prep, inv_spd, rigid_contacts
+from hailstorm.runtime.compiled.contacts import contact_post, contact_prep, inv_spd
 from hailstorm.runtime.compiled.flight import flight, near_set, retired
 from hailstorm.runtime.compiled.grid import SampleGrid, closest_points
 from hailstorm.runtime.compiled.integrators import (
@@ -58,7 +58,6 @@ from hailstorm.runtime.compiled.patches import patch_compliance, patch_one, patc
 __all__ = [
     "KERNELS",
     "SampleGrid",
-    "capacitance_blocks",
     "closest_points",
     "columns_times",
     "contact_compliance",
@@ -77,7 +76,6 @@ __all__ = [
     "penetration",
     "point_contacts",
     "retired",
-    "rigid_contacts",
     "substep_contacts",
     "substep_damping",
     "substep_size",

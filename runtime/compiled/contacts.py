@@ -1,11 +1,13 @@
-"""A storm contact set's blocks and the stones' constrained coordinates around a contact step.
+"""The compiled SPD policy and the stones' constrained coordinates around a contact step.
 
-* :func:`capacitance_blocks` -- all of a storm contact set's blocks in one call
-  (called by :meth:`hailstorm.runtime.contact_set.ContactSets.build`);
+* :func:`inv_spd` -- the contact core's SPD inverse
+  (:func:`hailstorm.runtime.contact.policy.spd_inverse`) inside the compiled steps,
+  for the contacts still active after a release;
 * :func:`contact_prep`, :func:`contact_post` -- the two halves of a storm's
   contact step around the integrator.
 
-The blocks of D come from :mod:`hailstorm.runtime.compiled.blocks` (shared with the contact API).
+A storm contact set's blocks of D are the contact API's
+(:func:`hailstorm.runtime.contact.contact_capacitance.from_weights`).
 """
 
 from __future__ import annotations
@@ -15,106 +17,8 @@ import math
 import numpy as np
 
 from hailstorm.runtime.compiled.jit import kernel
-from hailstorm.runtime.compiled.blocks import contact_compliance, vertex_block, weighted_rows
-from hailstorm.runtime.compiled.grid import sorted_ints
 
-__all__ = ["capacitance_blocks", "contact_post", "contact_prep", "inv_spd", "rigid_contacts"]
-
-
-@kernel
-def rigid_contacts(verts, w, fixed, rigid_weight):  # pragma: no cover (compiled)
-    """True if some contact's weight lies entirely on clamped vertices: at most
-    ``rigid_weight`` (:data:`hailstorm.runtime.contact.policy.RIGID_WEIGHT`) on free ones
-    (``hailstorm.runtime.contact.policy.is_rigid``, any)."""
-    for k in range(verts.shape[0]):
-        free_w = 0.0
-        for p in range(verts.shape[1]):
-            if not fixed[verts[k, p]]:
-                free_w += abs(w[k, p])
-        if free_w <= rigid_weight:
-            return True
-    return False
-
-
-@kernel
-def capacitance_blocks(verts, w, normals, sticky, D, column_of):  # pragma: no cover (compiled)
-    """The dense blocks of a contact set (the storm's ``_build_cache``) in one pass.
-
-    Parameters
-    ----------
-    verts, w : (s, P) int / float ndarrays
-        Vertices carrying each contact's force and their weights (padding: weight 0).
-    normals : (s, 3) ndarray
-    sticky : bool
-        Three multipliers per contact (``G = B``) or one normal multiplier (``G = B N``).
-    D : (3n, c) ndarray
-        The compliance; ``column_of`` (n,): D's column block of each vertex (-1 clamped).
-
-    Returns
-    -------
-    V : (|V|,) int64 ndarray
-        The sorted union of ``verts``.
-    W : (m, m) ndarray
-        ``G^T D_VV G``, symmetrised (m = 3s sticky, s frictionless).
-    G : (c, m) ndarray
-        Vertex forces per unit multiplier at the ``c`` loaded dofs of V (vertices
-        with a column of D, vertex-major).
-    cols : (c,) int64 ndarray
-        Their columns of D.
-    DG : (3|V|, m) ndarray
-        ``D_VV G``: displacement of V per unit multiplier.
-    """
-    s, P = verts.shape
-    nv_all = column_of.size
-    pos = np.full(nv_all, -1, np.int64)
-    lst = np.empty(s * P, np.int64)
-    nV = 0
-    for k in range(s):
-        for p in range(P):
-            v = verts[k, p]
-            if pos[v] < 0:
-                pos[v] = 0
-                lst[nV] = v
-                nV += 1
-    V = sorted_ints(lst[:nV])
-    for i in range(nV):
-        pos[V[i]] = i
-    m = 3 * s if sticky else s
-    G = np.zeros((3 * nV, m))
-    for k in range(s):
-        for p in range(P):
-            i = pos[verts[k, p]]
-            if sticky:
-                for d in range(3):
-                    G[3 * i + d, 3 * k + d] += w[k, p]
-            else:
-                for d in range(3):
-                    G[3 * i + d, k] += w[k, p] * normals[k, d]
-    loc = np.empty((s, P), np.int64)
-    for k in range(s):
-        for p in range(P):
-            loc[k, p] = pos[verts[k, p]]
-    Y = weighted_rows(vertex_block(V, D.T, column_of), np.arange(nV), loc, w, normals, sticky)
-    W = contact_compliance(Y, loc, w, normals, sticky)
-    DG = np.ascontiguousarray(Y.T)
-    # the loaded dofs (vertices with a column of D) and their columns
-    nl = 0
-    for i in range(nV):
-        if column_of[V[i]] >= 0:
-            nl += 1
-    cols = np.empty(3 * nl, np.int64)
-    Gl = np.empty((3 * nl, m))
-    r = 0
-    for i in range(nV):
-        cb = column_of[V[i]]
-        if cb < 0:
-            continue
-        for d in range(3):
-            cols[r] = 3 * cb + d
-            for c in range(m):  # (an element loop: a row assignment compiles numba's shape-error formatting)
-                Gl[r, c] = G[3 * i + d, c]
-            r += 1
-    return V, W, Gl, cols, DG
+__all__ = ["contact_post", "contact_prep", "inv_spd"]
 
 
 @kernel

@@ -34,7 +34,7 @@ from hailstorm.runtime.contact.weights import (
     vertex_forces,
 )
 
-__all__ = ["ACTIVE_SET_TOL", "ActiveSet", "Capacitance", "build", "capacitance", "contact_compliance"]
+__all__ = ["ACTIVE_SET_TOL", "ActiveSet", "Capacitance", "build", "capacitance", "contact_compliance", "from_weights"]
 
 #: The active set releases a contact whose normal force pulls by more than this
 #: fraction of the largest, and re-activates one the seat penetrates by more
@@ -260,6 +260,30 @@ class Capacitance:
         if self.mode == "sticky":
             return B
         return np.einsum("rkj,kj->rk", B.reshape(B.shape[0], self.s, 3), self.normals)
+
+    def loaded_columns(self) -> tuple[np.ndarray, np.ndarray]:
+        """The columns of D the contacts load and the forces on them per unit multiplier.
+
+        Returns
+        -------
+        cols : (c,) int ndarray
+            Column dofs of D of the non-clamped dofs of V (vertex-major).
+        G : (c, m) float ndarray
+            Rows ``cols`` of :attr:`G`: the surface displacement per unit
+            multiplier is ``D[:, cols] @ G``.
+        """
+        loaded = self.column_dofs >= 0
+        return self.column_dofs[loaded], np.ascontiguousarray(self.G[loaded])
+
+    def vertex_response(self) -> np.ndarray:
+        """Displacement of the vertices V per unit constraint multiplier, ``D_VV G``, (3|V|, m).
+
+        From the build's ``(D_VV G)^T`` (no ``D_VV`` needed) until :meth:`add`
+        or :meth:`remove`; then from ``D_VV``.
+        """
+        if self._Y is not None and self._Y.shape[0] == self.W.shape[0]:
+            return np.ascontiguousarray(self._Y.T)
+        return self.D_VV @ self.G
 
     @property
     def K(self) -> np.ndarray:
@@ -772,6 +796,43 @@ def build(gf: ComplianceSource, t: np.ndarray, b: np.ndarray, n: np.ndarray | No
             raise ValueError("normals are needed for frictionless and patch contacts")  # pragma: no cover
         n = np.zeros((t.size, 3))
     pv, w = _contact_weights(gf, t, b, n, a, profile)
+    return from_weights(gf, t, b, n, mode, pv, w, a, profile)
+
+
+def from_weights(gf: ComplianceSource, t: np.ndarray, b: np.ndarray, n: np.ndarray, mode: Mode, pv: np.ndarray,
+                 w: np.ndarray, a: np.ndarray | None = None, profile: str = "hertz") -> Capacitance:
+    """The capacitance of contacts whose force-distribution weights B are given.
+
+    The one constructor of :class:`Capacitance`: :func:`build` (the contact
+    API) computes the weights first; the storm's contact set
+    (:class:`hailstorm.runtime.contact_set.ContactSets`) passes the patch
+    weights it caches per stone.
+
+    Parameters
+    ----------
+    gf : ComplianceSource
+        The bundle.
+    t : (s,) int ndarray
+        Contacted triangles.
+    b : (s, 3) float ndarray
+        Barycentric coordinates of the contact points (patch centres).
+    n : (s, 3) float ndarray
+        Outward unit contact normals.
+    mode : {"sticky", "frictionless"}
+    pv, w : (s, P) int / float ndarrays
+        Vertices carrying each contact's force and their weights (B's block
+        ``(pv[k, j], k)`` is ``w[k, j] I3``; padding: weight 0).
+    a : (s,) float ndarray, optional
+        Patch radii [m] (None: point contacts).
+    profile : {"hertz", "uniform"}
+        Pressure profile the patch weights were made with (recorded for :meth:`Capacitance.add`).
+
+    Returns
+    -------
+    Capacitance
+        With the Cholesky factor (or pseudo-inverse) of ``W[live, live]``
+        under :mod:`hailstorm.runtime.contact.policy`.
+    """
     V, loc = locate(pv)
     cols = column_dofs(gf, V)
     w = np.ascontiguousarray(w, dtype=np.float64)
