@@ -42,6 +42,7 @@ import hashlib
 import json
 import logging
 import os
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
@@ -52,7 +53,7 @@ from hailstorm.runtime.bundle import COMPLIANCE_DTYPES, StagedArray
 
 log = logging.getLogger(__name__)
 
-__all__ = ["BlockStore", "remove_work_dir", "work_dir"]
+__all__ = ["BlockStore", "RoundedBlock", "remove_work_dir", "round_block", "work_dir"]
 
 DATA = "compliance.npy"
 META = "work.json"
@@ -65,6 +66,62 @@ def work_dir(out: str | os.PathLike) -> Path:
     """The work directory of bundle ``out``: ``.NAME.work`` beside it."""
     out = Path(out).absolute()
     return out.parent / f".{out.name}.work"
+
+
+@dataclass(frozen=True)
+class RoundedBlock:
+    """A block of D already cast to its storage type, with what the cast cost.
+
+    Made by :func:`round_block` where the block is solved (a Dask worker sends
+    it rounded: half the traffic for float32), written by :meth:`BlockStore.write`.
+
+    Attributes
+    ----------
+    values : (n_rows, k) ndarray
+        Column-major, in the storage type.
+    max_abs : float
+        Largest |entry| of the float64 block.
+    max_abs_error : float
+        Largest |rounding error| of the cast (0 for float64).
+    """
+
+    values: np.ndarray
+    max_abs: float
+    max_abs_error: float
+
+
+def round_block(values: np.ndarray, dtype: str | np.dtype) -> RoundedBlock:
+    """Cast a float64 block of D to its storage type ``dtype``: the one cast (round to nearest).
+
+    Parameters
+    ----------
+    values : (n_rows, k) float ndarray
+        The solved block.
+    dtype : {"float64", "float32"}
+
+    Returns
+    -------
+    RoundedBlock
+
+    Raises
+    ------
+    ValueError
+        An entry does not fit in ``dtype`` (overflow).
+    """
+    values = np.asarray(values, dtype=np.float64)
+    dtype = np.dtype(dtype)
+    with np.errstate(over="ignore"):
+        stored = np.asfortranarray(values, dtype=dtype)
+    scale = float(np.abs(values).max()) if values.size else 0.0
+    err = 0.0
+    if stored.dtype != values.dtype and values.size:
+        if np.isfinite(values).all() and not np.isfinite(stored).all():
+            raise ValueError(f"a block of D does not fit in {dtype.name}: its entries (up to {scale:.3g}) overflow it")
+        diff = stored.astype(np.float64)
+        diff -= values
+        err = float(np.abs(diff).max())
+        del diff
+    return RoundedBlock(stored, scale, err)
 
 
 class BlockStore:
@@ -178,29 +235,30 @@ class BlockStore:
         """Blocks still to compute, in column order."""
         return [i for i in range(len(self.blocks)) if i not in self.done]
 
-    def write(self, i: int, values: np.ndarray) -> None:
-        """Write block ``i`` (its (n_rows, stop - start) values, float64) durably, rounded to
-        the storage type, then record it done.
+    def write(self, i: int, values: np.ndarray | RoundedBlock) -> None:
+        """Write block ``i`` durably, rounded to the storage type, then record it done.
+
+        ``values``: its (n_rows, stop - start) float64 values, or a
+        :class:`RoundedBlock` already in the storage type (cast where it was solved).
 
         Raises ``OSError`` (a full disk...) with the blocks written before intact, and
-        ``ValueError`` if an entry does not fit in the storage type (overflow).
+        ``ValueError`` if an entry does not fit in the storage type (overflow) or the
+        block has the wrong shape or type.
         """
         start, stop = self.blocks[i]
-        values = np.asarray(values, dtype=np.float64)
-        if values.shape != (self.shape[0], stop - start):
-            raise ValueError(f"block {i}: shape {values.shape}, expected {(self.shape[0], stop - start)}")
-        with np.errstate(over="ignore"):
-            stored = np.asfortranarray(values, dtype=self.dtype)  # the one cast: round to nearest
-        scale = float(np.abs(values).max()) if values.size else 0.0
-        err = 0.0
-        if stored.dtype != values.dtype and values.size:
-            if np.isfinite(values).all() and not np.isfinite(stored).all():
-                raise ValueError(f"block {i} of D does not fit in {self.dtype.name}: its entries (up to "
-                                 f"{scale:.3g}) overflow it")
-            diff = stored.astype(np.float64)
-            diff -= values
-            err = float(np.abs(diff).max())
-            del diff
+        if isinstance(values, RoundedBlock):
+            block = values
+            if block.values.dtype != self.dtype:
+                raise ValueError(f"block {i}: rounded to {block.values.dtype.name}, D is stored as {self.dtype.name}")
+        else:
+            try:
+                block = round_block(values, self.dtype)
+            except ValueError as exc:
+                raise ValueError(f"block {i}: {exc}") from None
+        stored, scale, err = block.values, block.max_abs, block.max_abs_error
+        if stored.shape != (self.shape[0], stop - start):
+            raise ValueError(f"block {i}: shape {stored.shape}, expected {(self.shape[0], stop - start)}")
+        stored = np.asfortranarray(stored)
         raw = memoryview(stored.T.reshape(-1)).cast("B")  # column-major bytes
         off, n = self._byte_range(i)
         fd = os.open(self.path / DATA, os.O_WRONLY)

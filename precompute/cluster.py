@@ -38,6 +38,8 @@ from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator, Sequence
 
 import numpy as np
 
+from hailstorm.precompute.blocks import RoundedBlock, round_block
+
 if TYPE_CHECKING:  # pragma: no cover - greens imports this module to dispatch the blocks
     from hailstorm.precompute.greens import ColumnProblem
 
@@ -154,11 +156,12 @@ def solve_blocks(
     problem: ColumnProblem,
     blocks: Sequence[tuple[int, int]],
     todo: Iterable[int],
-    on_block: Callable[[int, np.ndarray], None],
+    on_block: Callable[[int, "np.ndarray | RoundedBlock"], None],
     *,
     client: Any = None,
     key: str = "",
     on_first: Callable[[SolveStats], None] | None = None,
+    dtype: str = "float64",
 ) -> SolveStats:
     """Solve the column blocks ``todo`` (indices into ``blocks``) and pass each to ``on_block``.
 
@@ -185,6 +188,11 @@ def solve_blocks(
     on_first
         Called once after the first block, with the statistics so far (for
         an estimate of the remaining time).
+    dtype
+        D's storage type. On a cluster each worker rounds its block to it
+        (:func:`hailstorm.precompute.blocks.round_block`) before sending it, and
+        ``on_block`` receives a :class:`~hailstorm.precompute.blocks.RoundedBlock`
+        (float32: half the network traffic); here it receives the float64 values.
 
     Returns
     -------
@@ -196,7 +204,8 @@ def solve_blocks(
         return stats
     if client is None:
         return _solve_here(problem, blocks, todo, on_block, on_first, stats)
-    return _solve_on_cluster(problem, blocks, todo, on_block, client, key or uuid.uuid4().hex, on_first, stats)
+    return _solve_on_cluster(problem, blocks, todo, on_block, client, key or uuid.uuid4().hex, on_first, stats,
+                             dtype)
 
 
 def _solve_here(problem, blocks, todo, on_block, on_first, stats: SolveStats) -> SolveStats:
@@ -231,7 +240,8 @@ def _solve_here(problem, blocks, todo, on_block, on_first, stats: SolveStats) ->
     return stats
 
 
-def _solve_on_cluster(problem, blocks, todo, on_block, client, key, on_first, stats: SolveStats) -> SolveStats:
+def _solve_on_cluster(problem, blocks, todo, on_block, client, key, on_first, stats: SolveStats,
+                      dtype: str) -> SolveStats:
     distributed = require_distributed()
     t0 = time.perf_counter()
     n_workers = max(1, len(client.scheduler_info().get("workers", {})))
@@ -243,7 +253,8 @@ def _solve_on_cluster(problem, blocks, todo, on_block, client, key, on_first, st
 
     def submit(i: int):
         start, stop = blocks[i]
-        fut = client.submit(solve_on_worker, shipped, key, start, stop, pure=False, key=f"hailstorm-block-{key[:12]}-{i}")
+        fut = client.submit(solve_on_worker, shipped, key, start, stop, dtype, pure=False,
+                            key=f"hailstorm-block-{key[:12]}-{i}")
         meta[fut] = i
         return fut
 
@@ -255,6 +266,8 @@ def _solve_on_cluster(problem, blocks, todo, on_block, client, key, on_first, st
                 values, worker, factor_s = fut.result()
             except distributed.client.FutureCancelledError as exc:  # pragma: no cover - client shutting down
                 raise ClusterError(f"block {i} was cancelled on the cluster ({exc})") from None
+            except ValueError as exc:  # round_block: an entry overflows the storage type
+                raise ValueError(f"block {i}: {exc}") from None
             except Exception as exc:
                 if type(exc).__name__ == "KilledWorker":
                     raise ClusterError(f"block {i} killed the Dask workers that ran it several times "
@@ -292,21 +305,30 @@ _cache_lock = threading.Lock()
 _factors: dict[str, Any] = {}
 
 
-def solve_on_worker(problem: ColumnProblem, key: str, start: int, stop: int) -> tuple[np.ndarray, str, float]:
-    """The task a Dask worker runs: columns ``start:stop`` of D.
+def solve_on_worker(problem: ColumnProblem, key: str, start: int, stop: int,
+                    dtype: str = "float64") -> tuple[RoundedBlock, str, float]:
+    """The task a Dask worker runs: columns ``start:stop`` of D, rounded to ``dtype``.
 
     Factorizes ``problem`` on this worker's first block of ``key`` and keeps
     the factorization for the next ones (one per process: a new key evicts
     the old). Solves are serialized per process (run workers with one
-    thread: ``dask worker ADDRESS --nthreads 1``).
+    thread: ``dask worker ADDRESS --nthreads 1``). The block is cast to D's
+    storage type here (:func:`hailstorm.precompute.blocks.round_block`), so a
+    float32 block travels at half the size.
 
     Returns
     -------
-    values : (n_rows, stop - start) ndarray
+    block : RoundedBlock
+        The (n_rows, stop - start) values in ``dtype`` and the cast's error.
     worker : str
         Which process computed it (host:pid).
     factor_s : float
         Seconds spent factorizing for this block (0 if the factorization was cached).
+
+    Raises
+    ------
+    ValueError
+        An entry overflows ``dtype``.
     """
     factor_s = 0.0
     with _cache_lock:
@@ -318,4 +340,4 @@ def solve_on_worker(problem: ColumnProblem, key: str, start: int, stop: int) -> 
             factor_s = time.perf_counter() - t0
             _factors[key] = factor
         values = problem.solve(factor, start, stop)
-    return values, f"{os.uname().nodename}:{os.getpid()}", factor_s
+    return round_block(values, dtype), f"{os.uname().nodename}:{os.getpid()}", factor_s

@@ -38,7 +38,7 @@ from hailstorm.precompute.geometry import (
     check_volume_size,
     load_seat,
 )
-from hailstorm.precompute.blocks import BlockStore, remove_work_dir, work_dir
+from hailstorm.precompute.blocks import BlockStore, RoundedBlock, remove_work_dir, work_dir
 from hailstorm.precompute.cluster import SolveStats, check_scheduler, cluster_client, require_distributed, solve_blocks
 from hailstorm.precompute.greens import (
     DEFAULT_STORE_BYTES,
@@ -456,7 +456,7 @@ def _stream_compliance(out: Path, problem: ColumnProblem, key: str, progress: bo
         log.info("first block: %.2f s (factorization %.2f s); estimated %.0f s for the other %d blocks",
                  stats.first_block_s, stats.factor_s, eta, rest)
 
-    def on_block(i: int, values: np.ndarray) -> None:
+    def on_block(i: int, values: np.ndarray | RoundedBlock) -> None:
         store.write(i, values)
         if bar is not None:
             bar.update(1)
@@ -464,7 +464,8 @@ def _stream_compliance(out: Path, problem: ColumnProblem, key: str, progress: bo
     try:
         with cluster_client(workers=run.workers, scheduler=run.scheduler) if todo else nullcontext() as client, \
                 _logging_beside(bar):
-            stats = solve_blocks(problem, blocks, todo, on_block, client=client, key=key, on_first=on_first)
+            stats = solve_blocks(problem, blocks, todo, on_block, client=client, key=key, on_first=on_first,
+                                 dtype=run.dtype)
     except KeyboardInterrupt:
         log.warning("interrupted: %d of %d blocks of D are kept in %s; run the same command again to resume",
                     len(store.done), len(blocks), store.path)

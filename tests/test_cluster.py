@@ -78,6 +78,32 @@ def test_cluster_gives_the_serial_D(tmp_path, small_box, cluster, serial, monkey
     assert stats["blocks"] == 10 and stats["factorizations"] <= 2
 
 
+def test_float32_blocks_are_rounded_on_the_workers(tmp_path, small_box, cluster, serial, monkeypatch):
+    """With ``dtype="float32"`` each worker sends its block rounded (half the traffic): the
+    store receives float32 RoundedBlocks, and the bundle is the serial float64 D rounded,
+    with the cast's error recorded."""
+    from hailstorm.precompute.blocks import RoundedBlock
+
+    got = []
+    real = BlockStore.write
+
+    def write(self, i, values):
+        got.append(values)
+        real(self, i, values)
+
+    monkeypatch.setattr(BlockStore, "write", write)
+    gf = hailstorm.runtime.load(build_bundle(tmp_path / "b", mesh=small_box, young=1e6, poisson=0.3,
+                                             block_bytes=BLOCK, scheduler=cluster.scheduler_address,
+                                             dtype="float32"))
+    assert got and all(isinstance(v, RoundedBlock) and v.values.dtype == np.float32 for v in got)
+    D32, D64 = np.asarray(gf.D), np.asarray(serial.D)
+    assert D32.dtype == np.float32
+    cast = gf.manifest["dtype_cast"]
+    scale = np.abs(D64).max()
+    assert 0 < cast["max_abs_error"] <= 2.0 ** -24 * scale * (1 + 1e-9) and 0 < cast["max_rel_error"] <= 2.0 ** -24
+    assert np.abs(D32.astype(np.float64) - D64).max() <= cast["max_abs_error"] + 1e-12 * scale
+
+
 def test_a_killed_worker_has_its_blocks_redone(tmp_path, small_box, cluster, serial, monkeypatch):
     flag = tmp_path / "killed"
     client = distributed.Client(cluster, set_as_default=False)

@@ -112,6 +112,30 @@ def test_a_block_overflowing_float32_is_refused_and_not_recorded(tmp_path):
         BlockStore(tmp_path / "w2", "k" * 64, (4, 4), [(0, 4)], "float16")
 
 
+def test_a_block_rounded_elsewhere_is_written_as_it_came(tmp_path):
+    """A RoundedBlock (cast where it was solved: a Dask worker) is stored bit for bit with its
+    recorded error; one in the wrong storage type or shape is refused before any write."""
+    from hailstorm.precompute.blocks import round_block
+
+    store = BlockStore(tmp_path / "w", "k" * 64, (4, 4), [(0, 2), (2, 4)], "float32")
+    vals = np.arange(8.0).reshape(4, 2) / 3.0
+    blk = round_block(vals, "float32")
+    assert blk.values.dtype == np.float32 and blk.max_abs == vals.max()
+    assert blk.max_abs_error == np.abs(vals.astype(np.float32).astype(np.float64) - vals).max() > 0
+    with pytest.raises(ValueError, match="float64"):
+        store.write(0, round_block(vals, "float64"))
+    with pytest.raises(ValueError, match="shape"):
+        store.write(0, round_block(vals[:, :1], "float32"))
+    with pytest.raises(ValueError, match="overflow"):
+        round_block(np.full((4, 2), 1e39), "float32")
+    assert store.missing == [0, 1]
+    store.write(0, blk)
+    store.write(1, vals)  # float64 values: cast here, the same way
+    assert store.rounding == (vals.max(), blk.max_abs_error)
+    D = np.load(tmp_path / "w" / "compliance.npy")
+    assert np.array_equal(D[:, :2], blk.values) and np.array_equal(D[:, 2:], vals.astype(np.float32))
+
+
 def test_bad_dtype_is_refused_before_any_work(tmp_path, small_box, monkeypatch):
     calls = count_solves(monkeypatch)
     for bad in ("float16", "f4", np.float32, None):
