@@ -67,18 +67,14 @@ from hailstorm.precompute.materials import (
     resolve_materials,
     sort_tets_by_material,
 )
-from hailstorm.runtime.bundle import (
-    COMPLIANCE_DTYPES,
-    FORMAT_VERSION,
-    BundleError,
+from hailstorm.runtime.bundle import dtype_cast_record
+from hailstorm.runtime.bundle_format import COMPLIANCE_DTYPES, FORMAT_VERSION, BundleError, is_bundle, read_manifest
+from hailstorm.runtime.bundle_write import (
     StagedArray,
     bundle_lock,
     check_replaceable,
     check_writable,
     clean_stale_temporaries,
-    dtype_cast_record,
-    is_bundle,
-    read_manifest,
     write_bundle,
 )
 from hailstorm.runtime.stamps import default_cache_dir, stamp

@@ -16,7 +16,8 @@ contact work in compiled kernels (:mod:`hailstorm.runtime.compiled`).
   :class:`Storm`, the storm driver stepped by hand (studies, tests).
 """
 
-from hailstorm.runtime.bundle import BundleError, GreensFunctions, load
+from hailstorm.runtime.bundle import GreensFunctions, load
+from hailstorm.runtime.bundle_format import BundleError
 from hailstorm.runtime.contact import (
     Capacitance,
     ContactSolution,

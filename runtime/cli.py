@@ -136,7 +136,7 @@ def _storm_args(p: argparse.ArgumentParser) -> None:
 
 def _run_precompute(args: argparse.Namespace) -> int:
     from hailstorm.precompute.pipeline import build_bundle
-    from hailstorm.runtime.bundle import BundleError
+    from hailstorm.runtime.bundle_format import BundleError
 
     from hailstorm.precompute.materials import parse_material
 
@@ -175,7 +175,8 @@ def _run_info(args: argparse.Namespace) -> int:
 
 
 def _print_bundle(path: Path, rehash: bool = True) -> None:
-    from hailstorm.runtime.bundle import ARRAY_SPECS, load
+    from hailstorm.runtime.bundle import load
+    from hailstorm.runtime.bundle_format import ARRAY_SPECS
 
     gf = load(path, rehash=rehash)  # verifies: manifest hash and structure, array sizes and hashes, finite D, consistency
     m = gf.manifest
@@ -287,7 +288,7 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO, format="%(message)s")
     logging.getLogger("skfem").setLevel(logging.WARNING)
     from hailstorm.precompute.geometry import MeshError
-    from hailstorm.runtime.bundle import BundleError
+    from hailstorm.runtime.bundle_format import BundleError
 
     try:
         if args.command == "precompute":

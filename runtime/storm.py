@@ -398,7 +398,7 @@ def _array_kinds(gf: Any) -> list[tuple]:
 def _helper_spec(gf: Any, scene: Scene) -> HelperSpec | None:
     """How a compile helper rebuilds this storm: from the bundle's directory (None if ``gf`` is
     not a bundle on disk, e.g. built in memory)."""
-    from hailstorm.runtime.bundle import is_bundle
+    from hailstorm.runtime.bundle_format import is_bundle
 
     path = getattr(gf, "path", None)
     if path is None or not is_bundle(path):

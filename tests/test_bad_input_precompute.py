@@ -24,18 +24,17 @@ import pytest
 
 from hailstorm.precompute import build_bundle
 from hailstorm.precompute.geometry import MeshError, TetMesh, check_clamped, check_mesh, read_mesh
-from hailstorm.runtime.bundle import (
+from hailstorm.runtime.bundle import load
+from hailstorm.runtime.bundle_format import (
     ARRAY_SPECS,
     BUNDLE_FILES,
     MANIFEST,
     MANIFEST_HASH,
     BundleError,
     array_hash,
-    bundle_lock,
-    clean_stale_temporaries,
-    load,
     manifest_hash,
 )
+from hailstorm.runtime.bundle_write import bundle_lock, clean_stale_temporaries
 from hailstorm.runtime.cli import main
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -388,7 +387,7 @@ def test_info_into_a_closed_pipe_is_quiet(box_bundle):
 
 
 def test_writing_a_nan_compliance_is_refused(box_bundle, tmp_path):
-    from hailstorm.runtime.bundle import write_bundle
+    from hailstorm.runtime.bundle_write import write_bundle
 
     gf = load(box_bundle)
     arrays = {name: np.array(getattr(gf, name if name != "compliance" else "D")) for name in ARRAY_SPECS}
@@ -399,7 +398,7 @@ def test_writing_a_nan_compliance_is_refused(box_bundle, tmp_path):
 
 
 def test_writing_a_manifest_load_would_refuse_is_refused(box_bundle, tmp_path):
-    from hailstorm.runtime.bundle import write_bundle
+    from hailstorm.runtime.bundle_write import write_bundle
 
     gf = load(box_bundle)
     arrays = {name: np.asarray(getattr(gf, name if name != "compliance" else "D")) for name in ARRAY_SPECS}

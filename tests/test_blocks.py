@@ -12,7 +12,7 @@ import hailstorm.runtime
 from hailstorm.precompute import build_bundle
 from hailstorm.precompute.blocks import BlockStore, work_dir
 from hailstorm.precompute.greens import ColumnProblem, column_blocks
-from hailstorm.runtime.bundle import BundleError, array_hash
+from hailstorm.runtime.bundle_format import BundleError, array_hash
 
 #: small blocks, so that the 216-node box has several (its D is 648 x 375 columns... of 8 bytes)
 BLOCK = 40_000
@@ -189,7 +189,7 @@ def test_too_little_disk_is_refused_before_solving(tmp_path, small_box, monkeypa
 
 def test_interrupted_while_writing_the_bundle_keeps_D_and_solves_nothing_again(tmp_path, small_box, monkeypatch,
                                                                                 caplog):
-    import hailstorm.runtime.bundle as bundle
+    import hailstorm.runtime.bundle_write as bundle
 
     out = tmp_path / "b"
     real = bundle.manifest_hash
@@ -210,12 +210,12 @@ def test_interrupted_while_writing_the_bundle_keeps_D_and_solves_nothing_again(t
 
 
 def test_the_streamed_D_is_not_read_again_on_load(tmp_path, small_box, monkeypatch):
-    import hailstorm.runtime.bundle as bundle
+    import hailstorm.runtime.bundle_format as bundle_format
 
     out = build_bundle(tmp_path / "b", mesh=small_box, young=1e6, poisson=0.3, block_bytes=BLOCK)
     scanned = []
-    real = bundle._scan
-    monkeypatch.setattr(bundle, "_scan", lambda a: scanned.append(a.shape) or real(a))
+    real = bundle_format.scan_array
+    monkeypatch.setattr(bundle_format, "scan_array", lambda a: scanned.append(a.shape) or real(a))
     gf = hailstorm.runtime.load(out)
     assert gf.D.shape not in scanned  # its hash came from its bytes on disk when it was written
     hailstorm.runtime.load(out, rehash=True)

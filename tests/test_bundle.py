@@ -11,7 +11,9 @@ import pytest
 
 import hailstorm.runtime
 from hailstorm.precompute import build_bundle
-from hailstorm.runtime.bundle import ARRAY_SPECS, MANIFEST, MANIFEST_HASH, BundleError, load, manifest_hash, write_bundle
+from hailstorm.runtime.bundle import load
+from hailstorm.runtime.bundle_format import ARRAY_SPECS, MANIFEST, MANIFEST_HASH, BundleError, manifest_hash
+from hailstorm.runtime.bundle_write import write_bundle
 
 
 def _copy(src, dst):
@@ -238,16 +240,16 @@ def test_displacement_refuses_a_vertex_without_a_column(small_box, tmp_path):
 # verification stamps: every file hashed once per change, not on every load
 # ---------------------------------------------------------------------------
 def _counting_scan(monkeypatch):
-    import hailstorm.runtime.bundle as bundle_mod
+    import hailstorm.runtime.bundle_format as bundle_mod
 
     calls = []
-    real = bundle_mod._scan
+    real = bundle_mod.scan_array
 
     def scan(a):
         calls.append(a.shape)
         return real(a)
 
-    monkeypatch.setattr(bundle_mod, "_scan", scan)
+    monkeypatch.setattr(bundle_mod, "scan_array", scan)
     return calls
 
 

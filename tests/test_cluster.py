@@ -43,12 +43,15 @@ def cluster():
         yield c
 
 
-def _counting_writes(monkeypatch):
+def _counting_writes(monkeypatch, blocks: list | None = None):
+    """The indices of the blocks the store writes (and, into ``blocks``, what it was handed)."""
     written = []
     real = BlockStore.write
 
     def write(self, i, values):
         written.append(i)
+        if blocks is not None:
+            blocks.append(values)
         real(self, i, values)
 
     monkeypatch.setattr(BlockStore, "write", write)
@@ -84,14 +87,8 @@ def test_float32_blocks_are_rounded_on_the_workers(tmp_path, small_box, cluster,
     with the cast's error recorded."""
     from hailstorm.precompute.blocks import RoundedBlock
 
-    got = []
-    real = BlockStore.write
-
-    def write(self, i, values):
-        got.append(values)
-        real(self, i, values)
-
-    monkeypatch.setattr(BlockStore, "write", write)
+    got: list = []
+    _counting_writes(monkeypatch, got)
     gf = hailstorm.runtime.load(build_bundle(tmp_path / "b", mesh=small_box, young=1e6, poisson=0.3,
                                              block_bytes=BLOCK, scheduler=cluster.scheduler_address,
                                              dtype="float32"))

@@ -19,16 +19,9 @@ import tracemalloc
 import numpy as np
 import pytest
 
-from hailstorm.runtime.bundle import (
-    MANIFEST,
-    MANIFEST_HASH,
-    BundleError,
-    array_hash,
-    convert_bundle,
-    load,
-    manifest_hash,
-    write_bundle,
-)
+from hailstorm.runtime.bundle import convert_bundle, load
+from hailstorm.runtime.bundle_format import MANIFEST, MANIFEST_HASH, BundleError, array_hash, manifest_hash
+from hailstorm.runtime.bundle_write import write_bundle
 from hailstorm.runtime.contact import capacitance, solve_contacts, triangle_normals
 from hailstorm.runtime.contact.compliance import kernel_columns
 

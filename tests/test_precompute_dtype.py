@@ -10,7 +10,7 @@ from hailstorm.precompute import build_bundle
 from hailstorm.precompute.blocks import BlockStore, work_dir
 from hailstorm.precompute.greens import ColumnProblem
 from hailstorm.precompute.resources import estimate_geometry, estimate_mesh
-from hailstorm.runtime.bundle import read_manifest
+from hailstorm.runtime.bundle_format import read_manifest
 from test_blocks import count_solves, interrupt_after  # the block-store test helpers
 
 #: small blocks, so that the 216-node box has several (as in test_blocks)
