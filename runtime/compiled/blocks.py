@@ -332,48 +332,71 @@ def contact_compliance(Y, loc, w, normals, sticky):  # pragma: no cover (compile
     Arguments as in :func:`weighted_rows`; returns the (m, m) W.
 
     Row by row: row ``k`` of ``Y G`` reads only row ``k`` of ``Y`` (in L1) and writes
-    only row ``k`` of the result, each entry summed over the contact's vertices in the
-    order of ``loc`` (a column-by-column sweep strides through both arrays: 2.4x
-    slower at s = 100).
+    only row ``k`` of the result (a column-by-column sweep strides through both
+    arrays: 2.4x slower at s = 100). Each entry is summed in a register over its
+    contact's weighted vertices, in the order of ``loc``, from zero (the sums, bit for
+    bit, of accumulating into the zeroed row, without its stores and re-loads).
     """
     s, P = loc.shape
     m = Y.shape[0]
-    # the weighted vertices of G, in (contact, vertex) order: contact, row offset in Y, weight
+    # the weighted vertices of G, grouped by contact in (contact, vertex) order:
+    # row offset in Y and weight; contact l owns entries start[l]:start[l + 1]
     nz = 0
-    gl = np.empty(s * P, np.int64)
+    start = np.empty(s + 1, np.int64)
     gr = np.empty(s * P, np.int64)
     gw = np.empty(s * P)
     for l in range(s):
+        start[l] = nz
         for p in range(P):
             if w[l, p] != 0.0:
-                gl[nz] = l
                 gr[nz] = 3 * loc[l, p]
                 gw[nz] = w[l, p]
                 nz += 1
-    W = np.zeros((m, m))
+    start[s] = nz
+    W = np.empty((m, m))
     for k in range(m):
         y = Y[k]
         dst = W[k]
-        for q in range(nz):
-            l = gl[q]
-            r = gr[q]
-            wp = gw[q]
-            if sticky:
-                dst[3 * l] += wp * y[r]
-                dst[3 * l + 1] += wp * y[r + 1]
-                dst[3 * l + 2] += wp * y[r + 2]
-            else:
-                x = dst[l]
-                x += (wp * normals[l, 0]) * y[r]
-                x += (wp * normals[l, 1]) * y[r + 1]
-                x += (wp * normals[l, 2]) * y[r + 2]
+        if sticky:
+            for l in range(s):
+                x0 = 0.0
+                x1 = 0.0
+                x2 = 0.0
+                for q in range(start[l], start[l + 1]):
+                    r = gr[q]
+                    wp = gw[q]
+                    x0 += wp * y[r]
+                    x1 += wp * y[r + 1]
+                    x2 += wp * y[r + 2]
+                dst[3 * l] = x0
+                dst[3 * l + 1] = x1
+                dst[3 * l + 2] = x2
+        else:
+            for l in range(s):
+                n0 = normals[l, 0]
+                n1 = normals[l, 1]
+                n2 = normals[l, 2]
+                x = 0.0
+                for q in range(start[l], start[l + 1]):
+                    r = gr[q]
+                    wp = gw[q]
+                    x += (wp * n0) * y[r]
+                    x += (wp * n1) * y[r + 1]
+                    x += (wp * n2) * y[r + 2]
                 dst[l] = x
+    _symmetrise(W)
+    return W
+
+
+@kernel
+def _symmetrise(W):  # pragma: no cover (compiled)
+    """``W <- (W + W^T) / 2`` in place, as ``0.5 * (W[a, b] + W[b, a])`` for ``a < b``."""
+    m = W.shape[0]
     for a in range(m):
         for b in range(a + 1, m):
             x = 0.5 * (W[a, b] + W[b, a])
             W[a, b] = x
             W[b, a] = x
-    return W
 
 
 @kernel
