@@ -116,8 +116,10 @@ class SPDFactor:
         if m == 0:
             return
         Ws = W if symmetric else 0.5 * (W + W.T)
-        # upper factor only (potrs, trsv and potri read no other entry: no clean-up pass)
-        c, info = _potrf(Ws, lower=0, clean=0, overwrite_a=0)
+        # upper factor only (potrs, trsv and potri read no other entry: no clean-up pass), of
+        # Ws.T, which is Ws (symmetric) and Fortran-ordered: LAPACK's copy is a plain memcpy,
+        # not a transposing one
+        c, info = _potrf(Ws.T, lower=0, clean=0, overwrite_a=0)
         if info == 0:
             d = np.abs(np.diagonal(c))
             dmin = d.min()
