@@ -40,8 +40,10 @@ def test_spd_factor_against_dense_algebra():
     rng = np.random.default_rng(5)
     A = rng.normal(size=(40, 40))
     W = A @ A.T + 40.0 * np.eye(40)
+    W0 = W.copy()
     F = SPDFactor(W)
     assert F.exact
+    np.testing.assert_array_equal(W, W0)  # factorised on a copy
     b = rng.normal(size=40)
     B = rng.normal(size=(40, 3))
     assert rel(F.solve(b), np.linalg.solve(W, b)) < 1e-13
