@@ -392,7 +392,11 @@ def print_floor(gf, s: int, tri: np.ndarray, bary: np.ndarray, t_fresh: np.ndarr
     * (b) the forces need ``W = B^T D_VV B``: its entries lie scattered over the same
       columns, so at least the cache lines holding ``D_VV`` are read (counted
       here, at the rate of (a));
-    * (c) the Cholesky factorisation of W (``3s x 3s``), at the benchmark's BLAS threads.
+    * (c) the Cholesky factorisation of W (``3s x 3s``), at the benchmark's BLAS threads,
+      of a Fortran-ordered W (LAPACK copies its input with a plain memcpy). Until issue
+      12's third round (c) factorised the C-ordered W, whose copy into LAPACK's order is a
+      transpose (0.05-0.1 ms at m = 300): more work than the solve does, and no longer a
+      lower bound once the solve's factor skipped that transpose.
 
     Their sum is printed as the floor, next to a plain numpy ``D[:, cols] @ g``,
     a column copy ``D[:, cols]`` and the cold streaming bandwidth of a full ``D @ x``,
@@ -464,7 +468,9 @@ def print_floor(gf, s: int, tri: np.ndarray, bary: np.ndarray, t_fresh: np.ndarr
     if f_order:  # the same cache lines as scattered reads, in one compiled loop
         t_gather = timeit(lambda: vertex_block(V, D.T, gf.column_of), repeat)
     W = capacitance(gf, tri, bary).W
-    t_chol = timeit(lambda: sla.cho_factor(W, check_finite=False), repeat)
+    # W.T is W (symmetric) in Fortran order: LAPACK's input copy is a memcpy, as in SPDFactor
+    # (on the C-ordered W, cho_factor adds a transposing copy the solve does not make)
+    t_chol = timeit(lambda: sla.cho_factor(W.T, check_finite=False), repeat)
     floor = np.median(t_blk) * (1.0 + extra) + np.median(t_chol)
     floor_min = a_min * (1.0 + extra) + t_chol.min()
     floor_par = np.median(t_par) * (1.0 + extra) + np.median(t_chol)
@@ -511,7 +517,7 @@ def print_phases(gf, tri: np.ndarray, bary: np.ndarray, ubar: np.ndarray, refs: 
     """
     from hailstorm.runtime.compiled import blocks
     from hailstorm.runtime.contact.compliance import apply_columns, column_dofs, kernel_columns
-    from hailstorm.runtime.contact.policy import SPDFactor, is_rigid
+    from hailstorm.runtime.contact.policy import POINT_FAST_MAX, SPDFactor, is_rigid
     from hailstorm.runtime.contact.validate import check_contacts, check_mode, check_patch
     from hailstorm.runtime.contact.weights import interpolate, locate, vertex_forces
 
@@ -560,6 +566,9 @@ def print_phases(gf, tri: np.ndarray, bary: np.ndarray, ubar: np.ndarray, refs: 
     T = T[3:] * 1e3
     print()
     print(f"the fresh solve above, phase by phase (perf_counter, {repeat} repeats; min / med / max [ms]):")
+    if tri.size <= POINT_FAST_MAX:
+        print(f"  (s <= POINT_FAST_MAX = {POINT_FAST_MAX}: solve_contacts takes the one-call compiled path, "
+              "not these phases of the general one)")
     for j, name in enumerate(names):
         col = T[:, j]
         fl = floors.get(name)
