@@ -145,3 +145,32 @@ def test_active_set_many_released_refactors(box, mode, monkeypatch):
     dofs = (p * np.flatnonzero(keep)[:, None] + np.arange(p)).ravel()
     c = ubar.reshape(-1) if p == 3 else np.einsum("ki,ki->k", ubar, cap.normals)
     assert rel(sol.multipliers[dofs], np.linalg.solve(cap.W[np.ix_(dofs, dofs)], c[dofs])) < 1e-10
+
+
+@pytest.mark.parametrize("patch", [False, True])
+def test_contact_compliance_row_blocks_match_dense_algebra(box, patch):
+    """W four rows per pass and the remainder one at a time: every remainder (m mod 4 =
+    0..3, sticky m = 3s and frictionless m = s), point and patch weights (zero-weight
+    padding), against the dense ``G^T D_VV G`` (symmetrised), exactly symmetric."""
+    from hailstorm.runtime.compiled import contact_compliance, vertex_block, weighted_rows
+    from hailstorm.runtime.contact.weights import dense_B
+
+    gf, unclamped = box
+    rng = np.random.default_rng(8 + patch)
+    for s in range(1, 10):
+        tri = rng.choice(unclamped, s, replace=False)
+        bary = rng.dirichlet([1.0, 1.0, 1.0], s)
+        n = triangle_normals(gf.vertices, gf.triangles[tri])
+        cap = capacitance(gf, tri, bary, normals=n, patch_radius=0.02 if patch else None)
+        V, loc, w = cap.V, cap.loc, cap.weights
+        M = vertex_block(V, np.asarray(gf.D).T, gf.column_of)  # D_VV^T
+        B = dense_B(V.size, loc, w)
+        for sticky in (True, False):
+            G = B if sticky else np.einsum("rkj,kj->rk", B.reshape(B.shape[0], s, 3), n)
+            Y = weighted_rows(M, np.arange(V.size), loc, w, n, sticky)
+            W = contact_compliance(Y, loc, w, n, sticky)
+            ref = G.T @ M.T @ G
+            ref = 0.5 * (ref + ref.T)
+            assert W.shape == (3 * s if sticky else s,) * 2
+            np.testing.assert_allclose(W, ref, rtol=0, atol=1e-13 * np.abs(ref).max())
+            np.testing.assert_array_equal(W, W.T)
