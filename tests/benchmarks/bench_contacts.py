@@ -177,9 +177,11 @@ def main(argv=None) -> int:
         print(f"{s:4d} {V:4d} | {t_full.min() * ms:9.3f} {np.median(t_full) * ms:10.3f} "
               f"{t_full.max() * ms:10.3f} | {np.median(t_forces) * ms:15.3f} | {fem_col}")
         floor_case = (s, tri, bary, t_full)
+        floor_ubar = ubar
 
     if args.sizes:
-        print_floor(gf, *floor_case, repeat=args.repeat)
+        refs = print_floor(gf, *floor_case, repeat=args.repeat)
+        print_phases(gf, floor_case[1], floor_case[2], floor_ubar, refs, repeat=args.repeat)
         print_steady(gf, ref, tris, args)
 
     # Sherman-Morrison-Woodbury add vs fresh build (both followed by one force solve)
@@ -339,6 +341,23 @@ def print_steady(gf, ref, tris: np.ndarray, args) -> None:
               f"{t_f.min() * ms:8.4f} {np.median(t_f) * ms:8.4f} {t_f.max() * ms:8.4f} | {fem}")
 
 
+@numba.njit(nogil=True)
+def line_sum(x: np.ndarray, idx: np.ndarray) -> float:  # pragma: no cover (compiled)
+    """Sum of ``x[idx]`` (one double of each cache line, ``idx`` ascending): the least work that
+    touches those lines once each, scattered, in address order. A reference read for
+    :func:`print_floor`, not library code."""
+    a0 = a1 = a2 = a3 = 0.0
+    n = idx.size // 4
+    for i in range(n):
+        a0 += x[idx[4 * i]]
+        a1 += x[idx[4 * i + 1]]
+        a2 += x[idx[4 * i + 2]]
+        a3 += x[idx[4 * i + 3]]
+    for i in range(4 * n, idx.size):
+        a0 += x[idx[i]]
+    return a0 + a1 + a2 + a3
+
+
 @numba.njit(fastmath=True, nogil=True)
 def stream_sum(x: np.ndarray) -> float:  # pragma: no cover (compiled)
     """Sum of a contiguous 1-D array, read as eight contiguous streams at once: the least
@@ -360,7 +379,7 @@ def stream_sum(x: np.ndarray) -> float:  # pragma: no cover (compiled)
     return a0 + a1 + a2 + a3 + a4 + a5 + a6 + a7
 
 
-def print_floor(gf, s: int, tri: np.ndarray, bary: np.ndarray, t_fresh: np.ndarray, repeat: int) -> None:
+def print_floor(gf, s: int, tri: np.ndarray, bary: np.ndarray, t_fresh: np.ndarray, repeat: int) -> dict:
     """Lower bound of an exact (float64) solve + full-surface deformation for the last contact set.
 
     Whatever the algorithm, three costs cannot be avoided:
@@ -373,7 +392,11 @@ def print_floor(gf, s: int, tri: np.ndarray, bary: np.ndarray, t_fresh: np.ndarr
     * (b) the forces need ``W = B^T D_VV B``: its entries lie scattered over the same
       columns, so at least the cache lines holding ``D_VV`` are read (counted
       here, at the rate of (a));
-    * (c) the Cholesky factorisation of W (``3s x 3s``), at the benchmark's BLAS threads.
+    * (c) the Cholesky factorisation of W (``3s x 3s``), at the benchmark's BLAS threads,
+      of a Fortran-ordered W (LAPACK copies its input with a plain memcpy). Until issue
+      12's third round (c) factorised the C-ordered W, whose copy into LAPACK's order is a
+      transpose (0.05-0.1 ms at m = 300): more work than the solve does, and no longer a
+      lower bound once the solve's factor skipped that transpose.
 
     Their sum is printed as the floor, next to a plain numpy ``D[:, cols] @ g``,
     a column copy ``D[:, cols]`` and the cold streaming bandwidth of a full ``D @ x``,
@@ -385,6 +408,16 @@ def print_floor(gf, s: int, tri: np.ndarray, bary: np.ndarray, t_fresh: np.ndarr
     same block with every BLAS thread, and the ratio to the floor built on it, are
     printed too: the bound of a parallel solve (before issue 12's second round the
     floor used (a'), so it bounded a program the benchmark does not run).
+
+    (b) counts D_VV's cache lines at the streaming rate of (a): a bound no scattered
+    read reaches. Beside it, (b'') touches each of those lines once, in address order,
+    with a compiled sum of one double per line (no output written): the least a
+    scattered read of D_VV costs on this machine, and what the solve's
+    ``(D_VV G)^T`` kernel is to be compared with (it reads each line once per
+    contact that uses its column and writes ``3s x 3|V|`` doubles). The floor itself
+    keeps (b).
+
+    Returns the medians of (a), (b), (b'') and (c) [s] for :func:`print_phases`.
     """
     import os
 
@@ -423,7 +456,11 @@ def print_floor(gf, s: int, tri: np.ndarray, bary: np.ndarray, t_fresh: np.ndarr
         offs = cols[None, :].astype(np.int64) * D.shape[0] + rows[:, None]
     else:
         offs = rows[:, None].astype(np.int64) * D.shape[1] + cols[None, :]
-    lines = np.unique(offs.ravel() * D.itemsize // 64).size
+    line_ids = np.unique(offs.ravel() * D.itemsize // 64)
+    lines = line_ids.size
+    flat_D = D.ravel(order="K")
+    first = np.maximum(line_ids * (64 // D.itemsize), 0).astype(np.int64)  # a double in each line
+    t_lines = timeit(lambda: line_sum(flat_D, first), repeat)
     extra = lines * 64 / block.nbytes  # (b) in units of (a)
     rate = block.nbytes / np.median(t_blk)  # bytes/s of the serial reference read
     t_vv = lines * 64 / rate
@@ -431,7 +468,9 @@ def print_floor(gf, s: int, tri: np.ndarray, bary: np.ndarray, t_fresh: np.ndarr
     if f_order:  # the same cache lines as scattered reads, in one compiled loop
         t_gather = timeit(lambda: vertex_block(V, D.T, gf.column_of), repeat)
     W = capacitance(gf, tri, bary).W
-    t_chol = timeit(lambda: sla.cho_factor(W, check_finite=False), repeat)
+    # W.T is W (symmetric) in Fortran order: LAPACK's input copy is a memcpy, as in SPDFactor
+    # (on the C-ordered W, cho_factor adds a transposing copy the solve does not make)
+    t_chol = timeit(lambda: sla.cho_factor(W.T, check_finite=False), repeat)
     floor = np.median(t_blk) * (1.0 + extra) + np.median(t_chol)
     floor_min = a_min * (1.0 + extra) + t_chol.min()
     floor_par = np.median(t_par) * (1.0 + extra) + np.median(t_chol)
@@ -447,6 +486,8 @@ def print_floor(gf, s: int, tri: np.ndarray, bary: np.ndarray, t_fresh: np.ndarr
           f"compiled sum {t_sum.min() * ms:.3f} {np.median(t_sum) * ms:.3f} {t_sum.max() * ms:.3f}"
           f"  -> {rate / 1e9:.1f} GB/s")
     print(f"  (b) D_VV: {lines} cache lines ({lines * 64 / 1e6:.1f} MB) at that rate: {t_vv * ms:.3f}")
+    print(f"  (b'') the same lines touched once each, scattered, in address order (compiled, one core): "
+          f"{t_lines.min() * ms:.3f} {np.median(t_lines) * ms:.3f} {t_lines.max() * ms:.3f}")
     print(f"  (c) Cholesky of W ({W.shape[0]} x {W.shape[0]}): "
           f"{t_chol.min() * ms:.3f} {np.median(t_chol) * ms:.3f} {t_chol.max() * ms:.3f}")
     print(f"  lower bound (a) + (b) + (c), medians: {floor * ms:.3f} ms (exact float64 D, one core, on this machine)")
@@ -461,6 +502,78 @@ def print_floor(gf, s: int, tri: np.ndarray, bary: np.ndarray, t_fresh: np.ndarr
         print(f"  (b') the same D_VV as scattered reads (compiled vertex_block), measured: "
               f"{t_gather.min() * ms:.3f} {np.median(t_gather) * ms:.3f} {t_gather.max() * ms:.3f}"
               f"  -> (a) + (b') + (c) = {(np.median(t_blk) + np.median(t_gather) + np.median(t_chol)) * ms:.3f} ms")
+    return {"a": float(np.median(t_blk)), "b": t_vv, "b''": float(np.median(t_lines)), "c": float(np.median(t_chol))}
+
+
+def print_phases(gf, tri: np.ndarray, bary: np.ndarray, ubar: np.ndarray, refs: dict, repeat: int) -> None:
+    """The fresh solve of :func:`print_floor`'s contact set (bilateral sticky point contacts,
+    full-surface u: the general path above ``POINT_FAST_MAX``), phase by phase.
+
+    Each repetition runs the phases of one solve in order (validation, V and the column
+    dofs, ``Y = (D_VV G)^T``, ``W``, the rigid test, the factor with its condition test,
+    the force solve, ``B f``, ``u = D[:, V] B f``, ``B^T u_V``) and then the whole
+    :func:`solve_contacts`; min / median / max of each, beside the floor term it is to be
+    compared with (``print_floor``'s medians).
+    """
+    from hailstorm.runtime.compiled import blocks
+    from hailstorm.runtime.contact.compliance import apply_columns, column_dofs, kernel_columns
+    from hailstorm.runtime.contact.policy import POINT_FAST_MAX, SPDFactor, is_rigid
+    from hailstorm.runtime.contact.validate import check_contacts, check_mode, check_patch
+    from hailstorm.runtime.contact.weights import interpolate, locate, vertex_forces
+
+    names = ["validation", "V, column dofs", "Y = (D_VV G)^T", "W = G^T Y^T", "rigid test",
+             "factor + condition", "force solve", "B f", "u(all) = D[:, V] B f", "B^T u_V", "sum of the phases",
+             "solve_contacts"]
+    floors = {"Y = (D_VV G)^T": ("(b'')", refs["b''"]), "factor + condition": ("(c)", refs["c"]),
+              "u(all) = D[:, V] B f": ("(a)", refs["a"])}
+    T = np.empty((repeat + 3, len(names)))
+    clock = time.perf_counter
+    for i in range(repeat + 3):
+        t = [clock()]
+        check_mode("sticky")
+        tt, b, _ = check_contacts(gf, tri, bary, None, need_normals=False)
+        check_patch(None, tt.size, "hertz")
+        u = np.asarray(ubar, dtype=np.float64)
+        np.isfinite(u).all()
+        t.append(clock())
+        pv = gf.triangles[tt]
+        V, loc = locate(pv)
+        cols = column_dofs(gf, V)
+        w = np.ascontiguousarray(b, dtype=np.float64)
+        nrm = np.zeros((tt.size, 3))
+        t.append(clock())
+        Y = blocks.constraint_rows(kernel_columns(gf), gf.column_of, V, loc, w, nrm, True)
+        t.append(clock())
+        W = blocks.contact_compliance(Y, loc, w, nrm, True)
+        t.append(clock())
+        is_rigid(gf.fixed, pv, w).any()
+        t.append(clock())
+        F = SPDFactor(W, symmetric=True)
+        t.append(clock())
+        f = F.solve(u.reshape(-1)).reshape(-1, 3)
+        t.append(clock())
+        g = vertex_forces(V.size, loc, w, f)
+        t.append(clock())
+        uall = apply_columns(gf, cols, g.reshape(-1), None)
+        t.append(clock())
+        interpolate(uall[V], loc, w)
+        t.append(clock())
+        t0 = clock()
+        solve_contacts(gf, tri, bary, ubar)
+        t1 = clock()
+        d = np.diff(t)
+        T[i] = np.concatenate([d, [t[-1] - t[0], t1 - t0]])
+    T = T[3:] * 1e3
+    print()
+    print(f"the fresh solve above, phase by phase (perf_counter, {repeat} repeats; min / med / max [ms]):")
+    if tri.size <= POINT_FAST_MAX:
+        print(f"  (s <= POINT_FAST_MAX = {POINT_FAST_MAX}: solve_contacts takes the one-call compiled path, "
+              "not these phases of the general one)")
+    for j, name in enumerate(names):
+        col = T[:, j]
+        fl = floors.get(name)
+        extra = f"   {fl[0]} {fl[1] * 1e3:.3f}: {np.median(col) / (fl[1] * 1e3):.2f}x" if fl else ""
+        print(f"  {name:22s} {col.min():8.3f} {np.median(col):8.3f} {col.max():8.3f}{extra}")
 
 
 def _copy(cap):
