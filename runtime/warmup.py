@@ -60,11 +60,17 @@ class WarmTask:
         ``HAILSTORM_COMPILE_WORKERS=1 tests/benchmarks/compile_time.py``); plans the split and is announced.
     run : callable
         Calls the kernels with the storm loop's argument types.
+    shares : str
+        Tasks with the same non-empty ``shares`` call kernels in common (numba compiles
+        a kernel's callees with it, once per process): :func:`plan` keeps them in one
+        process, in their order, so that the common kernels compile once, and the
+        ``seconds`` of the later ones leave them out.
     """
 
     name: str
     seconds: float
     run: Callable[[], None]
+    shares: str = ""
 
 
 @dataclass(frozen=True)
@@ -133,14 +139,19 @@ def compile_workers() -> int:
 def plan(tasks: Sequence[WarmTask], workers: int, startup: float = HELPER_STARTUP) -> list[list[int]]:
     """Split task indices among ``workers`` processes (longest first, each to the least
     loaded; a helper starts loaded with ``startup`` seconds); list 0 is this process's
-    and holds task 0 (the first one run). Task order within each list is the given order."""
+    and holds task 0 (the first one run). Tasks with the same ``shares`` go together
+    (to the process of task 0 if it is one of them). Task order within each list is
+    the given order."""
     loads = [0.0] + [startup] * (max(1, workers) - 1)
     parts: list[list[int]] = [[] for _ in loads]
-    order = sorted(range(len(tasks)), key=lambda i: (i != 0, -tasks[i].seconds))
-    for i in order:
-        w = 0 if i == 0 else min(range(len(loads)), key=lambda k: (loads[k], k))
-        parts[w].append(i)
-        loads[w] += tasks[i].seconds
+    units: dict[object, list[int]] = {}
+    for i, task in enumerate(tasks):
+        units.setdefault(task.shares or i, []).append(i)
+    order = sorted(units.values(), key=lambda u: (0 not in u, -sum(tasks[i].seconds for i in u)))
+    for unit in order:
+        w = 0 if 0 in unit else min(range(len(loads)), key=lambda k: (loads[k], k))
+        parts[w].extend(unit)
+        loads[w] += sum(tasks[i].seconds for i in unit)
     return [sorted(p) for p in parts if p or p is parts[0]]
 
 
