@@ -2,14 +2,15 @@
 
 numba compiles a kernel on its first call and caches the machine code on disk
 (``cache=True``), so every later process only loads it (milliseconds). The first
-run after an install compiles them all: about 50 s of CPU for the default storm,
+run after an install compiles them all: about 44 s of CPU for the default storm,
 nearly all in numba's own single-threaded compiler. :func:`warm_up` runs a list
 of :class:`WarmTask` (each loads or compiles a few kernels with the storm loop's
 argument types) and, as soon as a task turns out to compile (numba's
 ``numba:compile`` event: a cache miss), starts helper processes that compile the
 tasks planned for them while this process compiles its own; it then waits for
 them and runs their tasks itself, which now only load what the helpers cached.
-Wall time on two cores is about half the CPU time.
+Wall time on two cores is about half the CPU time (tasks that share kernels,
+:attr:`WarmTask.shares`, stay in one process so that those compile once).
 
 A helper rebuilds the same storm from the bundle's directory and the scene (so
 that its kernels get exactly this process's argument types) through the
