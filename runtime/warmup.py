@@ -44,8 +44,9 @@ _log = logging.getLogger(__name__)
 WORKERS_ENV = "HAILSTORM_COMPILE_WORKERS"
 #: a helper that has not finished after this many times its planned seconds (and 60 s) is stopped
 HELPER_TIMEOUT_FACTOR = 10.0
-#: CPU seconds a helper spends before it compiles (interpreter, imports, the storm rebuilt; measured ~1.5 s)
-HELPER_STARTUP = 2.0
+#: CPU seconds a helper spends before it compiles (interpreter, imports, the storm rebuilt; measured ~1.5 s idle,
+#: ~3 s at load ~3: its CPU less its tasks' in a fresh venv)
+HELPER_STARTUP = 3.0
 
 
 @dataclass(frozen=True)

@@ -42,16 +42,16 @@ def test_plan_keeps_tasks_that_share_kernels_in_one_process():
                 WarmTask("e", 3, lambda: None), WarmTask("f", 7, lambda: None, "spd")]
 
     ts = tasks(False)
-    parts = plan(ts, 2)
+    parts = plan(ts, 2, startup=2.0)
     where = {i: k for k, p in enumerate(parts) for i in p}
     assert where[2] == where[5] == 1 and where[0] == 0
     assert sorted(i for p in parts for i in p) == list(range(6))
     # without the key the greedy split separates them (the 10 s and the 7 s task)
     plain = [WarmTask(t.name, t.seconds, t.run) for t in ts]
-    loose = {i: k for k, p in enumerate(plan(plain, 2)) for i in p}
+    loose = {i: k for k, p in enumerate(plan(plain, 2, startup=2.0)) for i in p}
     assert loose[2] != loose[5]
     ts = tasks(True)
-    parts = plan(ts, 2)
+    parts = plan(ts, 2, startup=2.0)
     assert {0, 2, 5} <= set(parts[0]) and parts[1] and not {0, 2, 5} & set(parts[1])
     assert plan(ts, 1) == [list(range(6))]
 
