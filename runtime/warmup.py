@@ -2,14 +2,15 @@
 
 numba compiles a kernel on its first call and caches the machine code on disk
 (``cache=True``), so every later process only loads it (milliseconds). The first
-run after an install compiles them all: about 50 s of CPU for the default storm,
+run after an install compiles them all: about 44 s of CPU for the default storm,
 nearly all in numba's own single-threaded compiler. :func:`warm_up` runs a list
 of :class:`WarmTask` (each loads or compiles a few kernels with the storm loop's
 argument types) and, as soon as a task turns out to compile (numba's
 ``numba:compile`` event: a cache miss), starts helper processes that compile the
 tasks planned for them while this process compiles its own; it then waits for
 them and runs their tasks itself, which now only load what the helpers cached.
-Wall time on two cores is about half the CPU time.
+Wall time on two cores is about half the CPU time (tasks that share kernels,
+:attr:`WarmTask.shares`, stay in one process so that those compile once).
 
 A helper rebuilds the same storm from the bundle's directory and the scene (so
 that its kernels get exactly this process's argument types) through the
@@ -43,8 +44,9 @@ _log = logging.getLogger(__name__)
 WORKERS_ENV = "HAILSTORM_COMPILE_WORKERS"
 #: a helper that has not finished after this many times its planned seconds (and 60 s) is stopped
 HELPER_TIMEOUT_FACTOR = 10.0
-#: CPU seconds a helper spends before it compiles (interpreter, imports, the storm rebuilt; measured ~1.5 s)
-HELPER_STARTUP = 2.0
+#: CPU seconds a helper spends before it compiles (interpreter, imports, the storm rebuilt; measured ~1.5 s idle,
+#: ~3 s at load ~3: its CPU less its tasks' in a fresh venv)
+HELPER_STARTUP = 3.0
 
 
 @dataclass(frozen=True)
@@ -60,11 +62,17 @@ class WarmTask:
         ``HAILSTORM_COMPILE_WORKERS=1 tests/benchmarks/compile_time.py``); plans the split and is announced.
     run : callable
         Calls the kernels with the storm loop's argument types.
+    shares : str
+        Tasks with the same non-empty ``shares`` call kernels in common (numba compiles
+        a kernel's callees with it, once per process): :func:`plan` keeps them in one
+        process, in their order, so that the common kernels compile once, and the
+        ``seconds`` of the later ones leave them out.
     """
 
     name: str
     seconds: float
     run: Callable[[], None]
+    shares: str = ""
 
 
 @dataclass(frozen=True)
@@ -133,14 +141,19 @@ def compile_workers() -> int:
 def plan(tasks: Sequence[WarmTask], workers: int, startup: float = HELPER_STARTUP) -> list[list[int]]:
     """Split task indices among ``workers`` processes (longest first, each to the least
     loaded; a helper starts loaded with ``startup`` seconds); list 0 is this process's
-    and holds task 0 (the first one run). Task order within each list is the given order."""
+    and holds task 0 (the first one run). Tasks with the same ``shares`` go together
+    (to the process of task 0 if it is one of them). Task order within each list is
+    the given order."""
     loads = [0.0] + [startup] * (max(1, workers) - 1)
     parts: list[list[int]] = [[] for _ in loads]
-    order = sorted(range(len(tasks)), key=lambda i: (i != 0, -tasks[i].seconds))
-    for i in order:
-        w = 0 if i == 0 else min(range(len(loads)), key=lambda k: (loads[k], k))
-        parts[w].append(i)
-        loads[w] += tasks[i].seconds
+    units: dict[object, list[int]] = {}
+    for i, task in enumerate(tasks):
+        units.setdefault(task.shares or i, []).append(i)
+    order = sorted(units.values(), key=lambda u: (0 not in u, -sum(tasks[i].seconds for i in u)))
+    for unit in order:
+        w = 0 if 0 in unit else min(range(len(loads)), key=lambda k: (loads[k], k))
+        parts[w].extend(unit)
+        loads[w] += sum(tasks[i].seconds for i in unit)
     return [sorted(p) for p in parts if p or p is parts[0]]
 
 

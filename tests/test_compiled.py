@@ -411,3 +411,67 @@ def test_point_contacts_fast_path(gf):
     assert code([soft[0], rigid], [third, third]) == 3
     assert code([soft[0], soft[0]], [third, third]) == 4
     assert code([soft[0], soft[0]], [third, third], sticky=False) == 4
+
+
+def test_lapack_solve_is_numpys_bit_for_bit():
+    """The compiled dense solve (LAPACK dgesv called directly, without numba's copy-in)
+    returns np.linalg.solve's result exactly, for well and badly conditioned systems and
+    strided inputs, and raises LinAlgError as it does (singular matrix, inf or NaN)."""
+    from hailstorm.runtime.compiled.lapack import solve
+
+    rng = np.random.default_rng(12)
+    for n in (1, 2, 3, 5, 12, 40):
+        for _ in range(20):
+            A = rng.normal(size=(n, n)) * 10.0 ** rng.uniform(-8, 8)
+            if rng.random() < 0.3:
+                A = A @ A.T + 1e-9 * np.eye(n)  # symmetric, ill-conditioned
+            b = rng.normal(size=n)
+            np.testing.assert_array_equal(solve(A, b), np.linalg.solve(A, b))
+    M = rng.normal(size=(8, 8))
+    A, b = M[::2, ::2], M[1::2, 1]  # strided views: the values count, not the layout
+    np.testing.assert_array_equal(solve(np.ascontiguousarray(A), np.ascontiguousarray(b)), np.linalg.solve(A, b))
+    assert solve(np.zeros((0, 0)), np.zeros(0)).shape == (0,)
+    with pytest.raises(np.linalg.LinAlgError, match="singular"):
+        solve(np.array([[1.0, 2.0], [2.0, 4.0]]), np.ones(2))
+    for bad in (np.inf, np.nan):
+        with pytest.raises(np.linalg.LinAlgError, match="infs or NaNs"):
+            solve(np.array([[1.0, 0.0], [0.0, bad]]), np.ones(2))
+        with pytest.raises(np.linalg.LinAlgError, match="infs or NaNs"):
+            solve(np.eye(2), np.array([1.0, bad]))
+
+
+@pytest.mark.slow
+def test_the_contact_steps_do_not_compile_numbas_error_formatting(tmp_path):
+    """A cold compile of the implicit and symplectic contact step (a fresh interpreter, an
+    empty numba cache) compiles no shape-error formatting (numba's str of ints and string
+    concatenation: ~3.5 s of a first run, behind np.linalg.solve's copy-in), no
+    ``np.flatnonzero`` and no ``np.concatenate``: the step is loops and a direct LAPACK call."""
+    import os
+    import subprocess
+    import sys
+
+    code = """
+import numpy as np
+from numba.core import event
+names = []
+class L(event.Listener):
+    def on_start(self, ev):
+        d = ev.data.get("dispatcher") if ev.data else None
+        names.append(d.py_func.__qualname__ if d is not None else "?")
+    def on_end(self, ev):
+        pass
+event.register("numba:compile", L())
+from hailstorm.runtime.compiled import substep_contacts
+one = np.ones(1)
+for implicit in (True, False):
+    substep_contacts(one, one, one, one, one, 1e-4, np.eye(1), np.eye(1), np.eye(1), implicit, True,
+                     np.arange(1), one, 1e10, 1e-10)
+print("\\n".join(names))
+"""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
+    out = subprocess.run([sys.executable, "-c", code], check=True, env=env, capture_output=True, text=True).stdout
+    names = out.split()
+    assert "substep_contacts" in names and "solve" in names
+    bad = [n for n in names if "raise_with_shape_context" in n or "integer_str" in n or "flatnonzero" in n
+           or "concatenate" in n]
+    assert not bad, bad

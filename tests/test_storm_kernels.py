@@ -218,7 +218,7 @@ for integ in ("implicit", "exact", "symplectic"):
                             integrator=integ, patch=patch), progress=False)
 many = {}
 for mod in (compiled.flight, compiled.narrow, compiled.patches, compiled.contacts, compiled.integrators,
-            compiled.grid, compiled.modal):
+            compiled.grid, compiled.modal, compiled.lapack):
     for name in dir(mod):
         f = getattr(mod, name)
         if isinstance(f, Dispatcher) and len(f.signatures) > 1:

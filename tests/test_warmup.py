@@ -32,6 +32,30 @@ def test_plan_balances_and_keeps_the_first_task_here():
     assert plan(tasks[:1], 3) == [[0]]
 
 
+def test_plan_keeps_tasks_that_share_kernels_in_one_process():
+    """Tasks with one ``shares`` key are planned as one unit (their common kernels compile
+    once): together in a helper, or with task 0 in this process; the others still balance."""
+    def tasks(shared_with_first: bool) -> list[WarmTask]:
+        first = "spd" if shared_with_first else ""
+        return [WarmTask("a", 4, lambda: None, first), WarmTask("b", 9, lambda: None),
+                WarmTask("c", 10, lambda: None, "spd"), WarmTask("d", 9, lambda: None),
+                WarmTask("e", 3, lambda: None), WarmTask("f", 7, lambda: None, "spd")]
+
+    ts = tasks(False)
+    parts = plan(ts, 2, startup=2.0)
+    where = {i: k for k, p in enumerate(parts) for i in p}
+    assert where[2] == where[5] == 1 and where[0] == 0
+    assert sorted(i for p in parts for i in p) == list(range(6))
+    # without the key the greedy split separates them (the 10 s and the 7 s task)
+    plain = [WarmTask(t.name, t.seconds, t.run) for t in ts]
+    loose = {i: k for k, p in enumerate(plan(plain, 2, startup=2.0)) for i in p}
+    assert loose[2] != loose[5]
+    ts = tasks(True)
+    parts = plan(ts, 2, startup=2.0)
+    assert {0, 2, 5} <= set(parts[0]) and parts[1] and not {0, 2, 5} & set(parts[1])
+    assert plan(ts, 1) == [list(range(6))]
+
+
 def test_a_task_that_compiles_is_announced_and_a_loaded_one_is_not(caplog):
     k = _fresh_kernel()
     k(1)  # compiled now: the task below only finds it

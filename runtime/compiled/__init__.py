@@ -27,8 +27,9 @@ Modules, in the order of a storm step:
   and the constrained coordinates around a contact step;
 * :mod:`~hailstorm.runtime.compiled.integrators` — the exact, implicit and symplectic
   contact steps, the sub-step sizing and the dashpot (with :mod:`~hailstorm.runtime.compiled.modal`,
-  the modal algebra, and :mod:`~hailstorm.runtime.compiled.expm`, the matrix exponential
-  of a (nearly) defective set).
+  the modal algebra, :mod:`~hailstorm.runtime.compiled.expm`, the matrix exponential
+  of a (nearly) defective set, and :mod:`~hailstorm.runtime.compiled.lapack`, a dense
+  solve that is ``np.linalg.solve``'s LAPACK call without its costly-to-compile copy-in).
 
 The kernels are compiled on first use and cached on disk (``cache=True``,
 beside the modules' bytecode, or numba's user cache if that is read-only), so

@@ -18,6 +18,7 @@ import numpy as np
 from hailstorm.runtime.compiled.jit import kernel
 from hailstorm.runtime.compiled.contacts import inv_spd
 from hailstorm.runtime.compiled.expm import expm
+from hailstorm.runtime.compiled.lapack import solve
 from hailstorm.runtime.compiled.modal import (
     equilibrium_py,
     explicit_modes_py,
@@ -479,12 +480,32 @@ modal_stiffness = kernel(modal_stiffness_py)
 
 
 @kernel
+def _indices(mask):  # pragma: no cover (compiled)
+    """``np.flatnonzero(mask)`` of a bool array (int64), as a loop."""
+    k = 0
+    for i in range(mask.size):
+        if mask[i]:
+            k += 1
+    out = np.empty(k, np.int64)
+    k = 0
+    for i in range(mask.size):
+        if mask[i]:
+            out[k] = i
+            k += 1
+    return out
+
+
+@kernel
 def substep_contacts(q, v, a, m, g, dt, K, W, C, implicit, unilateral, group, wts, cond_limit,
                      rcond):  # pragma: no cover
     """Compiled implicit (backward Euler) and symplectic Euler contact step of
     :func:`hailstorm.runtime.hail.contact_step` (see there): the (n, n) dashpot ``C`` in compression
     only, unilateral release by active-set iteration (``cond_limit``, ``rcond``: the
-    policy of :func:`inv_spd`). Returns ``(q, v, active, force, seat_force)``."""
+    policy of :func:`inv_spd`). Returns ``(q, v, active, force, seat_force)``.
+
+    (Element-wise work is written as loops and the solve is :func:`~hailstorm.runtime.compiled.lapack.solve`:
+    the same arithmetic as the array expressions and ``np.linalg.solve`` they replace, bit for
+    bit, at about half the first run's compile.)"""
     n = q.size
     ng = np.int64(0)  # (not the literal 0: a literal argument is a second specialisation of _gsum, _track)
     for i in range(n):
@@ -496,13 +517,16 @@ def substep_contacts(q, v, a, m, g, dt, K, W, C, implicit, unilateral, group, wt
     for i in range(n):
         on[i] = vn_g[group[i]] < 0.0
     active = np.ones(n, np.bool_)
-    ubar = q - a
-    v_new = v + dt * g
+    ubar = np.empty(n)
+    for i in range(n):
+        ubar[i] = q[i] - a[i]
+    v_new = np.empty(n)
     force = np.zeros(n)
     while True:
-        idx = np.flatnonzero(active)
+        idx = _indices(active)
         Ka = inv_spd(_sub(W, idx), cond_limit, rcond) if idx.size < n else K
-        v_new = v + dt * g
+        for i in range(n):
+            v_new[i] = v[i] + dt * g[i]
         na = idx.size
         if na:
             ca = _sub(C, idx)
@@ -510,24 +534,36 @@ def substep_contacts(q, v, a, m, g, dt, K, W, C, implicit, unilateral, group, wt
                 for cc in range(na):
                     if not (on[idx[r]] and on[idx[cc]]):
                         ca[r, cc] = 0.0
+            ua = np.empty(na)
+            for r in range(na):
+                ua[r] = ubar[idx[r]]
             if implicit:
-                A = dt * dt * Ka + dt * ca
+                dt2 = dt * dt
+                A = np.empty((na, na))
+                for r in range(na):
+                    for cc in range(na):
+                        A[r, cc] = dt2 * Ka[r, cc] + dt * ca[r, cc]
                 rhs = np.empty(na)
-                ku = Ka @ ubar[idx]
+                ku = Ka @ ua
                 for r in range(na):
                     i = idx[r]
                     A[r, r] += m[i]
                     rhs[r] = m[i] * v[i] + dt * (m[i] * g[i] - ku[r])
-                vs = np.linalg.solve(A, rhs)
+                vs = solve(A, rhs)
                 for r in range(na):
                     v_new[idx[r]] = vs[r]
             else:
-                ku = Ka @ ubar[idx] + ca @ v[idx]
+                va = np.empty(na)
+                for r in range(na):
+                    va[r] = v[idx[r]]
+                ku = Ka @ ua
+                kc = ca @ va
                 for r in range(na):
                     i = idx[r]
-                    v_new[i] = v[i] + dt * (g[i] - ku[r] / m[i])
+                    v_new[i] = v[i] + dt * (g[i] - (ku[r] + kc[r]) / m[i])
         force = np.zeros(n)
-        for i in idx:
+        for r in range(na):
+            i = idx[r]
             force[i] = m[i] * ((v_new[i] - v[i]) / dt - g[i])
         if not unilateral or na == 0:
             break
@@ -541,12 +577,17 @@ def substep_contacts(q, v, a, m, g, dt, K, W, C, implicit, unilateral, group, wt
                 pulling = True
         if not pulling:
             break
-    q_new = q + dt * v_new
+    q_new = np.empty(n)
+    for i in range(n):
+        q_new[i] = q[i] + dt * v_new[i]
     seat = np.zeros(n)
-    idx = np.flatnonzero(active)
+    idx = _indices(active)
     if idx.size:
         Ka = inv_spd(_sub(W, idx), cond_limit, rcond) if idx.size < n else K
-        sa = Ka @ (q_new[idx] - a[idx])
+        da = np.empty(idx.size)
+        for r in range(idx.size):
+            da[r] = q_new[idx[r]] - a[idx[r]]
+        sa = Ka @ da
         for r in range(idx.size):
             seat[idx[r]] = sa[r]
     for i in range(n):

@@ -112,7 +112,7 @@ def main() -> None:
 
     spec = {}
     for mod in (compiled.flight, compiled.narrow, compiled.patches, compiled.contacts, compiled.integrators,
-                compiled.grid, compiled.blocks):
+                compiled.grid, compiled.blocks, compiled.modal, compiled.lapack):
         for name in dir(mod):
             f = getattr(mod, name)
             if isinstance(f, Dispatcher) and f.signatures:
