@@ -199,8 +199,11 @@ def test_frontier_on_a_small_box(tmp_path, small_box):
     p1, p2 = ds.Setting(0.02, 1, "point"), ds.Setting(0.02, 2, "point")
     meshes = {p1: small_box, p2: small_box}
     ref = ds.measure_setting(p2, mesh=small_box, sites=sites, young=E, poisson=NU)
-    rows = ds.frontier([p1, p2], ref, sites=sites, meshes=meshes, young=E, poisson=NU)
+    rows = ds.frontier([p1, p2], ref, sites=sites, meshes=meshes, young=E, poisson=NU, consistent=True)
     assert [r.setting for r in rows] == [p1, p2]
+    cons = ds.measure_consistent(small_box, 2, sites=sites, young=E, poisson=NU, patch_radius=ref.extra["patch_radius"])
+    for r in rows:  # one mesh: the same consistent-load errors for both
+        assert np.allclose(r.consistent[0], cons.dent / ref.dent - 1) and np.allclose(r.consistent[1], cons.stiffness / ref.stiffness - 1)
     assert np.allclose(rows[1].dent_error, 0.0) and np.allclose(rows[1].stiffness_error, 0.0) and rows[1].ok
     assert rows[0].dent_error[0] == pytest.approx(rows[0].figures.dent[0] / ref.dent[0] - 1.0)
     assert not rows[0].ok  # P1 on a 2-element-thick box is far from P2

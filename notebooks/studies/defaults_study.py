@@ -504,13 +504,18 @@ def precompute_timings(setting: Setting, repeats: int = 2, *, budget: float = ma
 
 @dataclass
 class FrontierRow:
-    """One setting of the frontier: its signed errors per site against the reference, and its costs."""
+    """One setting of the frontier: its signed errors per site against the reference, and its costs.
+
+    ``consistent``: the signed (dent, stiffness) errors of P2 with the reference's consistent loads on
+    the same mesh (what the mesh itself allows; the rest of the setting's error is the columns' load).
+    """
 
     setting: Setting
     figures: Figures
     dent_error: np.ndarray
     stiffness_error: np.ndarray
     cost: Cost | None = None
+    consistent: tuple[np.ndarray, np.ndarray] | None = None
 
     @property
     def ok(self) -> bool:
@@ -529,13 +534,25 @@ class FrontierRow:
 
 
 def frontier(settings: Sequence[Setting], ref: Figures, *, sites=SITES, meshes: dict | None = None,
-             young: float = DEFAULT_YOUNG, poisson: float = DEFAULT_POISSON) -> list[FrontierRow]:
+             young: float = DEFAULT_YOUNG, poisson: float = DEFAULT_POISSON,
+             consistent: bool = False) -> list[FrontierRow]:
     """Accuracy of each setting against ``ref`` (signed, per site; no timing: see :func:`time_frontier`).
-    ``meshes``: setting -> mesh to use instead of meshing the default seat (tests)."""
+    ``meshes``: setting -> mesh to use instead of meshing the default seat (tests). ``consistent``:
+    also P2 with consistent loads on each setting's mesh (:func:`measure_consistent`, once per mesh)."""
     rows = []
+    split: dict = {}
     for s in settings:
-        fig = measure_setting(s, mesh=(meshes or {}).get(s), sites=sites, young=young, poisson=poisson)
+        mesh = (meshes or {}).get(s)
+        mesh = s.mesh() if mesh is None else mesh
+        fig = measure_setting(s, mesh=mesh, sites=sites, young=young, poisson=poisson)
         rows.append(FrontierRow(s, fig, fig.dent / ref.dent - 1.0, fig.stiffness / ref.stiffness - 1.0))
+        if consistent:
+            key = mesh.content_hash()
+            if key not in split:
+                c = measure_consistent(mesh, 2, sites=sites, young=young, poisson=poisson,
+                                       patch_radius=fig.extra["patch_radius"])
+                split[key] = (c.dent / ref.dent - 1.0, c.stiffness / ref.stiffness - 1.0)
+            rows[-1].consistent = split[key]
         logger.info("%s: dent %s, stiffness %s", s.label, np.round(100 * rows[-1].dent_error, 1),
                     np.round(100 * rows[-1].stiffness_error, 1))
     return rows
@@ -565,15 +582,17 @@ def cheapest(rows: Sequence[FrontierRow]) -> FrontierRow | None:
 
 def format_frontier(rows: Sequence[FrontierRow]) -> str:
     """The frontier as text: errors per site (rear / middle / nose), spread, size of D, precompute cost."""
-    lines = [f"{'setting':<24}{'dent err %':>18}{'stiffness err %':>18}{'spread %':>10}{'surface':>9}"
+    lines = [f"{'setting':<24}{'dent err %':>18}{'stiffness err %':>18}{'consistent d / k %':>26}"
+             f"{'spread %':>10}{'surface':>9}"
              f"{'columns':>9}{'dofs':>8}{'wall s':>17}{'CPU s':>17}{'load':>14}{'peak MB':>9}  5 %"]
     for r in rows:
         c = r.cost
         de = "/".join(f"{100 * x:+.0f}" for x in r.dent_error)
         ke = "/".join(f"{100 * x:+.0f}" for x in r.stiffness_error)
+        ce = ("  ".join("/".join(f"{100 * x:+.0f}" for x in e) for e in r.consistent) if r.consistent else "-")
         timing = (f"{Cost.summary(c.wall):>17}{Cost.summary(c.cpu):>17}{Cost.summary(c.load):>14}{c.peak_mb:>9.0f}"
                   if c else f"{'-':>17}{'-':>17}{'-':>14}{'-':>9}")
-        lines.append(f"{r.setting.label:<24}{de:>18}{ke:>18}{100 * r.spread:>10.0f}"
+        lines.append(f"{r.setting.label:<24}{de:>18}{ke:>18}{ce:>26}{100 * r.spread:>10.0f}"
                      f"{r.figures.extra['n_surface']:>9d}{r.n_contactable:>9d}{r.figures.n_dofs:>8d}{timing}"
                      f"  {'yes' if r.ok else 'no'}")
     best = cheapest(rows)
@@ -643,6 +662,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--sizes", type=_sizes_mm, default=FRONTIER_SIZES, metavar="MM,MM,...",
                     help="--frontier: surface sizes [mm] (default 6,5.5,5,4.5,4,3.5)")
     ap.add_argument("--no-variants", action="store_true", help="--frontier: the plain P2 point rows only")
+    ap.add_argument("--no-consistent", action="store_true",
+                    help="--frontier: skip P2 with consistent loads on each setting's mesh")
     ap.add_argument("--budget", type=float, default=150.0, metavar="S",
                     help="--frontier: no repeat of a precompute that took more than S seconds (default 150)")
     args = ap.parse_args(argv)
@@ -651,7 +672,9 @@ def main(argv: Sequence[str] | None = None) -> int:
         if not os.path.isdir(folder) or not os.access(folder, os.W_OK):
             print(f"defaults_study: cannot write the reference cache in {folder}", file=sys.stderr)
             return 3
-    logging.basicConfig(level=logging.INFO if args.frontier else logging.WARNING, format="%(message)s")
+    logging.basicConfig(level=logging.WARNING, format="%(message)s")
+    if args.frontier:
+        logger.setLevel(logging.INFO)
     t0 = time.perf_counter()
     conv = cached_reference(QUICK_REFERENCE_SIZES if args.quick else REFERENCE_SIZES, args.reference_cache)
     print(format_convergence(conv), flush=True)
@@ -661,8 +684,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.frontier:
         settings = [Setting(h, 2, "point") for h in args.sizes]
         settings += [] if args.no_variants else [v for v in FRONTIER_VARIANTS if v not in settings]
-        rows = frontier(settings, ref)
-        print("errors rear/middle/nose of the site means; spread: largest over the landing positions", flush=True)
+        rows = frontier(settings, ref, consistent=not args.no_consistent)
+        print("errors rear/middle/nose of the site means; consistent: P2 with the reference's loads on the same "
+              "mesh; spread: largest over the landing positions", flush=True)
         print(format_frontier(rows), flush=True)
         if not args.no_timing:
             time_frontier(rows, repeats=1 if args.quick else (args.repeats or 2), budget=args.budget)
