@@ -43,6 +43,7 @@ Run::
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import logging
 import math
@@ -66,7 +67,13 @@ from hailstorm.precompute.fem import (
     stiffness_matrix,
     vertex_dofs,
 )
-from hailstorm.precompute.geometry import Refinement, TetMesh, boundary_triangles, mesh_default_seat
+from hailstorm.precompute.geometry import (
+    Refinement,
+    TetMesh,
+    boundary_triangles,
+    default_seat_path,
+    mesh_default_seat,
+)
 from hailstorm.precompute.greens import factorize, hat_load_matrix
 from hailstorm.precompute.pipeline import build_bundle, extract_surface
 from hailstorm.runtime.atomic import replacing
@@ -344,10 +351,14 @@ def converge_reference(sizes: Sequence[float] = REFERENCE_SIZES, *, sites=SITES)
 
 
 def _reference_key(sizes: Sequence[float], sites) -> dict:
-    """What a cached reference must have been computed for (the defaults' material and loads)."""
+    """What a cached reference must have been computed for: the levels, sites, the default seat's
+    geometry (its file's hash) and gmsh's version, the defaults' material and the loads."""
+    import gmsh
+
     return {"sizes": [float(h) for h in sizes], "sites": {k: [float(x) for x in v] for k, v in sites.items()},
-            "young": DEFAULT_YOUNG, "poisson": DEFAULT_POISSON, "dent_radius": DENT_RADIUS,
-            "patch_radius": stone_patch_radius(), "version": 1}
+            "geometry": hashlib.sha256(default_seat_path().read_bytes()).hexdigest(),
+            "gmsh": str(gmsh.__version__), "young": DEFAULT_YOUNG, "poisson": DEFAULT_POISSON,
+            "dent_radius": DENT_RADIUS, "patch_radius": stone_patch_radius(), "version": 1}
 
 
 def save_convergence(conv: Convergence, path: str | os.PathLike, *, sites=SITES) -> None:
@@ -590,7 +601,7 @@ def format_frontier(rows: Sequence[FrontierRow]) -> str:
         de = "/".join(f"{100 * x:+.0f}" for x in r.dent_error)
         ke = "/".join(f"{100 * x:+.0f}" for x in r.stiffness_error)
         ce = ("  ".join("/".join(f"{100 * x:+.0f}" for x in e) for e in r.consistent) if r.consistent else "-")
-        timing = (f"{Cost.summary(c.wall):>17}{Cost.summary(c.cpu):>17}{Cost.summary(c.load):>14}{c.peak_mb:>9.0f}"
+        timing = (f" {Cost.summary(c.wall):>16} {Cost.summary(c.cpu):>16} {Cost.summary(c.load):>13}{c.peak_mb:>9.0f}"
                   if c else f"{'-':>17}{'-':>17}{'-':>14}{'-':>9}")
         lines.append(f"{r.setting.label:<24}{de:>18}{ke:>18}{ce:>26}{100 * r.spread:>10.0f}"
                      f"{r.figures.extra['n_surface']:>9d}{r.n_contactable:>9d}{r.figures.n_dofs:>8d}{timing}"
