@@ -158,3 +158,87 @@ def test_seat_settings_round_trip_with_grading(tmp_path):
     none = SeatSettings(volume_size=None)
     Scene.default().to_toml(p, seat=none)
     assert "volume_size" not in p.read_text().split("[seat]")[1]
+
+
+def _figures(scale: float) -> ds.Figures:
+    return ds.Figures(scale * np.array([80e-6, 80e-6, 82e-6]), scale * np.array([90e-6, 91e-6, 92e-6]),
+                      np.array([18e3, 18e3, 17e3]) / scale, 1000, 1.0, {"n_tets": 10, "patch_radius": 0.004})
+
+
+def test_reference_cache_round_trip_and_key(tmp_path, monkeypatch):
+    """A saved reference is read back as it was, only for the same levels; cached_reference computes
+    once and then reads the file."""
+    sizes = (0.002, 0.001)
+    conv = ds.Convergence(list(sizes), [_figures(0.9), _figures(1.0)])
+    path = tmp_path / "ref.npz"
+    ds.save_convergence(conv, path)
+    back = ds.load_convergence(path, sizes)
+    for a, b in zip(conv.levels, back.levels):
+        assert np.array_equal(a.dent, b.dent) and np.array_equal(a.stiffness, b.stiffness)
+        assert np.array_equal(a.dent_centre, b.dent_centre) and a.n_dofs == b.n_dofs and a.extra == b.extra
+    assert ds.load_convergence(path, (0.002, 0.0014)) is None  # other levels
+    assert ds.load_convergence(path, sizes, sites={"c": (0.1, 0.0)}) is None  # other sites
+    assert ds.load_convergence(tmp_path / "none.npz", sizes) is None
+    (tmp_path / "bad.npz").write_text("not a reference")
+    assert ds.load_convergence(tmp_path / "bad.npz", sizes) is None
+
+    calls = []
+    monkeypatch.setattr(ds, "converge_reference", lambda s, sites: calls.append(s) or conv)
+    other = tmp_path / "other.npz"
+    assert ds.cached_reference(sizes, other) is conv and len(calls) == 1
+    again = ds.cached_reference(sizes, other)
+    assert len(calls) == 1 and np.array_equal(again.reference.dent, conv.reference.dent)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["bad.npz", "other.npz", "ref.npz"]  # nothing left over
+
+
+def test_frontier_on_a_small_box(tmp_path, small_box):
+    """The frontier's bookkeeping on a tiny mesh: signed errors against the reference, the landing
+    spread (recomputed from one-point measurements), the columns of D (the pipeline's count), the
+    cheapest row within the target, and the precompute's runs (the budget stops repeats)."""
+    sites = {"c": (0.05, 0.05)}
+    p1, p2 = ds.Setting(0.02, 1, "point"), ds.Setting(0.02, 2, "point")
+    meshes = {p1: small_box, p2: small_box}
+    ref = ds.measure_setting(p2, mesh=small_box, sites=sites, young=E, poisson=NU)
+    rows = ds.frontier([p1, p2], ref, sites=sites, meshes=meshes, young=E, poisson=NU, consistent=True)
+    assert [r.setting for r in rows] == [p1, p2]
+    cons = ds.measure_consistent(small_box, 2, sites=sites, young=E, poisson=NU, patch_radius=ref.extra["patch_radius"])
+    for r in rows:  # one mesh: the same consistent-load errors for both
+        assert np.allclose(r.consistent[0], cons.dent / ref.dent - 1) and np.allclose(r.consistent[1], cons.stiffness / ref.stiffness - 1)
+    assert np.allclose(rows[1].dent_error, 0.0) and np.allclose(rows[1].stiffness_error, 0.0) and rows[1].ok
+    assert rows[0].dent_error[0] == pytest.approx(rows[0].figures.dent[0] / ref.dent[0] - 1.0)
+    assert not rows[0].ok  # P1 on a 2-element-thick box is far from P2
+    assert ds.cheapest(rows) is rows[1]
+
+    # spread: the largest deviation from the mean over the site and its 6 landing points
+    pts = ds.jittered(sites, 0.5 * p2.mesh_size)["c"]
+    one = [ds.measure_setting(p2, mesh=small_box, sites={"p": tuple(x)}, young=E, poisson=NU, jitter=0)
+           for x in pts]
+    for q in ("dent", "stiffness"):
+        vals = np.array([getattr(f, q)[0] for f in one])
+        assert rows[1].figures.extra["spread"][q][0] == pytest.approx(np.max(np.abs(vals / vals.mean() - 1)))
+    assert rows[1].spread == pytest.approx(max(np.max(v) for v in rows[1].figures.extra["spread"].values()))
+
+    gf = load(build_bundle(tmp_path / "b", mesh=small_box, order=2, young=E, poisson=NU))
+    assert rows[1].n_contactable == int(np.count_nonzero(gf.contactable)) == np.asarray(gf.D).shape[1] // 3
+
+    ds.time_frontier(rows, repeats=2, budget=0.0, meshes=meshes)  # every run exceeds a zero budget: one each
+    for r in rows:
+        assert len(r.cost.wall) == len(r.cost.cpu) == len(r.cost.load) == 1 and r.cost.cpu[0] > 0
+    ds.time_frontier(rows[1:], repeats=2, meshes=meshes)
+    assert len(rows[1].cost.wall) == 2
+
+    text = ds.format_frontier(rows)
+    assert "cheapest within 5%: P2 point 20 mm" in text and len(text.splitlines()) == 5
+    far_ref = ds.Figures(2 * ref.dent, ref.dent_centre, ref.stiffness, 0, 0.0)  # P2's dent 50 % off
+    far = ds.frontier([p2], far_ref, sites=sites, meshes=meshes, young=E, poisson=NU)
+    assert ds.cheapest(far) is None and "no setting meets" in ds.format_frontier(far)
+
+
+def test_study_cli_bad_input(tmp_path, capsys):
+    """An unwritable reference cache: one line, exit 3, before any work; bad sizes: a usage error."""
+    rc = ds.main(["--frontier", "--reference-cache", str(tmp_path / "missing" / "ref.npz")])
+    err = capsys.readouterr().err
+    assert rc == 3 and len(err.strip().splitlines()) == 1 and "reference cache" in err
+    with pytest.raises(SystemExit) as exc:
+        ds.main(["--frontier", "--sizes", "6,x"])
+    assert exc.value.code == 2

@@ -35,12 +35,19 @@ Run::
     python -m hailstorm.studies.defaults_study               # reference levels, the table, 3 timed precomputes each
     python -m hailstorm.studies.defaults_study --no-timing   # accuracy only (the reference ~6 min on 2 loaded cores)
     python -m hailstorm.studies.defaults_study --quick       # coarse reference levels, one timed run each
+    python -m hailstorm.studies.defaults_study --frontier --reference-cache /tmp/ref.npz
+        # P2 point columns on 6 ... 3.5 mm surfaces and a few variants: errors, size of D, precompute
+        # wall and CPU time (2 runs each, 1 beyond --budget s), the cheapest setting within 5 %
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
+import json
+import logging
 import math
+import os
 import resource
 import sys
 import tempfile
@@ -60,9 +67,16 @@ from hailstorm.precompute.fem import (
     stiffness_matrix,
     vertex_dofs,
 )
-from hailstorm.precompute.geometry import Refinement, TetMesh, boundary_triangles, mesh_default_seat
+from hailstorm.precompute.geometry import (
+    Refinement,
+    TetMesh,
+    boundary_triangles,
+    default_seat_path,
+    mesh_default_seat,
+)
 from hailstorm.precompute.greens import factorize, hat_load_matrix
 from hailstorm.precompute.pipeline import build_bundle, extract_surface
+from hailstorm.runtime.atomic import replacing
 from hailstorm.runtime.contact.weights import patch_weights, triangle_normals
 from hailstorm.runtime.hail import stone_mass, terminal_velocity
 from hailstorm.runtime.hertz import hertz_impact
@@ -75,6 +89,12 @@ DENT_RADIUS = 0.0025
 STONE_RADIUS = 0.005
 #: Accuracy target of the default against the reference (issue #14).
 TARGET = 0.05
+#: The reference's levels: the size [m] around the sites, coarse to fine (the last is the reference).
+REFERENCE_SIZES = (0.002, 0.0014, 0.001, 0.0007)
+#: The same, coarse (``--quick``).
+QUICK_REFERENCE_SIZES = (0.004, 0.0028, 0.002)
+
+logger = logging.getLogger(__name__)
 
 
 def stone_patch_radius(stone_radius: float = STONE_RADIUS, young: float = DEFAULT_YOUNG,
@@ -229,7 +249,8 @@ def measure_setting(setting: Setting, *, mesh: TetMesh | None = None, sites=SITE
             spread[name].append(float(np.max(np.abs(vals / vals.mean() - 1.0))))
         centre.append(float(np.mean(c_i)))
     return Figures(np.array(dent), np.array(centre), np.array(k), int(sol.n), time.perf_counter() - t0,
-                   {"n_tets": int(mesh.tets.shape[0]), "n_surface": int(n_v), "patch_radius": a_s,
+                   {"n_tets": int(mesh.tets.shape[0]), "n_surface": int(n_v),
+                    "n_contactable": int(surface.contactable.sum()), "patch_radius": a_s,
                     "jitter": jitter, "spread": {k_: np.array(v) for k_, v in spread.items()}})
 
 
@@ -323,10 +344,63 @@ class Convergence:
         return out
 
 
-def converge_reference(sizes: Sequence[float] = (0.002, 0.0014, 0.001, 0.0007), *, sites=SITES) -> Convergence:
+def converge_reference(sizes: Sequence[float] = REFERENCE_SIZES, *, sites=SITES) -> Convergence:
     """P2 with consistent loads on :func:`reference_mesh` at each size (coarse to fine)."""
     levels = [measure_consistent(reference_mesh(h, sites=sites), 2, sites=sites) for h in sizes]
     return Convergence(list(sizes), levels)
+
+
+def _reference_key(sizes: Sequence[float], sites) -> dict:
+    """What a cached reference must have been computed for: the levels, sites, the default seat's
+    geometry (its file's hash) and gmsh's version, the defaults' material and the loads."""
+    import gmsh
+
+    return {"sizes": [float(h) for h in sizes], "sites": {k: [float(x) for x in v] for k, v in sites.items()},
+            "geometry": hashlib.sha256(default_seat_path().read_bytes()).hexdigest(),
+            "gmsh": str(gmsh.__version__), "young": DEFAULT_YOUNG, "poisson": DEFAULT_POISSON,
+            "dent_radius": DENT_RADIUS, "patch_radius": stone_patch_radius(), "version": 1}
+
+
+def save_convergence(conv: Convergence, path: str | os.PathLike, *, sites=SITES) -> None:
+    """Write ``conv`` to ``path`` (``.npz``, atomically) with the key :func:`load_convergence` checks."""
+    lv = conv.levels
+    with replacing(path) as tmp:
+        np.savez(tmp, key=json.dumps(_reference_key(conv.sizes, sites)),
+                 dent=np.array([f.dent for f in lv]), dent_centre=np.array([f.dent_centre for f in lv]),
+                 stiffness=np.array([f.stiffness for f in lv]), n_dofs=np.array([f.n_dofs for f in lv]),
+                 seconds=np.array([f.seconds for f in lv]), n_tets=np.array([f.extra["n_tets"] for f in lv]),
+                 patch_radius=np.array([f.extra["patch_radius"] for f in lv]))
+
+
+def load_convergence(path: str | os.PathLike, sizes: Sequence[float], *, sites=SITES) -> Convergence | None:
+    """The reference saved by :func:`save_convergence` at ``path``, or None if there is none or it
+    was computed for other levels, sites, material or loads."""
+    try:
+        with np.load(path) as z:
+            if json.loads(str(z["key"])) != _reference_key(sizes, sites):
+                return None
+            levels = [Figures(z["dent"][i], z["dent_centre"][i], z["stiffness"][i], int(z["n_dofs"][i]),
+                              float(z["seconds"][i]), {"n_tets": int(z["n_tets"][i]),
+                                                       "patch_radius": float(z["patch_radius"][i])})
+                      for i in range(len(sizes))]
+    except (OSError, KeyError, ValueError, IndexError):
+        return None
+    return Convergence([float(h) for h in sizes], levels)
+
+
+def cached_reference(sizes: Sequence[float] = REFERENCE_SIZES, path: str | os.PathLike | None = None, *,
+                     sites=SITES) -> Convergence:
+    """:func:`converge_reference`, read from ``path`` if a matching one was saved there, else
+    computed (minutes) and saved there (``path`` None: computed, not saved)."""
+    if path is not None:
+        conv = load_convergence(path, sizes, sites=sites)
+        if conv is not None:
+            logger.info("reference read from %s", path)
+            return conv
+    conv = converge_reference(sizes, sites=sites)
+    if path is not None:
+        save_convergence(conv, path, sites=sites)
+    return conv
 
 
 @dataclass
@@ -383,6 +457,170 @@ SETTINGS = (
 )
 
 
+#: The frontier (``--frontier``): P2 point columns on these surface sizes [m], no grading.
+FRONTIER_SIZES = (0.006, 0.0055, 0.005, 0.0045, 0.004, 0.0035)
+#: A few variants on the frontier's surfaces: finer volume under the same surface, hat columns.
+FRONTIER_VARIANTS = (
+    Setting(0.0055, 2, "point", 0.005),
+    Setting(0.005, 2, "point", 0.0045),
+    Setting(0.004, 2, "hat"),
+    Setting(0.0035, 2, "hat"),
+)
+
+
+@dataclass
+class Cost:
+    """Precompute cost of one setting: per ``build_bundle`` run, the wall time [s], the CPU time of
+    this process and its children [s] (all threads; the machine's load does not inflate it) and
+    the 1-minute load average as the run ended; the peak RSS of this process afterwards [MB]."""
+
+    wall: list[float]
+    cpu: list[float]
+    load: list[float]
+    peak_mb: float
+
+    @staticmethod
+    def summary(values: Sequence[float]) -> str:
+        """``min/median/max`` of ``values`` (one value: itself)."""
+        v = np.asarray(values, float)
+        if v.size == 1:
+            return f"{v[0]:.1f}"
+        return f"{v.min():.1f}/{np.median(v):.1f}/{v.max():.1f}"
+
+
+def _cpu_seconds() -> float:
+    own, children = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + children.ru_utime + children.ru_stime
+
+
+def precompute_timings(setting: Setting, repeats: int = 2, *, budget: float = math.inf,
+                       mesh: TetMesh | None = None) -> Cost:
+    """Time ``build_bundle(reuse=False)`` of ``setting`` (meshing included) ``repeats`` times, or
+    fewer: no further run once one took longer than ``budget`` [s] of wall time. ``mesh``: build
+    this mesh instead of meshing the default seat (tests)."""
+    wall, cpu, load = [], [], []
+    kw = (dict(mesh=mesh) if mesh is not None else
+          dict(mesh_size=setting.mesh_size, volume_size=setting.volume_size))
+    with tempfile.TemporaryDirectory() as tmp:
+        for _ in range(max(repeats, 1)):
+            t, c = time.perf_counter(), _cpu_seconds()
+            build_bundle(f"{tmp}/b", order=setting.order, load=setting.load, reuse=False, **kw)
+            wall.append(time.perf_counter() - t)
+            cpu.append(_cpu_seconds() - c)
+            load.append(os.getloadavg()[0])
+            if wall[-1] > budget:
+                break
+    return Cost(wall, cpu, load, resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0)
+
+
+@dataclass
+class FrontierRow:
+    """One setting of the frontier: its signed errors per site against the reference, and its costs.
+
+    ``consistent``: the signed (dent, stiffness) errors of P2 with the reference's consistent loads on
+    the same mesh (what the mesh itself allows; the rest of the setting's error is the columns' load).
+    """
+
+    setting: Setting
+    figures: Figures
+    dent_error: np.ndarray
+    stiffness_error: np.ndarray
+    cost: Cost | None = None
+    consistent: tuple[np.ndarray, np.ndarray] | None = None
+
+    @property
+    def ok(self) -> bool:
+        """Both site-mean errors within :data:`TARGET` at every site."""
+        return bool(np.max(np.abs(self.dent_error)) <= TARGET and np.max(np.abs(self.stiffness_error)) <= TARGET)
+
+    @property
+    def spread(self) -> float:
+        """The largest landing-position spread (dent or stiffness, any site)."""
+        return float(max(np.max(v) for v in self.figures.extra["spread"].values()))
+
+    @property
+    def n_contactable(self) -> int:
+        """Columns of D (the runtime's cost grows with it; D is 3 n_surface x 3 n_contactable)."""
+        return int(self.figures.extra["n_contactable"])
+
+
+def frontier(settings: Sequence[Setting], ref: Figures, *, sites=SITES, meshes: dict | None = None,
+             young: float = DEFAULT_YOUNG, poisson: float = DEFAULT_POISSON,
+             consistent: bool = False) -> list[FrontierRow]:
+    """Accuracy of each setting against ``ref`` (signed, per site; no timing: see :func:`time_frontier`).
+    ``meshes``: setting -> mesh to use instead of meshing the default seat (tests). ``consistent``:
+    also P2 with consistent loads on each setting's mesh (:func:`measure_consistent`, once per mesh)."""
+    rows = []
+    split: dict = {}
+    for s in settings:
+        mesh = (meshes or {}).get(s)
+        mesh = s.mesh() if mesh is None else mesh
+        fig = measure_setting(s, mesh=mesh, sites=sites, young=young, poisson=poisson)
+        rows.append(FrontierRow(s, fig, fig.dent / ref.dent - 1.0, fig.stiffness / ref.stiffness - 1.0))
+        if consistent:
+            key = mesh.content_hash()
+            if key not in split:
+                c = measure_consistent(mesh, 2, sites=sites, young=young, poisson=poisson,
+                                       patch_radius=fig.extra["patch_radius"])
+                split[key] = (c.dent / ref.dent - 1.0, c.stiffness / ref.stiffness - 1.0)
+            rows[-1].consistent = split[key]
+        logger.info("%s: dent %s, stiffness %s", s.label, np.round(100 * rows[-1].dent_error, 1),
+                    np.round(100 * rows[-1].stiffness_error, 1))
+    return rows
+
+
+def time_frontier(rows: Sequence[FrontierRow], *, repeats: int = 2, budget: float = math.inf,
+                  all_rows: bool = False, meshes: dict | None = None) -> None:
+    """Fill each row's :class:`Cost` (:func:`precompute_timings`), cheapest surface first: the rows
+    without volume grading in point columns, and any other that meets the target (``all_rows``:
+    every row). A row costlier than ``budget`` gets one run."""
+    for r in sorted(rows, key=lambda r: (r.n_contactable, r.figures.n_dofs)):
+        plain = r.setting.load == "point" and r.setting.volume_size is None
+        if all_rows or plain or r.ok:
+            r.cost = precompute_timings(r.setting, repeats, budget=budget, mesh=(meshes or {}).get(r.setting))
+            logger.info("%s: precompute %s s wall, %s s CPU, load %s", r.setting.label, Cost.summary(r.cost.wall),
+                        Cost.summary(r.cost.cpu), Cost.summary(r.cost.load))
+
+
+def cheapest(rows: Sequence[FrontierRow]) -> FrontierRow | None:
+    """The cheapest row that meets the target: the fewest columns of D (the runtime's cost), then the
+    lowest median precompute CPU time (untimed rows last); None if no row does."""
+    ok = [r for r in rows if r.ok]
+    if not ok:
+        return None
+    return min(ok, key=lambda r: (r.n_contactable, np.median(r.cost.cpu) if r.cost else math.inf))
+
+
+def format_frontier(rows: Sequence[FrontierRow]) -> str:
+    """The frontier as text: errors per site (rear / middle / nose), spread, size of D, precompute cost."""
+    lines = [f"{'setting':<24}{'dent err %':>18}{'stiffness err %':>18}{'consistent d / k %':>26}"
+             f"{'spread %':>10}{'surface':>9}"
+             f"{'columns':>9}{'dofs':>8}{'wall s':>17}{'CPU s':>17}{'load':>14}{'peak MB':>9}  5 %"]
+    for r in rows:
+        c = r.cost
+        de = "/".join(f"{100 * x:+.0f}" for x in r.dent_error)
+        ke = "/".join(f"{100 * x:+.0f}" for x in r.stiffness_error)
+        ce = ("  ".join("/".join(f"{100 * x:+.0f}" for x in e) for e in r.consistent) if r.consistent else "-")
+        timing = (f" {Cost.summary(c.wall):>16} {Cost.summary(c.cpu):>16} {Cost.summary(c.load):>13}{c.peak_mb:>9.0f}"
+                  if c else f"{'-':>17}{'-':>17}{'-':>14}{'-':>9}")
+        lines.append(f"{r.setting.label:<24}{de:>18}{ke:>18}{ce:>26}{100 * r.spread:>10.0f}"
+                     f"{r.figures.extra['n_surface']:>9d}{r.n_contactable:>9d}{r.figures.n_dofs:>8d}{timing}"
+                     f"  {'yes' if r.ok else 'no'}")
+    best = cheapest(rows)
+    if best is None:
+        lines.append(f"no setting meets {TARGET:.0%} on both dent and stiffness at every site")
+    else:
+        cost = f"precompute {Cost.summary(best.cost.wall)} s wall" if best.cost else "not timed"
+        lines.append(f"cheapest within {TARGET:.0%}: {best.setting.label} ({best.n_contactable} columns, {cost})")
+    narrow = [r for r in rows if r.spread < TARGET]
+    if narrow:
+        lines.append(f"landing-position spread under {TARGET:.0%} from: "
+                     + ", ".join(r.setting.label for r in narrow))
+    else:
+        lines.append(f"landing-position spread under {TARGET:.0%}: none of these")
+    return "\n".join(lines)
+
+
 def format_convergence(conv: Convergence) -> str:
     """The reference's levels, rates and own-error estimate as text."""
     names = list(SITES)
@@ -412,25 +650,63 @@ def format_table(rows: Sequence[Row]) -> str:
     return "\n".join(lines)
 
 
+def _sizes_mm(text: str) -> tuple[float, ...]:
+    try:
+        sizes = tuple(float(x) * 1e-3 for x in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not a comma-separated list of sizes in mm: {text!r}") from None
+    if not sizes or min(sizes) <= 0:
+        raise argparse.ArgumentTypeError(f"sizes must be positive: {text!r}")
+    return sizes
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--quick", action="store_true", help="coarse reference levels, no timing repeats")
-    ap.add_argument("--repeats", type=int, default=3, help="precompute runs per setting (min/median/max)")
+    ap.add_argument("--repeats", type=int, default=None,
+                    help="precompute runs per setting (min/median/max; default 3, --frontier 2)")
     ap.add_argument("--no-timing", action="store_true", help="accuracy only (no build_bundle runs)")
+    ap.add_argument("--reference-cache", metavar="FILE.npz", default=None,
+                    help="read the reference from this file if it holds the same levels, else compute and save it")
+    ap.add_argument("--frontier", action="store_true",
+                    help="P2 point columns over surface sizes (and a few variants): cheapest within 5 %%")
+    ap.add_argument("--sizes", type=_sizes_mm, default=FRONTIER_SIZES, metavar="MM,MM,...",
+                    help="--frontier: surface sizes [mm] (default 6,5.5,5,4.5,4,3.5)")
+    ap.add_argument("--no-variants", action="store_true", help="--frontier: the plain P2 point rows only")
+    ap.add_argument("--no-consistent", action="store_true",
+                    help="--frontier: skip P2 with consistent loads on each setting's mesh")
+    ap.add_argument("--budget", type=float, default=150.0, metavar="S",
+                    help="--frontier: no repeat of a precompute that took more than S seconds (default 150)")
     args = ap.parse_args(argv)
-    import logging
-
-    logging.basicConfig(level=logging.WARNING)
+    if args.reference_cache is not None:
+        folder = os.path.dirname(os.path.abspath(args.reference_cache))
+        if not os.path.isdir(folder) or not os.access(folder, os.W_OK):
+            print(f"defaults_study: cannot write the reference cache in {folder}", file=sys.stderr)
+            return 3
+    logging.basicConfig(level=logging.WARNING, format="%(message)s")
+    if args.frontier:
+        logger.setLevel(logging.INFO)
     t0 = time.perf_counter()
-    sizes = (0.004, 0.0028, 0.002) if args.quick else (0.002, 0.0014, 0.001, 0.0007)
-    conv = converge_reference(sizes)
-    print(format_convergence(conv))
+    conv = cached_reference(QUICK_REFERENCE_SIZES if args.quick else REFERENCE_SIZES, args.reference_cache)
+    print(format_convergence(conv), flush=True)
     ref = conv.reference
-    rows = score(SETTINGS, ref, repeats=1 if args.quick else args.repeats, time_it=not args.no_timing)
-    for r in rows:
-        r.figures.extra["centre_error"] = float(np.max(np.abs(r.figures.dent_centre / ref.dent_centre - 1.0)))
     print(f"\nstone: radius {STONE_RADIUS * 1e3:g} mm, Hertz patch radius {ref.extra['patch_radius'] * 1e3:.2f} mm; "
           f"dent: 1 N over a {2e3 * DENT_RADIUS:g} mm disc")
+    if args.frontier:
+        settings = [Setting(h, 2, "point") for h in args.sizes]
+        settings += [] if args.no_variants else [v for v in FRONTIER_VARIANTS if v not in settings]
+        rows = frontier(settings, ref, consistent=not args.no_consistent)
+        print("errors rear/middle/nose of the site means; consistent: P2 with the reference's loads on the same "
+              "mesh; spread: largest over the landing positions", flush=True)
+        print(format_frontier(rows), flush=True)
+        if not args.no_timing:
+            time_frontier(rows, repeats=1 if args.quick else (args.repeats or 2), budget=args.budget)
+            print(format_frontier(rows))
+        print(f"({time.perf_counter() - t0:.0f} s)")
+        return 0
+    rows = score(SETTINGS, ref, repeats=1 if args.quick else (args.repeats or 3), time_it=not args.no_timing)
+    for r in rows:
+        r.figures.extra["centre_error"] = float(np.max(np.abs(r.figures.dent_centre / ref.dent_centre - 1.0)))
     print(format_table(rows))
     print(f"({time.perf_counter() - t0:.0f} s)")
     return 0
