@@ -440,6 +440,41 @@ def test_lapack_solve_is_numpys_bit_for_bit():
             solve(np.eye(2), np.array([1.0, bad]))
 
 
+def test_lapack_cholesky_inverse_eigh_are_numpys_bit_for_bit():
+    """The compiled Cholesky, inverse and symmetric eigendecomposition (LAPACK called
+    directly, for the storm's SPD inverse) return numba's np.linalg results exactly (what the
+    storm's SPD inverse used before: numpy's own inv solves against the identity instead), and
+    factor and invert to rounding; a matrix that is not positive definite is reported, not raised; a
+    singular one raises as np.linalg.inv."""
+    import numba
+
+    from hailstorm.runtime.compiled.lapack import cholesky, eigh, inverse
+
+    nb_chol = numba.njit(lambda A: np.linalg.cholesky(A))
+    nb_inv = numba.njit(lambda A: np.linalg.inv(A))
+    nb_eigh = numba.njit(lambda A: np.linalg.eigh(A))
+    rng = np.random.default_rng(5)
+    for n in (1, 2, 3, 6, 13, 40):
+        for _ in range(10):
+            M = rng.normal(size=(n, n))
+            S = M @ M.T + 10.0 ** rng.uniform(-9, 1) * np.eye(n)
+            L, ok = cholesky(S)
+            assert ok
+            np.testing.assert_array_equal(L, nb_chol(S))
+            np.testing.assert_array_equal(inverse(L), nb_inv(L))
+            np.testing.assert_array_equal(inverse(M), nb_inv(M))
+            w, Q = eigh(S)
+            w0, Q0 = nb_eigh(S)
+            np.testing.assert_array_equal(w, w0)
+            np.testing.assert_array_equal(Q, Q0)
+            np.testing.assert_allclose(L @ L.T, S, rtol=0, atol=1e-13 * np.abs(S).max())
+            np.testing.assert_allclose(inverse(M) @ M, np.eye(n), atol=1e-8 * np.linalg.cond(M))
+    assert not cholesky(np.array([[1.0, 2.0], [2.0, 1.0]]))[1]  # indefinite
+    with pytest.raises(np.linalg.LinAlgError, match="singular"):
+        inverse(np.array([[1.0, 2.0], [2.0, 4.0]]))
+    assert cholesky(np.zeros((0, 0)))[0].shape == inverse(np.zeros((0, 0))).shape == (0, 0)
+
+
 @pytest.mark.slow
 def test_the_contact_steps_do_not_compile_numbas_error_formatting(tmp_path):
     """A cold compile of the implicit and symplectic contact step (a fresh interpreter, an

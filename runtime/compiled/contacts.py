@@ -17,6 +17,7 @@ import math
 import numpy as np
 
 from hailstorm.runtime.compiled.jit import kernel
+from hailstorm.runtime.compiled.lapack import cholesky, eigh, inverse
 
 __all__ = ["contact_post", "contact_prep", "inv_spd"]
 
@@ -31,14 +32,14 @@ def inv_spd(W, cond_limit, rcond):  # pragma: no cover (compiled)
     n = W.shape[0]
     if n == 0:
         return np.zeros((0, 0))
-    Ws = np.ascontiguousarray(0.5 * (W + W.T))
-    if np.all(np.isfinite(Ws)):
-        ok = True
-        try:
-            L = np.linalg.cholesky(Ws)
-        except Exception:
-            ok = False
-            L = Ws
+    Ws = np.empty((n, n))
+    finite = True
+    for i in range(n):
+        for j in range(n):
+            Ws[i, j] = 0.5 * (W[i, j] + W[j, i])
+            finite = finite and math.isfinite(Ws[i, j])
+    if finite:
+        L, ok = cholesky(Ws)
         if ok:
             dmin = np.inf
             dmax = 0.0
@@ -47,10 +48,11 @@ def inv_spd(W, cond_limit, rcond):  # pragma: no cover (compiled)
                 dmin = min(dmin, d)
                 dmax = max(dmax, d)
             if dmin > 0.0 and (dmax / dmin) ** 2 < cond_limit:
-                Li = np.linalg.inv(L)
-                K = Li.T @ Li
-                return np.ascontiguousarray(0.5 * (K + K.T))
-    lam, Q = np.linalg.eigh(Ws)
+                Li = inverse(L)
+                return _symmetric_part(Li.T @ Li)
+    if not finite:
+        raise np.linalg.LinAlgError("Array must not contain infs or NaNs.")
+    lam, Q = eigh(Ws)
     top = 0.0
     for j in range(n):
         top = max(top, lam[j])
@@ -60,7 +62,18 @@ def inv_spd(W, cond_limit, rcond):  # pragma: no cover (compiled)
             for r in range(n):
                 for c in range(n):
                     K[r, c] += Q[r, j] * Q[c, j] / lam[j]
-    return np.ascontiguousarray(0.5 * (K + K.T))
+    return _symmetric_part(K)
+
+
+@kernel
+def _symmetric_part(K):  # pragma: no cover (compiled)
+    """``0.5 (K + K^T)`` as a new C-ordered array (element by element: the same sums)."""
+    n = K.shape[0]
+    out = np.empty((n, n))
+    for i in range(n):
+        for j in range(n):
+            out[i, j] = 0.5 * (K[i, j] + K[j, i])
+    return out
 
 
 @kernel

@@ -1,4 +1,4 @@
-"""A dense solve inside compiled code: LAPACK ``dgesv`` called directly.
+"""Dense linear algebra inside compiled code: LAPACK called directly.
 
 numba's ``np.linalg.solve`` copies its right-hand side in with a slice assignment,
 which compiles numba's shape-error formatting (string conversions, concatenation:
@@ -7,6 +7,13 @@ which compiles numba's shape-error formatting (string conversions, concatenation
 calls SciPy's ``dgesv``) on the same column-major copies, filled by loops, so its
 result is ``np.linalg.solve``'s bit for bit and its errors are the same
 (``LinAlgError`` for a non-finite input or a singular matrix).
+
+:func:`cholesky`, :func:`inverse` and :func:`eigh` do the same for
+``np.linalg.cholesky``, ``np.linalg.inv`` and ``np.linalg.eigh`` (numba's
+``numba_xxpotrf``, ``numba_xxgetrf`` / ``numba_ez_xxgetri`` and
+``numba_ez_xxxevd`` entries, on the copies numba's own versions make): the same
+results bit for bit, without their input checks' compile cost (the storm's SPD
+inverse, :func:`hailstorm.runtime.compiled.contacts.inv_spd`, checks its input once).
 """
 
 from __future__ import annotations
@@ -17,12 +24,27 @@ from numba.np.linalg import F_INT_nbtype, F_INT_nptype
 
 from hailstorm.runtime.compiled.jit import kernel
 
-__all__ = ["solve"]
+__all__ = ["cholesky", "eigh", "inverse", "solve"]
 
 #: numba's LAPACK shim (``numba/_lapack.c``): ``xgesv(kind, n, nrhs, a, lda, ipiv, b, ldb)`` -> info
 _xgesv = types.ExternalFunction("numba_xgesv", types.intc(
     types.char, types.intp, types.intp, types.CPointer(types.float64), types.intp,
     types.CPointer(F_INT_nbtype), types.CPointer(types.float64), types.intp))
+
+#: ``xxpotrf(kind, uplo, n, a, lda)`` -> info (Cholesky)
+_xxpotrf = types.ExternalFunction("numba_xxpotrf", types.intc(
+    types.char, types.char, types.intp, types.CPointer(types.float64), types.intp))
+#: ``xxgetrf(kind, m, n, a, lda, ipiv)`` -> info (LU)
+_xxgetrf = types.ExternalFunction("numba_xxgetrf", types.intc(
+    types.char, types.intp, types.intp, types.CPointer(types.float64), types.intp, types.CPointer(F_INT_nbtype)))
+#: ``ez_xxgetri(kind, n, a, lda, ipiv)`` -> info (inverse from the LU)
+_xxgetri = types.ExternalFunction("numba_ez_xxgetri", types.intc(
+    types.char, types.intp, types.CPointer(types.float64), types.intp, types.CPointer(F_INT_nbtype)))
+#: ``ez_xxxevd(kind, jobz, uplo, n, a, lda, w)`` -> info (symmetric eigendecomposition)
+_xxxevd = types.ExternalFunction("numba_ez_xxxevd", types.intc(
+    types.char, types.char, types.char, types.intp, types.CPointer(types.float64), types.intp,
+    types.CPointer(types.float64)))
+_UP, _LO, _VECTORS = ord("U"), ord("L"), ord("V")
 
 #: LAPACK's type letter for float64
 _KIND = ord("d")
@@ -62,3 +84,79 @@ def solve(A, b):  # pragma: no cover (compiled)
     if info > 0:
         raise np.linalg.LinAlgError("Matrix is singular to machine precision.")
     return x
+
+
+@kernel
+def cholesky(A):  # pragma: no cover (compiled)
+    """``np.linalg.cholesky(A)`` of a finite symmetric float64 (n, n) ``A``, bit for bit, and
+    whether ``A`` is positive definite (``L, ok``; ``L`` is meaningless when not ``ok``).
+    The caller checks finiteness."""
+    n = A.shape[0]
+    out = np.empty((n, n))
+    for i in range(n):
+        for j in range(n):
+            out[i, j] = A[i, j]
+    if n == 0:
+        return out, True
+    # numba's cholesky: UP on the C-ordered copy (it is its own transpose in F order)
+    info = _xxpotrf(_KIND, _UP, n, out.ctypes, n)
+    if info < 0:
+        raise ValueError("LAPACK dpotrf: an illegal argument")
+    for col in range(n):
+        for row in range(col):
+            out[row, col] = 0.0
+    return out, info == 0
+
+
+@kernel
+def inverse(A):  # pragma: no cover (compiled)
+    """``np.linalg.inv(A)`` of a finite float64 (n, n) ``A``, bit for bit (a Fortran-ordered
+    array, as numba's). The caller checks finiteness.
+
+    Raises
+    ------
+    numpy.linalg.LinAlgError
+        ``A`` is singular.
+    """
+    n = A.shape[0]
+    acpy = np.empty((n, n)).T  # Fortran order, as numba's inv copies
+    for j in range(n):
+        for i in range(n):
+            acpy[i, j] = A[i, j]
+    if n == 0:
+        return acpy
+    ipiv = np.empty(n, F_INT_nptype)
+    info = _xxgetrf(_KIND, n, n, acpy.ctypes, n, ipiv.ctypes)
+    if info < 0:
+        raise ValueError("LAPACK dgetrf: an illegal argument")
+    if info > 0:
+        raise np.linalg.LinAlgError("Matrix is singular to machine precision.")
+    info = _xxgetri(_KIND, n, acpy.ctypes, n, ipiv.ctypes)
+    if info != 0:
+        raise np.linalg.LinAlgError("Matrix is singular to machine precision.")
+    return acpy
+
+
+@kernel
+def eigh(A):  # pragma: no cover (compiled)
+    """``np.linalg.eigh(A)`` of a finite symmetric float64 (n, n) ``A``, bit for bit:
+    ascending eigenvalues and the eigenvectors (columns, Fortran-ordered). The caller
+    checks finiteness.
+
+    Raises
+    ------
+    ValueError
+        LAPACK's algorithm did not converge.
+    """
+    n = A.shape[0]
+    acpy = np.empty((n, n)).T
+    for j in range(n):
+        for i in range(n):
+            acpy[i, j] = A[i, j]
+    w = np.empty(n)
+    if n == 0:
+        return w, acpy
+    info = _xxxevd(_KIND, _VECTORS, _LO, n, acpy.ctypes, n, w.ctypes)
+    if info != 0:
+        raise ValueError("Internal algorithm failed to converge.")
+    return w, acpy
