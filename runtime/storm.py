@@ -277,13 +277,13 @@ class Storm:
             WarmTask("the free-flight and broad-phase kernels", 3, lambda: col.warm_up_flight(stones, dt)),
             WarmTask("the narrow-phase kernels", 9, lambda: col.warm_up_narrow(stones, self.seat, dt)),
             WarmTask("the contact-step kernels", 2, lambda: self.contacts.warm_up(stones)),
-            WarmTask(f"the {sc.integrator} integrator's kernels", 44 if exact else 11,
+            WarmTask(f"the {sc.integrator} integrator's kernels", 49 if exact else 12,
                      lambda: self.integrator.warm_up(stones, self._k_tri(), self.g, dt)),
         ]
         if t >= 0:
             tasks.insert(2, WarmTask("the contact-set kernels", 6, lambda: self.contacts.sets.warm_up(t)))
             tasks.insert(3, WarmTask("the patch kernels" if self.patches.enabled else "the patch-compliance kernel",
-                                     9 if self.patches.enabled else 1,
+                                     10 if self.patches.enabled else 1,
                                      lambda: self.patches.warm_up(t, third, col.index.normals[[t]], stones)))
         return tasks
 
