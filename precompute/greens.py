@@ -308,6 +308,7 @@ def compliance_matrix(
     -------
     ndarray, shape (len(read_dofs), len(load_dofs)), Fortran order
     """
+    from hailstorm.precompute.blocks import RoundedBlock
     from hailstorm.precompute.cluster import cluster_client, solve_blocks
 
     problem = column_problem(K, fixed_dofs, load_dofs, read_dofs, solver=solver, near_null=near_null, tol=tol,
@@ -316,9 +317,9 @@ def compliance_matrix(
     D = np.zeros((n_rows, ncols), order="F")  # column-major: blocks of columns are contiguous
     blocks = column_blocks(n_rows, ncols, block_bytes, problem.batch)
 
-    def put(i: int, values: np.ndarray) -> None:
+    def put(i: int, values: "np.ndarray | RoundedBlock") -> None:
         start, stop = blocks[i]
-        D[:, start:stop] = values
+        D[:, start:stop] = values.values if isinstance(values, RoundedBlock) else values  # float64 either way
         if progress is not None:
             progress(stop - start)
 
