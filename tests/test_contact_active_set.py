@@ -77,6 +77,18 @@ def pulled(gf, tri, bary, out, rng):
     return ubar
 
 
+def released_solution(cap, sol, ubar, out):
+    """Check ``sol`` keeps exactly the contacts not in ``out`` and return the kept
+    components and numpy's solve of ``W[a, a]`` for them (the reference multipliers)."""
+    p = cap.per_contact
+    keep = np.ones(cap.s, bool)
+    keep[out] = False
+    assert sol.active.tolist() == keep.tolist()
+    dofs = (p * np.flatnonzero(keep)[:, None] + np.arange(p)).ravel()
+    c = ubar.reshape(-1) if p == 3 else np.einsum("ki,ki->k", ubar, cap.normals)
+    return keep, dofs, np.linalg.solve(cap.W[np.ix_(dofs, dofs)], c[dofs])
+
+
 @pytest.mark.parametrize("mode", ["sticky", "frictionless"])
 @pytest.mark.parametrize("explicit_K", [False, True])
 def test_active_set_reuses_the_first_factor(box, mode, explicit_K, monkeypatch):
@@ -106,14 +118,9 @@ def test_active_set_reuses_the_first_factor(box, mode, explicit_K, monkeypatch):
     monkeypatch.setattr(contact_capacitance, "SPDFactor", CountingFactor)
     CountingFactor.sizes = []
     sol = cap.solve(ubar, unilateral=True)
-    p = cap.per_contact
-    keep = np.ones(s, bool)
-    keep[out] = False
-    assert sol.active.tolist() == keep.tolist() and sol.iterations == 2
-    assert CountingFactor.sizes == [p]  # the released block only, never W[a, a]
-    dofs = (p * np.flatnonzero(keep)[:, None] + np.arange(p)).ravel()
-    c = ubar.reshape(-1) if p == 3 else np.einsum("ki,ki->k", ubar, cap.normals)
-    lam = np.linalg.solve(cap.W[np.ix_(dofs, dofs)], c[dofs])
+    keep, dofs, lam = released_solution(cap, sol, ubar, out)
+    assert sol.iterations == 2
+    assert CountingFactor.sizes == [cap.per_contact]  # the released block only, never W[a, a]
     assert rel(sol.multipliers[dofs], lam) < 1e-10
     np.testing.assert_array_equal(sol.forces[out], 0.0)
     monkeypatch.undo()
@@ -137,14 +144,9 @@ def test_active_set_many_released_refactors(box, mode, monkeypatch):
     monkeypatch.setattr(contact_capacitance, "SPDFactor", CountingFactor)
     CountingFactor.sizes = []
     sol = cap.solve(ubar, unilateral=True)
-    p = cap.per_contact
-    keep = np.ones(s, bool)
-    keep[out] = False
-    assert sol.active.tolist() == keep.tolist()
-    assert p * keep.sum() in CountingFactor.sizes  # the fresh factor of W[a, a]
-    dofs = (p * np.flatnonzero(keep)[:, None] + np.arange(p)).ravel()
-    c = ubar.reshape(-1) if p == 3 else np.einsum("ki,ki->k", ubar, cap.normals)
-    assert rel(sol.multipliers[dofs], np.linalg.solve(cap.W[np.ix_(dofs, dofs)], c[dofs])) < 1e-10
+    keep, dofs, lam = released_solution(cap, sol, ubar, out)
+    assert cap.per_contact * keep.sum() in CountingFactor.sizes  # the fresh factor of W[a, a]
+    assert rel(sol.multipliers[dofs], lam) < 1e-10
 
 
 @pytest.mark.parametrize("patch", [False, True])
