@@ -277,7 +277,7 @@ class Storm:
             WarmTask("the free-flight and broad-phase kernels", 3, lambda: col.warm_up_flight(stones, dt)),
             WarmTask("the narrow-phase kernels", 9, lambda: col.warm_up_narrow(stones, self.seat, dt)),
             WarmTask("the contact-step kernels", 2, lambda: self.contacts.warm_up(stones)),
-            WarmTask(f"the {sc.integrator} integrator's kernels", 49 if exact else 12,
+            WarmTask(f"the {sc.integrator} integrator's kernels", 49 if exact else 10,
                      lambda: self.integrator.warm_up(stones, self._k_tri(), self.g, dt)),
         ]
         if t >= 0:

@@ -441,15 +441,16 @@ def test_lapack_solve_is_numpys_bit_for_bit():
 
 
 def test_lapack_cholesky_inverse_eigh_are_numpys_bit_for_bit():
-    """The compiled Cholesky, inverse and symmetric eigendecomposition (LAPACK called
+    """The compiled Cholesky, inverse, Gram product and symmetric eigendecomposition (LAPACK called
     directly, for the storm's SPD inverse) return numba's np.linalg results exactly (what the
     storm's SPD inverse used before: numpy's own inv solves against the identity instead), and
     factor and invert to rounding; a matrix that is not positive definite is reported, not raised; a
     singular one raises as np.linalg.inv."""
     import numba
 
-    from hailstorm.runtime.compiled.lapack import cholesky, eigh, inverse
+    from hailstorm.runtime.compiled.lapack import cholesky, eigh, gram, inverse
 
+    nb_gram = numba.njit(lambda A: A.T @ A)
     nb_chol = numba.njit(lambda A: np.linalg.cholesky(A))
     nb_inv = numba.njit(lambda A: np.linalg.inv(A))
     nb_eigh = numba.njit(lambda A: np.linalg.eigh(A))
@@ -463,6 +464,9 @@ def test_lapack_cholesky_inverse_eigh_are_numpys_bit_for_bit():
             np.testing.assert_array_equal(L, nb_chol(S))
             np.testing.assert_array_equal(inverse(L), nb_inv(L))
             np.testing.assert_array_equal(inverse(M), nb_inv(M))
+            Li = inverse(L)
+            np.testing.assert_array_equal(gram(Li), nb_gram(Li))
+            np.testing.assert_allclose(gram(Li), Li.T @ Li, rtol=1e-12, atol=1e-14 * np.abs(Li.T @ Li).max())
             w, Q = eigh(S)
             w0, Q0 = nb_eigh(S)
             np.testing.assert_array_equal(w, w0)

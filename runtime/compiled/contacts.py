@@ -17,7 +17,7 @@ import math
 import numpy as np
 
 from hailstorm.runtime.compiled.jit import kernel
-from hailstorm.runtime.compiled.lapack import cholesky, eigh, inverse
+from hailstorm.runtime.compiled.lapack import cholesky, eigh, gram, inverse
 
 __all__ = ["contact_post", "contact_prep", "inv_spd"]
 
@@ -49,7 +49,7 @@ def inv_spd(W, cond_limit, rcond):  # pragma: no cover (compiled)
                 dmax = max(dmax, d)
             if dmin > 0.0 and (dmax / dmin) ** 2 < cond_limit:
                 Li = inverse(L)
-                return _symmetric_part(Li.T @ Li)
+                return _symmetric_part(gram(Li))
     if not finite:
         raise np.linalg.LinAlgError("Array must not contain infs or NaNs.")
     lam, Q = eigh(Ws)

@@ -24,7 +24,7 @@ from numba.np.linalg import F_INT_nbtype, F_INT_nptype
 
 from hailstorm.runtime.compiled.jit import kernel
 
-__all__ = ["cholesky", "eigh", "inverse", "solve"]
+__all__ = ["cholesky", "eigh", "gram", "inverse", "solve"]
 
 #: numba's LAPACK shim (``numba/_lapack.c``): ``xgesv(kind, n, nrhs, a, lda, ipiv, b, ldb)`` -> info
 _xgesv = types.ExternalFunction("numba_xgesv", types.intc(
@@ -44,7 +44,13 @@ _xxgetri = types.ExternalFunction("numba_ez_xxgetri", types.intc(
 _xxxevd = types.ExternalFunction("numba_ez_xxxevd", types.intc(
     types.char, types.char, types.char, types.intp, types.CPointer(types.float64), types.intp,
     types.CPointer(types.float64)))
+#: BLAS ``xxgemm(kind, transa, transb, m, n, k, alpha, a, lda, b, ldb, beta, c, ldc)`` -> status
+_F64P = types.CPointer(types.float64)
+_xxgemm = types.ExternalFunction("numba_xxgemm", types.intc(
+    types.char, types.char, types.char, types.intp, types.intp, types.intp, _F64P, _F64P, types.intp,
+    _F64P, types.intp, _F64P, _F64P, types.intp))
 _UP, _LO, _VECTORS = ord("U"), ord("L"), ord("V")
+_TRANS, _NOTRANS = ord("t"), ord("n")
 
 #: LAPACK's type letter for float64
 _KIND = ord("d")
@@ -160,3 +166,21 @@ def eigh(A):  # pragma: no cover (compiled)
     if info != 0:
         raise ValueError("Internal algorithm failed to converge.")
     return w, acpy
+
+
+@kernel
+def gram(A):  # pragma: no cover (compiled)
+    """``A.T @ A`` of a Fortran-ordered float64 (n, n) ``A`` (what :func:`inverse` returns), bit
+    for bit numba's matmul: the same ``dgemm`` call on the same buffer, a C-ordered result."""
+    n = A.shape[0]
+    out = np.empty((n, n))
+    if n == 0:
+        return out
+    one = np.ones(1)
+    zero = np.zeros(1)
+    # numba's dot_2_mm for x = A.T (C layout) @ y = A (F layout) into C: transa 't' on y, transb 'n'
+    # on x, both the same buffer with leading dimension n
+    if _xxgemm(_KIND, _TRANS, _NOTRANS, n, n, n, one.ctypes, A.ctypes, n, A.ctypes, n, zero.ctypes,
+               out.ctypes, n) != 0:
+        raise ValueError("BLAS dgemm failed")
+    return out
