@@ -2,7 +2,7 @@
 
 numba compiles a kernel on its first call and caches the machine code on disk
 (``cache=True``), so every later process only loads it (milliseconds). The first
-run after an install compiles them all: about 44 s of CPU for the default storm,
+run after an install compiles them all: about 35-44 s of CPU for the default storm,
 nearly all in numba's own single-threaded compiler. :func:`warm_up` runs a list
 of :class:`WarmTask` (each loads or compiles a few kernels with the storm loop's
 argument types) and, as soon as a task turns out to compile (numba's
