@@ -42,19 +42,18 @@ import hashlib
 import json
 import logging
 import os
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Sequence
 
 import numpy as np
 
 from hailstorm.runtime.atomic import write_text_atomic
-from hailstorm.runtime.bundle_format import COMPLIANCE_DTYPES
+from hailstorm.runtime.bundle_format import COMPLIANCE_DTYPES, RoundedBlock, round_block
 from hailstorm.runtime.bundle_write import StagedArray
 
 log = logging.getLogger(__name__)
 
-__all__ = ["BlockStore", "RoundedBlock", "remove_work_dir", "round_block", "work_dir"]
+__all__ = ["BlockStore", "remove_work_dir", "work_dir"]
 
 DATA = "compliance.npy"
 META = "work.json"
@@ -67,62 +66,6 @@ def work_dir(out: str | os.PathLike) -> Path:
     """The work directory of bundle ``out``: ``.NAME.work`` beside it."""
     out = Path(out).absolute()
     return out.parent / f".{out.name}.work"
-
-
-@dataclass(frozen=True)
-class RoundedBlock:
-    """A block of D already cast to its storage type, with what the cast cost.
-
-    Made by :func:`round_block` where the block is solved (a Dask worker sends
-    it rounded: half the traffic for float32), written by :meth:`BlockStore.write`.
-
-    Attributes
-    ----------
-    values : (n_rows, k) ndarray
-        Column-major, in the storage type.
-    max_abs : float
-        Largest |entry| of the float64 block.
-    max_abs_error : float
-        Largest |rounding error| of the cast (0 for float64).
-    """
-
-    values: np.ndarray
-    max_abs: float
-    max_abs_error: float
-
-
-def round_block(values: np.ndarray, dtype: str | np.dtype) -> RoundedBlock:
-    """Cast a float64 block of D to its storage type ``dtype``: the one cast (round to nearest).
-
-    Parameters
-    ----------
-    values : (n_rows, k) float ndarray
-        The solved block.
-    dtype : {"float64", "float32"}
-
-    Returns
-    -------
-    RoundedBlock
-
-    Raises
-    ------
-    ValueError
-        An entry does not fit in ``dtype`` (overflow).
-    """
-    values = np.asarray(values, dtype=np.float64)
-    dtype = np.dtype(dtype)
-    with np.errstate(over="ignore"):
-        stored = np.asfortranarray(values, dtype=dtype)
-    scale = float(np.abs(values).max()) if values.size else 0.0
-    err = 0.0
-    if stored.dtype != values.dtype and values.size:
-        if np.isfinite(values).all() and not np.isfinite(stored).all():
-            raise ValueError(f"a block of D does not fit in {dtype.name}: its entries (up to {scale:.3g}) overflow it")
-        diff = stored.astype(np.float64)
-        diff -= values
-        err = float(np.abs(diff).max())
-        del diff
-    return RoundedBlock(stored, scale, err)
 
 
 class BlockStore:

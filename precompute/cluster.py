@@ -38,7 +38,7 @@ from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator, Sequence
 
 import numpy as np
 
-from hailstorm.precompute.blocks import RoundedBlock, round_block
+from hailstorm.runtime.bundle_format import RoundedBlock, round_block
 
 if TYPE_CHECKING:  # pragma: no cover - greens imports this module to dispatch the blocks
     from hailstorm.precompute.greens import ColumnProblem
@@ -190,8 +190,8 @@ def solve_blocks(
         an estimate of the remaining time).
     dtype
         D's storage type. On a cluster each worker rounds its block to it
-        (:func:`hailstorm.precompute.blocks.round_block`) before sending it, and
-        ``on_block`` receives a :class:`~hailstorm.precompute.blocks.RoundedBlock`
+        (:func:`hailstorm.runtime.bundle_format.round_block`) before sending it, and
+        ``on_block`` receives a :class:`~hailstorm.runtime.bundle_format.RoundedBlock`
         (float32: half the network traffic); here it receives the float64 values.
 
     Returns
@@ -313,7 +313,7 @@ def solve_on_worker(problem: ColumnProblem, key: str, start: int, stop: int,
     the factorization for the next ones (one per process: a new key evicts
     the old). Solves are serialized per process (run workers with one
     thread: ``dask worker ADDRESS --nthreads 1``). The block is cast to D's
-    storage type here (:func:`hailstorm.precompute.blocks.round_block`), so a
+    storage type here (:func:`hailstorm.runtime.bundle_format.round_block`), so a
     float32 block travels at half the size.
 
     Returns

@@ -38,7 +38,7 @@ from hailstorm.precompute.geometry import (
     check_volume_size,
     load_seat,
 )
-from hailstorm.precompute.blocks import BlockStore, RoundedBlock, remove_work_dir, work_dir
+from hailstorm.precompute.blocks import BlockStore, remove_work_dir, work_dir
 from hailstorm.precompute.cluster import SolveStats, check_scheduler, cluster_client, require_distributed, solve_blocks
 from hailstorm.precompute.greens import (
     DEFAULT_STORE_BYTES,
@@ -68,7 +68,14 @@ from hailstorm.precompute.materials import (
     sort_tets_by_material,
 )
 from hailstorm.runtime.bundle import dtype_cast_record
-from hailstorm.runtime.bundle_format import COMPLIANCE_DTYPES, FORMAT_VERSION, BundleError, is_bundle, read_manifest
+from hailstorm.runtime.bundle_format import (
+    COMPLIANCE_DTYPES,
+    FORMAT_VERSION,
+    BundleError,
+    RoundedBlock,
+    is_bundle,
+    read_manifest,
+)
 from hailstorm.runtime.bundle_write import (
     StagedArray,
     bundle_lock,

@@ -22,6 +22,7 @@ from hailstorm.runtime.bundle_format import (
     MANIFEST_HASH,
     BundleError,
     read_arrays,
+    round_block,
 )
 from hailstorm.runtime.bundle_write import check_writable, clean_stale_temporaries, write_bundle
 from hailstorm.runtime.contact.compliance import apply_columns, column_dofs, dof3, gather
@@ -104,14 +105,14 @@ def convert_bundle(
     scale = err = 0.0
     for j in range(0, D.shape[1], CONVERT_BLOCK):
         block = np.asarray(D[:, j:j + CONVERT_BLOCK])
-        with np.errstate(over="ignore"):
-            cast[:, j:j + CONVERT_BLOCK] = block
-        if not np.isfinite(cast[:, j:j + CONVERT_BLOCK]).all():
+        try:
+            rounded = round_block(block, target)
+        except ValueError:
             raise BundleError(f"cannot store D of {gf.path} as {name}: its entries (up to "
-                              f"{np.abs(block).max():.3g}) overflow {name}")
-        if block.size:
-            scale = max(scale, float(np.abs(block).max()))
-            err = max(err, float(np.abs(cast[:, j:j + CONVERT_BLOCK] - block).max()))
+                              f"{np.abs(block).max():.3g}) overflow {name}") from None
+        cast[:, j:j + CONVERT_BLOCK] = rounded.values
+        scale = max(scale, rounded.max_abs)
+        err = max(err, rounded.max_abs_error)
     manifest = {k: v for k, v in gf.manifest.items() if k not in ("format", "format_version", "arrays", MANIFEST_HASH)}
     manifest["options"] = {k: v for k, v in manifest["options"].items() if k != "dtype"}
     if name != "float64":

@@ -43,6 +43,7 @@ import json
 import logging
 import math
 import os
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Mapping
 
@@ -59,6 +60,7 @@ __all__ = [
     "MANIFEST",
     "MANIFEST_HASH",
     "BundleError",
+    "RoundedBlock",
     "array_hash",
     "check_compliance_dtype",
     "check_manifest",
@@ -67,6 +69,7 @@ __all__ = [
     "manifest_hash",
     "read_arrays",
     "read_manifest",
+    "round_block",
     "scan_array",
 ]
 
@@ -150,6 +153,64 @@ def manifest_hash(manifest: Mapping[str, Any]) -> str:
     """SHA-256 of a manifest's content (canonical JSON, without its own hash entry)."""
     body = {k: v for k, v in manifest.items() if k != MANIFEST_HASH}
     return hashlib.sha256(json.dumps(body, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+
+
+@dataclass(frozen=True)
+class RoundedBlock:
+    """A block of D already cast to its storage type, with what the cast cost.
+
+    Made by :func:`round_block` where the block is cast: a Dask worker sends its
+    block rounded (half the traffic for float32), the offline stage's block store
+    (:meth:`hailstorm.precompute.blocks.BlockStore.write`) writes it, and
+    :func:`hailstorm.runtime.bundle.convert_bundle` casts a bundle's D by blocks.
+
+    Attributes
+    ----------
+    values : (n_rows, k) ndarray
+        Column-major, in the storage type.
+    max_abs : float
+        Largest |entry| of the float64 block.
+    max_abs_error : float
+        Largest |rounding error| of the cast (0 for float64).
+    """
+
+    values: np.ndarray
+    max_abs: float
+    max_abs_error: float
+
+
+def round_block(values: np.ndarray, dtype: str | np.dtype) -> RoundedBlock:
+    """Cast a float64 block of D to its storage type ``dtype``: the one cast (round to nearest).
+
+    Parameters
+    ----------
+    values : (n_rows, k) float ndarray
+        The solved block.
+    dtype : {"float64", "float32"}
+
+    Returns
+    -------
+    RoundedBlock
+
+    Raises
+    ------
+    ValueError
+        An entry does not fit in ``dtype`` (overflow).
+    """
+    values = np.asarray(values, dtype=np.float64)
+    dtype = np.dtype(dtype)
+    with np.errstate(over="ignore"):
+        stored = np.asfortranarray(values, dtype=dtype)
+    scale = float(np.abs(values).max()) if values.size else 0.0
+    err = 0.0
+    if stored.dtype != values.dtype and values.size:
+        if np.isfinite(values).all() and not np.isfinite(stored).all():
+            raise ValueError(f"a block of D does not fit in {dtype.name}: its entries (up to {scale:.3g}) overflow it")
+        diff = stored.astype(np.float64)
+        diff -= values
+        err = float(np.abs(diff).max())
+        del diff
+    return RoundedBlock(stored, scale, err)
 
 
 def is_bundle(path: str | os.PathLike) -> bool:

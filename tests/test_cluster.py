@@ -85,7 +85,7 @@ def test_float32_blocks_are_rounded_on_the_workers(tmp_path, small_box, cluster,
     """With ``dtype="float32"`` each worker sends its block rounded (half the traffic): the
     store receives float32 RoundedBlocks, and the bundle is the serial float64 D rounded,
     with the cast's error recorded."""
-    from hailstorm.precompute.blocks import RoundedBlock
+    from hailstorm.runtime.bundle_format import RoundedBlock
 
     got: list = []
     _counting_writes(monkeypatch, got)

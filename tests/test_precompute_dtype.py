@@ -115,7 +115,7 @@ def test_a_block_overflowing_float32_is_refused_and_not_recorded(tmp_path):
 def test_a_block_rounded_elsewhere_is_written_as_it_came(tmp_path):
     """A RoundedBlock (cast where it was solved: a Dask worker) is stored bit for bit with its
     recorded error; one in the wrong storage type or shape is refused before any write."""
-    from hailstorm.precompute.blocks import round_block
+    from hailstorm.runtime.bundle_format import round_block
 
     store = BlockStore(tmp_path / "w", "k" * 64, (4, 4), [(0, 2), (2, 4)], "float32")
     vals = np.arange(8.0).reshape(4, 2) / 3.0

@@ -32,7 +32,8 @@ from numba.extending import intrinsic
 
 from hailstorm.runtime.compiled.jit import kernel
 
-__all__ = ["columns_times", "constraint_rows", "contact_compliance", "point_contacts", "vertex_block", "weighted_rows"]
+__all__ = ["columns_times", "constraint_rows", "contact_compliance", "point_contacts", "symmetrise", "vertex_block",
+           "weighted_rows"]
 
 
 @kernel
@@ -370,7 +371,7 @@ def contact_compliance(Y, loc, w, normals, sticky):  # pragma: no cover (compile
         else:
             _normal_row(Y[k], W[k], start, gr, gw, normals)
         k += 1
-    _symmetrise(W)
+    symmetrise(W)
     return W
 
 
@@ -490,7 +491,7 @@ def _normal_rows4(ya, yb, yc, yd, da, db, dc, dd, start, gr, gw, normals):  # pr
 
 
 @kernel
-def _symmetrise(W):  # pragma: no cover (compiled)
+def symmetrise(W):  # pragma: no cover (compiled)
     """``W <- (W + W^T) / 2`` in place, as ``0.5 * (W[a, b] + W[b, a])`` for ``a < b``."""
     m = W.shape[0]
     for a in range(m):

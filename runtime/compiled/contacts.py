@@ -16,6 +16,7 @@ import math
 
 import numpy as np
 
+from hailstorm.runtime.compiled.blocks import symmetrise
 from hailstorm.runtime.compiled.jit import kernel
 from hailstorm.runtime.compiled.lapack import cholesky, eigh, gram, inverse
 
@@ -49,7 +50,9 @@ def inv_spd(W, cond_limit, rcond):  # pragma: no cover (compiled)
                 dmax = max(dmax, d)
             if dmin > 0.0 and (dmax / dmin) ** 2 < cond_limit:
                 Li = inverse(L)
-                return _symmetric_part(gram(Li))
+                K = gram(Li)
+                symmetrise(K)
+                return K
     if not finite:
         raise np.linalg.LinAlgError("Array must not contain infs or NaNs.")
     lam, Q = eigh(Ws)
@@ -62,18 +65,8 @@ def inv_spd(W, cond_limit, rcond):  # pragma: no cover (compiled)
             for r in range(n):
                 for c in range(n):
                     K[r, c] += Q[r, j] * Q[c, j] / lam[j]
-    return _symmetric_part(K)
-
-
-@kernel
-def _symmetric_part(K):  # pragma: no cover (compiled)
-    """``0.5 (K + K^T)`` as a new C-ordered array (element by element: the same sums)."""
-    n = K.shape[0]
-    out = np.empty((n, n))
-    for i in range(n):
-        for j in range(n):
-            out[i, j] = 0.5 * (K[i, j] + K[j, i])
-    return out
+    symmetrise(K)
+    return K
 
 
 @kernel

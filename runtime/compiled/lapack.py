@@ -115,6 +115,17 @@ def cholesky(A):  # pragma: no cover (compiled)
 
 
 @kernel
+def _fortran_copy(A):  # pragma: no cover (compiled)
+    """A Fortran-ordered copy of a square ``A`` (what numba's inv and eigh hand LAPACK)."""
+    n = A.shape[0]
+    acpy = np.empty((n, n)).T
+    for j in range(n):
+        for i in range(n):
+            acpy[i, j] = A[i, j]
+    return acpy
+
+
+@kernel
 def inverse(A):  # pragma: no cover (compiled)
     """``np.linalg.inv(A)`` of a finite float64 (n, n) ``A``, bit for bit (a Fortran-ordered
     array, as numba's). The caller checks finiteness.
@@ -125,10 +136,7 @@ def inverse(A):  # pragma: no cover (compiled)
         ``A`` is singular.
     """
     n = A.shape[0]
-    acpy = np.empty((n, n)).T  # Fortran order, as numba's inv copies
-    for j in range(n):
-        for i in range(n):
-            acpy[i, j] = A[i, j]
+    acpy = _fortran_copy(A)  # as numba's inv copies
     if n == 0:
         return acpy
     ipiv = np.empty(n, F_INT_nptype)
@@ -155,10 +163,7 @@ def eigh(A):  # pragma: no cover (compiled)
         LAPACK's algorithm did not converge.
     """
     n = A.shape[0]
-    acpy = np.empty((n, n)).T
-    for j in range(n):
-        for i in range(n):
-            acpy[i, j] = A[i, j]
+    acpy = _fortran_copy(A)
     w = np.empty(n)
     if n == 0:
         return w, acpy
