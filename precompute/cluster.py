@@ -76,6 +76,14 @@ class SolveStats:
     factorizations : int
         Factorizations of K_ff done (one per process that solved blocks,
         unless a worker died and was restarted).
+    nnz_L : int or None
+        Entries of the factorization's L, if the solver reports it (the
+        supernodal one does).
+    solve_flops : int
+        Floating-point operations of the triangular solves the solver counted
+        (0 if it does not count them).
+    factors : dict
+        Factorization seconds by worker (on a cluster).
     """
 
     blocks: int = 0
@@ -85,6 +93,8 @@ class SolveStats:
     first_block_s: float = float("nan")
     workers: int = 1
     factorizations: int = 0
+    nnz_L: int | None = None
+    solve_flops: int = 0
     factors: dict[str, float] = field(default_factory=dict)
 
 
@@ -219,11 +229,14 @@ def _solve_here(problem, blocks, todo, on_block, on_first, stats: SolveStats) ->
     factor = problem.factor()
     stats.factor_s = time.perf_counter() - t0
     stats.factorizations = 1
+    stats.nnz_L = factor.nnz_L
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="hailstorm-writer") as writer:
         pending = None
         for n, i in enumerate(todo):
             start, stop = blocks[i]
+            flops = factor.flops
             values = problem.solve(factor, start, stop)
+            stats.solve_flops += factor.flops - flops
             if pending is not None:
                 pending.result()  # the previous block is on disk, or its error is raised here
             pending = writer.submit(on_block, i, values)
@@ -263,7 +276,7 @@ def _solve_on_cluster(problem, blocks, todo, on_block, client, key, on_first, st
         for fut in pending:
             i = meta.pop(fut)
             try:
-                values, worker, factor_s = fut.result()
+                values, worker, factor_s, (nnz_L, flops) = fut.result()
             except distributed.client.FutureCancelledError as exc:  # pragma: no cover - client shutting down
                 raise ClusterError(f"block {i} was cancelled on the cluster ({exc})") from None
             except ValueError as exc:  # round_block: an entry overflows the storage type
@@ -278,6 +291,8 @@ def _solve_on_cluster(problem, blocks, todo, on_block, client, key, on_first, st
             if factor_s:
                 stats.factors[worker] = factor_s
                 stats.factorizations += 1
+            stats.nnz_L = nnz_L
+            stats.solve_flops += flops
             on_block(i, values)
             del values
             start, stop = blocks[i]
@@ -306,13 +321,13 @@ _factors: dict[str, Any] = {}
 
 
 def solve_on_worker(problem: ColumnProblem, key: str, start: int, stop: int,
-                    dtype: str = "float64") -> tuple[RoundedBlock, str, float]:
+                    dtype: str = "float64") -> tuple[RoundedBlock, str, float, tuple[int | None, int]]:
     """The task a Dask worker runs: columns ``start:stop`` of D, rounded to ``dtype``.
 
     Factorizes ``problem`` on this worker's first block of ``key`` and keeps
     the factorization for the next ones (one per process: a new key evicts
     the old). Solves are serialized per process (run workers with one
-    thread: ``dask worker ADDRESS --nthreads 1``). The block is cast to D's
+    thread: ``dask worker ADDRESS --nthreads 1``), each on one thread. The block is cast to D's
     storage type here (:func:`hailstorm.runtime.bundle_format.round_block`), so a
     float32 block travels at half the size.
 
@@ -324,6 +339,9 @@ def solve_on_worker(problem: ColumnProblem, key: str, start: int, stop: int,
         Which process computed it (host:pid).
     factor_s : float
         Seconds spent factorizing for this block (0 if the factorization was cached).
+    work : (int or None, int)
+        The factor's nnz(L) and the floating-point operations of this block's
+        triangular solves (see :class:`SolveStats`).
 
     Raises
     ------
@@ -336,8 +354,10 @@ def solve_on_worker(problem: ColumnProblem, key: str, start: int, stop: int,
         if factor is None:
             _factors.clear()
             t0 = time.perf_counter()
-            factor = problem.factor()
+            factor = problem.factor(threads=1)
             factor_s = time.perf_counter() - t0
             _factors[key] = factor
+        flops = factor.flops
         values = problem.solve(factor, start, stop)
-    return round_block(values, dtype), f"{os.uname().nodename}:{os.getpid()}", factor_s
+        work = (factor.nnz_L, factor.flops - flops)
+    return round_block(values, dtype), f"{os.uname().nodename}:{os.getpid()}", factor_s, work

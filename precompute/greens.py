@@ -5,12 +5,21 @@ under a unit nodal force at contactable vertex j in direction d:
 K_ff u = e_(j,d), read at the output dofs. Three solvers share one interface
 (:func:`compliance_matrix`):
 
-``"cholmod"`` (default)
+``"supernodal"`` (default)
+    Sparse Cholesky of K_ff (SciPy's SuperLU in symmetric mode, minimum degree)
+    arranged in supernodes, and triangular solves pruned for what a column of D
+    is: a unit force (the forward solve follows only the elimination-tree paths
+    of a batch's loads) read at the surface (the backward solve skips the
+    subtrees that hold no surface dof), as BLAS matrix products on batches of
+    :data:`hailstorm.precompute.supernodal.DEFAULT_BATCH` columns
+    (:mod:`hailstorm.precompute.supernodal`; README, "Near the FLOP bound").
+``"cholmod"``
     Sparse Cholesky of K_ff (CHOLMOD through ``cholespy``, fill-reducing
     ordering), right-hand sides solved in memory-bounded blocks. cholespy
     builds a simplicial LLᵀ factor (METIS ordering), which CHOLMOD solves at
     most four right-hand sides at a time, without BLAS: the time per column
-    does not depend on the block width past 4 (README, "Near the FLOP bound").
+    does not depend on the block width past 4. The general-purpose direct
+    solver of the studies.
 ``"splu"``
     SciPy's SuperLU, one factorization, blocked solves. Portable fallback.
 ``"amg"``
@@ -29,16 +38,43 @@ import scipy.sparse as sp
 
 from hailstorm.precompute.fem import free_dofs
 from hailstorm.precompute.resources import DEFAULT_STORE_BYTES
+from hailstorm.precompute.supernodal import DEFAULT_BATCH, SupernodalSolver
 
-SOLVERS = ("cholmod", "splu", "amg")
+SOLVERS = ("supernodal", "cholmod", "splu", "amg")
 
-#: Right-hand sides per triangular solve: measured fastest per column for cholespy's
-#: (simplicial) CHOLMOD solve on the default seat (blocks of 8-32 stay in cache; 1 is
-#: 2x slower, 1024 is 1.8x slower).
+#: direct solvers that do not report their factor's nnz(L): :func:`cholesky_nnz` counts a proxy
+PROXY_FILL = frozenset({"cholmod", "splu"})
+
+#: Right-hand sides per triangular solve of the general solvers: measured fastest per column
+#: for cholespy's (simplicial) CHOLMOD solve on the default seat (blocks of 8-32 stay in cache;
+#: 1 is 2x slower, 1024 is 1.8x slower).
 DEFAULT_BLOCK_COLUMNS = 32
 
 
-class _Cholmod:
+def solver_batch(solver: str) -> int:
+    """Right-hand sides per triangular solve that ``solver`` is fastest with (measured)."""
+    return DEFAULT_BATCH if solver == "supernodal" else DEFAULT_BLOCK_COLUMNS
+
+
+class _DenseColumns:
+    """``solve_columns`` for a solver that solves dense right-hand sides (every row)."""
+
+    nnz_L: int | None = None
+    flops: int = 0
+
+    def solve(self, B: np.ndarray) -> np.ndarray:  # pragma: no cover (each solver has its own)
+        raise NotImplementedError
+
+    def solve_columns(self, B: sp.spmatrix, read: np.ndarray) -> np.ndarray:
+        """``K⁻¹ B`` at the rows ``read`` (-1: a zero row), Fortran order."""
+        X = self.solve(sp.csc_matrix(B).toarray())
+        out = np.zeros((read.size, X.shape[1]), order="F")
+        live = read >= 0
+        out[live] = X[read[live]]
+        return out
+
+
+class _Cholmod(_DenseColumns):
     def __init__(self, A: sp.csc_matrix):
         import cholespy
 
@@ -56,7 +92,7 @@ class _Cholmod:
         return X
 
 
-class _SuperLU:
+class _SuperLU(_DenseColumns):
     def __init__(self, A: sp.csc_matrix):
         from scipy.sparse.linalg import splu
 
@@ -68,7 +104,7 @@ class _SuperLU:
         return np.column_stack([self._lu.solve(B[:, k]) for k in range(B.shape[1])])
 
 
-class _AMG:
+class _AMG(_DenseColumns):
     def __init__(self, A: sp.csr_matrix, near_null: np.ndarray, tol: float):
         import pyamg
 
@@ -87,20 +123,32 @@ class _AMG:
         return X
 
 
-def factorize(A: sp.spmatrix, solver: str = "cholmod", *, near_null: np.ndarray | None = None, tol: float = 1e-10):
-    """A reusable solver object for the SPD matrix ``A`` (``.solve(B)`` -> X).
+def factorize(A: sp.spmatrix, solver: str = "supernodal", *, near_null: np.ndarray | None = None,
+              tol: float = 1e-10, threads: int | None = None):
+    """A reusable solver object for the SPD matrix ``A``.
+
+    Every solver object has ``.solve(B) -> X`` (dense, every row),
+    ``.solve_columns(B, read) -> X[read]`` (sparse right-hand sides, the rows
+    read), ``.nnz_L`` (entries of its factor, ``None`` if it does not know) and
+    ``.flops`` (floating-point operations of its triangular solves so far, 0
+    if it does not count them).
 
     Parameters
     ----------
     A
         Symmetric positive definite sparse matrix (the clamped K_ff).
     solver
-        ``"cholmod"``, ``"splu"`` or ``"amg"`` (see module docstring).
+        ``"supernodal"``, ``"cholmod"``, ``"splu"`` or ``"amg"`` (see module docstring).
     near_null
         (n, 6) rigid-body modes, required for ``"amg"``.
     tol
         Relative residual tolerance of the AMG path.
+    threads
+        Sweeps at once of the supernodal solver (default: the cores this
+        process may use; the other solvers use their libraries' threads).
     """
+    if solver == "supernodal":
+        return SupernodalSolver(A, threads=threads)
     if solver == "cholmod":
         return _Cholmod(sp.csc_matrix(A))
     if solver == "splu":
@@ -136,8 +184,7 @@ class ColumnProblem:
     read_pos : (n_rows,) int ndarray
         Free-dof index read out by each row of D, -1 for clamped rows (zero).
     batch : int
-        Right-hand sides per triangular solve (cache-sized; see
-        :data:`DEFAULT_BLOCK_COLUMNS`).
+        Right-hand sides per triangular solve (:func:`solver_batch`).
     """
 
     Kff: sp.csr_matrix
@@ -155,9 +202,10 @@ class ColumnProblem:
         ncols = self.loads.shape[1] if self.loads is not None else self.load_pos.size  # type: ignore[union-attr]
         return int(self.read_pos.size), int(ncols)
 
-    def factor(self):
-        """Factorize K_ff with this problem's solver (a solver object, ``.solve(B) -> X``)."""
-        return factorize(self.Kff, self.solver, near_null=self.near_null, tol=self.tol)
+    def factor(self, threads: int | None = None):
+        """Factorize K_ff with this problem's solver (a solver object, :func:`factorize`);
+        ``threads``: see there."""
+        return factorize(self.Kff, self.solver, near_null=self.near_null, tol=self.tol, threads=threads)
 
     def solve(self, factor, start: int, stop: int) -> np.ndarray:
         """Columns ``start:stop`` of D, (n_rows, stop - start), Fortran order.
@@ -165,18 +213,15 @@ class ColumnProblem:
         ``factor`` is what :meth:`factor` returned (in this process). The
         right-hand sides are solved ``batch`` at a time.
         """
-        n_rows = self.read_pos.size
-        live = np.flatnonzero(self.read_pos >= 0)
-        rows = self.read_pos[live]
-        out = np.zeros((n_rows, stop - start), order="F")
+        out = np.empty((self.read_pos.size, stop - start), order="F")
         for s in range(start, stop, self.batch):
             e = min(stop, s + self.batch)
             if self.loads is not None:
-                rhs = self.loads[:, s:e].toarray()
+                rhs = self.loads[:, s:e]
             else:
-                rhs = np.zeros((self.Kff.shape[0], e - s))
-                rhs[self.load_pos[s:e], np.arange(e - s)] = 1.0  # type: ignore[index]
-            out[live, s - start:e - start] = factor.solve(rhs)[rows]
+                rhs = sp.csc_matrix((np.ones(e - s), self.load_pos[s:e], np.arange(e - s + 1)),  # type: ignore[index]
+                                    shape=(self.Kff.shape[0], e - s))
+            out[:, s - start:e - start] = factor.solve_columns(rhs, self.read_pos)
         return out
 
 
@@ -186,11 +231,11 @@ def column_problem(
     load_dofs: np.ndarray,
     read_dofs: np.ndarray,
     *,
-    solver: str = "cholmod",
+    solver: str = "supernodal",
     near_null: np.ndarray | None = None,
     tol: float = 1e-10,
     loads: sp.spmatrix | None = None,
-    batch: int = DEFAULT_BLOCK_COLUMNS,
+    batch: int | None = None,
 ) -> ColumnProblem:
     """The :class:`ColumnProblem` of D for a unit force on each of ``load_dofs``
     (or each column of ``loads``), read at ``read_dofs``, clamped on ``fixed_dofs``.
@@ -214,7 +259,8 @@ def column_problem(
     K = sp.csr_matrix(K)
     Kff = K[free][:, free]
     nn = None if near_null is None else near_null[free]
-    return ColumnProblem(Kff, solver, tol, nn, load_pos, free_loads, where[np.asarray(read_dofs)], int(max(1, batch)))
+    return ColumnProblem(Kff, solver, tol, nn, load_pos, free_loads, where[np.asarray(read_dofs)],
+                         int(max(1, solver_batch(solver) if batch is None else batch)))
 
 
 def column_blocks(n_rows: int, ncols: int, block_bytes: int = DEFAULT_STORE_BYTES,
@@ -261,11 +307,11 @@ def compliance_matrix(
     load_dofs: np.ndarray,
     read_dofs: np.ndarray,
     *,
-    solver: str = "cholmod",
+    solver: str = "supernodal",
     near_null: np.ndarray | None = None,
     tol: float = 1e-10,
     block_bytes: int = DEFAULT_STORE_BYTES,
-    block_columns: int = DEFAULT_BLOCK_COLUMNS,
+    block_columns: int | None = None,
     workers: int | None = None,
     scheduler: str | None = None,
     loads: sp.spmatrix | None = None,
@@ -292,7 +338,7 @@ def compliance_matrix(
         See :func:`factorize`. ``near_null`` is (n_dofs, 6) over *all* dofs.
     block_bytes, block_columns
         Size of one block of D (the unit of work) and right-hand sides per
-        triangular solve.
+        triangular solve (default: :func:`solver_batch`).
     workers, scheduler
         Solve the blocks on a local Dask cluster of ``workers`` processes, or
         on the Dask cluster at ``scheduler`` (:mod:`hailstorm.precompute.cluster`);

@@ -42,6 +42,7 @@ from hailstorm.precompute.blocks import BlockStore, remove_work_dir, work_dir
 from hailstorm.precompute.cluster import SolveStats, check_scheduler, cluster_client, require_distributed, solve_blocks
 from hailstorm.precompute.greens import (
     DEFAULT_STORE_BYTES,
+    PROXY_FILL,
     SOLVERS,
     ColumnProblem,
     cholesky_nnz,
@@ -162,7 +163,7 @@ def build_bundle(
     poisson: float | None = None,
     materials: Mapping[str, tuple[float, float]] | None = None,
     contact_group: str = "top",
-    solver: str = "cholmod",
+    solver: str = "supernodal",
     tol: float = 1e-10,
     load: str = "point",
     reuse: bool = True,
@@ -213,8 +214,8 @@ def build_bundle(
     contact_group
         Surface group whose (unclamped) vertices get columns of D.
     solver, tol
-        ``"cholmod"`` (default), ``"splu"`` or ``"amg"`` with relative
-        residual ``tol``.
+        ``"supernodal"`` (default), ``"cholmod"``, ``"splu"`` or ``"amg"``
+        with relative residual ``tol`` (:func:`hailstorm.precompute.greens.factorize`).
     load
         What a column of D responds to: ``"point"`` (default), a unit nodal
         force at the vertex; ``"hat"``, one newton spread as a traction over
@@ -441,7 +442,7 @@ def _stream_compliance(out: Path, problem: ColumnProblem, key: str, progress: bo
     block_solved = 8 * n_rows * (blocks[0][1] - blocks[0][0])  # a block is solved in float64 whatever D's type
     est = estimate_memory(n_dofs, block_solved, 1 if run.scheduler is None and run.workers is None else 2)
     # the nnz(L) count factors K_ff once more here (SuperLU): skipped when that would not fit comfortably
-    count_fill = problem.solver != "amg" and bool(todo) and 2 * (est - BASE_BYTES) < available_memory()
+    count_fill = problem.solver in PROXY_FILL and bool(todo) and 2 * (est - BASE_BYTES) < available_memory()
     nnz_l = cholesky_nnz(problem.Kff) if count_fill else None
     log.info("D: %d x %d %s, %s on disk (%d blocks of %d columns, %d to compute); "
              "peak memory about %s%s", n_rows, ncols, run.dtype, gib(d_disk), len(blocks), blocks[0][1] - blocks[0][0],
@@ -484,13 +485,16 @@ def _stream_compliance(out: Path, problem: ColumnProblem, key: str, progress: bo
                   "factor_s": stats.factor_s, "solve_s": stats.solve_s}
     if np.isfinite(stats.first_block_s):
         info["first_block_s"] = stats.first_block_s
+    nnz_l = stats.nnz_L if stats.nnz_L is not None else nnz_l
     if nnz_l is not None and stats.columns:
-        flops = 4.0 * nnz_l * stats.columns
         seconds = max(stats.solve_s - stats.factor_s, 1e-9)
-        info.update(nnz_L=nnz_l, solve_flops=flops, solve_gflop_per_s=flops / seconds / 1e9)
-        log.info("solved %d blocks (%d columns) in %.1f s on %d worker(s): nnz(L) %s, triangular solves "
-                 "4 nnz(L) per column = %.3g GFLOP, %.2f GFLOP/s", stats.blocks, stats.columns, stats.solve_s,
-                 stats.workers, f"{nnz_l:,}", flops / 1e9, flops / seconds / 1e9)
+        full = 4.0 * nnz_l * stats.columns  # a full forward and backward solve per column
+        done_flops = float(stats.solve_flops) if stats.solve_flops else full
+        info.update(nnz_L=nnz_l, solve_flops=done_flops, full_solve_flops=full,
+                    solve_gflop_per_s=done_flops / seconds / 1e9)
+        log.info("solved %d blocks (%d columns) in %.1f s on %d worker(s): nnz(L) %s; triangular solves %.3g GFLOP "
+                 "(%.0f %% of 4 nnz(L) per column), %.2f GFLOP/s", stats.blocks, stats.columns, stats.solve_s,
+                 stats.workers, f"{nnz_l:,}", done_flops / 1e9, 100 * done_flops / full, done_flops / seconds / 1e9)
     return store.finish(), info, store.rounding
 
 

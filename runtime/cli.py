@@ -83,8 +83,9 @@ def _parser() -> argparse.ArgumentParser:
     pre.add_argument("--geometry", type=Path, default=None,
                      help="geometry (.geo/.step/.brep) or tetrahedral mesh (any meshio format) with "
                      "surface groups 'top' and 'clamp' (default: the built-in saddle)")
-    pre.add_argument("--solver", choices=("cholmod", "splu", "amg"), default="cholmod",
-                     help="sparse Cholesky (default), SuperLU, or AMG-preconditioned CG for huge meshes")
+    pre.add_argument("--solver", choices=("supernodal", "cholmod", "splu", "amg"), default="supernodal",
+                     help="sparse Cholesky with solves pruned for unit loads read at the surface (default), "
+                     "CHOLMOD's general solve, SuperLU, or AMG-preconditioned CG for huge meshes")
     pre.add_argument("--tol", type=_positive_float, default=1e-10, help="relative residual of the AMG solver")
     pre.add_argument("--load", choices=("point", "hat"), default=seat.load,
                      help="a column of D responds to a unit nodal force (point, the default) or to one newton "

@@ -24,7 +24,7 @@ from numba.np.linalg import F_INT_nbtype, F_INT_nptype
 
 from hailstorm.runtime.compiled.jit import kernel
 
-__all__ = ["cholesky", "eigh", "gram", "inverse", "solve"]
+__all__ = ["cholesky", "eigh", "gemm", "gram", "inverse", "solve"]
 
 #: numba's LAPACK shim (``numba/_lapack.c``): ``xgesv(kind, n, nrhs, a, lda, ipiv, b, ldb)`` -> info
 _xgesv = types.ExternalFunction("numba_xgesv", types.intc(
@@ -189,3 +189,22 @@ def gram(A):  # pragma: no cover (compiled)
                out.ctypes, n) != 0:
         raise ValueError("BLAS dgemm failed")
     return out
+
+
+@kernel
+def gemm(transa, transb, m, n, k, alpha, A, lda, B, ldb, beta, C, ldc):  # pragma: no cover (compiled)
+    """BLAS ``dgemm``: ``C = alpha op(A) op(B) + beta C`` on column-major data.
+
+    ``A``, ``B`` and ``C`` are 1-D float64 arrays whose first element is the
+    matrix's (0, 0) (pass a slice to start inside a larger array); ``op`` is the
+    transpose where ``transa`` / ``transb`` is true. C is (m, n) with leading
+    dimension ``ldc``; nothing is checked.
+    """
+    ab = np.empty(2)
+    ab[0] = alpha
+    ab[1] = beta
+    ta = _TRANS if transa else _NOTRANS
+    tb = _TRANS if transb else _NOTRANS
+    if _xxgemm(_KIND, ta, tb, m, n, k, ab[0:].ctypes, A.ctypes, lda, B.ctypes, ldb, ab[1:].ctypes,
+               C.ctypes, ldc) != 0:
+        raise ValueError("BLAS dgemm failed")
