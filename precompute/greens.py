@@ -57,20 +57,24 @@ def solver_batch(solver: str) -> int:
 
 
 class _DenseColumns:
-    """``solve_columns`` for a solver that solves dense right-hand sides (every row)."""
+    """``solve_columns`` for a solver that solves dense right-hand sides (every row),
+    ``batch`` columns at a time."""
 
     nnz_L: int | None = None
     flops: int = 0
+    batch: int = DEFAULT_BLOCK_COLUMNS
 
     def solve(self, B: np.ndarray) -> np.ndarray:  # pragma: no cover (each solver has its own)
         raise NotImplementedError
 
     def solve_columns(self, B: sp.spmatrix, read: np.ndarray) -> np.ndarray:
         """``K⁻¹ B`` at the rows ``read`` (-1: a zero row), Fortran order."""
-        X = self.solve(sp.csc_matrix(B).toarray())
-        out = np.zeros((read.size, X.shape[1]), order="F")
+        B = sp.csc_matrix(B)
+        out = np.zeros((read.size, B.shape[1]), order="F")
         live = read >= 0
-        out[live] = X[read[live]]
+        for s in range(0, B.shape[1], self.batch):
+            e = min(B.shape[1], s + self.batch)
+            out[live, s:e] = self.solve(B[:, s:e].toarray())[read[live]]
         return out
 
 
@@ -124,7 +128,7 @@ class _AMG(_DenseColumns):
 
 
 def factorize(A: sp.spmatrix, solver: str = "supernodal", *, near_null: np.ndarray | None = None,
-              tol: float = 1e-10, threads: int | None = None):
+              tol: float = 1e-10, threads: int | None = None, batch: int | None = None):
     """A reusable solver object for the SPD matrix ``A``.
 
     Every solver object has ``.solve(B) -> X`` (dense, every row),
@@ -146,18 +150,26 @@ def factorize(A: sp.spmatrix, solver: str = "supernodal", *, near_null: np.ndarr
     threads
         Sweeps at once of the supernodal solver (default: the cores this
         process may use; the other solvers use their libraries' threads).
+    batch
+        Right-hand sides per triangular solve in ``solve_columns`` (default:
+        :func:`solver_batch`).
     """
+    if solver not in SOLVERS:
+        raise ValueError(f"unknown solver {solver!r}; choose one of {SOLVERS}")
+    if solver == "amg" and near_null is None:
+        raise ValueError("the AMG solver needs the rigid-body modes (near_null)")
+    batch = solver_batch(solver) if batch is None else int(batch)
     if solver == "supernodal":
-        return SupernodalSolver(A, threads=threads)
+        return SupernodalSolver(A, batch=batch, threads=threads)
+    made: _DenseColumns
     if solver == "cholmod":
-        return _Cholmod(sp.csc_matrix(A))
-    if solver == "splu":
-        return _SuperLU(sp.csc_matrix(A))
-    if solver == "amg":
-        if near_null is None:
-            raise ValueError("the AMG solver needs the rigid-body modes (near_null)")
-        return _AMG(sp.csr_matrix(A), near_null, tol)
-    raise ValueError(f"unknown solver {solver!r}; choose one of {SOLVERS}")
+        made = _Cholmod(sp.csc_matrix(A))
+    elif solver == "splu":
+        made = _SuperLU(sp.csc_matrix(A))
+    else:
+        made = _AMG(sp.csr_matrix(A), near_null, tol)  # type: ignore[arg-type]
+    made.batch = max(1, batch)
+    return made
 
 
 @dataclass(frozen=True, eq=False)
@@ -203,9 +215,10 @@ class ColumnProblem:
         return int(self.read_pos.size), int(ncols)
 
     def factor(self, threads: int | None = None):
-        """Factorize K_ff with this problem's solver (a solver object, :func:`factorize`);
-        ``threads``: see there."""
-        return factorize(self.Kff, self.solver, near_null=self.near_null, tol=self.tol, threads=threads)
+        """Factorize K_ff with this problem's solver (a solver object, :func:`factorize`, solving
+        ``batch`` right-hand sides at a time); ``threads``: see there."""
+        return factorize(self.Kff, self.solver, near_null=self.near_null, tol=self.tol, threads=threads,
+                         batch=self.batch)
 
     def solve(self, factor, start: int, stop: int) -> np.ndarray:
         """Columns ``start:stop`` of D, (n_rows, stop - start), Fortran order.
@@ -213,16 +226,12 @@ class ColumnProblem:
         ``factor`` is what :meth:`factor` returned (in this process). The
         right-hand sides are solved ``batch`` at a time.
         """
-        out = np.empty((self.read_pos.size, stop - start), order="F")
-        for s in range(start, stop, self.batch):
-            e = min(stop, s + self.batch)
-            if self.loads is not None:
-                rhs = self.loads[:, s:e]
-            else:
-                rhs = sp.csc_matrix((np.ones(e - s), self.load_pos[s:e], np.arange(e - s + 1)),  # type: ignore[index]
-                                    shape=(self.Kff.shape[0], e - s))
-            out[:, s - start:e - start] = factor.solve_columns(rhs, self.read_pos)
-        return out
+        if self.loads is not None:
+            rhs = self.loads[:, start:stop]
+        else:
+            rhs = sp.csc_matrix((np.ones(stop - start), self.load_pos[start:stop],  # type: ignore[index]
+                                 np.arange(stop - start + 1)), shape=(self.Kff.shape[0], stop - start))
+        return factor.solve_columns(rhs, self.read_pos)
 
 
 def column_problem(

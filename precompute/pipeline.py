@@ -482,7 +482,7 @@ def _stream_compliance(out: Path, problem: ColumnProblem, key: str, progress: bo
             bar.close()
     info: dict = {"blocks": len(blocks), "blocks_solved": stats.blocks, "blocks_resumed": done,
                   "columns_solved": stats.columns, "workers": stats.workers, "factorizations": stats.factorizations,
-                  "factor_s": stats.factor_s, "solve_s": stats.solve_s}
+                  "factor_s": stats.factor_s, "solve_s": stats.solve_s, "solver": problem.solver, "batch": problem.batch}
     if np.isfinite(stats.first_block_s):
         info["first_block_s"] = stats.first_block_s
     nnz_l = stats.nnz_L if stats.nnz_L is not None else nnz_l
