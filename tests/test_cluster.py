@@ -79,6 +79,9 @@ def test_cluster_gives_the_serial_D(tmp_path, small_box, cluster, serial, monkey
     assert stats["workers"] == 2 and sorted(written) == list(range(stats["blocks"]))
     # K_ff factorized once per worker, not once per block
     assert stats["blocks"] == 10 and stats["factorizations"] <= 2
+    # the workers' factor reports its nnz(L) and their sweeps their operations: the serial run's counts
+    assert stats["nnz_L"] == serial.manifest["solve_stats"]["nnz_L"]
+    assert stats["solve_flops"] == serial.manifest["solve_stats"]["solve_flops"]
 
 
 def test_float32_blocks_are_rounded_on_the_workers(tmp_path, small_box, cluster, serial, monkeypatch):

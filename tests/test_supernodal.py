@@ -155,3 +155,25 @@ def test_tiny_systems():
     T = sp.diags([-np.ones(4), 2.5 * np.ones(5), -np.ones(4)], [-1, 0, 1], format="csc")
     s = SupernodalSolver(T)
     np.testing.assert_allclose(s.solve(np.eye(5)), np.linalg.inv(T.toarray()), rtol=0, atol=1e-14)
+
+
+def test_the_manifest_records_the_factor_and_the_operations(tmp_path, small_box):
+    from hailstorm.precompute import build_bundle
+    from hailstorm.precompute.greens import cholesky_nnz
+    from hailstorm.runtime import load
+
+    basis = elasticity_basis(small_box, 1)
+    K = stiffness_matrix(basis, 1e6, 0.3)
+    surf = extract_surface(small_box)
+    problem = column_problem(K, clamp_dofs(basis, small_box), vertex_dofs(basis, surf.nodes[surf.contactable]).ravel(),
+                             vertex_dofs(basis, surf.nodes).ravel())
+    ours = load(build_bundle(tmp_path / "s", mesh=small_box, young=1e6, poisson=0.3)).manifest["solve_stats"]
+    factor = supernodal_factor(problem.Kff)
+    ncols = problem.shape[1]
+    assert ours["solver"] == "supernodal" and ours["nnz_L"] == factor.nnz_L
+    assert ours["full_solve_flops"] == 4 * factor.nnz_L * ncols
+    back = factor.closure(factor.perm[problem.read_pos[problem.read_pos >= 0]])
+    assert factor.flops(back) * ncols < ours["solve_flops"] < ours["full_solve_flops"]
+    theirs = load(build_bundle(tmp_path / "c", mesh=small_box, young=1e6, poisson=0.3,
+                               solver="cholmod")).manifest["solve_stats"]
+    assert theirs["nnz_L"] == cholesky_nnz(problem.Kff) and theirs["solve_flops"] == theirs["full_solve_flops"]

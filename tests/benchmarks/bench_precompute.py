@@ -255,7 +255,7 @@ def dask(args) -> None:
     try:
         for rep in range(args.repeat):
             for c in configs:
-                extra = _CONFIGS[c] if c in _CONFIGS else ["--workers", c.split("-")[1]]
+                extra = (_CONFIGS[c] if c in _CONFIGS else ["--workers", c.split("-")[1]]) + args.cli
                 out = work / c
                 t0 = time.perf_counter()
                 wall, rss = _finish(_cli(out, args.mesh_size, extra, work / "cache"), t0)
@@ -265,7 +265,8 @@ def dask(args) -> None:
                 print(f"  {c} run {rep + 1}: wall {wall:.1f} s, solve {st['solve_s']:.1f} s, load {_load()}", flush=True)
         print(f"load average after: {_load()}")
         st0 = res[configs[0]][0][5]
-        print(f"default seat, mesh size {args.mesh_size} m: {st0['blocks']} blocks, {st0['columns_solved']} columns; "
+        print(f"default seat, mesh size {args.mesh_size} m{' ' + ' '.join(args.cli) if args.cli else ''}: "
+              f"{st0['blocks']} blocks, {st0['columns_solved']} columns; "
               f"{args.repeat} runs each")
         base = statistics.median(r[1] for r in res[configs[0]])
         print(f"{'config':10s} {'wall min':>8s} {'median':>9s} {'max':>8s} | {'solve min':>8s} {'median':>9s} {'max':>8s} "
@@ -349,7 +350,10 @@ def main() -> None:
                            help="also print each method's time against the FLOP bound of its triangular solves")
         if name == "dask":
             p.add_argument("--configs", default="serial,workers-1,workers-2")
+            p.add_argument("--order", type=int, choices=(1, 2), default=None,
+                           help="element order passed to the CLI (default: the CLI's, P2)")
     args = ap.parse_args()
+    args.cli = [] if getattr(args, "order", None) is None else ["--order", str(args.order)]
     {"solvers": solvers, "dask": dask, "resume": resume}[args.mode](args)
 
 
