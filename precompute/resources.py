@@ -80,7 +80,8 @@ def _estimate(n_surface: float, n_contactable: float, n_points: float, order: in
     d_bytes = entries * np.dtype(dtype).itemsize
     solver = _solver_bytes(n_dofs)
     # blocks are solved in float64 whatever D's storage type
-    blocks = BLOCKS_IN_MEMORY * min(8.0 * entries, DEFAULT_STORE_BYTES) + 8.0 * n_dofs * 32
+    # and the sweeps' work space: two threads of 64 right-hand sides over every dof (supernodal)
+    blocks = BLOCKS_IN_MEMORY * min(8.0 * entries, DEFAULT_STORE_BYTES) + 8.0 * n_dofs * 128
     peak = max(ASSEMBLY_BYTES_PER_DOF * n_dofs, solver + blocks)
     return Estimate(int(n_surface), int(n_contactable), int(n_dofs), int(d_bytes), int(BASE_BYTES + peak))
 
@@ -97,11 +98,14 @@ def _solver_bytes(n_dofs: float) -> float:
     """The stiffness and the largest factorization held at once.
 
     A sparse Cholesky factor of a 3-D stiffness holds ~ c n^(4/3) entries of 12 bytes (measured
-    c = 6.9 at 3 mm, 10 at 1.6 mm on the default seat: 3.6 M and 24.7 M); the nnz(L) count
-    (:func:`hailstorm.precompute.greens.cholesky_nnz`, SuperLU's L and U, freed before CHOLMOD
-    factorizes) holds about 2.5 times that; K ~ 80 entries per row for P1.
+    c = 6.9 at 3 mm, 10 at 1.6 mm on the previous default seat: 3.6 M and 24.7 M). The default
+    supernodal solver is built from SuperLU's factor, which holds L and U and a copy of L
+    while the panels are arranged (:func:`hailstorm.precompute.supernodal.supernodal_factor`):
+    about 3 times that at its peak; CHOLMOD's path holds the same for its nnz(L) count
+    (:func:`hailstorm.precompute.greens.cholesky_nnz`, freed before CHOLMOD factorizes).
+    K ~ 80 entries per row for P1.
     """
-    return 2.5 * 12.0 * 10.0 * n_dofs ** (4.0 / 3.0) + 80.0 * 12.0 * n_dofs
+    return 3.0 * 12.0 * 10.0 * n_dofs ** (4.0 / 3.0) + 80.0 * 12.0 * n_dofs
 
 
 def estimate_geometry(area_top: float, area_all: float, volume: float, mesh_size: float, order: int = 1,
