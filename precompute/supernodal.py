@@ -17,7 +17,13 @@ have in common:
 
 The factor is SciPy's SuperLU in symmetric mode (minimum degree on A + Aᵀ, no
 pivoting: ``P K Pᵀ = L diag(d) Lᵀ`` with a unit-diagonal L, here scaled to
-``L diag(√d)``), so nnz(L) is the factor's own count, not a proxy.
+``L diag(√d)``), so nnz(L) is the factor's own count, not a proxy. Its
+columns are renumbered in a postorder of the elimination tree (the same
+factor, chains of columns made consecutive) and cut into relaxed supernodes
+(:data:`RELAX`, as CHOLMOD's supernodal analysis does: a narrow supernode
+merges into its parent at the cost of a few explicit zeros), which halves
+their number on the default seat and made the sweeps ~20 % faster (measured
+at 3 mm, P1 and P2).
 """
 
 from __future__ import annotations
@@ -114,6 +120,15 @@ def supernodal_factor(A: sp.spmatrix) -> SupernodalFactor:
     perm = lu.perm_c.astype(np.int64)
     del lu
     L.sort_indices()
+    # postorder the elimination tree (an equivalent ordering: L stays lower triangular with the
+    # same entries): chains of columns become consecutive, so supernodes are found and merge
+    post = _postorder(L)
+    rank = np.empty_like(post)
+    rank[post] = np.arange(post.size)
+    L = L[post][:, post].tocsc()
+    L.sort_indices()
+    perm = rank[perm]
+    d = d[post]
     indptr = L.indptr.astype(np.int64)
     indices = L.indices.astype(np.int64)
     n = A.shape[0]
@@ -126,23 +141,90 @@ def supernodal_factor(A: sp.spmatrix) -> SupernodalFactor:
         for c in np.flatnonzero(cand):
             nxt[c] = np.array_equal(indices[indptr[c] + 1:indptr[c + 1]], indices[indptr[c + 1]:indptr[c + 2]])
     start = np.concatenate([[0], np.flatnonzero(~nxt[:-1]) + 1, [n]]).astype(np.int64) if n else np.zeros(1, np.int64)
+    fundamental_mb = count[start[1:] - 1] - 1
+    last_first = indices[np.minimum(indptr[start[1:] - 1] + 1, indices.size - 1)]
+    fundamental_parent = np.where(fundamental_mb > 0, np.searchsorted(start, last_first, side="right") - 1, -1)
+    start = _relaxed(start, fundamental_mb, fundamental_parent)
     ns = start.size - 1
     nc = np.diff(start)
-    mb = count[start[:-1]] - nc
+    top = start[1:] - 1  # a supernode's last column: its rows below are the supernode's
+    mb = count[top] - 1
     col_sn = np.repeat(np.arange(ns, dtype=np.int64), nc)
     roff = np.concatenate([[0], np.cumsum(mb)]).astype(np.int64)
-    first = indptr[start[:-1]] + nc  # first below-diagonal entry of each supernode's first column
+    first = indptr[top] + 1  # first below-diagonal entry of each supernode's last column
     rows = indices[np.repeat(first - roff[:-1], mb) + np.arange(roff[-1])]
     parent = np.where(mb > 0, col_sn[indices[np.minimum(first, indices.size - 1)]], -1)
     boff = np.concatenate([[0], np.cumsum(mb * nc)]).astype(np.int64)
     doff = np.concatenate([[0], np.cumsum(nc * nc)]).astype(np.int64)
-    below = np.empty(boff[-1])
+    below = np.zeros(boff[-1])
     diag = np.zeros(doff[-1])
-    gather_panels(indptr, L.data, np.sqrt(d), start, roff, boff, doff, below, diag)
+    gather_panels(indptr, indices, L.data, np.sqrt(d), start, rows, roff, boff, doff, below, diag,
+                  np.full(n, -1, dtype=np.int64))
     nnz = int(L.nnz)
     del L
     dinv = _inverse_diagonal_blocks(diag, start, doff)
     return SupernodalFactor(perm, start, parent.astype(np.int64), rows, roff, below, boff, dinv, doff, col_sn, nnz)
+
+
+def _postorder(L: sp.csc_matrix) -> np.ndarray:
+    """A postorder of the elimination tree of the (sorted) lower-triangular ``L``: the columns in
+    the order to renumber them, every subtree's columns consecutive and before its root."""
+    n = L.shape[0]
+    indptr, indices = L.indptr, L.indices
+    has_parent = np.diff(indptr) > 1
+    parent = np.full(n, -1, dtype=np.int64)
+    parent[has_parent] = indices[indptr[:-1][has_parent] + 1]  # the first row below the diagonal
+    order = np.argsort(parent, kind="stable")  # children grouped by parent, ascending
+    first_child = np.searchsorted(parent[order], np.arange(n))
+    last_child = np.searchsorted(parent[order], np.arange(n), side="right")
+    out = np.empty(n, dtype=np.int64)
+    k = 0
+    for root in np.flatnonzero(parent < 0):
+        stack = [(int(root), int(first_child[root]))]
+        while stack:
+            node, nxt = stack[-1]
+            if nxt < last_child[node]:
+                stack[-1] = (node, nxt + 1)
+                child = int(order[nxt])
+                stack.append((child, int(first_child[child])))
+            else:
+                stack.pop()
+                out[k] = node
+                k += 1
+    return out
+
+
+#: relaxed supernodes (as CHOLMOD's supernodal analysis does): a supernode is merged into its
+#: parent when that follows it and the merged one has at most this many columns with at most
+#: this fraction of explicit zeros: fewer, wider products for the sweeps
+RELAX = ((4, 1.0), (16, 0.8), (48, 0.1), (2**62, 0.05))
+
+
+def _relaxed(start: np.ndarray, mb: np.ndarray, parent: np.ndarray) -> np.ndarray:
+    """Merge the fundamental supernodes (columns ``start[s]:start[s + 1]``, ``mb[s]`` rows below,
+    elimination-tree ``parent``) into relaxed ones along :data:`RELAX`; returns the merged starts.
+
+    A supernode merges into the next one only when that is its parent: the pattern of L below
+    it is then contained in the merged pattern, and the entries it lacks are stored as zeros.
+    """
+    ns = start.size - 1
+    if ns <= 1:
+        return start
+    nc = np.diff(start)
+    keep = [0]
+    cols, true = int(nc[0]), int(nc[0] * (nc[0] + 1) // 2 + nc[0] * mb[0])
+    for s in range(ns - 1):
+        p = s + 1
+        own = int(nc[p] * (nc[p] + 1) // 2 + nc[p] * mb[p])
+        merged = cols + int(nc[p])
+        stored = merged * (merged + 1) // 2 + merged * int(mb[p])
+        zeros = 1.0 - (true + own) / stored
+        if parent[s] == p and any(merged <= most and zeros <= frac for most, frac in RELAX):
+            cols, true = merged, true + own
+            continue
+        keep.append(p)
+        cols, true = int(nc[p]), own
+    return np.concatenate([start[keep], start[-1:]]).astype(np.int64)
 
 
 def _inverse_diagonal_blocks(diag: np.ndarray, start: np.ndarray, doff: np.ndarray) -> np.ndarray:
@@ -194,8 +276,9 @@ class SupernodalSolver:
         Entries of the factor.
     flops : int
         Floating-point operations of the triangular solves done so far (each
-        supernode's diagonal solve and the product below it, counted as a
-        triangular solve would: what pruning skipped is not counted).
+        visited supernode's diagonal solve and the product below it, counted as
+        a triangular solve would, over the stored panels: what pruning skipped
+        is not counted, the relaxed supernodes' explicit zeros are).
     """
 
     def __init__(self, A: sp.spmatrix, batch: int = DEFAULT_BATCH, threads: int | None = None):

@@ -29,25 +29,39 @@ GEMM_FROM = 8192
 
 
 @kernel
-def gather_panels(indptr, data, scale, start, roff, boff, doff, below, diag):  # pragma: no cover (compiled)
-    """Fill every supernode's ``below`` block and its (not yet inverted) diagonal block
-    in ``diag`` from the CSC lower triangle ``indptr, data`` of a unit-diagonal L
-    (rows sorted), scaling column j by ``scale[j]``."""
+def gather_panels(indptr, indices, data, scale, start, rows, roff, boff, doff, below, diag,
+                  where):  # pragma: no cover (compiled)
+    """Scatter the CSC lower triangle ``indptr, indices, data`` of a unit-diagonal L into
+    every supernode's ``below`` block and its (not yet inverted) diagonal block in
+    ``diag``, scaling column j by ``scale[j]``; both start zeroed (a relaxed supernode's
+    panel holds explicit zeros). ``where`` is (n,) work space, all -1.
+
+    Raises
+    ------
+    ValueError
+        An entry of L lies outside its supernode's pattern.
+    """
     ns = start.size - 1
     for s in range(ns):
         c0 = start[s]
         nc = start[s + 1] - c0
-        mb = roff[s + 1] - roff[s]
+        r0 = roff[s]
+        mb = roff[s + 1] - r0
+        for i in range(mb):
+            where[rows[r0 + i]] = i
         for k in range(nc):
             j = c0 + k
-            e = indptr[j + 1]
             sc = scale[j]
-            for i in range(mb):
-                below[boff[s] + k * mb + i] = data[e - mb + i] * sc
-            # diagonal block column k: rows c0 + k .. c0 + nc - 1, stored first in column j
-            b = indptr[j]
-            for i in range(k, nc):
-                diag[doff[s] + k * nc + i] = data[b + i - k] * sc
+            for t in range(indptr[j], indptr[j + 1]):
+                r = indices[t]
+                if r < c0 + nc:
+                    diag[doff[s] + k * nc + r - c0] = data[t] * sc
+                elif where[r] >= 0:
+                    below[boff[s] + k * mb + where[r]] = data[t] * sc
+                else:
+                    raise ValueError("an entry of L lies outside its supernode's pattern")
+        for i in range(mb):
+            where[rows[r0 + i]] = -1
 
 
 @kernel

@@ -83,7 +83,7 @@ def test_cluster_gives_the_serial_D(tmp_path, small_box, cluster, serial, monkey
     # batched differently from the serial run's two: the pruned counts differ a little)
     here = serial.manifest["solve_stats"]
     assert stats["nnz_L"] == here["nnz_L"] and stats["full_solve_flops"] == here["full_solve_flops"]
-    assert 0.9 * here["solve_flops"] <= stats["solve_flops"] <= stats["full_solve_flops"]
+    assert 0.9 * here["solve_flops"] <= stats["solve_flops"] <= 1.1 * here["solve_flops"]
 
 
 def test_float32_blocks_are_rounded_on_the_workers(tmp_path, small_box, cluster, serial, monkeypatch):

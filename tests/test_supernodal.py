@@ -48,12 +48,20 @@ def _dense_L(f):
 def test_the_factor_is_a_cholesky_factor_of_the_permuted_matrix(elastic):
     K = elastic.Kff.toarray()
     f = supernodal_factor(elastic.Kff)
+    assert np.array_equal(np.sort(f.perm), np.arange(f.n))
     L = _dense_L(f)
     inv = np.argsort(f.perm)  # L's position p holds dof inv[p]
     Kp = K[inv][:, inv]
     assert np.abs(L @ L.T - Kp).max() <= 1e-12 * np.abs(K).max()
-    assert np.count_nonzero(L) <= f.nnz_L <= np.count_nonzero(L) * 1.01  # SuperLU may keep a few exact zeros
+    # L's entries (the diagonal blocks come back through two inversions: roundoff where zeros are)
+    entries = np.count_nonzero(np.abs(L) > 1e-12 * np.abs(L).max())
+    assert entries <= f.nnz_L <= entries * 1.01  # SuperLU may keep a few exact zeros
     assert np.all((f.parent > np.arange(f.parent.size)) | (f.parent < 0))  # parents follow their children
+    # postordered and relaxed: most supernodes are wider than one vertex's three dofs, and their
+    # panels hold L's entries plus a few explicit zeros
+    assert np.mean(np.diff(f.start)) > 3
+    stored = np.sum(np.diff(f.start) * (np.diff(f.start) + 1) // 2 + np.diff(f.start) * np.diff(f.roff))
+    assert f.nnz_L <= stored <= 1.3 * f.nnz_L
     # both code paths of the kernels are exercised here: BLAS products and loops
     nc, mb = np.diff(f.start), np.diff(f.roff)
     work = 64 * nc * np.maximum(nc, mb)
@@ -110,7 +118,8 @@ def test_pruned_sweeps_cover_the_solution_and_count_their_operations(elastic):
     solver.solve_columns(B, read)
     assert solver.flops == f.flops(forward) + f.flops(back)
     full = f.flops(np.arange(f.start.size - 1))
-    assert abs(full - 2 * f.nnz_L) <= 2 * f.n  # one full sweep is 2 nnz(L) less the diagonal's
+    # one full sweep: about 2 nnz(L), and at least that (the relaxed panels' explicit zeros add some)
+    assert 2 * f.nnz_L - f.n <= full <= 1.3 * 2 * f.nnz_L
     assert solver.flops < 2 * full
 
 
@@ -173,7 +182,8 @@ def test_the_manifest_records_the_factor_and_the_operations(tmp_path, small_box)
     assert ours["solver"] == "supernodal" and ours["nnz_L"] == factor.nnz_L
     assert ours["full_solve_flops"] == 4 * factor.nnz_L * ncols
     back = factor.closure(factor.perm[problem.read_pos[problem.read_pos >= 0]])
-    assert factor.flops(back) * ncols < ours["solve_flops"] < ours["full_solve_flops"]
+    # pruned: more than the backward sweeps alone, at most both sweeps over every panel
+    assert factor.flops(back) * ncols < ours["solve_flops"] <= 2 * factor.flops(np.arange(factor.start.size - 1)) * ncols
     theirs = load(build_bundle(tmp_path / "c", mesh=small_box, young=1e6, poisson=0.3,
                                solver="cholmod")).manifest["solve_stats"]
     assert theirs["nnz_L"] == cholesky_nnz(problem.Kff) and theirs["solve_flops"] == theirs["full_solve_flops"]
