@@ -2,7 +2,7 @@
 
 Column (j, d) of the compliance D is the displacement of every output vertex
 under a unit nodal force at contactable vertex j in direction d:
-K_ff u = e_(j,d), read at the output dofs. Three solvers share one interface
+K_ff u = e_(j,d), read at the output dofs. Four solvers share one interface
 (:func:`compliance_matrix`):
 
 ``"supernodal"`` (default)

@@ -80,8 +80,8 @@ def _estimate(n_surface: float, n_contactable: float, n_points: float, order: in
     d_bytes = entries * np.dtype(dtype).itemsize
     solver = _solver_bytes(n_dofs)
     # blocks are solved in float64 whatever D's storage type
-    # and the sweeps' work space: two threads of 64 right-hand sides over every dof (supernodal)
-    blocks = BLOCKS_IN_MEMORY * min(8.0 * entries, DEFAULT_STORE_BYTES) + 8.0 * n_dofs * 128
+    # and the sweeps' work space: two threads of 128 right-hand sides over every dof (supernodal)
+    blocks = BLOCKS_IN_MEMORY * min(8.0 * entries, DEFAULT_STORE_BYTES) + 8.0 * n_dofs * 256
     peak = max(ASSEMBLY_BYTES_PER_DOF * n_dofs, solver + blocks)
     return Estimate(int(n_surface), int(n_contactable), int(n_dofs), int(d_bytes), int(BASE_BYTES + peak))
 

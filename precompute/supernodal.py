@@ -35,8 +35,9 @@ from dataclasses import dataclass
 import numpy as np
 import scipy.sparse as sp
 
-#: right-hand sides per batch: measured fastest per column on the default seat (P2, 3 mm)
-DEFAULT_BATCH = 64
+#: right-hand sides per batch at most: measured fastest per column on the default seat at 3 mm
+#: (P2: 2.2 against 2.6 ms for 64; P1: 0.21-0.29 against 0.27-0.31 ms; 32 slower still)
+DEFAULT_BATCH = 128
 
 
 @dataclass(frozen=True, eq=False)
@@ -289,6 +290,7 @@ class SupernodalSolver:
         self.flops = 0
         self._spaces: list[_Workspace] = []
         self._read: tuple[bytes, np.ndarray, np.ndarray] | None = None
+        self._blas = None
 
     def _read_plan(self, read: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         key = read.tobytes()
@@ -312,7 +314,7 @@ class SupernodalSolver:
         Only the supernodes that the columns of ``B`` load (forward) and that
         ``read`` needs (backward) are visited.
         """
-        from threadpoolctl import threadpool_limits
+        from threadpoolctl import ThreadpoolController
 
         from hailstorm.precompute.supernodal_kernels import solve_columns  # compiled: imported when used
 
@@ -343,7 +345,9 @@ class SupernodalSolver:
             return sum(sweep(self._spaces[t], s, e) for s, e in batches[t::threads])
 
         # BLAS single-threaded whatever the threads here: a batch's columns do not depend on the count
-        with threadpool_limits(1, "blas"):
+        if self._blas is None:
+            self._blas = ThreadpoolController()  # finds the BLAS libraries once (~2 ms), not per call
+        with self._blas.limit(limits=1, user_api="blas"):
             if threads <= 1:
                 self.flops += lane(0)
             else:
