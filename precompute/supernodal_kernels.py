@@ -1,8 +1,9 @@
 """Compiled core of the supernodal solve (:mod:`hailstorm.precompute.supernodal`).
 
 The factor is ``P K Pᵀ = L Lᵀ`` split into supernodes: consecutive columns
-``start[s]:start[s+1]`` of L that share one row pattern below their diagonal
-block. Supernode ``s`` stores
+``start[s]:start[s+1]`` of L stored with one row pattern below their diagonal
+block (relaxed supernodes: the entries a column lacks are stored as zeros).
+Supernode ``s`` stores
 
 * ``dinv[doff[s]:]``: the inverse of its (nc, nc) lower-triangular diagonal
   block, column-major (the triangular solves become matrix products);
@@ -16,8 +17,6 @@ row one BLAS column of the (w, n) column-major view. Products of more than
 """
 
 from __future__ import annotations
-
-import numpy as np
 
 from hailstorm.runtime.compiled.jit import kernel
 from hailstorm.runtime.compiled.lapack import gemm
@@ -71,14 +70,15 @@ def _copy(src, i, dst, j, n):  # pragma: no cover (compiled)
 
 
 @kernel
+def _extent(s, start, roff, boff, doff):  # pragma: no cover (compiled)
+    """Supernode s: first column, columns, first row below, rows below, panel and diagonal offsets."""
+    return start[s], start[s + 1] - start[s], roff[s], roff[s + 1] - roff[s], boff[s], doff[s]
+
+
+@kernel
 def _forward(s, start, rows, roff, boff, doff, below, dinv, X, w, tmp, W):  # pragma: no cover (compiled)
     """Supernode s of the forward solve L y = b on the w right-hand sides in ``X``."""
-    c0 = start[s]
-    nc = start[s + 1] - c0
-    r0 = roff[s]
-    mb = roff[s + 1] - r0
-    bo = boff[s]
-    do = doff[s]
+    c0, nc, r0, mb, bo, do = _extent(s, start, roff, boff, doff)
     if w * nc * max(nc, mb) >= GEMM_FROM:
         gemm(False, True, w, nc, nc, 1.0, X[c0 * w:], w, dinv[do:], nc, 0.0, tmp, w)
         _copy(tmp, 0, X, c0 * w, nc * w)
@@ -108,12 +108,7 @@ def _forward(s, start, rows, roff, boff, doff, below, dinv, X, w, tmp, W):  # pr
 @kernel
 def _backward(s, start, rows, roff, boff, doff, below, dinv, X, w, tmp, W):  # pragma: no cover (compiled)
     """Supernode s of the backward solve Lᵀ x = y on the w right-hand sides in ``X``."""
-    c0 = start[s]
-    nc = start[s + 1] - c0
-    r0 = roff[s]
-    mb = roff[s + 1] - r0
-    bo = boff[s]
-    do = doff[s]
+    c0, nc, r0, mb, bo, do = _extent(s, start, roff, boff, doff)
     _copy(X, c0 * w, tmp, 0, nc * w)
     if w * nc * max(nc, mb) >= GEMM_FROM:
         if mb > 0:

@@ -13,6 +13,22 @@ def small_box():
 
 
 @pytest.fixture(scope="session")
+def box_system(small_box):
+    """The clamped P1 system of :func:`small_box` (E = 1 MPa, nu = 0.3): ``basis``, ``K``,
+    ``fixed`` dofs, ``load`` dofs (every contactable vertex) and ``read`` dofs (the surface)."""
+    from types import SimpleNamespace
+
+    from hailstorm.precompute.fem import clamp_dofs, elasticity_basis, stiffness_matrix, vertex_dofs
+    from hailstorm.precompute.pipeline import extract_surface
+
+    basis = elasticity_basis(small_box, 1)
+    surf = extract_surface(small_box)
+    return SimpleNamespace(basis=basis, K=stiffness_matrix(basis, 1e6, 0.3), fixed=clamp_dofs(basis, small_box),
+                           load=vertex_dofs(basis, surf.nodes[surf.contactable]).ravel(),
+                           read=vertex_dofs(basis, surf.nodes).ravel())
+
+
+@pytest.fixture(scope="session")
 def box_bundle(tmp_path_factory, small_box):
     """A P1 bundle of :func:`small_box` (E = 1 MPa, nu = 0.3)."""
     return build_bundle(tmp_path_factory.mktemp("gf") / "box", mesh=small_box, order=1, young=1e6, poisson=0.3)

@@ -8,7 +8,7 @@ import hailstorm.runtime
 from hailstorm.precompute.fem import clamp_dofs, elasticity_basis, stiffness_matrix, vertex_dofs
 from hailstorm.precompute.geometry import box_mesh
 from hailstorm.precompute.greens import area_matrix, compliance_matrix, traction_greens_function
-from hailstorm.precompute.pipeline import _rigid_modes_on_dofs, build_bundle, extract_surface
+from hailstorm.precompute.pipeline import _rigid_modes_on_dofs, build_bundle
 
 
 def _direct_column(mesh, order, E, nu, node, direction):
@@ -75,13 +75,9 @@ def test_clamp_reactions_balance_applied_force(small_box):
     assert np.allclose(moment, 0.0, atol=1e-9)
 
 
-def test_amg_path_matches_direct(small_box):
-    basis = elasticity_basis(small_box, 1)
-    K = stiffness_matrix(basis, 1e6, 0.3)
-    fixed = clamp_dofs(basis, small_box)
-    surf = extract_surface(small_box)
-    load = vertex_dofs(basis, surf.nodes[surf.contactable][:10]).ravel()
-    read = vertex_dofs(basis, surf.nodes).ravel()
+def test_amg_path_matches_direct(box_system):
+    basis, K, fixed, read = box_system.basis, box_system.K, box_system.fixed, box_system.read
+    load = box_system.load[:30]  # ten vertices
     D_direct = compliance_matrix(K, fixed, load, read, solver="cholmod")
     D_splu = compliance_matrix(K, fixed, load, read, solver="splu")
     D_amg = compliance_matrix(K, fixed, load, read, solver="amg", near_null=_rigid_modes_on_dofs(basis), tol=1e-10)
@@ -90,13 +86,8 @@ def test_amg_path_matches_direct(small_box):
     assert np.linalg.norm(D_amg - D_direct) <= 1e-7 * scale
 
 
-def test_blocked_solves_match_one_block(small_box):
-    basis = elasticity_basis(small_box, 1)
-    K = stiffness_matrix(basis, 1e6, 0.3)
-    fixed = clamp_dofs(basis, small_box)
-    surf = extract_surface(small_box)
-    load = vertex_dofs(basis, surf.nodes[surf.contactable]).ravel()
-    read = vertex_dofs(basis, surf.nodes).ravel()
+def test_blocked_solves_match_one_block(box_system):
+    K, fixed, load, read = box_system.K, box_system.fixed, box_system.load, box_system.read
     big = compliance_matrix(K, fixed, load, read)
     tiny = compliance_matrix(K, fixed, load, read, block_bytes=1)  # one column per block
     assert np.array_equal(big.shape, tiny.shape)
@@ -112,13 +103,8 @@ def test_clamped_columns_are_zero_and_unknown_columns_refused(box_bundle):
     assert mesh.points.shape[0] == gf.volume_points.shape[0]
 
 
-def test_parallel_workers_give_identical_columns(small_box):
-    basis = elasticity_basis(small_box, 1)
-    K = stiffness_matrix(basis, 1e6, 0.3)
-    fixed = clamp_dofs(basis, small_box)
-    surf = extract_surface(small_box)
-    load = vertex_dofs(basis, surf.nodes[surf.contactable]).ravel()
-    read = vertex_dofs(basis, surf.nodes).ravel()
+def test_parallel_workers_give_identical_columns(box_system):
+    K, fixed, load, read = box_system.K, box_system.fixed, box_system.load, box_system.read
     pytest.importorskip("distributed")
     serial = compliance_matrix(K, fixed, load, read, block_columns=16)
     parallel = compliance_matrix(K, fixed, load, read, workers=2, block_columns=16, block_bytes=20_000)
