@@ -106,12 +106,11 @@ def supernodal_factor(A: sp.spmatrix) -> SupernodalFactor:
     numpy.linalg.LinAlgError
         ``A`` is not positive definite (a pivot is not positive).
     """
-    from scipy.sparse.linalg import splu
-
-    from hailstorm.precompute.supernodal_kernels import gather_panels  # compiled: imported when used
+    from hailstorm.precompute.supernodal_kernels import gather_panels, pattern_is_closed  # compiled
 
     A = sp.csc_matrix(A)
-    lu = splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+    n = A.shape[0]
+    lu = _superlu(A)
     if not np.array_equal(lu.perm_r, lu.perm_c):  # pragma: no cover (SPD input never pivots)
         raise np.linalg.LinAlgError("the factorization pivoted: the matrix is not positive definite")
     d = lu.U.diagonal()
@@ -121,6 +120,8 @@ def supernodal_factor(A: sp.spmatrix) -> SupernodalFactor:
     perm = lu.perm_c.astype(np.int64)
     del lu
     L.sort_indices()
+    if not pattern_is_closed(L.indptr.astype(np.int64), L.indices.astype(np.int64), np.full(n, -1)):
+        L = _with_symbolic_pattern(L, A, perm)  # exact zeros were left out (e.g. Poisson's ratio 0)
     # postorder the elimination tree (an equivalent ordering: L stays lower triangular with the
     # same entries): chains of columns become consecutive, so supernodes are found and merge
     post = _postorder(L)
@@ -128,11 +129,12 @@ def supernodal_factor(A: sp.spmatrix) -> SupernodalFactor:
     rank[post] = np.arange(post.size)
     L = L[post][:, post].tocsc()
     L.sort_indices()
+    if not pattern_is_closed(L.indptr.astype(np.int64), L.indices.astype(np.int64), np.full(n, -1)):
+        raise np.linalg.LinAlgError("the factor's pattern is not a Cholesky pattern")  # pragma: no cover
     perm = rank[perm]
     d = d[post]
     indptr = L.indptr.astype(np.int64)
     indices = L.indices.astype(np.int64)
-    n = A.shape[0]
     count = np.diff(indptr)
     # column j + 1 continues j's supernode when its pattern is j's minus j
     nxt = np.zeros(n, dtype=bool)
@@ -165,6 +167,36 @@ def supernodal_factor(A: sp.spmatrix) -> SupernodalFactor:
     del L
     dinv = _inverse_diagonal_blocks(diag, start, doff)
     return SupernodalFactor(perm, start, parent.astype(np.int64), rows, roff, below, boff, dinv, doff, col_sn, nnz)
+
+
+def _superlu(A: sp.csc_matrix):
+    """SuperLU in symmetric mode: minimum degree on A + Aᵀ, diagonal pivots (a Cholesky factor
+    as L diag(d) Lᵀ for an SPD ``A``)."""
+    from scipy.sparse.linalg import splu
+
+    return splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
+
+
+def _with_symbolic_pattern(L: sp.csc_matrix, A: sp.csc_matrix, perm: np.ndarray) -> sp.csc_matrix:
+    """``L`` on the full Cholesky pattern of its ordering, the entries it left out (exact zeros)
+    stored as zeros: the pattern is that of the factor of a matrix with A's pattern and generic
+    values (symmetric, diagonally dominant: no cancellation), which SuperLU orders the same way."""
+    G = sp.csc_matrix(A, copy=True)
+    G.data = np.random.default_rng(0).uniform(0.5, 1.0, G.data.size)
+    G = (G + G.T).tocsc()
+    G.setdiag(np.asarray(abs(G).sum(axis=1)).ravel() + 1.0)
+    lu = _superlu(G)
+    if not np.array_equal(lu.perm_c, perm):  # pragma: no cover (the ordering depends on the pattern only)
+        raise np.linalg.LinAlgError("cannot recover the factor's pattern: the ordering changed")
+    full = lu.L.tocsc()
+    del lu
+    full.sort_indices()
+    n = L.shape[0]
+    key = lambda M: np.repeat(np.arange(n, dtype=np.int64), np.diff(M.indptr)) * n + M.indices  # noqa: E731
+    at = np.searchsorted(key(full), key(L))
+    data = np.zeros(full.nnz)
+    data[at] = L.data
+    return sp.csc_matrix((data, full.indices, full.indptr), shape=L.shape)
 
 
 def _postorder(L: sp.csc_matrix) -> np.ndarray:

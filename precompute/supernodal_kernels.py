@@ -28,6 +28,27 @@ GEMM_FROM = 8192
 
 
 @kernel
+def pattern_is_closed(indptr, indices, mark):  # pragma: no cover (compiled)
+    """Whether the (sorted, lower-triangular) pattern of L is a Cholesky factor's: below its first
+    off-diagonal row a (its parent), every column's rows are rows of column a. Exact cancellation
+    can leave an entry out of a computed L; then the parent pointers no longer lead to every row a
+    sparse solve reaches. ``mark`` is (n,) work space, all -1."""
+    n = indptr.size - 1
+    for j in range(n):
+        b = indptr[j]
+        e = indptr[j + 1]
+        if e - b <= 2:
+            continue
+        a = indices[b + 1]
+        for t in range(indptr[a], indptr[a + 1]):
+            mark[indices[t]] = j
+        for t in range(b + 2, e):
+            if mark[indices[t]] != j:
+                return False
+    return True
+
+
+@kernel
 def gather_panels(indptr, indices, data, scale, start, rows, roff, boff, doff, below, diag,
                   where):  # pragma: no cover (compiled)
     """Scatter the CSC lower triangle ``indptr, indices, data`` of a unit-diagonal L into

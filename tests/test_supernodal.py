@@ -180,3 +180,28 @@ def test_the_manifest_records_the_factor_and_the_operations(tmp_path, small_box,
     theirs = load(build_bundle(tmp_path / "c", mesh=small_box, young=1e6, poisson=0.3,
                                solver="cholmod")).manifest["solve_stats"]
     assert theirs["nnz_L"] == cholesky_nnz(problem.Kff) and theirs["solve_flops"] == theirs["full_solve_flops"]
+
+
+def test_entries_cancelled_to_zero_do_not_break_the_pruning():
+    """Poisson's ratio 0 decouples the directions: SuperLU's L then leaves out entries that cancel
+    exactly, so its pattern is no Cholesky pattern (a column's rows are not all in its parent's) and
+    parent pointers would miss rows a solve reaches. The factor restores the full pattern."""
+    from hailstorm.precompute.supernodal import _superlu
+    from hailstorm.precompute.supernodal_kernels import pattern_is_closed
+
+    mesh = box_mesh((0.1, 0.02, 0.02), 0.01, clamp="x0")
+    basis = elasticity_basis(mesh, 1)
+    surf = extract_surface(mesh)
+    problem = column_problem(stiffness_matrix(basis, 5e6, 0.0), clamp_dofs(basis, mesh),
+                             vertex_dofs(basis, surf.nodes[surf.contactable]).ravel(),
+                             vertex_dofs(basis, surf.nodes).ravel())
+    K = problem.Kff.tocsc()
+    raw = _superlu(K).L.tocsc()
+    raw.sort_indices()
+    assert not pattern_is_closed(raw.indptr.astype(np.int64), raw.indices.astype(np.int64), np.full(K.shape[0], -1))
+    load = problem.load_pos
+    B = sp.csc_matrix((np.ones(load.size), (load, np.arange(load.size))), shape=K.shape)
+    got = SupernodalSolver(K).solve_columns(B, problem.read_pos)
+    X = spsolve(K, B.toarray())
+    expected = np.where(problem.read_pos[:, None] >= 0, X[np.maximum(problem.read_pos, 0)], 0.0)
+    assert np.abs(got - expected).max() <= 1e-12 * np.abs(expected).max()
