@@ -128,9 +128,7 @@ def supernodal_factor(A: sp.spmatrix) -> SupernodalFactor:
     rank = np.empty_like(post)
     rank[post] = np.arange(post.size)
     L = L[post][:, post].tocsc()
-    L.sort_indices()
-    if not pattern_is_closed(L.indptr.astype(np.int64), L.indices.astype(np.int64), np.full(n, -1)):
-        raise np.linalg.LinAlgError("the factor's pattern is not a Cholesky pattern")  # pragma: no cover
+    L.sort_indices()  # a symmetric renumbering keeps the pattern a Cholesky pattern: no second check
     perm = rank[perm]
     d = d[post]
     indptr = L.indptr.astype(np.int64)
@@ -244,19 +242,19 @@ def _relaxed(start: np.ndarray, mb: np.ndarray, parent: np.ndarray) -> np.ndarra
     if ns <= 1:
         return start
     nc = np.diff(start)
+    entries = (nc * (nc + 1) // 2 + nc * mb).tolist()  # each supernode's entries of L
+    nc, mb = nc.tolist(), mb.tolist()
     keep = [0]
-    cols, true = int(nc[0]), int(nc[0] * (nc[0] + 1) // 2 + nc[0] * mb[0])
+    cols, true = nc[0], entries[0]
     for s in range(ns - 1):
         p = s + 1
-        own = int(nc[p] * (nc[p] + 1) // 2 + nc[p] * mb[p])
-        merged = cols + int(nc[p])
-        stored = merged * (merged + 1) // 2 + merged * int(mb[p])
-        zeros = 1.0 - (true + own) / stored
+        merged = cols + nc[p]
+        zeros = 1.0 - (true + entries[p]) / (merged * (merged + 1) // 2 + merged * mb[p])
         if parent[s] == p and any(merged <= most and zeros <= frac for most, frac in RELAX):
-            cols, true = merged, true + own
+            cols, true = merged, true + entries[p]
             continue
         keep.append(p)
-        cols, true = int(nc[p]), own
+        cols, true = nc[p], entries[p]
     return np.concatenate([start[keep], start[-1:]]).astype(np.int64)
 
 
