@@ -1,7 +1,7 @@
-"""``python -m hailstorm``: the command line (:func:`hailstorm.runtime.cli.main`)."""
+"""``python -m hailstorm``: the command line (:func:`hailstorm.cli.main`)."""
 
 import sys
 
-from hailstorm.runtime.cli import main
+from hailstorm.cli import main
 
 sys.exit(main())

@@ -20,7 +20,7 @@ The store is a work directory beside the bundle (``.NAME.work/``) holding
     The key, shape, storage type and block layout; a work directory of other
     inputs is cleared (its own files only) and started afresh.
 
-D is stored as float64 or float32 (:data:`hailstorm.runtime.bundle_format.COMPLIANCE_DTYPES`).
+D is stored as float64 or float32 (:data:`hailstorm.runtime.bundle.format.COMPLIANCE_DTYPES`).
 Blocks are solved in float64 and each is rounded to the storage type as it is
 written, so a float32 D is the float64 D rounded entry by entry, and the
 solver's memory is the same for both. A float32 run's key differs from the
@@ -31,8 +31,8 @@ afresh, like any other inputs'.
 When every block is done, :meth:`BlockStore.finish` reads D once in order
 (plain reads, so file pages do not count as the process's memory), computes
 the bundle's content hash of the array (the same digest as
-:func:`hailstorm.runtime.bundle_format.array_hash`) and checks it is finite; the file
-then moves into the bundle unchanged (:class:`hailstorm.runtime.bundle_write.StagedArray`).
+:func:`hailstorm.runtime.bundle.format.array_hash`) and checks it is finite; the file
+then moves into the bundle unchanged (:class:`hailstorm.runtime.bundle.write.StagedArray`).
 D is written once: there is no assembly copy and no second copy on disk.
 """
 
@@ -47,9 +47,9 @@ from typing import Sequence
 
 import numpy as np
 
-from hailstorm.runtime.atomic import write_text_atomic
-from hailstorm.runtime.bundle_format import COMPLIANCE_DTYPES, RoundedBlock, round_block
-from hailstorm.runtime.bundle_write import StagedArray
+from hailstorm.runtime.bundle.atomic import write_text_atomic
+from hailstorm.runtime.bundle.format import COMPLIANCE_DTYPES, RoundedBlock, round_block
+from hailstorm.runtime.bundle.write import StagedArray
 
 log = logging.getLogger(__name__)
 
@@ -234,7 +234,7 @@ class BlockStore:
         -------
         StagedArray
             The file, its shape, dtype and content hash, for
-            :func:`hailstorm.runtime.bundle_write.write_bundle`.
+            :func:`hailstorm.runtime.bundle.write.write_bundle`.
 
         Raises
         ------
@@ -244,7 +244,7 @@ class BlockStore:
         if self.missing:
             raise ValueError(f"{len(self.missing)} blocks of D are not computed yet")
         h = hashlib.sha256()
-        # the prefix of hailstorm.runtime.bundle_format.array_hash for a Fortran-ordered array
+        # the prefix of hailstorm.runtime.bundle.format.array_hash for a Fortran-ordered array
         h.update(self.dtype.str.encode())
         h.update(str(self.shape).encode())
         h.update(b"F")

@@ -34,14 +34,24 @@ import uuid
 from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, Callable, Iterable, Iterator, Sequence
+from typing import Any, Callable, Iterable, Iterator, Protocol, Sequence
 
 import numpy as np
 
-from hailstorm.runtime.bundle_format import RoundedBlock, round_block
+from hailstorm.runtime.bundle.format import RoundedBlock, round_block
 
-if TYPE_CHECKING:  # pragma: no cover - greens imports this module to dispatch the blocks
-    from hailstorm.precompute.greens import ColumnProblem
+
+
+class ColumnProblem(Protocol):
+    """What the block loop needs of a column problem
+    (:class:`hailstorm.precompute.greens.ColumnProblem` is the one implementation):
+    a factorization, and the solve of the columns ``start:stop`` with it."""
+
+    def factor(self, threads: int | None = None) -> Any:
+        """Factorize the system (once per process)."""
+
+    def solve(self, factor: Any, start: int, stop: int) -> np.ndarray:
+        """The (rows, stop - start) block of D."""
 
 log = logging.getLogger(__name__)
 
@@ -200,8 +210,8 @@ def solve_blocks(
         an estimate of the remaining time).
     dtype
         D's storage type. On a cluster each worker rounds its block to it
-        (:func:`hailstorm.runtime.bundle_format.round_block`) before sending it, and
-        ``on_block`` receives a :class:`~hailstorm.runtime.bundle_format.RoundedBlock`
+        (:func:`hailstorm.runtime.bundle.format.round_block`) before sending it, and
+        ``on_block`` receives a :class:`~hailstorm.runtime.bundle.format.RoundedBlock`
         (float32: half the network traffic); here it receives the float64 values.
 
     Returns
@@ -328,7 +338,7 @@ def solve_on_worker(problem: ColumnProblem, key: str, start: int, stop: int,
     the factorization for the next ones (one per process: a new key evicts
     the old). Solves are serialized per process (run workers with one
     thread: ``dask worker ADDRESS --nthreads 1``), each on one thread. The block is cast to D's
-    storage type here (:func:`hailstorm.runtime.bundle_format.round_block`), so a
+    storage type here (:func:`hailstorm.runtime.bundle.format.round_block`), so a
     float32 block travels at half the size.
 
     Returns

@@ -363,7 +363,7 @@ def compliance_matrix(
     -------
     ndarray, shape (len(read_dofs), len(load_dofs)), Fortran order
     """
-    from hailstorm.runtime.bundle_format import RoundedBlock
+    from hailstorm.runtime.bundle.format import RoundedBlock
     from hailstorm.precompute.cluster import cluster_client, solve_blocks
 
     problem = column_problem(K, fixed_dofs, load_dofs, read_dofs, solver=solver, near_null=near_null, tol=tol,

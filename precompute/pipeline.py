@@ -68,8 +68,8 @@ from hailstorm.precompute.materials import (
     resolve_materials,
     sort_tets_by_material,
 )
-from hailstorm.runtime.bundle import dtype_cast_record
-from hailstorm.runtime.bundle_format import (
+from hailstorm.runtime.bundle.write import dtype_cast_record
+from hailstorm.runtime.bundle.format import (
     COMPLIANCE_DTYPES,
     FORMAT_VERSION,
     BundleError,
@@ -77,7 +77,7 @@ from hailstorm.runtime.bundle_format import (
     is_bundle,
     read_manifest,
 )
-from hailstorm.runtime.bundle_write import (
+from hailstorm.runtime.bundle.write import (
     StagedArray,
     bundle_lock,
     check_replaceable,
@@ -85,7 +85,7 @@ from hailstorm.runtime.bundle_write import (
     clean_stale_temporaries,
     write_bundle,
 )
-from hailstorm.runtime.stamps import default_cache_dir, stamp
+from hailstorm.runtime.bundle.stamps import default_cache_dir, stamp
 
 log = logging.getLogger(__name__)
 
@@ -416,7 +416,7 @@ def _compute(out: Path, mesh: TetMesh, surface: Surface, options: dict, key: str
     }
     path = write_bundle(out, arrays, manifest)
     # D's hash was computed from its bytes on disk (BlockStore.finish) and the file moved, unchanged:
-    # record that, so that loading it does not read all of D again (hailstorm.runtime.stamps)
+    # record that, so that loading it does not read all of D again (hailstorm.runtime.bundle.stamps)
     stamp(path / "compliance.npy", D.sha256)
     remove_work_dir(work_dir(out))
     log.info("wrote bundle %s (%d x %d compliance) in %.1f s", path, *D.shape, time.perf_counter() - t0)

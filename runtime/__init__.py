@@ -16,8 +16,7 @@ contact work in compiled kernels (:mod:`hailstorm.runtime.compiled`).
   :class:`Storm`, the storm driver stepped by hand (studies, tests).
 """
 
-from hailstorm.runtime.bundle import GreensFunctions, load
-from hailstorm.runtime.bundle_format import BundleError
+from hailstorm.runtime.bundle import BundleError, GreensFunctions, load
 from hailstorm.runtime.contact import (
     Capacitance,
     ContactSolution,
@@ -27,7 +26,7 @@ from hailstorm.runtime.contact import (
     patch_weights,
     solve_contacts,
 )
-from hailstorm.runtime.hertz import HertzImpact, SphereContacts, hertz_force, hertz_impact, press_spheres
+from hailstorm.runtime.contact.hertz import HertzImpact, SphereContacts, hertz_force, hertz_impact, press_spheres
 from hailstorm.runtime.scene import (
     ContactSettings,
     HailSettings,
@@ -38,7 +37,7 @@ from hailstorm.runtime.scene import (
     StormSettings,
     TimeSettings,
 )
-from hailstorm.runtime.storm import Storm, StormResult, run_storm
+from hailstorm.runtime.storm.driver import Storm, StormResult, run_storm
 
 __all__ = [
     "BundleError",

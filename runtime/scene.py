@@ -28,9 +28,9 @@ from typing import Any, ClassVar, Mapping
 
 import numpy as np
 
-from hailstorm.runtime.atomic import write_text_atomic
+from hailstorm.runtime.bundle.atomic import write_text_atomic
 from hailstorm.runtime.contact.validate import Mode
-from hailstorm.runtime.hail import GRAVITY, Integrator, SizeDistribution, terminal_velocity
+from hailstorm.runtime.storm.hail import GRAVITY, Integrator, SizeDistribution, terminal_velocity
 
 __all__ = ["ContactSettings", "HailSettings", "OutputSettings", "Scene", "SceneError", "SeatSettings", "StormEstimate",
            "StormSettings", "StormTooLarge", "TimeSettings"]
@@ -274,7 +274,7 @@ class HailSettings(_Section):
     Attributes
     ----------
     distribution, r_min, r_max, scale
-        Radius distribution (:class:`hailstorm.runtime.hail.SizeDistribution`) [m].
+        Radius distribution (:class:`hailstorm.runtime.storm.hail.SizeDistribution`) [m].
     density : float
         Ice density [kg/m^3].
     drag : bool
@@ -320,7 +320,7 @@ class ContactSettings(_Section):
         Release contacts that would pull.
     restitution : float
         Target coefficient of restitution of an impact (0..1), realised by a
-        contact damping (see :func:`hailstorm.runtime.hail.damping_coefficients`).
+        contact damping (see :func:`hailstorm.runtime.storm.hail.damping_coefficients`).
     patch : {"hertz", "none"}
         Force distribution of a soft contact. ``"hertz"`` (default): a patch
         contact, the stone's force spread over a disc with the Hertz pressure
@@ -376,12 +376,12 @@ class TimeSettings(_Section):
     dt : float
         Step [s] (frame/broad-phase step; near stones may be sub-stepped).
     integrator : {"implicit", "symplectic", "exact"}
-        Contact integrator (:func:`hailstorm.runtime.hail.contact_step`). ``"exact"``
+        Contact integrator (:func:`hailstorm.runtime.storm.hail.contact_step`). ``"exact"``
         solves the damped linear contact dynamics in closed form over the step
         (no numerical damping, no stability limit, events located inside the
         step), so it needs no ``omega_dt`` sub-steps.
     adaptive : bool
-        Sub-step near stones (see :mod:`hailstorm.runtime.storm`). ``False``: fixed ``dt``.
+        Sub-step near stones (see :mod:`hailstorm.runtime.storm.driver`). ``False``: fixed ``dt``.
     omega_dt : float
         Target ``omega dt`` for moving contacts (``"symplectic"`` sub-steps to
         half of it: its explicit dashpot's peak-force error is first order in
@@ -607,7 +607,7 @@ class Scene:
 
     # -- helpers ---------------------------------------------------------------
     def n_steps(self) -> int:
-        """Time steps of the storm (as :func:`hailstorm.runtime.storm.run_storm` takes them)."""
+        """Time steps of the storm (as :func:`hailstorm.runtime.storm.driver.run_storm` takes them)."""
         return max(1, int(round(self.storm.duration / self.time.dt)))
 
     def estimate(self, n_vertices: int | None = None, *, keep_frames: bool = False) -> StormEstimate:

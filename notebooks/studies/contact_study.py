@@ -22,7 +22,7 @@ in ``notebooks/mesh_dependence.ipynb``):
 and the stability study (charted in ``notebooks/stability.ipynb``):
 
 :func:`stability_map`
-    One stone in contact, advanced by :func:`hailstorm.runtime.hail.contact_step`
+    One stone in contact, advanced by :func:`hailstorm.runtime.storm.hail.contact_step`
     exactly as the storm does, for every (stiffness, mass, time step):
     bounded or diverged (energy growth), against the predicted explicit
     limit :func:`predicted_dt_limit` ``dt = 2 / omega``;
@@ -51,10 +51,10 @@ import numpy as np
 
 from hailstorm.precompute.geometry import TetMesh, box_mesh
 from hailstorm.precompute.pipeline import build_bundle, default_cache_dir
-from hailstorm.runtime.bundle import load as load_bundle
+from hailstorm.runtime.bundle.read import load as load_bundle
 from hailstorm.runtime.contact import capacitance, hertz_radius, solve_contacts, triangle_normals
 from hailstorm.runtime.contact.validate import Mode
-from hailstorm.runtime.hail import Integrator
+from hailstorm.runtime.storm.hail import Integrator
 
 __all__ = [
     "SEAT_POINTS",
@@ -541,7 +541,7 @@ def _energy(q, v, k, m, gn):
 
 def _growth(k: float, m: float, dt: float, integrator: Integrator, *, steps: int, restitution: float | None,
             gravity: float, impact_speed: float, blowup: float = 1e20) -> float:
-    """Energy growth of one stone in contact over ``steps`` steps of :func:`hailstorm.runtime.hail.contact_step`.
+    """Energy growth of one stone in contact over ``steps`` steps of :func:`hailstorm.runtime.storm.hail.contact_step`.
 
     The stone touches the seat (``q = anchor = 0``) moving in at ``impact_speed``
     and stays in contact (bilateral: the contact holds, as for a stone resting
@@ -550,7 +550,7 @@ def _growth(k: float, m: float, dt: float, integrator: Integrator, *, steps: int
     Returns ``max E over the second half / max E over the first half`` (``inf``
     once the energy exceeds ``blowup`` times its start or stops being finite).
     """
-    from hailstorm.runtime.hail import contact_step, damping_coefficients
+    from hailstorm.runtime.storm.hail import contact_step, damping_coefficients
 
     K = np.array([[float(k)]])
     M = np.array([float(m)])
@@ -675,8 +675,8 @@ def stability_map(
     """Bounded or diverged: one stone in contact for every (stiffness, mass, time step).
 
     Each run advances one stone in a frictionless contact (its normal
-    coordinate, as :class:`hailstorm.runtime.storm` does) with
-    :func:`hailstorm.runtime.hail.contact_step` for ``steps`` steps, starting as it
+    coordinate, as :class:`hailstorm.runtime.storm.driver` does) with
+    :func:`hailstorm.runtime.storm.hail.contact_step` for ``steps`` steps, starting as it
     touches the seat moving in at ``impact_speed``, under gravity, and the
     contact holds (bilateral, the stone stays on the seat). The energy
     (kinetic + spring + gravity, relative to the static equilibrium) is
@@ -690,7 +690,7 @@ def stability_map(
     stiffness : (nk,)
         Contact stiffness ``k`` [N/m] (e.g. :func:`seat_contact_stiffness`).
     masses : (nm,)
-        Stone masses [kg] (e.g. :func:`hailstorm.runtime.hail.stone_mass`).
+        Stone masses [kg] (e.g. :func:`hailstorm.runtime.storm.hail.stone_mass`).
     dts : (nd,)
         Time steps [s]; with ``relative=True`` multiples of ``2 / omega`` for
         each (k, m).
@@ -699,10 +699,10 @@ def stability_map(
     restitution : float, optional
         ``None`` (default): no dashpot, the pure stability question. A
         number: the storm's compression-only dashpot for that restitution
-        (:func:`hailstorm.runtime.hail.damping_coefficients`, with ``dt`` for the
+        (:func:`hailstorm.runtime.storm.hail.damping_coefficients`, with ``dt`` for the
         stepping integrators, as the storm calls it).
     gravity : float, optional
-        Default :data:`hailstorm.runtime.hail.GRAVITY` (along the inward normal).
+        Default :data:`hailstorm.runtime.storm.hail.GRAVITY` (along the inward normal).
     bisect : bool
         Also measure the limit of every (k, m) by bisection
         (:func:`measure_dt_limit`, relative tolerance ``rtol``): ``limit``.
@@ -714,7 +714,7 @@ def stability_map(
     steps, and the energy error of an explicit step at impact (where in the
     step the stone arrives) is an accuracy question of its own.
     """
-    from hailstorm.runtime.hail import GRAVITY
+    from hailstorm.runtime.storm.hail import GRAVITY
 
     k = np.asarray(stiffness, dtype=np.float64).reshape(-1)
     m = np.asarray(masses, dtype=np.float64).reshape(-1)
@@ -751,7 +751,7 @@ def measure_dt_limit(k: float, m: float, integrator: Integrator = "symplectic", 
     if it diverges already at the bottom. Other arguments as
     :func:`stability_map`.
     """
-    from hailstorm.runtime.hail import GRAVITY
+    from hailstorm.runtime.storm.hail import GRAVITY
 
     g = GRAVITY if gravity is None else float(gravity)
 
@@ -907,7 +907,7 @@ def stability_study(*, small: bool = False, cache_dir: str | os.PathLike | None 
     stones of :data:`STABILITY_RADII`. ``small``: fewer masses, steps and
     time steps (seconds).
     """
-    from hailstorm.runtime.hail import stone_mass
+    from hailstorm.runtime.storm.hail import stone_mass
 
     h = 0.015
     cache = Path(cache_dir) if cache_dir is not None else study_cache_dir()

@@ -76,10 +76,10 @@ from hailstorm.precompute.geometry import (
 )
 from hailstorm.precompute.greens import factorize, hat_load_matrix
 from hailstorm.precompute.pipeline import build_bundle, extract_surface
-from hailstorm.runtime.atomic import replacing
+from hailstorm.runtime.bundle.atomic import replacing
 from hailstorm.runtime.contact.weights import patch_weights, triangle_normals
-from hailstorm.runtime.hail import stone_mass, terminal_velocity
-from hailstorm.runtime.hertz import hertz_impact
+from hailstorm.runtime.storm.hail import stone_mass, terminal_velocity
+from hailstorm.runtime.contact.hertz import hertz_impact
 from hailstorm.studies.seat_study import SITES
 from hailstorm.studies.study import LoadCase, locate_probes, nodal_loads, trace_nodes, trace_shape
 

@@ -4,13 +4,13 @@
 the block of :func:`hailstorm.precompute.halfspace.halfspace_block` at each
 fine element size (cached in ``HAILSTORM_CACHE``) and prints, per block:
 
-* a rigid sphere's force-indentation (:func:`hailstorm.runtime.hertz.press_spheres`)
+* a rigid sphere's force-indentation (:func:`hailstorm.runtime.contact.hertz.press_spheres`)
   against ``F = (4/3) E* sqrt(R) delta^(3/2)`` for ``delta / R`` = 0.01 ... 0.04;
 * a storm's stone at rest under gravity (exact integrator, Hertz-secant
   patches): its depth against Hertz's at ``m g``, and its force against ``m g``;
 * a storm's stone dropped on the block (restitution 1): peak force, maximum
   indentation and contact duration against Hertz's quasi-static impact
-  (:func:`hailstorm.runtime.hertz.hertz_impact`, with gravity), and against the
+  (:func:`hailstorm.runtime.contact.hertz.hertz_impact`, with gravity), and against the
   linear spring the storm's secant law is on an ideal half-space
   (:func:`secant_oscillator`).
 
@@ -26,9 +26,9 @@ from typing import Any
 
 import numpy as np
 
-from hailstorm.runtime.hail import GRAVITY
+from hailstorm.runtime.storm.hail import GRAVITY
 from hailstorm.runtime.contact.weights import hertz_radius
-from hailstorm.runtime.hertz import HertzImpact, hertz_force, hertz_impact, press_spheres
+from hailstorm.runtime.contact.hertz import HertzImpact, hertz_force, hertz_impact, press_spheres
 
 __all__ = ["BLOCK", "DropResult", "block_bundle", "drop_stone", "force_ratios", "hertz_depth", "origin_contact",
            "rest_stone", "secant_oscillator", "main"]

@@ -64,7 +64,7 @@ from hailstorm.precompute.fem import (
 from hailstorm.precompute.geometry import TetMesh, boundary_triangles, mesh_default_seat
 from hailstorm.precompute.greens import compliance_matrix, factorize
 from hailstorm.precompute.pipeline import build_bundle, default_cache_dir
-from hailstorm.runtime.atomic import replacing, write_text_atomic
+from hailstorm.runtime.bundle.atomic import replacing, write_text_atomic
 
 #: Bump when the meaning of cached study results changes.
 STUDY_VERSION = 1

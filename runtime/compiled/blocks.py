@@ -3,7 +3,7 @@
 The one implementation of these blocks: used by the contact core
 (:mod:`hailstorm.runtime.contact`: :func:`~hailstorm.runtime.contact.solve_contacts`,
 :func:`~hailstorm.runtime.contact.capacitance`), whose capacitance the storm's contact
-set is (:meth:`hailstorm.runtime.contact_set.ContactSets.build`). The tests hold them
+set is (:meth:`hailstorm.runtime.storm.contact_set.ContactSets.build`). The tests hold them
 to dense algebra on D (fancy-indexed blocks, a dense B).
 
 * :func:`vertex_block` -- ``D_VV`` (transposed), gathered row by row;

@@ -72,8 +72,8 @@ def inv_spd(W, cond_limit, rcond):  # pragma: no cover (compiled)
 @kernel
 def contact_prep(soft, pos, vel, radius, mass, g, wind, drag_coef, nk, Xc, rest, Kdiag, sticky, exact,
                  rest_speed):  # pragma: no cover (compiled)
-    """The constrained coordinates of a contact set for :func:`hailstorm.runtime.hail.contact_step`
-    (the first half of :meth:`hailstorm.runtime.soft_contacts.SoftContacts.advance`): ``(q, anchor, v, accel, mass,
+    """The constrained coordinates of a contact set for :func:`hailstorm.runtime.storm.hail.contact_step`
+    (the first half of :meth:`hailstorm.runtime.storm.soft_contacts.SoftContacts.advance`): ``(q, anchor, v, accel, mass,
     always_damped, acc)``, per contact (frictionless, normal components) or
     per component (sticky); ``acc`` (s, 3) is the stones' gravity + drag. (The
     dashpot is the contact set's, per mode: ``ContactIntegrator.exact_damping`` and
@@ -128,9 +128,9 @@ def contact_prep(soft, pos, vel, radius, mass, g, wind, drag_coef, nk, Xc, rest,
 def contact_post(soft, pos, vel, ctri, hit, was_open, nk, acc, q, a, vq, gq, rq, rv, ractive, rseat, rpeak,
                  rpubar, sticky, exact, h, rest_speed):  # pragma: no cover (compiled)
     """Apply a contact step to the stones, in place (compiled second half of
-    :meth:`hailstorm.runtime.soft_contacts.SoftContacts.advance`): new positions and velocities (frictionless: free
+    :meth:`hailstorm.runtime.storm.soft_contacts.SoftContacts.advance`): new positions and velocities (frictionless: free
     tangential motion), released contacts closed, impacts marked. ``rpeak``, ``rpubar``:
-    the step's ``peak_seat_force`` and ``peak_ubar`` (:class:`hailstorm.runtime.hail.ContactStep`);
+    the step's ``peak_seat_force`` and ``peak_ubar`` (:class:`hailstorm.runtime.storm.hail.ContactStep`);
     a contact that carried force at some instant of the step counts as touched.
 
     Returns

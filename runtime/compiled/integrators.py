@@ -1,12 +1,12 @@
 """The contact integrators' steps: exact (closed form, modal with events) and the
 sub-stepped backward Euler / symplectic Euler with their step sizing and dashpot.
 
-They are the one implementation of :func:`hailstorm.runtime.hail.contact_step` (a thin
+They are the one implementation of :func:`hailstorm.runtime.storm.hail.contact_step` (a thin
 wrapper over :func:`exact_step` and :func:`substep_contacts`) and of the storm's contact
 step. The tests hold them to the numpy statement of the same algorithms
 (``tests/reference/contact_step_ref.py``), to :func:`scipy.linalg.expm` of the state
 matrix and to the analytic bounce of one contact; the step sizing's rules are in
-:mod:`hailstorm.runtime.storm`.
+:mod:`hailstorm.runtime.storm.driver`.
 """
 
 from __future__ import annotations
@@ -194,7 +194,7 @@ def _track(idx, Ka, ub, ncol, group, wts, ng, pk2, pk_f, dmin, dmin_u):  # pragm
 @kernel
 def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond_limit,
                rcond):  # pragma: no cover (compiled)
-    """The exact integrator's step of a contact set (see :func:`hailstorm.runtime.hail.contact_step`):
+    """The exact integrator's step of a contact set (see :func:`hailstorm.runtime.storm.hail.contact_step`):
     the damped linear dynamics in closed form, split at the instants the dashpot pattern
     or the active set changes (located on the trajectory: a grid of 32 samples, refined
     twice). One frictionless contact takes the scalar closed form (where it applies: not
@@ -208,7 +208,7 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond
     ``rcond`` the policy of :func:`inv_spd`.
 
     Returns ``(q, v, active, force, seat_force, peak_seat_force, peak_ubar)``
-    (see :class:`hailstorm.runtime.hail.ContactStep`).
+    (see :class:`hailstorm.runtime.storm.hail.ContactStep`).
     """
     GRID = 32
     REFINE = 2
@@ -428,7 +428,7 @@ def substep_size(near, h_left, hmin, vel, radius, mass, pos, gap, near_tri, ctri
                  rest_speed, omega_dt, symplectic, cc_stones, Kdiag, sticky, cc_normals, cc_X, cc_rest,
                  g):  # pragma: no cover (compiled)
     """The sub-step of the adaptive implicit and symplectic integrators
-    (:meth:`hailstorm.runtime.integrators.ContactIntegrator.substep_size`): approaching stones travel at most ``approach_fraction``
+    (:meth:`hailstorm.runtime.storm.integrators.ContactIntegrator.substep_size`): approaching stones travel at most ``approach_fraction``
     radii, an impact about to start and moving contacts are resolved to ``omega_dt``."""
     h = h_left
     om_close = 0.0
@@ -471,11 +471,11 @@ def substep_size(near, h_left, hmin, vel, radius, mass, pos, gap, near_tri, ctri
 
 #: the contact set's modal dashpot (the one definition in :mod:`hailstorm.runtime.compiled.modal`, compiled):
 #: ``substep_damping(om2, Phi, sqm, restitution, dt, implicit, x_grid, z_grid)`` -> (n, n)
-#: (``x_grid``, ``z_grid``: the restitution table of :func:`hailstorm.runtime.hail.damping_ratio_for_restitution`)
+#: (``x_grid``, ``z_grid``: the restitution table of :func:`hailstorm.runtime.storm.hail.damping_ratio_for_restitution`)
 substep_damping = kernel(modal_damping_py)
-#: the modal frequencies an explicit step carries (hailstorm.runtime.hail's, compiled)
+#: the modal frequencies an explicit step carries (hailstorm.runtime.storm.hail's, compiled)
 explicit_modes = kernel(explicit_modes_py)
-#: K and its pseudo-inverse W from modes (hailstorm.runtime.hail's, compiled)
+#: K and its pseudo-inverse W from modes (hailstorm.runtime.storm.hail's, compiled)
 modal_stiffness = kernel(modal_stiffness_py)
 
 
@@ -499,7 +499,7 @@ def _indices(mask):  # pragma: no cover (compiled)
 def substep_contacts(q, v, a, m, g, dt, K, W, C, implicit, unilateral, group, wts, cond_limit,
                      rcond):  # pragma: no cover
     """Compiled implicit (backward Euler) and symplectic Euler contact step of
-    :func:`hailstorm.runtime.hail.contact_step` (see there): the (n, n) dashpot ``C`` in compression
+    :func:`hailstorm.runtime.storm.hail.contact_step` (see there): the (n, n) dashpot ``C`` in compression
     only, unilateral release by active-set iteration (``cond_limit``, ``rcond``: the
     policy of :func:`inv_spd`). Returns ``(q, v, active, force, seat_force)``.
 

@@ -1,5 +1,5 @@
 """Plain-Python statements of the modal contact algebra that numba compiles
-(:mod:`hailstorm.runtime.compiled.integrators`) and that :func:`hailstorm.runtime.hail.modal_damping`
+(:mod:`hailstorm.runtime.compiled.integrators`) and that :func:`hailstorm.runtime.storm.hail.modal_damping`
 (the dashpot) and the tests' numpy contact step (``tests/reference/contact_step_ref.py``)
 call as they are: one definition of each.
 

@@ -1,7 +1,7 @@
 """The storm's narrow phase: the free part of a sub-step (closest points, time of impact,
 contacts that open, hard walls) and the penetration statistics.
 
-The rules are in the module notes of :mod:`hailstorm.runtime.storm`; the tests hold the
+The rules are in the module notes of :mod:`hailstorm.runtime.storm.driver`; the tests hold the
 closest points to brute force over every triangle (``tests/reference/collide_ref.py``)
 and the whole to analytic bounces.
 """
@@ -201,7 +201,7 @@ def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, ctri, cbary, gap, 
 @kernel
 def penetration(near, dt, pos, vel, radius, ctri, surf, umax, use_u, D, fcols, fv):  # pragma: no cover
     """Overlap of the near stones with the deformed surface, for the statistics
-    (:meth:`hailstorm.runtime.collide.Collision.penetration`): free stones within this step's reach, stones in
+    (:meth:`hailstorm.runtime.storm.collide.Collision.penetration`): free stones within this step's reach, stones in
     contact within their radius.
 
     Returns

@@ -244,7 +244,7 @@ def _hertz_target(kk, f, f_eq, m, vn, R, e_star, a_min):  # pragma: no cover (co
 def patch_radii(stones, tris, mass, radius, vel, cbary, crad, tnormals, g, wind, drag_coef, cc_stones, Kdiag,
                 lam, sticky, k_tri, e_star, a_min, tol, rest_speed, rule_off, rule_x, rule_y, rule_w, facing,
                 drop, pidx, X, D, column_of):  # pragma: no cover (compiled)
-    """The storm's patch sizing (:meth:`hailstorm.runtime.patches.Patches.radii`, the rule): the patch radius of
+    """The storm's patch sizing (:meth:`hailstorm.runtime.storm.patches.Patches.radii`, the rule): the patch radius of
     each soft contact, written to ``crad``.
 
     ``cc_stones``, ``Kdiag``, ``lam``: the previous contact set's stones, the diagonal

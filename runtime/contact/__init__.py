@@ -2,7 +2,7 @@
 
 Modules, one seam each:
 
-* :mod:`~hailstorm.runtime.contact.compliance` -- access to D: the
+* :mod:`~hailstorm.runtime.bundle.compliance` -- access to D: the
   :class:`ComplianceSource` protocol (what the core reads of a bundle), dof
   indices, blocks of D and products with its columns (compiled kernels of
   :mod:`hailstorm.runtime.compiled.blocks`);
@@ -80,7 +80,7 @@ Degenerate cases (documented choices)
 """
 
 from hailstorm.runtime.contact.contact_capacitance import ActiveSet, Capacitance, capacitance
-from hailstorm.runtime.contact.compliance import ComplianceSource
+from hailstorm.runtime.bundle.compliance import ComplianceSource
 from hailstorm.runtime.contact.policy import COND_LIMIT, PINV_RCOND, SPDFactor, spd_inverse
 from hailstorm.runtime.contact.solve import ContactSolution, solve_contacts
 from hailstorm.runtime.contact.validate import Mode

@@ -14,7 +14,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from hailstorm.runtime.compiled import blocks as kernels
-from hailstorm.runtime.contact.compliance import (
+from hailstorm.runtime.bundle.compliance import (
     ComplianceSource,
     apply_columns,
     column_dofs,
@@ -79,7 +79,7 @@ def contact_compliance(D_VV: np.ndarray, loc: np.ndarray, w: np.ndarray, normals
     Parameters
     ----------
     D_VV : (3|V|, 3|V|) float ndarray
-        The block of D (:func:`hailstorm.runtime.contact.compliance.vertex_block`).
+        The block of D (:func:`hailstorm.runtime.bundle.compliance.vertex_block`).
     loc, w : (s, P) int / float ndarrays
         Position in V and weight of each contact's vertices.
     normals : (s, 3) float ndarray
@@ -772,7 +772,7 @@ def capacitance(
     Parameters
     ----------
     gf : ComplianceSource
-        Loaded bundle (see :func:`hailstorm.runtime.bundle.load`).
+        Loaded bundle (see :func:`hailstorm.runtime.bundle.read.load`).
     tri_idx : (s,) int array_like
         Contacted surface triangles.
     bary : (s, 3) float array_like
@@ -841,7 +841,7 @@ def from_weights(gf: ComplianceSource, t: np.ndarray, b: np.ndarray, n: np.ndarr
 
     The one constructor of :class:`Capacitance`: :func:`build` (the contact
     API) computes the weights first; the storm's contact set
-    (:class:`hailstorm.runtime.contact_set.ContactSets`) passes the patch
+    (:class:`hailstorm.runtime.storm.contact_set.ContactSets`) passes the patch
     weights it caches per stone.
 
     Parameters

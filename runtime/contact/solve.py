@@ -13,7 +13,7 @@ import numpy as np
 from hailstorm.runtime.compiled import blocks as kernels
 from hailstorm.runtime.contact import policy
 from hailstorm.runtime.contact.contact_capacitance import build
-from hailstorm.runtime.contact.compliance import ComplianceSource, apply_columns, kernel_columns
+from hailstorm.runtime.bundle.compliance import ComplianceSource, apply_columns, kernel_columns
 from hailstorm.runtime.contact.validate import Mode, check_contacts, check_mode, check_patch
 from hailstorm.runtime.contact.weights import PATCH_PROFILES, interpolate, vertex_forces
 

@@ -6,7 +6,7 @@ from typing import Any, Literal, cast, overload
 
 import numpy as np
 
-from hailstorm.runtime.contact.compliance import ComplianceSource
+from hailstorm.runtime.bundle.compliance import ComplianceSource
 from hailstorm.runtime.contact.policy import BARY_NEG_TOL, BARY_SUM_TOL
 from hailstorm.runtime.contact.weights import PATCH_PROFILES, triangle_normals
 

@@ -52,7 +52,7 @@ import numpy as np
 
 from hailstorm.runtime.compiled import SampleGrid
 from hailstorm.runtime.compiled.patches import disc_patch as one_patch_kernel
-from hailstorm.runtime.contact.compliance import ComplianceSource, unique_inverse
+from hailstorm.runtime.bundle.compliance import ComplianceSource, unique_inverse
 
 __all__ = [
     "PATCH_DROP",

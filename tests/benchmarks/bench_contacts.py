@@ -17,7 +17,7 @@ not timed), and a Sherman-Morrison-Woodbury ``Capacitance.add`` against a fresh
 <= 1 ms median; s = 10 >= 1e4 x faster than the direct FEM solve.
 
 Last (``--dtype float32``, the default; ``--dtype none`` skips it): the same
-solves on a float32 copy of the bundle (:func:`hailstorm.runtime.bundle.convert_bundle`,
+solves on a float32 copy of the bundle (:func:`hailstorm.runtime.bundle.read.convert_bundle`,
 in a temporary directory), timed interleaved with the float64 ones in the same
 run, and the float32 results' error against float64.
 """
@@ -36,7 +36,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from hailstorm.runtime.bundle import convert_bundle, load
+from hailstorm.runtime.bundle.read import load
+from hailstorm.runtime.bundle.write import convert_bundle
 from hailstorm.runtime.compiled import vertex_block
 from hailstorm.runtime.contact import capacitance, solve_contacts, triangle_normals
 
@@ -516,7 +517,7 @@ def print_phases(gf, tri: np.ndarray, bary: np.ndarray, ubar: np.ndarray, refs: 
     compared with (``print_floor``'s medians).
     """
     from hailstorm.runtime.compiled import blocks
-    from hailstorm.runtime.contact.compliance import apply_columns, column_dofs, kernel_columns
+    from hailstorm.runtime.bundle.compliance import apply_columns, column_dofs, kernel_columns
     from hailstorm.runtime.contact.policy import POINT_FAST_MAX, SPDFactor, is_rigid
     from hailstorm.runtime.contact.validate import check_contacts, check_mode, check_patch
     from hailstorm.runtime.contact.weights import interpolate, locate, vertex_forces

@@ -59,7 +59,7 @@ def seat_drop(gf, integrator: str, adaptive: bool, dt: float, r: float = 0.005, 
               patch: str = "hertz") -> dict:
     """One stone (no drag) hits the seat's top at v0: achieved restitution (normal exit /
     impact speed, target 0.5) and the largest penetration of that impact."""
-    from hailstorm.runtime.storm import Scene, Storm
+    from hailstorm.runtime.storm.driver import Scene, Storm
 
     sc = Scene.from_flat(duration=0.05, stones=0, drag=False, dt=dt, integrator=integrator, adaptive=adaptive, restitution=0.5,
                patch=patch)
@@ -97,7 +97,7 @@ def main() -> None:
     args = ap.parse_args()
 
     import hailstorm.runtime
-    from hailstorm.runtime.storm import Scene, run_storm
+    from hailstorm.runtime.storm.driver import Scene, run_storm
 
     if args.gf:
         path = args.gf

@@ -10,7 +10,7 @@ changed) and runs a few steps; prints, for every kernel numba compiled, its
 compile time (a kernel's own compile includes the kernels it calls that were not
 compiled before it), the number of type specialisations each kernel ended with
 (more than one: a second compile of the same kernel), the total, and the storm's
-own per-task timing (the tasks that :mod:`hailstorm.runtime.warmup` announces; wall and
+own per-task timing (the tasks that :mod:`hailstorm.runtime.storm.warmup` announces; wall and
 this process's CPU).
 
 Only this process's compiles are listed: with a compile helper (two usable CPUs, the
@@ -76,7 +76,7 @@ def main() -> None:
     logging.basicConfig(level=logging.DEBUG, format="%(message)s")
     for name in ("numba", "matplotlib", "PIL"):
         logging.getLogger(name).setLevel(logging.WARNING)
-    from hailstorm.runtime.storm import Storm
+    from hailstorm.runtime.storm.driver import Storm
 
     t0, c0 = time.perf_counter(), time.process_time()
     st = Storm(gf, sc)

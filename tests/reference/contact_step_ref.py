@@ -1,6 +1,6 @@
 """The contact step, the plain way: the oracle of :func:`hailstorm.runtime.compiled.exact_step`
 and :func:`hailstorm.runtime.compiled.substep_contacts` (the one implementation, which
-:func:`hailstorm.runtime.hail.contact_step` wraps).
+:func:`hailstorm.runtime.storm.hail.contact_step` wraps).
 
 Vectorised numpy over the components of a contact set; the exact integrator's modal
 solution with :func:`scipy.linalg.expm` where the eigenbasis is (nearly) defective,
@@ -16,7 +16,7 @@ import numpy as np
 
 from hailstorm.runtime.compiled.modal import equilibrium_py, scalar_exact_py
 from hailstorm.runtime.contact.policy import spd_inverse
-from hailstorm.runtime.hail import INTEGRATORS, ContactStep
+from hailstorm.runtime.storm.hail import INTEGRATORS, ContactStep
 
 
 def contact_step_ref(
@@ -36,7 +36,7 @@ def contact_step_ref(
     normal_of: np.ndarray | None = None,
     always_damped: np.ndarray | None = None,
 ) -> ContactStep:
-    """:func:`hailstorm.runtime.hail.contact_step` (same arguments, same result), in numpy.
+    """:func:`hailstorm.runtime.storm.hail.contact_step` (same arguments, same result), in numpy.
 
     With ``K`` alone, ``W = spd_inverse(K)``; with ``W`` alone, ``K = spd_inverse(W)``;
     the capacitance of an active subset ``a`` is ``spd_inverse(W[a, a])``.

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from hailstorm.runtime.hail import GRAVITY
+from hailstorm.runtime.storm.hail import GRAVITY
 
 
 def free_flight_ref(

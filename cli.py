@@ -1,0 +1,345 @@
+"""The ``hailstorm`` command line.
+
+``hailstorm``                      run the default storm on the default seat
+``hailstorm storm [options]``      run a storm (bundle built and cached on first use)
+``hailstorm precompute [options]`` compute a Green's-function bundle
+``hailstorm info DIR``             describe and verify a bundle
+
+All printing and exit codes live here; the library raises exceptions.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+EXIT_USAGE = 2
+EXIT_INPUT = 3
+COMMANDS = ("precompute", "storm", "info")
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not value > 0 or value != value or value == float("inf"):
+        raise argparse.ArgumentTypeError(f"must be a positive finite number, got {text}")
+    return value
+
+
+def _positive_int(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"must be at least 1, got {text}")
+    return value
+
+
+def _float(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+
+
+def _parser() -> argparse.ArgumentParser:
+    from hailstorm.precompute.fem import DEFAULT_POISSON, DEFAULT_YOUNG  # noqa: PLC0415 (cheap module)
+    from hailstorm.precompute.pipeline import DEFAULT_MESH_SIZE
+
+    p = argparse.ArgumentParser(
+        prog="hailstorm",
+        description="A hail storm on a bicycle seat: point contacts on a linear elastic solid "
+        "through precomputed Green's functions. With no command, runs the default storm.",
+    )
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("-q", "--quiet", action="store_true", help="no progress bars or info messages")
+    sub = p.add_subparsers(dest="command")
+
+    pre = sub.add_parser("precompute", parents=[common], help="compute a Green's-function bundle for a seat")
+    pre.add_argument("--mesh-size", type=_positive_float, default=DEFAULT_MESH_SIZE,
+                     help=f"element size on the hail-facing surface in metres (default {DEFAULT_MESH_SIZE})")
+    from hailstorm.runtime.scene import SeatSettings
+
+    seat = SeatSettings.default()
+    pre.add_argument("--order", type=int, choices=(1, 2), default=seat.order,
+                     help=f"P1 or P2 tetrahedra (default {seat.order}: the default seat's, chosen by measured accuracy)")
+    pre.add_argument("--volume-size", type=_positive_float, default=None, metavar="H",
+                     help="volume grading of a meshed geometry: tetrahedra inside the body at most H metres "
+                     "(at most --mesh-size) under the same surface mesh; D and the runtime's cost stay the same")
+    pre.add_argument("--young", type=_float, default=None,
+                     help=f"Young's modulus in Pa of a one-material body (default {DEFAULT_YOUNG:g})")
+    pre.add_argument("--poisson", type=_float, default=None,
+                     help=f"Poisson's ratio of a one-material body (default {DEFAULT_POISSON})")
+    pre.add_argument("--material", action="append", default=[], metavar="NAME=E,nu",
+                     help="material of the volume group NAME (a gmsh Physical Volume): Young's modulus E in Pa "
+                     "and Poisson's ratio nu, e.g. pad=0.5e6,0.3; repeat for each volume (instead of --young/--poisson)")
+    pre.add_argument("--geometry", type=Path, default=None,
+                     help="geometry (.geo/.step/.brep) or tetrahedral mesh (any meshio format) with "
+                     "surface groups 'top' and 'clamp' (default: the built-in saddle)")
+    pre.add_argument("--solver", choices=("supernodal", "cholmod", "splu", "amg"), default="supernodal",
+                     help="sparse Cholesky with solves pruned for unit loads read at the surface (default), "
+                     "CHOLMOD's general solve, SuperLU, or AMG-preconditioned CG for huge meshes")
+    pre.add_argument("--tol", type=_positive_float, default=1e-10, help="relative residual of the AMG solver")
+    pre.add_argument("--load", choices=("point", "hat"), default=seat.load,
+                     help="a column of D responds to a unit nodal force (point, the default) or to one newton "
+                     "spread over the vertex's hat function (hat: the consistent choice for --order 2)")
+    pre.add_argument("--out", type=Path, required=True, help="bundle directory to write")
+    pre.add_argument("--force", action="store_true", help="recompute even if --out holds an up-to-date bundle")
+    pre.add_argument("--allow-large", action="store_true",
+                     help="run even if the estimated memory (the solver and a few blocks of D) exceeds the memory "
+                     "available, or D the free disk")
+    pre.add_argument("--dtype", choices=("float64", "float32"), default="float64",
+                     help="storage type of D (default float64; float32 halves D on disk and in the runtime, "
+                     "each entry rounded by at most 2^-24 of itself; solved in float64 either way)")
+    where = pre.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=_positive_int, default=None, metavar="N",
+                       help="solve the column blocks of D on a local Dask cluster of N processes "
+                       "(needs the 'dask' extra; default: in this process, fastest for small meshes)")
+    where.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                       help="solve the column blocks on the running Dask cluster at ADDRESS "
+                       "(e.g. tcp://head:8786; every worker needs hailstorm installed)")
+
+    storm = sub.add_parser("storm", parents=[common], help="run a hail storm and write an animation, a ParaView series and summary.json")
+    _storm_args(storm)
+
+    info = sub.add_parser("info", parents=[common], help="describe and verify a bundle")
+    info.add_argument("bundle", type=Path)
+    return p
+
+
+def _storm_args(p: argparse.ArgumentParser) -> None:
+    from hailstorm.runtime.scene import Scene  # noqa: PLC0415 (the packaged default scene, for the help texts)
+
+    d = Scene.default()
+    p.add_argument("--duration", type=_positive_float, default=None,
+                   help=f"simulated time in seconds (default: the scene's, {d.storm.duration:g})")
+    p.add_argument("--stones", type=int, default=None,
+                   help=f"number of hailstones (default: the scene's rate, {d.storm.rate:g} per second, over the duration)")
+    p.add_argument("--seed", type=int, default=None,
+                   help=f"random seed; runs are reproducible from it (default: the scene's, {d.storm.seed})")
+    p.add_argument("--integrator", choices=("implicit", "symplectic", "exact"), default=None,
+                   help=f"time integrator of the contacts (default: the scene's, {d.time.integrator})")
+    p.add_argument("--dt", type=_positive_float, default=None, help=f"time step in seconds (default: the scene's, {d.time.dt:g})")
+    p.add_argument("--gf", type=Path, default=None, help="bundle directory (default: build/cache the default seat)")
+    p.add_argument("--scene", type=Path, default=None, help="TOML scene file holding every storm setting")
+    p.add_argument("--out", type=Path, default=Path("hailstorm-out"), help="output directory (default ./hailstorm-out)")
+    p.add_argument("--no-video", action="store_true", help="skip the animation")
+    p.add_argument("--allow-large", action="store_true",
+                   help="run a storm whose estimate exceeds the machine (memory, or more than 10 million steps)")
+
+
+def _run_precompute(args: argparse.Namespace) -> int:
+    from hailstorm.precompute.pipeline import build_bundle
+    from hailstorm.runtime.bundle.format import BundleError
+
+    from hailstorm.precompute.materials import parse_material
+
+    t0 = time.perf_counter()
+    materials: dict[str, tuple[float, float]] = {}
+    for text in args.material:
+        name, young, poisson = parse_material(text)
+        if name in materials:
+            raise ValueError(f"--material {text!r}: volume {name!r} was already given a material")
+        materials[name] = (young, poisson)
+    try:
+        path = build_bundle(
+            args.out, geometry=args.geometry, mesh_size=args.mesh_size, order=args.order,
+            volume_size=args.volume_size,
+            young=args.young, poisson=args.poisson, materials=materials or None,
+            solver=args.solver, tol=args.tol, load=args.load,
+            reuse=not args.force, progress=not args.quiet, allow_large=args.allow_large,
+            workers=args.workers, scheduler=args.scheduler, dtype=args.dtype,
+        )
+    except OSError as exc:  # what the library did not already name (a full disk...): still the user's
+        raise BundleError(f"precompute failed: {exc}") from exc
+    _print_bundle(path, rehash=False)  # just written and hashed: D is not read again
+    if not args.quiet:
+        print(f"done in {time.perf_counter() - t0:.1f} s")
+    return 0
+
+
+def _run_info(args: argparse.Namespace) -> int:
+    """``hailstorm info``: describe and verify a bundle; a reader that stops early (``| head``) is no error."""
+    try:
+        _print_bundle(args.bundle)
+        sys.stdout.flush()
+    except BrokenPipeError:
+        _silence_stdout()  # the reader went away: silence the interpreter's final flush too
+    return 0
+
+
+def _print_bundle(path: Path, rehash: bool = True) -> None:
+    from hailstorm.runtime.bundle.read import load
+    from hailstorm.runtime.bundle.format import ARRAY_SPECS
+
+    gf = load(path, rehash=rehash)  # verifies: manifest hash and structure, array sizes and hashes, finite D, consistency
+    m = gf.manifest
+    mesh = m.get("mesh", {})
+    print(f"bundle   {path}")
+    print(f"key      {m['key'][:16]}  (format {m['format_version']}, hailstorm {m.get('code_version')})")
+    print(f"mesh     {mesh.get('source')}: {mesh.get('n_points')} nodes, {mesh.get('n_tets')} tets, "
+          f"P{gf.order}, {mesh.get('n_dofs')} dofs")
+    print(f"surface  {gf.n_vertices} vertices, {len(gf.triangles)} triangles, "
+          f"{int(gf.contactable.sum())} contactable, {int(gf.fixed.sum())} clamped")
+    print(f"material E = {gf.young:g} Pa, nu = {gf.poisson:g}" + (" (under the contactable surface)"
+                                                                   if len(m.get("materials") or ()) > 1 else ""))
+    for mat in m.get("materials") or ():
+        if len(m["materials"]) > 1:
+            start, stop = mat["tets"]
+            print(f"  volume {mat['volume']}: E = {mat['young']:g} Pa, nu = {mat['poisson']:g}, {stop - start} tets")
+    print(f"D        {gf.D.shape[0]} x {gf.D.shape[1]} {gf.dtype} ({gf.D.nbytes / 2**20:.1f} MiB)")
+    t = m.get("timings_s", {})
+    if t:
+        print("timings  " + ", ".join(f"{k} {v:.2f} s" for k, v in t.items()))
+    print(f"verified manifest hash and structure; {len(ARRAY_SPECS)} arrays: sizes, SHA-256, shapes, dtypes; "
+          "D finite; arrays consistent")
+
+
+def _run_storm(args: argparse.Namespace) -> int:
+    from hailstorm.runtime.bundle.read import load
+    from hailstorm.runtime.output.files import StormOutput, check_storm_out
+    from hailstorm.runtime.scene import Scene, SeatSettings
+    from hailstorm.runtime.storm.driver import run_storm
+
+    scene = Scene.from_toml(args.scene) if args.scene is not None else Scene.default()
+    data = scene.to_dict()
+    changed = False
+    for section, options in (("storm", ("duration", "stones", "seed")), ("time", ("integrator", "dt"))):
+        for k in options:
+            if getattr(args, k) is not None:
+                data[section][k] = getattr(args, k)
+                changed = True
+    if changed:
+        scene = Scene.from_dict(data, source="command line")
+    # everything that can be refused cheaply, before the bundle and the storm
+    # the default seat's precompute settings: the scene file's [seat], not part of the scene
+    seat = SeatSettings.from_toml(args.scene) if args.scene is not None else SeatSettings.default()
+    scene.estimate().check(allow_large=args.allow_large)
+    out = args.out
+    check_storm_out(out)
+    if args.gf is not None:
+        gf_path = args.gf
+    else:
+        from hailstorm.precompute.pipeline import build_bundle
+
+        if not args.quiet:
+            print(f"default seat: building or reusing the cached bundle (mesh size {seat.mesh_size} m)...")
+        gf_path = build_bundle(None, mesh_size=seat.mesh_size, order=seat.order, load=seat.load,
+                               volume_size=seat.volume_size, young=seat.young, poisson=seat.poisson,
+                               progress=not args.quiet)
+    gf = load(gf_path)
+    if args.gf is not None:
+        _warn_seat_ignored(args, seat, gf)
+    estimate = scene.estimate(gf.n_vertices)  # run_storm logs it
+    with StormOutput(out, gf, video=not args.no_video, disk_bytes=estimate.disk_bytes,
+                     progress=not args.quiet) as sink:
+        result = run_storm(gf, scene, progress=not args.quiet, on_frame=sink.add, allow_large=args.allow_large)
+        paths = sink.finish(result)
+    if not args.quiet:
+        import json
+
+        s = json.loads(paths["summary"].read_text())
+        keys = ("hailstones", "impacts", "max_contact_force", "max_indentation_m", "max_simultaneous_contacts",
+                "steps", "frames", "sim_time_s", "wall_time_s", "real_time_factor", "backend")
+        width = max(map(len, keys))
+        for k in keys:
+            v = s.get(k)
+            print(f"{k:<{width}}  {v:.4g}" if isinstance(v, float) else f"{k:<{width}}  {v}")
+        print(f"outputs in {out}/" + (f" (animation: {paths['video'].name})" if "video" in paths else ""))
+    return 0
+
+
+def _warn_seat_ignored(args: argparse.Namespace, seat: Any, gf: Any) -> None:
+    """With --gf the bundle is the seat: say so if the scene file asked for another one."""
+    import tomllib
+
+    if args.scene is None or not isinstance(tomllib.loads(args.scene.read_text()).get("seat"), dict):
+        return
+    m = gf.manifest
+    opts = m.get("options", {})
+    have = {"mesh_size": opts.get("mesh_size"), "order": gf.order, "load": opts.get("load", "point"),
+            "volume_size": opts.get("volume_size"), "young": gf.young, "poisson": gf.poisson}
+    differ = [f"{k} = {getattr(seat, k)!r} (bundle: {v!r})" for k, v in have.items() if v != getattr(seat, k)]
+    if differ:
+        logging.getLogger("hailstorm").warning(
+            "warning: the scene's [seat] settings are ignored with --gf (the bundle %s is the seat): %s",
+            args.gf, "; ".join(differ))
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``hailstorm`` console script."""
+    argv = sys.argv[1:] if argv is None else argv
+    parser = _parser()
+    leading = []
+    while argv and argv[0] in ("-q", "--quiet"):  # `hailstorm -q storm ...`
+        leading.append(argv[0])
+        argv = argv[1:]
+    if argv and not argv[0].startswith("-") and argv[0] not in COMMANDS:
+        parser.error(f"unknown command {argv[0]!r} (choose from {', '.join(COMMANDS)}, or give storm options)")
+    if not argv or argv[0] not in (*COMMANDS, "-h", "--help"):
+        argv = ["storm", *argv]  # plain `hailstorm [storm options]` runs the storm
+    args = parser.parse_args(argv[:1] + leading + argv[1:])
+    logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO, format="%(message)s")
+    logging.getLogger("skfem").setLevel(logging.WARNING)
+    from hailstorm.precompute.geometry import MeshError
+    from hailstorm.runtime.bundle.format import BundleError
+
+    try:
+        if args.command == "precompute":
+            rc = _run_precompute(args)
+        elif args.command == "info":
+            rc = _run_info(args)
+        else:
+            rc = _run_storm(args)
+        sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's exit
+        return rc
+    except BrokenPipeError:  # `hailstorm info X | head -2`: the reader left; exit quietly
+        _silence_stdout()
+        return 1
+    except (MeshError, BundleError, ValueError) as exc:
+        print(f"hailstorm: error: {_one_line(exc)}", file=sys.stderr)
+        return EXIT_INPUT
+    except OSError as exc:  # files and directories the user named (missing, read-only, full disk...)
+        print(f"hailstorm: error: {_os_error(exc)}", file=sys.stderr)
+        return EXIT_INPUT
+    except MemoryError:
+        print("hailstorm: error: out of memory (a coarser mesh, a shorter storm or fewer stones needs less)", file=sys.stderr)
+        return EXIT_INPUT
+    except KeyboardInterrupt:
+        print("hailstorm: interrupted", file=sys.stderr)
+        return 130
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def _os_error(exc: OSError) -> str:
+    """``[Errno 13] Permission denied: 'x'`` as ``x: Permission denied`` (one line)."""
+    if exc.strerror:
+        where = ": ".join(str(f) for f in (exc.filename, exc.filename2) if f is not None)
+        return f"{where}: {exc.strerror}" if where else exc.strerror
+    return _one_line(exc)
+
+
+def _silence_stdout() -> None:
+    """Point stdout at /dev/null so that the interpreter's final flush does not
+    raise BrokenPipeError again (Python's documented recipe)."""
+    import os
+
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):  # no real file descriptor (captured stdout)
+        pass
+
+
+if __name__ == "__main__":
+    sys.exit(main())

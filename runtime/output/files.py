@@ -1,0 +1,503 @@
+"""Writers for a storm's results: summary.json, a ParaView time series, an animation.
+
+A CLI storm writes its outputs as a unit with :class:`StormOutput`: frames are
+streamed to disk as the storm records them (memory stays flat in the
+duration), everything goes into a hidden temporary sibling of the output
+directory, and one rename puts the complete set in place. An interrupted or
+failed run leaves nothing; a rerun replaces only a directory that holds
+exactly a previous storm output (recognised by :data:`STORM_MANIFEST`, the list
+of files the project wrote), and refuses any other non-empty directory.
+
+Use::
+
+    from hailstorm.runtime.output.files import StormOutput
+    with StormOutput("run1", gf) as out:           # checks "run1" can be written, first
+        result = hailstorm.runtime.run_storm(gf, scene, on_frame=out.add)
+        out.finish(result)                         # pvd, summary.json, storm.mp4: then in place
+
+The animation is :mod:`hailstorm.runtime.output.render`'s (:func:`write_animation`
+is re-exported here). matplotlib, imageio and meshio are imported inside the
+writers, so importing this module costs nothing.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import os
+import shutil
+import tempfile
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hailstorm.runtime.bundle.atomic import probe_writable, write_text_atomic
+from hailstorm.runtime.output.render import shown_displacement as _shown
+from hailstorm.runtime.output.render import write_animation
+
+__all__ = [
+    "STORM_MANIFEST",
+    "FrameSeries",
+    "OutputError",
+    "ParaviewSeries",
+    "StormOutput",
+    "check_storm_out",
+    "summary",
+    "write_animation",
+    "write_paraview",
+    "write_summary",
+]
+
+_log = logging.getLogger(__name__)
+
+#: the file, in a storm's output directory, that lists every file the storm wrote
+STORM_MANIFEST = "hailstorm-storm.json"
+_MANIFEST_FORMAT = "hailstorm-storm-output"
+
+#: bytes per surface vertex of one frame's surface VTU on disk (measured: ~60-65 B on the
+#: default seat, zlib-compressed float64 fields), an upper bound for the disk estimate
+FRAME_BYTES_PER_VERTEX = 80
+
+
+class OutputError(ValueError):
+    """An output directory cannot be written, or writing it would overwrite files
+    hailstorm did not write."""
+
+
+def _jsonable(v: Any) -> Any:
+    if isinstance(v, (np.integer,)):
+        return int(v)
+    if isinstance(v, (np.floating, float)):
+        f = float(v)
+        return f if math.isfinite(f) else None
+    if isinstance(v, np.bool_):
+        return bool(v)
+    if isinstance(v, (list, tuple)):
+        return [_jsonable(x) for x in v]
+    if isinstance(v, dict):
+        return {k: _jsonable(x) for k, x in v.items()}
+    return v
+
+
+def _seat_of(gf: Any) -> dict[str, Any] | None:
+    """The seat a bundle was actually computed for (from its manifest), in the scene's
+    ``[seat]`` layout, or None when ``gf`` carries no manifest."""
+    m = getattr(gf, "manifest", None)
+    if not isinstance(m, dict):
+        return None
+    opts, mat = m.get("options", {}), m.get("material", {})
+    seat = {"mesh_size": opts.get("mesh_size"), "order": opts.get("order"),
+            "young": mat.get("young", opts.get("young")), "poisson": mat.get("poisson", opts.get("poisson"))}
+    if opts.get("geometry") is not None:
+        seat["geometry"] = str(opts["geometry"])
+    return seat
+
+
+def summary(result: Any, gf: Any = None) -> dict[str, Any]:
+    """The summary as a dict (what :func:`write_summary` writes).
+
+    Keys (every key and its unit is listed in the README, "Storm outputs"):
+    ``hailstones`` (spawned), ``impacts`` (contact onsets faster than
+    the scene's ``time.rest_speed``), ``stones_hit`` (stones that touched the seat
+    at least once, slow touches included), ``max_contact_force`` [N],
+    ``max_indentation_m`` (largest normal contact displacement),
+    ``max_simultaneous_contacts``, ``max_penetration_m`` (deepest overlap of a
+    stone with the deformed surface), ``steps``, ``substeps``,
+    ``capacitance_rebuilds``, ``frames`` (recorded, = files in each series),
+    ``sim_time_s``, ``wall_time_s`` (the stepping, recording the frames
+    included, writing them not), ``output_time_s`` (writing the frames as they
+    were recorded),
+    ``real_time_factor`` (simulated / wall-clock time; > 1 is faster than real
+    time), ``setup_time_s`` (building the storm: spatial index, spawn plan,
+    loading the compiled kernels), ``backend``, ``seed``, ``dt``,
+    ``integrator``, ``mode``, and the scene.
+
+    Parameters
+    ----------
+    result : StormResult
+    gf : GreensFunctions, optional
+        The bundle the storm ran on. Given, the scene's ``[seat]`` section
+        records the seat the bundle was computed for (its manifest: mesh size,
+        order, material; the scene file's ``[seat]`` request,
+        :class:`~hailstorm.runtime.scene.SeatSettings`, is not part of the
+        :class:`~hailstorm.runtime.scene.Scene`), and ``bundle`` records its
+        path and key. Without it the scene has no ``[seat]``.
+    """
+    d = dict(result.stats)
+    d["scene"] = result.scene.to_dict()
+    seat = _seat_of(gf) if gf is not None else None
+    if seat is not None:
+        d["scene"]["seat"] = seat
+        d["bundle"] = {"path": str(getattr(gf, "path", "")), "key": gf.manifest.get("key")}
+    return _jsonable(d)
+
+
+def write_summary(result: Any, path: str | os.PathLike, gf: Any = None) -> Path:
+    """Write ``summary.json`` for a :class:`hailstorm.runtime.storm.recording.StormResult`; returns the path.
+    ``gf``: see :func:`summary`."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return write_text_atomic(path, json.dumps(summary(result, gf), indent=2, sort_keys=True) + "\n")
+
+
+def _pvd(entries: list[tuple[float, str]]) -> str:
+    rows = "\n".join(f'    <DataSet timestep="{t:.9g}" group="" part="0" file="{fn}"/>' for t, fn in entries)
+    return ('<?xml version="1.0"?>\n<VTKFile type="Collection" version="0.1" byte_order="LittleEndian">\n'
+            f"  <Collection>\n{rows}\n  </Collection>\n</VTKFile>\n")
+
+
+class ParaviewSeries:
+    """A ParaView time series written frame by frame (:meth:`add`), then closed (:meth:`close`).
+
+    The seat (``frames/surface_NNNN.vtu``) carries point data ``displacement``
+    (vector, [m]), ``|u|``, ``peak_displacement`` and ``|u| peak`` (the largest
+    displacement since the previous frame); its points are the *undeformed*
+    vertices (use ParaView's "Warp By Vector" to see the deformation). The
+    stones (``frames/stones_NNNN.vtu``) are vertex cells with point data
+    ``radius`` [m], ``id`` and ``force`` (the force each applies to the seat
+    [N], zero out of contact) (use a "Glyph" filter, sphere, scale by
+    ``radius``, factor 2). A frame without stones holds one placeholder point
+    of radius 0, id -1 and force 0 (a VTU without cells cannot be read back by meshio).
+    Only the running list of file names and times is kept, not the frames.
+
+    Parameters
+    ----------
+    gf : GreensFunctions
+    outdir : path
+        Directory of the series (created).
+    name : str
+        The collections are ``<name>.pvd`` (seat) and ``<name>_stones.pvd``.
+    """
+
+    def __init__(self, gf: Any, outdir: str | os.PathLike, *, name: str = "storm") -> None:
+        self.outdir = Path(outdir)
+        self.name = name
+        (self.outdir / "frames").mkdir(parents=True, exist_ok=True)
+        self._X = np.asarray(gf.vertices, dtype=np.float64)
+        self._tri = np.asarray(gf.triangles, dtype=np.int64)
+        self._dummy = self._X.mean(axis=0)[None, :] if len(self._X) else np.zeros((1, 3))
+        #: per frame: (t, surface file, stones file, open contacts, max |shown displacement|)
+        self.entries: list[tuple[float, str, str, int, float]] = []
+
+    def __len__(self) -> int:
+        return len(self.entries)
+
+    def add(self, frame: Any) -> None:
+        """Write one :class:`hailstorm.runtime.storm.recording.Frame` (both files)."""
+        import meshio
+
+        i = len(self.entries)
+        u = np.asarray(frame.displacement, dtype=np.float64)
+        peak = np.asarray(_shown(frame), dtype=np.float64)
+        sname = f"frames/surface_{i:04d}.vtu"
+        meshio.write(self.outdir / sname, meshio.Mesh(
+            self._X, [("triangle", self._tri)],
+            point_data={"displacement": u, "|u|": np.linalg.norm(u, axis=1), "peak_displacement": peak,
+                        "|u| peak": np.linalg.norm(peak, axis=1)}))
+        pos = np.asarray(frame.positions, dtype=np.float64).reshape(-1, 3)
+        radii = np.asarray(frame.radii, dtype=np.float64)
+        ids = np.asarray(frame.ids, dtype=np.int64)
+        forces = getattr(frame, "forces", None)
+        forces = np.zeros((pos.shape[0], 3)) if forces is None else np.asarray(forces, dtype=np.float64)
+        if pos.shape[0] == 0:  # placeholder: meshio cannot read a VTU without cells
+            pos, radii, ids, forces = self._dummy, np.zeros(1), np.full(1, -1, dtype=np.int64), np.zeros((1, 3))
+        k = pos.shape[0]
+        stname = f"frames/stones_{i:04d}.vtu"
+        meshio.write(self.outdir / stname, meshio.Mesh(pos, [("vertex", np.arange(k, dtype=np.int64)[:, None])],
+                                                       point_data={"radius": radii, "id": ids, "force": forces}))
+        umax = float(np.linalg.norm(peak, axis=1).max()) if len(peak) else 0.0
+        self.entries.append((float(frame.t), sname, stname, int(frame.contacts), umax))
+
+    def close(self) -> Path:
+        """Write the two ``.pvd`` collections; returns ``<name>.pvd``."""
+        main = self.outdir / f"{self.name}.pvd"
+        main.write_text(_pvd([(t, s) for t, s, _, _, _ in self.entries]))
+        (self.outdir / f"{self.name}_stones.pvd").write_text(_pvd([(t, s) for t, _, s, _, _ in self.entries]))
+        return main
+
+    def files(self) -> list[str]:
+        """Every file of the series, relative to :attr:`outdir`."""
+        names = [f"{self.name}.pvd", f"{self.name}_stones.pvd"]
+        for _, s, st, _, _ in self.entries:
+            names += [s, st]
+        return names
+
+    def frames(self) -> "FrameSeries":
+        """The written frames, read back on access."""
+        return FrameSeries(self)
+
+
+class FrameSeries(Sequence):
+    """The frames of a :class:`ParaviewSeries`, read back from its files on access
+    (a sequence of :class:`hailstorm.runtime.storm.recording.Frame`; nothing is cached)."""
+
+    def __init__(self, series: ParaviewSeries) -> None:
+        self._series = series
+
+    def __len__(self) -> int:
+        return len(self._series.entries)
+
+    def peak_norm(self, i: int) -> float:
+        """Largest ``|peak displacement|`` of frame ``i`` [m], without reading it."""
+        return self._series.entries[i][4]
+
+    def __getitem__(self, i: int) -> Any:  # type: ignore[override]
+        import meshio
+
+        from hailstorm.runtime.storm.recording import Frame
+
+        t, sname, stname, contacts, _ = self._series.entries[i]
+        s = meshio.read(self._series.outdir / sname)
+        st = meshio.read(self._series.outdir / stname)
+        ids = np.asarray(st.point_data["id"], dtype=np.int64)
+        keep = ids >= 0
+        force = st.point_data.get("force")  # absent from the files of older versions
+        return Frame(t=t, displacement=s.point_data["displacement"], positions=st.points[keep],
+                     radii=np.asarray(st.point_data["radius"])[keep], ids=ids[keep], contacts=contacts,
+                     peak_displacement=s.point_data["peak_displacement"],
+                     forces=None if force is None else np.asarray(force, dtype=np.float64)[keep])
+
+
+def write_paraview(result: Any, gf: Any, outdir: str | os.PathLike, *, name: str = "storm") -> Path:
+    """Write a ParaView time series of a storm's frames (see :class:`ParaviewSeries`).
+
+    Parameters
+    ----------
+    result : StormResult or sequence of Frame
+    gf : GreensFunctions
+    outdir : path
+    name : str
+
+    Returns
+    -------
+    pathlib.Path
+        ``outdir/<name>.pvd`` (the collection to open in ParaView); the stones'
+        series is ``outdir/<name>_stones.pvd``.
+    """
+    series = ParaviewSeries(gf, outdir, name=name)
+    for f in getattr(result, "frames", result):
+        series.add(f)
+    return series.close()
+
+
+def _listing(out: Path) -> tuple[list[str], list[str]]:
+    """Files and directories under ``out`` (relative POSIX paths), depth first."""
+    files, dirs = [], []
+    for root, dnames, fnames in os.walk(out):
+        rel = Path(root).relative_to(out)
+        files += [(rel / f).as_posix() for f in fnames]
+        dirs += [(rel / d).as_posix() for d in dnames]
+    return sorted(files), sorted(dirs)
+
+
+def _our_files(out: Path) -> set[str] | None:
+    """The files a previous storm output in ``out`` lists (its manifest included), or
+    None if ``out`` holds no readable storm manifest."""
+    try:
+        m = json.loads((out / STORM_MANIFEST).read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(m, dict) or m.get("format") != _MANIFEST_FORMAT or not isinstance(m.get("files"), list):
+        return None
+    return {str(f) for f in m["files"]} | {STORM_MANIFEST}
+
+
+def _foreign(out: Path) -> list[str]:
+    """What in the existing directory ``out`` hailstorm did not write (empty: ``out`` is
+    empty or holds exactly a previous storm output)."""
+    files, dirs = _listing(out)
+    ours = _our_files(out)
+    if ours is None:
+        return files + [d + "/" for d in dirs if not any(f.startswith(d + "/") for f in files)]
+    parents = {Path(f).parent.as_posix() for f in ours}
+    return [f for f in files if f not in ours] + [d + "/" for d in dirs if d not in parents]
+
+
+def check_storm_out(out: str | os.PathLike) -> None:
+    """Check that a storm may write its outputs to ``out`` (nothing is written).
+
+    ``out`` may be new, an empty directory, or a directory holding exactly a
+    previous storm output (the files listed by its :data:`STORM_MANIFEST`),
+    which a new run replaces as a whole.
+
+    Raises
+    ------
+    OutputError
+        ``out`` is a file, is not writable, or holds files hailstorm did not
+        write (named in the message, which is one line).
+    """
+    out = Path(out)
+    if out.exists() or out.is_symlink():
+        if not out.is_dir():
+            raise OutputError(f"--out {out} exists and is not a directory; refusing to overwrite it")
+        foreign = _foreign(out)
+        if foreign:
+            shown = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more" if len(foreign) > 5 else "")
+            raise OutputError(f"--out {out} holds files that are not a hailstorm storm output ({shown}); "
+                              "refusing to overwrite it (choose an empty or new directory)")
+        if not os.access(out, os.W_OK | os.X_OK):
+            raise OutputError(f"--out {out} is not writable")
+    try:
+        probe_writable(out.absolute().parent)
+    except NotADirectoryError as exc:
+        raise OutputError(f"cannot create --out {out}: {exc.filename} is not a directory") from None
+    except OSError as exc:
+        where = Path(exc.filename).parent if exc.filename else out.absolute().parent
+        raise OutputError(f"cannot write --out {out}: {where}: {exc.strerror or exc}") from None
+
+
+class StormOutput:
+    """A storm's output directory, written as a unit.
+
+    :meth:`open` (or ``with``) checks ``out`` (:func:`check_storm_out`) and
+    the free disk space, then creates a hidden temporary sibling of ``out``;
+    :meth:`add` writes each frame there as the storm records it; :meth:`finish`
+    writes the ``.pvd`` collections, ``summary.json``, the animation and the
+    manifest :data:`STORM_MANIFEST`, and renames the directory into place
+    (replacing a previous storm output). Leaving the ``with`` block without
+    :meth:`finish` (an error, Ctrl-C) removes the temporary directory and
+    leaves ``out`` as it was.
+
+    Parameters
+    ----------
+    out : path
+        The output directory.
+    gf : GreensFunctions
+        The bundle the storm runs on.
+    video : bool
+        Render ``storm.mp4`` (GIF fallback) from the written frames.
+    disk_bytes : int, optional
+        Expected size of the outputs (:meth:`hailstorm.runtime.scene.Scene.estimate`):
+        refused up front if the file system has less free space.
+    progress : bool
+        A tqdm bar while rendering.
+    """
+
+    def __init__(self, out: str | os.PathLike, gf: Any, *, video: bool = True, disk_bytes: int | None = None,
+                 progress: bool = False) -> None:
+        self.out = Path(out)
+        self.gf = gf
+        self.video = video
+        self.disk_bytes = disk_bytes
+        self.progress = progress
+        self.staging: Path | None = None
+        self.series: ParaviewSeries | None = None
+        self.files: list[str] = []
+        self.committed = False
+
+    def __enter__(self) -> "StormOutput":
+        self.open()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        if not self.committed:
+            self.abort()
+
+    def open(self) -> None:
+        """Check ``out`` and create the temporary directory (see the class notes).
+
+        Raises
+        ------
+        OutputError
+            See :func:`check_storm_out`; or not enough free disk space.
+        """
+        check_storm_out(self.out)
+        parent = self.out.absolute().parent
+        try:
+            parent.mkdir(parents=True, exist_ok=True)
+            if self.disk_bytes is not None:
+                free = shutil.disk_usage(parent).free
+                if self.disk_bytes > free:
+                    raise OutputError(f"the outputs need about {self.disk_bytes / 2**30:.2f} GiB but {parent} has "
+                                      f"{free / 2**30:.2f} GiB free (lower [output] fps or the duration)")
+            self.staging = Path(tempfile.mkdtemp(prefix=f".{self.out.name}.partial-", dir=parent))
+        except OSError as exc:
+            raise OutputError(f"cannot write --out {self.out}: {exc.strerror or exc}") from None
+        self.series = ParaviewSeries(self.gf, self.staging)
+
+    def add(self, frame: Any) -> None:
+        """Write one recorded frame (the storm's ``on_frame`` callback)."""
+        assert self.series is not None, "StormOutput.open() first"
+        self.series.add(frame)
+
+    def __call__(self, frame: Any) -> None:
+        self.add(frame)
+
+    def finish(self, result: Any) -> dict[str, Path]:
+        """Write the collections, the summary and the animation; put the directory in place.
+
+        Returns
+        -------
+        dict
+            ``{"summary", "paraview", "stones", "video"}`` -> final paths (``video``
+            only when rendered; it may be the GIF fallback).
+        """
+        assert self.series is not None and self.staging is not None, "StormOutput.open() first"
+        series, staging = self.series, self.staging
+        if len(series) == 0:  # the result's frames were kept in memory instead of streamed
+            for f in result.frames:
+                series.add(f)
+        series.close()
+        result.stats.frames = len(series)  # the summary counts the files it describes
+        write_summary(result, staging / "summary.json", self.gf)
+        files = [*series.files(), "summary.json"]
+        video = None
+        if self.video:
+            video = write_animation(series.frames(), self.gf, staging / "storm.mp4",
+                                    history=getattr(result, "history", None), progress=self.progress)
+            files.append(video.name)
+        manifest = {"format": _MANIFEST_FORMAT, "version": 1, "files": sorted(files)}
+        (staging / STORM_MANIFEST).write_text(json.dumps(manifest, indent=1) + "\n")
+        self._commit()
+        paths = {"summary": self.out / "summary.json", "paraview": self.out / f"{series.name}.pvd",
+                 "stones": self.out / f"{series.name}_stones.pvd"}
+        if video is not None:
+            paths["video"] = self.out / video.name
+        return paths
+
+    def _commit(self) -> None:
+        staging, out = self.staging, self.out
+        assert staging is not None
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(staging, 0o777 & ~umask)  # mkdtemp's directory is private; a plain mkdir's is not
+        if out.is_dir() and any(out.iterdir()):
+            if _foreign(out):  # someone wrote into it during the run: keep both
+                raise OutputError(f"--out {out} changed during the run and now holds other files; "
+                                  f"the results are in {staging}")
+            old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=staging.parent))
+            old.rmdir()
+            os.replace(out, old)
+            os.replace(staging, out)
+            self.committed = True
+            _remove_storm_output(old)
+        else:
+            os.replace(staging, out)  # a new name, or over an empty directory
+            self.committed = True
+        self.staging = None
+
+    def abort(self) -> None:
+        """Remove the temporary directory (everything in it was written here)."""
+        if self.staging is not None:
+            shutil.rmtree(self.staging, ignore_errors=True)
+            self.staging = None
+
+
+def _remove_storm_output(path: Path) -> None:
+    """Delete a replaced storm output: the files its manifest lists, then the emptied
+    directories; anything else is left in place (and reported)."""
+    ours = _our_files(path) or set()
+    for f in ours:
+        (path / f).unlink(missing_ok=True)
+    _, dirs = _listing(path)
+    for d in sorted(dirs, key=lambda d: -d.count("/")) + ["."]:
+        try:
+            (path / d).rmdir()
+        except OSError:
+            pass
+    if path.exists():
+        _log.warning("the replaced storm output kept files it did not list: %s", path)
+

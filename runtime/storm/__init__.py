@@ -1,0 +1,35 @@
+"""The hail storm: stones falling on the seat, contacts through the capacitance.
+
+Siblings, each a part the driver composes (none imports the driver):
+
+* :mod:`~hailstorm.runtime.storm.hail` -- hailstone physics: sizes, drag,
+  terminal speed, the dashpot and the contact step's integrators;
+* :mod:`~hailstorm.runtime.storm.stones` -- the stones in flight and their spawning;
+* :mod:`~hailstorm.runtime.storm.seat` -- the seat's deformed state;
+* :mod:`~hailstorm.runtime.storm.collide` -- broad and narrow phase against the deformed surface;
+* :mod:`~hailstorm.runtime.storm.patches` -- the contact patches' sizes and weights;
+* :mod:`~hailstorm.runtime.storm.contact_set` -- the contacts of a step as a layer over
+  the contact API's capacitance;
+* :mod:`~hailstorm.runtime.storm.soft_contacts` / :mod:`~hailstorm.runtime.storm.integrators`
+  -- the contact step of a sub-step;
+* :mod:`~hailstorm.runtime.storm.recording` -- frames, statistics, :class:`StormResult`;
+* :mod:`~hailstorm.runtime.storm.warmup` -- the first run's compile;
+* :mod:`~hailstorm.runtime.storm.driver` -- :class:`Storm` and :func:`run_storm`.
+
+The driver's names are imported on first use (PEP 562), so that a part
+(``hailstorm.runtime.storm.hail``, which the scene reads) does not load the driver.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+__all__ = ["Storm", "StormResult", "run_storm"]
+
+
+def __getattr__(name: str) -> Any:
+    if name in __all__:
+        from hailstorm.runtime.storm import driver
+
+        return getattr(driver, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -1,0 +1,529 @@
+"""The hail storm driver: stones falling on the seat, contacts through the capacitance.
+
+Use::
+
+    from hailstorm.runtime import Scene, load, run_storm
+    gf = load("bundle/")
+    scene = Scene.from_toml("scene.toml")      # or Scene.default(), Scene.from_flat(duration=0.2, ...)
+    result = run_storm(gf, scene, progress=True)
+
+Algorithm of one step (``dt`` = ``scene.time.dt``)
+-------------------------------------------------
+1. Spawn the stones due in this step.
+2. Broad phase by *conservative advancement*: every flying stone carries a
+   lower bound of its distance to the deformed seat (``budget``: nearest
+   k-d tree sample minus the sample radius, the stone radius and 1.5x the
+   peak seat displacement). It is spent by what the stone can travel; only
+   when it runs out is it re-measured (one vectorised k-d query for all such
+   stones). Stones with budget left fly freely (vectorised ballistic + drag
+   update) and are never collision-tested.
+3. Near stones (budget exhausted, or in contact): one narrow-phase query per
+   step on the *locally* deformed surface (k-d tree on triangle samples;
+   the displacement is evaluated only at the candidate triangles' vertices,
+   ``u = D[rows, cols(V)] B f``); it also records the penetration. Then
+   sub-steps:
+
+   a. closest points (reused from the step's query, or predicted from the
+      previous sub-step for stones that cannot touch before the step ends);
+   b. time of impact (``adaptive = true``): the sub-step ends when the first
+      approaching stone reaches the tangent plane at its closest point
+      (constant acceleration); the contact opens when the gap is below 1% of
+      the radius and the stone is put on the surface;
+      an open contact keeps its ``(t, beta)`` while the stone stays over
+      the same triangle;
+   c. contacts on triangles that cannot deform (all clamped, or without
+      compliance columns) are a hard wall (projection + restitution);
+   d. the other contacts share one capacitance (``hailstorm.runtime.contact``), rebuilt
+      only when the set of (stone, triangle[, patch radius]) changes; the stones are
+      advanced by the scene's integrator with unilateral release.
+      ``integrator = "exact"`` solves the damped linear contact dynamics in
+      closed form over the whole sub-step (maximum compression and release
+      located inside it), so one sub-step per step suffices whatever
+      ``omega dt``; ``"implicit"``/``"symplectic"`` sub-step to ``omega_dt``
+      when adaptive;
+   e. the seat's state is the vertex-force vector ``B f``; the full-surface
+      displacement ``u = D[:, V] B f`` is formed only for frames (:attr:`Storm.u`).
+4. Retire stones that left the seat's region; record a frame if one is due.
+
+The parts (each with explicit inputs; this module composes them)
+-----------------------------------------------------------------
+* :class:`~hailstorm.runtime.storm.stones.Stones`, :class:`~hailstorm.runtime.storm.stones.SpawnPlan`
+  -- the stones' arrays, spawning, retirement;
+* :class:`~hailstorm.runtime.storm.seat.SeatState` -- vertex forces, displacement
+  queries, peaks;
+* :class:`~hailstorm.runtime.storm.collide.Collision` -- broad phase, free flight, the
+  free part of a sub-step (narrow phase), penetration, retirement rule;
+* :class:`~hailstorm.runtime.storm.soft_contacts.SoftContacts` -- the contact set
+  (:class:`~hailstorm.runtime.storm.contact_set.ContactSets`), patch sizing
+  (:class:`~hailstorm.runtime.storm.patches.Patches`) and the contact step
+  (:class:`~hailstorm.runtime.storm.integrators.ContactIntegrator`);
+* :mod:`~hailstorm.runtime.storm.recording` -- frames, the force history, the
+  statistics (:class:`~hailstorm.runtime.storm.recording.StormStats`).
+
+Patch contacts (``patch = "hertz"``, the default)
+-------------------------------------------------
+Each soft contact spreads its force over a disc of radius ``a`` around the
+contact point, with the Hertz pressure profile (consistent P1 nodal loads,
+:func:`hailstorm.runtime.contact.weights.patch_weights`); the contact prescribes the
+pressure-weighted mean normal displacement of the surface under the disc
+(measured from the tangent plane at the contact point), which the stone's
+lowest point follows. ``patch = "none"`` gives the point contacts of the
+course hint (barycentric weights on one triangle).
+
+* Radius: ``a = hertz_radius(F_peak, R, E, nu)`` clipped to
+  ``[patch_min_radius, R]``, with ``F_peak`` the peak force of the contact's
+  current oscillation about its static equilibrium,
+  ``F_eq + sqrt((F - F_eq)^2 + k m v_n^2)`` (``F`` the previous sub-step's
+  force, ``k`` the contact's stiffness). For a new contact (``F = 0``) this is
+  the impact's expected peak force, with the stiffness of the patch itself
+  (one fixed-point iteration from the triangle's point stiffness). The
+  estimate is nearly constant during an impact, so the disc is sized for the
+  deepest dent and the contact keeps one set of weights for the whole impact.
+* Rebuilds: a contact is re-weighted (and the capacitance rebuilt) only when
+  its target radius grows by more than ``patch_tolerance`` (20%), or shrinks
+  by more than that *once the stone rests* (oscillation amplitude below
+  ``rest_speed``): re-weighting during a rebound would change the stiffness
+  that the damping was tuned for (the restitution), while the damping itself
+  halves the amplitude within one impact.
+* Caching: a contact keeps ``(triangle, beta)`` while its stone stays over
+  the triangle, so its weights are cached per stone (:meth:`hailstorm.runtime.storm.patches.Patches.weights`) and
+  only recomputed when the contact moves to another triangle or is resized;
+  a capacitance rebuild (set change) reuses the cached weights of every other
+  contact.
+
+Adaptive sub-steps for ``"implicit"``/``"symplectic"`` (``adaptive = true``):
+the sub-step is also limited so that a stone approaching the surface travels
+at most ``approach_fraction * r`` per sub-step and so that ``omega dt <=
+omega_dt`` for contacts that are still moving (``|v_n| > rest_speed``;
+``omega = sqrt(K_kk / m)``). Resting contacts do not limit the step under the
+implicit integrator (backward Euler is exact at equilibrium); under the
+symplectic one every contact does (stability). The exact integrator treats a
+resting contact's dashpot as acting both ways (no switching events).
+
+Penetration: a flying stone never enters the deformed surface by more than
+the contact-opening gap (1% of its radius) when ``adaptive = true``
+(``max_penetration_free_m``). A stone *in contact* overlaps the piecewise-linear
+dent around its load (``max_penetration_contact_m``, also relative to the
+stone's radius and as a mean over contact steps): with point contacts the
+contact point follows the stone exactly, but the dent is a one-vertex spike
+whose triangles tilt into the sphere's cap; a patch contact spreads the load
+over the disc and the dent follows the sphere much more closely. This is a
+property of the contact model (see DESIGN: vertex pressure masks), not of the
+time integration.
+
+BLAS runs single-threaded inside :func:`run_storm` (``threadpoolctl``): the
+dense solves are tiny and threaded BLAS on a shared machine only adds latency.
+
+Compiled kernels
+----------------
+A step's arithmetic is small; as numpy calls its cost would be the per-call
+overhead of a few hundred calls on arrays of a handful of stones. Each phase
+runs once, in compiled kernels (:mod:`hailstorm.runtime.compiled`, numba): the
+broad phase and free flight, the queries on a uniform grid of the triangles'
+samples, phases a-c of a sub-step in one kernel, the patch sizing and weights,
+the capacitance blocks and the integrators' steps; the orchestration stays in
+this module. The tests hold the kernels to plain statements of the same rules
+(``tests/reference/``) and to independent oracles (brute-force closest points
+over all triangles, analytic bounces). ``NUMBA_DISABLE_JIT=1`` runs them as
+Python, for debugging.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from typing import Any, Callable
+
+import numpy as np
+
+from hailstorm.runtime.storm.collide import Collision, SurfaceIndex
+from hailstorm.runtime.compiled import KERNELS
+from hailstorm.runtime.bundle.compliance import ElasticSource
+from hailstorm.runtime.storm.contact_set import ContactSet, ContactSets
+from hailstorm.runtime.storm.hail import GRAVITY, Air
+from hailstorm.runtime.storm.integrators import ContactIntegrator
+from hailstorm.runtime.storm.patches import Patches
+from hailstorm.runtime.storm.recording import Frame, Recorder, StormResult, StormStats
+from hailstorm.runtime.scene import Scene, SceneError
+from hailstorm.runtime.storm.seat import SeatState
+from hailstorm.runtime.storm.soft_contacts import SoftContacts
+from hailstorm.runtime.storm.stones import SpawnPlan, Stones
+from hailstorm.runtime.storm.warmup import HelperSpec, WarmReport, WarmTask, warm_up
+
+__all__ = ["Frame", "Scene", "SceneError", "Storm", "StormResult", "StormStats", "run_storm", "warm_up_worker"]
+
+_log = logging.getLogger(__name__)
+
+
+class Storm:
+    """A running storm (stateful): the parts composed; :func:`run_storm` drives one from start to end.
+
+    Parameters
+    ----------
+    gf : ElasticSource
+        The bundle (:func:`hailstorm.runtime.bundle.read.load`).
+    scene : Scene
+    spawn : bool
+        Spawn the scene's random stones (``False``: only stones added with
+        :meth:`add_stones`, e.g. for a single drop).
+    warm : bool
+        Load (or, the first time, compile) the kernels now (:meth:`warm_up`);
+        ``False``: later, e.g. on first use.
+
+    Attributes
+    ----------
+    stones : Stones
+    seat : SeatState
+    collision : Collision
+    contacts : SoftContacts
+    stats : StormStats
+    warm_report : WarmReport or None
+        What the kernels' warm-up did (None with ``warm=False``).
+    t : float
+        Simulated time [s].
+    """
+
+    def __init__(self, gf: ElasticSource, scene: Scene, *, spawn: bool = True, warm: bool = True) -> None:
+        self.gf = gf
+        self.scene = scene
+        hail, contact = scene.hail, scene.contact
+        air = Air.of(scene.storm.wind, hail.drag, hail.cd, hail.rho_air, hail.density)
+        self.g = np.array([0.0, 0.0, -GRAVITY])
+        self.stones = Stones(hail.density)
+        self.seat = SeatState(gf)
+        self.collision = Collision(gf, scene, air)
+        normals = self.collision.index.normals
+        self.patches = Patches(gf, contact, scene.time, self.seat, normals, self.collision.soft, air)
+        sets = ContactSets(gf, contact.sticky, normals, self.patches)
+        self.integrator = ContactIntegrator(scene.time, contact)
+        self.contacts = SoftContacts(contact, scene.time, sets, self.patches, self.integrator, self.seat, air)
+        self.stats = StormStats(patch=contact.patch)
+        self.t = 0.0
+        self.plan = SpawnPlan(scene.storm, hail, self.collision.lo, self.collision.hi,
+                              np.random.default_rng(scene.storm.seed)) if spawn else SpawnPlan.empty()
+        self.warm_report: WarmReport | None = self.warm_up() if warm else None
+
+    def step(self) -> None:
+        """Advance the storm by one step ``dt``."""
+        dt, st, stones, seat = self.scene.time.dt, self.stats, self.stones, self.seat
+        due = self.plan.due(self.t + dt)
+        if due is not None:
+            self.add_stones(due[:, 1:4], due[:, 4:7], due[:, 7])
+        live = stones.live()
+        near, far = self.collision.near_set(stones, live, dt, seat.umax_step) if live.size else (live, live)
+        if far.size:
+            self.collision.fly(stones, far, dt)
+            stones.gap[far] = np.inf
+        if near.size:
+            self.collision.penetration(stones, near, dt, seat, st)
+            t_left, n_sub = dt, 0
+            while t_left > 1e-12 * dt:
+                h = self.integrator.substep_size(stones, near, t_left, self.contacts.current, self._k_tri(), self.g)
+                if n_sub >= 4 * self.scene.time.max_substeps:
+                    h = t_left  # safety net: never stall
+                t_left -= self._substep(near, h)
+                n_sub += 1
+        elif seat.loaded:
+            self.contacts.release()
+        gone = self.collision.retired(stones, live) if live.size else live
+        if gone.size:
+            stones.retire(gone)
+            self.patches.forget(gone.tolist())
+            st.retired += int(gone.size)
+        seat.end_step()
+        self.t += dt
+        st.steps += 1
+
+    def _k_tri(self) -> np.ndarray | None:
+        """The triangles' point stiffness when the integrator sizes sub-steps by it (computed once)."""
+        return self.patches.k_tri if self.integrator.sizes_substeps else None
+
+    def _substep(self, near: np.ndarray, h: float) -> float:
+        """Advance the near stones by at most ``h``; returns the time actually taken
+        (shorter when a stone is about to touch the seat: time of impact): the free
+        phase (closest points, time of impact, contacts that open, hard walls), then the
+        soft contacts through their capacitance and free flight of the others."""
+        stones = self.stones
+        was_open = stones.ctri[near] >= 0
+        h = self.collision.free_phase(stones, near, h, self.seat, self.stats)
+        in_contact = stones.ctri[near] >= 0
+        soft = near[in_contact]
+        free = near[~in_contact] if soft.size else near
+        if soft.size:
+            self.contacts.advance(stones, near, soft, was_open, h, self.stats)
+        else:
+            self.contacts.release()
+        if free.size:
+            self.collision.fly(stones, free, h)
+        self.stats.substeps += 1
+        return h
+
+    def warm_tasks(self) -> list[WarmTask]:
+        """The kernels the loop calls, in tasks that load (or compile) them with the loop's
+        argument types; only those of this scene (integrator, patch model). Each task's
+        ``seconds`` is its cold compile CPU in a fresh process, measured with
+        ``HAILSTORM_COMPILE_WORKERS=1 tests/benchmarks/compile_time.py`` (more on a loaded machine)."""
+        sc, stones, col = self.scene.time, self.stones, self.collision
+        dt = float(sc.dt)
+        soft = np.flatnonzero(col.soft)
+        t = int(soft[0]) if soft.size else -1
+        third = np.full((1, 3), 1.0 / 3.0)
+        exact = sc.integrator == "exact"
+        # CPU seconds of each task's cold compile in one process (tests/benchmarks/compile_time.py);
+        # no two tasks share a kernel (the contact set's are the contact API's blocks of D, the
+        # integrators' SPD inverse is theirs alone)
+        tasks = [
+            WarmTask("the free-flight and broad-phase kernels", 3, lambda: col.warm_up_flight(stones, dt)),
+            WarmTask("the narrow-phase kernels", 9, lambda: col.warm_up_narrow(stones, self.seat, dt)),
+            WarmTask("the contact-step kernels", 2, lambda: self.contacts.warm_up(stones)),
+            WarmTask(f"the {sc.integrator} integrator's kernels", 49 if exact else 10,
+                     lambda: self.integrator.warm_up(stones, self._k_tri(), self.g, dt)),
+        ]
+        if t >= 0:
+            tasks.insert(2, WarmTask("the contact-set kernels", 6, lambda: self.contacts.sets.warm_up(t)))
+            tasks.insert(3, WarmTask("the patch kernels" if self.patches.enabled else "the patch-compliance kernel",
+                                     10 if self.patches.enabled else 1,
+                                     lambda: self.patches.warm_up(t, third, col.index.normals[[t]], stones)))
+        return tasks
+
+    def warm_up(self, names: list[str] | None = None) -> WarmReport:
+        """Load (or compile, the first time after an install) every kernel the loop calls,
+        with the loop's argument types, so that the stepping runs compiled code from its
+        first step (loading takes ~0.3 s; compiling takes a while, once: numba caches the
+        machine code on disk). A task that compiles says so in one INFO line; when one
+        does, a helper process compiles part of the tasks in parallel
+        (:func:`hailstorm.runtime.storm.warmup.warm_up`; the helper rebuilds this storm from the
+        bundle's directory, :func:`warm_up_worker`).
+
+        Parameters
+        ----------
+        names : list of str, optional
+            Only these tasks (:meth:`warm_tasks` names), all here (a helper's part).
+        """
+        tasks = self.warm_tasks()
+        if names is not None:
+            tasks = [task for task in tasks if task.name in names]
+        helper = None if names is not None else _helper_spec(self.gf, self.scene)
+        report = warm_up(tasks, helper) if helper is not None else warm_up(tasks, None, workers=1)
+        if report.compiled:
+            _log.info("storm kernels compiled in %.1f s (%s); later runs load them", report.wall,
+                      f"{len(report.helpers) + 1} processes" if report.helpers else "1 process")
+        _log.debug("storm kernels ready in %.2f s (%s)", report.wall,
+                   ", ".join(f"{k}: {v:.2f} s" for k, v in report.times.items()))
+        return report
+
+    # -- the public face (stones, seat, contacts) -----------------------------------
+    def add_stones(self, pos: np.ndarray, vel: np.ndarray, radius: np.ndarray) -> np.ndarray:
+        """Add stones now; returns their ids."""
+        ids = self.stones.add(pos, vel, radius)
+        self.stats.hailstones += ids.size
+        return ids
+
+    def frame(self) -> Frame:
+        """The current state as a :class:`Frame`.
+
+        Its ``peak_displacement`` covers the time since the previous call (the
+        start, for the first): calling this starts a new peak interval.
+        """
+        stones = self.stones
+        live = np.flatnonzero(stones.alive)
+        peak = self.seat.peak_field().astype(np.float32)
+        forces = np.zeros((live.size, 3))
+        ids, f = self.contact_forces()
+        np.add.at(forces, np.searchsorted(live, ids), f)  # stones in contact are live
+        return Frame(t=self.t, displacement=self.seat.u.astype(np.float32), positions=stones.pos[live].copy(),
+                     radii=stones.radius[live].copy(), ids=live.copy(),
+                     contacts=int((stones.ctri[live] >= 0).sum()), peak_displacement=peak, forces=forces)
+
+    def contact_forces(self) -> tuple[np.ndarray, np.ndarray]:
+        """Stone ids in soft contact and the forces they apply to the seat, (s,), (s, 3)."""
+        return self.contacts.forces(self.stones.ctri)
+
+    @property
+    def u(self) -> np.ndarray:
+        """Displacement (n, 3) of the whole surface (computed on demand, e.g. for frames)."""
+        return self.seat.u
+
+    @property
+    def index(self) -> SurfaceIndex:
+        """The surface's index (samples, grid, triangle normals, bounding box)."""
+        return self.collision.index
+
+    @property
+    def soft(self) -> np.ndarray:
+        """Triangles that deform under a contact (others are a hard wall)."""
+        return self.collision.soft
+
+    @property
+    def cache(self) -> ContactSet | None:
+        """The current contact set."""
+        return self.contacts.current
+
+    @property
+    def lam(self) -> np.ndarray:
+        """The current contact set's multipliers (seat forces)."""
+        return self.contacts.lam
+
+    @property
+    def n(self) -> int:
+        """Surface vertices."""
+        return self.seat.n
+
+    @property
+    def lo(self) -> np.ndarray:
+        return self.collision.lo
+
+    @property
+    def hi(self) -> np.ndarray:
+        return self.collision.hi
+
+
+def _stone_array(name: str) -> property:
+    return property(lambda self: getattr(self.stones, name),
+                    doc=f"The stones' ``{name}`` (:class:`~hailstorm.runtime.storm.stones.Stones`).")
+
+
+for _name in ("pos", "vel", "radius", "mass", "alive", "ctri", "cbary", "gap", "hit", "near_tri", "crad", "budget"):
+    setattr(Storm, _name, _stone_array(_name))
+
+
+def _array_kinds(gf: Any) -> list[tuple]:
+    """What the kernels' argument types depend on in a bundle's arrays (dtype, layout, writeable, class)."""
+    out = []
+    for name in ("D", "vertices", "triangles", "fixed", "contactable", "areas", "column_of"):
+        a = getattr(gf, name)
+        out.append((name, a.dtype.str, a.ndim, bool(a.flags.c_contiguous), bool(a.flags.f_contiguous),
+                    bool(a.flags.writeable), type(a).__name__))
+    return out
+
+
+def _helper_spec(gf: Any, scene: Scene) -> HelperSpec | None:
+    """How a compile helper rebuilds this storm: from the bundle's directory (None if ``gf`` is
+    not a bundle on disk, e.g. built in memory)."""
+    from hailstorm.runtime.bundle.format import is_bundle
+
+    path = getattr(gf, "path", None)
+    if path is None or not is_bundle(path):
+        return None
+    try:
+        kinds = _array_kinds(gf)
+    except AttributeError:
+        return None
+    return HelperSpec("hailstorm.runtime.storm.driver:warm_up_worker",
+                      {"bundle": str(path), "mmap": isinstance(gf.D, np.memmap), "kinds": kinds,
+                       "scene": scene.to_dict()})
+
+
+def warm_up_worker(payload: dict[str, Any], names: list[str]) -> None:
+    """A compile helper's body (:mod:`hailstorm.runtime.storm.warmup`): rebuild the storm of
+    ``payload`` (bundle directory, memory-mapped or not, the scene's dict) and warm up
+    the tasks ``names``.
+
+    Raises
+    ------
+    RuntimeError
+        The bundle's arrays differ in type or layout from the caller's (the kernels
+        would get other argument types).
+    """
+    from hailstorm.runtime.bundle.read import load
+
+    gf = load(payload["bundle"], verify=False, mmap=bool(payload["mmap"]))
+    if [list(k) for k in _array_kinds(gf)] != [list(k) for k in payload["kinds"]]:
+        raise RuntimeError("the bundle's arrays differ from the caller's")
+    Storm(gf, Scene.from_dict(payload["scene"]), spawn=False, warm=False).warm_up(names)
+
+
+def run_storm(
+    gf: ElasticSource,
+    scene: Scene | None = None,
+    *,
+    progress: bool | Callable[[float, float], None] = True,
+    on_frame: Callable[[Frame], None] | None = None,
+    keep_frames: bool | None = None,
+    allow_large: bool = False,
+) -> StormResult:
+    """Run a hail storm on the seat.
+
+    Parameters
+    ----------
+    gf : ElasticSource
+        The bundle (:func:`hailstorm.runtime.bundle.read.load`).
+    scene : Scene, optional
+        Default: :meth:`Scene.default`.
+    progress : bool or callable
+        ``True``: a tqdm progress bar over the simulated time (on stderr); a
+        callable is called as ``progress(t, duration)`` after every step.
+    on_frame : callable, optional
+        Called with each :class:`Frame` as it is recorded, e.g.
+        :meth:`hailstorm.runtime.output.files.StormOutput.add`, which streams the frames to
+        disk.
+    keep_frames : bool, optional
+        Keep the frames in :attr:`StormResult.frames` (memory grows with the
+        duration: ~24 bytes per surface vertex and frame). Default: kept when
+        no ``on_frame`` is given, else not.
+    allow_large : bool
+        Run even a storm whose estimate (:meth:`Scene.estimate`) exceeds the
+        machine; otherwise it is refused before anything runs.
+
+    Returns
+    -------
+    StormResult
+        Frames at ``scene.output.fps`` (plus the first and last instants; empty
+        unless kept) and statistics (see :func:`hailstorm.runtime.output.files.summary`).
+
+    Raises
+    ------
+    hailstorm.runtime.scene.StormTooLarge
+        The estimate exceeds the machine and ``allow_large`` is not set.
+    """
+    scene = Scene.default() if scene is None else scene
+    keep = on_frame is None if keep_frames is None else bool(keep_frames)
+    estimate = scene.estimate(int(np.asarray(gf.vertices).shape[0]), keep_frames=keep)
+    estimate.check(allow_large=allow_large)
+    _log.info("storm: %s", estimate.describe())
+    for warning in scene.physical_warnings(gf.vertices):
+        _log.warning("warning: %s", warning)
+    setup0 = time.perf_counter()
+    storm = Storm(gf, scene)
+    setup = time.perf_counter() - setup0
+    rec = Recorder(scene.n_steps(), scene.output.fps, on_frame, keep)
+    rec.record(storm.frame())
+    bar = None
+    duration = scene.storm.duration
+    if progress is True:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=float(duration), desc="hail storm", unit="s sim", leave=False,
+                   bar_format="{l_bar}{bar}| {n:.3g}/{total:.3g} s simulated [{elapsed}<{remaining}]")
+    from threadpoolctl import threadpool_limits
+
+    limiter = threadpool_limits(1)  # small dense solves: threaded BLAS only adds overhead
+    wall0, sink0 = time.perf_counter(), rec.sink_time
+    shown = 0.0
+    try:
+        for i in range(rec.n_steps):
+            storm.step()
+            rec.forces(i, storm.t, storm.contact_forces()[1])
+            if rec.frame_due(storm.t, i):
+                rec.record(storm.frame())
+            if bar is not None:
+                if storm.t - shown >= 0.002 * duration or i == rec.n_steps - 1:
+                    bar.update(min(storm.t, duration) - shown)
+                    shown = min(storm.t, duration)
+            elif callable(progress):
+                progress(storm.t, duration)
+    finally:
+        wall = time.perf_counter() - wall0 - (rec.sink_time - sink0)
+        limiter.restore_original_limits()
+        if bar is not None:
+            bar.close()
+    st, stones = storm.stats, storm.stones
+    st.stones_hit = int(stones.hit.sum())
+    st.sim_time_s, st.wall_time_s, st.setup_time_s, st.backend = float(storm.t), float(wall), float(setup), KERNELS
+    st.real_time_factor = float(storm.t / wall) if wall > 0 else float("inf")
+    st.seed, st.dt, st.integrator = scene.storm.seed, scene.time.dt, scene.time.integrator
+    st.mode, st.restitution = scene.contact.mode, scene.contact.restitution
+    st.n_vertices, st.n_triangles = int(storm.n), int(len(gf.triangles))
+    st.resting_at_end = int((stones.ctri[stones.alive] >= 0).sum())
+    st.frames, st.output_time_s = rec.n_frames, float(rec.sink_time)
+    return StormResult(scene=scene, frames=rec.frames, stats=st, history=rec.history)

@@ -1,0 +1,213 @@
+"""Patch contacts in the storm: the radius of each contact's pressure disc, the per-stone
+cache of its weights, and the normal stiffness of a patch or of a triangle.
+
+The rules are in the module notes of :mod:`hailstorm.runtime.storm.driver` ("Patch
+contacts"). :class:`Patches` holds what they need (the surface, the compliance, the
+weights cache per stone); its inputs are the stones, the current contact set's
+stones, stiffness and forces, and the statistics. The weights themselves are
+:func:`hailstorm.runtime.compiled.patch_one` (the contact API's
+:func:`hailstorm.runtime.contact.weights.patch_weights`, compiled); the sizing is one kernel
+(:func:`hailstorm.runtime.compiled.patch_radii`).
+"""
+
+from __future__ import annotations
+
+from typing import cast
+
+import numpy as np
+
+from hailstorm.runtime.compiled import patch_compliance, patch_one, patch_radii
+from hailstorm.runtime.storm.hail import GRAVITY, Air
+from hailstorm.runtime.storm.recording import StormStats
+from hailstorm.runtime.scene import ContactSettings, TimeSettings
+from hailstorm.runtime.storm.seat import SeatState
+from hailstorm.runtime.storm.stones import Stones
+from hailstorm.runtime.contact.weights import PATCH_DROP, PATCH_FACING, disc_table, triangle_index
+from hailstorm.runtime.bundle.compliance import ElasticSource
+
+__all__ = ["Patches"]
+
+#: a stone's cached weights: (triangle, beta bytes, radius, vertices, weights)
+_Cached = tuple[int, bytes, float, np.ndarray, np.ndarray]
+
+
+class Patches:
+    """Patch radii, weights (cached per stone) and stiffness of a storm's contacts.
+
+    Parameters
+    ----------
+    gf : ElasticSource
+        The bundle: surface, material (``young``, ``poisson``).
+    contact : ContactSettings
+        ``mode``, ``patch``, ``patch_min_radius``, ``patch_tolerance``.
+    time : TimeSettings
+        ``rest_speed``.
+    seat : SeatState
+        D and its columns (read only).
+    normals : (m, 3) ndarray
+        Outward unit normals of the triangles.
+    soft : (m,) bool ndarray
+        Triangles that deform under a contact.
+    air : Air
+    """
+
+    def __init__(self, gf: ElasticSource, contact: ContactSettings, time: TimeSettings, seat: SeatState, normals: np.ndarray, soft: np.ndarray,
+                 air: Air) -> None:
+        self.triangles = np.asarray(gf.triangles)
+        self.X = np.asarray(gf.vertices, dtype=np.float64)
+        self.normals = normals
+        self.soft = soft
+        self.seat = seat
+        self.air = air
+        self.sticky = contact.sticky
+        self.min_radius = float(contact.patch_min_radius)
+        self.tolerance = float(contact.patch_tolerance)
+        self.rest_speed = float(time.rest_speed)
+        self.e_star = float(gf.young) / (1.0 - float(gf.poisson) ** 2)
+        self.enabled = contact.patch != "none"
+        if self.enabled:
+            self._pidx = triangle_index(gf).arrays
+            self._disc = disc_table("hertz")
+        self._cache: dict[int, _Cached] = {}
+        self._k_tri: np.ndarray | None = None
+        self._none = np.zeros(0, dtype=np.int64)
+        self._no_forces = np.zeros(0)
+
+    def forget(self, ids: list[int]) -> None:
+        """Stones ``ids`` are gone: drop their cached weights."""
+        for j in ids:
+            self._cache.pop(j, None)
+
+    @property
+    def k_tri(self) -> np.ndarray:
+        """Normal contact stiffness at the centroid of every triangle, [N/m] (0: hard), computed on first use."""
+        if self._k_tri is None:
+            self._k_tri = self.all_triangle_stiffness()
+        return self._k_tri
+
+    def radii(self, stones: Stones, ids: np.ndarray, tris: np.ndarray, cc_stones: np.ndarray | None,
+              cc_kdiag: np.ndarray | None, lam: np.ndarray, stats: StormStats) -> np.ndarray:
+        """Patch radius of each soft contact ``ids`` on triangles ``tris`` (updated in ``stones.crad``).
+
+        The radius is the Hertz radius of the contact's *peak* force, estimated
+        from its current state as a linear oscillator about its static
+        equilibrium: ``F_peak = F_eq + sqrt((F - F_eq)^2 + k m v_n^2)``
+        (``F``: the previous sub-step's force on that contact, ``lam``, ``F_eq``: the
+        stone's weight along the normal, ``k``: its stiffness, the diagonal of
+        the current capacitance ``cc_kdiag`` of the set of ``cc_stones``, or the point
+        stiffness of the triangle for a contact that just opened, whose ``F = 0``: the
+        impact's expected peak). The estimate is (nearly) constant over one impact and
+        tends to the resting force afterwards, so the patch is sized for the deepest
+        dent of the impact and is not re-weighted while the force rises and
+        falls. A contact keeps its radius until the target leaves the band
+        ``[a / (1 + tol), a (1 + tol)]`` (``tol = patch_tolerance``); a resting one is
+        re-sized to its target once it is ``REST_TOLERANCE`` (1 %) off. One kernel
+        (:func:`hailstorm.runtime.compiled.patch_radii`); the new contacts' weights at
+        their first radius go to the weights cache.
+        """
+        if cc_stones is not None and cc_kdiag is not None and cc_stones.size and lam.size:
+            cs, kd = cc_stones, cc_kdiag
+        else:
+            cs, kd, lam = self._none, self._no_forces, self._no_forces
+        seat = self.seat
+        a, resizes, a0, off, wv, ww = patch_radii(
+            ids, tris, stones.mass, stones.radius, stones.vel, stones.cbary, stones.crad, self.normals, GRAVITY,
+            self.air.wind, self.air.drag_coef, cs, kd, lam, self.sticky, self.k_tri, self.e_star,
+            self.min_radius, self.tolerance, self.rest_speed, *self._disc, PATCH_FACING,
+            PATCH_DROP, self._pidx, self.X, seat.D, seat.column_of)
+        stats.patch_resizes += int(resizes)
+        for i in np.flatnonzero(a0 > 0.0).tolist():
+            j = int(ids[i])
+            self._cache[j] = (int(tris[i]), stones.cbary[j].tobytes(), float(a0[i]), wv[off[i]:off[i + 1]],
+                              ww[off[i]:off[i + 1]])
+            stats.patch_weights_computed += 1
+        if a.size:
+            stats.max_patch_radius_m = max(stats.max_patch_radius_m, float(a.max()))
+        return a
+
+    def stiffness(self, verts: np.ndarray, w: np.ndarray, normals: np.ndarray) -> np.ndarray:
+        """Normal stiffness ``1 / (g^T D g)`` of each patch contact alone (padded vertex
+        lists and weights, :meth:`weights`), (s,) [N/m]."""
+        k = np.zeros(verts.shape[0])
+        for i in range(verts.shape[0]):
+            c = patch_compliance(verts[i].astype(np.int64, copy=False), w[i], normals[i], self.seat.D,
+                                 self.seat.column_of)
+            k[i] = 1.0 / c if c > 0 else 0.0
+        return k
+
+    def weights(self, ids: np.ndarray, tris: np.ndarray, bary: np.ndarray, radius: np.ndarray,
+                normals: np.ndarray, stats: StormStats) -> tuple[np.ndarray, np.ndarray]:
+        """Padded (s, P) vertex lists and weights of patch contacts, cached per stone.
+
+        A contact keeps its ``(triangle, beta)`` while its stone stays over the
+        triangle and its radius while the force stays within the tolerance, so
+        the weights are reused until one of them changes.
+        """
+        out: list[tuple[np.ndarray, np.ndarray] | None] = [None] * ids.size
+        todo = []
+        for i, (j, t, a) in enumerate(zip(ids.tolist(), tris.tolist(), radius.tolist())):
+            c = self._cache.get(j)
+            if c is not None and c[0] == t and c[2] == a and c[1] == bary[i].tobytes():
+                out[i] = (c[3], c[4])
+            else:
+                todo.append(i)
+        stats.patch_weights_reused += ids.size - len(todo)
+        if todo:
+            stats.patch_weights_computed += len(todo)
+            for i in todo:
+                v, w_ = patch_one(int(tris[i]), bary[i], float(radius[i]), normals[i], 3.0, *self._disc,
+                                  PATCH_FACING, PATCH_DROP, self._pidx, self.X)
+                self._cache[int(ids[i])] = (int(tris[i]), bary[i].tobytes(), float(radius[i]), v, w_)
+                out[i] = (v, w_)
+        done = cast(list[tuple[np.ndarray, np.ndarray]], out)  # every slot is filled above
+        P = max(3, max(o[0].size for o in done))
+        verts = np.empty((ids.size, P), dtype=np.intp)
+        w = np.zeros((ids.size, P))
+        for i, (v, wi) in enumerate(done):  # padding: weight-0 copies of the first vertex (weights._pad)
+            verts[i, :v.size] = v
+            verts[i, v.size:] = v[0]
+            w[i, :v.size] = wi
+        return verts, w
+
+    def triangle_stiffness(self, tris: np.ndarray) -> np.ndarray:
+        """Normal contact stiffness at the centroid of triangles, [N/m].
+
+        Used to size the sub-step *before* a contact opens (so the first
+        impact step is already resolved). Hard triangles give 0. Computed for
+        every soft triangle at once on first use (batched 9 x 9 blocks of D:
+        one gather instead of one per triangle), then looked up.
+        """
+        tris = np.asarray(tris, dtype=np.intp)
+        return np.where(tris >= 0, self.k_tri[tris], 0.0)
+
+    def warm_up(self, t: int, w: np.ndarray, n: np.ndarray, stones: Stones) -> None:
+        """Load (or compile) the kernels with the storm loop's argument types."""
+        verts = self.triangles[[t]].astype(np.int64)
+        patch_compliance(verts[0], w[0], n[0], self.seat.D, self.seat.column_of)
+        if self.enabled:
+            patch_one(t, w[0], self.min_radius, n[0], 3.0, *self._disc, PATCH_FACING, PATCH_DROP,
+                      self._pidx, self.X)
+            self.radii(stones, self._none.astype(np.intp), self._none.astype(np.intp), None, None,
+                       self._no_forces, StormStats())
+
+    def all_triangle_stiffness(self, chunk: int = 4096) -> np.ndarray:
+        """``1 / (b^T D_tt b)`` per soft triangle, ``b = (1/3, 1/3, 1/3) kron n`` (0 elsewhere)."""
+        tri = np.asarray(self.triangles, dtype=np.intp)
+        out = np.zeros(tri.shape[0])
+        soft = np.flatnonzero(self.soft)
+        col_of = self.seat.column_of
+        third = np.full(3, 1.0 / 3.0)
+        for s0 in range(0, soft.size, chunk):
+            t = soft[s0:s0 + chunk]
+            V = tri[t]
+            cb = col_of[V]
+            rows = (3 * V[:, :, None] + np.arange(3)).reshape(-1, 9)
+            cols = (3 * np.maximum(cb, 0)[:, :, None] + np.arange(3)).reshape(-1, 9)
+            # (T, 9, 9) blocks, each column-major like gf.compliance's (same gemv sums)
+            blk = np.ascontiguousarray(self.seat.D[rows[:, None, :], cols[:, :, None]])  # (T, col, row)
+            blk[np.repeat(cb < 0, 3, axis=1)] = 0.0  # clamped columns
+            blk = blk.transpose(0, 2, 1)
+            Bn = (third[None, :, None] * self.normals[t][:, None, :]).reshape(-1, 9)  # kron(1/3, n)
+            w = np.matmul(np.matmul(Bn[:, None, :], blk), Bn[:, :, None])[:, 0, 0]
+            out[t] = np.where(w > 0, 1.0 / np.where(w > 0, w, 1.0), 0.0)
+        return out

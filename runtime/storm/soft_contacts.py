@@ -1,0 +1,134 @@
+"""The storm's soft contacts: the current contact set and one contact step of its stones.
+
+:class:`SoftContacts` keeps the capacitance of the current set of soft contacts
+(:class:`~hailstorm.runtime.storm.contact_set.ContactSet`, rebuilt when the set of
+(stone, triangle[, patch radius]) changes) and the seat forces of its last step;
+:meth:`SoftContacts.advance` moves the stones in contact by one sub-step through
+the scene's integrator (:class:`~hailstorm.runtime.storm.integrators.ContactIntegrator`)
+with unilateral release, the per-contact work in kernels
+(:func:`hailstorm.runtime.compiled.contact_prep` / :func:`~hailstorm.runtime.compiled.contact_post`),
+and hands the forces to the seat.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from hailstorm.runtime.compiled import contact_post, contact_prep
+from hailstorm.runtime.storm.contact_set import ContactSet, ContactSets
+from hailstorm.runtime.storm.hail import GRAVITY, Air
+from hailstorm.runtime.storm.integrators import ContactIntegrator
+from hailstorm.runtime.storm.patches import Patches
+from hailstorm.runtime.storm.recording import StormStats
+from hailstorm.runtime.scene import ContactSettings, TimeSettings
+from hailstorm.runtime.storm.seat import SeatState
+from hailstorm.runtime.storm.stones import Stones
+
+__all__ = ["ContactSet", "SoftContacts"]
+
+
+class SoftContacts:
+    """The storm's soft contacts (the current set, its forces) and their step.
+
+    Parameters
+    ----------
+    contact : ContactSettings
+        ``mode``, ``patch``.
+    time : TimeSettings
+        ``rest_speed``.
+    sets : ContactSets
+        Builds a set's capacitance.
+    patches : Patches
+        The patch radii (``patch = "hertz"``).
+    integrator : ContactIntegrator
+    seat : SeatState
+        Receives the contact forces.
+    air : Air
+    """
+
+    def __init__(self, contact: ContactSettings, time: TimeSettings, sets: ContactSets, patches: Patches, integrator: ContactIntegrator,
+                 seat: SeatState, air: Air) -> None:
+        self.sets = sets
+        self.patches = patches
+        self.integrator = integrator
+        self.seat = seat
+        self.air = air
+        self.sticky = contact.sticky
+        self.patch = contact.patch != "none"
+        self.rest_speed = float(time.rest_speed)
+        #: the current contact set (None: no soft contact) and its multipliers (the seat forces)
+        self.current: ContactSet | None = None
+        self.lam = np.zeros(0)
+        self._no_e3 = np.zeros((0, 3))
+        self._no_forces = np.zeros(0)
+
+    def release(self) -> None:
+        """No soft contact: the set and the seat's load are gone."""
+        self.current = None
+        self.lam = np.zeros(0)
+        self.seat.set_forces(None, self.lam)
+
+    def advance(self, stones: Stones, near: np.ndarray, soft: np.ndarray, was_open: np.ndarray, h: float,
+                stats: StormStats) -> None:
+        """Advance the stones in soft contact ``soft`` (of the ``near`` stones, whose contacts
+        were open at the sub-step's start where ``was_open``) by ``h`` through the
+        capacitance of their contact set, with unilateral release; update the seat's
+        forces and the statistics."""
+        tris = stones.ctri[soft]
+        key: tuple[tuple[Any, ...], ...]
+        cc = self.current
+        if self.patch:
+            rad = self.patches.radii(stones, soft, tris, cc.stones if cc is not None else None,
+                                     cc.Kdiag if cc is not None else None, self.lam, stats)
+            key = tuple(zip(soft.tolist(), tris.tolist(), rad.tolist()))
+        else:
+            rad = None
+            key = tuple(zip(soft.tolist(), tris.tolist()))
+        if cc is None or cc.key != key:
+            cc = self.current = self.sets.build(soft, tris, stones.cbary[soft].copy(), key,
+                                                stones.radius[soft].copy(), stats, rad)
+        exact = self.integrator.exact
+        s = soft.size
+        nk = cc.normals
+        q, a, vq, gq, mq, always, acc = contact_prep(
+            soft, stones.pos, stones.vel, stones.radius, stones.mass, GRAVITY, self.air.wind, self.air.drag_coef,
+            nk, cc.X, cc.rest, cc.Kdiag, self.sticky, exact, self.rest_speed)
+        if self.sticky:
+            group, wts = np.repeat(np.arange(s), 3), nk.ravel()
+        else:
+            group, wts = np.arange(s), np.ones(s)
+        res = self.integrator.step(cc, q, vq, a, mq, gq, h, group, wts, always)
+        impacts, fmax, indent, n_active = contact_post(
+            soft, stones.pos, stones.vel, stones.ctri, stones.hit, was_open[np.searchsorted(near, soft)], nk, acc,
+            q, a, vq, gq, res.q, res.v, res.active, res.seat_force, res.peak_seat_force, res.peak_ubar,
+            self.sticky, exact, h, self.rest_speed)
+        stats.impacts += int(impacts)
+        self.lam = res.seat_force
+        self.seat.set_forces(cc, res.seat_force, res.peak_seat_force)
+        stats.max_contact_force = max(stats.max_contact_force, float(fmax))
+        if n_active:
+            stats.max_indentation_m = max(stats.max_indentation_m, float(indent))
+        stats.max_simultaneous_contacts = max(stats.max_simultaneous_contacts, int(n_active))
+
+    def forces(self, ctri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Stone ids in soft contact and the forces they apply to the seat, (s,), (s, 3)
+        (``ctri``: the stones' contact triangles, -1 where released)."""
+        cc = self.current
+        if cc is None or self.lam.size == 0:
+            return np.zeros(0, dtype=np.intp), np.zeros((0, 3))
+        f = self.lam.reshape(-1, 3) if self.sticky else self.lam[:, None] * cc.normals
+        keep = ctri[cc.stones] >= 0
+        return cc.stones[keep], f[keep]
+
+    def warm_up(self, stones: Stones) -> None:
+        """Load (or compile) the contact step's kernels with the storm loop's argument types."""
+        none = np.zeros(0, dtype=np.intp)
+        e3, e = self._no_e3, self._no_forces
+        b = np.zeros(0, dtype=bool)
+        q, a, vq, gq, _, _, acc = contact_prep(none, stones.pos, stones.vel, stones.radius, stones.mass, GRAVITY,
+                                               self.air.wind, self.air.drag_coef, e3, e3, e, e, self.sticky, True,
+                                               1.0)
+        contact_post(none, stones.pos, stones.vel, stones.ctri, stones.hit, b, e3, acc, q, a, vq, gq, e, e, b, e, e,
+                     e, self.sticky, True, 0.0, 1.0)

@@ -1,0 +1,183 @@
+"""The storm's stones: their per-stone arrays (growable), the spawn plan, retirement.
+
+:class:`Stones` holds one row per stone ever spawned (ids are row numbers, in
+spawn order); the arrays are the first rows of buffers that grow by doubling,
+so a spawn costs O(1) per stone and the compiled kernels take the arrays in
+place. :class:`SpawnPlan` draws the scene's random stones once, up front, and
+hands out the ones due in each step.
+"""
+
+from __future__ import annotations
+
+import bisect
+from typing import Any
+
+import numpy as np
+
+from hailstorm.runtime.storm.hail import stone_mass, terminal_velocity
+from hailstorm.runtime.scene import HailSettings, StormSettings
+
+__all__ = ["SpawnPlan", "Stones"]
+
+#: the per-stone arrays and the value a new stone starts with (None: given to :meth:`Stones.add`)
+FIELDS: tuple[tuple[str, Any], ...] = (
+    ("pos", None), ("vel", None), ("radius", None), ("mass", None), ("alive", True), ("ctri", -1),
+    ("cbary", 0.0), ("gap", np.inf), ("hit", False), ("near_tri", -1), ("crad", 0.0), ("budget", 0.0),
+    ("bud_u", 0.0),
+)
+
+
+class Stones:
+    """The stones of a storm (one row per stone, alive or retired).
+
+    Attributes
+    ----------
+    pos, vel : (k, 3) ndarray
+        Centres [m] and velocities [m/s].
+    radius, mass : (k,) ndarray
+    alive : (k,) bool ndarray
+    ctri : (k,) int ndarray
+        Contact triangle (-1: none).
+    cbary : (k, 3) ndarray
+        The contact point's barycentric coordinates on ``ctri``.
+    gap : (k,) ndarray
+        Last known distance to the surface minus the radius (inf: unknown).
+    hit : (k,) bool ndarray
+        The stone has hit the seat.
+    near_tri : (k,) int ndarray
+        Closest triangle at the last query.
+    crad : (k,) ndarray
+        Patch radius of the stone's contact (0: none yet).
+    budget, bud_u : (k,) ndarray
+        Broad phase: a lower bound of the distance to the seat [m] and the
+        displacement bound it allows for [m] (:func:`hailstorm.runtime.compiled.near_set`).
+    """
+
+    pos: np.ndarray
+    vel: np.ndarray
+    radius: np.ndarray
+    mass: np.ndarray
+    alive: np.ndarray
+    ctri: np.ndarray
+    cbary: np.ndarray
+    gap: np.ndarray
+    hit: np.ndarray
+    near_tri: np.ndarray
+    crad: np.ndarray
+    budget: np.ndarray
+    bud_u: np.ndarray
+
+    def __init__(self, density: float) -> None:
+        self.density = float(density)
+        self.pos = np.zeros((0, 3))
+        self.vel = np.zeros((0, 3))
+        self.radius = np.zeros(0)
+        self.mass = np.zeros(0)
+        self.alive = np.zeros(0, dtype=bool)
+        self.ctri = np.zeros(0, dtype=np.intp)
+        self.cbary = np.zeros((0, 3))
+        self.gap = np.zeros(0)
+        self.hit = np.zeros(0, dtype=bool)
+        self.near_tri = np.zeros(0, dtype=np.intp)
+        self.crad = np.zeros(0)
+        self.budget = np.zeros(0)
+        self.bud_u = np.zeros(0)
+        self._buffers = {name: getattr(self, name) for name, _ in FIELDS}
+        self._capacity = 0
+        self._live: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return int(self.pos.shape[0])
+
+    def add(self, pos: np.ndarray, vel: np.ndarray, radius: np.ndarray) -> np.ndarray:
+        """Add stones; returns their ids."""
+        pos = np.atleast_2d(np.asarray(pos, dtype=np.float64))
+        vel = np.broadcast_to(np.asarray(vel, dtype=np.float64), pos.shape)
+        radius = np.broadcast_to(np.asarray(radius, dtype=np.float64), (pos.shape[0],))
+        k = pos.shape[0]
+        n = self.pos.shape[0]
+        ids = np.arange(n, n + k)
+        if n + k > self._capacity:  # grow the per-stone buffers (doubling: O(1) per stone)
+            cap = max(2 * self._capacity, n + k, 64)
+            for name, _ in FIELDS:
+                old = getattr(self, name)
+                buf = np.empty((cap,) + old.shape[1:], dtype=old.dtype)
+                buf[:n] = old
+                self._buffers[name] = buf
+            self._capacity = cap
+        for name, new in FIELDS:
+            arr = self._buffers[name][:n + k]
+            setattr(self, name, arr)
+            if new is not None:
+                arr[n:] = new
+        self.pos[n:] = pos
+        self.vel[n:] = vel
+        self.radius[n:] = radius
+        self.mass[n:] = stone_mass(radius, self.density)
+        self._live = None
+        return ids
+
+    def live(self) -> np.ndarray:
+        """Ids of the live stones (cached until a spawn or a retirement)."""
+        if self._live is None:
+            self._live = np.flatnonzero(self.alive)
+        return self._live
+
+    def retire(self, ids: np.ndarray) -> None:
+        """Stones ``ids`` left the seat's region."""
+        self.alive[ids] = False
+        self.ctri[ids] = -1
+        self._live = None
+
+
+class SpawnPlan:
+    """All random stones of a storm, drawn up front: rows (t, x, y, z, vx, vy, vz, r).
+
+    Parameters
+    ----------
+    storm : StormSettings
+        Count or rate, duration, margin, spawn height, wind.
+    hail : HailSettings
+        Radii, and the air and ice of the terminal velocity.
+    lo, hi : (3,) ndarray
+        The seat's bounding box.
+    rng : numpy.random.Generator
+    """
+
+    def __init__(self, storm: StormSettings, hail: HailSettings, lo: np.ndarray, hi: np.ndarray,
+                 rng: np.random.Generator) -> None:
+        sc = storm
+        wind = np.asarray(sc.wind, dtype=np.float64)
+        n = sc.stones if sc.stones is not None else int(rng.poisson(sc.rate * sc.duration))
+        t = np.sort(rng.random(n) * sc.duration)
+        r = hail.size_distribution().sample(rng, n)
+        xy = np.stack([rng.uniform(lo[0] - sc.margin, hi[0] + sc.margin, n),
+                       rng.uniform(lo[1] - sc.margin, hi[1] + sc.margin, n)], axis=1)
+        vt = terminal_velocity(r, cd=hail.cd, rho_air=hail.rho_air, density=hail.density)
+        z0 = hi[2] + sc.spawn_height + r
+        t_fall = (z0 - 0.5 * (lo[2] + hi[2])) / np.maximum(vt, 1e-9)
+        xy = xy - wind[None, :2] * t_fall[:, None]  # upwind, so they land on the seat
+        vel = np.column_stack([np.broadcast_to(wind[:2], (n, 2)), -vt])
+        self.rows = np.column_stack([t, xy, z0, vel, r])
+        self._next = 0
+        #: spawn times as a plain list (one float comparison per step when nothing is due)
+        self._t = self.rows[:, 0].tolist()
+
+    @classmethod
+    def empty(cls) -> "SpawnPlan":
+        """No stones (a storm of stones added by hand)."""
+        plan = cls.__new__(cls)
+        plan.rows, plan._next, plan._t = np.zeros((0, 8)), 0, []
+        return plan
+
+    def due(self, t_end: float) -> np.ndarray | None:
+        """Rows of the stones due before ``t_end`` not handed out yet (None: none)."""
+        j = self._next
+        pt = self._t
+        if j >= len(pt) or not pt[j] < t_end:
+            return None  # nothing due (the times are sorted)
+        k = bisect.bisect_left(pt, t_end, j)  # = np.searchsorted(rows[:, 0], t_end, side="left")
+        if k <= j:
+            return None
+        self._next = k
+        return self.rows[j:k]

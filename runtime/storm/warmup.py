@@ -1,0 +1,307 @@
+"""The storm's first-run compile: its kernels warmed up in tasks, some in a helper process.
+
+numba compiles a kernel on its first call and caches the machine code on disk
+(``cache=True``), so every later process only loads it (milliseconds). The first
+run after an install compiles them all: about 35-44 s of CPU for the default storm,
+nearly all in numba's own single-threaded compiler. :func:`warm_up` runs a list
+of :class:`WarmTask` (each loads or compiles a few kernels with the storm loop's
+argument types) and, as soon as a task turns out to compile (numba's
+``numba:compile`` event: a cache miss), starts helper processes that compile the
+tasks planned for them while this process compiles its own; it then waits for
+them and runs their tasks itself, which now only load what the helpers cached.
+Wall time on two cores is about half the CPU time (tasks that share kernels,
+:attr:`WarmTask.shares`, stay in one process so that those compile once).
+
+A helper rebuilds the same storm from the bundle's directory and the scene (so
+that its kernels get exactly this process's argument types) through the
+``entry`` the caller names (``"module:function"``, called with the payload
+dict). If a helper cannot start, fails or times out, this process simply
+compiles its tasks too (the result is the same; only slower). Nothing is
+spawned when every kernel is cached, under ``NUMBA_DISABLE_JIT=1``, or with
+``HAILSTORM_COMPILE_WORKERS=1``.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import pickle
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable, Sequence
+
+import numba
+from numba.core import event
+
+__all__ = ["WORKERS_ENV", "HelperSpec", "WarmReport", "WarmTask", "compile_workers", "plan", "run_helper", "warm_up"]
+
+_log = logging.getLogger(__name__)
+
+#: environment variable: processes that compile at most (``1``: no helper; default: the usable CPUs, at most 2)
+WORKERS_ENV = "HAILSTORM_COMPILE_WORKERS"
+#: a helper that has not finished after this many times its planned seconds (and 60 s) is stopped
+HELPER_TIMEOUT_FACTOR = 10.0
+#: CPU seconds a helper spends before it compiles (interpreter, imports, the storm rebuilt; measured ~1.5 s idle,
+#: ~3 s at load ~3: its CPU less its tasks' in a fresh venv)
+HELPER_STARTUP = 3.0
+
+
+@dataclass(frozen=True)
+class WarmTask:
+    """A few kernels loaded (or compiled) together.
+
+    Attributes
+    ----------
+    name : str
+        What they are, for the announcement (``"the narrow-phase kernels"``).
+    seconds : float
+        CPU seconds their first compile takes in a fresh process (measured with
+        ``HAILSTORM_COMPILE_WORKERS=1 tests/benchmarks/compile_time.py``); plans the split and is announced.
+    run : callable
+        Calls the kernels with the storm loop's argument types.
+    shares : str
+        Tasks with the same non-empty ``shares`` call kernels in common (numba compiles
+        a kernel's callees with it, once per process): :func:`plan` keeps them in one
+        process, in their order, so that the common kernels compile once, and the
+        ``seconds`` of the later ones leave them out.
+    """
+
+    name: str
+    seconds: float
+    run: Callable[[], None]
+    shares: str = ""
+
+
+@dataclass(frozen=True)
+class HelperSpec:
+    """How a helper process rebuilds the caller's kernels' argument types.
+
+    Attributes
+    ----------
+    entry : str
+        ``"module:function"``; the helper imports it and calls ``function(payload, names)``
+        with ``names`` the task names to warm up.
+    payload : dict
+        Picklable inputs of ``entry`` (e.g. the bundle's path and the scene's dict).
+    """
+
+    entry: str
+    payload: dict[str, Any]
+
+
+@dataclass
+class WarmReport:
+    """What :func:`warm_up` did.
+
+    Attributes
+    ----------
+    compiled : list of str
+        Tasks that compiled at least one kernel in this process.
+    helpers : list of list of str
+        Tasks given to each helper process started.
+    helper_failed : bool
+        A helper failed or timed out (its tasks were compiled here).
+    times : dict
+        Wall seconds per task in this process (a helper's task: its load after the wait).
+    cpu : dict
+        This process's CPU seconds per task.
+    wall : float
+        Wall seconds in all (the wait for helpers included).
+    """
+
+    compiled: list[str] = field(default_factory=list)
+    helpers: list[list[str]] = field(default_factory=list)
+    helper_failed: bool = False
+    times: dict[str, float] = field(default_factory=dict)
+    cpu: dict[str, float] = field(default_factory=dict)
+    wall: float = 0.0
+
+
+def compile_workers() -> int:
+    """Processes the first compile may use: ``HAILSTORM_COMPILE_WORKERS`` if set (at
+    least 1), else the CPUs this process may run on, at most 2 (the storm's tasks do
+    not split evenly further)."""
+    raw = os.environ.get(WORKERS_ENV, "").strip()
+    if raw:
+        try:
+            return max(1, int(raw))
+        except ValueError:
+            _log.warning("warning: %s=%r is not an integer; using 1", WORKERS_ENV, raw)
+            return 1
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cpus = os.cpu_count() or 1
+    return max(1, min(2, cpus))
+
+
+def plan(tasks: Sequence[WarmTask], workers: int, startup: float = HELPER_STARTUP) -> list[list[int]]:
+    """Split task indices among ``workers`` processes (longest first, each to the least
+    loaded; a helper starts loaded with ``startup`` seconds); list 0 is this process's
+    and holds task 0 (the first one run). Tasks with the same ``shares`` go together
+    (to the process of task 0 if it is one of them). Task order within each list is
+    the given order."""
+    loads = [0.0] + [startup] * (max(1, workers) - 1)
+    parts: list[list[int]] = [[] for _ in loads]
+    units: dict[object, list[int]] = {}
+    for i, task in enumerate(tasks):
+        units.setdefault(task.shares or i, []).append(i)
+    order = sorted(units.values(), key=lambda u: (0 not in u, -sum(tasks[i].seconds for i in u)))
+    for unit in order:
+        w = 0 if 0 in unit else min(range(len(loads)), key=lambda k: (loads[k], k))
+        parts[w].extend(unit)
+        loads[w] += sum(tasks[i].seconds for i in unit)
+    return [sorted(p) for p in parts if p or p is parts[0]]
+
+
+class _MissWatch(event.Listener):
+    """Calls ``on_miss`` at every start of a numba compile (a kernel not in the cache)."""
+
+    def __init__(self, on_miss: Callable[[], None]) -> None:
+        self.on_miss = on_miss
+
+    def on_start(self, ev: event.Event) -> None:
+        self.on_miss()
+
+    def on_end(self, ev: event.Event) -> None:
+        pass
+
+
+_BOOT = (
+    "import pickle, sys\n"
+    "msg = pickle.load(sys.stdin.buffer)\n"
+    "sys.path[:] = msg['path']\n"
+    "from hailstorm.runtime.storm.warmup import run_helper\n"
+    "run_helper(msg)\n"
+)
+
+
+def run_helper(msg: dict[str, Any]) -> None:
+    """A helper process's body: import ``msg["entry"]`` and call it with
+    ``(msg["payload"], msg["names"])``."""
+    module, _, func = msg["entry"].partition(":")
+    import importlib
+
+    getattr(importlib.import_module(module), func)(msg["payload"], list(msg["names"]))
+
+
+class _Helper:
+    """One helper process compiling some tasks (its stderr kept in a temporary file)."""
+
+    def __init__(self, spec: HelperSpec, names: list[str], seconds: float) -> None:
+        self.names = names
+        self.timeout = max(60.0, HELPER_TIMEOUT_FACTOR * seconds)
+        self.err = tempfile.TemporaryFile()
+        msg = {"path": list(sys.path), "entry": spec.entry, "payload": spec.payload, "names": names}
+        self.proc = subprocess.Popen([sys.executable, "-c", _BOOT], stdin=subprocess.PIPE,
+                                     stdout=subprocess.DEVNULL, stderr=self.err)
+        assert self.proc.stdin is not None
+        try:
+            self.proc.stdin.write(pickle.dumps(msg))
+            self.proc.stdin.close()
+        except OSError:  # it died at once; wait() reports it
+            pass
+        self.t0 = time.perf_counter()
+
+    def wait(self) -> bool:
+        """Wait for it; True if it finished its tasks."""
+        try:
+            rc = self.proc.wait(timeout=max(1.0, self.timeout - (time.perf_counter() - self.t0)))
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+            _log.info("compile helper (%s) timed out; compiling its kernels here", ", ".join(self.names))
+            self.err.close()
+            return False
+        if rc != 0:
+            self.err.seek(0)
+            lines = self.err.read().decode(errors="replace").strip().splitlines()
+            _log.info("compile helper (%s) failed (exit %d: %s); compiling its kernels here", ", ".join(self.names),
+                      rc, lines[-1] if lines else "no message")
+        self.err.close()
+        return rc == 0
+
+
+def warm_up(tasks: Sequence[WarmTask], helper: HelperSpec | None = None, *, workers: int | None = None) -> WarmReport:
+    """Run ``tasks``; if one compiles and ``helper`` is given, compile in parallel.
+
+    Parameters
+    ----------
+    tasks : sequence of WarmTask
+    helper : HelperSpec, optional
+        How a helper process rebuilds the tasks (None: everything here).
+    workers : int, optional
+        Processes in all (default :func:`compile_workers`).
+
+    Returns
+    -------
+    WarmReport
+
+    Notes
+    -----
+    Each task that compiles says so in one INFO line, with its place in the
+    sequence and its measured seconds; a started helper is announced with the
+    tasks it compiles.
+    """
+    t_all = time.perf_counter()
+    report = WarmReport()
+    n_workers = workers if workers is not None else compile_workers()
+    can_help = helper is not None and n_workers > 1 and len(tasks) > 1 and not numba.config.DISABLE_JIT
+    parts = plan(tasks, n_workers if can_help else 1)
+    mine, others = parts[0], parts[1:]
+    helpers: list[_Helper] = []
+    state = {"current": "", "announced": set(), "step": 0, "spawned": False}
+    total = len(tasks)
+
+    def on_miss() -> None:
+        name = state["current"]
+        if name and name not in state["announced"]:
+            state["announced"].add(name)
+            report.compiled.append(name)
+            _log.info("compiling %s [%d/%d] (numba, once after an install: about %.0f s)...", name, state["step"],
+                      total, next(t.seconds for t in tasks if t.name == name))
+        if can_help and not state["spawned"]:
+            state["spawned"] = True
+            for part in others:
+                names = [tasks[i].name for i in part]
+                secs = sum(tasks[i].seconds for i in part)
+                try:
+                    helpers.append(_Helper(helper, names, secs))  # type: ignore[arg-type]
+                except OSError as exc:
+                    _log.info("cannot start a compile helper (%s); compiling here", exc)
+                    report.helper_failed = True
+                    continue
+                report.helpers.append(names)
+                _log.info("compiling %s in a helper process, in parallel (about %.0f s)...", ", ".join(names), secs)
+
+    def run(i: int) -> None:
+        task = tasks[i]
+        state["current"], state["step"] = task.name, state["step"] + 1
+        t0, c0 = time.perf_counter(), time.process_time()
+        task.run()
+        report.times[task.name] = time.perf_counter() - t0
+        report.cpu[task.name] = time.process_time() - c0
+        state["current"] = ""
+
+    watch = _MissWatch(on_miss)
+    event.register("numba:compile", watch)
+    try:
+        for i in mine:
+            run(i)
+        for h in helpers:
+            if not h.wait():
+                report.helper_failed = True
+        for part in others:
+            for i in part:
+                run(i)
+    finally:
+        event.unregister("numba:compile", watch)
+        for h in helpers:  # an exception above: do not leave a helper behind
+            if h.proc.poll() is None:
+                h.proc.kill()
+                h.proc.wait()
+    report.wall = time.perf_counter() - t_all
+    return report

@@ -1,0 +1,120 @@
+"""The package's import graph: no cycles, and the storm driver is a leaf that only the
+CLI and the package faces import (its parts take explicit inputs, never the storm)."""
+
+from __future__ import annotations
+
+import ast
+import re
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+#: import name -> folder (pyproject's package-dir mapping)
+PACKAGES = {"hailstorm.runtime": ROOT / "runtime", "hailstorm.precompute": ROOT / "precompute",
+            "hailstorm.studies": ROOT / "notebooks" / "studies"}
+
+
+def _modules() -> dict[str, Path]:
+    mods = {"hailstorm": ROOT / "__init__.py", "hailstorm.__main__": ROOT / "__main__.py", "hailstorm.cli": ROOT / "cli.py"}
+    for pkg, folder in PACKAGES.items():
+        for f in folder.rglob("*.py"):
+            rel = f.relative_to(folder).with_suffix("")
+            parts = [p for p in rel.parts if p != "__init__"]
+            mods[".".join([pkg, *parts])] = f
+    return mods
+
+
+def _is_type_checking(node: ast.If) -> bool:
+    t = node.test
+    return (isinstance(t, ast.Name) and t.id == "TYPE_CHECKING") or (
+        isinstance(t, ast.Attribute) and t.attr == "TYPE_CHECKING")
+
+
+def _imports(path: Path, mods: dict[str, Path]) -> set[str]:
+    """The package modules a module imports (at any depth of its code, type-checking blocks aside)."""
+    out: set[str] = set()
+    todo: list[ast.AST] = [ast.parse(path.read_text())]
+    while todo:
+        node = todo.pop()
+        if isinstance(node, ast.If) and _is_type_checking(node):
+            todo.extend(node.orelse)
+            continue
+        if isinstance(node, ast.Import):
+            out.update(a.name for a in node.names if a.name in mods)
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            for a in node.names:
+                sub = f"{node.module}.{a.name}"
+                if sub in mods:
+                    out.add(sub)
+                elif node.module in mods:
+                    out.add(node.module)
+        todo.extend(ast.iter_child_nodes(node))
+    return out
+
+
+def _graph() -> dict[str, set[str]]:
+    mods = _modules()
+    return {m: _imports(p, mods) - {m} for m, p in mods.items()}
+
+
+def test_the_import_graph_has_no_cycles():
+    graph = _graph()
+    assert "hailstorm.runtime.compiled.flight" in graph and graph["hailstorm.runtime.storm.driver"]  # the scan sees them
+    state: dict[str, int] = {}  # 1: on the path, 2: done
+    path: list[str] = []
+
+    def visit(m: str) -> None:
+        state[m] = 1
+        path.append(m)
+        for n in sorted(graph[m]):
+            if state.get(n) == 1:
+                cycle = path[path.index(n):] + [n]
+                raise AssertionError("import cycle: " + " -> ".join(cycle))
+            if n not in state:
+                visit(n)
+        path.pop()
+        state[m] = 2
+
+    for m in sorted(graph):
+        if m not in state:
+            visit(m)
+
+
+def test_only_the_cli_and_the_package_faces_import_the_storm_driver():
+    graph = _graph()
+    importers = {m for m, deps in graph.items() if "hailstorm.runtime.storm.driver" in deps}
+    assert importers <= {"hailstorm", "hailstorm.runtime", "hailstorm.runtime.storm", "hailstorm.cli"}, importers
+    assert "hailstorm.runtime" in importers
+
+
+def test_no_storm_part_takes_the_storm():
+    """The parts' modules never name the Storm (no TYPE_CHECKING import of it, no 'st: Storm')."""
+    parts = ["stones", "seat", "collide", "contact_set", "patches", "soft_contacts", "integrators", "recording"]
+    for name in parts:
+        text = (ROOT / "runtime" / "storm" / f"{name}.py").read_text()
+        assert not re.search(r":\s*Storm\b|import\s+Storm\b|\bStorm\)|\bst\._", text), name
+
+
+def _private_imports(path: Path) -> list[str]:
+    """``from hailstorm... import _name`` and imports of ``hailstorm...._module`` in a file."""
+    out = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.module and node.level == 0 and node.module.startswith("hailstorm"):
+            if any(p.startswith("_") and not p.startswith("__") for p in node.module.split(".")):
+                out.append(node.module)
+            out.extend(f"{node.module}.{a.name}" for a in node.names
+                       if a.name.startswith("_") and not a.name.startswith("__"))
+        elif isinstance(node, ast.Import):
+            out.extend(a.name for a in node.names if a.name.startswith("hailstorm")
+                       and any(p.startswith("_") and not p.startswith("__") for p in a.name.split(".")))
+    return out
+
+
+def test_no_module_imports_another_modules_private_names():
+    found = {m: bad for m, p in _modules().items() if (bad := _private_imports(p))}
+    assert not found, f"private names imported across modules: {found}"
+
+
+def test_the_private_import_check_sees_one(tmp_path):
+    f = tmp_path / "m.py"
+    f.write_text("from hailstorm.runtime.compiled.grid import _hidden, public\nimport hailstorm.runtime._secret\n")
+    assert _private_imports(f) == ["hailstorm.runtime.compiled.grid._hidden", "hailstorm.runtime._secret"]

@@ -1,0 +1,86 @@
+"""Helpers shared by several test folders (fixtures are in ``conftest.py``).
+
+``tests/`` is on the import path (``pythonpath`` in ``pyproject.toml``), so a test
+imports these as ``from helpers import plate_gf``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from hailstorm.precompute.blocks import BlockStore
+from hailstorm.precompute.greens import ColumnProblem
+from hailstorm.runtime.bundle.read import GreensFunctions
+
+__all__ = ["Interrupt", "count_solves", "interrupt_after", "plate_gf"]
+
+
+def plate_gf(n: int = 13, size: float = 0.12, young: float = 2e6, poisson: float = 0.35,
+             thickness: float | None = None) -> GreensFunctions:
+    """A flat square plate at z = 0 (normal +z) with a Boussinesq-like compliance.
+
+    ``D_ij = (1 - nu^2) / (pi E r_ij) I3`` between distinct vertices and
+    ``1 / (E h)`` on the diagonal (``h`` the grid spacing); the boundary ring
+    is clamped, the interior contactable.
+    """
+    x = np.linspace(0.0, size, n)
+    X, Y = np.meshgrid(x, x - size / 2, indexing="ij")
+    V = np.column_stack([X.ravel(), Y.ravel(), np.zeros(n * n)])
+    tris = []
+    for i in range(n - 1):
+        for j in range(n - 1):
+            a, b, c, d = i * n + j, (i + 1) * n + j, (i + 1) * n + j + 1, i * n + j + 1
+            tris += [(a, b, c), (a, c, d)]
+    T = np.array(tris)
+    ii, jj = np.divmod(np.arange(n * n), n)
+    fixed = (ii == 0) | (jj == 0) | (ii == n - 1) | (jj == n - 1)
+    contactable = ~fixed
+    h = size / (n - 1)
+    r = np.linalg.norm(V[:, None] - V[None], axis=2)
+    S = np.where(r > 0, (1 - poisson**2) / (np.pi * young * np.where(r > 0, r, 1.0)), 1.0 / (young * h))
+    S[fixed, :] = 0.0
+    S[:, fixed] = 0.0
+    D = np.kron(S, np.eye(3))[:, np.repeat(contactable, 3)]
+    column_of = np.full(n * n, -1)
+    column_of[contactable] = np.arange(contactable.sum())
+    areas = np.full(n * n, h * h)
+    return GreensFunctions(
+        path=Path("."), manifest={"material": {"young": young, "poisson": poisson}, "options": {"order": 1}},
+        vertices=V, triangles=T, fixed=fixed, contactable=contactable, areas=areas,
+        volume_points=V, volume_tets=np.zeros((0, 4), dtype=np.intp), surface_nodes=np.arange(n * n),
+        D=D, column_of=column_of,
+    )
+
+
+class Interrupt(KeyboardInterrupt):
+    pass
+
+
+def count_solves(monkeypatch):
+    """Count the column blocks solved (in this process) from now on."""
+    calls = []
+    real = ColumnProblem.solve
+
+    def counting(self, factor, start, stop):
+        calls.append((start, stop))
+        return real(self, factor, start, stop)
+
+    monkeypatch.setattr(ColumnProblem, "solve", counting)
+    return calls
+
+
+def interrupt_after(monkeypatch, n):
+    """Make the block store raise Ctrl-C after ``n`` blocks were written (they stay written)."""
+    real = BlockStore.write
+    written = []
+
+    def write(self, i, values):
+        if len(written) == n:
+            raise Interrupt()
+        real(self, i, values)
+        written.append(i)
+
+    monkeypatch.setattr(BlockStore, "write", write)
+    return written

@@ -1,0 +1,278 @@
+"""Patch contacts against Hertz on a graded block that stands in for a half-space.
+
+Reference: a rigid sphere of radius R pressed a depth delta into an elastic
+half-space carries F = (4/3) E* sqrt(R) delta^(3/2) (Johnson, ch. 4).
+
+The block (hailstorm.studies.hertz_study.block_bundle: halfspace_block's defaults, P1,
+E = 2 MPa, nu = 0.35, R = 10 mm) and its measured force ratios F / F_Hertz at
+delta/R = 0.01 / 0.02 / 0.04 (python -m hailstorm.studies.hertz_study):
+
+=========  ========================  =======================================
+fine size  press_spheres             the old block (50 mm, 30 % growth, 8 mm)
+=========  ========================  =======================================
+0.35 mm    1.136 / 1.092 / 1.070     1.170 / 1.134 / 1.128
+0.25 mm    1.084 / 1.060 / 1.050
+0.177 mm   1.054 / 1.041 / 1.038
+=========  ========================  =======================================
+
+The error under the load falls as h^p (p ~ 1.3, P1); what stays in the limit is the
+far field and the clamp. On the 0.35 mm block at delta/R = 0.04 (a = 2 mm): the old block
+1.128, clamped at 150 mm instead of 50 mm 1.101 (a Boussinesq estimate of the clamp:
+0.75 a / H, 3 % at 50 mm), far-field elements growing 15 % per layer instead of 30 %
+1.095, both 1.070, and a 300 mm block 1.064: the old block's Richardson limit (+2.5 /
++5.0 / +7.6 %) grew with the contact radius for that reason. The default-run tests use
+the 0.35 mm block (15 % tolerance, and prescribing delta as the patch mean, the old
+model, must be 30 % off); the slow tests refine twice and extrapolate.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("gmsh")
+
+import hailstorm.runtime  # noqa: E402
+from hailstorm.runtime.contact.hertz import hertz_force, hertz_impact, press_spheres  # noqa: E402
+from hailstorm.runtime.contact.weights import hertz_mean_offset  # noqa: E402
+from hailstorm.studies.hertz_study import (  # noqa: E402
+    block_bundle, drop_stone, hertz_depth, origin_contact, rest_stone)
+
+E, NU, R = 2.0e6, 0.35, 0.01
+RATIOS = (0.01, 0.02, 0.04)
+
+
+def _block_bundle(path, fine: float):
+    return block_bundle(path, fine)
+
+
+def _force_ratios(gf) -> tuple[np.ndarray, np.ndarray]:
+    t, b = origin_contact(gf)
+    new, old = [], []
+    n = np.array([[0.0, 0.0, 1.0]])
+    for rel in RATIOS:
+        d = rel * R
+        res = press_spheres(gf, [t], [b], [d], R)
+        new.append(res.normal_force[0] / hertz_force(d, R, E, NU))
+        sol = hailstorm.runtime.solve_contacts(gf, [t], [b], -d * n, mode="frictionless", normals=n,
+                                     patch_radius=np.sqrt(R * d))
+        old.append(-sol.forces[0, 2] / hertz_force(d, R, E, NU))
+    return np.array(new), np.array(old)
+
+
+@pytest.fixture(scope="module")
+def coarse_block(tmp_path_factory):
+    return _block_bundle(tmp_path_factory.mktemp("hs") / "block", 3.5e-4)
+
+
+def test_hertz_mean_offset_is_the_weighted_mean_of_the_sphere_profile():
+    # <r^2> under Hertz weights sqrt(1 - r^2/a^2) over a disc, by quadrature
+    a, Rs = 1.3e-3, 0.01
+    r = np.linspace(0.0, a, 200001)
+    w = np.sqrt(np.clip(1 - (r / a) ** 2, 0, None)) * r
+    trap = getattr(np, "trapezoid", None) or np.trapz
+    mean_r2 = trap(w * r * r, r) / trap(w, r)
+    assert hertz_mean_offset(a, Rs) == pytest.approx(mean_r2 / (2 * Rs), rel=1e-5)
+    assert hertz_mean_offset(0.0, Rs) == 0.0
+
+
+def test_press_spheres_matches_hertz_on_a_coarse_block(coarse_block):
+    new, old = _force_ratios(coarse_block)
+    assert np.all(np.abs(new - 1.0) < 0.15), new  # measured 1.136 / 1.092 / 1.070
+    assert np.all(old > 1.3), old  # prescribing delta as the patch mean: the old, too-stiff model
+
+
+def test_press_spheres_radius_is_consistent_with_its_force(coarse_block):
+    t, b = origin_contact(coarse_block)
+    res = press_spheres(coarse_block, [t], [b], [2e-4], R)
+    a_of_f = hailstorm.runtime.hertz_radius(res.normal_force, R, E, NU)
+    np.testing.assert_allclose(res.patch_radius, a_of_f, rtol=1e-5)
+    assert res.patch_radius[0] == pytest.approx(np.sqrt(R * 2e-4), rel=0.1)  # near Hertz's sqrt(R delta)
+
+
+def test_press_spheres_zero_depth_carries_no_force(coarse_block):
+    t, b = origin_contact(coarse_block)
+    res = press_spheres(coarse_block, [t, t], [b, b], [0.0, 1e-4], R)
+    assert res.normal_force[0] == 0.0 and res.normal_force[1] > 0
+
+
+@pytest.mark.parametrize("bad, match", [
+    (dict(depths=[-1e-4]), "depths"),
+    (dict(sphere_radii=0.0), "radii"),
+    (dict(depths=[1e-4, 1e-4]), "shape"),
+])
+def test_press_spheres_bad_input(coarse_block, bad, match):
+    t, b = origin_contact(coarse_block)
+    kw = dict(depths=[1e-4], sphere_radii=R) | bad
+    with pytest.raises(ValueError, match=match):
+        press_spheres(coarse_block, [t], [b], **kw)
+
+
+@pytest.mark.slow
+def test_press_spheres_converges_to_hertz(tmp_path):
+    """Three meshes; the Richardson limit of the force ratio is within 5 % of Hertz for
+    delta/R = 0.01 to 0.04 (the issue's requirement).
+
+    Measured limits at delta/R = 0.01 / 0.02 / 0.04: +1.3 / +1.3 / +2.0 % (the 0.177 mm block itself
+    +5.4 / +4.1 / +3.8 %). On the old block (50 mm,
+    clamped at 50 mm, 30 % growth to 8 mm) they were +2.5 / +5.0 / +7.6 %: the sequence
+    refines only the elements under the load, so the limit kept the far field's and the
+    clamp's stiffening, which grows with the contact radius (module docstring).
+    """
+    h = (3.5e-4, 2.5e-4, 1.77e-4)
+    e = np.array([_force_ratios(_block_bundle(tmp_path / f"b{i}", hi))[0] - 1.0 for i, hi in enumerate(h)])
+    assert np.all(np.abs(e[1]) < np.abs(e[0])) and np.all(np.abs(e[2]) < np.abs(e[1]))  # it converges
+    q = (e[0] - e[1]) / (e[1] - e[2])  # ratio of successive differences (equal refinement steps)
+    limit = e[2] - (e[1] - e[2]) / (q - 1.0)
+    assert np.all(np.abs(limit) < 0.05), limit
+    assert np.all(np.abs(e[2]) < 0.06), e[2]  # the finest block itself
+
+
+def test_boussinesq_point_load_on_the_block(coarse_block):
+    """A unit normal point force on the block's top: u_z(r) = (1 - nu^2) F / (pi E r) + const
+    over 3-30 mm (the constant: the finite, clamped block). Measured on the 0.35 mm block:
+    coefficient 0.970 of Boussinesq's, bands 0.969 / 0.969 / 0.971, fit residual 1.0 %. The
+    old block (50 mm, clamped at 50 mm, far field growing 30 % per element layer to 8 mm)
+    gave 0.90: P1 elements at h ~ 0.3 r are 10 % stiff there, and that far field carried
+    the force-indentation drift at large delta/R; the block now grows 15 % per layer
+    (h ~ 0.15 r: P1's energy error ~ (h/r)^2 quarters) out to 150 mm."""
+    gf = coarse_block
+    V = np.asarray(gf.vertices)
+    j = int(np.argmin(np.where(gf.contactable, np.linalg.norm(V, axis=1), np.inf)))
+    uz = gf.compliance(np.arange(gf.n_vertices), [j])[:, 2].reshape(-1, 3)[:, 2]  # unit F_z at j
+    r = np.linalg.norm(V[:, :2] - V[j, :2], axis=1)
+    top = np.abs(V[:, 2]) < 1e-9
+    m = top & (r >= 3e-3) & (r <= 30e-3)
+    A = np.stack([1.0 / r[m], np.ones(m.sum())], axis=1)
+    (c, off), *_ = np.linalg.lstsq(A, uz[m], rcond=None)
+    c_b = (1 - NU**2) / (np.pi * E)
+    assert 0.95 < c / c_b < 1.0, c / c_b  # P1 is stiff (never softer than the continuum); the old block: 0.90
+    assert np.abs(A @ [c, off] - uz[m]).max() < 0.02 * np.abs(uz[m]).max()  # the 1/r shape
+    bands = [np.median((uz[b] - off) * r[b]) / c_b for b in
+             (top & (r >= lo) & (r < hi) for lo, hi in ((3e-3, 6e-3), (6e-3, 12e-3), (12e-3, 30e-3)))]
+    assert max(bands) - min(bands) < 0.02, bands
+
+
+# --------------------------------------------------------------------------
+# the storm's patch contacts: a stone at rest under gravity
+# --------------------------------------------------------------------------
+STONE = 0.02  # radius of the resting stone [m] (a = 1.26 mm under its weight: 3.6 fine elements)
+
+
+def _storm_rest_depth(gf) -> tuple[float, float, float, float]:
+    """A 20 mm stone let down onto the block's top by the storm (exact integrator, patch
+    contacts): (depth of its lowest point, its contact force, m g, patch radius) once at rest."""
+    return rest_stone(gf, STONE, steps=800, dt=5e-4)  # 0.4 s: the bounces die out and the stone rests
+
+
+def _api_rest_depth(gf, force: float) -> float:
+    """The depth at which :func:`press_spheres` carries ``force`` (bisection)."""
+    t, b = origin_contact(gf)
+    lo, hi = 1e-6, 1e-3
+    for _ in range(50):
+        d = 0.5 * (lo + hi)
+        lo, hi = (d, hi) if press_spheres(gf, [t], [b], [d], STONE).normal_force[0] < force else (lo, d)
+    return d
+
+
+def _hertz_depth(force: float) -> float:
+    return hertz_depth(force, STONE, E, NU)
+
+
+def test_storm_stone_rests_at_the_hertz_depth(coarse_block):
+    """Measured on the 0.35 / 0.25 / 0.177 mm blocks: depth / Hertz 0.930 / 0.956 / 0.970 (the
+    slow test extrapolates; the old block 0.909 / 0.933 / 0.947), force / m g 1.0000. The old
+    prescription (delta as the patch mean) rested at 0.69 on the old 0.35 mm block."""
+    depth, force, mg, a = _storm_rest_depth(coarse_block)
+    assert force == pytest.approx(mg, rel=1e-2)  # the seat carries the stone
+    dH = _hertz_depth(mg)
+    assert abs(depth / dH - 1.0) < 0.10, depth / dH  # the coarse block is ~7 % stiff (press_spheres too)
+    assert depth == pytest.approx(_api_rest_depth(coarse_block, mg), rel=0.02)  # the storm and the API agree
+    assert a == pytest.approx(hailstorm.runtime.hertz_radius(mg, STONE, E, NU), rel=0.02)  # radius from the weight
+
+
+@pytest.mark.slow
+def test_storm_rest_depth_converges_to_hertz(tmp_path):
+    """Three blocks; the Richardson limit of the storm's rest depth is within 5 % of Hertz
+    (measured: 0.986; the old block 0.967)."""
+    h = (3.5e-4, 2.5e-4, 1.77e-4)
+    r = []
+    for i, hi in enumerate(h):
+        depth, _, mg, _ = _storm_rest_depth(_block_bundle(tmp_path / f"b{i}", hi))
+        r.append(depth / _hertz_depth(mg) - 1.0)
+    e = np.array(r)
+    assert abs(e[1]) < abs(e[0]) and abs(e[2]) < abs(e[1])
+    q = (e[0] - e[1]) / (e[1] - e[2])
+    limit = e[2] - (e[1] - e[2]) / (q - 1.0)
+    assert abs(limit) < 0.05, limit
+
+
+def test_hertz_secant_factor_is_hertz_secant_on_a_half_space():
+    """On an ideal half-space a Hertz-pressure patch of radius a has the weighted-mean
+    compliance c = 0.6 / (E* a) (Johnson: delta = a^2/R at F = 4 E* a^3 / (3 R), and the
+    weighted mean is 0.8 delta) and the offset a^2 / (5 R): kappa = F / (k delta) = 0.8 exactly,
+    for any a and R; a point contact (a = 0) keeps kappa = 1."""
+    from hailstorm.runtime.contact.weights import hertz_secant_factor
+
+    e_star = E / (1 - NU**2)
+    a = np.array([0.5e-3, 1.3e-3, 4e-3, 0.0])
+    Rs = np.array([0.005, 0.01, 0.02, 0.01])
+    c = np.where(a > 0, 0.6 / (e_star * np.where(a > 0, a, 1.0)), 1e-5)
+    kappa = hertz_secant_factor(hertz_mean_offset(a, Rs), a, Rs, c, E, NU)
+    np.testing.assert_allclose(kappa, [0.8, 0.8, 0.8, 1.0], rtol=1e-12)
+
+
+# --------------------------------------------------------------------------
+# the storm's contacts against Hertz's impact theory
+# --------------------------------------------------------------------------
+def test_hertz_impact_matches_the_equation_of_motion():
+    """hertz_impact against an independent integration of m delta'' = m g - K delta^(3/2)
+    (K = (4/3) E* sqrt(R), delta(0) = 0, delta'(0) = v) until release; without gravity
+    the closed form (15 m v^2 / (16 E* sqrt(R)))^(2/5) and t_c = 2.9432 delta_max / v."""
+    from scipy.integrate import solve_ivp
+
+    m, v, Rs = 3.84e-3, 0.4, 0.01
+    K = 4.0 / 3.0 * E / (1 - NU**2) * np.sqrt(Rs)
+    for g in (0.0, 9.81):
+        def rhs(t, y):
+            return [y[1], g - K / m * max(y[0], 0.0) ** 1.5]
+        out = lambda t, y: y[0] + 1e-12 * (t == 0)  # noqa: E731  (release: delta back to 0)
+        out.terminal, out.direction = True, -1
+        sol = solve_ivp(rhs, (0.0, 1.0), [0.0, v], events=out, rtol=1e-11, atol=1e-15, max_step=1e-5)
+        ref = hertz_impact(m, v, Rs, E, NU, gravity=g)
+        assert ref.max_depth == pytest.approx(sol.y[0].max(), rel=1e-6)
+        assert ref.max_force == pytest.approx(K * sol.y[0].max() ** 1.5, rel=1e-6)
+        assert ref.duration == pytest.approx(sol.t_events[0][0], rel=1e-6)
+    e_star = E / (1 - NU**2)
+    d0 = (15 * m * v * v / (16 * e_star * np.sqrt(Rs))) ** 0.4
+    h0 = hertz_impact(m, v, Rs, E, NU)
+    assert h0.max_depth == pytest.approx(d0, rel=1e-12)
+    assert h0.duration == pytest.approx(2.9432 * d0 / v, rel=1e-4)
+    with pytest.raises(ValueError, match="speed"):
+        hertz_impact(m, 0.0, Rs, E, NU)
+
+
+def test_storm_drop_against_hertz_impact(coarse_block):
+    """A 10 mm stone dropped at 0.4 m/s on the block (exact integrator, Hertz-secant patches,
+    restitution 1): peak indentation, peak force and contact duration against Hertz's
+    quasi-static impact (with gravity: 370.5 um, 2.168 N, 2.701 ms).
+
+    The storm's patch keeps one radius a through an impact (sized for its expected peak
+    force) and its law is linear, Hertz's secant F = (4/3) E* a delta. Any linear spring
+    has F_max delta_max = m v^2, Hertz 1.25 m v^2: the secant law at its self-consistent
+    radius (a^5 = 3 R^2 m v^2 / (4 E*)) misses Hertz by 0.8^(2/5) = 0.915 in delta_max,
+    0.8^(3/5) = 0.875 in F_max and 0.977 in t_c, on an ideal half-space. Measured on the
+    0.35 mm block: storm / Hertz 0.887 / 0.898 / 0.948; storm / the secant spring at the
+    storm's radius (1.86 mm) 0.976 / 1.024 / 0.975, the block being 5 % stiff at that radius
+    (press_spheres: +7 % at a = 2 mm; delta and t_c go as k^(-1/2), F as k^(1/2)). The
+    exact integrator has no step error in a linear spring; the peak is sampled at steps of
+    dt = 20 us over t_c = 2.7 ms: < 1e-3."""
+    dr = drop_stone(coarse_block, stone_radius=0.01, speed=0.4, dt=2e-5)
+    s, h, sec = dr.storm, dr.hertz, dr.secant
+    assert dr.rebound == pytest.approx(1.0, abs=2e-3)  # restitution 1: no energy lost
+    for got, want in ((s.max_depth, sec.max_depth), (s.max_force, sec.max_force), (s.duration, sec.duration)):
+        assert got == pytest.approx(want, rel=0.04)  # the mesh's stiffness at a = 1.86 mm (+5 %) halved, + margin
+    assert 0.85 < s.max_depth / h.max_depth < 0.95  # 0.915 (linear law) x (0.976: the mesh)
+    assert 0.85 < s.max_force / h.max_force < 0.95  # 0.875 x 1.024
+    assert 0.92 < s.duration / h.duration < 0.99  # 0.977 x 0.975
+    assert dr.patch_radius == pytest.approx(np.sqrt(0.01 * h.max_depth), rel=0.1)  # near Hertz's sqrt(R delta_max)

@@ -1,0 +1,108 @@
+"""`hailstorm storm` on bad input: one line on stderr, exit code 3, no traceback, and
+nothing written or lost (table-driven; in-process through ``hailstorm.cli.main``)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from hailstorm.cli import EXIT_INPUT, main
+
+TINY = ["--duration", "0.01", "--stones", "1", "--no-video", "-q"]  # a storm of seconds
+
+
+def _file(tmp: Path) -> Path:
+    (tmp / "taken").write_text("a file the user owns")
+    return tmp / "taken"
+
+
+def _foreign_dir(tmp: Path) -> Path:
+    (tmp / "mine").mkdir()
+    (tmp / "mine" / "thesis.tex").write_text("years of work")
+    return tmp / "mine"
+
+
+def _user_summary(tmp: Path) -> Path:
+    (tmp / "old").mkdir()
+    (tmp / "old" / "summary.json").write_text('{"mine": true}')
+    return tmp / "old"
+
+
+def _read_only_dir(tmp: Path) -> Path:
+    (tmp / "ro").mkdir()
+    (tmp / "ro").chmod(0o555)
+    return tmp / "ro"
+
+
+def _scene(text: str):
+    def make(tmp: Path) -> Path:
+        (tmp / "scene.toml").write_text(text)
+        return tmp / "scene.toml"
+    return make
+
+
+# (id, extra arguments: a list whose callables get tmp_path, expected fragment of the one-line error)
+ROWS = [
+    ("out-is-a-file", ["--out", _file], "exists and is not a directory"),
+    ("out-under-a-file", ["--out", lambda t: _file(t) / "sub"], "is not a directory"),
+    ("out-holds-user-files", ["--out", _foreign_dir], "thesis.tex"),
+    ("out-holds-a-user-summary", ["--out", _user_summary], "summary.json"),
+    ("out-on-an-unwritable-file-system", ["--out", lambda t: Path("/proc/hailstorm-out")], "cannot write --out"),
+    pytest.param("out-read-only", ["--out", _read_only_dir], "not writable",
+                 marks=pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only directories")),
+    ("toml-storm-not-a-table", ["--scene", _scene("storm = 5\n")], "[storm] must be a table"),
+    ("toml-value-of-wrong-type", ["--scene", _scene("[hail]\nr_min = [1]\n")], "r_min must be a number"),
+    ("toml-string-for-number", ["--scene", _scene('[storm]\nduration = "long"\n')], "duration must be a number"),
+    ("dt-1e-12", ["--dt", "1e-12"], "--allow-large"),
+    ("dt-1e-8", ["--dt", "1e-8"], "20,000,000 steps"),
+    ("rate-1e9", ["--scene", _scene("[storm]\nrate = 1e9\n")], "of memory"),
+    ("scene-missing", ["--scene", lambda t: t / "nope.toml"], "cannot read scene file"),
+    ("gf-missing", ["--gf", lambda t: t / "no-bundle"], "no-bundle"),
+]
+
+
+@pytest.mark.parametrize("name, extra, message", ROWS)
+def test_bad_storm_input_is_one_line_exit_3(seat_bundle, tmp_path, capsys, name, extra, message):
+    args = [str(a(tmp_path)) if callable(a) else a for a in extra]
+    if "--out" not in args:
+        args += ["--out", str(tmp_path / "out")]
+    if "--gf" not in args:
+        args += ["--gf", str(seat_bundle)]
+    args += ["--no-video", "-q"]
+    if not name.startswith(("dt", "rate")):  # those rows need the default duration and the rate
+        args += ["--duration", "0.01", "--stones", "1"]
+    before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+    rc = main(["storm", *args])
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert rc == EXIT_INPUT, err
+    assert len(lines) == 1 and lines[0].startswith("hailstorm: error: "), err
+    assert message in lines[0]
+    # nothing the user owns was touched, and no run was left behind
+    assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
+    assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize("reader", ["head -1", "true"])
+def test_broken_pipe_exits_quietly(box_bundle, reader):
+    """`hailstorm info X | head -1`: the reader leaves early (``true``: before the first
+    line); no traceback, nothing on stderr."""
+    run = subprocess.run(f"{sys.executable} -m hailstorm.cli info {box_bundle} | {reader}", shell=True,
+                         capture_output=True, text=True, timeout=300)
+    assert run.stdout == ("" if reader == "true" else f"bundle   {box_bundle}\n")
+    assert run.stderr == ""
+
+
+def test_a_large_storm_runs_with_allow_large(seat_bundle, tmp_path, monkeypatch):
+    """The override: the estimate is checked, and --allow-large passes it."""
+    import hailstorm.runtime.scene as scene_mod
+
+    monkeypatch.setattr(scene_mod, "MAX_STEPS", 10)  # 50 steps: "too many" here
+    out = tmp_path / "out"
+    assert main(["storm", "--gf", str(seat_bundle), "--out", str(out), *TINY]) == EXIT_INPUT
+    assert main(["storm", "--gf", str(seat_bundle), "--out", str(out), "--allow-large", *TINY]) == 0
+    assert (out / "summary.json").is_file()
