@@ -12,7 +12,7 @@ import textwrap
 import numba
 import pytest
 
-from hailstorm.runtime import warmup
+from hailstorm.runtime.storm import warmup
 from hailstorm.runtime.storm.warmup import HelperSpec, WarmTask, plan, warm_up
 
 
