@@ -470,7 +470,7 @@ class SeatSettings(_Section):
 
     mesh_size: float = 0.006
     order: int = 2
-    load: str = "point"
+    load: str = "hat"
     volume_size: float | None = None
     young: float = 2.0e6
     poisson: float = 0.35

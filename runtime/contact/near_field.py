@@ -281,7 +281,8 @@ def hat_halfspace_block(vertices: np.ndarray, triangles: np.ndarray, areas: np.n
     (``phi_j / a_j``, one newton; what a ``load = "hat"`` column of D answers),
     up to the material factor (normal: ``(1 - nu^2) / (pi E)``), with the
     patch's vertices and their triangles projected on the plane through
-    ``centre`` normal to ``normal``.
+    ``centre`` normal to ``normal``. Triangles that do not face along
+    ``normal`` (the body's folds) are left out.
     """
     n = np.asarray(normal, dtype=np.float64)
     n = n / np.linalg.norm(n)
@@ -298,6 +299,11 @@ def hat_halfspace_block(vertices: np.ndarray, triangles: np.ndarray, areas: np.n
     v = np.asarray(verts, dtype=np.intp)
     tris = np.unique(np.concatenate([tri[ptr[j]:ptr[j + 1]] for j in v]))
     T = np.asarray(triangles)[tris]
+    # the kernel is the tangent plane's: only triangles facing along the normal (projected area at
+    # least half their own) carry their share of a hat load onto it; a fold (the body's edge) does not
+    P = X[T]
+    tn = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
+    T = T[tn @ n >= 0.5 * np.linalg.norm(tn, axis=1)]
     I = hat_potential(plane(X[v]), plane(X[T]))  # (P, m, 3)
     # column j collects I[:, t, c] over the (t, c) where corner c of t is vertex j
     col = np.searchsorted(v, T)  # position of each corner in v (v sorted)
