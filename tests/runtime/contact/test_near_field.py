@@ -196,3 +196,16 @@ def test_press_spheres_below_the_mesh_is_hertz_wherever_it_lands(hat_block):
         assert near.max() - near.min() < 0.04, (a, near)
         if a < 2e-3:
             assert np.all(plain > 1.5), (a, plain)
+
+
+def test_the_near_field_fades_where_the_mesh_resolves_the_contact(hat_block):
+    """A contact the mesh resolves is the mesh's: the near-field block is most of W for a 0.5 mm
+    disc on 4 mm elements and under 15 % of it for an 8 mm disc (nothing extrapolated from the
+    kernel beyond the contact's own scale); it never makes W indefinite."""
+    t, b = _sites(hat_block)["centroid"]
+    share = []
+    for a in (0.5e-3, 8e-3):
+        cap = capacitance(hat_block, [t], [b], mode="frictionless", patch_radius=a, near_field="halfspace")
+        assert cap.W[0, 0] > 0
+        share.append(abs(cap.local[0, 0, 0]) / cap.W[0, 0])
+    assert share[0] > 0.6 and share[1] < 0.15, share
