@@ -14,14 +14,16 @@ import pytest
 
 from hailstorm.runtime.contact.contact_capacitance import capacitance, resolve_near_field
 from hailstorm.runtime.contact.hertz import hertz_force, press_spheres
+from hailstorm.runtime.compiled.near_field import hat_compliance, hat_potential
 from hailstorm.runtime.contact.near_field import (
     NearField,
     halfspace_patch_compliance,
-    hat_potential,
     near_field,
+    surface_fans,
 )
 from hailstorm.runtime.contact.solve import solve_contacts
 from hailstorm.runtime.scene import ContactSettings, SceneError
+from reference.near_field_ref import hat_halfspace_block_ref, hat_potential_ref
 
 E, NU = 2.0e6, 0.35
 
@@ -65,8 +67,9 @@ def test_hat_potential_against_quadrature(x):
     """Inside, at a corner, on an edge, near and far outside: the closed form against Duffy-transformed
     Gauss quadrature (a different algorithm: no closed form, no asinh)."""
     P = np.array([[0.0, 0.0], [1.0, 0.1], [0.3, 0.9]])
-    I = hat_potential(np.array([x]), P[None])[0, 0]
+    I = hat_potential(np.array([x], dtype=float), P[None])[0, 0]
     np.testing.assert_allclose(I, _duffy_potential(np.array(x), P), rtol=1e-8)
+    np.testing.assert_allclose(hat_potential_ref(np.array([x]), P[None])[0, 0], I, rtol=1e-12)
 
 
 def test_halfspace_patch_compliance_is_hertz():
@@ -209,3 +212,27 @@ def test_the_near_field_fades_where_the_mesh_resolves_the_contact(hat_block):
         assert cap.W[0, 0] > 0
         share.append(abs(cap.local[0, 0, 0]) / cap.W[0, 0])
     assert share[0] > 0.6 and share[1] < 0.15, share
+
+
+def test_compiled_hat_compliance_is_its_reference(box_bundle):
+    """The compiled w^T H w of patches on the box's top against the numpy statement (projection,
+    facing triangles, the closed form, the columns' areas): equal to rounding."""
+    import hailstorm.runtime
+    from hailstorm.runtime.contact.weights import contact_points, patch_weights
+
+    gf = hailstorm.runtime.load(box_bundle)
+    T, V = np.asarray(gf.triangles), np.asarray(gf.vertices)
+    soft = np.flatnonzero(gf.contactable[T].all(axis=1) & (V[T][:, :, 2].min(axis=1) > 0.049))[:6]
+    rng = np.random.default_rng(3)
+    bary = rng.dirichlet([1, 1, 1], soft.size)
+    n = np.tile([0.0, 0.0, 1.0], (soft.size, 1))
+    verts, w = patch_weights(gf, soft, bary, rng.uniform(1e-3, 3e-2, soft.size), n)
+    X = contact_points(V, T, soft, bary)
+    ptr, tri = surface_fans(gf)
+    got = hat_compliance(verts.astype(np.int64), w, X, n, V, T.astype(np.int64), np.asarray(gf.areas), ptr, tri)
+    for k in range(soft.size):
+        m = w[k] > 0
+        v, wk = verts[k][m], w[k][m]
+        o = np.argsort(v)
+        H = hat_halfspace_block_ref(V, T, gf.areas, (ptr, tri), v[o], X[k], n[k])
+        assert got[k] == pytest.approx(wk[o] @ H @ wk[o], rel=1e-10)
