@@ -92,6 +92,7 @@ def hat_compliance(verts, weights, centres, normals, X, T, areas, fan_ptr, fan_t
     s, P = verts.shape
     out = np.zeros(s)
     mark = np.full(T.shape[0], -1, np.int64)
+    wpos = np.zeros(X.shape[0])  # the current patch's weight of each vertex (0: not in it)
     tri = np.empty(T.shape[0], np.int64)
     Q = np.empty((3, 2))
     acc = np.zeros(3)
@@ -103,6 +104,9 @@ def hat_compliance(verts, weights, centres, normals, X, T, areas, fan_ptr, fan_t
         t2 = np.cross(n, t1)
         # the patch's vertices (weight > 0) and the facing triangles of their fans
         nt = 0
+        for p in range(P):
+            if weights[k, p] > 0.0:
+                wpos[verts[k, p]] = weights[k, p]
         for p in range(P):
             if weights[k, p] <= 0.0:
                 continue
@@ -134,9 +138,9 @@ def hat_compliance(verts, weights, centres, normals, X, T, areas, fan_ptr, fan_t
                 edge_term(x0, x1, Q, acc)
                 for c in range(3):  # column j = corner c of t, if j carries weight in this patch
                     j = T[t, c]
-                    for q in range(P):
-                        if verts[k, q] == j and weights[k, q] > 0.0:
-                            total += wi * weights[k, q] * acc[c] / areas[j]
-                            break
+                    if wpos[j] > 0.0:
+                        total += wi * wpos[j] * acc[c] / areas[j]
         out[k] = total
+        for p in range(P):
+            wpos[verts[k, p]] = 0.0
     return out

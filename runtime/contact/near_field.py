@@ -60,7 +60,7 @@ __all__ = [
     "NearField",
     "halfspace_patch_compliance",
     "near_field",
-    "surface_fans",
+    "kernel_surface",
     "vertex_triangles",
 ]
 
@@ -127,11 +127,10 @@ class NearField:
         """The kernel's normal and tangential compliance of patches *as the mesh carries them*
         (their hat loads ``weights`` on ``verts``, padded (s, P)), ``w^T H w`` [m/N], (s,) each
         (:func:`hailstorm.runtime.compiled.near_field.hat_compliance`)."""
-        ptr, tri = surface_fans(gf)
+        X, T, areas, ptr, tri = kernel_surface(gf)
         whw = hat_compliance(np.ascontiguousarray(verts, dtype=np.int64), np.ascontiguousarray(weights, dtype=np.float64),
                              np.ascontiguousarray(centres, dtype=np.float64), np.ascontiguousarray(normals, dtype=np.float64),
-                             np.ascontiguousarray(gf.vertices, dtype=np.float64), np.ascontiguousarray(gf.triangles, dtype=np.int64),
-                             np.ascontiguousarray(gf.areas, dtype=np.float64), ptr, tri)
+                             X, T, areas, ptr, tri)
         k_n = (1.0 - self.poisson**2) / (np.pi * self.young)
         return k_n * whw, k_n * whw * (2.0 - self.poisson) / (2.0 * (1.0 - self.poisson))
 
@@ -184,21 +183,25 @@ def near_field(kind: str | None, young: float, poisson: float) -> NearField | No
     return NearField(kernel=kind, young=float(young), poisson=float(poisson))
 
 
-_FANS: "weakref.WeakKeyDictionary[Any, tuple[np.ndarray, np.ndarray]]" = weakref.WeakKeyDictionary()
+_SURFACES: "weakref.WeakKeyDictionary[Any, tuple[np.ndarray, ...]]" = weakref.WeakKeyDictionary()
 
 
-def surface_fans(gf: Any) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`vertex_triangles` of a bundle's surface, built once per bundle."""
+def kernel_surface(gf: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A bundle's surface as the near-field kernel reads it, built once per bundle: vertices
+    (n, 3) float64, triangles (m, 3) int64, lumped areas (n,), and :func:`vertex_triangles`
+    (``ptr``, ``tri``)."""
     try:
-        return _FANS[gf]
+        return _SURFACES[gf]
     except (KeyError, TypeError):
         pass
-    fans = vertex_triangles(np.asarray(gf.triangles), np.asarray(gf.vertices).shape[0])
+    T = np.ascontiguousarray(gf.triangles, dtype=np.int64)
+    X = np.ascontiguousarray(gf.vertices, dtype=np.float64)
+    out = (X, T, np.ascontiguousarray(gf.areas, dtype=np.float64), *vertex_triangles(T, X.shape[0]))
     try:
-        _FANS[gf] = fans
+        _SURFACES[gf] = out
     except TypeError:  # pragma: no cover - not weak-referenceable
         pass
-    return fans
+    return out
 
 
 def vertex_triangles(triangles: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -206,6 +209,6 @@ def vertex_triangles(triangles: np.ndarray, n: int) -> tuple[np.ndarray, np.ndar
     T = np.asarray(triangles)
     owner = T.ravel()
     order = np.argsort(owner, kind="stable")
-    ptr = np.zeros(n + 1, dtype=np.intp)
+    ptr = np.zeros(n + 1, dtype=np.int64)
     np.add.at(ptr, owner + 1, 1)
-    return np.cumsum(ptr), (order // 3).astype(np.intp)
+    return np.cumsum(ptr), (order // 3).astype(np.int64)

@@ -178,17 +178,22 @@ class Patches:
     def near_blocks(self, near: NearField, ids: np.ndarray, tris: np.ndarray, bary: np.ndarray, radius: np.ndarray,
                     verts: np.ndarray, w: np.ndarray, centres: np.ndarray, normals: np.ndarray) -> np.ndarray:
         """The near-field blocks (s, p, p) of patch contacts (:meth:`NearField.blocks`), cached per
-        stone with the same key as its weights (triangle, beta, radius)."""
-        s = ids.size
-        blocks = np.zeros((s, 3 if self.sticky else 1, 3 if self.sticky else 1))
-        for i, (j, t, a) in enumerate(zip(ids.tolist(), tris.tolist(), radius.tolist())):
-            key = (t, bary[i].tobytes(), a)
+        stone with the same key as its weights (triangle, beta, radius); the new ones in one call."""
+        p = 3 if self.sticky else 1
+        blocks = np.zeros((ids.size, p, p))
+        keys = [(t, bary[i].tobytes(), a) for i, (t, a) in enumerate(zip(tris.tolist(), radius.tolist()))]
+        todo = []
+        for i, j in enumerate(ids.tolist()):
             c = self._near.get(j)
-            if c is None or c[0] != key:
-                c = (key, near.blocks(self.gf, radius[i:i + 1], verts[i:i + 1], w[i:i + 1], centres[i:i + 1],
-                                      normals[i:i + 1], self.sticky)[0])
-                self._near[j] = c
-            blocks[i] = c[1]
+            if c is not None and c[0] == keys[i]:
+                blocks[i] = c[1]
+            else:
+                todo.append(i)
+        if todo:
+            new = near.blocks(self.gf, radius[todo], verts[todo], w[todo], centres[todo], normals[todo], self.sticky)
+            for i, b in zip(todo, new):
+                self._near[int(ids[i])] = (keys[i], b)
+                blocks[i] = b
         return blocks
 
     def triangle_stiffness(self, tris: np.ndarray) -> np.ndarray:

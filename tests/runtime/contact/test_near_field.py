@@ -19,7 +19,7 @@ from hailstorm.runtime.contact.near_field import (
     NearField,
     halfspace_patch_compliance,
     near_field,
-    surface_fans,
+    kernel_surface,
 )
 from hailstorm.runtime.contact.solve import solve_contacts
 from hailstorm.runtime.scene import ContactSettings, SceneError
@@ -228,7 +228,7 @@ def test_compiled_hat_compliance_is_its_reference(box_bundle):
     n = np.tile([0.0, 0.0, 1.0], (soft.size, 1))
     verts, w = patch_weights(gf, soft, bary, rng.uniform(1e-3, 3e-2, soft.size), n)
     X = contact_points(V, T, soft, bary)
-    ptr, tri = surface_fans(gf)
+    *_, ptr, tri = kernel_surface(gf)
     got = hat_compliance(verts.astype(np.int64), w, X, n, V, T.astype(np.int64), np.asarray(gf.areas), ptr, tri)
     for k in range(soft.size):
         m = w[k] > 0
