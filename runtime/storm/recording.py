@@ -21,6 +21,7 @@ from typing import Any, Callable
 import numpy as np
 
 from hailstorm.runtime.scene import Scene
+from hailstorm.runtime.storm.limits import ValidityLimits
 
 __all__ = ["Frame", "Recorder", "StormResult", "StormStats"]
 
@@ -99,6 +100,19 @@ class StormStats(Mapping):
     patch_weights_reused: int = 0
     patch_resizes: int = 0
     max_patch_radius_m: float = 0.0
+    # validity limits (hailstorm.runtime.storm.limits, docs/validity.md): impacts beyond each
+    # limit, the worst values over the impacts ([-]: ratios) and the limits themselves
+    impacts_beyond_indentation_limit: int = 0
+    impacts_beyond_radius_limit: int = 0
+    impacts_beyond_strain_limit: int = 0
+    impacts_beyond_any_limit: int = 0
+    max_indentation_thickness_ratio: float = 0.0
+    max_contact_radius_ratio: float = 0.0
+    max_strain_ratio: float = 0.0
+    min_impact_thickness_m: float = 0.0
+    limit_indentation_thickness_ratio: float = ValidityLimits.indentation_thickness
+    limit_contact_radius_ratio: float = ValidityLimits.contact_radius
+    limit_strain_ratio: float = ValidityLimits.strain
     #: sum of the non-negative overlaps of stones in contact [m] and their count (steps x stones)
     pen_contact_sum: float = 0.0
     pen_contact_n: int = 0
