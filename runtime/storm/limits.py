@@ -57,9 +57,11 @@ __all__ = [
     "PadThickness",
     "RayCaster",
     "ValidityLimits",
+    "VALIDITY_KEYS",
     "boundary_faces",
     "peak_strain",
     "ray_thickness",
+    "summarise",
     "surface_thickness",
     "validity_warning",
     "vertex_normals",
@@ -233,42 +235,33 @@ def ray_thickness(points: np.ndarray, faces: np.ndarray, origins: np.ndarray, di
 
 
 class PadThickness:
-    """The local pad thickness under the surface vertices of a bundle, computed on first request.
+    """The local pad thickness under the surface vertices of a bundle, cast on first request.
 
     The thickness under a vertex is the distance from it along its inward normal
     (:func:`vertex_normals` of the outward surface triangles, reversed) to the
-    first boundary face of the bundle's volume mesh it meets: the clamped
-    underside (the rigid shell) or the opposite surface of the body. A bundle
-    without a volume mesh (``volume_tets`` empty) is cast against its own
-    surface triangles. ``inf`` where the ray meets nothing (an open surface).
-    Each vertex is cast once, when first asked for (a storm asks for the
-    vertices of the triangles it impacts).
+    first boundary face of the body it meets: the clamped underside (the rigid
+    shell) or the opposite surface. The boundary is the bundle's surface, which
+    is the boundary of its volume mesh (the contract: the surface and the volume
+    mesh it came from, :func:`boundary_faces` of ``volume_tets`` through
+    ``surface_nodes``; checked in the tests), so no volume data is read. ``inf``
+    where the ray meets nothing (an open surface, e.g. a synthetic plate). Each
+    vertex is cast once, when first asked for (a storm asks for the vertices of
+    the triangles it impacts); building this costs the vertex normals only.
 
     Parameters
     ----------
     gf : ElasticSource
-        ``vertices``, ``triangles`` (outward), ``volume_points``, ``volume_tets``,
-        ``surface_nodes``.
+        ``vertices`` and ``triangles`` (outward).
     """
 
     def __init__(self, gf: Any) -> None:
-        self.gf = gf
         self.X = np.asarray(gf.vertices, dtype=np.float64)
+        self.inward = -vertex_normals(self.X, gf.triangles)
+        self.caster = RayCaster(self.X, np.asarray(gf.triangles))
         self.values = np.full(self.X.shape[0], np.nan)
-        self._caster: RayCaster | None = None
 
     def _cast(self, vertices: np.ndarray) -> np.ndarray:
-        gf = self.gf
-        if self._caster is None:  # on first use: a storm without impacts pays nothing
-            self.inward = -vertex_normals(self.X, gf.triangles)
-            tets = np.asarray(getattr(gf, "volume_tets", np.zeros((0, 4))))
-            if tets.shape[0]:
-                self._caster = RayCaster(np.asarray(gf.volume_points, dtype=np.float64), boundary_faces(tets))
-                self.node = np.asarray(gf.surface_nodes, dtype=np.int64)
-            else:
-                self._caster = RayCaster(self.X, np.asarray(gf.triangles))
-                self.node = np.arange(self.X.shape[0])
-        return self._caster.cast(self.X[vertices], self.inward[vertices], skip=self.node[vertices])
+        return self.caster.cast(self.X[vertices], self.inward[vertices], skip=vertices)
 
     def __call__(self, vertices: np.ndarray) -> np.ndarray:
         """The thickness under ``vertices`` (surface vertex indices, any shape) [m]."""
@@ -285,6 +278,7 @@ def surface_thickness(gf: Any, vertices: np.ndarray | None = None) -> np.ndarray
     Parameters
     ----------
     gf : ElasticSource
+        ``vertices``, ``triangles`` (outward).
     vertices : int ndarray, optional
         Surface vertex indices (default: every vertex).
     """
@@ -321,15 +315,17 @@ class ImpactLimits:
 
     :meth:`observe` is called with every soft-contact sub-step; an impact's record
     opens with the contact (the storm's ``impacts`` rule: the contact opens,
-    carries force and comes in faster than ``rest_speed``) and is updated while
-    the contact stays open. The statistics' validity keys are updated as the
-    records grow (:meth:`update_stats`, only when a record's peak grew: a stone at rest
-    after its impact costs one comparison per sub-step).
+    carries force and comes in faster than ``rest_speed``) and takes the
+    contact's peaks while it stays open (until the stone's next contact opens).
+    The statistics' validity keys (:meth:`summary`) are computed from the records
+    when read, the local thickness under each impact then too (:class:`PadThickness`).
+    A sub-step holds a handful of contacts, so the bookkeeping is plain Python
+    over them (numpy's per-call cost would be most of it).
 
     Parameters
     ----------
     gf : ElasticSource
-        The bundle (surface, volume mesh, material).
+        The bundle (surface, material).
     rest_speed : float
         The scene's ``time.rest_speed`` [m/s].
     limits : ValidityLimits, optional
@@ -340,106 +336,139 @@ class ImpactLimits:
         self.young, self.poisson = float(gf.young), float(gf.poisson)
         self.triangles = np.asarray(gf.triangles, dtype=np.int64)
         self.rest_speed = float(rest_speed)
-        #: local pad thickness under the surface vertices [m], cast when first impacted
+        #: local pad thickness under the surface vertices [m], cast when first read
         self.pad = PadThickness(gf)
-        #: per stone id: its open impact record (-1: none)
-        self.record_of = np.full(0, -1, dtype=np.int64)
-        #: per impact: stone radius, local thickness [m], peak indentation [m], peak force [N]
-        self.radius = np.zeros(0)
-        self.thickness = np.zeros(0)
-        self.indentation = np.zeros(0)
-        self.force = np.zeros(0)
-        self.n = 0
+        #: stone id -> its open impact record
+        self.record_of: dict[int, int] = {}
+        #: per impact: stone radius [m], contact triangle and barycentric coordinates at onset,
+        #: peak indentation [m], peak force [N]
+        self.radius: list[float] = []
+        self.where: list[tuple[int, list[float]]] = []
+        self.indentation: list[float] = []
+        self.force: list[float] = []
+        self._thickness = np.zeros(0)
+        self._changes = 0  # bumped by every change of a record (the summary's cache key)
+        self._summary: tuple[int, dict[str, float | int]] | None = None
+
+    @property
+    def n(self) -> int:
+        """Impacts recorded."""
+        return len(self.radius)
 
     def onset_speed(self, vel: np.ndarray, soft: np.ndarray, normals: np.ndarray) -> np.ndarray:
         """Normal velocity of the stones ``soft`` before the contact step (negative: approaching)."""
         return np.einsum("kd,kd->k", vel[soft], normals)
 
-    def observe(self, soft: np.ndarray, radius: np.ndarray, tris: np.ndarray, bary: np.ndarray, opening: np.ndarray,
-                vin: np.ndarray, touched: np.ndarray, indentation: np.ndarray, force: np.ndarray, stats: Any) -> None:
-        """Record one contact sub-step of the stones ``soft``.
+    def watching(self, soft: list[int], opening: bool) -> bool:
+        """Does a sub-step of the stones ``soft`` (some contact ``opening``) concern a record?"""
+        return opening or any(j in self.record_of for j in soft)
+
+    def observe(self, soft: list[int], radius: list[float], tris: list[int], bary: list[list[float]],
+                opening: list[bool], vin: list[float] | None, touched: list[bool], indentation: list[float],
+                force: list[float]) -> None:
+        """Record one contact sub-step of the stones ``soft`` (sequences of length s).
 
         Parameters
         ----------
-        soft : (s,) int ndarray
-            Stone ids.
-        radius : (s,) ndarray
-            Their radii [m].
-        tris, bary : (s,), (s, 3) ndarray
-            Their contact triangles and barycentric coordinates.
-        opening : (s,) bool ndarray
-            The contact opened in this sub-step.
-        vin : (s,) ndarray
-            Normal velocity at the sub-step's start [m/s] (:meth:`onset_speed`).
-        touched : (s,) bool ndarray
-            The contact carried force within the sub-step.
-        indentation : (s,) ndarray
-            Largest normal contact displacement within the sub-step [m].
-        force : (s,) ndarray
-            Largest contact force magnitude within the sub-step [N].
-        stats : StormStats
-            Updated (:meth:`update_stats`).
+        soft : stone ids
+        radius : their radii [m]
+        tris, bary : their contact triangles and barycentric coordinates
+        opening : the contact opened in this sub-step
+        vin : normal velocity at the sub-step's start [m/s] (:meth:`onset_speed`;
+            needed only where ``opening``, None when none is)
+        touched : the contact carried force within the sub-step
+        indentation : largest normal contact displacement within the sub-step [m]
+        force : largest contact force magnitude within the sub-step [N]
         """
-        top = int(soft.max()) + 1 if soft.size else 0
-        if top > self.record_of.size:
-            self.record_of = np.concatenate([self.record_of, np.full(max(top, 2 * self.record_of.size)
-                                                                     - self.record_of.size, -1, dtype=np.int64)])
-        new = opening & touched
-        if new.any():
-            self.record_of[soft[new]] = -1  # a slow touch opens no record
-            start = new & (vin < -self.rest_speed)
-            if start.any():
-                self._open(soft[start], radius[start], tris[start], bary[start])
-        rec = self.record_of[soft]
-        live = touched & (rec >= 0)
-        if not live.any():
-            return
-        k = rec[live]
-        ind, f = np.maximum(self.indentation[k], indentation[live]), np.maximum(self.force[k], force[live])
-        if np.any(ind > self.indentation[k]) or np.any(f > self.force[k]):
-            self.indentation[k], self.force[k] = ind, f
-            self.update_stats(stats)
+        rec_of = self.record_of
+        self._changes += 1
+        for i, j in enumerate(soft):
+            if not touched[i]:
+                continue
+            if opening[i]:
+                rec_of.pop(j, None)  # a slow touch opens no record (and ends the stone's last one)
+                if vin is not None and vin[i] < -self.rest_speed:
+                    rec_of[j] = self.n
+                    self.radius.append(float(radius[i]))
+                    self.where.append((int(tris[i]), list(bary[i])))
+                    self.indentation.append(0.0)
+                    self.force.append(0.0)
+            k = rec_of.get(j)
+            if k is not None:
+                if indentation[i] > self.indentation[k]:
+                    self.indentation[k] = float(indentation[i])
+                if force[i] > self.force[k]:
+                    self.force[k] = float(force[i])
 
-    def _open(self, stones: np.ndarray, radius: np.ndarray, tris: np.ndarray, bary: np.ndarray) -> None:
-        m = stones.size
-        if self.n + m > self.radius.size:
-            size = max(2 * self.radius.size, self.n + m, 16)
-            for name in ("radius", "thickness", "indentation", "force"):
-                old = getattr(self, name)
-                grown = np.zeros(size)
-                grown[:self.n] = old[:self.n]
-                setattr(self, name, grown)
-        k = np.arange(self.n, self.n + m)
-        self.radius[k] = radius
-        h = self.pad(self.triangles[tris])  # (m, 3); inf: the ray met nothing
-        finite = np.isfinite(h)
-        self.thickness[k] = np.where(finite.all(axis=1), np.einsum("kj,kj->k", bary, np.where(finite, h, 0.0)), np.inf)
-        self.indentation[k] = 0.0
-        self.force[k] = 0.0
-        self.record_of[stones] = k
-        self.n += m
+    @property
+    def thickness(self) -> np.ndarray:
+        """The local thickness under every impact so far [m], (n,) (cast for the new ones)."""
+        old = self._thickness.size
+        if self.n > old:
+            tri = np.array([w[0] for w in self.where[old:]], dtype=np.int64)
+            bary = np.array([w[1] for w in self.where[old:]], dtype=np.float64).reshape(-1, 3)
+            h = self.pad(self.triangles[tri])  # (m, 3); inf: the ray met nothing
+            finite = np.isfinite(h)
+            new = np.where(finite.all(axis=1), np.einsum("kj,kj->k", bary, np.where(finite, h, 0.0)), np.inf)
+            self._thickness = np.concatenate([self._thickness, new])
+        return self._thickness
 
-    def ratios(self, k: np.ndarray | slice = slice(None)) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """``delta / h``, ``a / R`` and the estimated peak strain of the impacts ``k`` (default: all)."""
-        R = self.radius[:self.n][k]
-        dh = np.clip(self.indentation[:self.n][k], 0.0, None) / self.thickness[:self.n][k]
-        aR = hertz_radius(self.force[:self.n][k], R, self.young, self.poisson) / R
+    def ratios(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``delta / h``, ``a / R`` and the estimated peak strain of every impact so far, (n,) each."""
+        R = np.array(self.radius, dtype=np.float64)
+        dh = np.clip(np.array(self.indentation, dtype=np.float64), 0.0, None) / self.thickness
+        aR = hertz_radius(np.array(self.force, dtype=np.float64), R, self.young, self.poisson) / R
         return dh, aR, peak_strain(aR, dh, self.poisson)
 
-    def update_stats(self, stats: Any) -> None:
-        """Set the statistics' validity keys from the impacts recorded so far (their counts
-        beyond each limit and the worst values)."""
-        lim = self.limits
-        dh, aR, eps = self.ratios()
-        stats.max_indentation_thickness_ratio = float(dh.max(initial=0.0))
-        stats.max_contact_radius_ratio = float(aR.max(initial=0.0))
-        stats.max_strain_ratio = float(eps.max(initial=0.0))
-        over = (dh > lim.indentation_thickness, aR > lim.contact_radius, eps > lim.strain)
-        stats.impacts_beyond_indentation_limit = int(over[0].sum())
-        stats.impacts_beyond_radius_limit = int(over[1].sum())
-        stats.impacts_beyond_strain_limit = int(over[2].sum())
-        stats.impacts_beyond_any_limit = int((over[0] | over[1] | over[2]).sum())
-        stats.min_impact_thickness_m = float(self.thickness[:self.n].min()) if self.n else 0.0
+    def summary(self) -> dict[str, float | int]:
+        """The statistics' validity keys (see :class:`~hailstorm.runtime.storm.recording.StormStats`):
+        impacts beyond each limit, the worst values and the limits."""
+        if self._summary is None or self._summary[0] != self._changes:
+            self._summary = (self._changes, summarise(*self.ratios(), self.thickness, self.limits))
+        return dict(self._summary[1])
+
+
+def summarise(dh: np.ndarray, aR: np.ndarray, eps: np.ndarray, thickness: np.ndarray,
+              limits: ValidityLimits | None = None) -> dict[str, float | int]:
+    """The validity keys of a storm's statistics from its impacts' measures.
+
+    Parameters
+    ----------
+    dh, aR, eps, thickness : (n,) ndarray
+        Per impact: ``delta / h``, ``a / R``, the estimated peak strain, the local
+        thickness [m].
+    limits : ValidityLimits, optional
+
+    Returns
+    -------
+    dict
+        ``impacts_beyond_indentation_limit``, ``impacts_beyond_radius_limit``,
+        ``impacts_beyond_strain_limit``, ``impacts_beyond_any_limit`` (counts),
+        ``max_indentation_thickness_ratio``, ``max_contact_radius_ratio``,
+        ``max_strain_ratio`` (the worst values, 0 without impacts),
+        ``min_impact_thickness_m`` (0 without impacts) and the limits
+        ``limit_indentation_thickness_ratio``, ``limit_contact_radius_ratio``,
+        ``limit_strain_ratio``.
+    """
+    lim = ValidityLimits() if limits is None else limits
+    over = (dh > lim.indentation_thickness, aR > lim.contact_radius, eps > lim.strain)
+    return {
+        "impacts_beyond_indentation_limit": int(over[0].sum()),
+        "impacts_beyond_radius_limit": int(over[1].sum()),
+        "impacts_beyond_strain_limit": int(over[2].sum()),
+        "impacts_beyond_any_limit": int((over[0] | over[1] | over[2]).sum()),
+        "max_indentation_thickness_ratio": float(dh.max(initial=0.0)),
+        "max_contact_radius_ratio": float(aR.max(initial=0.0)),
+        "max_strain_ratio": float(eps.max(initial=0.0)),
+        "min_impact_thickness_m": float(thickness.min()) if thickness.size else 0.0,
+        "limit_indentation_thickness_ratio": float(lim.indentation_thickness),
+        "limit_contact_radius_ratio": float(lim.contact_radius),
+        "limit_strain_ratio": float(lim.strain),
+    }
+
+
+#: the validity keys of a storm's statistics, in their order (:func:`summarise`)
+VALIDITY_KEYS = tuple(summarise(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0)))
 
 
 def validity_warning(stats: Any) -> str | None:

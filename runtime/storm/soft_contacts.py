@@ -104,7 +104,8 @@ class SoftContacts:
             group, wts = np.arange(s), np.ones(s)
         res = self.integrator.step(cc, q, vq, a, mq, gq, h, group, wts, always)
         open_before = was_open[np.searchsorted(near, soft)]
-        vin = self.limits.onset_speed(stones.vel, soft, nk)  # before contact_post moves the stones
+        # the onset speed of opening contacts, before contact_post moves the stones (for the validity records)
+        vin = None if open_before.all() else self.limits.onset_speed(stones.vel, soft, nk)
         impacts, fmax, indent, n_active = contact_post(
             soft, stones.pos, stones.vel, stones.ctri, stones.hit, open_before, nk, acc,
             q, a, vq, gq, res.q, res.v, res.active, res.seat_force, res.peak_seat_force, res.peak_ubar,
@@ -119,22 +120,28 @@ class SoftContacts:
         stats.max_simultaneous_contacts = max(stats.max_simultaneous_contacts, int(n_active))
 
     def _observe_limits(self, cc: ContactSet, soft: np.ndarray, radius: np.ndarray, opening: np.ndarray,
-                        vin: np.ndarray, res: Any, stats: StormStats) -> None:
+                        vin: np.ndarray | None, res: Any, stats: StormStats) -> None:
         """Hand the sub-step's per-contact peaks to the validity measures (:class:`ImpactLimits`),
         with the touched rule of :func:`hailstorm.runtime.compiled.contact_post`."""
+        stats.validity = self.limits
+        ids = soft.tolist()
+        if not self.limits.watching(ids, vin is not None):
+            return
         s = soft.size
         if self.sticky:
             act = res.active.reshape(s, 3).all(axis=1)
             f = np.maximum(np.linalg.norm(res.seat_force.reshape(s, 3), axis=1),
                            np.linalg.norm(res.peak_seat_force.reshape(s, 3), axis=1))
-            peak2 = (res.peak_seat_force.reshape(s, 3) ** 2).sum(axis=1)
-            ubn = np.einsum("kd,kd->k", res.peak_ubar.reshape(s, 3), cc.normals)
+            touched = (act | (np.linalg.norm(res.peak_seat_force.reshape(s, 3), axis=1) > 0.0)).tolist()
+            indent = (-np.einsum("kd,kd->k", res.peak_ubar.reshape(s, 3), cc.normals)).tolist()
+            force = f.tolist()
         else:
-            act = res.active
-            f = np.maximum(np.abs(res.seat_force), np.abs(res.peak_seat_force))
-            peak2 = res.peak_seat_force ** 2
-            ubn = res.peak_ubar
-        self.limits.observe(soft, radius, cc.tris, cc.bary, opening, vin, act | (peak2 > 0.0), -ubn, f, stats)
+            act, seat, peak = res.active.tolist(), res.seat_force.tolist(), res.peak_seat_force.tolist()
+            touched = [a or p != 0.0 for a, p in zip(act, peak)]
+            indent = [-u for u in res.peak_ubar.tolist()]
+            force = [max(abs(f), abs(p)) for f, p in zip(seat, peak)]
+        self.limits.observe(ids, radius.tolist(), cc.tris.tolist(), cc.bary.tolist(), opening.tolist(),
+                            None if vin is None else vin.tolist(), touched, indent, force)
 
     def forces(self, ctri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Stone ids in soft contact and the forces they apply to the seat, (s,), (s, 3)

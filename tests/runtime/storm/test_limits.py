@@ -28,6 +28,15 @@ from helpers import plate_gf
 L, W, H = 0.1, 0.08, 0.02  # the box: x, y, thickness (clamped at z = 0)
 
 
+@pytest.fixture(scope="module")
+def box_gf(tmp_path_factory):
+    from hailstorm.precompute import build_bundle
+    from hailstorm.runtime.bundle.read import load
+
+    m = box_mesh((L, W, H), 0.01)
+    return load(build_bundle(tmp_path_factory.mktemp("gf") / "box", mesh=m, order=1, young=1e6, poisson=0.3))
+
+
 def _box_source(mesh_size: float = 0.01) -> SimpleNamespace:
     """The surface and volume mesh of a clamped box, as a bundle carries them."""
     m = box_mesh((L, W, H), mesh_size)
@@ -57,14 +66,13 @@ def test_thickness_of_a_box_is_its_height_and_width():
     assert np.isfinite(h).all() and (h > 0).all()
 
 
-def test_surface_thickness_without_a_volume_mesh_uses_the_surface():
-    """The synthetic plate has no volume mesh and no opposite surface: no ray hits (inf)."""
-    gf = plate_gf(7)
-    assert np.isinf(surface_thickness(gf)).all()
-    closed = _box_source()
-    closed.volume_tets = np.zeros((0, 4), dtype=np.int64)  # the surface alone is the closed box
-    h = surface_thickness(closed)
-    np.testing.assert_allclose(h, surface_thickness(_box_source()), rtol=1e-12)
+def test_the_surface_is_the_volume_meshs_boundary_and_an_open_plate_has_no_thickness(box_gf):
+    """The thickness is cast against the bundle's surface: on a bundle it is the volume mesh's
+    boundary (boundary_faces of volume_tets through surface_nodes). The synthetic plate is an
+    open surface: no ray hits (inf)."""
+    faces = {tuple(f) for f in np.sort(boundary_faces(box_gf.volume_tets), axis=1)}
+    assert faces == {tuple(f) for f in np.sort(np.asarray(box_gf.surface_nodes)[box_gf.triangles], axis=1)}
+    assert np.isinf(surface_thickness(plate_gf(7))).all()
 
 
 def test_ray_caster_against_the_analytic_box_and_brute_force(rng):
@@ -123,59 +131,50 @@ def test_impact_records_follow_the_storms_impact_rule():
     """A record opens only for a contact that opens, carries force and comes in faster than
     rest_speed; it takes the peaks of its contact until the next opening; a slow touch
     opens none and ends the stone's record."""
-    lim, st = _limits(), StormStats()
-    one, R = np.array([3]), np.array([0.005])
-    tri = np.array([_inner_top_triangle(_box_source())])
-    bary = np.full((1, 3), 1 / 3)
+    lim = _limits()
+    tri = _inner_top_triangle(_box_source())
 
-    def obs(opening, vin, touched, indent, force):
-        lim.observe(one, R, tri, bary, np.array([opening]), np.array([vin]), np.array([touched]),
-                    np.array([indent]), np.array([force]), st)
+    def obs(opening, vin, touched, indent, force):  # one stone (id 3, R = 5 mm) at the triangle's centroid
+        lim.observe([3], [0.005], [tri], [[1 / 3] * 3], [opening], [vin], [touched], [indent], [force])
 
     obs(True, -0.01, True, 1e-4, 0.1)  # a slow touch: no record
-    assert lim.n == 0 and st.impacts_beyond_any_limit == 0
+    assert lim.n == 0 and lim.summary()["impacts_beyond_any_limit"] == 0
     obs(True, -3.0, False, 0.0, 0.0)  # opened but carried no force: no record
     assert lim.n == 0
     obs(True, -3.0, True, 1e-4, 0.5)  # an impact
     obs(False, -1.0, True, 3e-3, 2.0)  # its deepest instant
     obs(False, 1.0, True, 1e-3, 0.7)
     assert lim.n == 1
-    assert lim.indentation[0] == 3e-3 and lim.force[0] == 2.0 and lim.thickness[0] == pytest.approx(H, rel=1e-12)
+    assert lim.indentation[0] == 3e-3 and lim.force[0] == 2.0 and lim._thickness.size == 0  # cast when read
     dh, aR, eps = lim.ratios()
+    assert lim.thickness[0] == pytest.approx(H, rel=1e-12)
     assert dh[0] == pytest.approx(3e-3 / H) and aR[0] == pytest.approx(hertz_radius(2.0, 0.005, 1e6, 0.3) / 0.005)
-    assert st.max_indentation_thickness_ratio == pytest.approx(0.15)
-    assert st.impacts_beyond_indentation_limit == 1 and st.min_impact_thickness_m == pytest.approx(H)
-    assert st.impacts_beyond_radius_limit == int(aR[0] > 0.3) and st.impacts_beyond_strain_limit == 1
+    st = lim.summary()
+    assert st["max_indentation_thickness_ratio"] == pytest.approx(0.15)
+    assert st["impacts_beyond_indentation_limit"] == 1 and st["min_impact_thickness_m"] == pytest.approx(H)
+    assert st["impacts_beyond_radius_limit"] == int(aR[0] > 0.3) and st["impacts_beyond_strain_limit"] == 1
     obs(True, -0.01, True, 5e-3, 5.0)  # a slow re-touch: the impact's record is closed
     assert lim.indentation[0] == 3e-3 and lim.n == 1
 
 
 def test_counts_against_the_stated_limits():
     lim, st = _limits(), StormStats()
-    assert (st.limit_indentation_thickness_ratio, st.limit_contact_radius_ratio, st.limit_strain_ratio) == (
+    assert (st["limit_indentation_thickness_ratio"], st["limit_contact_radius_ratio"], st["limit_strain_ratio"]) == (
         ValidityLimits.indentation_thickness, ValidityLimits.contact_radius, ValidityLimits.strain) == (0.1, 0.3, 0.05)
-    lim.n = 3
-    lim.radius, lim.thickness = np.full(3, 0.005), np.full(3, H)
+    lim.radius, lim._thickness = [0.005] * 3, np.full(3, H)  # thicknesses known: nothing to cast
     # a/R from the force: a = (3 F R / (4 E*))^(1/3), so F = 4 E* a^3 / (3 R)
     Es = 1e6 / (1 - 0.3**2)
     aR = np.array([0.05, 0.2, 0.5])
-    lim.force = 4 * Es * (aR * 0.005) ** 3 / (3 * 0.005)
-    lim.indentation = np.array([0.001, 0.0019, 0.0021]) * H / 0.02  # delta/h 0.05, 0.095, 0.105
-    lim.update_stats(st)
-    assert st.impacts_beyond_indentation_limit == 1 and st.impacts_beyond_radius_limit == 1
-    eps = peak_strain(aR, lim.indentation / H, 0.3)
-    assert st.impacts_beyond_strain_limit == int((eps > 0.05).sum()) and st.max_strain_ratio == pytest.approx(eps.max())
-    assert st.impacts_beyond_any_limit == int(((lim.indentation / H > 0.1) | (aR > 0.3) | (eps > 0.05)).sum())
-    assert st.max_contact_radius_ratio == pytest.approx(0.5, rel=1e-12)
-
-
-@pytest.fixture(scope="module")
-def box_gf(tmp_path_factory):
-    from hailstorm.precompute import build_bundle
-    from hailstorm.runtime.bundle.read import load
-
-    m = box_mesh((L, W, H), 0.01)
-    return load(build_bundle(tmp_path_factory.mktemp("gf") / "box", mesh=m, order=1, young=1e6, poisson=0.3))
+    lim.force = list(4 * Es * (aR * 0.005) ** 3 / (3 * 0.005))
+    lim.indentation = list(np.array([0.001, 0.0019, 0.0021]) * H / 0.02)  # delta/h 0.05, 0.095, 0.105
+    st.validity = lim  # the statistics read the records
+    assert st["impacts_beyond_indentation_limit"] == 1 and st["impacts_beyond_radius_limit"] == 1
+    eps = peak_strain(aR, np.array(lim.indentation) / H, 0.3)
+    assert st["impacts_beyond_strain_limit"] == int((eps > 0.05).sum())
+    assert st["max_strain_ratio"] == pytest.approx(eps.max())
+    assert st["impacts_beyond_any_limit"] == int(((np.array(lim.indentation) / H > 0.1) | (aR > 0.3) | (eps > 0.05)).sum())
+    assert st["max_contact_radius_ratio"] == pytest.approx(0.5, rel=1e-12)
+    assert dict(st)["max_contact_radius_ratio"] == st["max_contact_radius_ratio"] and "validity" not in dict(st)
 
 
 @pytest.mark.parametrize("integrator", ["exact", "implicit"])
@@ -191,8 +190,8 @@ def test_a_drop_on_the_box_records_its_impact(box_gf, integrator):
         st.step()
     S, lim = st.stats, st.contacts.limits
     assert S["impacts"] >= 1 and lim.n == S["impacts"]
-    assert lim.indentation[:lim.n].max() == S["max_indentation_m"]
-    np.testing.assert_allclose(lim.thickness[:lim.n], H, rtol=1e-12)
+    assert max(lim.indentation) == S["max_indentation_m"]
+    np.testing.assert_allclose(lim.thickness, H, rtol=1e-12)
     assert S["max_indentation_thickness_ratio"] == pytest.approx(S["max_indentation_m"] / H, rel=1e-12)
     a = hertz_radius(S["max_contact_force"], R, 1e6, 0.3)
     assert S["max_contact_radius_ratio"] == pytest.approx(a / R, rel=1e-12)
@@ -203,13 +202,12 @@ def test_a_drop_on_the_box_records_its_impact(box_gf, integrator):
 
 
 def test_validity_warning_names_the_numbers():
-    st = StormStats()
+    st = dict(StormStats())
     assert validity_warning(st) is None
-    st.impacts, st.impacts_beyond_any_limit = 22, 22
-    st.impacts_beyond_indentation_limit, st.max_indentation_thickness_ratio = 6, 0.1725
-    st.impacts_beyond_radius_limit, st.max_contact_radius_ratio = 22, 0.648
-    st.impacts_beyond_strain_limit, st.max_strain_ratio = 22, 0.19
-    msg = validity_warning(dict(st))
+    st.update(impacts=22, impacts_beyond_any_limit=22, impacts_beyond_indentation_limit=6,
+              max_indentation_thickness_ratio=0.1725, impacts_beyond_radius_limit=22, max_contact_radius_ratio=0.648,
+              impacts_beyond_strain_limit=22, max_strain_ratio=0.19)
+    msg = validity_warning(st)
     assert msg.startswith("22 of 22 impacts are beyond the model's validity limits")
     assert "indentation/thickness up to 0.172 (limit 0.1, 6 impacts beyond)" in msg
     assert "contact radius/stone radius up to 0.648 (limit 0.3, 22 impacts beyond)" in msg
