@@ -1,6 +1,6 @@
 """A dynamic FEM peer for impacts: where the quasi-static Green's functions stop being true.
 
-``python -m hailstorm.studies.dynamic_study [--full]`` (or
+``python -m hailstorm.studies.dynamic_study [--full | --terminal]`` (or
 ``python tests/benchmarks/dynamic_peer.py``) prints, for a grid of stone radii
 and impact speeds, the impact of one rigid ice sphere on the default seat's
 foam pad computed twice on the same finite-element pad:
@@ -84,6 +84,7 @@ __all__ = [
     "pad_mesh",
     "run_grid",
     "simulate_impact",
+    "terminal_speed",
 ]
 
 #: foam density [kg/m^3]: flexible polyurethane foams ~20-100 (Gibson & Ashby, Cellular Solids, 2nd ed.)
@@ -561,11 +562,22 @@ def format_table(rows: Sequence[Row], tol: float = AGREE) -> str:
     return "\n".join(lines)
 
 
+def terminal_speed(radius: float) -> float:
+    """The terminal fall speed of a stone of the default scene's hail (``[hail]``: density, drag) [m/s]."""
+    from hailstorm.runtime.scene import Scene
+    from hailstorm.runtime.storm.hail import terminal_velocity
+
+    hail = Scene.default().hail
+    return float(terminal_velocity(radius, cd=hail.cd, rho_air=hail.rho_air, density=hail.density))
+
+
 def main(argv: list[str] | None = None) -> int:
     """Print the quasi-static-vs-dynamic table (the small grid; ``--full``: the whole grid)."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--full", action="store_true", help="speeds 1-30 m/s x radii 2.5-12.5 mm (6 x 5)")
     ap.add_argument("--density", type=float, default=FOAM_DENSITY, help="foam density [kg/m^3]")
+    ap.add_argument("--terminal", action="store_true",
+                    help="each radius at its terminal fall speed (the default scene's hail: the default storm's impacts)")
     ap.add_argument("--speeds", type=float, nargs="*", default=None, help="impact speeds [m/s]")
     ap.add_argument("--radii", type=float, nargs="*", default=None, help="stone radii [m]")
     ap.add_argument("--steps-per-contact", type=int, default=200)
@@ -583,14 +595,17 @@ def main(argv: list[str] | None = None) -> int:
     print(f"stone: rigid ice sphere, {ICE_DENSITY:g} kg/m^3, frictionless, no gravity; Newmark average acceleration, "
           f"{args.steps_per_contact} steps per Hertz contact time, {args.cells_per_radius:g} cells per Hertz radius")
     try:
-        rows = run_grid(pad, radii, speeds, cells_per_radius=args.cells_per_radius,
-                        steps_per_contact=args.steps_per_contact)
+        kw = dict(cells_per_radius=args.cells_per_radius, steps_per_contact=args.steps_per_contact)
+        if args.terminal:
+            rows = [compare(pad, R, float(terminal_speed(R)), **kw) for R in radii]
+        else:
+            rows = run_grid(pad, radii, speeds, **kw)
     except ValueError as exc:  # a bad radius or speed, a peer too coarse for its impact
         ap.error(str(exc))
     print(format_table(rows))
     ok = [r for r in rows if r.agrees()]
     print(f"quasi-static within {AGREE:.0%} of the dynamic peer on all four measures: "
-          + (", ".join(f"R = {r.radius * 1e3:g} mm at {r.speed:g} m/s" for r in ok) if ok else "none"))
+          + (", ".join(f"R = {r.radius * 1e3:g} mm at {r.speed:.3g} m/s" for r in ok) if ok else "none"))
     return 0
 
 
