@@ -5,6 +5,7 @@ Usage::
     python tests/benchmarks/dynamic_peer.py                 # small grid (3 speeds x 2 radii) + the default storm
     python tests/benchmarks/dynamic_peer.py --full          # speeds 1-30 m/s x radii 2.5-12.5 mm (6 x 5)
     python tests/benchmarks/dynamic_peer.py --terminal      # each radius at its terminal speed (the default storm)
+    python tests/benchmarks/dynamic_peer.py --terminal --storm-block   # and the same impacts in the storm
     python tests/benchmarks/dynamic_peer.py --no-storm      # the table only
     python tests/benchmarks/dynamic_peer.py --density 50    # another foam density [kg/m^3]
 
@@ -43,13 +44,15 @@ def main() -> None:
     ap.add_argument("--full", action="store_true", help="the whole grid (6 speeds x 5 radii)")
     ap.add_argument("--terminal", action="store_true", help="each radius at its terminal fall speed")
     ap.add_argument("--density", type=float, default=None, help="foam density [kg/m^3] (default 70)")
+    ap.add_argument("--storm-block", action="store_true",
+                    help="the same impacts in the storm, on a block bundle of the pad (6 mm, P2)")
     ap.add_argument("--no-storm", action="store_true", help="skip the default storm's validity counts")
     ap.add_argument("--gf", default=None, help="bundle directory of the storm (default: the default seat's)")
     args = ap.parse_args()
 
     from hailstorm.studies.dynamic_study import main as table
 
-    table((["--full"] if args.full else []) + (["--terminal", "--radii", "0.0025", "0.005", "0.0075", "0.01", "0.0125"]
+    table((["--storm"] if args.storm_block else []) + (["--full"] if args.full else []) + (["--terminal", "--radii", "0.0025", "0.005", "0.0075", "0.01", "0.0125"]
                                                if args.terminal else []) + ([] if args.density is None else ["--density", str(args.density)]))
     if not args.no_storm:
         from hailstorm.runtime.storm.limits import validity_warning

@@ -144,3 +144,16 @@ def test_main_prints_the_table(capsys):
     out = capsys.readouterr().out
     assert f"rho = {FOAM_DENSITY:g} kg/m^3" in out and "within 5%" in out
     assert "quasi-static within 5% of the dynamic peer on all four measures: R = 5 mm at 1 m/s" in out
+
+
+def test_storm_impact_on_a_block_bundle(box_bundle):
+    """The same impact in the storm (quasi-static Green's functions, restitution 1): an elastic
+    bounce (the exact integrator without dashpot gives the speed back to ~1 %, gravity over the
+    contact aside), its peak force and dent the storm's statistics."""
+    import hailstorm.runtime
+    from hailstorm.studies.dynamic_study import storm_impact
+
+    gf = hailstorm.runtime.load(box_bundle)  # 0.1 x 0.1 x 0.05 m, E = 1 MPa, P1
+    res = storm_impact(gf, 0.006, 2.0, dt=1e-5)
+    assert res.rebound_speed == pytest.approx(2.0, rel=0.01)
+    assert res.peak_force > 0 and res.max_dent > 0 and res.duration > 20 * 1e-5
