@@ -303,6 +303,8 @@ class ImpactResult:
     ----------
     dynamic : bool
         The pad had its mass (False: quasi-static).
+    speed : float
+        Impact speed [m/s].
     peak_force : float
         [N]
     duration : float
@@ -320,6 +322,7 @@ class ImpactResult:
     """
 
     dynamic: bool
+    speed: float
     peak_force: float
     duration: float
     rebound_speed: float
@@ -332,9 +335,7 @@ class ImpactResult:
     @property
     def restitution(self) -> float:
         """Rebound over impact speed."""
-        return self.rebound_speed / self._speed
-
-    _speed: float = field(default=1.0, repr=False)
+        return self.rebound_speed / self.speed
 
 
 def _lcp(S: np.ndarray, q: np.ndarray, active: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -492,9 +493,9 @@ def simulate_impact(mesh: PadMesh, radius: float, speed: float, *, dynamic: bool
             t_end += ref.duration  # still touching: go on
     H = np.array(hist)
     duration = last_touch + 0.5 * dt if last_touch > 0 else 0.0
-    res = ImpactResult(dynamic=dynamic, peak_force=float(H[:, 1].max()), duration=duration, rebound_speed=float(-xv),
-                       max_dent=float(H[:, 3].max()), max_contact_radius=max_r, dt=dt, steps=len(hist), history=H,
-                       _speed=float(speed))
+    res = ImpactResult(dynamic=dynamic, speed=float(speed), peak_force=float(H[:, 1].max()), duration=duration,
+                       rebound_speed=float(-xv), max_dent=float(H[:, 3].max()), max_contact_radius=max_r, dt=dt,
+                       steps=len(hist), history=H)
     _check_resolution(mesh.cell, max_r if max_r > 0 else a_ref, dt, max(duration, dt), "as measured")
     return res
 
@@ -504,14 +505,15 @@ def simulate_impact(mesh: PadMesh, radius: float, speed: float, *, dynamic: bool
 # ---------------------------------------------------------------------------------------------
 @dataclass
 class Row:
-    """One (radius, speed) of the comparison: dynamic peer, quasi-static peer, Hertz."""
+    """One (radius, speed) of the comparison: dynamic peer, quasi-static peer, Hertz, and the
+    mesh's free dofs and the pad's thickness [m]."""
 
     radius: float
     speed: float
     dynamic: ImpactResult
     quasi_static: ImpactResult
     hertz: HertzImpact
-    cells: int
+    dofs: int
     thickness: float
 
     def errors(self) -> dict[str, float]:
@@ -538,7 +540,7 @@ def compare(pad: Pad, radius: float, speed: float, *, cells_per_radius: float = 
     kw = dict(steps_per_contact=steps_per_contact, ice_density=ice_density)
     dyn = simulate_impact(mesh, radius, speed, dynamic=True, **kw)
     qs = simulate_impact(mesh, radius, speed, dynamic=False, **kw)
-    return Row(radius=radius, speed=speed, dynamic=dyn, quasi_static=qs, hertz=ref, cells=mesh.K.shape[0] // 2,
+    return Row(radius=radius, speed=speed, dynamic=dyn, quasi_static=qs, hertz=ref, dofs=mesh.K.shape[0],
                thickness=pad.thickness)
 
 
