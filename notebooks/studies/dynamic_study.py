@@ -28,9 +28,8 @@ nu = 0.35). It is axisymmetric about the impact point, so the peer is a 2-D
 the contact radius under the stone (scikit-fem, the weak forms weighted by
 ``2 pi r``). Side edge free, underside clamped, ``u_r = 0`` on the axis.
 
-Density: flexible polyurethane foams span about 20-100 kg/m^3 (Gibson & Ashby,
-*Cellular Solids*, 2nd ed. 1997, ch. 1 and 5; saddle and seating foams
-about 50-100 kg/m^3); the default, :data:`FOAM_DENSITY` = 70 kg/m^3, gives wave
+Density: flexible polyurethane foams span roughly 20-100 kg/m^3 (Gibson & Ashby,
+*Cellular Solids*, 2nd ed. 1997); the default, :data:`FOAM_DENSITY` = 70 kg/m^3, gives wave
 speeds of 214 m/s (dilatational) and 103 m/s (shear) with E = 2 MPa. The
 inertia of the pad scales with the density: ``--density`` changes it.
 

@@ -23,15 +23,14 @@ The limits (:class:`ValidityLimits`, each with its source):
 
 * ``a / R <= 0.3``: Hertz replaces the sphere by the paraboloid ``r^2 / (2R)``
   (Johnson, *Contact Mechanics*, 1985, section 4.2, which assumes ``a << R``).
-  The sphere's gap ``R - sqrt(R^2 - r^2)`` exceeds the paraboloid's by
-  ``(r/R)^2 / 4`` of itself, to leading order: 2.3 % at the contact edge for
-  ``a/R = 0.3``, 6.7 % at 0.5, 25 % at 1 (the limit keeps the profile error
-  below ~2 %).
+  The sphere's gap ``R - sqrt(R^2 - r^2)`` exceeds the paraboloid's by the
+  factor ``2 (1 - sqrt(1 - x^2)) / x^2`` at ``x = r/R`` (``1 + x^2/4`` to
+  leading order): at the contact edge 2.4 % for ``a/R = 0.3``, 7.2 % at 0.5,
+  100 % at 1 (the limit keeps the profile error at the edge near 2 %).
 * peak strain ``<= 0.05``: flexible (elastomeric) foams are linear elastic in
   compression up to about 5 % strain; beyond it the cell walls buckle and the
   stress-strain curve flattens into the plateau (Gibson & Ashby, *Cellular
-  Solids*, 2nd ed. 1997, ch. 5, "elastomeric foams": linear elasticity
-  "limited to small strains, typically 5 %").
+  Solids*, 2nd ed. 1997, ch. 5, elastomeric foams in compression).
 * ``delta / h <= 0.1``: the Green's functions are those of the undeformed pad.
   A pad on a rigid base compressed by ``delta`` is stiffer than the undeformed
   one by about ``h / (h - delta)`` (its stiffness goes as ``1 / h``), 11 % at
@@ -294,7 +293,8 @@ def peak_strain(contact_radius_ratio: Any, indentation_thickness: Any, poisson: 
       ``p0 = 2 E* a / (pi R)`` (Johnson, *Contact Mechanics*, 1985, sections 3.4 and
       4.2), so the compressive strain there is
       ``eps_z = (2 / pi) (1 - 2 nu) / (1 - nu) a / R`` (0.29 a/R at nu = 0.35; of
-      the order of Tabor's representative strain 0.2 a/R, Johnson section 6.2).
+      the order of Tabor's representative strain 0.2 a/R, Tabor, *The Hardness of
+      Metals*, 1951).
     * Layer: a dent ``delta`` into a pad of thickness ``h`` on a rigid base
       compresses the column under the stone by ``delta / h`` on average.
 
