@@ -177,12 +177,14 @@ def test_counts_against_the_stated_limits():
     assert dict(st)["max_contact_radius_ratio"] == st["max_contact_radius_ratio"] and "validity" not in dict(st)
 
 
-@pytest.mark.parametrize("integrator", ["exact", "implicit"])
-def test_a_drop_on_the_box_records_its_impact(box_gf, integrator):
+@pytest.mark.parametrize("integrator, mode, patch", [("exact", "frictionless", "hertz"), ("implicit", "frictionless", "hertz"),
+                                                     ("exact", "sticky", "hertz"), ("exact", "frictionless", "none")])
+def test_a_drop_on_the_box_records_its_impact(box_gf, integrator, mode, patch):
     """One stone dropped on the middle of the box: one record per counted impact, its peak
     indentation the storm's ``max_indentation_m``, its thickness the box's, a/R Hertz's of
     the storm's peak force."""
-    sc = Scene.from_flat(duration=0.03, stones=0, drag=False, dt=2e-4, integrator=integrator, restitution=0.5)
+    sc = Scene.from_flat(duration=0.03, stones=0, drag=False, dt=2e-4, integrator=integrator, restitution=0.5,
+                         mode=mode, patch=patch)
     st = Storm(box_gf, sc, spawn=False)
     R = 0.004
     st.add_stones(np.array([[0.047, 0.037, H + R + 1e-3]]), np.array([[0.0, 0.0, -4.0]]), np.array([R]))
