@@ -565,15 +565,18 @@ class StormImpact:
     max_dent: float
 
 
-def pad_bundle(pad: Pad, mesh_size: float = 0.006, order: int = 2, width: float = 0.12) -> Any:
+def pad_bundle(pad: Pad, mesh_size: float = 0.006, order: int = 2, width: float = 0.12, load: str | None = None) -> Any:
     """A bundle of the pad as a square block (``width`` wide, clamped underneath) at the default
-    seat's resolution (6 mm, P2), built once in the cache; the storm's Green's functions of the pad."""
+    seat's resolution (6 mm, P2, its ``load``: ``meshes/default_scene.toml`` ``[seat]``), built
+    once in the cache; the storm's Green's functions of the pad."""
     import hailstorm.runtime
     from hailstorm.precompute import box_mesh, build_bundle
+    from hailstorm.runtime.scene import SeatSettings
 
+    load = SeatSettings.default().load if load is None else load
     mesh = box_mesh((width, width, pad.thickness), mesh_size)
-    return hailstorm.runtime.load(build_bundle(None, mesh=mesh, order=order, young=pad.young, poisson=pad.poisson,
-                                               progress=False))
+    return hailstorm.runtime.load(build_bundle(None, mesh=mesh, order=order, load=load, young=pad.young,
+                                               poisson=pad.poisson, progress=False))
 
 
 def storm_impact(gf: Any, radius: float, speed: float, *, dt: float = 2e-6, ice_density: float = ICE_DENSITY) -> StormImpact:
@@ -638,7 +641,8 @@ def format_table(rows: Sequence[Row], tol: float = AGREE) -> str:
 def format_storm(rows: Sequence[Row], gf: Any) -> str:
     """The same impacts in the storm (:func:`storm_impact` on ``gf``) against the dynamic peer."""
     head = (f"storm on a {np.ptp(np.asarray(gf.vertices)[:, 0]) * 1e3:.0f} mm block bundle "
-            f"({len(gf.vertices)} surface vertices, P{gf.order}), quasi-static Green's functions, restitution 1:\n"
+            f"({len(gf.vertices)} surface vertices, P{gf.order}, {gf.manifest.get('options', {}).get('load', 'point')} "
+            f"loads), quasi-static Green's functions, restitution 1:\n"
             f"{'R mm':>5} {'v m/s':>5} | {'F storm N':>9} {'vs dyn':>7} | {'t storm ms':>10} {'vs dyn':>7} | "
             f"{'e storm':>7} {'vs dyn':>7} | {'dent storm mm':>13} {'vs dyn':>7}")
     lines = [head]
