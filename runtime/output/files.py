@@ -113,7 +113,17 @@ def summary(result: Any, gf: Any = None) -> dict[str, Any]:
     ``real_time_factor`` (simulated / wall-clock time; > 1 is faster than real
     time), ``setup_time_s`` (building the storm: spatial index, spawn plan,
     loading the compiled kernels), ``backend``, ``seed``, ``dt``,
-    ``integrator``, ``mode``, and the scene.
+    ``integrator``, ``mode``, and the scene. The validity limits
+    (:mod:`hailstorm.runtime.storm.limits`, docs/validity.md):
+    ``impacts_beyond_indentation_limit``, ``impacts_beyond_radius_limit``,
+    ``impacts_beyond_strain_limit``, ``impacts_beyond_any_limit`` (impacts whose
+    peak indentation over the local pad thickness, Hertz contact radius over
+    stone radius or estimated peak strain exceeded the limit),
+    ``max_indentation_thickness_ratio``, ``max_contact_radius_ratio``,
+    ``max_strain_ratio`` (the worst values, [-]), ``min_impact_thickness_m``
+    (the thinnest pad under an impact) and the limits
+    ``limit_indentation_thickness_ratio``, ``limit_contact_radius_ratio``,
+    ``limit_strain_ratio`` [-].
 
     Parameters
     ----------
