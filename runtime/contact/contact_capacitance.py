@@ -827,12 +827,13 @@ def capacitance(
         uses by default.
     patch_profile : {"hertz", "uniform"}
         Pressure profile over a patch.
-    near_field : {"halfspace", "none"}, NearField or None
-        Resolve patches smaller than the surface elements with this near-field
-        kernel (:mod:`hailstorm.runtime.contact.near_field`): a patch of radius
-        ``a`` is carried by a mesh disc of ``max(a, kappa h)`` plus the
-        kernel's difference of self-compliances. None / "none" (default): the
-        discrete model, the patch's compliance as the mesh gives it.
+    near_field : {"auto", "halfspace", "none"}, NearField or None
+        Resolve patches smaller than the surface elements with the half-space
+        near field (:mod:`hailstorm.runtime.contact.near_field`): each patch's
+        compliance is D's, minus the kernel's of the same hat loads, plus the
+        kernel's of the contact's own disc (``"auto"``: on a bundle of hat-load
+        columns). None / "none" (default): the discrete model, the patch's
+        compliance as the mesh gives it.
 
     Returns
     -------
