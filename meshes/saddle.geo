@@ -12,7 +12,7 @@
 // an elastic 3 mm plate (E = 50 GPa) held only at the rail sockets, the shell
 // changes a stone's contact stiffness by less than 0.6 % (< 2 %: rigid base).
 // A 3 mm nylon shell (3 GPa) would change it by 6-8 % mid-span: model that one
-// as a second volume (README "The default seat";
+// as a second volume (docs "Choosing settings", "The default seat";
 // `python -m hailstorm.studies.seat_study --shell --order 2 [--shell-young 3e9]`).
 //
 // Physical groups (the names the pipeline relies on):

@@ -20,7 +20,7 @@ import scipy.sparse.linalg as spla
 
 from hailstorm.precompute.geometry import TetMesh
 
-#: Defaults for a padded saddle treated as one homogeneous solid (see README).
+#: Defaults for a padded saddle treated as one homogeneous solid (see the docs, "Choosing settings").
 DEFAULT_YOUNG = 2.0e6
 DEFAULT_POISSON = 0.35
 

@@ -12,7 +12,7 @@ K_ff u = e_(j,d), read at the output dofs. Four solvers share one interface
     of a batch's loads) read at the surface (the backward solve skips the
     subtrees that hold no surface dof), as BLAS matrix products on batches of
     :data:`hailstorm.precompute.supernodal.DEFAULT_BATCH` columns
-    (:mod:`hailstorm.precompute.supernodal`; README, "Near the FLOP bound").
+    (:mod:`hailstorm.precompute.supernodal`; docs: "Scale", "Near the FLOP bound").
 ``"cholmod"``
     Sparse Cholesky of K_ff (CHOLMOD through ``cholespy``, fill-reducing
     ordering), right-hand sides solved in memory-bounded blocks. cholespy
@@ -392,7 +392,7 @@ def hat_load_matrix(basis, nodes: np.ndarray, areas: np.ndarray) -> sp.csc_matri
     spread over the vertex's patch and integrated consistently for the
     basis's element order. For P2 this is the load a corner point force
     should have been (a point force on a P2 corner node converges poorly for
-    distributed loads; see the README's speed-vs-accuracy study).
+    distributed loads; see the docs' speed-against-accuracy study, "Choosing settings").
 
     Returns
     -------

@@ -159,7 +159,7 @@ class Capacitance:
     normals : (s, 3) float ndarray
         Outward unit normals (used by frictionless and unilateral contact,
         and as the plane of a patch).
-    V : (|V|,) int ndarray
+    V : (len(V),) int ndarray
         Sorted union of the vertices carrying the contacts' forces (the
         contacted triangles' vertices for point contacts).
     loc : (s, P) int ndarray
@@ -489,11 +489,11 @@ class Capacitance:
         return self._expand(self._multipliers(self._reduce(ubar)))
 
     def vertex_forces(self, forces: np.ndarray) -> np.ndarray:
-        """Vertex forces ``f_V = B f_s`` as a (|V|, 3) array."""
+        """Vertex forces ``f_V = B f_s`` as a (len(V), 3) array."""
         return vertex_forces(self.V.size, self.loc, self.weights, np.asarray(forces, dtype=np.float64).reshape(-1, 3))
 
     def vertex_displacement(self, solution: ActiveSet) -> np.ndarray:
-        """Displacement of the vertices V under a solution's forces, ``D_VV B f``, (|V|, 3).
+        """Displacement of the vertices V under a solution's forces, ``D_VV B f``, (len(V), 3).
 
         Right after the build this is ``Y^T lam`` with the build's
         ``Y = (D_VV G)^T`` (no ``D_VV`` needed); after :meth:`add` or

@@ -44,9 +44,9 @@ class ContactSolution:
         frictionless ones); zero at rigid contacts.
     iterations : int
         Active-set iterations (1 without unilateral contact).
-    vertices : (|V|,) int ndarray
+    vertices : (len(V),) int ndarray
         Contacted vertices V.
-    vertex_forces : (|V|, 3) float ndarray
+    vertex_forces : (len(V), 3) float ndarray
         Forces at V, ``B f`` [N].
     """
 

@@ -99,7 +99,7 @@ def _seat_of(gf: Any) -> dict[str, Any] | None:
 def summary(result: Any, gf: Any = None) -> dict[str, Any]:
     """The summary as a dict (what :func:`write_summary` writes).
 
-    Keys (every key and its unit is listed in the README, "Storm outputs"):
+    Keys (every key and its unit is listed in the documentation, "Outputs"):
     ``hailstones`` (spawned), ``impacts`` (contact onsets faster than
     the scene's ``time.rest_speed``), ``stones_hit`` (stones that touched the seat
     at least once, slow touches included), ``max_contact_force`` [N],

@@ -71,7 +71,7 @@ _ACCUMULATORS = ("pen_contact_sum", "pen_contact_n", "validity")
 
 @dataclass(eq=False)
 class StormStats(Mapping):
-    """The statistics of a storm (every key and its unit: README, "Storm outputs").
+    """The statistics of a storm (every key and its unit: the documentation, "Outputs").
 
     The parts of the storm update the counters while it runs; :func:`run_storm`
     fills the run's figures (times, scene values) at the end. As a mapping its
