@@ -108,3 +108,14 @@ def test_changelog_has_this_version():
     text = (ROOT / "CHANGELOG.md").read_text()
     assert "## [Unreleased]" in text
     assert f"## [{hailstorm.__version__}]" in text
+
+
+def test_api_page_documents_every_public_name():
+    import hailstorm.precompute
+    import hailstorm.runtime
+
+    text = (DOCS / "api.md").read_text()
+    for module in (hailstorm.runtime, hailstorm.precompute):
+        for name in module.__all__:
+            assert re.search(rf"^\.\. auto\w+:: {re.escape(module.__name__)}\.{name}$", text, flags=re.M), \
+                f"{module.__name__}.{name} is public but not in docs/api.md"
