@@ -4,6 +4,7 @@ Usage::
 
     python docs/storm_frame.py                      # writes docs/images/storm-frame.png
     python docs/storm_frame.py --out frame.png --duration 0.1 --size 960 540
+    python docs/storm_frame.py --gf DIR --out frame.png      # on another bundle
 
 Runs the packaged default scene (``Scene.default()``, optionally shortened with
 ``--duration``) on the default seat (the bundle ``hailstorm`` builds and caches),
@@ -45,12 +46,13 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=Path(__file__).parent / "images" / "storm-frame.png")
     ap.add_argument("--duration", type=float, default=None, help="simulated time [s] (default: the scene's)")
     ap.add_argument("--size", type=int, nargs=2, default=(1280, 720), metavar=("W", "H"))
+    ap.add_argument("--gf", type=Path, default=None, help="a bundle directory (default: the default seat)")
     args = ap.parse_args(argv)
 
     scene = Scene.default()
     if args.duration is not None:
         scene = scene.with_(duration=args.duration)
-    gf = default_seat()
+    gf = default_seat() if args.gf is None else load(args.gf)
     result = run_storm(gf, scene, progress=False, keep_frames=True)
     frames = result.frames
     i = pick_frame(frames)

@@ -119,3 +119,19 @@ def test_api_page_documents_every_public_name():
         for name in module.__all__:
             assert re.search(rf"^\.\. auto\w+:: {re.escape(module.__name__)}\.{name}$", text, flags=re.M), \
                 f"{module.__name__}.{name} is public but not in docs/api.md"
+
+
+def test_front_page_picture_script_renders_a_frame(tmp_path, box_bundle):
+    """``docs/storm_frame.py`` (the README's picture) runs; here on a small box and a short storm."""
+    import os
+
+    out = tmp_path / "frame.png"
+    env = dict(os.environ, MPLBACKEND="Agg", OMP_NUM_THREADS="1")
+    proc = subprocess.run([sys.executable, str(DOCS / "storm_frame.py"), "--gf", str(box_bundle), "--duration",
+                           "0.03", "--size", "640", "360", "--out", str(out)], capture_output=True, text=True,
+                          env=env, timeout=900)
+    assert proc.returncode == 0, proc.stderr
+    assert "stone(s) in contact" in proc.stdout
+    from matplotlib.image import imread
+
+    assert imread(out).shape[:2] == (360, 640)
