@@ -529,3 +529,23 @@ print("\\n".join(names))
     bad = [n for n in names if "raise_with_shape_context" in n or "integer_str" in n or "flatnonzero" in n
            or "concatenate" in n]
     assert not bad, bad
+
+
+def test_lapack_kernels_are_cached_on_disk(tmp_path):
+    """The LAPACK calls reach SciPy's routines by symbol name, not by a baked-in address, so a
+    kernel calling them is written to numba's disk cache (a ctypes function pointer would make it
+    "uses dynamic globals": compiled again in every process) and a second process loads it."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import numpy as np\n"
+            "from hailstorm.runtime.compiled.lapack import cholesky\n"
+            "L, ok = cholesky(np.array([[4.0, 2.0], [2.0, 3.0]]))\n"
+            "assert ok and abs(L[1, 1] - 2.0 ** 0.5) < 1e-15\n"
+            "print(cholesky.stats.cache_hits and 'hit' or 'miss')\n")
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    runs = [subprocess.run([sys.executable, "-W", "error::numba.NumbaWarning", "-c", code], check=True, env=env,
+                           capture_output=True, text=True).stdout.split() for _ in range(2)]
+    assert runs == [["miss"], ["hit"]]
+    assert any(p.name.startswith("lapack.cholesky") and p.suffix == ".nbi" for p in tmp_path.rglob("*"))
