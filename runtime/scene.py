@@ -243,7 +243,7 @@ class StormSettings(_Section):
     SECTION: ClassVar[str] = "storm"
 
     duration: float = 0.2
-    rate: float = 200.0
+    rate: float = 1000.0
     stones: int | None = None
     seed: int = 0
     spawn_height: float = 0.05
