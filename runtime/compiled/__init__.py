@@ -41,7 +41,7 @@ for debugging.
 from __future__ import annotations
 
 from hailstorm.runtime.compiled.jit import KERNELS
-from hailstorm.runtime.compiled.blocks import columns_times, contact_compliance, vertex_block, weighted_rows
+from hailstorm.runtime.compiled.blocks import columns_times, contact_compliance, point_contacts, vertex_block, weighted_rows
 from hailstorm.runtime.compiled.contacts import contact_post, contact_prep, inv_spd
 from hailstorm.runtime.compiled.flight import flight, near_set, retired
 from hailstorm.runtime.compiled.grid import SampleGrid, closest_points
@@ -75,6 +75,7 @@ __all__ = [
     "patch_one",
     "patch_radii",
     "penetration",
+    "point_contacts",
     "retired",
     "substep_contacts",
     "substep_damping",

@@ -20,6 +20,7 @@ __all__ = [
     "COND_LIMIT",
     "EMBED_BLOCKS_FROM",
     "PINV_RCOND",
+    "POINT_FAST_MAX",
     "RIGID_WEIGHT",
     "SPDFactor",
     "SUBSET_REUSE_FROM",
@@ -37,6 +38,10 @@ RIGID_WEIGHT: float = 1e-12
 #: Barycentric coordinates must sum to one within this and be >= -BARY_NEG_TOL.
 BARY_SUM_TOL: float = 1e-6
 BARY_NEG_TOL: float = 1e-9
+#: Up to this many bilateral point contacts, ``solve_contacts`` takes the
+#: one-call compiled solve (:func:`hailstorm.runtime.compiled.blocks.point_contacts`);
+#: above it the block kernels, which win from s = 64-80 on (measured on the default seat).
+POINT_FAST_MAX: int = 64
 #: From this size of D_VV on, :meth:`Capacitance.add` grows it by block copies.
 EMBED_BLOCKS_FROM: int = 300
 #: From this many active constrained components on, an active-set re-solve with a few

@@ -10,10 +10,12 @@ from typing import Any
 
 import numpy as np
 
+from hailstorm.runtime.compiled import blocks as kernels
+from hailstorm.runtime.contact import policy
 from hailstorm.runtime.contact.contact_capacitance import build
 from hailstorm.runtime.bundle.compliance import ComplianceSource, apply_columns, kernel_columns
 from hailstorm.runtime.contact.validate import Mode, check_contacts, check_mode, check_patch
-from hailstorm.runtime.contact.weights import interpolate, vertex_forces
+from hailstorm.runtime.contact.weights import PATCH_PROFILES, interpolate, vertex_forces
 
 __all__ = ["ContactSolution", "solve_contacts"]
 
@@ -55,6 +57,36 @@ class ContactSolution:
     iterations: int = 1
     vertices: np.ndarray = field(default_factory=lambda: np.zeros(0, np.intp))
     vertex_forces: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+
+
+def _point_contacts(gf: ComplianceSource, triangles: Any, barycentric: Any, displacements: Any, mode: Mode,
+                    want_u: bool) -> ContactSolution | None:
+    """:func:`solve_contacts` for bilateral point contacts in one compiled call
+    (:func:`hailstorm.runtime.compiled.blocks.point_contacts`: the same validation, blocks,
+    factorisation policy and products fused), or None where the general path must
+    decide: malformed input (it raises the error), rigid contacts, coincident
+    contacts (pseudo-inverse), no contacts, more than
+    :data:`~hailstorm.runtime.contact.policy.POINT_FAST_MAX` contacts."""
+    t = np.asarray(triangles)
+    if t.ndim != 1 or not 0 < t.size <= policy.POINT_FAST_MAX or t.dtype.kind not in "iu":
+        return None
+    # C-contiguous float64 / int64: one compiled specialisation serves every caller
+    b = np.ascontiguousarray(barycentric, dtype=np.float64)
+    u = np.ascontiguousarray(displacements, dtype=np.float64)
+    s = t.size
+    if b.shape != (s, 3) or u.shape != (s, 3):
+        return None
+    t = np.ascontiguousarray(t, dtype=np.int64)
+    code, f, cd, V, g, uall = kernels.point_contacts(
+        kernel_columns(gf), gf.column_of, gf.contactable, gf.fixed, gf.triangles, gf.vertices, t, b, u,
+        mode == "sticky", want_u, policy.BARY_SUM_TOL, policy.BARY_NEG_TOL, policy.COND_LIMIT,
+        policy.RIGID_WEIGHT)
+    if code:
+        return None
+    return ContactSolution(
+        forces=f, surface_displacement=uall.reshape(-1, 3) if want_u else None, active=np.ones(s, bool),
+        rigid=np.zeros(s, bool), contact_displacement=cd, iterations=1, vertices=V, vertex_forces=g,
+    )
 
 
 def solve_contacts(
@@ -114,7 +146,10 @@ def solve_contacts(
     Notes
     -----
     The blocks of D are read by the compiled kernels of
-    :mod:`hailstorm.runtime.compiled.blocks`. The first call in a process loads
+    :mod:`hailstorm.runtime.compiled.blocks`; up to
+    :data:`~hailstorm.runtime.contact.policy.POINT_FAST_MAX` bilateral point
+    contacts with ``normals=None`` and ``rows`` "all" or None are solved in
+    one compiled call of the same algorithm. The first call in a process loads
     the kernels (~0.3 s; compiling them takes ~10 s once after an install).
 
     Returns
@@ -133,6 +168,11 @@ def solve_contacts(
         If the unilateral active set does not settle within ``max_iter``.
     """
     mode = check_mode(mode)
+    if (not unilateral and normals is None and patch_radius is None and patch_profile in PATCH_PROFILES
+            and (rows is None or (isinstance(rows, str) and rows == "all"))):
+        fast = _point_contacts(gf, triangles, barycentric, displacements, mode, rows is not None)
+        if fast is not None:
+            return fast
     # sticky bilateral contacts never look at the normals
     t, b, n = check_contacts(gf, triangles, barycentric, normals,
                              need_normals=unilateral or mode == "frictionless" or patch_radius is not None)

@@ -508,7 +508,7 @@ def print_floor(gf, s: int, tri: np.ndarray, bary: np.ndarray, t_fresh: np.ndarr
 
 def print_phases(gf, tri: np.ndarray, bary: np.ndarray, ubar: np.ndarray, refs: dict, repeat: int) -> None:
     """The fresh solve of :func:`print_floor`'s contact set (bilateral sticky point contacts,
-    full-surface u), phase by phase.
+    full-surface u: the general path above ``POINT_FAST_MAX``), phase by phase.
 
     Each repetition runs the phases of one solve in order (validation, V and the column
     dofs, ``Y = (D_VV G)^T``, ``W``, the rigid test, the factor with its condition test,
@@ -518,7 +518,7 @@ def print_phases(gf, tri: np.ndarray, bary: np.ndarray, ubar: np.ndarray, refs: 
     """
     from hailstorm.runtime.compiled import blocks
     from hailstorm.runtime.bundle.compliance import apply_columns, column_dofs, kernel_columns
-    from hailstorm.runtime.contact.policy import SPDFactor, is_rigid
+    from hailstorm.runtime.contact.policy import POINT_FAST_MAX, SPDFactor, is_rigid
     from hailstorm.runtime.contact.validate import check_contacts, check_mode, check_patch
     from hailstorm.runtime.contact.weights import interpolate, locate, vertex_forces
 
@@ -567,6 +567,9 @@ def print_phases(gf, tri: np.ndarray, bary: np.ndarray, ubar: np.ndarray, refs: 
     T = T[3:] * 1e3
     print()
     print(f"the fresh solve above, phase by phase (perf_counter, {repeat} repeats; min / med / max [ms]):")
+    if tri.size <= POINT_FAST_MAX:
+        print(f"  (s <= POINT_FAST_MAX = {POINT_FAST_MAX}: solve_contacts takes the one-call compiled path, "
+              "not these phases of the general one)")
     for j, name in enumerate(names):
         col = T[:, j]
         fl = floors.get(name)

@@ -294,12 +294,13 @@ def test_contact_kernels_grouping_edges(gf):
 
 
 def test_contact_api_calls_the_kernels(gf, monkeypatch):
-    """Every contact solve takes the block kernels (also for a row-major D, read through a
-    column-major copy; there is no second compiled path for bilateral point contacts): bilateral,
-    unilateral and row-major solves agree to rounding with each other and with a dense solve of W."""
+    """Bilateral point contacts take the one-call point_contacts, everything else the block
+    kernels (also for a row-major D, read through a column-major copy); the two paths agree
+    to rounding with each other and with a dense solve of W."""
     import hailstorm.runtime.bundle.compliance
     import hailstorm.runtime.contact.contact_capacitance
-    from hailstorm.runtime.contact import capacitance, solve_contacts
+    import hailstorm.runtime.contact.solve
+    from hailstorm.runtime.contact import capacitance, policy, solve_contacts
     from hailstorm.runtime.bundle.compliance import column_dofs, dof3
     from hailstorm.runtime.contact.weights import dense_B
 
@@ -310,11 +311,12 @@ def test_contact_api_calls_the_kernels(gf, monkeypatch):
             calls.append(name)
             return getattr(C.blocks, name)
 
-    for mod in (hailstorm.runtime.contact.contact_capacitance, hailstorm.runtime.bundle.compliance):
+    for mod in (hailstorm.runtime.contact.solve, hailstorm.runtime.contact.contact_capacitance,
+                hailstorm.runtime.bundle.compliance):
         monkeypatch.setattr(mod, "kernels", Spy())
     rng = np.random.default_rng(5)
     t, b, n, a, V, loc, w = _contact_lists(gf, rng, 6, False)
-    t = np.where(gf.fixed[gf.triangles[t]].all(axis=1), t[0], t)  # no rigid contact
+    t = np.where(gf.fixed[gf.triangles[t]].all(axis=1), t[0], t)  # no rigid contact: the fast path takes all
     ubar = -1e-4 * n
     F = dataclasses.replace(gf, D=np.asfortranarray(gf.D))
     # dense reference: f = (B^T D_VV B)^-1 ubar, u = D[:, V] B f
@@ -335,7 +337,7 @@ def test_contact_api_calls_the_kernels(gf, monkeypatch):
         np.testing.assert_array_equal(x.active, y.active)
 
     fast = solve_contacts(F, t, b, ubar)
-    assert calls == ["constraint_rows", "contact_compliance", "columns_times"]
+    assert calls == ["point_contacts"]
     np.testing.assert_allclose(fast.forces.ravel(), f_ref, rtol=0, atol=1e-10 * np.abs(f_ref).max())
     np.testing.assert_allclose(fast.surface_displacement, u_ref, rtol=0, atol=1e-10 * np.abs(u_ref).max())
     calls.clear()
@@ -350,12 +352,65 @@ def test_contact_api_calls_the_kernels(gf, monkeypatch):
     np.testing.assert_array_equal(cap.D_VV, _dense_block(F, dof3(V), cols))  # gathered on first use
     assert calls == ["vertex_block"]
     calls.clear()
+    monkeypatch.setattr(policy, "POINT_FAST_MAX", t.size - 1)  # too many for the fast path
+    same(solve_contacts(F, t, b, ubar), fast)
+    assert calls == ["constraint_rows", "contact_compliance", "columns_times"]
+    calls.clear()
     same(solve_contacts(F, t, b, ubar, rows=None), dataclasses.replace(fast, surface_displacement=None))
     assert calls == ["constraint_rows", "contact_compliance"]  # the contact displacement from (D_VV G)^T
     calls.clear()
     Crow = dataclasses.replace(gf, D=np.ascontiguousarray(gf.D))
     same(solve_contacts(Crow, t, b, ubar), fast)
     assert calls == ["constraint_rows", "contact_compliance", "columns_times"]
+
+
+def test_point_contacts_fast_path(gf):
+    """The one-call solve of bilateral point contacts equals the general path (random sets,
+    both modes, with and without the surface), and hands every special case back to it
+    with its code: invalid input 1, a vertex without a column of D 2, a rigid contact 3,
+    coincident contacts (pseudo-inverse) 4."""
+    from hailstorm.runtime.contact import policy, solve_contacts, triangle_normals
+
+    F = dataclasses.replace(gf, D=np.asfortranarray(gf.D))
+    T = np.asarray(F.triangles)
+    soft = np.flatnonzero(F.contactable[T].all(axis=1))
+    rng = np.random.default_rng(8)
+    for trial in range(40):
+        s = int(rng.integers(1, 25))
+        t = rng.choice(soft, s)
+        b = rng.dirichlet([1.0, 1.0, 1.0], s)
+        nrm = triangle_normals(F.vertices, T[t])
+        ubar = -1e-4 * nrm + rng.normal(scale=3e-5, size=(s, 3))
+        mode = ("sticky", "frictionless")[trial % 2]
+        rows = ("all", None)[(trial // 2) % 2]
+        got = solve_contacts(F, t, b, ubar, mode=mode, rows=rows)
+        ref = solve_contacts(F, t, b, ubar, mode=mode, rows=rows, normals=nrm)  # explicit normals: the general path
+        for p, q in ((got.forces, ref.forces), (got.contact_displacement, ref.contact_displacement),
+                     (got.vertex_forces, ref.vertex_forces), (got.surface_displacement, ref.surface_displacement)):
+            if q is None:
+                assert p is None
+                continue
+            np.testing.assert_allclose(p, q, rtol=0, atol=1e-10 * np.abs(q).max())
+        np.testing.assert_array_equal(got.vertices, ref.vertices)
+        assert got.active.all() and not got.rigid.any() and got.iterations == 1
+
+    def code(t, b, contactable=None, sticky=True):
+        t = np.asarray(t, dtype=np.int64)
+        return C.point_contacts(F.D.T, F.column_of, F.contactable if contactable is None else contactable, F.fixed,
+                                T, F.vertices, t, np.asarray(b, float), np.full((t.size, 3), -1e-4), sticky, True,
+                                policy.BARY_SUM_TOL, policy.BARY_NEG_TOL, policy.COND_LIMIT, policy.RIGID_WEIGHT)[0]
+
+    third = [1 / 3, 1 / 3, 1 / 3]
+    assert code([soft[0]], [third]) == 0
+    assert code([soft[0]], [[0.2, 0.3, 0.6]]) == 1  # does not sum to 1
+    assert code([T.shape[0]], [third]) == 1  # out of range
+    crippled = F.contactable.copy()
+    crippled[T[soft[0], 0]] = False
+    assert code([soft[0]], [third], contactable=crippled) == 2
+    rigid = np.flatnonzero(F.fixed[T].all(axis=1))[0]
+    assert code([soft[0], rigid], [third, third]) == 3
+    assert code([soft[0], soft[0]], [third, third]) == 4
+    assert code([soft[0], soft[0]], [third, third], sticky=False) == 4
 
 
 EPS = np.finfo(float).eps
