@@ -65,14 +65,23 @@ def vertex_block(V, Dt, column_of):  # pragma: no cover (compiled)
         cb = column_of[V[j]]
         if cb < 0:
             continue
-        for e in range(3):
-            src = Dt[3 * cb + e]
-            dst = out[3 * j + e]
-            for i in range(nV):
-                r = rows[i]
-                dst[3 * i] = src[r]
-                dst[3 * i + 1] = src[r + 1]
-                dst[3 * i + 2] = src[r + 2]
+        s0 = Dt[3 * cb]
+        s1 = Dt[3 * cb + 1]
+        s2 = Dt[3 * cb + 2]
+        d0 = out[3 * j]
+        d1 = out[3 * j + 1]
+        d2 = out[3 * j + 2]
+        for i in range(nV):  # the three columns of a vertex at once: more reads in flight
+            r = rows[i]
+            d0[3 * i] = s0[r]
+            d0[3 * i + 1] = s0[r + 1]
+            d0[3 * i + 2] = s0[r + 2]
+            d1[3 * i] = s1[r]
+            d1[3 * i + 1] = s1[r + 1]
+            d1[3 * i + 2] = s1[r + 2]
+            d2[3 * i] = s2[r]
+            d2[3 * i + 1] = s2[r + 1]
+            d2[3 * i + 2] = s2[r + 2]
     return out
 
 
@@ -263,7 +272,9 @@ def contact_compliance(Y, loc, w, normals, sticky):  # pragma: no cover (compile
     only row ``k`` of the result (a column-by-column sweep strides through both
     arrays: 2.4x slower at s = 100). Each entry is summed in a register over its
     contact's weighted vertices, in the order of ``loc``, from zero (the sums, bit for
-    bit, of accumulating into the zeroed row, without its stores and re-loads).
+    bit, of accumulating into the zeroed row, without its stores and re-loads), four
+    rows at a time (each vertex's position and weight loaded once for the four: 0.26 ->
+    0.18 ms at s = 100 point contacts, 0.76 -> 0.46 ms patches, on the default seat).
     """
     s, P = loc.shape
     m = Y.shape[0]
@@ -282,11 +293,20 @@ def contact_compliance(Y, loc, w, normals, sticky):  # pragma: no cover (compile
                 nz += 1
     start[s] = nz
     W = np.empty((m, m))
-    for k in range(m):
+    k = 0
+    while k + 4 <= m:
+        if sticky:
+            _sticky_rows4(Y[k], Y[k + 1], Y[k + 2], Y[k + 3], W[k], W[k + 1], W[k + 2], W[k + 3], start, gr, gw)
+        else:
+            _normal_rows4(Y[k], Y[k + 1], Y[k + 2], Y[k + 3], W[k], W[k + 1], W[k + 2], W[k + 3], start, gr, gw,
+                          normals)
+        k += 4
+    while k < m:
         if sticky:
             _sticky_row(Y[k], W[k], start, gr, gw)
         else:
             _normal_row(Y[k], W[k], start, gr, gw, normals)
+        k += 1
     symmetrise(W)
     return W
 
@@ -310,6 +330,51 @@ def _sticky_row(y, dst, start, gr, gw):  # pragma: no cover (compiled)
 
 
 @kernel
+def _sticky_rows4(ya, yb, yc, yd, da, db, dc, dd, start, gr, gw):  # pragma: no cover (compiled)
+    """Four rows of ``Y G`` at once: :func:`_sticky_row` of each, the same sums."""
+    for l in range(start.size - 1):
+        a0 = 0.0
+        a1 = 0.0
+        a2 = 0.0
+        b0 = 0.0
+        b1 = 0.0
+        b2 = 0.0
+        c0 = 0.0
+        c1 = 0.0
+        c2 = 0.0
+        e0 = 0.0
+        e1 = 0.0
+        e2 = 0.0
+        for q in range(start[l], start[l + 1]):
+            r = gr[q]
+            wp = gw[q]
+            a0 += wp * ya[r]
+            a1 += wp * ya[r + 1]
+            a2 += wp * ya[r + 2]
+            b0 += wp * yb[r]
+            b1 += wp * yb[r + 1]
+            b2 += wp * yb[r + 2]
+            c0 += wp * yc[r]
+            c1 += wp * yc[r + 1]
+            c2 += wp * yc[r + 2]
+            e0 += wp * yd[r]
+            e1 += wp * yd[r + 1]
+            e2 += wp * yd[r + 2]
+        da[3 * l] = a0
+        da[3 * l + 1] = a1
+        da[3 * l + 2] = a2
+        db[3 * l] = b0
+        db[3 * l + 1] = b1
+        db[3 * l + 2] = b2
+        dc[3 * l] = c0
+        dc[3 * l + 1] = c1
+        dc[3 * l + 2] = c2
+        dd[3 * l] = e0
+        dd[3 * l + 1] = e1
+        dd[3 * l + 2] = e2
+
+
+@kernel
 def _normal_row(y, dst, start, gr, gw, normals):  # pragma: no cover (compiled)
     """One row of ``Y G`` for frictionless contacts (``G = B N``): ``dst`` from ``y``."""
     for l in range(start.size - 1):
@@ -324,6 +389,41 @@ def _normal_row(y, dst, start, gr, gw, normals):  # pragma: no cover (compiled)
             x += (wp * n1) * y[r + 1]
             x += (wp * n2) * y[r + 2]
         dst[l] = x
+
+
+@kernel
+def _normal_rows4(ya, yb, yc, yd, da, db, dc, dd, start, gr, gw, normals):  # pragma: no cover (compiled)
+    """Four rows of ``Y G`` at once: :func:`_normal_row` of each, the same sums."""
+    for l in range(start.size - 1):
+        n0 = normals[l, 0]
+        n1 = normals[l, 1]
+        n2 = normals[l, 2]
+        xa = 0.0
+        xb = 0.0
+        xc = 0.0
+        xd = 0.0
+        for q in range(start[l], start[l + 1]):
+            r = gr[q]
+            wp = gw[q]
+            c0 = wp * n0
+            c1 = wp * n1
+            c2 = wp * n2
+            xa += c0 * ya[r]
+            xa += c1 * ya[r + 1]
+            xa += c2 * ya[r + 2]
+            xb += c0 * yb[r]
+            xb += c1 * yb[r + 1]
+            xb += c2 * yb[r + 2]
+            xc += c0 * yc[r]
+            xc += c1 * yc[r + 1]
+            xc += c2 * yc[r + 2]
+            xd += c0 * yd[r]
+            xd += c1 * yd[r + 1]
+            xd += c2 * yd[r + 2]
+        da[l] = xa
+        db[l] = xb
+        dc[l] = xc
+        dd[l] = xd
 
 
 @kernel
