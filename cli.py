@@ -243,6 +243,7 @@ def _run_storm(args: argparse.Namespace) -> int:
                      progress=not args.quiet) as sink:
         result = run_storm(gf, scene, progress=not args.quiet, on_frame=sink.add, allow_large=args.allow_large)
         paths = sink.finish(result)
+    _warn_validity(result.stats)
     if not args.quiet:
         import json
 
@@ -256,6 +257,15 @@ def _run_storm(args: argparse.Namespace) -> int:
             print(f"{k:<{width}}  {v:.4g}" if isinstance(v, float) else f"{k:<{width}}  {v}")
         print(f"outputs in {out}/" + (f" (animation: {paths['video'].name})" if "video" in paths else ""))
     return 0
+
+
+def _warn_validity(stats: Any) -> None:
+    """Warn once when impacts went beyond the model's validity limits (docs/validity.md)."""
+    from hailstorm.runtime.storm.limits import validity_warning
+
+    msg = validity_warning(stats)
+    if msg is not None:
+        logging.getLogger("hailstorm").warning("warning: %s", msg)
 
 
 def _warn_seat_ignored(args: argparse.Namespace, seat: Any, gf: Any) -> None:

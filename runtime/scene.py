@@ -29,6 +29,7 @@ from typing import Any, ClassVar, Mapping
 import numpy as np
 
 from hailstorm.runtime.bundle.atomic import write_text_atomic
+from hailstorm.runtime.contact.near_field import NEAR_FIELDS
 from hailstorm.runtime.contact.validate import Mode
 from hailstorm.runtime.storm.hail import GRAVITY, Integrator, SizeDistribution, terminal_velocity
 
@@ -340,6 +341,11 @@ class ContactSettings(_Section):
         (default 0.2: 20%). Within it the contact keeps its weights and the
         capacitance is not rebuilt (a 20% radius error changes the patch's
         stiffness by ~20% but the radius itself only as ``F^(1/3)``).
+    near_field : {"auto", "halfspace", "none"}
+        Patches smaller than the surface elements resolved at their own scale
+        (:mod:`hailstorm.runtime.contact.near_field`): ``"auto"`` (default) on a
+        bundle whose columns answer hat loads (the default seat's), ``"none"``
+        the patch as the mesh carries it.
     """
 
     SECTION: ClassVar[str] = "contact"
@@ -350,6 +356,7 @@ class ContactSettings(_Section):
     patch: str = "hertz"
     patch_min_radius: float = 1e-3
     patch_tolerance: float = 0.2
+    near_field: str = "auto"
 
     def __post_init__(self) -> None:
         _check_types(self)
@@ -359,6 +366,8 @@ class ContactSettings(_Section):
             raise SceneError(f"mode must be 'frictionless' or 'sticky', got {self.mode!r}")
         if self.patch not in ("hertz", "none"):
             raise SceneError(f"patch must be 'hertz' or 'none', got {self.patch!r}")
+        if self.near_field not in NEAR_FIELDS:
+            raise SceneError(f"near_field must be one of {', '.join(map(repr, NEAR_FIELDS))}, got {self.near_field!r}")
         if isinstance(self.restitution, bool) or not isinstance(self.restitution, (int, float)) or not 0.0 <= self.restitution <= 1.0:
             raise SceneError(f"restitution must lie in [0, 1], got {self.restitution!r}")
 
@@ -462,7 +471,7 @@ class SeatSettings(_Section):
 
     mesh_size: float = 0.006
     order: int = 2
-    load: str = "point"
+    load: str = "hat"
     volume_size: float | None = None
     young: float = 2.0e6
     poisson: float = 0.35

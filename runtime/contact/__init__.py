@@ -12,6 +12,9 @@ Modules, one seam each:
   constants (condition limit, pseudo-inverse cut-off, rigid threshold,
   fast-path size), named once, and the one SPD factorisation
   :class:`SPDFactor` / :func:`spd_inverse`;
+* :mod:`~hailstorm.runtime.contact.near_field` -- contacts smaller than a
+  surface element: the half-space near field added to W's diagonal
+  (:class:`NearField`, :func:`near_field`);
 * :mod:`~hailstorm.runtime.contact.validate` -- input checks;
 * :mod:`~hailstorm.runtime.contact.contact_capacitance` -- :class:`Capacitance` /
   :func:`capacitance` (``W``, its factorisation, low-rank
@@ -83,6 +86,7 @@ from hailstorm.runtime.contact.contact_capacitance import ActiveSet, Capacitance
 from hailstorm.runtime.bundle.compliance import ComplianceSource
 from hailstorm.runtime.contact.policy import COND_LIMIT, PINV_RCOND, SPDFactor, spd_inverse
 from hailstorm.runtime.contact.solve import ContactSolution, solve_contacts
+from hailstorm.runtime.contact.near_field import NearField, near_field
 from hailstorm.runtime.contact.validate import Mode
 from hailstorm.runtime.contact.weights import (
     barycentric_matrix,
@@ -101,11 +105,13 @@ __all__ = [
     "ComplianceSource",
     "ContactSolution",
     "Mode",
+    "NearField",
     "SPDFactor",
     "barycentric_matrix",
     "capacitance",
     "contact_points",
     "hertz_radius",
+    "near_field",
     "patch_matrix",
     "patch_weights",
     "solve_contacts",

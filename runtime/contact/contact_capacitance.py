@@ -25,7 +25,9 @@ from hailstorm.runtime.bundle.compliance import (
 )
 from hailstorm.runtime.contact.policy import COND_LIMIT, EMBED_BLOCKS_FROM, SUBSET_REUSE_FROM, SPDFactor, is_rigid
 from hailstorm.runtime.contact.validate import Mode, check_contacts, check_mode, check_patch
+from hailstorm.runtime.contact.near_field import NearField, near_field
 from hailstorm.runtime.contact.weights import (
+    contact_points,
     dense_B,
     interpolate,
     locate,
@@ -169,13 +171,19 @@ class Capacitance:
         weights of :func:`hailstorm.runtime.contact.weights.patch_weights` otherwise.
     patch_radius : (s,) float ndarray
         Patch radius of each contact [m]; 0 for point contacts.
+    local : (s, p, p) float ndarray
+        The near-field blocks added to the diagonal of ``W``
+        (:meth:`hailstorm.runtime.contact.near_field.NearField.blocks`; zero
+        without a near field), ``p`` = :attr:`per_contact`.
+    near : NearField or None
+        The near field resolved at build (:func:`hailstorm.runtime.contact.near_field.near_field`).
     D_VV : (3|V|, 3|V|) float ndarray
         Compliance block ``D[V, V]`` (zero columns at clamped vertices),
         gathered on first use (a fresh solve never needs it).
     column_dofs : (3|V|,) int ndarray
         Column dofs of D for V (-1 at clamped vertices).
     W : (m, m) float ndarray
-        Contact compliance ``G^T D_VV G`` over *all* constrained components
+        Contact compliance ``G^T D_VV G + blockdiag(local)`` over *all* constrained components
         (``G = B`` sticky, ``m = 3s``; ``G = B N`` frictionless, ``m = s``).
         Rows/columns of rigid contacts are zero.
     rigid : (s,) bool ndarray
@@ -222,6 +230,12 @@ class Capacitance:
     patch_profile: str = "hertz"
     #: radius :meth:`add` uses when not given (a scalar ``patch_radius`` at build; else 0)
     default_patch_radius: float = 0.0
+    local: np.ndarray | None = None
+    near: NearField | None = None
+
+    def __post_init__(self) -> None:
+        if self.local is None:
+            self.local = np.zeros((self.s, self.per_contact, self.per_contact))
 
     # -- sizes and derived matrices ------------------------------------------
     @property
@@ -490,9 +504,21 @@ class Capacitance:
         return (self.D_VV @ self.vertex_forces(solution.forces).reshape(-1)).reshape(-1, 3)
 
     def contact_displacement(self, forces: np.ndarray) -> np.ndarray:
-        """Contact-point displacements ``B^T D_VV B f_s`` caused by contact forces, (s, 3)."""
-        g = self.vertex_forces(forces).reshape(-1)
-        return interpolate((self.D_VV @ g).reshape(-1, 3), self.loc, self.weights)
+        """Contact-point displacements ``B^T D_VV B f_s`` (plus the near field's ``local f_s``)
+        caused by contact forces, (s, 3)."""
+        f = np.asarray(forces, dtype=np.float64).reshape(-1, 3)
+        g = self.vertex_forces(f).reshape(-1)
+        return interpolate((self.D_VV @ g).reshape(-1, 3), self.loc, self.weights) + self.near_displacement(f)
+
+    def near_displacement(self, forces: np.ndarray) -> np.ndarray:
+        """The near field's share of the contact-point displacements, ``local f_s``, (s, 3)
+        (zero without a near field; frictionless: along the normals)."""
+        f = np.asarray(forces, dtype=np.float64).reshape(-1, 3)
+        if self.local is None or not self.local.any():
+            return np.zeros_like(f)
+        if self.mode == "sticky":
+            return np.einsum("kij,kj->ki", self.local, f)
+        return (self.local[:, 0, 0] * np.einsum("ki,ki->k", f, self.normals))[:, None] * self.normals
 
     def surface_displacement(self, forces: np.ndarray, rows: np.ndarray | None = None) -> np.ndarray:
         """Surface displacement ``u = D[:, V] B f_s``.
@@ -603,6 +629,9 @@ class Capacitance:
         )
         a_new = self.default_patch_radius if patch_radius is None else float(patch_radius)
         pv, pw = _contact_weights(self.gf, t, b, n, np.array([a_new]), self.patch_profile)
+        L_new = _near_blocks(self.gf, self.near, t, b, n, np.array([a_new]), pv, pw, self.mode)
+        if L_new is None:
+            L_new = np.zeros((1, self.per_contact, self.per_contact))
         gf = self.gf
         old_s = self.s
         p = self.per_contact
@@ -634,6 +663,8 @@ class Capacitance:
         c = _constraint_rows(DGn, loc_old, self.weights, self.normals, self.mode)  # (m_old, p)
         d = _constraint_rows(DGn, loc_new, pw, n, self.mode)
         d = 0.5 * (d + d.T)
+        if not rigid_new:
+            d = d + L_new[0]
         mo = p * old_s
         W = np.zeros((mo + p, mo + p))
         W[:mo, :mo] = self.W
@@ -652,6 +683,7 @@ class Capacitance:
         self.loc = np.vstack([lo, ln])
         self.weights = np.vstack([wo, wn])
         self.patch_radius = np.append(self.patch_radius, a_new)
+        self.local = np.concatenate([self.local, L_new if not rigid_new else np.zeros_like(L_new)])
         self.V, self._D_VV, self.W, self.column_dofs = V, D_VV, W, cols
         self._Y = None
         self.rigid = np.append(self.rigid, rigid_new)
@@ -733,6 +765,7 @@ class Capacitance:
         self.W = np.delete(np.delete(self.W, wd, axis=0), wd, axis=1)
         self.tri_idx, self.bary, self.normals = self.tri_idx[keep], self.bary[keep], self.normals[keep]
         self.weights, self.patch_radius = self.weights[keep], self.patch_radius[keep]
+        self.local = self.local[keep]
         self.rigid = self.rigid[keep]
         if self._R is not None:
             self._R = np.delete(self._R, np.arange(3 * k, 3 * k + 3), axis=1)
@@ -766,6 +799,7 @@ def capacitance(
     mode: Mode = "sticky",
     patch_radius: Any = None,
     patch_profile: str = "hertz",
+    near_field: str | NearField | None = None,
 ) -> Capacitance:
     """Build the capacitance of a set of point or patch contacts.
 
@@ -793,6 +827,14 @@ def capacitance(
         uses by default.
     patch_profile : {"hertz", "uniform"}
         Pressure profile over a patch.
+    near_field : {"auto", "halfspace", "none"}, NearField or None
+        Resolve patches smaller than the surface elements with the half-space
+        near field (:mod:`hailstorm.runtime.contact.near_field`): each patch's
+        compliance is D's, minus the kernel's of the same hat loads, plus the
+        kernel's of the contact's own disc (``"auto"``: on a bundle of hat-load
+        columns). None / "none" (default): the discrete model, the patch's
+        compliance as the mesh gives it.
+
     Returns
     -------
     Capacitance
@@ -805,7 +847,7 @@ def capacitance(
     mode = check_mode(mode)
     t, b, n = check_contacts(gf, tri_idx, bary, normals)
     a = check_patch(patch_radius, t.size, patch_profile)
-    cap = build(gf, t, b, n, mode, a, patch_profile)
+    cap = build(gf, t, b, n, mode, a, patch_profile, resolve_near_field(gf, near_field))
     if patch_radius is not None and np.ndim(patch_radius) == 0:
         cap.default_patch_radius = float(patch_radius)
     return cap
@@ -819,8 +861,31 @@ def _contact_weights(gf: ComplianceSource, t: np.ndarray, b: np.ndarray, n: np.n
     return patch_weights(gf, t, b, a, n, profile=profile)
 
 
+def resolve_near_field(gf: ComplianceSource, near: str | NearField | None) -> NearField | None:
+    """A near-field choice as its object, with the bundle's material (None: the mesh alone).
+
+    ``"auto"``: the half-space kernel if the bundle's columns answer hat loads
+    (``options.load == "hat"``, the loads the kernel's subtraction needs), else none.
+    """
+    if near is None or isinstance(near, NearField):
+        return near
+    if near == "auto":
+        options = (getattr(gf, "manifest", None) or {}).get("options", {})
+        near = "halfspace" if options.get("load") == "hat" else "none"
+    return near_field(near, float(gf.young), float(gf.poisson))
+
+
+def _near_blocks(gf: ComplianceSource, near: NearField | None, t: np.ndarray, b: np.ndarray, n: np.ndarray | None,
+                 a: np.ndarray | None, pv: np.ndarray, w: np.ndarray, mode: Mode) -> np.ndarray | None:
+    """The near-field blocks (s, p, p) of patch contacts (None: no near field)."""
+    if a is None or near is None or n is None or not np.any(a > 0):
+        return None
+    X = contact_points(np.asarray(gf.vertices), np.asarray(gf.triangles), t, b)
+    return near.blocks(gf, a, pv, w, X, n, mode == "sticky")
+
+
 def build(gf: ComplianceSource, t: np.ndarray, b: np.ndarray, n: np.ndarray | None, mode: Mode,
-          a: np.ndarray | None = None, profile: str = "hertz") -> Capacitance:
+          a: np.ndarray | None = None, profile: str = "hertz", near: NearField | None = None) -> Capacitance:
     """The capacitance of validated contacts (:mod:`hailstorm.runtime.contact.validate`).
 
     ``n`` may be None only for sticky point contacts (which never look at the
@@ -832,11 +897,14 @@ def build(gf: ComplianceSource, t: np.ndarray, b: np.ndarray, n: np.ndarray | No
             raise ValueError("normals are needed for frictionless and patch contacts")  # pragma: no cover
         n = np.zeros((t.size, 3))
     pv, w = _contact_weights(gf, t, b, n, a, profile)
-    return from_weights(gf, t, b, n, mode, pv, w, a, profile)
+    cap = from_weights(gf, t, b, n, mode, pv, w, a, profile, local=_near_blocks(gf, near, t, b, n, a, pv, w, mode))
+    cap.near = near
+    return cap
 
 
 def from_weights(gf: ComplianceSource, t: np.ndarray, b: np.ndarray, n: np.ndarray, mode: Mode, pv: np.ndarray,
-                 w: np.ndarray, a: np.ndarray | None = None, profile: str = "hertz") -> Capacitance:
+                 w: np.ndarray, a: np.ndarray | None = None, profile: str = "hertz",
+                 local: np.ndarray | None = None) -> Capacitance:
     """The capacitance of contacts whose force-distribution weights B are given.
 
     The one constructor of :class:`Capacitance`: :func:`build` (the contact
@@ -862,6 +930,8 @@ def from_weights(gf: ComplianceSource, t: np.ndarray, b: np.ndarray, n: np.ndarr
         Patch radii [m] (None: point contacts).
     profile : {"hertz", "uniform"}
         Pressure profile the patch weights were made with (recorded for :meth:`Capacitance.add`).
+    local : (s, p, p) float ndarray, optional
+        Near-field blocks added to W's diagonal blocks (:mod:`hailstorm.runtime.contact.near_field`).
 
     Returns
     -------
@@ -878,6 +948,10 @@ def from_weights(gf: ComplianceSource, t: np.ndarray, b: np.ndarray, n: np.ndarr
     W = kernels.contact_compliance(Y, loc, w, n, mode == "sticky")
     rigid = is_rigid(gf.fixed, pv, w)
     p = 3 if mode == "sticky" else 1
+    if local is not None:
+        local = np.where(rigid[:, None, None], 0.0, np.asarray(local, dtype=np.float64))
+        for k in range(t.size):
+            W[p * k:p * k + p, p * k:p * k + p] += local[k]
     if rigid.any():
         dead = np.repeat(rigid, p)
         W[dead, :] = 0.0
@@ -889,5 +963,5 @@ def from_weights(gf: ComplianceSource, t: np.ndarray, b: np.ndarray, n: np.ndarr
     return Capacitance(
         gf=gf, mode=mode, tri_idx=t, bary=b, normals=n, V=V, loc=loc, W=W, rigid=rigid, exact=factor.exact,
         column_dofs=cols, _factor=factor, _Y=Y, weights=w,
-        patch_radius=np.zeros(t.size) if a is None else a, patch_profile=profile,
+        patch_radius=np.zeros(t.size) if a is None else a, patch_profile=profile, local=local,
     )

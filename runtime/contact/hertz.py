@@ -36,8 +36,10 @@ import numpy as np
 
 from hailstorm.runtime.contact import ContactSolution, solve_contacts
 from hailstorm.runtime.bundle.compliance import ElasticSource
+from hailstorm.runtime.contact.contact_capacitance import resolve_near_field
 from hailstorm.runtime.contact.weights import (
     contact_points,
+    hertz_mean_offset,
     hertz_radius,
     patch_weights,
     sphere_mean_offset,
@@ -169,6 +171,7 @@ def press_spheres(
     rows: Any = "all",
     tol: float = 1e-6,
     max_iter: int = 50,
+    near_field: str | None = "auto",
 ) -> SphereContacts:
     """Rigid spheres pressed into the seat, with Hertz-consistent patches.
 
@@ -193,6 +196,14 @@ def press_spheres(
         Relative change of the radii at which the iteration stops.
     max_iter : int
         Bound on the iterations.
+    near_field : {"auto", "halfspace", "none"} or None
+        Resolve contacts smaller than the surface elements at their own scale
+        (:mod:`hailstorm.runtime.contact.near_field`): each sphere's Hertz disc
+        gets its own half-space compliance in place of the mesh's near field,
+        and the sphere's profile is followed over its own disc (offset
+        ``a^2 / (5 R)``). "auto" (default): on a bundle of hat-load columns
+        (the default seat's); "none": the discrete model (the patch as the
+        mesh resolves it).
 
     Returns
     -------
@@ -225,14 +236,17 @@ def press_spheres(
     E, nu = float(gf.young), float(gf.poisson)
     a = np.sqrt(R * d)  # the geometric Hertz radius: the start of the iteration
     X = contact_points(np.asarray(gf.vertices), np.asarray(gf.triangles), t, barycentric)
+    near = resolve_near_field(gf, near_field)
     for it in range(1, max_iter + 1):
         off = np.zeros(s)
-        if np.any(a > 0):
+        if near is not None:
+            off = hertz_mean_offset(a, R)  # the sphere over its own disc (resolved at its scale)
+        elif np.any(a > 0):
             verts, w = patch_weights(gf, t, barycentric, a, n)
             off = sphere_mean_offset(np.asarray(gf.vertices), verts, w, X, n, a, R)
         ubar = -(d - off)[:, None] * n
         sol = solve_contacts(gf, t, barycentric, ubar, mode="frictionless", unilateral=True, normals=n,
-                             rows=rows, patch_radius=np.maximum(a, 0.0))
+                             rows=rows, patch_radius=np.maximum(a, 0.0), near_field=near)
         fn = np.clip(-np.einsum("ki,ki->k", sol.forces, n), 0.0, None)
         a_new = hertz_radius(fn, R, E, nu)
         done = np.all(np.abs(a_new - a) <= tol * np.maximum(a, np.finfo(float).tiny))

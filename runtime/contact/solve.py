@@ -12,7 +12,8 @@ import numpy as np
 
 from hailstorm.runtime.compiled import blocks as kernels
 from hailstorm.runtime.contact import policy
-from hailstorm.runtime.contact.contact_capacitance import build
+from hailstorm.runtime.contact.contact_capacitance import build, resolve_near_field
+from hailstorm.runtime.contact.near_field import NearField
 from hailstorm.runtime.bundle.compliance import ComplianceSource, apply_columns, kernel_columns
 from hailstorm.runtime.contact.validate import Mode, check_contacts, check_mode, check_patch
 from hailstorm.runtime.contact.weights import PATCH_PROFILES, interpolate, vertex_forces
@@ -102,6 +103,7 @@ def solve_contacts(
     max_iter: int | None = None,
     patch_radius: Any = None,
     patch_profile: str = "hertz",
+    near_field: str | NearField | None = None,
 ) -> ContactSolution:
     """Forces and deformation for prescribed contact-point displacements.
 
@@ -142,6 +144,10 @@ def solve_contacts(
         prescribes.
     patch_profile : {"hertz", "uniform"}
         Pressure profile over a patch.
+    near_field : {"halfspace", "none"} or None
+        Resolve patches smaller than the surface elements at their own scale
+        (:mod:`hailstorm.runtime.contact.near_field`); ``contact_displacement``
+        then includes the near field. Default: the discrete model.
 
     Notes
     -----
@@ -193,7 +199,7 @@ def solve_contacts(
     else:
         rows_arr, want_u = np.asarray(rows), True
 
-    cap = build(gf, t, b, n, mode, a, patch_profile)
+    cap = build(gf, t, b, n, mode, a, patch_profile, resolve_near_field(gf, near_field))
     sol = cap.solve(ubar, unilateral=unilateral, max_iter=max_iter)
     f = sol.forces
     g = vertex_forces(cap.V.size, cap.loc, cap.weights, f)
@@ -205,7 +211,7 @@ def solve_contacts(
         surface_displacement=u,
         active=sol.active,
         rigid=cap.rigid.copy(),
-        contact_displacement=interpolate(uV, cap.loc, cap.weights),
+        contact_displacement=interpolate(uV, cap.loc, cap.weights) + cap.near_displacement(f),
         iterations=sol.iterations,
         vertices=cap.V,
         vertex_forces=g,

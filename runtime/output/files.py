@@ -110,6 +110,12 @@ SUMMARY_UNITS: dict[str, str | None] = {
     "compile_time_s": "s", "backend": None, "real_time_factor": "1", "seed": None, "dt": "s", "integrator": None,
     "mode": None, "restitution": "1", "n_vertices": "count", "n_triangles": "count", "resting_at_end": "count",
     "frames": "count", "output_time_s": "s",
+    # the validity limits (hailstorm.runtime.storm.limits)
+    "impacts_beyond_indentation_limit": "count", "impacts_beyond_radius_limit": "count",
+    "impacts_beyond_strain_limit": "count", "impacts_beyond_any_limit": "count",
+    "max_indentation_thickness_ratio": "1", "max_contact_radius_ratio": "1", "max_strain_ratio": "1",
+    "min_impact_thickness_m": "m", "limit_indentation_thickness_ratio": "1", "limit_contact_radius_ratio": "1",
+    "limit_strain_ratio": "1",
 }
 
 
@@ -133,7 +139,17 @@ def summary(result: Any, gf: Any = None) -> dict[str, Any]:
     the kernels, the first run after an install; 0 when they were loaded),
     ``backend``, ``seed``, ``dt``, ``integrator``, ``mode``, and the scene;
     ``max_contact_force_N`` (the same figure as ``max_contact_force``, its unit
-    in its name) and ``units``, each key's unit (:data:`SUMMARY_UNITS`).
+    in its name) and ``units``, each key's unit (:data:`SUMMARY_UNITS`). The validity limits
+    (:mod:`hailstorm.runtime.storm.limits`, docs/validity.md):
+    ``impacts_beyond_indentation_limit``, ``impacts_beyond_radius_limit``,
+    ``impacts_beyond_strain_limit``, ``impacts_beyond_any_limit`` (impacts whose
+    peak indentation over the local pad thickness, Hertz contact radius over
+    stone radius or estimated peak strain exceeded the limit),
+    ``max_indentation_thickness_ratio``, ``max_contact_radius_ratio``,
+    ``max_strain_ratio`` (the worst values, [-]), ``min_impact_thickness_m``
+    (the thinnest pad under an impact) and the limits
+    ``limit_indentation_thickness_ratio``, ``limit_contact_radius_ratio``,
+    ``limit_strain_ratio`` [-].
 
     Parameters
     ----------

@@ -21,14 +21,18 @@ Hertz's depth on the 0.35 mm block; now 0.91, the mesh's own stiffness).
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from hailstorm.runtime.contact.contact_capacitance import Capacitance, from_weights
-from hailstorm.runtime.contact.weights import hertz_secant_factor, sphere_mean_offset
+from hailstorm.runtime.contact.contact_capacitance import Capacitance, from_weights, resolve_near_field
+from hailstorm.runtime.contact.weights import hertz_mean_offset, hertz_secant_factor, sphere_mean_offset
 from hailstorm.runtime.storm.patches import Patches
 from hailstorm.runtime.storm.recording import StormStats
 from hailstorm.runtime.bundle.compliance import ElasticSource
+
+if TYPE_CHECKING:  # annotations only
+    from hailstorm.runtime.scene import ContactSettings
 
 __all__ = ["ContactSet", "ContactSets"]
 
@@ -71,17 +75,21 @@ class ContactSets:
     ----------
     gf : ElasticSource
         The bundle (its D, surface and material).
-    sticky : bool
-        Three multipliers per contact (``mode = "sticky"``), else one (frictionless).
+    contact : ContactSettings
+        ``mode`` (sticky: three multipliers per contact, else one) and
+        ``near_field`` (patches below the mesh at their own scale,
+        :mod:`hailstorm.runtime.contact.near_field`).
     normals : (m, 3) ndarray
         Outward unit normals of the triangles.
     patches : Patches
         The patch weights (cached per stone).
     """
 
-    def __init__(self, gf: ElasticSource, sticky: bool, normals: np.ndarray, patches: Patches) -> None:
+    def __init__(self, gf: ElasticSource, contact: ContactSettings, normals: np.ndarray, patches: Patches) -> None:
+        sticky = contact.sticky
         self.gf = gf
         self.mode = "sticky" if sticky else "frictionless"
+        self.near = resolve_near_field(gf, contact.near_field) if contact.patch != "none" else None
         self.triangles = np.asarray(gf.triangles)
         self.young, self.poisson = float(gf.young), float(gf.poisson)
         self.X = np.asarray(gf.vertices, dtype=np.float64)
@@ -102,7 +110,13 @@ class ContactSets:
             verts, w = self.patches.weights(stones, tris, bary, radius, normals, stats)
         radius = np.asarray(radius, dtype=np.float64)
         verts = verts.astype(np.int64, copy=False)
-        cap = from_weights(self.gf, tris, bary, normals, self.mode, verts, w, radius if np.any(radius > 0) else None)
+        # reference point: the contact point (the patch centre); see below
+        X = np.einsum("kj,kjd->kd", bary, self.X[self.triangles[tris]])
+        local = None
+        if self.near is not None and np.any(radius > 0):
+            local = self.patches.near_blocks(self.near, stones, tris, bary, radius, verts, w, X, normals)
+        cap = from_weights(self.gf, tris, bary, normals, self.mode, verts, w, radius if np.any(radius > 0) else None,
+                           local=local)
         if cap.rigid.any():
             raise RuntimeError("rigid contacts must be filtered before the capacitance")  # pragma: no cover
         W, K = cap.W, cap.K
@@ -113,7 +127,6 @@ class ContactSets:
         # follows it. (Measuring from the weighted mean undeformed surface point sum_p w_p X_p
         # instead, which lies below the tangent plane on the convex seat, opens every contact with
         # a small gap: measured restitution 0.488 instead of 0.499 for the single drop.)
-        X = np.einsum("kj,kjd->kd", bary, self.X[self.triangles[tris]])
         if np.any(radius > 0):
             K, W = self._hertz_secant(K, W, verts, cap.weights, X, normals, radius, rest)
         stats.capacitance_rebuilds += 1
@@ -131,7 +144,10 @@ class ContactSets:
             c = np.einsum("ki,kij,kj->k", normals, Wb, normals)
         else:
             c = np.diag(W).copy()
-        o = sphere_mean_offset(self.X, verts, w, X, normals, radius, stone_radius)
+        if self.near is not None:  # the stone's profile over its own disc (resolved at its scale)
+            o = hertz_mean_offset(radius, stone_radius)
+        else:
+            o = sphere_mean_offset(self.X, verts, w, X, normals, radius, stone_radius)
         sk = np.sqrt(hertz_secant_factor(o, radius, stone_radius, c, self.young, self.poisson))
         if self.sticky:
             sk = np.repeat(sk, 3)

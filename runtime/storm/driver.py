@@ -194,7 +194,7 @@ class Storm:
         self.collision = Collision(gf, scene, air)
         normals = self.collision.index.normals
         self.patches = Patches(gf, contact, scene.time, self.seat, normals, self.collision.soft, air)
-        sets = ContactSets(gf, contact.sticky, normals, self.patches)
+        sets = ContactSets(gf, contact, normals, self.patches)
         self.integrator = ContactIntegrator(scene.time, contact)
         self.contacts = SoftContacts(contact, scene.time, sets, self.patches, self.integrator, self.seat, air)
         self.stats = StormStats(patch=contact.patch)

@@ -12,7 +12,7 @@ stones, stiffness and forces, and the statistics. The weights themselves are
 
 from __future__ import annotations
 
-from typing import cast
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -24,6 +24,9 @@ from hailstorm.runtime.storm.seat import SeatState
 from hailstorm.runtime.storm.stones import Stones
 from hailstorm.runtime.contact.weights import PATCH_DROP, PATCH_FACING, disc_table, triangle_index
 from hailstorm.runtime.bundle.compliance import ElasticSource
+
+if TYPE_CHECKING:  # annotations only
+    from hailstorm.runtime.contact.near_field import NearField
 
 __all__ = ["Patches"]
 
@@ -69,6 +72,8 @@ class Patches:
             self._pidx = triangle_index(gf).arrays
             self._disc = disc_table("hertz")
         self._cache: dict[int, _Cached] = {}
+        self._near: dict[int, tuple[tuple[int, bytes, float], np.ndarray]] = {}
+        self.gf = gf
         self._k_tri: np.ndarray | None = None
         self._none = np.zeros(0, dtype=np.int64)
         self._no_forces = np.zeros(0)
@@ -77,6 +82,7 @@ class Patches:
         """Stones ``ids`` are gone: drop their cached weights."""
         for j in ids:
             self._cache.pop(j, None)
+            self._near.pop(j, None)
 
     @property
     def k_tri(self) -> np.ndarray:
@@ -168,6 +174,27 @@ class Patches:
             verts[i, v.size:] = v[0]
             w[i, :v.size] = wi
         return verts, w
+
+    def near_blocks(self, near: NearField, ids: np.ndarray, tris: np.ndarray, bary: np.ndarray, radius: np.ndarray,
+                    verts: np.ndarray, w: np.ndarray, centres: np.ndarray, normals: np.ndarray) -> np.ndarray:
+        """The near-field blocks (s, p, p) of patch contacts (:meth:`NearField.blocks`), cached per
+        stone with the same key as its weights (triangle, beta, radius); the new ones in one call."""
+        p = 3 if self.sticky else 1
+        blocks = np.zeros((ids.size, p, p))
+        keys = [(t, bary[i].tobytes(), a) for i, (t, a) in enumerate(zip(tris.tolist(), radius.tolist()))]
+        todo = []
+        for i, j in enumerate(ids.tolist()):
+            c = self._near.get(j)
+            if c is not None and c[0] == keys[i]:
+                blocks[i] = c[1]
+            else:
+                todo.append(i)
+        if todo:
+            new = near.blocks(self.gf, radius[todo], verts[todo], w[todo], centres[todo], normals[todo], self.sticky)
+            for i, b in zip(todo, new):
+                self._near[int(ids[i])] = (keys[i], b)
+                blocks[i] = b
+        return blocks
 
     def triangle_stiffness(self, tris: np.ndarray) -> np.ndarray:
         """Normal contact stiffness at the centroid of triangles, [N/m].

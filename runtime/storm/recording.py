@@ -21,6 +21,7 @@ from typing import Any, Callable
 import numpy as np
 
 from hailstorm.runtime.scene import Scene
+from hailstorm.runtime.storm.limits import VALIDITY_KEYS, ImpactLimits, summarise
 
 __all__ = ["Frame", "Recorder", "StormResult", "StormStats"]
 
@@ -65,7 +66,7 @@ class Frame:
 
 
 #: fields of :class:`StormStats` that are accumulators, not statistics (not among its keys)
-_ACCUMULATORS = ("pen_contact_sum", "pen_contact_n")
+_ACCUMULATORS = ("pen_contact_sum", "pen_contact_n", "validity")
 
 
 @dataclass(eq=False)
@@ -74,9 +75,13 @@ class StormStats(Mapping):
 
     The parts of the storm update the counters while it runs; :func:`run_storm`
     fills the run's figures (times, scene values) at the end. As a mapping its
-    keys are the fields in this order, less the two accumulators of the mean
+    keys are the fields in this order, less the accumulators of the mean
     penetration in contact (``pen_contact_sum``, ``pen_contact_n``), plus
-    ``mean_penetration_contact_m``.
+    ``mean_penetration_contact_m``, and less the impacts' validity records
+    (``validity``, :class:`~hailstorm.runtime.storm.limits.ImpactLimits`), plus the
+    validity keys computed from them when read (after ``max_patch_radius_m``;
+    :data:`~hailstorm.runtime.storm.limits.VALIDITY_KEYS`: impacts beyond each
+    limit, the worst values, the limits; docs/validity.md).
     """
 
     hailstones: int = 0
@@ -102,6 +107,8 @@ class StormStats(Mapping):
     #: sum of the non-negative overlaps of stones in contact [m] and their count (steps x stones)
     pen_contact_sum: float = 0.0
     pen_contact_n: int = 0
+    #: the impacts' validity measures (set by the storm's soft contacts); the validity keys read them
+    validity: ImpactLimits | None = None
     # the run (filled by run_storm)
     sim_time_s: float = 0.0
     wall_time_s: float = 0.0
@@ -125,15 +132,30 @@ class StormStats(Mapping):
         """Mean overlap of a stone in contact with the deformed surface [m] (0: none)."""
         return self.pen_contact_sum / self.pen_contact_n if self.pen_contact_n else 0.0
 
+    def validity_summary(self) -> dict[str, float | int]:
+        """The validity keys and their values (:func:`hailstorm.runtime.storm.limits.summarise`)."""
+        if self.validity is None:
+            return summarise(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0))
+        return self.validity.summary()
+
     def _keys(self) -> list[str]:
         names = [f.name for f in dataclasses.fields(self) if f.name not in _ACCUMULATORS]
         i = names.index("sim_time_s")
-        return names[:i] + ["mean_penetration_contact_m"] + names[i:]
+        names = names[:i] + ["mean_penetration_contact_m"] + names[i:]
+        j = names.index("max_patch_radius_m") + 1
+        return names[:j] + list(VALIDITY_KEYS) + names[j:]
 
     def __getitem__(self, key: str) -> Any:
+        if key in VALIDITY_KEYS:
+            return self.validity_summary()[key]
         if key not in self._keys():
             raise KeyError(key)
         return getattr(self, key)
+
+    def items(self) -> Any:
+        """(key, value) pairs (the validity keys computed once for the lot)."""
+        validity = self.validity_summary()
+        return [(k, validity[k] if k in validity else getattr(self, k)) for k in self._keys()]
 
     def __iter__(self) -> Iterator[str]:
         return iter(self._keys())
@@ -142,7 +164,7 @@ class StormStats(Mapping):
         return len(self._keys())
 
     def __repr__(self) -> str:
-        return f"StormStats({', '.join(f'{k}={self[k]!r}' for k in self)})"
+        return f"StormStats({', '.join(f'{k}={v!r}' for k, v in self.items())})"
 
 
 @dataclass

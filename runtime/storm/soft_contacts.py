@@ -20,6 +20,7 @@ from hailstorm.runtime.compiled import contact_post, contact_prep
 from hailstorm.runtime.storm.contact_set import ContactSet, ContactSets
 from hailstorm.runtime.storm.hail import GRAVITY, Air
 from hailstorm.runtime.storm.integrators import ContactIntegrator
+from hailstorm.runtime.storm.limits import ImpactLimits
 from hailstorm.runtime.storm.patches import Patches
 from hailstorm.runtime.storm.recording import StormStats
 from hailstorm.runtime.scene import ContactSettings, TimeSettings
@@ -58,6 +59,8 @@ class SoftContacts:
         self.sticky = contact.sticky
         self.patch = contact.patch != "none"
         self.rest_speed = float(time.rest_speed)
+        #: the impacts' validity measures (recorded, never fed back into the contact step)
+        self.limits = ImpactLimits(sets.gf, self.rest_speed)
         #: the current contact set (None: no soft contact) and its multipliers (the seat forces)
         self.current: ContactSet | None = None
         self.lam = np.zeros(0)
@@ -100,17 +103,45 @@ class SoftContacts:
         else:
             group, wts = np.arange(s), np.ones(s)
         res = self.integrator.step(cc, q, vq, a, mq, gq, h, group, wts, always)
+        open_before = was_open[np.searchsorted(near, soft)]
+        # the onset speed of opening contacts, before contact_post moves the stones (for the validity records)
+        vin = None if open_before.all() else self.limits.onset_speed(stones.vel, soft, nk)
         impacts, fmax, indent, n_active = contact_post(
-            soft, stones.pos, stones.vel, stones.ctri, stones.hit, was_open[np.searchsorted(near, soft)], nk, acc,
+            soft, stones.pos, stones.vel, stones.ctri, stones.hit, open_before, nk, acc,
             q, a, vq, gq, res.q, res.v, res.active, res.seat_force, res.peak_seat_force, res.peak_ubar,
             self.sticky, exact, h, self.rest_speed)
         stats.impacts += int(impacts)
+        self._observe_limits(cc, soft, stones.radius[soft], ~open_before, vin, res, stats)
         self.lam = res.seat_force
         self.seat.set_forces(cc, res.seat_force, res.peak_seat_force)
         stats.max_contact_force = max(stats.max_contact_force, float(fmax))
         if n_active:
             stats.max_indentation_m = max(stats.max_indentation_m, float(indent))
         stats.max_simultaneous_contacts = max(stats.max_simultaneous_contacts, int(n_active))
+
+    def _observe_limits(self, cc: ContactSet, soft: np.ndarray, radius: np.ndarray, opening: np.ndarray,
+                        vin: np.ndarray | None, res: Any, stats: StormStats) -> None:
+        """Hand the sub-step's per-contact peaks to the validity measures (:class:`ImpactLimits`),
+        with the touched rule of :func:`hailstorm.runtime.compiled.contact_post`."""
+        stats.validity = self.limits
+        ids = soft.tolist()
+        if not self.limits.watching(ids, vin is not None):
+            return
+        s = soft.size
+        if self.sticky:
+            act = res.active.reshape(s, 3).all(axis=1)
+            f = np.maximum(np.linalg.norm(res.seat_force.reshape(s, 3), axis=1),
+                           np.linalg.norm(res.peak_seat_force.reshape(s, 3), axis=1))
+            touched = (act | (np.linalg.norm(res.peak_seat_force.reshape(s, 3), axis=1) > 0.0)).tolist()
+            indent = (-np.einsum("kd,kd->k", res.peak_ubar.reshape(s, 3), cc.normals)).tolist()
+            force = f.tolist()
+        else:
+            act, seat, peak = res.active.tolist(), res.seat_force.tolist(), res.peak_seat_force.tolist()
+            touched = [a or p != 0.0 for a, p in zip(act, peak)]
+            indent = [-u for u in res.peak_ubar.tolist()]
+            force = [max(abs(f), abs(p)) for f, p in zip(seat, peak)]
+        self.limits.observe(ids, radius.tolist(), cc.tris.tolist(), cc.bary.tolist(), opening.tolist(),
+                            None if vin is None else vin.tolist(), touched, indent, force)
 
     def forces(self, ctri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Stone ids in soft contact and the forces they apply to the seat, (s,), (s, 3)

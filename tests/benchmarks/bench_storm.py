@@ -48,11 +48,14 @@ CONFIGS = {
 }
 
 
-def config(name: str) -> tuple[str, bool, str]:
-    """(integrator, adaptive, patch) of a configuration name."""
+def config(name: str) -> tuple[str, bool, str, bool]:
+    """(integrator, adaptive, patch, today) of a configuration name: a ``-point`` suffix selects point
+    contacts, a ``-today`` suffix the previous default seat (point-load columns, no near field)."""
+    today = name.endswith("-today")
+    name = name[:-6] if today else name
     base, point = (name[:-6], True) if name.endswith("-point") else (name, False)
     integ, adaptive = CONFIGS[base]
-    return integ, adaptive, "none" if point else "hertz"
+    return integ, adaptive, "none" if point else "hertz", today
 
 
 def seat_drop(gf, integrator: str, adaptive: bool, dt: float, r: float = 0.005, v0: float = 9.0,
@@ -86,7 +89,9 @@ def seat_drop(gf, integrator: str, adaptive: bool, dt: float, r: float = 0.005, 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--gf", help="bundle directory (default: the default seat, P1 6 mm, built or reused from the hailstorm cache)")
+    ap.add_argument("--gf", help="bundle directory (default: the default seat of the scene's [seat], built or reused from the cache)")
+    ap.add_argument("--today-gf", help="bundle of the '-today' configurations (default: the default seat with point-load "
+                                       "columns, the previous default; run with near_field = 'none')")
     ap.add_argument("--stones", type=int, default=2000)
     ap.add_argument("--duration", type=float, default=2.0)
     ap.add_argument("--dt", type=float, default=5e-4)
@@ -99,18 +104,28 @@ def main() -> None:
     import hailstorm.runtime
     from hailstorm.runtime.storm.driver import Scene, run_storm
 
-    if args.gf:
-        path = args.gf
-    else:
-        from hailstorm.precompute import build_bundle
+    from hailstorm.precompute import build_bundle
+    from hailstorm.runtime.scene import SeatSettings
 
-        path = build_bundle(None, mesh_size=0.006)
+    seat = SeatSettings.default()
+
+    def default_seat(load: str) -> str:
+        return str(build_bundle(None, mesh_size=seat.mesh_size, order=seat.order, load=load, young=seat.young,
+                                poisson=seat.poisson))
+
+    path = args.gf or default_seat(seat.load)
     gf = hailstorm.runtime.load(path)
+    today_gf = None
     rows = []
     base_rtf = None
     for name in args.configs.split(","):
-        integ, adaptive, patch = config(name)
-        base = name[:-6] if name.endswith("-point") else name
+        integ, adaptive, patch, today = config(name)
+        body = gf
+        if today:
+            if today_gf is None:
+                today_gf = hailstorm.runtime.load(args.today_gf or default_seat("point"))
+            body = today_gf
+        base = name.removesuffix("-today").removesuffix("-point")
         d = Scene.default().to_dict()
         dur, stones, dt = args.duration, args.stones, args.dt
         if base == "baseline":
@@ -119,23 +134,24 @@ def main() -> None:
             dt = 2e-4  # the previous default scene's step
         d["storm"].update(stones=stones, duration=dur, seed=args.seed)
         d["time"].update(dt=dt, adaptive=adaptive, integrator=integ)
-        d["contact"].update(patch=patch)
+        d["contact"].update(patch=patch, near_field="none" if today else "auto")
         sc = Scene.from_dict(d)
         rtf, setup, st = [], [], None
         for _ in range(args.repeat if base != "baseline" else 1):
-            res = run_storm(gf, sc, progress=False)
+            res = run_storm(body, sc, progress=False)
             st = res.stats
             rtf.append(st["real_time_factor"])
             setup.append(st["setup_time_s"])
             assert all(np.isfinite(f.displacement).all() and np.isfinite(f.positions).all() for f in res.frames)
-        drop = seat_drop(gf, integ, adaptive, dt, patch=patch)
+        drop = seat_drop(body, integ, adaptive, dt, patch=patch)
         st = dict(st, drop_e=drop["e"], drop_pen=drop["pen"], setup=statistics.median(setup))
         med = statistics.median(rtf)
         if base == "baseline" and (base_rtf is None or patch == "none"):
             base_rtf = med  # the previous default: implicit, point contacts (if run)
         rows.append((name, integ, adaptive, patch, stones, dur, dt, min(rtf), med, max(rtf), st))
     r_min = Scene.default().hail.r_min
-    print(f"bundle {path}: {gf.n_vertices} surface vertices, D {gf.D.shape}")
+    print(f"bundle {path}: {gf.n_vertices} surface vertices, D {gf.D.shape}"
+          + (f"; '-today' configurations on {today_gf.path}" if today_gf is not None else ""))
     point_rtf = {r[0][:-6]: r[8] for r in rows if r[0].endswith("-point")}
     hdr = (f"{'config':25s} {'integr.':10s} {'adapt':5s} {'patch':5s} {'stones':>6s} {'T[s]':>5s} {'dt[ms]':>6s} "
            f"{'RTF min':>8s} {'median':>8s} {'max':>8s} {'xbase':>7s} {'xpoint':>7s} {'setup[s]':>8s} "
@@ -161,6 +177,13 @@ def main() -> None:
             print(f"  {name}: capacitance rebuilds {st['capacitance_rebuilds']}, patch weights computed "
                   f"{st['patch_weights_computed']} / reused {st['patch_weights_reused']}, resizes {st['patch_resizes']}, "
                   f"largest patch radius {st['max_patch_radius_m'] * 1e3:.2f} mm")
+    today_rtf = {r[0].removesuffix("-today"): r for r in rows if r[0].endswith("-today")}
+    for name, *_, lo, med, hi, st in rows:
+        if name in today_rtf:
+            t = today_rtf[name]
+            print(f"  {name} against {name}-today (same run): median RTF {med:.3f} / {t[8]:.3f} = {med / t[8]:.2f}x "
+                  f"(min {lo:.3f} / {t[7]:.3f}, max {hi:.3f} / {t[9]:.3f}); impacts {st['impacts']} / {t[10]['impacts']}, "
+                  f"max force {st['max_contact_force']:.1f} / {t[10]['max_contact_force']:.1f} N")
     print("setup: building the storm (index, spawn plan, loading the compiled kernels), not in the RTF")
     print("drop: one 5 mm stone at 9 m/s onto the seat's top, no drag; restitution target 0.5")
     print(f"load average during the run: {os.getloadavg()[0]:.2f} (2-core machine; RTF is wall-clock)")

@@ -19,7 +19,7 @@ def run_cli(*args, check=True):
 
 def test_precompute_then_load_agrees_with_independent_fem(tmp_path):
     out = tmp_path / "gf"
-    run = run_cli("precompute", "--mesh-size", 0.01, "--order", 1, "--out", out, "-q")
+    run = run_cli("precompute", "--mesh-size", 0.01, "--order", 1, "--load", "point", "--out", out, "-q")
     assert run.returncode == 0, run.stderr
     gf = hailstorm.runtime.load(out)
     # an independent solve: mesh again, assemble, scikit-fem's own condense/solve

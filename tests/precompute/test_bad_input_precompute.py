@@ -446,6 +446,11 @@ def test_bundle_stranded_between_the_renames_is_recovered(box_bundle, tmp_path, 
     if "old" in left:
         old = _stale_copy(box_bundle, tmp_path, ".b.old-prev")
         _edit(old, lambda m: _setitem(m, ["key"], "previous"), rehash=True)
+    before = sorted(p.name for p in tmp_path.iterdir())
+    with pytest.raises(BundleError, match=r"interrupted .* left it at .*\.b\.(tmp|old)-.*hailstorm precompute"):
+        load(tmp_path / "b")  # reading changes nothing: the copy is named, not moved
+    assert sorted(p.name for p in tmp_path.iterdir()) == before
+    clean_stale_temporaries(tmp_path)  # what the next writer does first
     gf = load(tmp_path / "b")
     assert gf.manifest["key"] == ("previous" if new is None else load(box_bundle).manifest["key"])
     assert sorted(p.name for p in tmp_path.iterdir()) == ["b"]

@@ -1,0 +1,214 @@
+"""Contacts below the mesh: the near field against Hertz and against a finer seat.
+
+Two measurements of :mod:`hailstorm.runtime.contact.near_field`:
+
+* :func:`block_table` -- rigid spheres pressed into a thick graded block of the
+  pad's foam (``[seat]`` settings: P2, hat-load columns, the default element
+  size on top), with and without the near field, on a vertex, an edge and a
+  centroid: ``F / F_Hertz - 1``;
+* :func:`seat_table` -- stones of 2.5, 5 and 12.5 mm at rest and at the peak
+  of an impact at terminal speed, at the rear, middle and nose of the default
+  seat, on a vertex, an edge and a centroid: the force at Hertz's depth on
+  the default seat against the same on a finer seat (the reference), and
+  the spread over the three sites.
+
+Run ``python -m hailstorm.studies.resolution_study`` (``--help``); it prints
+both tables with the date, the command and the load average.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+
+__all__ = ["SITES", "block_bundle", "block_table", "locate", "main", "seat_sites", "seat_table", "stone_depths"]
+
+#: where on a triangle a contact lands
+SITES = ("vertex", "edge", "centroid")
+_BARY = {"vertex": np.array([1.0, 0.0, 0.0]), "edge": np.array([0.5, 0.5, 0.0]), "centroid": np.full(3, 1 / 3)}
+
+
+def block_bundle(out: Any = None, mesh_size: float = 0.006, order: int = 2, young: float = 2.0e6,
+                 poisson: float = 0.35) -> Any:
+    """A graded block of foam clamped 400 mm down, ``mesh_size`` on its top centre, hat-load columns."""
+    import hailstorm.runtime
+    from hailstorm.precompute import build_bundle
+    from hailstorm.precompute.halfspace import halfspace_block
+
+    mesh = halfspace_block(half_width=0.4, depth=0.4, top_half_width=0.025, fine_size=mesh_size,
+                           fine_radius=0.04, coarse_size=0.1, growth=0.3)
+    return hailstorm.runtime.load(build_bundle(out, mesh=mesh, order=order, young=young, poisson=poisson,
+                                               load="hat"))
+
+
+def _block_sites(gf: Any) -> dict[str, tuple[int, np.ndarray]]:
+    V, T = np.asarray(gf.vertices), np.asarray(gf.triangles)
+    top = np.flatnonzero((np.abs(V[T][:, :, 2]).max(axis=1) < 1e-9) & gf.contactable[T].all(axis=1))
+    tc = int(top[np.argmin(np.linalg.norm(V[T[top]].mean(axis=1)[:, :2], axis=1))])
+    return {s: (tc, _BARY[s]) for s in SITES}
+
+
+def block_table(gf: Any, radii: Sequence[float] = (0.5e-3, 1e-3, 2e-3, 4e-3, 8e-3),
+                a_over_R: float = 0.2) -> list[dict[str, Any]]:
+    """``F / F_Hertz - 1`` of rigid spheres at Hertz radius ``a`` (``R = a / a_over_R``), per site and model."""
+    from hailstorm.runtime.contact.hertz import hertz_force, press_spheres
+
+    rows = []
+    for a in radii:
+        R = a / a_over_R
+        d = a * a / R
+        F = hertz_force(d, R, gf.young, gf.poisson)
+        row: dict[str, Any] = {"a_mm": a * 1e3, "R_mm": R * 1e3}
+        for nf in ("halfspace", "none"):
+            for site, (t, b) in _block_sites(gf).items():
+                res = press_spheres(gf, [t], [b], [d], R, rows=None, near_field=nf)
+                row[f"{nf}:{site}"] = float(res.normal_force[0] / F - 1.0)
+        rows.append(row)
+    return rows
+
+
+def locate(gf: Any, point: np.ndarray) -> tuple[int, np.ndarray]:
+    """The contactable surface triangle nearest ``point`` and the barycentric coordinates of the
+    point's projection on it (clipped into the triangle)."""
+    V, T = np.asarray(gf.vertices), np.asarray(gf.triangles)
+    ok = np.flatnonzero(gf.contactable[T].all(axis=1))
+    P = V[T[ok]]
+    c = P.mean(axis=1)
+    near = ok[np.argsort(np.linalg.norm(c - point, axis=1))[:12]]
+    best, out = np.inf, (int(near[0]), np.full(3, 1 / 3))
+    for t in near:
+        A = V[T[t]]
+        M = np.column_stack([A[1] - A[0], A[2] - A[0]])
+        lam, *_ = np.linalg.lstsq(M, point - A[0], rcond=None)
+        b = np.clip(np.array([1 - lam.sum(), lam[0], lam[1]]), 0.0, None)
+        b /= b.sum()
+        dist = np.linalg.norm(b @ A - point)
+        if dist < best:
+            best, out = dist, (int(t), b)
+    return out
+
+
+def seat_sites(gf: Any, fractions: Sequence[float] = (0.2, 0.5, 0.8)) -> dict[str, dict[str, np.ndarray]]:
+    """Points on the seat's top along its length (rear, middle, nose): for each, the vertex, an edge
+    midpoint and the centroid of the contactable triangle nearest the seat's centre line there."""
+    V, T = np.asarray(gf.vertices), np.asarray(gf.triangles)
+    soft = np.flatnonzero(gf.contactable[T].all(axis=1))
+    C = V[T[soft]].mean(axis=1)
+    axis = int(np.argmax(np.ptp(C, axis=0)[:2]))  # the long horizontal axis
+    other = 1 - axis
+    lo, hi = C[:, axis].min(), C[:, axis].max()
+    out = {}
+    for name, f in zip(("rear", "middle", "nose"), fractions):
+        x = lo + f * (hi - lo)
+        band = soft[np.abs(C[:, axis] - x) < 0.01]
+        Cb = V[T[band]].mean(axis=1)
+        mid = np.median(Cb[:, other])
+        t = int(band[np.argmin(np.abs(Cb[:, other] - mid) + 10 * np.abs(Cb[:, axis] - x))])  # the centre line
+        P = V[T[t]]
+        out[name] = {s: _BARY[s] @ P for s in SITES}
+    return out
+
+
+@dataclass(frozen=True)
+class _Stone:
+    radius: float
+    state: str
+    depth: float
+
+
+def stone_depths(young: float, poisson: float, radii: Sequence[float] = (2.5e-3, 5e-3, 12.5e-3)) -> list[_Stone]:
+    """Hertz's depth of each stone at rest (its weight) and at the peak of an impact at terminal speed."""
+    from hailstorm.runtime.contact.hertz import hertz_impact
+    from hailstorm.runtime.storm.hail import GRAVITY, stone_mass, terminal_velocity
+
+    out = []
+    e_star = young / (1 - poisson**2)
+    for R in radii:
+        m = float(stone_mass(R))
+        rest = (3 * m * GRAVITY / (4 * e_star * np.sqrt(R))) ** (2 / 3)
+        v = float(np.abs(np.asarray(terminal_velocity(R))).max())
+        out.append(_Stone(R, "rest", float(rest)))
+        out.append(_Stone(R, "impact", hertz_impact(m, v, R, young, poisson).max_depth))
+    return out
+
+
+def seat_table(gf: Any, ref: Any, near_field: str = "halfspace") -> list[dict[str, Any]]:
+    """Force at Hertz's depth on ``gf`` against ``ref`` (a finer seat), per stone, place and site."""
+    from hailstorm.runtime.contact.hertz import press_spheres
+
+    rows = []
+    for place, pts in seat_sites(gf).items():
+        for st in stone_depths(gf.young, gf.poisson):
+            row: dict[str, Any] = {"place": place, "R_mm": st.radius * 1e3, "state": st.state,
+                                   "depth_mm": st.depth * 1e3}
+            for site, p in pts.items():
+                forces = []
+                for body in (gf, ref):
+                    t, b = locate(body, p)
+                    forces.append(press_spheres(body, [t], [b], [st.depth], st.radius, rows=None,
+                                                near_field=near_field).normal_force[0])
+                row[site] = float(forces[0] / forces[1] - 1.0)
+                row[f"{site}_N"] = float(forces[1])
+            rows.append(row)
+    return rows
+
+
+def _print_rows(rows: list[dict[str, Any]], keys: Sequence[str], fmt: dict[str, str]) -> None:
+    print("| " + " | ".join(keys) + " |")
+    print("|" + "---|" * len(keys))
+    for r in rows:
+        print("| " + " | ".join(format(r[k], fmt.get(k, "")) if not isinstance(r[k], str) else r[k] for k in keys) + " |")
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Print the block and seat tables (see the module notes)."""
+    ap = argparse.ArgumentParser(prog="python -m hailstorm.studies.resolution_study", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--mesh-size", type=float, default=0.006, help="element size on the top [m] (default 0.006)")
+    ap.add_argument("--reference-size", type=float, default=0.003, help="the finer seat's [m] (default 0.003)")
+    ap.add_argument("--skip-block", action="store_true")
+    ap.add_argument("--skip-seat", action="store_true")
+    args = ap.parse_args(argv)
+    import hailstorm.runtime
+    from hailstorm.precompute import build_bundle
+    from hailstorm.runtime.scene import SeatSettings
+
+    print(f"# resolution study, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, load average "
+          f"{os.getloadavg()[0]:.1f}")
+    print(f"# command: python -m hailstorm.studies.resolution_study --mesh-size {args.mesh_size} "
+          f"--reference-size {args.reference_size}")
+    if not args.skip_block:
+        gf = block_bundle(mesh_size=args.mesh_size)
+        print(f"\n## Thick block (P2, hat loads, {args.mesh_size * 1e3:g} mm on top): F / F_Hertz - 1 [%]\n")
+        rows = block_table(gf)
+        keys = ["a_mm", "R_mm"] + [f"{nf}:{s}" for nf in ("halfspace", "none") for s in SITES]
+        for r in rows:
+            for k in keys[2:]:
+                r[k] = 100 * r[k]
+        _print_rows(rows, keys, {k: "+.1f" for k in keys[2:]} | {"a_mm": ".1f", "R_mm": ".1f"})
+    if not args.skip_seat:
+        seat = SeatSettings.default()
+
+        def seat_bundle(h: float) -> Any:
+            return hailstorm.runtime.load(build_bundle(None, mesh_size=h, order=seat.order, load="hat",
+                                                       young=seat.young, poisson=seat.poisson, progress=True))
+
+        gf, ref = seat_bundle(args.mesh_size), seat_bundle(args.reference_size)
+        for nf in ("halfspace", "none"):
+            print(f"\n## Default seat ({args.mesh_size * 1e3:g} mm) against {args.reference_size * 1e3:g} mm, "
+                  f"near_field={nf!r}: force at Hertz's depth, relative difference [%]\n")
+            rows = seat_table(gf, ref, nf)
+            for r in rows:
+                for s in SITES:
+                    r[s] = 100 * r[s]
+            _print_rows(rows, ["place", "R_mm", "state", "depth_mm", *SITES, "centroid_N"],
+                        {s: "+.1f" for s in SITES} | {"R_mm": ".1f", "depth_mm": ".3f", "centroid_N": ".3g"})
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,146 @@
+"""The near field of sub-mesh contacts: the half-space's ``1/r`` kernel on hat loads, compiled.
+
+:func:`hat_compliance` is ``w^T H w`` of each patch contact, where ``H[i, j]``
+is the ``1/r`` potential at patch vertex ``i`` of the hat traction of vertex
+``j`` (``phi_j / a_j``) on the contact's tangent plane
+(:mod:`hailstorm.runtime.contact.near_field`, which states the model; the numpy
+statement the tests hold this kernel to is ``tests/reference/near_field_ref.py``).
+Per contact: project its weighted vertices and their triangles on the plane,
+keep the triangles that face along the normal, and sum the closed-form
+potential (:func:`edge_term`) over the triangles' edges.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from hailstorm.runtime.compiled.jit import kernel
+
+__all__ = ["edge_term", "hat_compliance", "hat_potential"]
+
+
+@kernel
+def _hats(y0, y1, p, e1, e2, det):  # pragma: no cover (compiled)
+    """The three hat functions of the plane triangle (p, p + e1, p + e2) at (y0, y1)."""
+    d0, d1 = y0 - p[0], y1 - p[1]
+    l1 = (d0 * e2[1] - d1 * e2[0]) / det
+    l2 = (e1[0] * d1 - e1[1] * d0) / det
+    return 1.0 - l1 - l2, l1, l2
+
+
+@kernel
+def edge_term(x0, x1, P, out):  # pragma: no cover (compiled)
+    """Add ``int_T phi_c / |x - y| dy`` (c = 0, 1, 2) of the plane triangle ``P`` (3, 2) at ``x`` to ``out`` (3,).
+
+    ``T`` split into the triangles ``(x, p, q)`` over its edges (signed); along
+    each ray from ``x`` the kernel cancels the Jacobian and the linear ``phi``
+    integrates exactly, leaving ``(h L / 2) int_0^1 (phi(x) + phi(y(s))) / |y(s) - x| ds``
+    over the edge: ``asinh`` and a square root.
+    """
+    e1 = P[1] - P[0]
+    e2 = P[2] - P[0]
+    det = e1[0] * e2[1] - e1[1] * e2[0]
+    if det == 0.0:
+        return
+    px0, px1, px2 = _hats(x0, x1, P[0], e1, e2, det)
+    for a in range(3):
+        b = (a + 1) % 3
+        p0, p1 = P[a, 0], P[a, 1]
+        q0, q1 = P[b, 0], P[b, 1]
+        pq0, pq1 = q0 - p0, q1 - p1
+        L2 = pq0 * pq0 + pq1 * pq1
+        L = math.sqrt(L2)
+        r0x, r0y = p0 - x0, p1 - x1
+        cross = r0x * pq1 - r0y * pq0
+        h = abs(cross) / L
+        if h <= 1e-12 * L:
+            continue
+        s0 = -(r0x * pq0 + r0y * pq1) / L2
+        r0 = math.sqrt(r0x * r0x + r0y * r0y)
+        r1 = math.sqrt((q0 - x0) ** 2 + (q1 - x1) ** 2)
+        ash = math.asinh(L * (1.0 - s0) / h) - math.asinh(-L * s0 / h)
+        a0, a1, a2 = _hats(p0, p1, P[0], e1, e2, det)
+        b0, b1, b2 = _hats(q0, q1, P[0], e1, e2, det)
+        sign = (1.0 if cross > 0 else -1.0) * (1.0 if det > 0 else -1.0)
+        f = sign * h * L / 2.0
+        out[0] += f * ((px0 + a0 + (b0 - a0) * s0) / L * ash + (b0 - a0) / L2 * (r1 - r0))
+        out[1] += f * ((px1 + a1 + (b1 - a1) * s0) / L * ash + (b1 - a1) / L2 * (r1 - r0))
+        out[2] += f * ((px2 + a2 + (b2 - a2) * s0) / L * ash + (b2 - a2) / L2 * (r1 - r0))
+
+
+@kernel
+def hat_potential(points, corners):  # pragma: no cover (compiled)
+    """``I[i, t, c] = int_T phi_c(y) / |x_i - y| dy``: points (k, 2), plane triangles (m, 3, 2) -> (k, m, 3)."""
+    out = np.zeros((points.shape[0], corners.shape[0], 3))
+    for i in range(points.shape[0]):
+        for t in range(corners.shape[0]):
+            edge_term(points[i, 0], points[i, 1], corners[t], out[i, t])
+    return out
+
+
+@kernel
+def hat_compliance(verts, weights, centres, normals, X, T, areas, fan_ptr, fan_tri):  # pragma: no cover (compiled)
+    """``w^T H w`` of each contact [1/m] (times ``(1 - nu^2) / (pi E)``: the normal compliance), (s,).
+
+    Parameters: padded (s, P) vertex lists and weights (weight 0: padding),
+    contact points and unit normals (s, 3), the surface's vertices (n, 3),
+    triangles (m, 3) and lumped areas (n,), and the vertex -> triangles map
+    (CSR: ``fan_tri[fan_ptr[v]:fan_ptr[v + 1]]``).
+    """
+    s, P = verts.shape
+    out = np.zeros(s)
+    mark = np.full(T.shape[0], -1, np.int64)
+    wpos = np.zeros(X.shape[0])  # the current patch's weight of each vertex (0: not in it)
+    tri = np.empty(T.shape[0], np.int64)
+    Q = np.empty((3, 2))
+    acc = np.zeros(3)
+    for k in range(s):
+        n = normals[k] / math.sqrt(normals[k, 0] ** 2 + normals[k, 1] ** 2 + normals[k, 2] ** 2)
+        ref = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+        t1 = np.cross(n, ref)
+        t1 /= math.sqrt(t1[0] ** 2 + t1[1] ** 2 + t1[2] ** 2)
+        t2 = np.cross(n, t1)
+        # the patch's vertices (weight > 0) and the facing triangles of their fans
+        nt = 0
+        for p in range(P):
+            if weights[k, p] > 0.0:
+                wpos[verts[k, p]] = weights[k, p]
+        for p in range(P):
+            if weights[k, p] <= 0.0:
+                continue
+            v = verts[k, p]
+            for f in range(fan_ptr[v], fan_ptr[v + 1]):
+                t = fan_tri[f]
+                if mark[t] == k:
+                    continue
+                mark[t] = k
+                A, B, C = X[T[t, 0]], X[T[t, 1]], X[T[t, 2]]
+                tn = np.cross(B - A, C - A)
+                if tn[0] * n[0] + tn[1] * n[1] + tn[2] * n[2] >= 0.5 * math.sqrt(tn[0] ** 2 + tn[1] ** 2 + tn[2] ** 2):
+                    tri[nt] = t
+                    nt += 1
+        total = 0.0
+        for p in range(P):
+            wi = weights[k, p]
+            if wi <= 0.0:
+                continue
+            d = X[verts[k, p]] - centres[k]
+            x0, x1 = d[0] * t1[0] + d[1] * t1[1] + d[2] * t1[2], d[0] * t2[0] + d[1] * t2[1] + d[2] * t2[2]
+            for it in range(nt):
+                t = tri[it]
+                for c in range(3):
+                    e = X[T[t, c]] - centres[k]
+                    Q[c, 0] = e[0] * t1[0] + e[1] * t1[1] + e[2] * t1[2]
+                    Q[c, 1] = e[0] * t2[0] + e[1] * t2[1] + e[2] * t2[2]
+                acc[:] = 0.0
+                edge_term(x0, x1, Q, acc)
+                for c in range(3):  # column j = corner c of t, if j carries weight in this patch
+                    j = T[t, c]
+                    if wpos[j] > 0.0:
+                        total += wi * wpos[j] * acc[c] / areas[j]
+        out[k] = total
+        for p in range(P):
+            wpos[verts[k, p]] = 0.0
+    return out

@@ -1,0 +1,497 @@
+"""Where the storm's model stops being true: validity limits checked on every impact.
+
+The storm is quasi-static, linear elasticity on the undeformed pad, with Hertz's
+law sizing each contact's pressure disc. Each of those assumptions has a range;
+this module measures, per impact, how far outside it the run went, and the
+storm's statistics (:class:`~hailstorm.runtime.storm.recording.StormStats`,
+``summary.json``) count the impacts beyond each limit. What a result beyond a
+limit means is in ``docs/validity.md``.
+
+Per impact (a contact that opened faster than the scene's ``time.rest_speed``,
+the storm's ``impacts``, followed until that contact is released):
+
+* ``delta / h`` -- the peak indentation ``delta`` (the largest normal contact
+  displacement, the storm's ``max_indentation_m`` per impact) over the local
+  pad thickness ``h`` under the contact point (:func:`surface_thickness`);
+* ``a / R`` -- Hertz's contact radius of the impact's peak force,
+  ``a = (3 F R / (4 E*))^(1/3)`` (:func:`hailstorm.runtime.contact.weights.hertz_radius`,
+  the radius the patch model sizes its disc by, before its floor and its cap
+  at ``R``), over the stone radius;
+* the estimated peak strain (:func:`peak_strain`).
+
+The limits (:class:`ValidityLimits`, each with its source):
+
+* ``a / R <= 0.3``: Hertz replaces the sphere by the paraboloid ``r^2 / (2R)``
+  (Johnson, *Contact Mechanics*, 1985, section 4.2, which assumes ``a << R``).
+  The sphere's gap ``R - sqrt(R^2 - r^2)`` exceeds the paraboloid's by the
+  factor ``2 (1 - sqrt(1 - x^2)) / x^2`` at ``x = r/R`` (``1 + x^2/4`` to
+  leading order): at the contact edge 2.4 % for ``a/R = 0.3``, 7.2 % at 0.5,
+  100 % at 1 (the limit keeps the profile error at the edge near 2 %).
+* peak strain ``<= 0.05``: flexible (elastomeric) foams are linear elastic in
+  compression up to about 5 % strain; beyond it the cell walls buckle and the
+  stress-strain curve flattens into the plateau (Gibson & Ashby, *Cellular
+  Solids*, 2nd ed. 1997, ch. 5, elastomeric foams in compression).
+* ``delta / h <= 0.1``: the Green's functions are those of the undeformed pad.
+  A pad on a rigid base compressed by ``delta`` is stiffer than the undeformed
+  one by about ``h / (h - delta)`` (its stiffness goes as ``1 / h``), 11 % at
+  ``delta / h = 0.1``; the half-space and layer models behind Hertz's law and
+  the patch weights hold for indentations small against the thickness.
+
+These are conservative engineering bounds, not sharp ones: a result beyond one
+is not necessarily wrong, but nothing in the model vouches for it.
+"""
+
+from __future__ import annotations
+
+import itertools
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from hailstorm.runtime.contact.weights import hertz_radius
+
+__all__ = [
+    "ImpactLimits",
+    "PadThickness",
+    "RayCaster",
+    "ValidityLimits",
+    "VALIDITY_KEYS",
+    "boundary_faces",
+    "peak_strain",
+    "ray_thickness",
+    "summarise",
+    "surface_thickness",
+    "validity_warning",
+    "vertex_normals",
+]
+
+
+@dataclass(frozen=True)
+class ValidityLimits:
+    """The stated limits of the storm's model (sources: the module docstring).
+
+    Attributes
+    ----------
+    indentation_thickness : float
+        Largest peak indentation over local pad thickness, ``delta / h`` [-].
+    contact_radius : float
+        Largest Hertz contact radius over stone radius, ``a / R`` [-].
+    strain : float
+        Largest estimated peak strain [-] (:func:`peak_strain`).
+    """
+
+    indentation_thickness: float = 0.1
+    contact_radius: float = 0.3
+    strain: float = 0.05
+
+
+def boundary_faces(tets: np.ndarray) -> np.ndarray:
+    """The boundary triangles of a tetrahedral mesh (faces of exactly one tetrahedron), (k, 3).
+
+    Parameters
+    ----------
+    tets : (T, 4) int ndarray
+        Corner connectivity.
+
+    Returns
+    -------
+    (k, 3) int ndarray
+        Node indices (orientation not normalised).
+    """
+    tets = np.asarray(tets, dtype=np.int64)
+    faces = np.concatenate([tets[:, [1, 2, 3]], tets[:, [0, 3, 2]], tets[:, [0, 1, 3]], tets[:, [0, 2, 1]]])
+    _, inv, counts = np.unique(np.sort(faces, axis=1), axis=0, return_inverse=True, return_counts=True)
+    return faces[counts[inv.ravel()] == 1]
+
+
+def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """Unit vertex normals: the area-weighted mean of the incident triangles' normals, (n, 3).
+
+    The triangles' orientation sets the side (outward triangles give outward
+    normals); a vertex of no triangle gets a zero vector.
+    """
+    X = np.asarray(vertices, dtype=np.float64)
+    T = np.asarray(triangles, dtype=np.int64)
+    cross = np.cross(X[T[:, 1]] - X[T[:, 0]], X[T[:, 2]] - X[T[:, 0]])  # 2 x area x unit normal
+    n = np.zeros_like(X)
+    for j in range(3):
+        np.add.at(n, T[:, j], cross)
+    norm = np.linalg.norm(n, axis=1)
+    return np.divide(n, norm[:, None], out=np.zeros_like(n), where=norm[:, None] > 0)
+
+
+class RayCaster:
+    """Rays against a fixed set of triangles: the distance to the first one each ray hits.
+
+    The triangles are searched in growing balls around each origin: a triangle
+    that a ray hits at distance ``t <= r`` meets the ball of radius ``r``, so its
+    centroid lies within ``r`` plus the largest centroid-to-corner distance; the
+    closest hit among those triangles is the closest of all when it is at most
+    ``r`` away. Rays not settled so are searched again with ``r`` doubled, the last
+    pass over every triangle. Each (ray, triangle) pair is Moeller-Trumbore's test;
+    a ray through an edge or a corner hits (tolerance 1e-9 on the barycentric
+    coordinates).
+
+    Parameters
+    ----------
+    points : (N, 3) ndarray
+    faces : (k, 3) int ndarray
+        Triangles on ``points`` (any orientation).
+    """
+
+    def __init__(self, points: np.ndarray, faces: np.ndarray) -> None:
+        P = np.asarray(points, dtype=np.float64)
+        self.faces = np.asarray(faces, dtype=np.int64).reshape(-1, 3)
+        self.corners = P[self.faces]  # (k, 3, 3)
+        self._tree: Any = None
+        if self.faces.shape[0]:
+            self.centre = self.corners.mean(axis=1)
+            self.reach = float(np.linalg.norm(self.corners - self.centre[:, None], axis=2).max())
+            used = self.corners.reshape(-1, 3)
+            self.diag = float(np.linalg.norm(used.max(axis=0) - used.min(axis=0)))
+            self.size = float(np.median(np.linalg.norm(self.corners[:, 1] - self.corners[:, 0], axis=1)))
+
+    def cast(self, origins: np.ndarray, directions: np.ndarray, *, skip: np.ndarray | None = None,
+             start_radius: float | None = None) -> np.ndarray:
+        """Distance from each origin along its direction to the first triangle it hits.
+
+        Parameters
+        ----------
+        origins : (r, 3) ndarray
+        directions : (r, 3) ndarray
+            Unit directions (e.g. inward normals).
+        skip : (r,) int ndarray, optional
+            Per ray, a node whose triangles the ray ignores (the node the ray
+            starts from; -1: none).
+        start_radius : float, optional
+            The first ball's radius [m] (default: 4 median edge lengths; ``inf``:
+            one pass over every triangle, brute force).
+
+        Returns
+        -------
+        (r,) ndarray
+            The distance [m] (``inf`` where the ray meets no triangle). Hits closer
+            than ``1e-9`` of the triangles' bounding-box diagonal are ignored (the
+            ray's own start).
+        """
+        O = np.asarray(origins, dtype=np.float64).reshape(-1, 3)
+        Dn = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+        sk = np.full(O.shape[0], -1, dtype=np.int64) if skip is None else np.asarray(skip, dtype=np.int64).reshape(-1)
+        out = np.full(O.shape[0], np.inf)
+        k = self.faces.shape[0]
+        if k == 0 or O.size == 0:
+            return out
+        r = 4.0 * self.size if start_radius is None else float(start_radius)
+        todo = np.arange(O.shape[0])
+        while todo.size:
+            last = r >= self.diag
+            if last:
+                ray, face = np.repeat(todo, k), np.tile(np.arange(k), todo.size)
+            else:
+                if self._tree is None:
+                    from scipy.spatial import cKDTree
+
+                    self._tree = cKDTree(self.centre)
+                near = self._tree.query_ball_point(O[todo], r + self.reach)
+                ray = np.repeat(todo, [len(c) for c in near])
+                face = np.fromiter(itertools.chain.from_iterable(near), dtype=np.int64, count=ray.size)
+            best = np.full(O.shape[0], np.inf)
+            np.minimum.at(best, ray, self._hits(O, Dn, sk, ray, face))
+            done = last | (best[todo] <= r)
+            out[todo[done]] = best[todo[done]]
+            todo = todo[~done]
+            r *= 2.0
+        return out
+
+    def _hits(self, O: np.ndarray, Dn: np.ndarray, skip: np.ndarray, ray: np.ndarray, face: np.ndarray) -> np.ndarray:
+        """Hit distance of each (ray, face) pair (inf: no hit)."""
+        c = self.corners[face]
+        v0 = c[:, 0]
+        e1, e2 = c[:, 1] - v0, c[:, 2] - v0
+        d = Dn[ray]
+        p = np.cross(d, e2)
+        det = np.einsum("kd,kd->k", p, e1)
+        ok = np.abs(det) > 1e-300
+        inv = np.divide(1.0, det, out=np.zeros_like(det), where=ok)
+        tv = O[ray] - v0
+        u = np.einsum("kd,kd->k", tv, p) * inv
+        qv = np.cross(tv, e1)
+        v = np.einsum("kd,kd->k", d, qv) * inv
+        t = np.einsum("kd,kd->k", qv, e2) * inv
+        tol = 1e-9
+        hit = ok & (u >= -tol) & (v >= -tol) & (u + v <= 1.0 + tol) & (t > 1e-9 * self.diag)
+        F, sk = self.faces[face], skip[ray]
+        hit &= ~((F[:, 0] == sk) | (F[:, 1] == sk) | (F[:, 2] == sk))
+        return np.where(hit, t, np.inf)
+
+
+def ray_thickness(points: np.ndarray, faces: np.ndarray, origins: np.ndarray, directions: np.ndarray, *,
+                  skip: np.ndarray | None = None, start_radius: float | None = None) -> np.ndarray:
+    """Distance from each origin along its direction to the first of ``faces`` it hits
+    (:meth:`RayCaster.cast`; ``inf``: none)."""
+    return RayCaster(points, faces).cast(origins, directions, skip=skip, start_radius=start_radius)
+
+
+class PadThickness:
+    """The local pad thickness under the surface vertices of a bundle, cast on first request.
+
+    The thickness under a vertex is the distance from it along its inward normal
+    (:func:`vertex_normals` of the outward surface triangles, reversed) to the
+    first boundary face of the body it meets: the clamped underside (the rigid
+    shell) or the opposite surface. The boundary is the bundle's surface, which
+    is the boundary of its volume mesh (the contract: the surface and the volume
+    mesh it came from, :func:`boundary_faces` of ``volume_tets`` through
+    ``surface_nodes``; checked in the tests), so no volume data is read. ``inf``
+    where the ray meets nothing (an open surface, e.g. a synthetic plate). Each
+    vertex is cast once, when first asked for (a storm asks for the vertices of
+    the triangles it impacts); building this costs the vertex normals only.
+
+    Parameters
+    ----------
+    gf : ElasticSource
+        ``vertices`` and ``triangles`` (outward).
+    """
+
+    def __init__(self, gf: Any) -> None:
+        self.X = np.asarray(gf.vertices, dtype=np.float64)
+        self.inward = -vertex_normals(self.X, gf.triangles)
+        self.caster = RayCaster(self.X, np.asarray(gf.triangles))
+        self.values = np.full(self.X.shape[0], np.nan)
+
+    def _cast(self, vertices: np.ndarray) -> np.ndarray:
+        return self.caster.cast(self.X[vertices], self.inward[vertices], skip=vertices)
+
+    def __call__(self, vertices: np.ndarray) -> np.ndarray:
+        """The thickness under ``vertices`` (surface vertex indices, any shape) [m]."""
+        v = np.asarray(vertices, dtype=np.int64)
+        new = np.unique(v[np.isnan(self.values[v])])
+        if new.size:
+            self.values[new] = self._cast(new)
+        return self.values[v]
+
+
+def surface_thickness(gf: Any, vertices: np.ndarray | None = None) -> np.ndarray:
+    """The local pad thickness under surface vertices [m] (:class:`PadThickness`).
+
+    Parameters
+    ----------
+    gf : ElasticSource
+        ``vertices``, ``triangles`` (outward).
+    vertices : int ndarray, optional
+        Surface vertex indices (default: every vertex).
+    """
+    pad = PadThickness(gf)
+    return pad(np.arange(pad.X.shape[0]) if vertices is None else vertices)
+
+
+def peak_strain(contact_radius_ratio: Any, indentation_thickness: Any, poisson: float) -> np.ndarray:
+    """Estimated peak strain of an impact [-]: the larger of Hertz's and the layer's.
+
+    * Hertz: at the centre of a Hertz contact the surface stresses are
+      ``sigma_z = -p0``, ``sigma_r = sigma_theta = -(1 + 2 nu) p0 / 2``, with
+      ``p0 = 2 E* a / (pi R)`` (Johnson, *Contact Mechanics*, 1985, sections 3.4 and
+      4.2), so the compressive strain there is
+      ``eps_z = (2 / pi) (1 - 2 nu) / (1 - nu) a / R`` (0.29 a/R at nu = 0.35; of
+      the order of Tabor's representative strain 0.2 a/R, Tabor, *The Hardness of
+      Metals*, 1951).
+    * Layer: a dent ``delta`` into a pad of thickness ``h`` on a rigid base
+      compresses the column under the stone by ``delta / h`` on average.
+
+    Parameters
+    ----------
+    contact_radius_ratio : float or ndarray
+        ``a / R``.
+    indentation_thickness : float or ndarray
+        ``delta / h``.
+    poisson : float
+    """
+    hertz = 2.0 / np.pi * (1.0 - 2.0 * poisson) / (1.0 - poisson) * np.asarray(contact_radius_ratio, dtype=np.float64)
+    return np.maximum(hertz, np.asarray(indentation_thickness, dtype=np.float64))
+
+
+class ImpactLimits:
+    """The validity measures of a storm's impacts (module docstring), kept per impact.
+
+    :meth:`observe` is called with every soft-contact sub-step; an impact's record
+    opens with the contact (the storm's ``impacts`` rule: the contact opens,
+    carries force and comes in faster than ``rest_speed``) and takes the
+    contact's peaks while it stays open (until the stone's next contact opens).
+    The statistics' validity keys (:meth:`summary`) are computed from the records
+    when read, the local thickness under each impact then too (:class:`PadThickness`).
+    A sub-step holds a handful of contacts, so the bookkeeping is plain Python
+    over them (numpy's per-call cost would be most of it).
+
+    Parameters
+    ----------
+    gf : ElasticSource
+        The bundle (surface, material).
+    rest_speed : float
+        The scene's ``time.rest_speed`` [m/s].
+    limits : ValidityLimits, optional
+    """
+
+    def __init__(self, gf: Any, rest_speed: float, limits: ValidityLimits | None = None) -> None:
+        self.limits = ValidityLimits() if limits is None else limits
+        self.young, self.poisson = float(gf.young), float(gf.poisson)
+        self.triangles = np.asarray(gf.triangles, dtype=np.int64)
+        self.rest_speed = float(rest_speed)
+        #: local pad thickness under the surface vertices [m], cast when first read
+        self.pad = PadThickness(gf)
+        #: stone id -> its open impact record
+        self.record_of: dict[int, int] = {}
+        #: per impact: stone radius [m], contact triangle and barycentric coordinates at onset,
+        #: peak indentation [m], peak force [N]
+        self.radius: list[float] = []
+        self.where: list[tuple[int, list[float]]] = []
+        self.indentation: list[float] = []
+        self.force: list[float] = []
+        self._thickness = np.zeros(0)
+        self._changes = 0  # bumped by every change of a record (the summary's cache key)
+        self._summary: tuple[int, dict[str, float | int]] | None = None
+
+    @property
+    def n(self) -> int:
+        """Impacts recorded."""
+        return len(self.radius)
+
+    def onset_speed(self, vel: np.ndarray, soft: np.ndarray, normals: np.ndarray) -> np.ndarray:
+        """Normal velocity of the stones ``soft`` before the contact step (negative: approaching)."""
+        return np.einsum("kd,kd->k", vel[soft], normals)
+
+    def watching(self, soft: list[int], opening: bool) -> bool:
+        """Does a sub-step of the stones ``soft`` (some contact ``opening``) concern a record?"""
+        return opening or any(j in self.record_of for j in soft)
+
+    def observe(self, soft: list[int], radius: list[float], tris: list[int], bary: list[list[float]],
+                opening: list[bool], vin: list[float] | None, touched: list[bool], indentation: list[float],
+                force: list[float]) -> None:
+        """Record one contact sub-step of the stones ``soft`` (sequences of length s).
+
+        Parameters
+        ----------
+        soft : stone ids
+        radius : their radii [m]
+        tris, bary : their contact triangles and barycentric coordinates
+        opening : the contact opened in this sub-step
+        vin : normal velocity at the sub-step's start [m/s] (:meth:`onset_speed`;
+            needed only where ``opening``, None when none is)
+        touched : the contact carried force within the sub-step
+        indentation : largest normal contact displacement within the sub-step [m]
+        force : largest contact force magnitude within the sub-step [N]
+        """
+        rec_of = self.record_of
+        self._changes += 1
+        for i, j in enumerate(soft):
+            if not touched[i]:
+                continue
+            if opening[i]:
+                rec_of.pop(j, None)  # a slow touch opens no record (and ends the stone's last one)
+                if vin is not None and vin[i] < -self.rest_speed:
+                    rec_of[j] = self.n
+                    self.radius.append(float(radius[i]))
+                    self.where.append((int(tris[i]), list(bary[i])))
+                    self.indentation.append(0.0)
+                    self.force.append(0.0)
+            k = rec_of.get(j)
+            if k is not None:
+                if indentation[i] > self.indentation[k]:
+                    self.indentation[k] = float(indentation[i])
+                if force[i] > self.force[k]:
+                    self.force[k] = float(force[i])
+
+    @property
+    def thickness(self) -> np.ndarray:
+        """The local thickness under every impact so far [m], (n,) (cast for the new ones)."""
+        old = self._thickness.size
+        if self.n > old:
+            tri = np.array([w[0] for w in self.where[old:]], dtype=np.int64)
+            bary = np.array([w[1] for w in self.where[old:]], dtype=np.float64).reshape(-1, 3)
+            h = self.pad(self.triangles[tri])  # (m, 3); inf: the ray met nothing
+            finite = np.isfinite(h)
+            new = np.where(finite.all(axis=1), np.einsum("kj,kj->k", bary, np.where(finite, h, 0.0)), np.inf)
+            self._thickness = np.concatenate([self._thickness, new])
+        return self._thickness
+
+    def ratios(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``delta / h``, ``a / R`` and the estimated peak strain of every impact so far, (n,) each."""
+        R = np.array(self.radius, dtype=np.float64)
+        dh = np.clip(np.array(self.indentation, dtype=np.float64), 0.0, None) / self.thickness
+        aR = hertz_radius(np.array(self.force, dtype=np.float64), R, self.young, self.poisson) / R
+        return dh, aR, peak_strain(aR, dh, self.poisson)
+
+    def summary(self) -> dict[str, float | int]:
+        """The statistics' validity keys (see :class:`~hailstorm.runtime.storm.recording.StormStats`):
+        impacts beyond each limit, the worst values and the limits."""
+        if self._summary is None or self._summary[0] != self._changes:
+            self._summary = (self._changes, summarise(*self.ratios(), self.thickness, self.limits))
+        return dict(self._summary[1])
+
+
+def summarise(dh: np.ndarray, aR: np.ndarray, eps: np.ndarray, thickness: np.ndarray,
+              limits: ValidityLimits | None = None) -> dict[str, float | int]:
+    """The validity keys of a storm's statistics from its impacts' measures.
+
+    Parameters
+    ----------
+    dh, aR, eps, thickness : (n,) ndarray
+        Per impact: ``delta / h``, ``a / R``, the estimated peak strain, the local
+        thickness [m].
+    limits : ValidityLimits, optional
+
+    Returns
+    -------
+    dict
+        ``impacts_beyond_indentation_limit``, ``impacts_beyond_radius_limit``,
+        ``impacts_beyond_strain_limit``, ``impacts_beyond_any_limit`` (counts),
+        ``max_indentation_thickness_ratio``, ``max_contact_radius_ratio``,
+        ``max_strain_ratio`` (the worst values, 0 without impacts),
+        ``min_impact_thickness_m`` (0 without impacts) and the limits
+        ``limit_indentation_thickness_ratio``, ``limit_contact_radius_ratio``,
+        ``limit_strain_ratio``.
+    """
+    lim = ValidityLimits() if limits is None else limits
+    over = (dh > lim.indentation_thickness, aR > lim.contact_radius, eps > lim.strain)
+    return {
+        "impacts_beyond_indentation_limit": int(over[0].sum()),
+        "impacts_beyond_radius_limit": int(over[1].sum()),
+        "impacts_beyond_strain_limit": int(over[2].sum()),
+        "impacts_beyond_any_limit": int((over[0] | over[1] | over[2]).sum()),
+        "max_indentation_thickness_ratio": float(dh.max(initial=0.0)),
+        "max_contact_radius_ratio": float(aR.max(initial=0.0)),
+        "max_strain_ratio": float(eps.max(initial=0.0)),
+        "min_impact_thickness_m": float(thickness.min()) if thickness.size else 0.0,
+        "limit_indentation_thickness_ratio": float(lim.indentation_thickness),
+        "limit_contact_radius_ratio": float(lim.contact_radius),
+        "limit_strain_ratio": float(lim.strain),
+    }
+
+
+#: the validity keys of a storm's statistics, in their order (:func:`summarise`)
+VALIDITY_KEYS = tuple(summarise(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0)))
+
+
+def validity_warning(stats: Any) -> str | None:
+    """One line naming how many impacts were beyond the validity limits, with the numbers
+    (None: none was).
+
+    Parameters
+    ----------
+    stats : mapping
+        A storm's statistics (or its ``summary.json``).
+    """
+    n = int(stats.get("impacts_beyond_any_limit", 0) or 0)
+    if n == 0:
+        return None
+
+    def part(what: str, worst: str, limit: str, count: str) -> str:
+        return (f"{what} up to {float(stats[worst]):.3g} (limit {float(stats[limit]):.3g}, "
+                f"{int(stats[count])} impacts beyond)")
+
+    parts = [part("indentation/thickness", "max_indentation_thickness_ratio", "limit_indentation_thickness_ratio",
+                  "impacts_beyond_indentation_limit"),
+             part("contact radius/stone radius", "max_contact_radius_ratio", "limit_contact_radius_ratio",
+                  "impacts_beyond_radius_limit"),
+             part("estimated peak strain", "max_strain_ratio", "limit_strain_ratio", "impacts_beyond_strain_limit")]
+    return (f"{n} of {int(stats['impacts'])} impacts are beyond the model's validity limits: " + "; ".join(parts)
+            + " (quasi-static linear elasticity and Hertz no longer vouch for these impacts; see docs/validity.md)")

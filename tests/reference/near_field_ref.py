@@ -1,0 +1,111 @@
+"""Plain numpy statements of :mod:`hailstorm.runtime.compiled.near_field` (the tests hold the kernels to them)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def hat_potential_ref(points: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """``I[i, t, c] = int_T phi_c(y) / |x_i - y| dy`` over plane triangles, in closed form [m].
+
+    The single-layer potential of each corner's hat function ``phi_c`` (the
+    linear function that is 1 at corner ``c`` and 0 at the others) over
+    triangle ``T``, at points ``x_i`` of the same plane: what the half-space's
+    ``1/r`` kernel (Boussinesq, Cerruti) makes of a hat traction. ``T`` is
+    split into the three triangles ``(x, p, q)`` over its edges (signed by
+    orientation); in polar coordinates about ``x`` the kernel cancels the
+    Jacobian, and along each ray the linear ``phi`` integrates exactly, which
+    leaves ``(h L / 2) int_0^1 (phi(x) + phi(y(s))) / |y(s) - x| ds`` over the
+    edge ``y(s) = p + s (q - p)`` (``h`` the distance of ``x`` to its line,
+    ``L`` its length): an ``asinh`` and a square root. Exact for ``x`` inside,
+    on or outside ``T`` (an edge through ``x`` contributes 0).
+
+    Parameters
+    ----------
+    points : (k, 2) ndarray
+        Evaluation points in the plane.
+    corners : (m, 3, 2) ndarray
+        Triangle corners in the plane.
+
+    Returns
+    -------
+    (k, m, 3) ndarray
+    """
+    x = np.asarray(points, dtype=np.float64)[:, None, :]  # (k, 1, 2)
+    T = np.asarray(corners, dtype=np.float64)[None]  # (1, m, 3, 2)
+    e1, e2 = T[..., 1, :] - T[..., 0, :], T[..., 2, :] - T[..., 0, :]
+    det = e1[..., 0] * e2[..., 1] - e1[..., 1] * e2[..., 0]  # (1, m): twice the signed area
+
+    def phi(y: np.ndarray) -> np.ndarray:
+        """The three hat functions of each triangle at points y (k, m, 2) -> (k, m, 3)."""
+        d = y - T[..., 0, :]
+        l1 = (d[..., 0] * e2[..., 1] - d[..., 1] * e2[..., 0]) / det
+        l2 = (e1[..., 0] * d[..., 1] - e1[..., 1] * d[..., 0]) / det
+        return np.stack([1.0 - l1 - l2, l1, l2], axis=-1)
+
+    px = phi(np.broadcast_to(x, x.shape[:1] + T.shape[1:2] + (2,)))
+    out = np.zeros(px.shape)
+    for a, b in ((0, 1), (1, 2), (2, 0)):
+        p, q = T[..., a, :], T[..., b, :]
+        pq = q - p
+        L = np.linalg.norm(pq, axis=-1)  # (1, m)
+        rel = p - x  # (k, m, 2)
+        cross = rel[..., 0] * pq[..., 1] - rel[..., 1] * pq[..., 0]  # signed 2 area of (x, p, q)
+        h = np.abs(cross) / L
+        s0 = -np.einsum("kmd,kmd->km", rel, np.broadcast_to(pq, rel.shape)) / L**2
+        r0 = np.linalg.norm(rel, axis=-1)
+        r1 = np.linalg.norm(q - x, axis=-1)
+        ok = h > 1e-12 * L
+        hs = np.where(ok, h, 1.0)
+        ash = np.arcsinh(L * (1.0 - s0) / hs) - np.arcsinh(-L * s0 / hs)
+        A, B = phi(np.broadcast_to(p, rel.shape)), None
+        Bq = phi(np.broadcast_to(q, rel.shape))
+        B = Bq - A
+        J = (px + A + B * s0[..., None]) / L[..., None] * ash[..., None] + B / L[..., None] ** 2 * (r1 - r0)[..., None]
+        sign = np.sign(cross) * np.sign(det)
+        out += np.where(ok[..., None], (sign * h * L / 2.0)[..., None] * J, 0.0)
+    return out
+
+
+def hat_halfspace_block_ref(vertices: np.ndarray, triangles: np.ndarray, areas: np.ndarray,
+                        fan: tuple[np.ndarray, np.ndarray], verts: np.ndarray, centre: np.ndarray,
+                        normal: np.ndarray) -> np.ndarray:
+    """``1/r`` kernel of hat loads between patch vertices, on the tangent plane [1/m], (P, P).
+
+    ``H[i, j] = (1 / a_j) sum_{T ni j} int_T phi_j(y) / |x_i - y| dy``: the
+    half-space's response at vertex ``i`` to the hat traction of vertex ``j``
+    (``phi_j / a_j``, one newton; what a ``load = "hat"`` column of D answers),
+    up to the material factor (normal: ``(1 - nu^2) / (pi E)``), with the
+    patch's vertices and their triangles projected on the plane through
+    ``centre`` normal to ``normal``. Triangles that do not face along
+    ``normal`` (the body's folds) are left out.
+    """
+    n = np.asarray(normal, dtype=np.float64)
+    n = n / np.linalg.norm(n)
+    t1 = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+    t1 /= np.linalg.norm(t1)
+    t2 = np.cross(n, t1)
+    X = np.asarray(vertices, dtype=np.float64)
+
+    def plane(p: np.ndarray) -> np.ndarray:
+        d = p - centre
+        return np.stack([d @ t1, d @ t2], axis=-1)
+
+    ptr, tri = fan
+    v = np.asarray(verts, dtype=np.intp)
+    tris = np.unique(np.concatenate([tri[ptr[j]:ptr[j + 1]] for j in v]))
+    T = np.asarray(triangles)[tris]
+    # the kernel is the tangent plane's: only triangles facing along the normal (projected area at
+    # least half their own) carry their share of a hat load onto it; a fold (the body's edge) does not
+    P = X[T]
+    tn = np.cross(P[:, 1] - P[:, 0], P[:, 2] - P[:, 0])
+    T = T[tn @ n >= 0.5 * np.linalg.norm(tn, axis=1)]
+    I = hat_potential_ref(plane(X[v]), plane(X[T]))  # (P, m, 3)
+    # column j collects I[:, t, c] over the (t, c) where corner c of t is vertex j
+    col = np.searchsorted(v, T)  # position of each corner in v (v sorted)
+    hit = (col < v.size) & (v[np.minimum(col, v.size - 1)] == T)
+    H = np.zeros((v.size, v.size))
+    for c in range(3):
+        m = hit[:, c]
+        np.add.at(H.T, col[m, c], I[:, m, c].T)
+    return H / np.asarray(areas, dtype=np.float64)[v][None, :]

@@ -1,0 +1,244 @@
+"""Validity limits of the storm (hailstorm.runtime.storm.limits): the local pad thickness,
+the per-impact measures, the statistics' keys and the warning."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from hailstorm.precompute.geometry import box_mesh, boundary_triangles
+from hailstorm.runtime.contact.weights import hertz_radius
+from hailstorm.runtime.scene import Scene
+from hailstorm.runtime.storm.driver import Storm
+from hailstorm.runtime.storm.limits import (
+    ImpactLimits,
+    PadThickness,
+    RayCaster,
+    ValidityLimits,
+    boundary_faces,
+    peak_strain,
+    surface_thickness,
+    validity_warning,
+)
+from hailstorm.runtime.storm.recording import StormStats
+from helpers import plate_gf
+
+L, W, H = 0.1, 0.08, 0.02  # the box: x, y, thickness (clamped at z = 0)
+
+
+@pytest.fixture(scope="module")
+def box_gf(tmp_path_factory):
+    from hailstorm.precompute import build_bundle
+    from hailstorm.runtime.bundle.read import load
+
+    m = box_mesh((L, W, H), 0.01)
+    return load(build_bundle(tmp_path_factory.mktemp("gf") / "box", mesh=m, order=1, young=1e6, poisson=0.3))
+
+
+def _box_source(mesh_size: float = 0.01) -> SimpleNamespace:
+    """The surface and volume mesh of a clamped box, as a bundle carries them."""
+    m = box_mesh((L, W, H), mesh_size)
+    tris = boundary_triangles(m.tets)
+    nodes = np.unique(tris)
+    index = np.full(m.points.shape[0], -1)
+    index[nodes] = np.arange(nodes.size)
+    return SimpleNamespace(vertices=m.points[nodes], triangles=index[tris], volume_points=m.points,
+                           volume_tets=m.tets, surface_nodes=nodes, young=1e6, poisson=0.3)
+
+
+def test_thickness_of_a_box_is_its_height_and_width():
+    """Top and bottom vertices (away from the edges) see the box's thickness H along the
+    inward normal; vertices inside the side x = 0 see its length L."""
+    gf = _box_source()
+    h = surface_thickness(gf)
+    X = gf.vertices
+    inner_xy = (X[:, 0] > 1e-9) & (X[:, 0] < L - 1e-9) & (X[:, 1] > 1e-9) & (X[:, 1] < W - 1e-9)
+    top = inner_xy & np.isclose(X[:, 2], H)
+    bottom = inner_xy & np.isclose(X[:, 2], 0.0)
+    side = np.isclose(X[:, 0], 0.0) & (X[:, 1] > 1e-9) & (X[:, 1] < W - 1e-9) & (X[:, 2] > 1e-9) & (X[:, 2] < H - 1e-9)
+    assert top.sum() > 10 and bottom.sum() > 10 and side.sum() > 3
+    # a ray along an axis of a box lands on a face (or its edges) exactly: rounding only
+    np.testing.assert_allclose(h[top], H, rtol=1e-12)
+    np.testing.assert_allclose(h[bottom], H, rtol=1e-12)
+    np.testing.assert_allclose(h[side], L, rtol=1e-12)
+    assert np.isfinite(h).all() and (h > 0).all()
+
+
+def test_the_surface_is_the_volume_meshs_boundary_and_an_open_plate_has_no_thickness(box_gf):
+    """The thickness is cast against the bundle's surface: on a bundle it is the volume mesh's
+    boundary (boundary_faces of volume_tets through surface_nodes). The synthetic plate is an
+    open surface: no ray hits (inf)."""
+    faces = {tuple(f) for f in np.sort(boundary_faces(box_gf.volume_tets), axis=1)}
+    assert faces == {tuple(f) for f in np.sort(np.asarray(box_gf.surface_nodes)[box_gf.triangles], axis=1)}
+    assert np.isinf(surface_thickness(plate_gf(7))).all()
+
+
+def test_ray_caster_against_the_analytic_box_and_brute_force(rng):
+    """Rays from inside the box in random directions: the distance to the boundary is
+    min over the axes of the distance to the face ahead (closed form); the pruned search
+    equals the brute-force pass over every face."""
+    m = box_mesh((L, W, H), 0.01)
+    faces = boundary_faces(m.tets)
+    o = rng.uniform([0.01, 0.01, 0.002], [L - 0.01, W - 0.01, H - 0.002], size=(200, 3))
+    d = rng.normal(size=(200, 3))
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    hi = np.array([L, W, H])
+    exact = np.min(np.where(d > 0, (hi - o) / np.where(d > 0, d, 1.0), -o / np.where(d < 0, d, -1.0)), axis=1)
+    rc = RayCaster(m.points, faces)
+    t = rc.cast(o, d)
+    np.testing.assert_allclose(t, exact, rtol=1e-10)
+    np.testing.assert_array_equal(t, rc.cast(o, d, start_radius=np.inf))
+
+
+def test_pad_thickness_casts_each_vertex_once():
+    gf = _box_source()
+    pad = PadThickness(gf)
+    calls = []
+    real = pad._cast
+    pad._cast = lambda v: calls.append(v.size) or real(v)
+    first = pad(gf.triangles[:5])
+    again = pad(gf.triangles[:5])
+    np.testing.assert_array_equal(first, again)
+    assert calls == [np.unique(gf.triangles[:5]).size]
+
+
+def test_peak_strain_is_hertz_centre_strain_or_the_layer_compression():
+    # eps_z at the centre of a Hertz contact: (2/pi)(1 - 2 nu)/(1 - nu) a/R, from the stresses
+    # sigma_z = -p0, sigma_r = sigma_theta = -(1 + 2 nu) p0 / 2 and p0 = 2 E* a / (pi R)
+    nu, aR = 0.35, 0.2
+    p0_over_E = 2.0 / np.pi * aR / (1 - nu**2)
+    eps = p0_over_E * (1 - nu * (1 + 2 * nu))  # Hooke: (sigma_z - nu (sigma_r + sigma_theta)) / E
+    assert peak_strain(aR, 0.0, nu) == pytest.approx(eps, rel=1e-12)
+    assert peak_strain(aR, 0.5, nu) == 0.5
+    assert peak_strain(0.2, 0.0, 0.35) == pytest.approx(0.294 * 0.2, rel=2e-3)
+
+
+def _inner_top_triangle(gf) -> int:
+    """A triangle on the box's top none of whose vertices is on an edge of the box."""
+    P = gf.vertices[gf.triangles]
+    ok = (np.isclose(P[..., 2], H) & (P[..., 0] > 1e-9) & (P[..., 0] < L - 1e-9) & (P[..., 1] > 1e-9)
+          & (P[..., 1] < W - 1e-9)).all(axis=1)
+    return int(np.flatnonzero(ok)[0])
+
+
+def _limits(rest_speed: float = 0.05) -> ImpactLimits:
+    return ImpactLimits(_box_source(), rest_speed)
+
+
+def test_impact_records_follow_the_storms_impact_rule():
+    """A record opens only for a contact that opens, carries force and comes in faster than
+    rest_speed; it takes the peaks of its contact until the next opening; a slow touch
+    opens none and ends the stone's record."""
+    lim = _limits()
+    tri = _inner_top_triangle(_box_source())
+
+    def obs(opening, vin, touched, indent, force):  # one stone (id 3, R = 5 mm) at the triangle's centroid
+        lim.observe([3], [0.005], [tri], [[1 / 3] * 3], [opening], [vin], [touched], [indent], [force])
+
+    obs(True, -0.01, True, 1e-4, 0.1)  # a slow touch: no record
+    assert lim.n == 0 and lim.summary()["impacts_beyond_any_limit"] == 0
+    obs(True, -3.0, False, 0.0, 0.0)  # opened but carried no force: no record
+    assert lim.n == 0
+    obs(True, -3.0, True, 1e-4, 0.5)  # an impact
+    obs(False, -1.0, True, 3e-3, 2.0)  # its deepest instant
+    obs(False, 1.0, True, 1e-3, 0.7)
+    assert lim.n == 1
+    assert lim.indentation[0] == 3e-3 and lim.force[0] == 2.0 and lim._thickness.size == 0  # cast when read
+    dh, aR, eps = lim.ratios()
+    assert lim.thickness[0] == pytest.approx(H, rel=1e-12)
+    assert dh[0] == pytest.approx(3e-3 / H) and aR[0] == pytest.approx(hertz_radius(2.0, 0.005, 1e6, 0.3) / 0.005)
+    st = lim.summary()
+    assert st["max_indentation_thickness_ratio"] == pytest.approx(0.15)
+    assert st["impacts_beyond_indentation_limit"] == 1 and st["min_impact_thickness_m"] == pytest.approx(H)
+    assert st["impacts_beyond_radius_limit"] == int(aR[0] > 0.3) and st["impacts_beyond_strain_limit"] == 1
+    obs(True, -0.01, True, 5e-3, 5.0)  # a slow re-touch: the impact's record is closed
+    assert lim.indentation[0] == 3e-3 and lim.n == 1
+
+
+def test_counts_against_the_stated_limits():
+    lim, st = _limits(), StormStats()
+    assert (st["limit_indentation_thickness_ratio"], st["limit_contact_radius_ratio"], st["limit_strain_ratio"]) == (
+        ValidityLimits.indentation_thickness, ValidityLimits.contact_radius, ValidityLimits.strain) == (0.1, 0.3, 0.05)
+    lim.radius, lim._thickness = [0.005] * 3, np.full(3, H)  # thicknesses known: nothing to cast
+    # a/R from the force: a = (3 F R / (4 E*))^(1/3), so F = 4 E* a^3 / (3 R)
+    Es = 1e6 / (1 - 0.3**2)
+    aR = np.array([0.05, 0.2, 0.5])
+    lim.force = list(4 * Es * (aR * 0.005) ** 3 / (3 * 0.005))
+    lim.indentation = list(np.array([0.001, 0.0019, 0.0021]) * H / 0.02)  # delta/h 0.05, 0.095, 0.105
+    st.validity = lim  # the statistics read the records
+    assert st["impacts_beyond_indentation_limit"] == 1 and st["impacts_beyond_radius_limit"] == 1
+    eps = peak_strain(aR, np.array(lim.indentation) / H, 0.3)
+    assert st["impacts_beyond_strain_limit"] == int((eps > 0.05).sum())
+    assert st["max_strain_ratio"] == pytest.approx(eps.max())
+    assert st["impacts_beyond_any_limit"] == int(((np.array(lim.indentation) / H > 0.1) | (aR > 0.3) | (eps > 0.05)).sum())
+    assert st["max_contact_radius_ratio"] == pytest.approx(0.5, rel=1e-12)
+    assert dict(st)["max_contact_radius_ratio"] == st["max_contact_radius_ratio"] and "validity" not in dict(st)
+
+
+@pytest.mark.parametrize("integrator, mode, patch", [("exact", "frictionless", "hertz"), ("implicit", "frictionless", "hertz"),
+                                                     ("exact", "sticky", "hertz"), ("exact", "frictionless", "none")])
+def test_a_drop_on_the_box_records_its_impact(box_gf, integrator, mode, patch):
+    """One stone dropped on the middle of the box: one record per counted impact, its peak
+    indentation the storm's ``max_indentation_m``, its thickness the box's, a/R Hertz's of
+    the storm's peak force."""
+    sc = Scene.from_flat(duration=0.03, stones=0, drag=False, dt=2e-4, integrator=integrator, restitution=0.5,
+                         mode=mode, patch=patch)
+    st = Storm(box_gf, sc, spawn=False)
+    R = 0.004
+    st.add_stones(np.array([[0.047, 0.037, H + R + 1e-3]]), np.array([[0.0, 0.0, -4.0]]), np.array([R]))
+    for _ in range(int(0.03 / 2e-4)):
+        st.step()
+    S, lim = st.stats, st.contacts.limits
+    assert S["impacts"] >= 1 and lim.n == S["impacts"]
+    assert max(lim.indentation) == S["max_indentation_m"]
+    np.testing.assert_allclose(lim.thickness, H, rtol=1e-12)
+    assert S["max_indentation_thickness_ratio"] == pytest.approx(S["max_indentation_m"] / H, rel=1e-12)
+    a = hertz_radius(S["max_contact_force"], R, 1e6, 0.3)
+    assert S["max_contact_radius_ratio"] == pytest.approx(a / R, rel=1e-12)
+    assert S["max_strain_ratio"] == pytest.approx(float(peak_strain(a / R, S["max_indentation_m"] / H, 0.3)), rel=1e-12)
+    assert S["min_impact_thickness_m"] == pytest.approx(H, rel=1e-12)
+    beyond = [S["max_indentation_thickness_ratio"] > 0.1, S["max_contact_radius_ratio"] > 0.3, S["max_strain_ratio"] > 0.05]
+    assert (S["impacts_beyond_any_limit"] > 0) == any(beyond)
+
+
+def test_validity_warning_names_the_numbers():
+    st = dict(StormStats())
+    assert validity_warning(st) is None
+    st.update(impacts=22, impacts_beyond_any_limit=22, impacts_beyond_indentation_limit=6,
+              max_indentation_thickness_ratio=0.1725, impacts_beyond_radius_limit=22, max_contact_radius_ratio=0.648,
+              impacts_beyond_strain_limit=22, max_strain_ratio=0.19)
+    msg = validity_warning(st)
+    assert msg.startswith("22 of 22 impacts are beyond the model's validity limits")
+    assert "indentation/thickness up to 0.172 (limit 0.1, 6 impacts beyond)" in msg
+    assert "contact radius/stone radius up to 0.648 (limit 0.3, 22 impacts beyond)" in msg
+    assert "docs/validity.md" in msg and "\n" not in msg
+
+
+@pytest.mark.parametrize("stones", [6, 0])
+def test_cli_storm_warns_once_and_the_summary_carries_the_limits(box_gf, tmp_path, caplog, stones):
+    """`hailstorm storm` on the 1 MPa box: impacts beyond the limits give one warning line with
+    the numbers, and summary.json carries the counts, the worst values and the limits; a storm
+    without impacts warns nothing."""
+    import json
+
+    from hailstorm.cli import main
+
+    out = tmp_path / "out"
+    rc = main(["storm", "--gf", str(box_gf.path), "--duration", "0.03", "--stones", str(stones), "--seed", "2",
+               "--out", str(out), "--no-video", "-q"])
+    assert rc == 0
+    s = json.loads((out / "summary.json").read_text())
+    for k in ("impacts_beyond_indentation_limit", "impacts_beyond_radius_limit", "impacts_beyond_strain_limit",
+              "impacts_beyond_any_limit", "max_indentation_thickness_ratio", "max_contact_radius_ratio",
+              "max_strain_ratio", "min_impact_thickness_m"):
+        assert k in s
+    assert (s["limit_indentation_thickness_ratio"], s["limit_contact_radius_ratio"], s["limit_strain_ratio"]) == (
+        0.1, 0.3, 0.05)
+    warned = [r.getMessage() for r in caplog.records if "validity limits" in r.getMessage()]
+    if stones:
+        assert s["impacts"] > 0 and s["impacts_beyond_any_limit"] > 0  # 1 MPa foam: every stone is beyond
+        assert len(warned) == 1 and warned[0] == "warning: " + validity_warning(s)
+    else:
+        assert s["impacts"] == 0 and s["impacts_beyond_any_limit"] == 0 and warned == []

@@ -1,0 +1,159 @@
+"""The dynamic FEM peer (hailstorm.studies.dynamic_study): its matrices, Hertz's slow impact,
+the quasi-static limit, and its refusals."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from hailstorm.studies.dynamic_study import (
+    FOAM_DENSITY,
+    Pad,
+    PeerResolutionError,
+    axisymmetric_matrices,
+    compare,
+    default_pad,
+    format_table,
+    hertz_estimate,
+    main,
+    pad_mesh,
+    simulate_impact,
+)
+
+
+def _tensor_mesh(R=0.02, H=0.01, n=6):
+    from skfem import MeshTri
+
+    return MeshTri.init_tensor(np.linspace(0, R, n + 1) ** 1.3 / R**0.3, np.linspace(0, H, n))
+
+
+def test_axisymmetric_mass_is_the_discs_mass():
+    """1^T M_zz 1 = integral of rho 2 pi r over the section = rho pi R^2 H (P1 x P1 x r: the
+    quadrature of order 3 is exact)."""
+    R, H, rho = 0.02, 0.01, 70.0
+    mesh = _tensor_mesh(R, H)
+    _, M, basis = axisymmetric_matrices(mesh, 2e6, 0.35, rho)
+    ez = np.zeros(basis.N)
+    ez[basis.nodal_dofs[1]] = 1.0
+    assert ez @ M @ ez == pytest.approx(rho * math.pi * R**2 * H, rel=1e-12)
+    er = np.zeros(basis.N)
+    er[basis.nodal_dofs[0]] = 1.0
+    assert er @ M @ ez == pytest.approx(0.0, abs=1e-18)
+
+
+def test_axisymmetric_stiffness_passes_the_patch_test():
+    """u_r = alpha r, u_z = beta z is a constant-stress state (sigma_rr = sigma_tt: no hoop
+    residual): K u vanishes at the interior nodes; its energy is the analytic one."""
+    E, nu, R, H = 2e6, 0.35, 0.02, 0.01
+    mesh = _tensor_mesh(R, H)
+    K, _, basis = axisymmetric_matrices(mesh, E, nu, 70.0)
+    alpha, beta = 1e-3, -2e-3
+    u = np.zeros(basis.N)
+    u[basis.nodal_dofs[0]] = alpha * mesh.p[0]
+    u[basis.nodal_dofs[1]] = beta * mesh.p[1]
+    f = K @ u
+    x = mesh.p
+    inner = (x[0] > 1e-12) & (x[0] < R - 1e-12) & (x[1] > 1e-12) & (x[1] < H - 1e-12)
+    scale = np.abs(f).max()
+    assert np.abs(f[basis.nodal_dofs[:, inner].ravel()]).max() < 1e-9 * scale
+    lam, mu = E * nu / ((1 + nu) * (1 - 2 * nu)), E / (2 * (1 + nu))
+    tr = 2 * alpha + beta
+    energy = 0.5 * (lam * tr**2 + 2 * mu * (2 * alpha**2 + beta**2)) * math.pi * R**2 * H
+    assert 0.5 * u @ f == pytest.approx(energy, rel=1e-12)
+
+
+def test_hertz_duration_constant():
+    """Hertz's contact time 2.9432 delta_max / v is 2.87 (m^2 / (R E*^2 v))^(1/5)."""
+    pad = default_pad()
+    R, v = 0.005, 0.5
+    h = hertz_estimate(pad, R, v)
+    m = 917.0 * 4 / 3 * math.pi * R**3
+    Es = pad.young / (1 - pad.poisson**2)
+    assert h.duration == pytest.approx(2.868 * (m**2 / (R * Es**2 * v)) ** 0.2, rel=1e-3)
+
+
+@pytest.fixture(scope="module")
+def slow_on_thick():
+    """A 5 mm stone at 0.5 m/s on a 40 mm thick pad (a ~ 1 mm: a half-space to it)."""
+    return compare(default_pad(thickness=0.04, radius=0.04), 0.005, 0.5)
+
+
+def test_a_slow_stone_on_a_thick_block_is_hertz(slow_on_thick):
+    """Quasi-static and dynamic peer against Hertz's quasi-static impact: peak force, contact
+    time and dent within 3 % (the mesh has 8 cells per contact radius and the block a finite
+    thickness and radius; measured quasi-static +0.9 %, -1.3 %, -1.1 %)."""
+    row = slow_on_thick
+    h = row.hertz
+    for res in (row.quasi_static, row.dynamic):
+        assert res.peak_force == pytest.approx(h.max_force, rel=0.03)
+        assert res.duration == pytest.approx(h.duration, rel=0.03)
+        assert res.max_dent == pytest.approx(h.max_depth, rel=0.03)
+
+
+def test_quasi_static_limit(slow_on_thick):
+    """The massless pad gives the impact speed back (an elastic impact; Newmark on the sphere
+    conserves its energy to the step's accuracy); the pad with mass never gives more, and for
+    a slow stone the two agree within 3 % on every measure (measured: force +2.0 %, duration
+    -1.0 %, rebound +0.5 %, dent +0.3 %: even at 0.5 m/s waves take ~1 % of the energy)."""
+    row = slow_on_thick
+    assert row.quasi_static.restitution == pytest.approx(1.0, abs=2e-3)
+    assert row.dynamic.restitution <= 1.0 + 1e-3
+    assert all(abs(e) < 0.03 for e in row.errors().values())
+    assert row.agrees()
+
+
+def test_a_fast_small_stone_is_not_quasi_static():
+    """A 2.5 mm stone at 30 m/s on the default pad: waves take ~12 % of its energy (restitution
+    0.88) and the quasi-static peak force is ~20 % high (measured; converged to ~1 % in cells
+    per radius 8-16 and steps per contact 200-400)."""
+    row = compare(default_pad(), 0.0025, 30.0)
+    assert 0.8 < row.dynamic.restitution < 0.95
+    assert row.errors()["force"] > 0.1 and not row.agrees()
+    text = format_table([row])
+    assert "2.5  30.0" in text and text.splitlines()[-1].endswith("no")
+
+
+def test_density_must_be_positive():
+    with pytest.raises(ValueError, match="density must be a positive number, got 0"):
+        Pad(density=0.0)
+    with pytest.raises(ValueError, match="density must be a positive number"):
+        default_pad(density=-70.0)
+    mesh = pad_mesh(default_pad(), cell=2e-4, extent=2e-3)
+    with pytest.raises(ValueError, match="ice density must be positive, got -917"):
+        simulate_impact(mesh, 0.005, 1.0, ice_density=-917.0)
+    with pytest.raises(SystemExit):
+        main(["--density", "0", "--speeds", "1", "--radii", "0.005"])
+
+
+def test_too_coarse_for_the_impact_is_refused_with_the_numbers():
+    pad = default_pad()
+    coarse = pad_mesh(pad, cell=1e-3, extent=3e-3)  # a 2.5 mm stone at 1 m/s touches ~0.7 mm
+    with pytest.raises(PeerResolutionError, match=r"cells of 1 mm under a contact radius of 0\.688 mm "
+                                                  r"\(0\.688 cells per radius; at least 4, cells <= 0\.172 mm\)"):
+        simulate_impact(coarse, 0.0025, 1.0)
+    fine = pad_mesh(pad, cell=1e-4, extent=1e-3)
+    with pytest.raises(PeerResolutionError, match=r"dt = 0\.0001 s over a contact of 0\.000557 s \(5\.57 steps; "
+                                                  r"at least 20, dt <= 2\.79e-05 s\)"):
+        simulate_impact(fine, 0.0025, 1.0, dt=1e-4)
+
+
+def test_main_prints_the_table(capsys):
+    assert main(["--speeds", "1", "--radii", "0.005", "--steps-per-contact", "100"]) == 0
+    out = capsys.readouterr().out
+    assert f"rho = {FOAM_DENSITY:g} kg/m^3" in out and "within 5%" in out
+    assert "quasi-static within 5% of the dynamic peer on all four measures: R = 5 mm at 1 m/s" in out
+
+
+def test_storm_impact_on_a_block_bundle(box_bundle):
+    """The same impact in the storm (quasi-static Green's functions, restitution 1): an elastic
+    bounce (the exact integrator without dashpot gives the speed back to ~1 %, gravity over the
+    contact aside), its peak force and dent the storm's statistics."""
+    import hailstorm.runtime
+    from hailstorm.studies.dynamic_study import storm_impact
+
+    gf = hailstorm.runtime.load(box_bundle)  # 0.1 x 0.1 x 0.05 m, E = 1 MPa, P1
+    res = storm_impact(gf, 0.006, 2.0, dt=1e-5)
+    assert res.rebound_speed == pytest.approx(2.0, rel=0.01)
+    assert res.peak_force > 0 and res.max_dent > 0 and res.duration > 20 * 1e-5
