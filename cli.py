@@ -51,6 +51,7 @@ def _float(text: str) -> float:
 
 def _parser() -> argparse.ArgumentParser:
     from hailstorm.precompute.fem import DEFAULT_POISSON, DEFAULT_YOUNG  # noqa: PLC0415 (cheap module)
+    from hailstorm.precompute.greens import SOLVER_SPECS
     from hailstorm.precompute.pipeline import DEFAULT_MESH_SIZE
 
     p = argparse.ArgumentParser(
@@ -83,7 +84,7 @@ def _parser() -> argparse.ArgumentParser:
     pre.add_argument("--geometry", type=Path, default=None,
                      help="geometry (.geo/.step/.brep) or tetrahedral mesh (any meshio format) with "
                      "surface groups 'top' and 'clamp' (default: the built-in saddle)")
-    pre.add_argument("--solver", choices=("supernodal", "cholmod", "splu", "amg"), default="supernodal",
+    pre.add_argument("--solver", choices=tuple(SOLVER_SPECS), default=next(iter(SOLVER_SPECS)),
                      help="sparse Cholesky with solves pruned for unit loads read at the surface (default), "
                      "CHOLMOD's general solve, SuperLU, or AMG-preconditioned CG for huge meshes")
     pre.add_argument("--tol", type=_positive_float, default=1e-10, help="relative residual of the AMG solver")
@@ -247,8 +248,9 @@ def _run_storm(args: argparse.Namespace) -> int:
         import json
 
         s = json.loads(paths["summary"].read_text())
-        keys = ("hailstones", "impacts", "max_contact_force", "max_indentation_m", "max_simultaneous_contacts",
-                "steps", "frames", "sim_time_s", "wall_time_s", "real_time_factor", "backend")
+        keys = ("hailstones", "impacts", "max_contact_force_N", "max_indentation_m", "max_simultaneous_contacts",
+                "steps", "frames", "sim_time_s", "wall_time_s", "real_time_factor", "compile_time_s", "setup_time_s",
+                "backend")
         width = max(map(len, keys))
         for k in keys:
             v = s.get(k)

@@ -40,20 +40,10 @@ from hailstorm.precompute.fem import free_dofs
 from hailstorm.precompute.resources import DEFAULT_STORE_BYTES
 from hailstorm.precompute.supernodal import DEFAULT_BATCH, SupernodalSolver
 
-SOLVERS = ("supernodal", "cholmod", "splu", "amg")
-
-#: direct solvers that do not report their factor's nnz(L): :func:`cholesky_nnz` counts a proxy
-PROXY_FILL = frozenset({"cholmod", "splu"})
-
 #: Right-hand sides per triangular solve of the general solvers: measured fastest per column
 #: for cholespy's (simplicial) CHOLMOD solve on the default seat (blocks of 8-32 stay in cache;
 #: 1 is 2x slower, 1024 is 1.8x slower).
 DEFAULT_BLOCK_COLUMNS = 32
-
-
-def solver_batch(solver: str) -> int:
-    """Right-hand sides per triangular solve that ``solver`` is fastest with (measured)."""
-    return DEFAULT_BATCH if solver == "supernodal" else DEFAULT_BLOCK_COLUMNS
 
 
 class _DenseColumns:
@@ -154,22 +144,101 @@ def factorize(A: sp.spmatrix, solver: str = "supernodal", *, near_null: np.ndarr
         Right-hand sides per triangular solve in ``solve_columns`` (default:
         :func:`solver_batch`).
     """
-    if solver not in SOLVERS:
-        raise ValueError(f"unknown solver {solver!r}; choose one of {SOLVERS}")
-    if solver == "amg" and near_null is None:
-        raise ValueError("the AMG solver needs the rigid-body modes (near_null)")
-    batch = solver_batch(solver) if batch is None else int(batch)
-    if solver == "supernodal":
-        return SupernodalSolver(A, batch=batch, threads=threads)
-    made: _DenseColumns
-    if solver == "cholmod":
-        made = _Cholmod(sp.csc_matrix(A))
-    elif solver == "splu":
-        made = _SuperLU(sp.csc_matrix(A))
-    else:
-        made = _AMG(sp.csr_matrix(A), near_null, tol)  # type: ignore[arg-type]
-    made.batch = max(1, batch)
-    return made
+    spec = solver_spec(solver)
+    if spec.needs_near_null and near_null is None:
+        raise ValueError(f"the {spec.title} solver needs the rigid-body modes (near_null)")
+    return spec.build(A, near_null=near_null, tol=tol, threads=threads,
+                      batch=spec.batch if batch is None else int(batch))
+
+
+@dataclass(frozen=True)
+class SolverSpec:
+    """One solver of the registry :data:`SOLVER_SPECS`: its name, its properties and how to build it.
+
+    Attributes
+    ----------
+    name : str
+        What ``build_bundle(solver=...)`` and ``hailstorm precompute --solver`` take.
+    title : str
+        Its name in messages.
+    batch : int
+        Right-hand sides per triangular solve it is fastest with (measured; see
+        :data:`~hailstorm.precompute.supernodal.DEFAULT_BATCH` and :data:`DEFAULT_BLOCK_COLUMNS`).
+    proxy_fill : bool
+        A direct solver that does not report its factor's nnz(L): :func:`cholesky_nnz` counts a proxy.
+    threads : bool
+        Takes ``factorize(threads=...)`` (sweeps at once); the others use their libraries' threads.
+    needs_near_null : bool
+        Needs the rigid-body modes (``near_null``).
+    uses_tol : bool
+        Iterative: solves each column to the relative residual ``tol`` (part of the bundle's key).
+    make : callable
+        ``make(A, near_null, tol, threads, batch)`` -> the solver object.
+    """
+
+    name: str
+    title: str
+    batch: int
+    proxy_fill: bool
+    threads: bool
+    needs_near_null: bool
+    uses_tol: bool
+    make: Callable[..., object]
+
+    def build(self, A: sp.spmatrix, *, near_null: np.ndarray | None = None, tol: float = 1e-10,
+              threads: int | None = None, batch: int | None = None) -> object:
+        """The solver object for the SPD ``A`` (see :func:`factorize`)."""
+        return self.make(A, near_null, tol, threads, self.batch if batch is None else max(1, int(batch)))
+
+
+def _dense(cls: type) -> Callable[..., object]:
+    """``make`` of a :class:`_DenseColumns` solver: built, then given its batch."""
+    def make(A, near_null, tol, threads, batch):
+        made = cls(sp.csr_matrix(A), near_null, tol) if cls is _AMG else cls(sp.csc_matrix(A))
+        made.batch = batch
+        return made
+    return make
+
+
+#: The solvers, by name (the order is the CLI's ``--solver`` choices'; the first is the default).
+SOLVER_SPECS: dict[str, SolverSpec] = {
+    spec.name: spec for spec in (
+        SolverSpec("supernodal", "supernodal", DEFAULT_BATCH, proxy_fill=False, threads=True,
+                   needs_near_null=False, uses_tol=False,
+                   make=lambda A, near_null, tol, threads, batch: SupernodalSolver(A, batch=batch, threads=threads)),
+        SolverSpec("cholmod", "CHOLMOD", DEFAULT_BLOCK_COLUMNS, proxy_fill=True, threads=False,
+                   needs_near_null=False, uses_tol=False, make=_dense(_Cholmod)),
+        SolverSpec("splu", "SuperLU", DEFAULT_BLOCK_COLUMNS, proxy_fill=True, threads=False,
+                   needs_near_null=False, uses_tol=False, make=_dense(_SuperLU)),
+        SolverSpec("amg", "AMG", DEFAULT_BLOCK_COLUMNS, proxy_fill=False, threads=False,
+                   needs_near_null=True, uses_tol=True, make=_dense(_AMG)),
+    )
+}
+
+#: the solver names (kept for callers of the tuple; :data:`SOLVER_SPECS` is the registry)
+SOLVERS = tuple(SOLVER_SPECS)
+
+#: direct solvers that do not report their factor's nnz(L) (kept; :attr:`SolverSpec.proxy_fill`)
+PROXY_FILL = frozenset(name for name, spec in SOLVER_SPECS.items() if spec.proxy_fill)
+
+
+def solver_spec(solver: str) -> SolverSpec:
+    """The registry's entry for the solver name ``solver``.
+
+    Raises
+    ------
+    ValueError
+        Not a solver's name.
+    """
+    try:
+        return SOLVER_SPECS[solver]
+    except (KeyError, TypeError):
+        raise ValueError(f"unknown solver {solver!r}; choose one of {SOLVERS}") from None
+
+
+def solver_batch(solver: str) -> int:
+    """Right-hand sides per triangular solve that ``solver`` is fastest with (measured)."""
+    return solver_spec(solver).batch
 
 
 @dataclass(frozen=True, eq=False)
@@ -207,6 +276,11 @@ class ColumnProblem:
     loads: sp.csc_matrix | None
     read_pos: np.ndarray
     batch: int = DEFAULT_BLOCK_COLUMNS
+
+    @property
+    def spec(self) -> SolverSpec:
+        """The registry's entry of :attr:`solver`."""
+        return solver_spec(self.solver)
 
     @property
     def shape(self) -> tuple[int, int]:
@@ -252,8 +326,7 @@ def column_problem(
     See :func:`compliance_matrix` for the parameters. Raises ``ValueError`` if
     a load dof is clamped.
     """
-    if solver not in SOLVERS:
-        raise ValueError(f"unknown solver {solver!r}; choose one of {SOLVERS}")
+    spec = solver_spec(solver)
     n = K.shape[0]
     free = free_dofs(n, fixed_dofs)
     where = np.full(n, -1, dtype=np.int64)
@@ -269,7 +342,7 @@ def column_problem(
     Kff = K[free][:, free]
     nn = None if near_null is None else near_null[free]
     return ColumnProblem(Kff, solver, tol, nn, load_pos, free_loads, where[np.asarray(read_dofs)],
-                         int(max(1, solver_batch(solver) if batch is None else batch)))
+                         int(max(1, spec.batch if batch is None else batch)))
 
 
 def column_blocks(n_rows: int, ncols: int, block_bytes: int = DEFAULT_STORE_BYTES,

@@ -42,14 +42,13 @@ from hailstorm.precompute.blocks import BlockStore, remove_work_dir, work_dir
 from hailstorm.precompute.cluster import SolveStats, check_scheduler, cluster_client, require_distributed, solve_blocks
 from hailstorm.precompute.greens import (
     DEFAULT_STORE_BYTES,
-    PROXY_FILL,
-    SOLVERS,
     ColumnProblem,
     cholesky_nnz,
     column_blocks,
     column_problem,
     hat_load_matrix,
     lumped_areas,
+    solver_spec,
 )
 from hailstorm.precompute.resources import (
     BASE_BYTES,
@@ -267,8 +266,7 @@ def build_bundle(
         raise ValueError(f"element order must be 1 or 2, got {order!r}")
     if load not in LOADS:
         raise ValueError(f"unknown load {load!r}; choose one of {LOADS}")
-    if solver not in SOLVERS:
-        raise ValueError(f"unknown solver {solver!r}; choose one of {SOLVERS}")
+    spec = solver_spec(solver)
     if not (np.isfinite(tol) and 0 < tol < 1):
         raise ValueError(f"solver tolerance must be in (0, 1), got {tol!r}")
     if not (np.isfinite(mesh_size) and mesh_size > 0):
@@ -313,7 +311,7 @@ def build_bundle(
         "materials": mats.key(),
         "contact_group": contact_group,
         "solver": solver,
-        "tol": tol if solver == "amg" else None,
+        "tol": tol if spec.uses_tol else None,
         "load": load,
     }
     if dtype != "float64":  # float64 adds nothing: the keys of the bundles written before stay valid
@@ -367,7 +365,7 @@ def _compute(out: Path, mesh: TetMesh, surface: Surface, options: dict, key: str
     read = vertex_dofs(basis, surface.nodes).ravel()
     loads = hat_load_matrix(basis, contact_nodes, surface.areas[surface.contactable]) if load == "hat" else None
     near_null = None
-    if solver == "amg":
+    if solver_spec(solver).needs_near_null:
         near_null = _rigid_modes_on_dofs(basis)
     t_assemble = time.perf_counter() - t1
 
@@ -442,7 +440,7 @@ def _stream_compliance(out: Path, problem: ColumnProblem, key: str, progress: bo
     block_solved = 8 * n_rows * (blocks[0][1] - blocks[0][0])  # a block is solved in float64 whatever D's type
     est = estimate_memory(n_dofs, block_solved, 1 if run.scheduler is None and run.workers is None else 2)
     # the nnz(L) count factors K_ff once more here (SuperLU): skipped when that would not fit comfortably
-    count_fill = problem.solver in PROXY_FILL and bool(todo) and 2 * (est - BASE_BYTES) < available_memory()
+    count_fill = problem.spec.proxy_fill and bool(todo) and 2 * (est - BASE_BYTES) < available_memory()
     nnz_l = cholesky_nnz(problem.Kff) if count_fill else None
     log.info("D: %d x %d %s, %s on disk (%d blocks of %d columns, %d to compute); "
              "peak memory about %s%s", n_rows, ncols, run.dtype, gib(d_disk), len(blocks), blocks[0][1] - blocks[0][0],

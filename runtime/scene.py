@@ -129,9 +129,10 @@ class StormEstimate:
         avail = available_memory()
         if avail is not None and self.memory_bytes > MEMORY_FRACTION * avail:
             raise StormTooLarge(f"the storm needs an estimated {_size(self.memory_bytes)} of memory "
-                                f"({self.describe()}), more than this machine has available ({_size(avail)}); "
-                                "lower the duration, the rate or the frame rate, or pass --allow-large "
-                                "(allow_large=True)")
+                                f"({self.describe()}); a storm may use at most {MEMORY_FRACTION:.0%} of the "
+                                f"memory available ({_size(avail)} available now, so at most "
+                                f"{_size(MEMORY_FRACTION * avail)}); lower the duration, the rate or the frame "
+                                "rate, or pass --allow-large (allow_large=True)")
         if self.steps > MAX_STEPS:
             raise StormTooLarge(f"the storm has {self.steps:,} steps ({self.describe()}), more than "
                                 f"{MAX_STEPS:,} (hours of computing); raise dt or lower the duration, "
@@ -244,7 +245,7 @@ class StormSettings(_Section):
     SECTION: ClassVar[str] = "storm"
 
     duration: float = 0.2
-    rate: float = 200.0
+    rate: float = 1000.0
     stones: int | None = None
     seed: int = 0
     spawn_height: float = 0.05

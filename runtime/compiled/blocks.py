@@ -174,38 +174,16 @@ else:
 
 
 @kernel
-def _prefetch_vertices(a, b, c, r):  # pragma: no cover (compiled)
-    """:func:`prefetch` row ``r`` of the three columns of each of three vertices ``a``, ``b``, ``c``."""
-    for x in (a, b, c):
-        prefetch(x[0], r)
-        prefetch(x[1], r)
-        prefetch(x[2], r)
-
-
-@kernel
-def _add_sticky3(d0, d1, d2, rows, wa, a, wb, b, wc, c):  # pragma: no cover (compiled)
-    """``d_e += wa a_e + wb b_e + wc c_e`` at the rows of V (added in that order): three
-    vertices' columns ``a``, ``b``, ``c`` (three rows of ``D.T`` each) in one pass."""
-    a0, a1, a2 = a
-    b0, b1, b2 = b
-    c0, c1, c2 = c
+def _add_sticky(d0, d1, d2, rows, wa, a0, a1, a2):  # pragma: no cover (compiled)
+    """``d_e += wa a_e`` at the rows of V: one vertex's three columns ``a0``, ``a1``, ``a2`` (three
+    rows of ``D.T``), the rows a few vertices ahead asked for first (see :data:`PREFETCH_AHEAD`)."""
     n = rows.size
     for i in range(n):
-        if i + PREFETCH_AHEAD < n:  # ask for the rows a few vertices ahead (see PREFETCH_AHEAD)
-            _prefetch_vertices(a, b, c, rows[i + PREFETCH_AHEAD])
-        r = rows[i]
-        j = 3 * i
-        for o in range(3):
-            d0[j + o] = ((d0[j + o] + wa * a0[r + o]) + wb * b0[r + o]) + wc * c0[r + o]
-            d1[j + o] = ((d1[j + o] + wa * a1[r + o]) + wb * b1[r + o]) + wc * c1[r + o]
-            d2[j + o] = ((d2[j + o] + wa * a2[r + o]) + wb * b2[r + o]) + wc * c2[r + o]
-
-
-@kernel
-def _add_sticky1(d0, d1, d2, rows, wa, a):  # pragma: no cover (compiled)
-    """``d_e += wa a_e`` at the rows of V: one vertex's three columns."""
-    a0, a1, a2 = a
-    for i in range(rows.size):
+        if i + PREFETCH_AHEAD < n:
+            ahead = rows[i + PREFETCH_AHEAD]
+            prefetch(a0, ahead)
+            prefetch(a1, ahead)
+            prefetch(a2, ahead)
         r = rows[i]
         j = 3 * i
         for o in range(3):
@@ -215,44 +193,23 @@ def _add_sticky1(d0, d1, d2, rows, wa, a):  # pragma: no cover (compiled)
 
 
 @kernel
-def _add_normal3(dst, rows, ca, a, cb, b, cc, c):  # pragma: no cover (compiled)
-    """``dst += sum_e ca_e a_e + sum_e cb_e b_e + sum_e cc_e c_e`` at the rows of V, each
-    term added in that order (frictionless: the weights times the normal's components)."""
-    a0, a1, a2 = a
-    b0, b1, b2 = b
-    c0, c1, c2 = c
+def _add_normal(dst, rows, c0, c1, c2, a0, a1, a2):  # pragma: no cover (compiled)
+    """``dst += c0 a0 + c1 a1 + c2 a2`` at the rows of V, each term added in that order
+    (frictionless: the weight times the normal's components), prefetching as :func:`_add_sticky`."""
     n = rows.size
     for i in range(n):
-        if i + PREFETCH_AHEAD < n:  # ask for the rows a few vertices ahead (see PREFETCH_AHEAD)
-            _prefetch_vertices(a, b, c, rows[i + PREFETCH_AHEAD])
+        if i + PREFETCH_AHEAD < n:
+            ahead = rows[i + PREFETCH_AHEAD]
+            prefetch(a0, ahead)
+            prefetch(a1, ahead)
+            prefetch(a2, ahead)
         r = rows[i]
         for o in range(3):
             j = 3 * i + o
             x = dst[j]
-            x += ca[0] * a0[r + o]
-            x += ca[1] * a1[r + o]
-            x += ca[2] * a2[r + o]
-            x += cb[0] * b0[r + o]
-            x += cb[1] * b1[r + o]
-            x += cb[2] * b2[r + o]
-            x += cc[0] * c0[r + o]
-            x += cc[1] * c1[r + o]
-            x += cc[2] * c2[r + o]
-            dst[j] = x
-
-
-@kernel
-def _add_normal1(dst, rows, ca, a):  # pragma: no cover (compiled)
-    """``dst += sum_e ca_e a_e`` at the rows of V (added in that order)."""
-    a0, a1, a2 = a
-    for i in range(rows.size):
-        r = rows[i]
-        for o in range(3):
-            j = 3 * i + o
-            x = dst[j]
-            x += ca[0] * a0[r + o]
-            x += ca[1] * a1[r + o]
-            x += ca[2] * a2[r + o]
+            x += c0 * a0[r + o]
+            x += c1 * a1[r + o]
+            x += c2 * a2[r + o]
             dst[j] = x
 
 
@@ -265,10 +222,9 @@ def constraint_rows(Dt, column_of, V, loc, w, normals, sticky):  # pragma: no co
     Row ``(k, d)`` of ``Y`` is the weighted sum over contact ``k``'s vertices of column
     ``(v, d)`` of D read at the rows of V: ``3 s P`` scattered row reads of ``|V|``
     chunks of three doubles, instead of writing and re-reading the ``(3|V|)^2`` block.
-    The reads are latency-bound, so they are issued three vertices (nine columns of D)
-    per pass over the rows of V: a point contact's whole triangle at once (measured
-    1.2 -> 1.0 ms at s = 100 on the default seat), each entry still summed vertex by
-    vertex in the order of ``loc``.
+    The reads are latency-bound: one vertex (three columns of D) per pass over the rows
+    of V, the rows a few vertices ahead asked for first (:data:`PREFETCH_AHEAD`), each
+    entry summed vertex by vertex in the order of ``loc``.
 
     Parameters
     ----------
@@ -289,38 +245,18 @@ def constraint_rows(Dt, column_of, V, loc, w, normals, sticky):  # pragma: no co
     m = 3 * s if sticky else s
     Y = np.zeros((m, 3 * nV))
     rows = 3 * V
-    live = np.empty(P, np.int64)  # a contact's weighted vertices with a column of D, in order
     for k in range(s):
-        nl = 0
         for p in range(P):
-            if w[k, p] != 0.0 and column_of[V[loc[k, p]]] >= 0:
-                live[nl] = p
-                nl += 1
-        nk = (normals[k, 0], normals[k, 1], normals[k, 2])
-        q = 0
-        while q < nl:
-            wa = w[k, live[q]]
-            ca = 3 * column_of[V[loc[k, live[q]]]]
-            a = (Dt[ca], Dt[ca + 1], Dt[ca + 2])
-            if q + 3 <= nl:
-                wb = w[k, live[q + 1]]
-                cb = 3 * column_of[V[loc[k, live[q + 1]]]]
-                b = (Dt[cb], Dt[cb + 1], Dt[cb + 2])
-                wc = w[k, live[q + 2]]
-                cc = 3 * column_of[V[loc[k, live[q + 2]]]]
-                c = (Dt[cc], Dt[cc + 1], Dt[cc + 2])
-                if sticky:
-                    _add_sticky3(Y[3 * k], Y[3 * k + 1], Y[3 * k + 2], rows, wa, a, wb, b, wc, c)
-                else:
-                    _add_normal3(Y[k], rows, (wa * nk[0], wa * nk[1], wa * nk[2]), a,
-                                 (wb * nk[0], wb * nk[1], wb * nk[2]), b, (wc * nk[0], wc * nk[1], wc * nk[2]), c)
-                q += 3
+            wa = w[k, p]
+            cb = column_of[V[loc[k, p]]]
+            if wa == 0.0 or cb < 0:
+                continue
+            ca = 3 * cb
+            if sticky:
+                _add_sticky(Y[3 * k], Y[3 * k + 1], Y[3 * k + 2], rows, wa, Dt[ca], Dt[ca + 1], Dt[ca + 2])
             else:
-                if sticky:
-                    _add_sticky1(Y[3 * k], Y[3 * k + 1], Y[3 * k + 2], rows, wa, a)
-                else:
-                    _add_normal1(Y[k], rows, (wa * nk[0], wa * nk[1], wa * nk[2]), a)
-                q += 1
+                _add_normal(Y[k], rows, wa * normals[k, 0], wa * normals[k, 1], wa * normals[k, 2], Dt[ca],
+                            Dt[ca + 1], Dt[ca + 2])
     return Y
 
 

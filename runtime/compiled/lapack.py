@@ -1,65 +1,77 @@
-"""Dense linear algebra inside compiled code: LAPACK called directly.
+"""Dense linear algebra inside compiled code: SciPy's LAPACK and BLAS called directly.
 
 numba's ``np.linalg.solve`` copies its right-hand side in with a slice assignment,
 which compiles numba's shape-error formatting (string conversions, concatenation:
 ~3.5 s of a first run's compile, for a message that this copy can never raise).
-:func:`solve` makes the same LAPACK call (numba's own ``numba_xgesv`` entry, which
-calls SciPy's ``dgesv``) on the same column-major copies, filled by loops, so its
-result is ``np.linalg.solve``'s bit for bit and its errors are the same
-(``LinAlgError`` for a non-finite input or a singular matrix).
+:func:`solve` makes the same LAPACK call (``dgesv``, the routine numba's own
+``np.linalg.solve`` reaches) on the same column-major copies, filled by loops, so
+its errors are the same (``LinAlgError`` for a non-finite input or a singular
+matrix) and its result is that routine's on that data.
 
 :func:`cholesky`, :func:`inverse` and :func:`eigh` do the same for
-``np.linalg.cholesky``, ``np.linalg.inv`` and ``np.linalg.eigh`` (numba's
-``numba_xxpotrf``, ``numba_xxgetrf`` / ``numba_ez_xxgetri`` and
-``numba_ez_xxxevd`` entries, on the copies numba's own versions make): the same
-results bit for bit, without their input checks' compile cost (the storm's SPD
-inverse, :func:`hailstorm.runtime.compiled.contacts.inv_spd`, checks its input once).
+``np.linalg.cholesky``, ``np.linalg.inv`` and ``np.linalg.eigh`` (``dpotrf``,
+``dgetrf`` / ``dgetri`` and ``dsyevd`` with LAPACK's own workspace query, on the
+copies numba's own versions make), without their input checks' compile cost (the
+storm's SPD inverse, :func:`hailstorm.runtime.compiled.contacts.inv_spd`, checks
+its input once); :func:`gram` and :func:`gemm` call BLAS ``dgemm``.
+
+The interface is a documented one: SciPy publishes its LAPACK and BLAS as
+``scipy.linalg.cython_lapack`` / ``cython_blas``; each routine's address comes from
+``numba.extending.get_cython_function_address`` and is registered for numba's
+linker under a ``hailstorm_`` name with ``llvmlite.binding.add_symbol``; the kernels
+call it as an external function of that name (``numba.types.ExternalFunction``),
+with the Fortran calling convention (every argument by pointer, ``int`` integers,
+one-byte characters). Not ``ctypes.CFUNCTYPE``: numba bakes a ctypes function's
+address into the machine code, and a kernel holding a process's address cannot be
+cached on disk ("uses dynamic globals"): every caller would compile again in every
+process. A symbol is resolved when the cached code is loaded (this module, imported
+by every caller, registers them first).
 """
 
 from __future__ import annotations
 
+import llvmlite.binding as llvm
 import numpy as np
 from numba import types
-from numba.np.linalg import F_INT_nbtype, F_INT_nptype
+from numba.extending import get_cython_function_address
 
 from hailstorm.runtime.compiled.jit import kernel
 
 __all__ = ["cholesky", "eigh", "gemm", "gram", "inverse", "solve"]
 
-#: numba's LAPACK shim (``numba/_lapack.c``): ``xgesv(kind, n, nrhs, a, lda, ipiv, b, ldb)`` -> info
-_xgesv = types.ExternalFunction("numba_xgesv", types.intc(
-    types.char, types.intp, types.intp, types.CPointer(types.float64), types.intp,
-    types.CPointer(F_INT_nbtype), types.CPointer(types.float64), types.intp))
+_I = types.CPointer(types.int32)  # Fortran INTEGER (SciPy's cython_lapack: C int)
+_D = types.CPointer(types.float64)
+_C = types.CPointer(types.uint8)  # Fortran CHARACTER*1
 
-#: ``xxpotrf(kind, uplo, n, a, lda)`` -> info (Cholesky)
-_xxpotrf = types.ExternalFunction("numba_xxpotrf", types.intc(
-    types.char, types.char, types.intp, types.CPointer(types.float64), types.intp))
-#: ``xxgetrf(kind, m, n, a, lda, ipiv)`` -> info (LU)
-_xxgetrf = types.ExternalFunction("numba_xxgetrf", types.intc(
-    types.char, types.intp, types.intp, types.CPointer(types.float64), types.intp, types.CPointer(F_INT_nbtype)))
-#: ``ez_xxgetri(kind, n, a, lda, ipiv)`` -> info (inverse from the LU)
-_xxgetri = types.ExternalFunction("numba_ez_xxgetri", types.intc(
-    types.char, types.intp, types.CPointer(types.float64), types.intp, types.CPointer(F_INT_nbtype)))
-#: ``ez_xxxevd(kind, jobz, uplo, n, a, lda, w)`` -> info (symmetric eigendecomposition)
-_xxxevd = types.ExternalFunction("numba_ez_xxxevd", types.intc(
-    types.char, types.char, types.char, types.intp, types.CPointer(types.float64), types.intp,
-    types.CPointer(types.float64)))
-#: BLAS ``xxgemm(kind, transa, transb, m, n, k, alpha, a, lda, b, ldb, beta, c, ldc)`` -> status
-_F64P = types.CPointer(types.float64)
-_xxgemm = types.ExternalFunction("numba_xxgemm", types.intc(
-    types.char, types.char, types.char, types.intp, types.intp, types.intp, _F64P, _F64P, types.intp,
-    _F64P, types.intp, _F64P, _F64P, types.intp))
+
+def _external(module: str, name: str, *args: types.Type) -> types.ExternalFunction:
+    """SciPy's ``module.name`` as a numba external function ``hailstorm_<name>`` (void, ``args``)."""
+    symbol = "hailstorm_" + name
+    llvm.add_symbol(symbol, get_cython_function_address(module, name))
+    return types.ExternalFunction(symbol, types.void(*args))
+
+
+_LAPACK, _BLAS = "scipy.linalg.cython_lapack", "scipy.linalg.cython_blas"
+#: ``dgesv(n, nrhs, a, lda, ipiv, b, ldb, info)``
+_dgesv = _external(_LAPACK, "dgesv", _I, _I, _D, _I, _I, _D, _I, _I)
+#: ``dpotrf(uplo, n, a, lda, info)`` (Cholesky)
+_dpotrf = _external(_LAPACK, "dpotrf", _C, _I, _D, _I, _I)
+#: ``dgetrf(m, n, a, lda, ipiv, info)`` (LU)
+_dgetrf = _external(_LAPACK, "dgetrf", _I, _I, _D, _I, _I, _I)
+#: ``dgetri(n, a, lda, ipiv, work, lwork, info)`` (inverse from the LU)
+_dgetri = _external(_LAPACK, "dgetri", _I, _D, _I, _I, _D, _I, _I)
+#: ``dsyevd(jobz, uplo, n, a, lda, w, work, lwork, iwork, liwork, info)`` (symmetric eigendecomposition)
+_dsyevd = _external(_LAPACK, "dsyevd", _C, _C, _I, _D, _I, _D, _D, _I, _I, _I, _I)
+#: ``dgemm(transa, transb, m, n, k, alpha, a, lda, b, ldb, beta, c, ldc)``
+_dgemm = _external(_BLAS, "dgemm", _C, _C, _I, _I, _I, _D, _D, _I, _D, _I, _D, _D, _I)
 _UP, _LO, _VECTORS = ord("U"), ord("L"), ord("V")
 _TRANS, _NOTRANS = ord("t"), ord("n")
-
-#: LAPACK's type letter for float64
-_KIND = ord("d")
 
 
 @kernel
 def solve(A, b):  # pragma: no cover (compiled)
     """``np.linalg.solve(A, b)`` for a float64 (n, n) ``A`` and (n,) ``b`` (LU with partial
-    pivoting, LAPACK ``dgesv``: the same call on the same data, the same result).
+    pivoting, LAPACK ``dgesv`` on the column-major copy numba's solve makes).
 
     Raises
     ------
@@ -83,8 +95,12 @@ def solve(A, b):  # pragma: no cover (compiled)
             at[j, i] = A[i, j]
     for i in range(n):
         x[i] = b[i]
-    ipiv = np.empty(n, F_INT_nptype)
-    info = _xgesv(_KIND, n, 1, at.ctypes, n, ipiv.ctypes, x.ctypes, n)
+    iv = np.empty(3, np.int32)  # n (also lda, ldb), nrhs, info
+    iv[0], iv[1] = n, 1
+    ipiv = np.empty(n, np.int32)
+    _dgesv(iv[0:].ctypes, iv[1:].ctypes, at.ctypes, iv[0:].ctypes, ipiv.ctypes, x.ctypes, iv[0:].ctypes,
+           iv[2:].ctypes)
+    info = iv[2]
     if info < 0:
         raise ValueError("LAPACK dgesv: an illegal argument")
     if info > 0:
@@ -94,9 +110,9 @@ def solve(A, b):  # pragma: no cover (compiled)
 
 @kernel
 def cholesky(A):  # pragma: no cover (compiled)
-    """``np.linalg.cholesky(A)`` of a finite symmetric float64 (n, n) ``A``, bit for bit, and
-    whether ``A`` is positive definite (``L, ok``; ``L`` is meaningless when not ``ok``).
-    The caller checks finiteness."""
+    """``np.linalg.cholesky(A)`` of a finite symmetric float64 (n, n) ``A`` (LAPACK ``dpotrf``
+    as numba calls it), and whether ``A`` is positive definite (``L, ok``; ``L`` is meaningless
+    when not ``ok``). The caller checks finiteness."""
     n = A.shape[0]
     out = np.empty((n, n))
     for i in range(n):
@@ -105,7 +121,12 @@ def cholesky(A):  # pragma: no cover (compiled)
     if n == 0:
         return out, True
     # numba's cholesky: UP on the C-ordered copy (it is its own transpose in F order)
-    info = _xxpotrf(_KIND, _UP, n, out.ctypes, n)
+    iv = np.empty(2, np.int32)  # n (also lda), info
+    iv[0] = n
+    uplo = np.empty(1, np.uint8)
+    uplo[0] = _UP
+    _dpotrf(uplo.ctypes, iv[0:].ctypes, out.ctypes, iv[0:].ctypes, iv[1:].ctypes)
+    info = iv[1]
     if info < 0:
         raise ValueError("LAPACK dpotrf: an illegal argument")
     for col in range(n):
@@ -127,8 +148,9 @@ def _fortran_copy(A):  # pragma: no cover (compiled)
 
 @kernel
 def inverse(A):  # pragma: no cover (compiled)
-    """``np.linalg.inv(A)`` of a finite float64 (n, n) ``A``, bit for bit (a Fortran-ordered
-    array, as numba's). The caller checks finiteness.
+    """``np.linalg.inv(A)`` of a finite float64 (n, n) ``A`` (LAPACK ``dgetrf`` and ``dgetri``
+    with its workspace query, as numba's; a Fortran-ordered array, as numba's). The caller
+    checks finiteness.
 
     Raises
     ------
@@ -139,23 +161,32 @@ def inverse(A):  # pragma: no cover (compiled)
     acpy = _fortran_copy(A)  # as numba's inv copies
     if n == 0:
         return acpy
-    ipiv = np.empty(n, F_INT_nptype)
-    info = _xxgetrf(_KIND, n, n, acpy.ctypes, n, ipiv.ctypes)
-    if info < 0:
+    iv = np.empty(3, np.int32)  # n (also m, lda), lwork, info
+    iv[0] = n
+    ipiv = np.empty(n, np.int32)
+    _dgetrf(iv[0:].ctypes, iv[0:].ctypes, acpy.ctypes, iv[0:].ctypes, ipiv.ctypes, iv[2:].ctypes)
+    if iv[2] < 0:
         raise ValueError("LAPACK dgetrf: an illegal argument")
-    if info > 0:
+    if iv[2] > 0:
         raise np.linalg.LinAlgError("Matrix is singular to machine precision.")
-    info = _xxgetri(_KIND, n, acpy.ctypes, n, ipiv.ctypes)
-    if info != 0:
+    query = np.empty(1)
+    iv[1] = -1  # workspace query: the optimal lwork comes back in work[0]
+    _dgetri(iv[0:].ctypes, acpy.ctypes, iv[0:].ctypes, ipiv.ctypes, query.ctypes, iv[1:].ctypes, iv[2:].ctypes)
+    iv[1] = max(1, int(query[0]))
+    work = np.empty(iv[1])
+    _dgetri(iv[0:].ctypes, acpy.ctypes, iv[0:].ctypes, ipiv.ctypes, work.ctypes, iv[1:].ctypes, iv[2:].ctypes)
+    if iv[2] < 0:
+        raise ValueError("LAPACK dgetri: an illegal argument")
+    if iv[2] > 0:
         raise np.linalg.LinAlgError("Matrix is singular to machine precision.")
     return acpy
 
 
 @kernel
 def eigh(A):  # pragma: no cover (compiled)
-    """``np.linalg.eigh(A)`` of a finite symmetric float64 (n, n) ``A``, bit for bit:
-    ascending eigenvalues and the eigenvectors (columns, Fortran-ordered). The caller
-    checks finiteness.
+    """``np.linalg.eigh(A)`` of a finite symmetric float64 (n, n) ``A`` (LAPACK ``dsyevd``,
+    lower triangle, with its workspace query, as numba's): ascending eigenvalues and the
+    eigenvectors (columns, Fortran-ordered). The caller checks finiteness.
 
     Raises
     ------
@@ -167,27 +198,50 @@ def eigh(A):  # pragma: no cover (compiled)
     w = np.empty(n)
     if n == 0:
         return w, acpy
-    info = _xxxevd(_KIND, _VECTORS, _LO, n, acpy.ctypes, n, w.ctypes)
-    if info != 0:
+    iv = np.empty(4, np.int32)  # n (also lda), lwork, liwork, info
+    iv[0], iv[1], iv[2] = n, -1, -1  # workspace query first
+    ch = np.empty(2, np.uint8)
+    ch[0], ch[1] = _VECTORS, _LO
+    query = np.empty(1)
+    iquery = np.empty(1, np.int32)
+    _dsyevd(ch[0:].ctypes, ch[1:].ctypes, iv[0:].ctypes, acpy.ctypes, iv[0:].ctypes, w.ctypes, query.ctypes,
+            iv[1:].ctypes, iquery.ctypes, iv[2:].ctypes, iv[3:].ctypes)
+    if iv[3] == 0:
+        iv[1], iv[2] = max(1, int(query[0])), max(1, iquery[0])
+        work = np.empty(iv[1])
+        iwork = np.empty(iv[2], np.int32)
+        _dsyevd(ch[0:].ctypes, ch[1:].ctypes, iv[0:].ctypes, acpy.ctypes, iv[0:].ctypes, w.ctypes, work.ctypes,
+                iv[1:].ctypes, iwork.ctypes, iv[2:].ctypes, iv[3:].ctypes)
+    if iv[3] != 0:
         raise ValueError("Internal algorithm failed to converge.")
     return w, acpy
 
 
 @kernel
+def _dgemm_call(ta, tb, m, n, k, alpha, A, lda, B, ldb, beta, C, ldc):  # pragma: no cover (compiled)
+    """BLAS ``dgemm`` with ``ta`` / ``tb`` the transpose letters (``_TRANS`` / ``_NOTRANS``) and the
+    scalars passed by value (copied to the pointers Fortran takes)."""
+    ch = np.empty(2, np.uint8)
+    ch[0], ch[1] = ta, tb
+    iv = np.empty(6, np.int32)  # m, n, k, lda, ldb, ldc
+    iv[0], iv[1], iv[2], iv[3], iv[4], iv[5] = m, n, k, lda, ldb, ldc
+    ab = np.empty(2)
+    ab[0], ab[1] = alpha, beta
+    _dgemm(ch[0:].ctypes, ch[1:].ctypes, iv[0:].ctypes, iv[1:].ctypes, iv[2:].ctypes, ab[0:].ctypes, A.ctypes,
+           iv[3:].ctypes, B.ctypes, iv[4:].ctypes, ab[1:].ctypes, C.ctypes, iv[5:].ctypes)
+
+
+@kernel
 def gram(A):  # pragma: no cover (compiled)
-    """``A.T @ A`` of a Fortran-ordered float64 (n, n) ``A`` (what :func:`inverse` returns), bit
-    for bit numba's matmul: the same ``dgemm`` call on the same buffer, a C-ordered result."""
+    """``A.T @ A`` of a Fortran-ordered float64 (n, n) ``A`` (what :func:`inverse` returns): the
+    ``dgemm`` call numba's matmul makes on the same buffer, a C-ordered result."""
     n = A.shape[0]
     out = np.empty((n, n))
     if n == 0:
         return out
-    one = np.ones(1)
-    zero = np.zeros(1)
     # numba's dot_2_mm for x = A.T (C layout) @ y = A (F layout) into C: transa 't' on y, transb 'n'
     # on x, both the same buffer with leading dimension n
-    if _xxgemm(_KIND, _TRANS, _NOTRANS, n, n, n, one.ctypes, A.ctypes, n, A.ctypes, n, zero.ctypes,
-               out.ctypes, n) != 0:
-        raise ValueError("BLAS dgemm failed")
+    _dgemm_call(_TRANS, _NOTRANS, n, n, n, 1.0, A, n, A, n, 0.0, out, n)
     return out
 
 
@@ -200,11 +254,5 @@ def gemm(transa, transb, m, n, k, alpha, A, lda, B, ldb, beta, C, ldc):  # pragm
     transpose where ``transa`` / ``transb`` is true. C is (m, n) with leading
     dimension ``ldc``; nothing is checked.
     """
-    ab = np.empty(2)
-    ab[0] = alpha
-    ab[1] = beta
-    ta = _TRANS if transa else _NOTRANS
-    tb = _TRANS if transb else _NOTRANS
-    if _xxgemm(_KIND, ta, tb, m, n, k, ab[0:].ctypes, A.ctypes, lda, B.ctypes, ldb, ab[1:].ctypes,
-               C.ctypes, ldc) != 0:
-        raise ValueError("BLAS dgemm failed")
+    _dgemm_call(_TRANS if transa else _NOTRANS, _TRANS if transb else _NOTRANS, m, n, k, alpha, A, lda, B, ldb,
+                beta, C, ldc)

@@ -40,6 +40,7 @@ from hailstorm.runtime.output.render import write_animation
 
 __all__ = [
     "STORM_MANIFEST",
+    "SUMMARY_UNITS",
     "FrameSeries",
     "OutputError",
     "ParaviewSeries",
@@ -96,6 +97,28 @@ def _seat_of(gf: Any) -> dict[str, Any] | None:
     return seat
 
 
+#: the unit of each figure of ``summary.json`` (also written into it, as ``units``): SI units,
+#: ``"count"`` for counts, ``"1"`` for dimensionless ratios, None for text and settings
+SUMMARY_UNITS: dict[str, str | None] = {
+    "hailstones": "count", "impacts": "count", "stones_hit": "count", "max_contact_force": "N",
+    "max_contact_force_N": "N", "max_indentation_m": "m", "max_simultaneous_contacts": "count",
+    "max_penetration_m": "m", "steps": "count", "substeps": "count", "capacitance_rebuilds": "count",
+    "wall_contacts": "count", "retired": "count", "max_penetration_contact_m": "m", "max_penetration_free_m": "m",
+    "max_penetration_contact_rel": "1", "patch": None, "patch_weights_computed": "count",
+    "patch_weights_reused": "count", "patch_resizes": "count", "max_patch_radius_m": "m",
+    "mean_penetration_contact_m": "m", "sim_time_s": "s", "wall_time_s": "s", "setup_time_s": "s",
+    "compile_time_s": "s", "backend": None, "real_time_factor": "1", "seed": None, "dt": "s", "integrator": None,
+    "mode": None, "restitution": "1", "n_vertices": "count", "n_triangles": "count", "resting_at_end": "count",
+    "frames": "count", "output_time_s": "s",
+    # the validity limits (hailstorm.runtime.storm.limits)
+    "impacts_beyond_indentation_limit": "count", "impacts_beyond_radius_limit": "count",
+    "impacts_beyond_strain_limit": "count", "impacts_beyond_any_limit": "count",
+    "max_indentation_thickness_ratio": "1", "max_contact_radius_ratio": "1", "max_strain_ratio": "1",
+    "min_impact_thickness_m": "m", "limit_indentation_thickness_ratio": "1", "limit_contact_radius_ratio": "1",
+    "limit_strain_ratio": "1",
+}
+
+
 def summary(result: Any, gf: Any = None) -> dict[str, Any]:
     """The summary as a dict (what :func:`write_summary` writes).
 
@@ -112,8 +135,11 @@ def summary(result: Any, gf: Any = None) -> dict[str, Any]:
     were recorded),
     ``real_time_factor`` (simulated / wall-clock time; > 1 is faster than real
     time), ``setup_time_s`` (building the storm: spatial index, spawn plan,
-    loading the compiled kernels), ``backend``, ``seed``, ``dt``,
-    ``integrator``, ``mode``, and the scene. The validity limits
+    loading the compiled kernels), ``compile_time_s`` (the one-time compile of
+    the kernels, the first run after an install; 0 when they were loaded),
+    ``backend``, ``seed``, ``dt``, ``integrator``, ``mode``, and the scene;
+    ``max_contact_force_N`` (the same figure as ``max_contact_force``, its unit
+    in its name) and ``units``, each key's unit (:data:`SUMMARY_UNITS`). The validity limits
     (:mod:`hailstorm.runtime.storm.limits`, docs/validity.md):
     ``impacts_beyond_indentation_limit``, ``impacts_beyond_radius_limit``,
     ``impacts_beyond_strain_limit``, ``impacts_beyond_any_limit`` (impacts whose
@@ -137,6 +163,9 @@ def summary(result: Any, gf: Any = None) -> dict[str, Any]:
         path and key. Without it the scene has no ``[seat]``.
     """
     d = dict(result.stats)
+    if "max_contact_force" in d:
+        d["max_contact_force_N"] = d["max_contact_force"]  # the old key stays (the contract), this one names its unit
+    d["units"] = {k: SUMMARY_UNITS.get(k) for k in d}
     d["scene"] = result.scene.to_dict()
     seat = _seat_of(gf) if gf is not None else None
     if seat is not None:

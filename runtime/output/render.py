@@ -8,11 +8,13 @@ Each frame (:class:`StormRenderer`, 1280 x 720 pixels by default) shows
   grey), with the colour bar naming the quantity and its unit;
 * the seat **seen from the side** (its silhouette, looking along +y);
 * the stones in both views as circles of their true radius in data units
-  (both views have equal axis scales, and the same metres per pixel), edged
-  in orange while they press on the seat;
-* the time, and the number of stones in view: those whose sphere intersects
+  (both views have equal axis scales, and the same metres per pixel), filled
+  and edged in orange while they press on the seat;
+* the time, the number of stones in view: those whose sphere intersects
   the view box (:func:`view_box`, the region both views show; :func:`in_view`),
-  which are exactly the stones drawn;
+  which are exactly the stones drawn, and the time scale of the playback (how
+  many times slower than real time, :func:`playback_slowdown`: an impact lasts
+  about a millisecond, so the video is a slow motion);
 * the total contact force on the seat against time, up to the frame's
   instant (from :attr:`hailstorm.runtime.storm.driver.StormResult.history`, one value
   per time step, so that impacts shorter than a frame interval show; its last
@@ -47,6 +49,7 @@ __all__ = [
     "StormRenderer",
     "display_unit",
     "in_view",
+    "playback_slowdown",
     "seen_from_above",
     "shown_displacement",
     "total_force",
@@ -68,6 +71,7 @@ VIEW_ABOVE = 0.06
 _SKY = "#c9d3dd"  # background: a stormy grey-blue, so that the white stones show
 _ICE = "#f4f8fc"  # hailstones
 _PRESS = "#ff7f0e"  # the edge of a stone in contact
+_PRESS_FACE = (1.0, 0.50, 0.05, 0.55)  # and its fill
 _BELOW = "#8d949c"  # the seat where |u| is below the colour scale
 _SEAT = "#5b636b"  # the seat's silhouette in the side view
 
@@ -349,6 +353,7 @@ class StormRenderer:
         self.stones_drawn = []
         show = self.in_view(frame)
         self.n_in_view = int(show.sum())
+        self.n_pressing = 0
         if not self.n_in_view:
             return
         pos = np.asarray(frame.positions, dtype=np.float64).reshape(-1, 3)[show]
@@ -357,11 +362,14 @@ class StormRenderer:
         pressing = (np.linalg.norm(np.asarray(f).reshape(-1, 3)[show], axis=1) > 0 if f is not None
                     else np.zeros(r.size, bool))
         edges = np.where(pressing, _PRESS, "#ffffff")
-        widths = np.where(pressing, 1.6, 0.8)
+        widths = np.where(pressing, 2.4, 0.8)
+        self.n_pressing = int(pressing.sum())
         for ax, k, face in ((self.ax_plan, 1, (0.96, 0.97, 0.99, 0.45)), (self.ax_side, 2, _ICE)):
             # side view: the nearest stones on top (viewed along +y: small y is near)
             order = np.argsort(-pos[:, 1]) if k == 2 else np.argsort(pos[:, 2])
-            pc = PatchCollection([Circle((pos[i, 0], pos[i, k]), r[i]) for i in order], facecolors=face,
+            # a stone pressing on the seat is filled with the contact colour: visible at a glance
+            faces = [_PRESS_FACE if pressing[i] else face for i in order]
+            pc = PatchCollection([Circle((pos[i, 0], pos[i, k]), r[i]) for i in order], facecolors=faces,
                                  edgecolors=edges[order], linewidths=widths[order], zorder=3, animated=True)
             ax.add_collection(pc)
             self.stones_drawn.append(pc)
@@ -388,7 +396,7 @@ class StormRenderer:
                 self._background = None  # the axis changed: redraw the static parts
         return np.append(ts, t), np.append(fs, now), now
 
-    def render(self, frame: Any, *, alpha: bool = False) -> np.ndarray:
+    def render(self, frame: Any, *, alpha: bool = False, slowdown: float | None = None) -> np.ndarray:
         """Draw one frame.
 
         Parameters
@@ -397,6 +405,9 @@ class StormRenderer:
         alpha : bool
             Return RGBA (a plain copy of the canvas: cheaper than dropping the
             alpha channel, which is what the video writer takes).
+        slowdown : float, optional
+            How many times slower than real time the video plays at this frame
+            (:func:`playback_slowdown`), shown in the caption.
 
         Returns
         -------
@@ -417,7 +428,7 @@ class StormRenderer:
         self.force_title.set_text("total contact force: not recorded" if now is None
                                   else f"total contact force  {now:7.2f} N")
         self.caption.set_text(f"t = {frame.t * 1e3:7.1f} ms    stones in view {self.n_in_view:3d}    "
-                              f"in contact {int(frame.contacts):3d}")
+                              f"in contact {int(frame.contacts):3d}" + _slowdown_text(slowdown))
         if self._background is None:
             self.canvas.draw()  # the static parts (animated artists are skipped)
             self._background = self.canvas.copy_from_bbox(self.fig.bbox)
@@ -427,6 +438,26 @@ class StormRenderer:
             self.fig.draw_artist(a)
         buf = np.asarray(self.canvas.buffer_rgba())
         return buf.copy() if alpha else buf[..., :3].copy()
+
+
+def playback_slowdown(times: np.ndarray, fps: float) -> np.ndarray:
+    """How many times slower than real time a video plays frames recorded at ``times`` [s] at
+    ``fps`` frames per second: ``1 / (fps * interval)``, with the interval since the previous
+    frame (the span a frame's peak displacement covers); NaN for the first frame and for a
+    zero interval."""
+    t = np.asarray(times, dtype=np.float64).reshape(-1)
+    gap = np.diff(t, prepend=np.nan)
+    ok = gap > 0
+    return np.where(ok, 1.0 / (float(fps) * np.where(ok, gap, 1.0)), np.nan)
+
+
+def _slowdown_text(slowdown: float | None) -> str:
+    """The caption's time scale: ``"    12.5x slower than real time"`` (empty when unknown)."""
+    if slowdown is None or not np.isfinite(slowdown):
+        return ""
+    if slowdown >= 1.0:
+        return f"    playback {slowdown:.3g}x slower than real time"
+    return f"    playback {1.0 / slowdown:.3g}x faster than real time"
 
 
 def seen_from_above(vertices: np.ndarray, triangles: np.ndarray, lo: np.ndarray, hi: np.ndarray, nx: int,
@@ -600,6 +631,10 @@ def write_animation(
         from tqdm.auto import tqdm
 
         it = tqdm(idx, desc="render", unit="frame", leave=False)
+    t_prev = np.nan
     for i in it:
-        video.append(renderer.render(frames[int(i)], alpha=True))
+        frame = frames[int(i)]
+        slow = playback_slowdown(np.array([t_prev, float(frame.t)]), fps)[1]  # the time scale on screen
+        video.append(renderer.render(frame, alpha=True, slowdown=float(slow)))
+        t_prev = float(frame.t)
     return video.close()

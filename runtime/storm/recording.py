@@ -113,6 +113,7 @@ class StormStats(Mapping):
     sim_time_s: float = 0.0
     wall_time_s: float = 0.0
     setup_time_s: float = 0.0
+    compile_time_s: float = 0.0
     backend: str = "numba"
     real_time_factor: float = 0.0
     seed: int = 0

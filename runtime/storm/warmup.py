@@ -19,11 +19,22 @@ dict). If a helper cannot start, fails or times out, this process simply
 compiles its tasks too (the result is the same; only slower). Nothing is
 spawned when every kernel is cached, under ``NUMBA_DISABLE_JIT=1``, or with
 ``HAILSTORM_COMPILE_WORKERS=1``.
+
+A task's seconds are measured, never typed in (:func:`measured_seconds`): each cold
+compile records its CPU seconds in ``compile_seconds.json`` in hailstorm's cache
+directory (this machine's figures, used by the next compile, e.g. after an
+upgrade); before any compile on this machine, the packaged measurement
+(:mod:`hailstorm.runtime.storm.compile_seconds`, written by
+``tests/benchmarks/compile_time.py --write``). The announcement states a range
+scaled by the machine's load (:func:`estimate_text`): numba compiles on one
+thread, so a loaded machine stretches the wall time.
 """
 
 from __future__ import annotations
 
+import json
 import logging
+import math
 import os
 import pickle
 import subprocess
@@ -36,7 +47,9 @@ from typing import Any, Callable, Sequence
 import numba
 from numba.core import event
 
-__all__ = ["WORKERS_ENV", "HelperSpec", "WarmReport", "WarmTask", "compile_workers", "plan", "run_helper", "warm_up"]
+__all__ = ["RECORD_NAME", "WORKERS_ENV", "HelperSpec", "WarmReport", "WarmTask", "compile_workers", "estimate_text",
+           "load_factor", "measured_seconds", "plan", "record_seconds", "run_helper", "warm_up",
+           "write_packaged_seconds"]
 
 _log = logging.getLogger(__name__)
 
@@ -57,9 +70,9 @@ class WarmTask:
     ----------
     name : str
         What they are, for the announcement (``"the narrow-phase kernels"``).
-    seconds : float
-        CPU seconds their first compile takes in a fresh process (measured with
-        ``HAILSTORM_COMPILE_WORKERS=1 tests/benchmarks/compile_time.py``); plans the split and is announced.
+    seconds : float or None
+        CPU seconds their first compile takes in a fresh process, measured
+        (:func:`measured_seconds`), or None when never measured; plans the split and is announced.
     run : callable
         Calls the kernels with the storm loop's argument types.
     shares : str
@@ -70,7 +83,7 @@ class WarmTask:
     """
 
     name: str
-    seconds: float
+    seconds: float | None
     run: Callable[[], None]
     shares: str = ""
 
@@ -149,12 +162,119 @@ def plan(tasks: Sequence[WarmTask], workers: int, startup: float = HELPER_STARTU
     units: dict[object, list[int]] = {}
     for i, task in enumerate(tasks):
         units.setdefault(task.shares or i, []).append(i)
-    order = sorted(units.values(), key=lambda u: (0 not in u, -sum(tasks[i].seconds for i in u)))
+    weight = _weights(tasks)
+    order = sorted(units.values(), key=lambda u: (0 not in u, -sum(weight[i] for i in u)))
     for unit in order:
         w = 0 if 0 in unit else min(range(len(loads)), key=lambda k: (loads[k], k))
         parts[w].extend(unit)
-        loads[w] += sum(tasks[i].seconds for i in unit)
+        loads[w] += sum(weight[i] for i in unit)
     return [sorted(p) for p in parts if p or p is parts[0]]
+
+
+def _weights(tasks: Sequence[WarmTask]) -> list[float]:
+    """Each task's planning weight: its measured seconds, or (never measured) the median of the
+    measured ones (1 s when none is)."""
+    known = sorted(t.seconds for t in tasks if t.seconds is not None)
+    fill = known[len(known) // 2] if known else 1.0
+    return [t.seconds if t.seconds is not None else fill for t in tasks]
+
+
+#: this machine's record of the tasks' measured compile seconds, in hailstorm's cache directory
+RECORD_NAME = "compile_seconds.json"
+
+
+def _record_path() -> Any:
+    from hailstorm.runtime.bundle.stamps import default_cache_dir
+
+    return default_cache_dir() / RECORD_NAME
+
+
+def _read_record() -> dict[str, float]:
+    try:
+        data = json.loads(_record_path().read_text())
+        return {str(k): float(v) for k, v in data.get("cpu_s", {}).items() if math.isfinite(float(v)) and v > 0}
+    except (OSError, ValueError, TypeError, AttributeError):
+        return {}
+
+
+def measured_seconds(name: str) -> float | None:
+    """CPU seconds of task ``name``'s cold compile in one process: this machine's last measured
+    compile (:func:`record_seconds`), else the packaged measurement
+    (:data:`hailstorm.runtime.storm.compile_seconds.CPU_S`), else None (never measured)."""
+    from hailstorm.runtime.storm.compile_seconds import CPU_S
+
+    here = _read_record()
+    return here.get(name, CPU_S.get(name))
+
+
+def record_seconds(cpu: dict[str, float]) -> None:
+    """Merge the measured CPU seconds of tasks that compiled into this machine's record
+    (written atomically; a record that cannot be written is skipped, said at debug level)."""
+    if not cpu:
+        return
+    from hailstorm.runtime.bundle.atomic import write_text_atomic
+
+    data = _read_record()
+    data.update({k: round(float(v), 3) for k, v in cpu.items()})
+    try:
+        path = _record_path()
+        path.parent.mkdir(parents=True, exist_ok=True)
+        write_text_atomic(path, json.dumps({"cpu_s": data}, indent=1, sort_keys=True) + "\n")
+    except OSError as exc:
+        _log.debug("could not record the compile seconds (%s)", exc)
+
+
+def write_packaged_seconds(cpu: dict[str, float]) -> Any:
+    """Write the packaged measurement :mod:`hailstorm.runtime.storm.compile_seconds` (merged with
+    what it holds): for ``tests/benchmarks/compile_time.py --write``. Returns its path."""
+    from pathlib import Path
+
+    from hailstorm.runtime.bundle.atomic import write_text_atomic
+    from hailstorm.runtime.storm.compile_seconds import CPU_S
+
+    data = dict(CPU_S)
+    data.update({k: round(float(v), 2) for k, v in cpu.items()})
+    try:
+        load = os.getloadavg()[0]
+    except OSError:
+        load = float("nan")
+    body = "".join(f"    {k!r}: {v!r},\n" for k, v in sorted(data.items()))
+    text = ('"""Measured CPU seconds of each storm warm-up task\'s cold compile in one process (generated: do not\n'
+            "edit; ``NUMBA_CACHE_DIR=$(mktemp -d) HAILSTORM_COMPILE_WORKERS=1 python tests/benchmarks/compile_time.py\n"
+            f"--write [--integrator NAME]``; last written {time.strftime('%Y-%m-%d')} at load {load:.1f} on "
+            f"{os.cpu_count()} CPUs).\n\n"
+            "The fallback of :func:`hailstorm.runtime.storm.warmup.measured_seconds` before a machine has\n"
+            'measured its own.\n"""\n\n'
+            f"CPU_S: dict[str, float] = {{\n{body}}}\n")
+    path = Path(__file__).with_name("compile_seconds.py")
+    write_text_atomic(path, text)
+    return path
+
+
+def load_factor() -> float:
+    """How much longer than its CPU seconds a compile takes now: the 1-minute load average plus
+    this process, over the CPUs it may use, at least 1 (numba compiles on one thread)."""
+    try:
+        load = os.getloadavg()[0]
+    except OSError:  # not available here
+        return 1.0
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cpus = os.cpu_count() or 1
+    return max(1.0, (load + 1.0) / max(cpus, 1))
+
+
+def estimate_text(seconds: float | None, factor: float | None = None) -> str:
+    """The announced estimate of a compile of ``seconds`` CPU seconds: a range from the CPU
+    seconds stretched by the load (:func:`load_factor`) to twice that (``"about 9-18 s"``; a
+    shared machine stretches a compile beyond its load average: 60 CPU s took 559 s of wall at
+    load 7.4 on 2 CPUs, 9.3x, factor 4.2), or ``"time not measured yet"``."""
+    if seconds is None:
+        return "time not measured yet"
+    f = load_factor() if factor is None else max(1.0, float(factor))
+    lo = seconds * f
+    return f"about {lo:.0f}-{2 * lo:.0f} s" + (f" at the current load (x{f:.1f})" if f > 1.05 else "")
 
 
 class _MissWatch(event.Listener):
@@ -251,6 +371,7 @@ def warm_up(tasks: Sequence[WarmTask], helper: HelperSpec | None = None, *, work
     n_workers = workers if workers is not None else compile_workers()
     can_help = helper is not None and n_workers > 1 and len(tasks) > 1 and not numba.config.DISABLE_JIT
     parts = plan(tasks, n_workers if can_help else 1)
+    weight = _weights(tasks)
     mine, others = parts[0], parts[1:]
     helpers: list[_Helper] = []
     state = {"current": "", "announced": set(), "step": 0, "spawned": False}
@@ -261,13 +382,13 @@ def warm_up(tasks: Sequence[WarmTask], helper: HelperSpec | None = None, *, work
         if name and name not in state["announced"]:
             state["announced"].add(name)
             report.compiled.append(name)
-            _log.info("compiling %s [%d/%d] (numba, once after an install: about %.0f s)...", name, state["step"],
-                      total, next(t.seconds for t in tasks if t.name == name))
+            _log.info("compiling %s [%d/%d] (numba, once after an install: %s)...", name, state["step"],
+                      total, estimate_text(next(t.seconds for t in tasks if t.name == name)))
         if can_help and not state["spawned"]:
             state["spawned"] = True
             for part in others:
                 names = [tasks[i].name for i in part]
-                secs = sum(tasks[i].seconds for i in part)
+                secs = sum(weight[i] for i in part)
                 try:
                     helpers.append(_Helper(helper, names, secs))  # type: ignore[arg-type]
                 except OSError as exc:
@@ -275,7 +396,7 @@ def warm_up(tasks: Sequence[WarmTask], helper: HelperSpec | None = None, *, work
                     report.helper_failed = True
                     continue
                 report.helpers.append(names)
-                _log.info("compiling %s in a helper process, in parallel (about %.0f s)...", ", ".join(names), secs)
+                _log.info("compiling %s in a helper process, in parallel (%s)...", ", ".join(names), estimate_text(secs))
 
     def run(i: int) -> None:
         task = tasks[i]
@@ -304,4 +425,6 @@ def warm_up(tasks: Sequence[WarmTask], helper: HelperSpec | None = None, *, work
                 h.proc.kill()
                 h.proc.wait()
     report.wall = time.perf_counter() - t_all
+    # this machine's measurement, for the next compile's plan and announcement (a helper records its own)
+    record_seconds({name: report.cpu[name] for name in report.compiled if name in report.cpu})
     return report

@@ -35,6 +35,9 @@ def main() -> None:
     ap.add_argument("--patch", default=None)
     ap.add_argument("--steps", type=int, default=200)
     ap.add_argument("--tree", action="store_true", help="print the nesting of the compiles (who compiled what)")
+    ap.add_argument("--write", action="store_true",
+                    help="store the tasks' CPU seconds in runtime/storm/compile_seconds.py (the packaged estimates; "
+                    "run with HAILSTORM_COMPILE_WORKERS=1 and an empty NUMBA_CACHE_DIR)")
     args = ap.parse_args()
 
     t_import = time.perf_counter()
@@ -141,6 +144,13 @@ def main() -> None:
     for task in st.warm_tasks():
         if task.name in rep.times:
             print(f"  {rep.times[task.name]:7.2f} / {rep.cpu[task.name]:6.2f}  {task.name} (estimate {task.seconds:.0f} s)")
+    if args.write:
+        if rep.helpers or set(rep.compiled) != {t.name for t in st.warm_tasks()}:
+            raise SystemExit("--write needs every task compiled in this process: HAILSTORM_COMPILE_WORKERS=1 and "
+                             "an empty NUMBA_CACHE_DIR")
+        from hailstorm.runtime.storm.warmup import write_packaged_seconds
+
+        print("wrote", write_packaged_seconds({k: rep.cpu[k] for k in rep.compiled}))
 
 
 if __name__ == "__main__":

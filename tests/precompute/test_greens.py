@@ -166,3 +166,38 @@ def test_hat_and_point_bundles_have_different_keys(tmp_path, small_box):
     assert not np.allclose(a.D, b.D)
     with pytest.raises(ValueError, match="unknown load"):
         build_bundle(tmp_path / "c", mesh=small_box, load="smeared")
+
+
+def test_solver_registry_drives_factorize_batches_and_the_cli(box_system):
+    """Every registered solver factorizes the clamped box system and solves a load to its residual
+    (a check independent of the other solvers: ``K_ff x = b``); its batch is the one the problem
+    uses; the names the CLI offers are the registry's; an unknown name is refused once, at the
+    registry, with the choices."""
+    import scipy.sparse as sp
+
+    from hailstorm.cli import _parser
+    from hailstorm.precompute.fem import free_dofs
+    from hailstorm.precompute.greens import SOLVER_SPECS, SOLVERS, column_problem, factorize, solver_spec
+
+    K, fixed = box_system.K, box_system.fixed
+    free = free_dofs(K.shape[0], fixed)
+    Kff = sp.csr_matrix(K)[free][:, free]
+    nn = _rigid_modes_on_dofs(box_system.basis)[free]
+    b = np.random.default_rng(3).normal(size=(Kff.shape[0], 2))
+    for name, spec in SOLVER_SPECS.items():
+        assert spec.name == name and solver_spec(name) is spec
+        f = factorize(Kff, name, near_null=nn if spec.needs_near_null else None, tol=1e-12)
+        x = f.solve(b)
+        # direct solvers: backward stable (residual ~ eps cond); AMG: solved to tol = 1e-12
+        assert np.linalg.norm(Kff @ x - b) <= 1e-9 * np.linalg.norm(b), name
+        problem = column_problem(K, fixed, box_system.load[:3], box_system.read, solver=name,
+                                 near_null=_rigid_modes_on_dofs(box_system.basis) if spec.needs_near_null else None)
+        assert problem.batch == spec.batch and problem.spec is spec
+    assert SOLVERS == tuple(SOLVER_SPECS)
+    pre = next(a for a in _parser()._subparsers._group_actions[0].choices["precompute"]._actions
+               if a.dest == "solver")
+    assert tuple(pre.choices) == SOLVERS and pre.default == SOLVERS[0]
+    with pytest.raises(ValueError, match="unknown solver 'lu'; choose one of"):
+        solver_spec("lu")
+    with pytest.raises(ValueError, match="needs the rigid-body modes"):
+        factorize(Kff, "amg")

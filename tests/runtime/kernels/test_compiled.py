@@ -243,8 +243,8 @@ def test_contact_blocks_match_dense_algebra(gf, s, patch):
 
 
 def test_contact_kernels_grouping_edges(gf):
-    """The kernels' grouped passes (constraint_rows: three vertices per pass, the rest one
-    at a time, prefetching ahead; columns_times: eight columns, then four, then one) on
+    """The kernels' passes (constraint_rows: one vertex per pass, prefetching ahead;
+    columns_times: eight columns, then four, then one) on
     contacts with 1 to 8 live vertices, zero weights and clamped vertices among them, and
     sets of 0 to 17 columns with clamped (-1) entries: W and (D_VV G)^T equal the dense
     products with G to rounding, constraint_rows is weighted_rows of vertex_block exactly
@@ -529,3 +529,23 @@ print("\\n".join(names))
     bad = [n for n in names if "raise_with_shape_context" in n or "integer_str" in n or "flatnonzero" in n
            or "concatenate" in n]
     assert not bad, bad
+
+
+def test_lapack_kernels_are_cached_on_disk(tmp_path):
+    """The LAPACK calls reach SciPy's routines by symbol name, not by a baked-in address, so a
+    kernel calling them is written to numba's disk cache (a ctypes function pointer would make it
+    "uses dynamic globals": compiled again in every process) and a second process loads it."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import numpy as np\n"
+            "from hailstorm.runtime.compiled.lapack import cholesky\n"
+            "L, ok = cholesky(np.array([[4.0, 2.0], [2.0, 3.0]]))\n"
+            "assert ok and abs(L[1, 1] - 2.0 ** 0.5) < 1e-15\n"
+            "print(cholesky.stats.cache_hits and 'hit' or 'miss')\n")
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path))
+    runs = [subprocess.run([sys.executable, "-W", "error::numba.NumbaWarning", "-c", code], check=True, env=env,
+                           capture_output=True, text=True).stdout.split() for _ in range(2)]
+    assert runs == [["miss"], ["hit"]]
+    assert any(p.name.startswith("lapack.cholesky") and p.suffix == ".nbi" for p in tmp_path.rglob("*"))

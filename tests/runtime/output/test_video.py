@@ -247,3 +247,47 @@ def test_a_seat_that_did_not_move(gf):
     seat = np.asarray(R.surface.get_array()).reshape(-1, 4)[np.isfinite(R.shown.ravel())]
     assert seat.size and np.allclose(seat[:, :3], under, atol=1.0)
     assert img.shape == (720, 1280, 3)
+
+
+def _watchable(gf, scene):
+    """Of a storm's recorded frames: the fraction whose shown (peak) displacement reaches the colour
+    scale's bottom (a dent a viewer sees: at least 10^-COLOUR_DECADES of the run's largest), and the
+    fraction in which a stone in view presses on the seat (drawn filled in orange)."""
+    from hailstorm.runtime.output.render import COLOUR_DECADES, in_view, shown_displacement, view_box
+
+    frames = run_storm(gf, scene, progress=False, keep_frames=True).frames
+    peaks = np.array([np.linalg.norm(shown_displacement(f), axis=1).max() for f in frames])
+    lo, hi = view_box(gf.vertices)
+    pressing = [bool((np.linalg.norm(np.asarray(f.forces).reshape(-1, 3)[in_view(f.positions, f.radii, lo, hi)],
+                                     axis=1) > 0).any()) for f in frames]
+    return float(np.mean(peaks >= 10.0 ** -COLOUR_DECADES * peaks.max())), float(np.mean(pressing))
+
+
+def test_the_default_storm_shows_a_dent_in_most_frames(seat_bundle):
+    """The default scene on the default saddle (coarse mesh): a dent shows in at least 80 % of the
+    recorded frames and a stone in contact in at least 15 % (counted from the frames' data); the
+    old default rate (200 stones/s) gave ~37 % and ~2 % on the default seat."""
+    gf = load(seat_bundle)
+    dents, pressing = _watchable(gf, Scene.default())
+    assert dents >= 0.8 and pressing >= 0.15, (dents, pressing)
+    sparse, _ = _watchable(gf, Scene.default().with_(rate=200.0))  # the old default: mostly a grey seat
+    assert sparse < 0.6, sparse
+
+
+def test_the_caption_states_the_playback_time_scale(gf, storm):
+    """The time scale on screen: frames 4 ms apart played at 20 fps run 12.5x slower than real
+    time; the first frame (no interval yet) states none; a pressing stone is counted."""
+    from hailstorm.runtime.output.render import playback_slowdown
+
+    s = playback_slowdown(np.array([0.0, 0.004, 0.008, 0.2]), 20.0)
+    assert np.isnan(s[0]) and np.allclose(s[1:], [12.5, 12.5, 1 / (20 * 0.192)])
+    r = _renderer(gf)
+    r.render(storm.frames[0], slowdown=12.5)
+    assert "playback 12.5x slower than real time" in r.caption.get_text()
+    r.render(storm.frames[0], slowdown=0.25)
+    assert "playback 4x faster than real time" in r.caption.get_text()
+    r.render(storm.frames[0])
+    assert "playback" not in r.caption.get_text()
+    k = next(i for i, f in enumerate(storm.frames) if np.abs(f.forces).sum() > 0)
+    r.render(storm.frames[k])
+    assert r.n_pressing >= 1

@@ -112,7 +112,8 @@ def default_seat(tmp_path_factory):
 
 
 def _storm(gf, dt, integrator, stones=None):
-    sc = Scene.default().with_(dt=dt, integrator=integrator)
+    # the storm: the default scene at its rate then (200 stones/s: 43 stones)
+    sc = Scene.default().with_(dt=dt, integrator=integrator, rate=200.0)
     if stones is not None:
         sc = sc.with_(stones=stones)
     st = Storm(gf, sc)

@@ -16,6 +16,12 @@ from hailstorm.runtime.storm import warmup
 from hailstorm.runtime.storm.warmup import HelperSpec, WarmTask, plan, warm_up
 
 
+@pytest.fixture(autouse=True)
+def _own_cache(tmp_path, monkeypatch):
+    """This machine's record of compile seconds goes to a private cache directory."""
+    monkeypatch.setenv("HAILSTORM_CACHE", str(tmp_path / "hs-cache"))
+
+
 def _fresh_kernel():
     """A kernel numba has never seen (no cache): its first call compiles."""
     return numba.njit(lambda x: x + 1)
@@ -65,7 +71,7 @@ def test_a_task_that_compiles_is_announced_and_a_loaded_one_is_not(caplog):
         report = warm_up(tasks, None, workers=1)
     lines = [r.getMessage() for r in caplog.records]
     assert report.compiled == ["fresh kernels"] and report.helpers == []
-    assert lines == ["compiling fresh kernels [2/2] (numba, once after an install: about 7 s)..."]
+    assert lines == [f"compiling fresh kernels [2/2] (numba, once after an install: {warmup.estimate_text(7)})..."]
     assert set(report.times) == {"loaded kernels", "fresh kernels"}
 
 
@@ -181,3 +187,49 @@ print(json.dumps({"compiled": r.compiled, "helpers": r.helpers, "failed": r.help
                          capture_output=True, text=True).stdout
     second = json.loads(out.strip().splitlines()[-1])
     assert second == {"compiled": [], "helpers": [], "failed": False}
+
+
+def test_estimates_are_ranges_scaled_by_the_load(monkeypatch):
+    """An estimate is a range from the measured CPU seconds stretched by the load (the load
+    average and this process over the usable CPUs, at least 1) to twice that; unmeasured says so."""
+    assert warmup.estimate_text(9.0, 1.0) == "about 9-18 s"
+    assert warmup.estimate_text(9.0, 2.5) == "about 22-45 s at the current load (x2.5)"
+    assert warmup.estimate_text(9.0, 0.3) == "about 9-18 s"  # an idle machine is no faster than the CPU
+    assert warmup.estimate_text(None) == "time not measured yet"
+    monkeypatch.setattr(warmup.os, "getloadavg", lambda: (6.0, 0.0, 0.0))
+    monkeypatch.setattr(warmup.os, "sched_getaffinity", lambda pid: {0, 1})
+    assert warmup.load_factor() == 3.5  # (6 + this process) / 2 CPUs
+    assert warmup.estimate_text(2.0) == "about 7-14 s at the current load (x3.5)"
+
+
+def test_the_seconds_are_measured_at_a_compile_and_recorded(monkeypatch):
+    """A task that compiles records its CPU seconds in this machine's record; the next estimate of
+    that task is that measurement, before it the packaged one, and none for a task never measured."""
+    from hailstorm.runtime.storm import compile_seconds
+
+    monkeypatch.setattr(compile_seconds, "CPU_S", {"fresh kernels": 3.5})
+    assert warmup.measured_seconds("fresh kernels") == 3.5  # packaged
+    assert warmup.measured_seconds("other kernels") is None
+    fresh = _fresh_kernel()
+    report = warm_up([WarmTask("fresh kernels", warmup.measured_seconds("fresh kernels"), lambda: fresh(2))], None,
+                     workers=1)
+    assert report.compiled == ["fresh kernels"]
+    assert warmup.measured_seconds("fresh kernels") == pytest.approx(report.cpu["fresh kernels"], abs=1e-3)
+    assert warmup.measured_seconds("other kernels") is None
+    # a task never measured is planned with the median of the measured ones
+    ts = [WarmTask("a", 4.0, lambda: None), WarmTask("b", None, lambda: None), WarmTask("c", 10.0, lambda: None)]
+    assert warmup._weights(ts) == [4.0, 10.0, 10.0]
+
+
+def test_the_storm_tasks_take_their_seconds_from_the_measurements(monkeypatch):
+    """No task's seconds is typed in: every storm task asks :func:`measured_seconds`."""
+    from helpers import plate_gf
+
+    from hailstorm.runtime.scene import Scene
+    from hailstorm.runtime.storm import driver
+
+    asked = []
+    monkeypatch.setattr(driver, "measured_seconds", lambda name: asked.append(name) or 1.25)
+    st = driver.Storm(plate_gf(), Scene.from_flat(duration=0.01, stones=2, seed=1), warm=False)
+    tasks = st.warm_tasks()
+    assert sorted(t.name for t in tasks) == sorted(asked) and {t.seconds for t in tasks} == {1.25}
