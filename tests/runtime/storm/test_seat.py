@@ -282,3 +282,29 @@ def test_row_major_memmap_is_held_column_major(gf, tmp_path):
     lam = np.array([-1.0, -2.0, -0.5])
     seat.set_forces(loaded_set(gf, CONTACTS), lam)
     np.testing.assert_allclose(seat.u, hand_field(gf, CONTACTS, lam), rtol=1e-12, atol=ATOL)
+
+
+def test_on_a_bundle_from_disk(box_bundle):
+    """A bundle as loaded from disk (the FEM box; D a column-major memmap): held without a copy,
+    and the displacement of contacts on its top is D times their forces by hand."""
+    from hailstorm.runtime.bundle.read import load
+
+    gf = load(box_bundle)
+    assert isinstance(gf.D, np.memmap) and gf.D.flags.f_contiguous
+    seat = SeatState(gf)
+    assert np.shares_memory(seat.D, gf.D) and not isinstance(seat.D, np.memmap)
+    X, T = np.asarray(gf.vertices), np.asarray(gf.triangles)
+    free = np.asarray(gf.column_of)[T].min(axis=1) >= 0
+    top = np.flatnonzero(free & np.isclose(X[T][:, :, 2], X[:, 2].max()).all(axis=1))
+    assert top.size >= 2
+    contacts = tuple((7 + k, T[t], np.array([0.2, 0.5, 0.3]), np.array([0.0, 0.0, 1.0])) for k, t in
+                     enumerate(top[[0, -1]]))
+    lam = np.array([-0.8, -1.3])
+    cc = loaded_set(gf, contacts)
+    seat.set_forces(cc, lam)
+    u = hand_field(gf, contacts, lam)
+    assert np.abs(u).max() > 0.0
+    np.testing.assert_allclose(seat.u, u, rtol=1e-10, atol=1e-14 * np.abs(u).max())
+    np.testing.assert_allclose(seat.u_at(cc.V), u[cc.V], rtol=1e-10, atol=1e-14 * np.abs(u).max())
+    np.testing.assert_allclose(seat.peak_field(), _brute_peak(gf, [(contacts, lam, False)], u), rtol=1e-10,
+                               atol=1e-14 * np.abs(u).max())

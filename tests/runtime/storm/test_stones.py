@@ -28,6 +28,13 @@ def _plan(seed=0, **storm):
     return SpawnPlan(st, hail, LO, HI, np.random.default_rng(seed)), st, hail
 
 
+def _ks(u):
+    """Kolmogorov-Smirnov distance of samples ``u`` (already mapped through their CDF) from U(0, 1)."""
+    u = np.sort(u)
+    n = u.size
+    return max(np.max(np.arange(1, n + 1) / n - u), np.max(u - np.arange(n) / n))
+
+
 # ----------------------------------------------------------------------------------------------
 # SpawnPlan
 # ----------------------------------------------------------------------------------------------
@@ -63,12 +70,9 @@ def test_plan_count_follows_the_rate_times_the_duration():
 def test_plan_spawn_times_are_uniform_over_the_duration():
     """The pooled spawn times fill [0, duration) uniformly (Kolmogorov-Smirnov distance
     below 1.63 / sqrt(n): the 1 % level)."""
-    t = np.sort(np.concatenate([_plan(seed=s, stones=200, duration=0.4)[0].rows[:, 0] for s in range(10)]))
-    u = t / 0.4
-    n = u.size
-    ks = max(np.max(np.arange(1, n + 1) / n - u), np.max(u - np.arange(n) / n))
-    assert ks < 1.63 / np.sqrt(n)
+    u = np.concatenate([_plan(seed=s, stones=200, duration=0.4)[0].rows[:, 0] for s in range(10)]) / 0.4
     assert u.min() >= 0.0 and u.max() < 1.0
+    assert _ks(u) < 1.63 / np.sqrt(u.size)
 
 
 @pytest.mark.parametrize("wind", [(0.0, 0.0, 0.0), (3.0, -2.0, 0.0)])
@@ -95,6 +99,31 @@ def test_plan_positions_velocities_and_radii_follow_the_scene(wind):
     assert np.all(land.min(axis=0) < lo + 0.05 * width) and np.all(land.max(axis=0) > hi - 0.05 * width)
     if any(wind):
         assert not np.all((xy >= lo) & (xy <= hi))  # spawned upwind, some outside the footprint
+
+
+@pytest.mark.parametrize("kind", ["exponential", "uniform", "fixed"])
+def test_plan_radii_follow_the_size_distribution(kind):
+    """The radii lie in [r_min, r_max] and follow the scene's law, written out here: the truncated
+    exponential ``(1 - exp(-(r - r_min) / scale)) / (1 - exp(-(r_max - r_min) / scale))``, the uniform,
+    or r_min for all (KS distance below the 1 % level, 1.63 / sqrt(n))."""
+    st, hail = _sections(stones=1500)
+    hail = dataclasses.replace(hail, distribution=kind, r_min=0.003, r_max=0.011, scale=0.0025)
+    r = SpawnPlan(st, hail, LO, HI, np.random.default_rng(21)).rows[:, 7]
+    assert r.size == 1500 and np.all(r >= 0.003) and np.all(r <= 0.011)
+    if kind == "fixed":
+        np.testing.assert_array_equal(r, 0.003)
+        return
+    if kind == "uniform":
+        u = (r - 0.003) / 0.008
+    else:
+        u = -np.expm1(-(r - 0.003) / 0.0025) / -np.expm1(-0.008 / 0.0025)
+    assert _ks(u) < 1.63 / np.sqrt(r.size)
+
+
+def test_plan_without_stones():
+    for plan in (_plan(stones=0)[0], _plan(rate=0.0)[0]):
+        assert plan.rows.shape == (0, 8)
+        assert plan.due(1e9) is None
 
 
 def test_plan_due_hands_out_each_stone_once_in_time_order():
