@@ -80,9 +80,9 @@ course hint (barycentric weights on one triangle).
   estimate is nearly constant during an impact, so the disc is sized for the
   deepest dent and the contact keeps one set of weights for the whole impact.
 * Rebuilds: a contact is re-weighted (and the capacitance rebuilt) only when
-  its target radius grows by more than ``patch_tolerance`` (20%), or shrinks
-  by more than that *once the stone rests* (oscillation amplitude below
-  ``rest_speed``): re-weighting during a rebound would change the stiffness
+  its target radius grows by more than ``patch_tolerance`` (20%), or, *once the
+  stone rests* (oscillation amplitude below ``rest_speed``), is off by more than
+  ``REST_TOLERANCE`` (1 %) either way: re-weighting during a rebound would change the stiffness
   that the damping was tuned for (the restitution), while the damping itself
   halves the amplitude within one impact.
 * Caching: a contact keeps ``(triangle, beta)`` while its stone stays over

@@ -105,9 +105,10 @@ class Patches:
         impact's expected peak). The estimate is (nearly) constant over one impact and
         tends to the resting force afterwards, so the patch is sized for the deepest
         dent of the impact and is not re-weighted while the force rises and
-        falls. A contact keeps its radius until the target leaves the band
-        ``[a / (1 + tol), a (1 + tol)]`` (``tol = patch_tolerance``); a resting one is
-        re-sized to its target once it is ``REST_TOLERANCE`` (1 %) off. One kernel
+        falls. A moving contact keeps its radius until the target exceeds
+        ``a (1 + tol)`` (``tol = patch_tolerance``; a falling target never shrinks it
+        mid-impact); a resting one is re-sized to its target, up or down, once it is
+        ``REST_TOLERANCE`` (1 %) off. One kernel
         (:func:`hailstorm.runtime.compiled.patch_radii`); the new contacts' weights at
         their first radius go to the weights cache.
         """
@@ -166,7 +167,7 @@ class Patches:
                 self._cache[int(ids[i])] = (int(tris[i]), bary[i].tobytes(), float(radius[i]), v, w_)
                 out[i] = (v, w_)
         done = cast(list[tuple[np.ndarray, np.ndarray]], out)  # every slot is filled above
-        P = max(3, max(o[0].size for o in done))
+        P = max(3, max((o[0].size for o in done), default=0))
         verts = np.empty((ids.size, P), dtype=np.intp)
         w = np.zeros((ids.size, P))
         for i, (v, wi) in enumerate(done):  # padding: weight-0 copies of the first vertex (weights._pad)

@@ -293,9 +293,6 @@ def test_weights_are_reused_from_the_cache_until_the_key_changes(gf):
     assert (stats.patch_weights_computed, stats.patch_weights_reused) == (13, 13)
 
 
-@pytest.mark.xfail(strict=True, raises=ValueError,
-                   reason="Patches.weights of no contacts raises ValueError (max() of an empty sequence) where "
-                          "patch_weights returns (0, 3) arrays; the storm never asks for none")
 def test_weights_of_no_contacts_are_empty(gf):
     p = make_patches(gf)
     e = np.zeros(0, dtype=np.intp)
