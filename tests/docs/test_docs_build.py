@@ -49,7 +49,7 @@ def documented_summary_keys() -> set[str]:
     keys: set[str] = set()
     for line in table.splitlines():
         if line.startswith("| `"):
-            keys.update(re.findall(r"`([a-z_]+)`", line.split("|")[1]))
+            keys.update(re.findall(r"`([A-Za-z_]+)`", line.split("|")[1]))
     return keys
 
 
