@@ -305,15 +305,47 @@ def _our_files(out: Path) -> set[str] | None:
     return {str(f) for f in m["files"]} | {STORM_MANIFEST}
 
 
-def _foreign(out: Path) -> list[str]:
+#: how many foreign entries :func:`_foreign` collects before it stops (the message names five)
+_FOREIGN_SHOWN = 6
+
+
+def _foreign(out: Path, limit: int = _FOREIGN_SHOWN) -> list[str]:
     """What in the existing directory ``out`` hailstorm did not write (empty: ``out`` is
-    empty or holds exactly a previous storm output)."""
-    files, dirs = _listing(out)
+    empty or holds exactly a previous storm output), at most ``limit`` entries.
+
+    The scan is bounded: without a storm manifest the first entries of ``out`` are
+    foreign (nothing is descended into); with one, only the directories the manifest
+    lists are descended into, a file it does not list or a directory that holds none
+    of its files is foreign (and not descended into), and the scan stops at the
+    ``limit``-th foreign entry. So it visits at most the manifest's entries plus
+    ``limit``, whatever lies under ``out`` (``--out $HOME`` is refused at once).
+    """
     ours = _our_files(out)
+    found: list[str] = []
     if ours is None:
-        return files + [d + "/" for d in dirs if not any(f.startswith(d + "/") for f in files)]
-    parents = {Path(f).parent.as_posix() for f in ours}
-    return [f for f in files if f not in ours] + [d + "/" for d in dirs if d not in parents]
+        with os.scandir(out) as it:
+            for e in it:
+                found.append(e.name + ("/" if e.is_dir(follow_symlinks=False) else ""))
+                if len(found) >= limit:
+                    break
+        return sorted(found)
+    parents = {p.as_posix() for f in ours for p in Path(f).parents} - {"."}
+    todo = [""]
+    while todo and len(found) < limit:
+        rel = todo.pop()
+        with os.scandir(out / rel if rel else out) as it:
+            for e in it:
+                name = f"{rel}/{e.name}" if rel else e.name
+                if e.is_dir(follow_symlinks=False):
+                    if name in parents:
+                        todo.append(name)
+                        continue
+                    found.append(name + "/")
+                elif name not in ours:
+                    found.append(name)
+                if len(found) >= limit:
+                    break
+    return sorted(found)
 
 
 def check_storm_out(out: str | os.PathLike) -> None:
@@ -335,7 +367,7 @@ def check_storm_out(out: str | os.PathLike) -> None:
             raise OutputError(f"--out {out} exists and is not a directory; refusing to overwrite it")
         foreign = _foreign(out)
         if foreign:
-            shown = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more" if len(foreign) > 5 else "")
+            shown = ", ".join(foreign[:5]) + (" and more" if len(foreign) > 5 else "")
             raise OutputError(f"--out {out} holds files that are not a hailstorm storm output ({shown}); "
                               "refusing to overwrite it (choose an empty or new directory)")
         if not os.access(out, os.W_OK | os.X_OK):

@@ -106,3 +106,92 @@ def test_a_large_storm_runs_with_allow_large(seat_bundle, tmp_path, monkeypatch)
     assert main(["storm", "--gf", str(seat_bundle), "--out", str(out), *TINY]) == EXIT_INPUT
     assert main(["storm", "--gf", str(seat_bundle), "--out", str(out), "--allow-large", *TINY]) == 0
     assert (out / "summary.json").is_file()
+
+
+# ---- the bounded --out scan (issue #25, item 1) ------------------------------------------------------------
+
+
+class _CountingScandir:
+    """``os.scandir`` that counts the entries it yields (os.walk uses it too)."""
+
+    def __init__(self, real):
+        self.real, self.seen = real, 0
+
+    def __call__(self, path="."):
+        counter, it = self, self.real(path)
+
+        class _It:
+            def __enter__(self):
+                return self
+
+            def __exit__(self, *exc):
+                it.close()
+
+            def __iter__(self):
+                return self
+
+            def __next__(self):
+                e = next(it)
+                counter.seen += 1
+                return e
+
+            def close(self):
+                it.close()
+
+        return _It()
+
+
+def _big_tree(root: Path, folders: int = 4000, files: int = 2) -> Path:
+    root.mkdir()
+    for i in range(folders):
+        (root / f"d{i:04d}").mkdir()
+        for j in range(files):
+            (root / f"d{i:04d}" / f"f{j}").write_bytes(b"")
+    return root
+
+
+@pytest.mark.parametrize("with_manifest", [False, True])
+def test_out_holding_a_big_foreign_tree_is_refused_after_a_bounded_scan(tmp_path, monkeypatch, with_manifest):
+    """``--out $HOME``: 4000 folders of user files (with or without a storm manifest on
+    top) are refused after visiting a handful of entries, not the whole tree (the old
+    check walked all 12 000 and then compared every folder with every file)."""
+    import json
+
+    from hailstorm.runtime.output.files import STORM_MANIFEST, OutputError, check_storm_out
+
+    root = _big_tree(tmp_path / "home")
+    if with_manifest:
+        (root / STORM_MANIFEST).write_text(json.dumps({"format": "hailstorm-storm-output", "version": 1,
+                                                       "files": ["summary.json", "frames/surface_0000.vtu"]}))
+    counting = _CountingScandir(os.scandir)
+    monkeypatch.setattr(os, "scandir", counting)
+    with pytest.raises(OutputError, match="not a hailstorm storm output") as err:
+        check_storm_out(root)
+    monkeypatch.undo()
+    assert counting.seen <= 20, counting.seen
+    assert "d" in str(err.value) and "more" in str(err.value)
+    assert len(str(err.value).splitlines()) == 1
+
+
+def test_bounded_scan_still_accepts_a_previous_storm_output_and_spots_one_stray_file(tmp_path):
+    """The bounded scan keeps the old answers: an exact previous output passes, one
+    extra file deep in its frames folder, or an extra empty folder, is named."""
+    import json
+
+    from hailstorm.runtime.output.files import STORM_MANIFEST, OutputError, check_storm_out
+
+    out = tmp_path / "run"
+    (out / "frames").mkdir(parents=True)
+    listed = ["summary.json", "storm.pvd", "frames/surface_0000.vtu", "frames/stones_0000.vtu"]
+    for f in listed:
+        (out / f).write_text("x")
+    (out / STORM_MANIFEST).write_text(json.dumps({"format": "hailstorm-storm-output", "version": 1,
+                                                  "files": listed}))
+    check_storm_out(out)
+    (out / "frames" / "notes.txt").write_text("mine")
+    with pytest.raises(OutputError, match="frames/notes.txt"):
+        check_storm_out(out)
+    (out / "frames" / "notes.txt").unlink()
+    (out / "extra").mkdir()
+    with pytest.raises(OutputError, match="extra/"):
+        check_storm_out(out)
