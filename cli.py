@@ -132,7 +132,8 @@ def _storm_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, default=Path("hailstorm-out"), help="output directory (default ./hailstorm-out)")
     p.add_argument("--no-video", action="store_true", help="skip the animation")
     p.add_argument("--allow-large", action="store_true",
-                   help="run a storm whose estimate exceeds the machine (memory, or more than 10 million steps)")
+                   help="run a storm whose estimate exceeds the machine (memory, more than 10 million steps, "
+                        "or an estimated hour of stepping)")
 
 
 def _run_precompute(args: argparse.Namespace) -> int:

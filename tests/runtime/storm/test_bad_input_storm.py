@@ -62,6 +62,12 @@ ROWS = [
     ("rate-1e9", ["--scene", _scene("[storm]\nrate = 1e9\n")], "of memory"),
     ("scene-missing", ["--scene", lambda t: t / "nope.toml"], "cannot read scene file"),
     ("gf-missing", ["--gf", lambda t: t / "no-bundle"], "no-bundle"),
+    # issue #25
+    ("stones-2-million-in-0.1-s", ["--stones", "2000000", "--duration", "0.1"], "stone-steps/s"),
+    ("duration-1e308", ["--duration", "1e308"], "not a finite number of steps"),
+    ("duration-1e300-count-in-scientific-notation", ["--duration", "1e300"], "5e+303 steps"),
+    ("scene-not-utf8", ["--scene", lambda t: (t / "s.toml").write_bytes(b"[storm]\nduration = 0.1 # \xff\xfe\n")
+                        and t / "s.toml"], "s.toml is not a UTF-8 text file"),
 ]
 
 
@@ -74,7 +80,10 @@ def test_bad_storm_input_is_one_line_exit_3(seat_bundle, tmp_path, capsys, name,
         args += ["--gf", str(seat_bundle)]
     args += ["--no-video", "-q"]
     if not name.startswith(("dt", "rate")):  # those rows need the default duration and the rate
-        args += ["--duration", "0.01", "--stones", "1"]
+        if "--duration" not in args:
+            args += ["--duration", "0.01"]
+        if "--stones" not in args:
+            args += ["--stones", "1"]
     before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
     rc = main(["storm", *args])
     err = capsys.readouterr().err
@@ -82,6 +91,7 @@ def test_bad_storm_input_is_one_line_exit_3(seat_bundle, tmp_path, capsys, name,
     assert rc == EXIT_INPUT, err
     assert len(lines) == 1 and lines[0].startswith("hailstorm: error: "), err
     assert message in lines[0]
+    assert len(lines[0]) < 400, lines[0]  # no 300-digit numbers
     # nothing the user owns was touched, and no run was left behind
     assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
     assert not (tmp_path / "out").exists()
@@ -195,3 +205,46 @@ def test_bounded_scan_still_accepts_a_previous_storm_output_and_spots_one_stray_
     (out / "extra").mkdir()
     with pytest.raises(OutputError, match="extra/"):
         check_storm_out(out)
+
+
+# ---- the scene's estimate and values through the API (issue #25, items 2, 6, 10) ---------------------------
+
+
+def test_a_burst_of_stones_is_refused_by_its_time_estimate():
+    """10 million stones in 0.05 s passed the memory and step checks and ran for hours:
+    the time estimate (stones x steps at the measured rate) refuses it, names the rule,
+    and --allow-large passes it; the default storm is far below the limit."""
+    from hailstorm.runtime.scene import MAX_SECONDS, STONE_STEPS_PER_SECOND, Scene, StormTooLarge
+
+    scene = Scene.from_flat(stones=10_000_000, duration=0.05)
+    est = scene.estimate()
+    assert est.seconds == pytest.approx(est.stones * est.steps / STONE_STEPS_PER_SECOND)
+    with pytest.raises(StormTooLarge, match=r"10,000,000 stones x 250 steps at 2e\+05 stone-steps/s"):
+        est.check()
+    est.check(allow_large=True)
+    assert Scene.default().estimate().seconds < MAX_SECONDS / 100
+
+
+def test_duration_overflowing_the_step_count_is_a_scene_error():
+    from hailstorm.runtime.scene import Scene, SceneError
+
+    with pytest.raises(SceneError, match="not a finite number of steps"):
+        Scene.from_flat(duration=1e308)
+    assert "e+303" in Scene.from_flat(duration=1e300).estimate().describe()
+
+
+def test_numpy_integers_are_integers_in_a_scene():
+    import numpy as np
+
+    from hailstorm.runtime.scene import Scene
+
+    scene = Scene.from_flat(stones=np.int64(5), seed=np.int32(3))
+    assert scene.storm.stones == 5 and type(scene.storm.stones) is int and scene.storm.seed == 3
+
+
+def test_non_utf8_scene_names_the_file(tmp_path):
+    from hailstorm.runtime.scene import Scene, SceneError
+
+    (tmp_path / "latin1.toml").write_bytes("[storm]\n# Grüße\nduration = 0.1\n".encode("latin-1"))
+    with pytest.raises(SceneError, match="latin1.toml is not a UTF-8 text file"):
+        Scene.from_toml(tmp_path / "latin1.toml")
