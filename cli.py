@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import signal
 import sys
 import time
 from pathlib import Path
@@ -292,6 +293,7 @@ def main(argv: list[str] | None = None) -> int:
     from hailstorm.precompute.geometry import MeshError
     from hailstorm.runtime.bundle.format import BundleError
 
+    previous = _terminate_as_exception()
     try:
         if args.command == "precompute":
             rc = _run_precompute(args)
@@ -313,9 +315,33 @@ def main(argv: list[str] | None = None) -> int:
     except MemoryError:
         print("hailstorm: error: out of memory (a coarser mesh, a shorter storm or fewer stones needs less)", file=sys.stderr)
         return EXIT_INPUT
+    except _Terminated:
+        print("hailstorm: terminated (SIGTERM)", file=sys.stderr)
+        return 128 + signal.SIGTERM
     except KeyboardInterrupt:
         print("hailstorm: interrupted", file=sys.stderr)
         return 130
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+class _Terminated(Exception):
+    """SIGTERM, raised in the main thread so that the writers' cleanup runs."""
+
+
+def _raise_terminated(signum: int, frame: object) -> None:
+    raise _Terminated()
+
+
+def _terminate_as_exception() -> object | None:
+    """Turn SIGTERM into :class:`_Terminated` (only in the main thread); returns the
+    previous handler, or None if none was installed."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    return signal.signal(signal.SIGTERM, _raise_terminated)
 
 
 def _one_line(exc: BaseException) -> str:

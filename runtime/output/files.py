@@ -22,6 +22,7 @@ writers, so importing this module costs nothing.
 
 from __future__ import annotations
 
+import fcntl
 import json
 import logging
 import math
@@ -45,6 +46,7 @@ __all__ = [
     "ParaviewSeries",
     "StormOutput",
     "check_storm_out",
+    "clean_stale_partials",
     "summary",
     "write_animation",
     "write_paraview",
@@ -419,6 +421,7 @@ class StormOutput:
         self.series: ParaviewSeries | None = None
         self.files: list[str] = []
         self.committed = False
+        self._lock_fd: int | None = None
 
     def __enter__(self) -> "StormOutput":
         self.open()
@@ -445,7 +448,9 @@ class StormOutput:
                 if self.disk_bytes > free:
                     raise OutputError(f"the outputs need about {self.disk_bytes / 2**30:.2f} GiB but {parent} has "
                                       f"{free / 2**30:.2f} GiB free (lower [output] fps or the duration)")
-            self.staging = Path(tempfile.mkdtemp(prefix=f".{self.out.name}.partial-", dir=parent))
+            clean_stale_partials(self.out)
+            self.staging = Path(tempfile.mkdtemp(prefix=f".{self.out.name}{_PARTIAL}", dir=parent))
+            self._lock_fd = _hold_lock(self.staging / _PARTIAL_LOCK)
         except OSError as exc:
             raise OutputError(f"cannot write --out {self.out}: {exc.strerror or exc}") from None
         self.series = ParaviewSeries(self.gf, self.staging)
@@ -493,6 +498,7 @@ class StormOutput:
     def _commit(self) -> None:
         staging, out = self.staging, self.out
         assert staging is not None
+        (staging / _PARTIAL_LOCK).unlink(missing_ok=True)  # the flock stays on the open descriptor
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(staging, 0o777 & ~umask)  # mkdtemp's directory is private; a plain mkdir's is not
@@ -510,12 +516,71 @@ class StormOutput:
             os.replace(staging, out)  # a new name, or over an empty directory
             self.committed = True
         self.staging = None
+        self._release()
+
+    def _release(self) -> None:
+        if self._lock_fd is not None:
+            os.close(self._lock_fd)
+            self._lock_fd = None
 
     def abort(self) -> None:
         """Remove the temporary directory (everything in it was written here)."""
         if self.staging is not None:
             shutil.rmtree(self.staging, ignore_errors=True)
             self.staging = None
+        self._release()
+
+
+#: the infix of a storm's temporary output directory, ``.OUT.partial-XXXX``
+_PARTIAL = ".partial-"
+#: a file in that directory that its writer holds an flock on for as long as it runs
+_PARTIAL_LOCK = ".hailstorm-writing"
+
+
+def _hold_lock(path: Path) -> int:
+    """Create ``path`` and hold an exclusive flock on it; returns the descriptor."""
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o600)
+    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # a new file: never contended
+    return fd
+
+
+def clean_stale_partials(out: str | os.PathLike) -> list[Path]:
+    """Remove the temporary directories (``.OUT.partial-*``) that killed storms
+    (SIGKILL, a power cut) left beside ``out``; returns the removed paths.
+
+    Only a directory whose writer's lock file is present and not locked is removed
+    (its writer is gone); a running storm's, or one without the lock file (not
+    certainly ours), is left alone.
+    """
+    out = Path(out)
+    parent = out.absolute().parent
+    removed: list[Path] = []
+    try:
+        candidates = sorted(parent.glob(f".{out.name}{_PARTIAL}*"))
+    except OSError:
+        return removed
+    for d in candidates:
+        lock = d / _PARTIAL_LOCK
+        if d.is_symlink() or not d.is_dir() or not lock.is_file():
+            continue
+        try:
+            fd = os.open(lock, os.O_RDWR)
+        except OSError:
+            continue
+        try:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                continue  # a storm is writing it
+            shutil.rmtree(d, ignore_errors=True)
+            if d.exists():
+                _log.warning("could not remove a killed storm's temporary output %s", d)
+            else:
+                _log.info("removed a killed storm's temporary output %s", d)
+                removed.append(d)
+        finally:
+            os.close(fd)
+    return removed
 
 
 def _remove_storm_output(path: Path) -> None:

@@ -248,3 +248,62 @@ def test_non_utf8_scene_names_the_file(tmp_path):
     (tmp_path / "latin1.toml").write_bytes("[storm]\n# Grüße\nduration = 0.1\n".encode("latin-1"))
     with pytest.raises(SceneError, match="latin1.toml is not a UTF-8 text file"):
         Scene.from_toml(tmp_path / "latin1.toml")
+
+
+# ---- a killed storm's temporaries (issue #25, item 3) ------------------------------------------------------
+
+
+def _storm_cmd(seat_bundle, out, duration="3"):
+    return [sys.executable, "-m", "hailstorm.cli", "storm", "--gf", str(seat_bundle), "--out", str(out),
+            "--duration", duration, "--no-video", "-q"]
+
+
+def _wait_for_partial(tmp_path, proc, timeout=240.0):
+    import time
+
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout:
+        found = list(tmp_path.glob(".out.partial-*"))
+        if found and any((found[0] / "frames").glob("*.vtu")):
+            return found[0]
+        assert proc.poll() is None, proc.communicate()
+        time.sleep(0.2)
+    raise AssertionError("the storm wrote no frames")
+
+
+@pytest.mark.parametrize("sig", ["SIGKILL", "SIGTERM"])
+def test_a_killed_storm_leaves_nothing_behind(seat_bundle, tmp_path, sig):
+    """SIGTERM: the storm removes its temporary directory and says so in one line (exit
+    143); SIGKILL: the next storm into the same --out removes the dead one's directory
+    (its lock is free) -- but never a running storm's."""
+    import signal as _signal
+
+    from hailstorm.runtime.output.files import clean_stale_partials
+
+    out = tmp_path / "out"
+    proc = subprocess.Popen(_storm_cmd(seat_bundle, out), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    partial = _wait_for_partial(tmp_path, proc)
+    assert clean_stale_partials(out) == []  # a running storm's directory is left alone
+    assert partial.is_dir()
+    proc.send_signal(getattr(_signal, sig))
+    _, err = proc.communicate(timeout=120)
+    if sig == "SIGTERM":
+        assert proc.returncode == 143
+        assert err.strip().splitlines() == ["hailstorm: terminated (SIGTERM)"], err
+        assert not partial.exists()
+    else:
+        assert partial.is_dir()  # nobody could clean up
+        assert main(["storm", "--gf", str(seat_bundle), "--out", str(out), *TINY]) == 0
+        assert not partial.exists()
+        assert (out / "summary.json").is_file()
+    assert not list(tmp_path.glob(".out.*"))
+
+
+def test_a_partial_without_our_lock_file_is_left_alone(tmp_path):
+    from hailstorm.runtime.output.files import clean_stale_partials
+
+    stranger = tmp_path / ".out.partial-abc"
+    stranger.mkdir()
+    (stranger / "data").write_text("not ours for certain")
+    assert clean_stale_partials(tmp_path / "out") == []
+    assert (stranger / "data").is_file()
