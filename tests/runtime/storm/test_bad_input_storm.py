@@ -4,10 +4,12 @@ nothing written or lost (table-driven; in-process through ``hailstorm.cli.main``
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from hailstorm.cli import EXIT_INPUT, main
@@ -307,3 +309,50 @@ def test_a_partial_without_our_lock_file_is_left_alone(tmp_path):
     (stranger / "data").write_text("not ours for certain")
     assert clean_stale_partials(tmp_path / "out") == []
     assert (stranger / "data").is_file()
+
+
+# ---- Storm.add_stones: one validation point (issue #25, item 4) --------------------------------------------
+
+_C = [0.06, 0.0, 0.01]  # 1 cm above the middle of the plate (the plate is z = 0, normal +z)
+# (id, pos, vel, radius, fragment of the error)
+STONE_ROWS = [
+    ("nan-position", [np.nan, 0.0, 0.01], [0, 0, -1.0], 0.005, "non-finite position"),
+    ("inf-velocity", _C, [0, 0, -np.inf], 0.005, "non-finite velocity"),
+    ("negative-radius", _C, [0, 0, -1.0], -0.005, "radius -0.005"),
+    ("zero-radius", _C, [0, 0, -1.0], 0.0, "radius 0.0"),
+    ("nan-radius", _C, [0, 0, -1.0], np.nan, "radius nan"),
+    ("position-of-two", [0.06, 0.0], [0, 0, -1.0], 0.005, "shape (3,) or (k, 3), got (2,)"),
+    ("velocities-of-the-wrong-count", [_C, _C], np.zeros((3, 3)), 0.005, "shape (3,) or (2, 3)"),
+    ("radii-of-the-wrong-count", [_C, _C], [0, 0, -1.0], [0.005, 0.005, 0.005], "one number or 2 numbers"),
+    ("complex-position", np.array(_C) + 1j, [0, 0, -1.0], 0.005, "real numbers"),
+    ("inside-the-seat", [0.06, 0.0, -0.002], [0, 0, -1.0], 0.001, "starts inside the seat"),
+]
+
+
+@pytest.fixture(scope="module")
+def plate_storm():
+    from helpers import plate_gf
+
+    from hailstorm.runtime.scene import Scene
+    from hailstorm.runtime.storm.driver import Storm
+
+    return Storm(plate_gf(), Scene.from_flat(duration=0.01), spawn=False, warm=False)
+
+
+@pytest.mark.parametrize("name, pos, vel, radius, message", STONE_ROWS, ids=[r[0] for r in STONE_ROWS])
+def test_bad_stones_are_refused_clearly(plate_storm, name, pos, vel, radius, message):
+    from hailstorm.runtime.storm.stones import StoneError
+
+    before = len(plate_storm.stones)
+    with pytest.raises(StoneError, match=re.escape(message)) as err:
+        plate_storm.add_stones(np.asarray(pos), np.asarray(vel), np.asarray(radius))
+    assert len(str(err.value).splitlines()) == 1
+    assert len(plate_storm.stones) == before and plate_storm.stats.hailstones == 0
+
+
+def test_good_stones_still_go_in(plate_storm):
+    """Above the seat, touching it, and outside its box: accepted (one row, or many)."""
+    ids = plate_storm.add_stones(np.array([[0.06, 0.0, 0.005], [0.06, 0.01, 0.02], [1.0, 1.0, 1.0]]),
+                                 np.array([0.0, 0.0, -1.0]), 0.005)
+    assert ids.tolist() == [0, 1, 2]
+    plate_storm.stones.retire(ids)
