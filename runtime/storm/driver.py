@@ -199,6 +199,8 @@ class Storm:
         self.contacts = SoftContacts(contact, scene.time, sets, self.patches, self.integrator, self.seat, air)
         self.stats = StormStats(patch=contact.patch)
         self.t = 0.0
+        #: stones retired below the seat inside its footprint without ever touching it
+        self.fell_through = 0
         self.plan = SpawnPlan(scene.storm, hail, self.collision.lo, self.collision.hi,
                               np.random.default_rng(scene.storm.seed)) if spawn else SpawnPlan.empty()
         self.warm_report: WarmReport | None = self.warm_up() if warm else None
@@ -227,12 +229,32 @@ class Storm:
             self.contacts.release()
         gone = self.collision.retired(stones, live) if live.size else live
         if gone.size:
+            self.fell_through += self._below_footprint(gone)
             stones.retire(gone)
             self.patches.forget(gone.tolist())
             st.retired += int(gone.size)
         seat.end_step()
         self.t += dt
         st.steps += 1
+
+    def _below_footprint(self, ids: np.ndarray) -> int:
+        """How many of the stones ``ids`` never touched the seat yet are below it,
+        inside its footprint: they passed through it (a step or a speed too large)."""
+        lo, hi = self.collision.lo, self.collision.hi
+        p = self.stones.pos[ids]
+        below = (p[:, 2] < lo[2]) & ((p[:, :2] >= lo[:2]) & (p[:, :2] <= hi[:2])).all(axis=1)
+        return int((below & ~self.stones.hit[ids]).sum())
+
+    def passed_through_warning(self) -> str | None:
+        """A sentence when stones passed through the seat's footprint and none touched
+        it (0 impacts that are no physics: a step or a terminal speed too large for the
+        seat's thickness), else None."""
+        if self.fell_through == 0 or self.stones.hit.any():
+            return None
+        sc = self.scene
+        return (f"{self.fell_through:,} stones passed through the seat's footprint and none touched the seat "
+                f"(0 impacts): they crossed it within one step; lower dt ([time] dt = {sc.time.dt:g} s) or check "
+                f"the drag ([hail] cd = {sc.hail.cd:g}: a small cd gives a large terminal speed)")
 
     def _k_tri(self) -> np.ndarray | None:
         """The triangles' point stiffness when the integrator sizes sub-steps by it (computed once)."""
@@ -558,6 +580,9 @@ def run_storm(
         if bar is not None:
             bar.close()
     st, stones = storm.stats, storm.stones
+    through = storm.passed_through_warning()
+    if through is not None:
+        _log.warning("warning: %s", through)
     st.stones_hit = int(stones.hit.sum())
     st.sim_time_s, st.wall_time_s, st.setup_time_s, st.backend = float(storm.t), float(wall), float(setup), KERNELS
     st.real_time_factor = float(storm.t / wall) if wall > 0 else float("inf")

@@ -356,3 +356,43 @@ def test_good_stones_still_go_in(plate_storm):
                                  np.array([0.0, 0.0, -1.0]), 0.005)
     assert ids.tolist() == [0, 1, 2]
     plate_storm.stones.retire(ids)
+
+
+# ---- silent empty storms (issue #25, item 5) ---------------------------------------------------------------
+
+EMPTY_ROWS = [
+    ("dt-1-s", dict(duration=2.0, dt=1.0, stones=50), "lower dt ([time] dt = 1 s)"),
+    ("cd-1e-9-tunnels", dict(duration=0.2, stones=50, cd=1e-9), "[hail] cd = 1e-09"),
+]
+
+
+@pytest.mark.parametrize("name, settings, message", EMPTY_ROWS, ids=[r[0] for r in EMPTY_ROWS])
+def test_stones_through_the_footprint_without_a_hit_warn(caplog, name, settings, message):
+    """0 impacts although the stones crossed the seat's footprint (they passed through
+    it in one step): a warning, as for the wind that carries every stone past."""
+    import logging
+
+    from helpers import plate_gf
+
+    from hailstorm.runtime.scene import Scene
+    from hailstorm.runtime.storm.driver import run_storm
+
+    with caplog.at_level(logging.WARNING):
+        result = run_storm(plate_gf(), Scene.from_flat(**settings), progress=False)
+    assert result.stats.impacts == 0
+    warned = [r.getMessage() for r in caplog.records if "passed through the seat's footprint" in r.getMessage()]
+    assert len(warned) == 1 and message in warned[0], caplog.text
+
+
+def test_a_storm_with_impacts_does_not_warn_of_passing_through(caplog):
+    import logging
+
+    from helpers import plate_gf
+
+    from hailstorm.runtime.scene import Scene
+    from hailstorm.runtime.storm.driver import run_storm
+
+    with caplog.at_level(logging.WARNING):
+        result = run_storm(plate_gf(), Scene.from_flat(duration=0.2, stones=50), progress=False)
+    assert result.stats.impacts > 0
+    assert "passed through" not in caplog.text
