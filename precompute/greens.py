@@ -38,7 +38,7 @@ import scipy.sparse as sp
 
 from hailstorm.precompute.fem import free_dofs
 from hailstorm.precompute.resources import DEFAULT_STORE_BYTES
-from hailstorm.precompute.supernodal import DEFAULT_BATCH, SupernodalSolver
+from hailstorm.precompute.supernodal import DEFAULT_BATCH, PatternError, SupernodalSolver
 
 SOLVERS = ("supernodal", "cholmod", "splu", "amg")
 
@@ -160,7 +160,13 @@ def factorize(A: sp.spmatrix, solver: str = "supernodal", *, near_null: np.ndarr
         raise ValueError("the AMG solver needs the rigid-body modes (near_null)")
     batch = solver_batch(solver) if batch is None else int(batch)
     if solver == "supernodal":
-        return SupernodalSolver(A, batch=batch, threads=threads)
+        try:
+            return SupernodalSolver(A, batch=batch, threads=threads)
+        except PatternError as exc:  # e.g. a 1e18 stiffness contrast: CHOLMOD factors it
+            import logging
+
+            logging.getLogger(__name__).info("supernodal solver: %s; using CHOLMOD (cholespy) instead", exc)
+            solver, batch = "cholmod", solver_batch("cholmod")
     made: _DenseColumns
     if solver == "cholmod":
         made = _Cholmod(sp.csc_matrix(A))
