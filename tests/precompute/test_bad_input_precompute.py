@@ -613,3 +613,37 @@ def test_supernodal_falls_back_to_cholmod_when_the_pattern_cannot_be_recovered(t
     assert len(notes) == 1 and "cannot recover the factor's pattern" in notes[0], caplog.text
     D, R = np.asarray(gf.D), np.asarray(ref.D)
     assert np.abs(D - R).max() <= 1e-6 * np.abs(R).max()
+
+
+# ----------------------------------------------------------------------------- issue #25, item 3 (bundles)
+
+def test_replacing_a_read_only_bundle_removes_its_old_copy(small_box, tmp_path):
+    """The replaced bundle was read-only: its old copy (``.b.tmp-*`` after the exchange) is
+    made writable and removed, not left hidden (as a non-root user the old code left it)."""
+    out = build_bundle(tmp_path / "b", mesh=small_box, young=1e6)
+    for p in [*out.iterdir(), out]:
+        p.chmod(0o555 if p.is_dir() else 0o444)
+    build_bundle(tmp_path / "b", mesh=small_box, young=2e6)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["b"]
+    assert load(tmp_path / "b").manifest["material"]["young"] == 2e6
+
+
+def test_an_old_copy_that_cannot_be_removed_is_reported(small_box, tmp_path, monkeypatch, caplog):
+    """The removal's failure is reported (one warning naming the copy), not ignored."""
+    import hailstorm.runtime.bundle.write as write
+
+    build_bundle(tmp_path / "b", mesh=small_box, young=1e6)
+    real = shutil.rmtree
+
+    def failing(path, *a, **k):
+        if ".b.tmp-" in str(path) or ".b.old-" in str(path):
+            return None  # nothing removed, no exception: as a read-only copy for a non-root user
+        return real(path, *a, **k)
+
+    monkeypatch.setattr(write.shutil, "rmtree", failing)
+    with caplog.at_level(logging.WARNING):
+        build_bundle(tmp_path / "b", mesh=small_box, young=2e6)
+    monkeypatch.undo()
+    left = [p.name for p in tmp_path.iterdir() if p.name.startswith(".b.")]
+    warned = [r.getMessage() for r in caplog.records if "could not be removed" in r.getMessage()]
+    assert len(left) == 1 and len(warned) == 1 and left[0] in warned[0], (left, caplog.text)
