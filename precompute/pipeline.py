@@ -53,6 +53,7 @@ from hailstorm.precompute.greens import (
 )
 from hailstorm.precompute.resources import (
     BASE_BYTES,
+    TooLargeError,
     available_memory,
     check_disk,
     check_fits,
@@ -329,6 +330,9 @@ def build_bundle(
             try:
                 if read_manifest(out)["key"] == key:
                     log.info("bundle %s is up to date (key %s); reusing it", out, key[:12])
+                    if work_dir(out).is_dir():  # a killed replacement's blocks (we hold the lock): not needed
+                        log.info("removing %s, the blocks of an interrupted run for other inputs", work_dir(out))
+                        remove_work_dir(work_dir(out))
                     return out
             except ValueError:
                 pass
@@ -437,7 +441,12 @@ def _stream_compliance(out: Path, problem: ColumnProblem, key: str, progress: bo
         log.info("resuming: %d of %d blocks done (in %s)", done, len(blocks), store.path)
     d_disk = store.data_bytes
     block_disk = d_disk / max(len(blocks), 1)
-    check_disk(block_disk * len(todo), store.path, f"D ({n_rows} x {ncols})", allow_large=run.allow_large)
+    try:
+        check_disk(block_disk * len(todo), store.path, f"D ({n_rows} x {ncols})", allow_large=run.allow_large)
+    except TooLargeError:
+        if not done:  # refused before any work: leave no empty work directory behind
+            remove_work_dir(store.path)
+        raise
     n_dofs = problem.Kff.shape[0]
     block_solved = 8 * n_rows * (blocks[0][1] - blocks[0][0])  # a block is solved in float64 whatever D's type
     est = estimate_memory(n_dofs, block_solved, 1 if run.scheduler is None and run.workers is None else 2)

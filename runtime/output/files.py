@@ -64,6 +64,14 @@ _MANIFEST_FORMAT = "hailstorm-storm-output"
 FRAME_BYTES_PER_VERTEX = 80
 
 
+def _bytes(n: float) -> str:
+    """A byte count in the largest fitting unit, three digits: '3.2 GiB', '150 KiB', '512 B'."""
+    for unit, k in (("TiB", 2**40), ("GiB", 2**30), ("MiB", 2**20), ("KiB", 2**10)):
+        if n >= k:
+            return f"{n / k:.3g} {unit}"
+    return f"{int(n)} B"
+
+
 class OutputError(ValueError):
     """An output directory cannot be written, or writing it would overwrite files
     hailstorm did not write."""
@@ -446,8 +454,8 @@ class StormOutput:
             if self.disk_bytes is not None:
                 free = shutil.disk_usage(parent).free
                 if self.disk_bytes > free:
-                    raise OutputError(f"the outputs need about {self.disk_bytes / 2**30:.2f} GiB but {parent} has "
-                                      f"{free / 2**30:.2f} GiB free (lower [output] fps or the duration)")
+                    raise OutputError(f"the outputs need about {_bytes(self.disk_bytes)} but {parent} has "
+                                      f"{_bytes(free)} free (lower [output] fps or the duration)")
             clean_stale_partials(self.out)
             self.staging = Path(tempfile.mkdtemp(prefix=f".{self.out.name}{_PARTIAL}", dir=parent))
             self._lock_fd = _hold_lock(self.staging / _PARTIAL_LOCK)

@@ -647,3 +647,37 @@ def test_an_old_copy_that_cannot_be_removed_is_reported(small_box, tmp_path, mon
     left = [p.name for p in tmp_path.iterdir() if p.name.startswith(".b.")]
     warned = [r.getMessage() for r in caplog.records if "could not be removed" in r.getMessage()]
     assert len(left) == 1 and len(warned) == 1 and left[0] in warned[0], (left, caplog.text)
+
+
+def _fake_work_dir(out: Path) -> Path:
+    """What a replacement of ``out`` killed mid-way leaves: the work directory's own files."""
+    from hailstorm.precompute.blocks import work_dir
+
+    w = work_dir(out)
+    (w / "blocks").mkdir(parents=True)
+    (w / "blocks" / "0.json").write_text("{}")
+    (w / "compliance.npy").write_bytes(b"\0" * 4096)
+    (w / "work.json").write_text('{"key": "other inputs"}')
+    return w
+
+
+def test_an_up_to_date_reuse_removes_a_killed_replacements_work_directory(small_box, tmp_path):
+    out = build_bundle(tmp_path / "b", mesh=small_box)
+    w = _fake_work_dir(out)
+    assert build_bundle(tmp_path / "b", mesh=small_box) == out  # reused
+    assert not w.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["b"]
+
+
+def test_a_disk_full_refusal_leaves_no_work_directory(small_box, tmp_path, monkeypatch):
+    import collections
+
+    import hailstorm.precompute.resources as resources
+    from hailstorm.precompute.resources import TooLargeError
+
+    usage = collections.namedtuple("usage", "total used free")
+    monkeypatch.setattr(resources.shutil, "disk_usage", lambda p: usage(10**9, 10**9, 0))
+    with pytest.raises(TooLargeError, match="of disk for D"):
+        build_bundle(tmp_path / "b", mesh=small_box)
+    monkeypatch.undo()
+    assert sorted(p.name for p in tmp_path.iterdir()) == []

@@ -396,3 +396,19 @@ def test_a_storm_with_impacts_does_not_warn_of_passing_through(caplog):
         result = run_storm(plate_gf(), Scene.from_flat(duration=0.2, stones=50), progress=False)
     assert result.stats.impacts > 0
     assert "passed through" not in caplog.text
+
+
+def test_disk_full_refusal_states_sizes_in_adaptive_units(tmp_path, monkeypatch):
+    """'need about 0.00 GiB but ... has 0.00 GiB free' -> sizes a person can read."""
+    import collections
+
+    from helpers import plate_gf
+
+    import hailstorm.runtime.output.files as files
+    from hailstorm.runtime.output.files import OutputError, StormOutput
+
+    usage = collections.namedtuple("usage", "total used free")
+    monkeypatch.setattr(files.shutil, "disk_usage", lambda p: usage(10**6, 10**6, 300))
+    with pytest.raises(OutputError, match=r"need about 12\.1 KiB but .* has 300 B free"):
+        StormOutput(tmp_path / "out", plate_gf(), disk_bytes=12_345).open()
+    assert list(tmp_path.iterdir()) == []
