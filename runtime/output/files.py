@@ -430,6 +430,7 @@ class StormOutput:
         self.files: list[str] = []
         self.committed = False
         self._lock_fd: int | None = None
+        self._before: tuple | None = None
 
     def __enter__(self) -> "StormOutput":
         self.open()
@@ -457,6 +458,11 @@ class StormOutput:
                     raise OutputError(f"the outputs need about {_bytes(self.disk_bytes)} but {parent} has "
                                       f"{_bytes(free)} free (lower [output] fps or the duration)")
             clean_stale_partials(self.out)
+            running = _running_partials(self.out)
+            if running:
+                raise OutputError(f"another storm is writing --out {self.out} now ({running[0]}); wait for it "
+                                  "or choose another --out")
+            self._before = _state(self.out)
             self.staging = Path(tempfile.mkdtemp(prefix=f".{self.out.name}{_PARTIAL}", dir=parent))
             self._lock_fd = _hold_lock(self.staging / _PARTIAL_LOCK)
         except OSError as exc:
@@ -506,12 +512,19 @@ class StormOutput:
     def _commit(self) -> None:
         staging, out = self.staging, self.out
         assert staging is not None
+        if _state(out) != self._before:  # another storm (or the user) wrote --out during the run
+            self.staging = None  # kept, and named: never silently replaced, never lost
+            self._release()
+            raise OutputError(f"--out {out} was written by another run while this storm ran; not replacing it: "
+                              f"this storm's results are in {staging}")
         (staging / _PARTIAL_LOCK).unlink(missing_ok=True)  # the flock stays on the open descriptor
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(staging, 0o777 & ~umask)  # mkdtemp's directory is private; a plain mkdir's is not
         if out.is_dir() and any(out.iterdir()):
             if _foreign(out):  # someone wrote into it during the run: keep both
+                self.staging = None  # kept (the message names it), not removed by abort()
+                self._release()
                 raise OutputError(f"--out {out} changed during the run and now holds other files; "
                                   f"the results are in {staging}")
             old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=staging.parent))
@@ -550,6 +563,41 @@ def _hold_lock(path: Path) -> int:
     fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o600)
     fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # a new file: never contended
     return fd
+
+
+def _state(out: Path) -> tuple:
+    """What identifies ``out``'s content for a writer that replaces it: absent, or its
+    manifest's bytes (a storm output), or its listing's first entries (anything else)."""
+    if not out.exists():
+        return ("absent",)
+    try:
+        return ("manifest", (out / STORM_MANIFEST).read_bytes())
+    except OSError:
+        pass
+    try:
+        with os.scandir(out) as it:
+            return ("listing", tuple(sorted(e.name for _, e in zip(range(64), it))))
+    except OSError:
+        return ("unreadable",)
+
+
+def _running_partials(out: Path) -> list[Path]:
+    """The temporary directories of storms writing ``out`` now (their lock is held)."""
+    running = []
+    for d in sorted(out.absolute().parent.glob(f".{out.name}{_PARTIAL}*")):
+        lock = d / _PARTIAL_LOCK
+        try:
+            fd = os.open(lock, os.O_RDWR)
+        except OSError:
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            fcntl.flock(fd, fcntl.LOCK_UN)
+        except BlockingIOError:
+            running.append(d)
+        finally:
+            os.close(fd)
+    return running
 
 
 def clean_stale_partials(out: str | os.PathLike) -> list[Path]:

@@ -412,3 +412,49 @@ def test_disk_full_refusal_states_sizes_in_adaptive_units(tmp_path, monkeypatch)
     with pytest.raises(OutputError, match=r"need about 12\.1 KiB but .* has 300 B free"):
         StormOutput(tmp_path / "out", plate_gf(), disk_bytes=12_345).open()
     assert list(tmp_path.iterdir()) == []
+
+
+# ---- two writers, one --out (issue #25, item 9) ------------------------------------------------------------
+
+
+def test_a_second_storm_into_a_running_storms_out_is_refused(tmp_path):
+    from helpers import plate_gf
+
+    from hailstorm.runtime.output.files import OutputError, StormOutput
+
+    gf = plate_gf()
+    first = StormOutput(tmp_path / "out", gf, video=False)
+    first.open()
+    try:
+        with pytest.raises(OutputError, match="another storm is writing --out"):
+            StormOutput(tmp_path / "out", gf, video=False).open()
+    finally:
+        first.abort()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_storm_whose_out_was_written_meanwhile_keeps_both(seat_bundle, tmp_path):
+    """--out written by another run during this storm (a storm that started before this
+    one's check, another tool): this commit is refused, the other result stays, this
+    storm's is kept and named (was: the last writer silently replaced the other)."""
+    import json
+
+    from hailstorm.runtime.bundle.read import load
+    from hailstorm.runtime.output.files import STORM_MANIFEST, OutputError, StormOutput
+    from hailstorm.runtime.scene import Scene
+    from hailstorm.runtime.storm.driver import run_storm
+
+    gf = load(seat_bundle)
+    out = tmp_path / "out"
+    mine = StormOutput(out, gf, video=False)
+    mine.open()
+    result = run_storm(gf, Scene.from_flat(duration=0.01, stones=1, seed=2), progress=False, on_frame=mine.add)
+    out.mkdir()  # the other run's complete output lands first
+    (out / "summary.json").write_text('{"seed": 1}')
+    (out / STORM_MANIFEST).write_text(json.dumps({"format": "hailstorm-storm-output", "version": 1,
+                                                  "files": ["summary.json"]}))
+    with pytest.raises(OutputError, match="written by another run while this storm ran") as err:
+        mine.finish(result)
+    kept = Path(str(err.value).rsplit(" ", 1)[-1])
+    assert json.loads((kept / "summary.json").read_text())["seed"] == 2
+    assert json.loads((out / "summary.json").read_text()) == {"seed": 1}
