@@ -324,8 +324,14 @@ def build_bundle(
     key = cache_key(mesh, options)
     if out is None:
         out = (default_cache_dir() / key[:16]).absolute()
+    before = _key_at(out)
     with bundle_lock(out):  # waits for another writer of `out`
         clean_stale_temporaries(out.parent)  # a killed writer's debris; a stranded bundle is put back
+        now = _key_at(out)
+        if now is not None and now != before and now != key:
+            raise BundleError(f"--out {out} was just written by another run with other inputs (key {now[:12]}) "
+                              "while this one waited for it; not replacing that run's bundle: choose another "
+                              "--out, or run again to replace it")
         if reuse and is_bundle(out):
             try:
                 if read_manifest(out)["key"] == key:
@@ -342,6 +348,14 @@ def build_bundle(
             return _compute(out, mesh, surface, options, key, geometry, mesh_size, tol, t0, t_mesh, progress, run, mats)
         except OSError as exc:
             raise BundleError(f"cannot write bundle {out}: {exc.strerror or exc} ({exc.filename or out})") from exc
+
+
+def _key_at(out: Path) -> str | None:
+    """The key of the bundle at ``out``, or None (no bundle, or none readable)."""
+    try:
+        return str(read_manifest(out)["key"]) if is_bundle(out) else None
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
 
 
 @dataclass(frozen=True)

@@ -681,3 +681,52 @@ def test_a_disk_full_refusal_leaves_no_work_directory(small_box, tmp_path, monke
         build_bundle(tmp_path / "b", mesh=small_box)
     monkeypatch.undo()
     assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+# ----------------------------------------------------------------------------- issue #25, item 9 (bundles)
+
+def test_a_writer_that_waited_for_another_with_other_inputs_is_refused(small_box, tmp_path, monkeypatch):
+    """Two precomputes of one --out with different materials: the one that waited for the
+    lock finds the other's fresh bundle and refuses (one line), instead of replacing it
+    while the other reports success; the other's bundle stays. (The other writer's run is
+    played inside the lock's wait.)"""
+    import contextlib
+
+    import hailstorm.precompute.pipeline as pipeline
+    from hailstorm.runtime.bundle.write import bundle_lock as real_lock
+
+    out = tmp_path / "b"
+
+    @contextlib.contextmanager
+    def lock_after_the_other_writer(path, **kw):
+        monkeypatch.setattr(pipeline, "bundle_lock", real_lock)
+        build_bundle(out, mesh=small_box, young=1e6)  # the other writer, done while we waited
+        with real_lock(path, **kw) as held:
+            yield held
+
+    monkeypatch.setattr(pipeline, "bundle_lock", lock_after_the_other_writer)
+    with pytest.raises(BundleError, match="was just written by another run with other inputs"):
+        build_bundle(out, mesh=small_box, young=3e6)
+    assert load(out).manifest["material"]["young"] == 1e6
+    # run again (nobody writing now): it replaces the bundle, as a rerun should
+    assert load(build_bundle(out, mesh=small_box, young=3e6)).manifest["material"]["young"] == 3e6
+
+
+def test_a_writer_that_waited_for_another_with_the_same_inputs_reuses_its_bundle(small_box, tmp_path, monkeypatch):
+    import contextlib
+
+    import hailstorm.precompute.pipeline as pipeline
+    from hailstorm.runtime.bundle.write import bundle_lock as real_lock
+
+    out = tmp_path / "b"
+
+    @contextlib.contextmanager
+    def lock_after_the_other_writer(path, **kw):
+        monkeypatch.setattr(pipeline, "bundle_lock", real_lock)
+        build_bundle(out, mesh=small_box, young=1e6)
+        with real_lock(path, **kw) as held:
+            yield held
+
+    monkeypatch.setattr(pipeline, "bundle_lock", lock_after_the_other_writer)
+    key = load(build_bundle(out, mesh=small_box, young=1e6)).manifest["key"]
+    assert load(out).manifest["key"] == key
