@@ -160,7 +160,7 @@ def _run_precompute(args: argparse.Namespace) -> int:
             workers=args.workers, scheduler=args.scheduler, dtype=args.dtype,
         )
     except OSError as exc:  # what the library did not already name (a full disk...): still the user's
-        raise BundleError(f"precompute failed: {exc}") from exc
+        raise BundleError(f"precompute failed: {_os_error(exc, args.out)}") from exc
     _print_bundle(path, rehash=False)  # just written and hashed: D is not read again
     if not args.quiet:
         print(f"done in {time.perf_counter() - t0:.1f} s")
@@ -310,7 +310,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"hailstorm: error: {_one_line(exc)}", file=sys.stderr)
         return EXIT_INPUT
     except OSError as exc:  # files and directories the user named (missing, read-only, full disk...)
-        print(f"hailstorm: error: {_os_error(exc)}", file=sys.stderr)
+        print(f"hailstorm: error: {_os_error(exc, getattr(args, 'out', None))}", file=sys.stderr)
         return EXIT_INPUT
     except MemoryError:
         print("hailstorm: error: out of memory (a coarser mesh, a shorter storm or fewer stones needs less)", file=sys.stderr)
@@ -348,11 +348,17 @@ def _one_line(exc: BaseException) -> str:
     return " ".join(str(exc).split()) or type(exc).__name__
 
 
-def _os_error(exc: OSError) -> str:
-    """``[Errno 13] Permission denied: 'x'`` as ``x: Permission denied`` (one line)."""
+def _os_error(exc: OSError, out: Any = None) -> str:
+    """``[Errno 13] Permission denied: 'x'`` as ``x: Permission denied`` (one line). An error
+    that names no file (a write's EFBIG, ENOSPC) names the command's output ``out``."""
+    import errno
+
     if exc.strerror:
         where = ": ".join(str(f) for f in (exc.filename, exc.filename2) if f is not None)
-        return f"{where}: {exc.strerror}" if where else exc.strerror
+        if not where and out is not None:
+            where = f"writing {out}"
+        hint = " (a file exceeds the file system's size limit, e.g. FAT32's 4 GiB)" if exc.errno == errno.EFBIG else ""
+        return f"{where}: {exc.strerror}{hint}" if where else exc.strerror + hint
     return _one_line(exc)
 
 

@@ -458,3 +458,24 @@ def test_a_storm_whose_out_was_written_meanwhile_keeps_both(seat_bundle, tmp_pat
     kept = Path(str(err.value).rsplit(" ", 1)[-1])
     assert json.loads((kept / "summary.json").read_text())["seed"] == 2
     assert json.loads((out / "summary.json").read_text()) == {"seed": 1}
+
+
+# ---- messages (issue #25, item 10) -------------------------------------------------------------------------
+
+
+def test_file_too_large_names_the_output(seat_bundle, tmp_path, capsys, monkeypatch):
+    """A write's EFBIG carries no file name: the one line names --out (and the limit)."""
+    import errno
+
+    import hailstorm.runtime.output.files as files
+
+    def too_large(self, frame):
+        raise OSError(errno.EFBIG, os.strerror(errno.EFBIG))
+
+    monkeypatch.setattr(files.ParaviewSeries, "add", too_large)
+    out = tmp_path / "out"
+    rc = main(["storm", "--gf", str(seat_bundle), "--out", str(out), *TINY])
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert rc == EXIT_INPUT and len(lines) == 1, lines
+    assert f"writing {out}: File too large" in lines[0] and "size limit" in lines[0]
+    assert list(tmp_path.iterdir()) == []
