@@ -503,6 +503,8 @@ class Capacitance:
         RuntimeError
             The active set did not settle within ``max_iter`` iterations.
         """
+        if np.iscomplexobj(ubar) or np.asarray(ubar).dtype.kind not in "biuf":
+            raise ValueError(f"displacements must be real numbers [m], got {np.asarray(ubar).dtype}")
         ubar = np.asarray(ubar, dtype=np.float64)
         s = self.s
         if ubar.shape != (s, 3):

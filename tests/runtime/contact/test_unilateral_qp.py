@@ -123,3 +123,17 @@ def test_max_iter_must_be_a_positive_integer(box, bad):
         cap.solve(np.zeros((3, 3)), unilateral=True, max_iter=bad)
     with pytest.raises(ValueError, match="max_iter must be a positive integer"):
         nonnegative_qp(np.eye(2), np.ones(2), max_iter=bad)
+
+
+@pytest.mark.parametrize("unilateral", [False, True])
+def test_complex_displacements_are_refused_not_made_real(box, unilateral):
+    """numpy would drop the imaginary part (a ComplexWarning at most): refused instead."""
+    gf, unclamped = box
+    tri, bary = unclamped[:3], np.full((3, 3), 1 / 3)
+    ubar = np.zeros((3, 3), complex)
+    ubar[:, 2] = -1e-4 + 1e-5j
+    with pytest.raises(ValueError, match="displacements must be real numbers"):
+        solve_contacts(gf, tri, bary, ubar, mode="frictionless", unilateral=unilateral)
+    cap = capacitance(gf, tri, bary, mode="frictionless")
+    with pytest.raises(ValueError, match="displacements must be real numbers"):
+        cap.solve(ubar, unilateral=unilateral)
