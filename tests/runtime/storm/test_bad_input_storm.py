@@ -479,3 +479,33 @@ def test_file_too_large_names_the_output(seat_bundle, tmp_path, capsys, monkeypa
     assert rc == EXIT_INPUT and len(lines) == 1, lines
     assert f"writing {out}: File too large" in lines[0] and "size limit" in lines[0]
     assert list(tmp_path.iterdir()) == []
+
+
+def _pair_peak(gf, d, integrator="exact", r=0.005, v0=5.0):
+    """Peak contact force of two stones ``d`` apart dropped together on the seat's top."""
+    from hailstorm.runtime.scene import Scene
+    from hailstorm.runtime.storm.driver import Storm
+
+    c = np.asarray(gf.vertices)[int(np.argmax(np.asarray(gf.vertices)[:, 2]))]
+    sc = Scene.from_flat(duration=0.05, stones=0, integrator=integrator)
+    st = Storm(gf, sc, spawn=False)
+    st.add_stones(np.array([c + [-d / 2, 0, r + 2e-3], c + [d / 2, 0, r + 2e-3]]), np.tile([0.0, 0.0, -v0], (2, 1)),
+                  np.full(2, r))
+    for _ in range(int(0.02 / sc.time.dt)):
+        st.step()
+    return st.stats.max_contact_force
+
+
+def test_two_stones_nearly_coincident_peak_force_is_bounded(seat_bundle):
+    """Issue #25 reported 952 N for two stones 1e-7 m apart under the exact integrator
+    (4.6 N at 0 and 1e-9 m). Not reproduced here (the configuration was not recorded):
+    this documents and bounds it -- on the seat's top, at 0 to 1e-5 m apart, the peak is
+    that of the coincident pair within 5 % (measured: 6.24 N at every distance on the
+    cached 1476-vertex seat, 6.29 N at 1 mm)."""
+    from hailstorm.runtime.bundle.read import load
+
+    gf = load(seat_bundle)
+    peaks = {d: _pair_peak(gf, d) for d in (0.0, 1e-9, 1e-7, 1e-5)}
+    ref = peaks[0.0]
+    assert np.isfinite(ref) and ref > 0
+    assert all(abs(p - ref) <= 0.05 * ref for p in peaks.values()), peaks
