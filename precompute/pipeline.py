@@ -326,12 +326,12 @@ def build_bundle(
         out = (default_cache_dir() / key[:16]).absolute()
     before = _key_at(out)
     with bundle_lock(out):  # waits for another writer of `out`
-        clean_stale_temporaries(out.parent)  # a killed writer's debris; a stranded bundle is put back
-        now = _key_at(out)
+        now = _key_at(out)  # (before a stranded bundle is put back: that is no other run's fresh result)
         if now is not None and now != before and now != key:
             raise BundleError(f"--out {out} was just written by another run with other inputs (key {now[:12]}) "
                               "while this one waited for it; not replacing that run's bundle: choose another "
                               "--out, or run again to replace it")
+        clean_stale_temporaries(out.parent)  # a killed writer's debris; a stranded bundle is put back
         if reuse and is_bundle(out):
             try:
                 if read_manifest(out)["key"] == key:

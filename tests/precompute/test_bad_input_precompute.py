@@ -524,7 +524,11 @@ def test_a_second_writer_waits_for_the_first(small_box, tmp_path, caplog):
 def _build_in_process(out, young):
     from hailstorm.precompute import box_mesh
 
-    build_bundle(out, mesh=box_mesh((0.1, 0.1, 0.05), 0.02), young=young)
+    try:
+        build_bundle(out, mesh=box_mesh((0.1, 0.1, 0.05), 0.02), young=young)
+    except BundleError as exc:  # waited for a writer with other inputs: refused, not handed its bundle
+        assert "was just written by another run with other inputs" in str(exc)
+        sys.exit(3)
 
 
 def test_two_processes_writing_one_bundle(tmp_path):
@@ -537,7 +541,10 @@ def test_two_processes_writing_one_bundle(tmp_path):
         p.start()
     for p in procs:
         p.join(timeout=300)
-    assert [p.exitcode for p in procs] == [0, 0, 0]
+    # each writer either wrote (or reused) its own bundle or was refused with the one-line
+    # reason (issue #25: never silently handed the other's bundle); at least one wrote
+    codes = [p.exitcode for p in procs]
+    assert set(codes) <= {0, 3} and 0 in codes, codes
     assert load(out).young in (1e6, 2e6)
     assert sorted(q.name for q in tmp_path.iterdir()) == ["b"]
 
