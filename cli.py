@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import signal
 import sys
 import time
 from pathlib import Path
@@ -133,7 +134,8 @@ def _storm_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", type=Path, default=Path("hailstorm-out"), help="output directory (default ./hailstorm-out)")
     p.add_argument("--no-video", action="store_true", help="skip the animation")
     p.add_argument("--allow-large", action="store_true",
-                   help="run a storm whose estimate exceeds the machine (memory, or more than 10 million steps)")
+                   help="run a storm whose estimate exceeds the machine (memory, more than 10 million steps, "
+                        "or an estimated hour of stepping)")
 
 
 def _run_precompute(args: argparse.Namespace) -> int:
@@ -159,7 +161,7 @@ def _run_precompute(args: argparse.Namespace) -> int:
             workers=args.workers, scheduler=args.scheduler, dtype=args.dtype,
         )
     except OSError as exc:  # what the library did not already name (a full disk...): still the user's
-        raise BundleError(f"precompute failed: {exc}") from exc
+        raise BundleError(f"precompute failed: {_os_error(exc, args.out)}") from exc
     _print_bundle(path, rehash=False)  # just written and hashed: D is not read again
     if not args.quiet:
         print(f"done in {time.perf_counter() - t0:.1f} s")
@@ -303,6 +305,7 @@ def main(argv: list[str] | None = None) -> int:
     from hailstorm.precompute.geometry import MeshError
     from hailstorm.runtime.bundle.format import BundleError
 
+    previous = _terminate_as_exception()
     try:
         if args.command == "precompute":
             rc = _run_precompute(args)
@@ -319,25 +322,55 @@ def main(argv: list[str] | None = None) -> int:
         print(f"hailstorm: error: {_one_line(exc)}", file=sys.stderr)
         return EXIT_INPUT
     except OSError as exc:  # files and directories the user named (missing, read-only, full disk...)
-        print(f"hailstorm: error: {_os_error(exc)}", file=sys.stderr)
+        print(f"hailstorm: error: {_os_error(exc, getattr(args, 'out', None))}", file=sys.stderr)
         return EXIT_INPUT
     except MemoryError:
         print("hailstorm: error: out of memory (a coarser mesh, a shorter storm or fewer stones needs less)", file=sys.stderr)
         return EXIT_INPUT
+    except _Terminated:
+        print("hailstorm: terminated (SIGTERM)", file=sys.stderr)
+        return 128 + signal.SIGTERM
     except KeyboardInterrupt:
         print("hailstorm: interrupted", file=sys.stderr)
         return 130
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
+
+
+class _Terminated(Exception):
+    """SIGTERM, raised in the main thread so that the writers' cleanup runs."""
+
+
+def _raise_terminated(signum: int, frame: object) -> None:
+    raise _Terminated()
+
+
+def _terminate_as_exception() -> object | None:
+    """Turn SIGTERM into :class:`_Terminated` (only in the main thread); returns the
+    previous handler, or None if none was installed."""
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return None
+    return signal.signal(signal.SIGTERM, _raise_terminated)
 
 
 def _one_line(exc: BaseException) -> str:
     return " ".join(str(exc).split()) or type(exc).__name__
 
 
-def _os_error(exc: OSError) -> str:
-    """``[Errno 13] Permission denied: 'x'`` as ``x: Permission denied`` (one line)."""
+def _os_error(exc: OSError, out: Any = None) -> str:
+    """``[Errno 13] Permission denied: 'x'`` as ``x: Permission denied`` (one line). An error
+    that names no file (a write's EFBIG, ENOSPC) names the command's output ``out``."""
+    import errno
+
     if exc.strerror:
         where = ": ".join(str(f) for f in (exc.filename, exc.filename2) if f is not None)
-        return f"{where}: {exc.strerror}" if where else exc.strerror
+        if not where and out is not None:
+            where = f"writing {out}"
+        hint = " (a file exceeds the file system's size limit, e.g. FAT32's 4 GiB)" if exc.errno == errno.EFBIG else ""
+        return f"{where}: {exc.strerror}{hint}" if where else exc.strerror + hint
     return _one_line(exc)
 
 

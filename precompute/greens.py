@@ -30,6 +30,8 @@ K_ff u = e_(j,d), read at the output dofs. Four solvers share one interface
 
 from __future__ import annotations
 
+import logging
+
 from dataclasses import dataclass
 from typing import Callable
 
@@ -38,7 +40,9 @@ import scipy.sparse as sp
 
 from hailstorm.precompute.fem import free_dofs
 from hailstorm.precompute.resources import DEFAULT_STORE_BYTES
-from hailstorm.precompute.supernodal import DEFAULT_BATCH, SupernodalSolver
+from hailstorm.precompute.supernodal import DEFAULT_BATCH, PatternError, SupernodalSolver
+
+_log = logging.getLogger(__name__)
 
 #: Right-hand sides per triangular solve of the general solvers: measured fastest per column
 #: for cholespy's (simplicial) CHOLMOD solve on the default seat (blocks of 8-32 stay in cache;
@@ -147,8 +151,12 @@ def factorize(A: sp.spmatrix, solver: str = "supernodal", *, near_null: np.ndarr
     spec = solver_spec(solver)
     if spec.needs_near_null and near_null is None:
         raise ValueError(f"the {spec.title} solver needs the rigid-body modes (near_null)")
-    return spec.build(A, near_null=near_null, tol=tol, threads=threads,
-                      batch=spec.batch if batch is None else int(batch))
+    try:
+        return spec.build(A, near_null=near_null, tol=tol, threads=threads,
+                          batch=spec.batch if batch is None else int(batch))
+    except PatternError as exc:  # the supernodal factor's pattern check (e.g. a 1e18 stiffness contrast)
+        _log.info("supernodal solver: %s; using CHOLMOD (cholespy) instead", exc)
+        return SOLVER_SPECS["cholmod"].build(A, near_null=near_null, tol=tol, threads=threads)
 
 
 @dataclass(frozen=True)

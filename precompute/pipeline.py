@@ -52,6 +52,7 @@ from hailstorm.precompute.greens import (
 )
 from hailstorm.precompute.resources import (
     BASE_BYTES,
+    TooLargeError,
     available_memory,
     check_disk,
     check_fits,
@@ -321,12 +322,21 @@ def build_bundle(
     key = cache_key(mesh, options)
     if out is None:
         out = (default_cache_dir() / key[:16]).absolute()
+    before = _key_at(out)
     with bundle_lock(out):  # waits for another writer of `out`
+        now = _key_at(out)  # (before a stranded bundle is put back: that is no other run's fresh result)
+        if now is not None and now != before and now != key:
+            raise BundleError(f"--out {out} was just written by another run with other inputs (key {now[:12]}) "
+                              "while this one waited for it; not replacing that run's bundle: choose another "
+                              "--out, or run again to replace it")
         clean_stale_temporaries(out.parent)  # a killed writer's debris; a stranded bundle is put back
         if reuse and is_bundle(out):
             try:
                 if read_manifest(out)["key"] == key:
                     log.info("bundle %s is up to date (key %s); reusing it", out, key[:12])
+                    if work_dir(out).is_dir():  # a killed replacement's blocks (we hold the lock): not needed
+                        log.info("removing %s, the blocks of an interrupted run for other inputs", work_dir(out))
+                        remove_work_dir(work_dir(out))
                     return out
             except ValueError:
                 pass
@@ -336,6 +346,14 @@ def build_bundle(
             return _compute(out, mesh, surface, options, key, geometry, mesh_size, tol, t0, t_mesh, progress, run, mats)
         except OSError as exc:
             raise BundleError(f"cannot write bundle {out}: {exc.strerror or exc} ({exc.filename or out})") from exc
+
+
+def _key_at(out: Path) -> str | None:
+    """The key of the bundle at ``out``, or None (no bundle, or none readable)."""
+    try:
+        return str(read_manifest(out)["key"]) if is_bundle(out) else None
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
 
 
 @dataclass(frozen=True)
@@ -435,7 +453,12 @@ def _stream_compliance(out: Path, problem: ColumnProblem, key: str, progress: bo
         log.info("resuming: %d of %d blocks done (in %s)", done, len(blocks), store.path)
     d_disk = store.data_bytes
     block_disk = d_disk / max(len(blocks), 1)
-    check_disk(block_disk * len(todo), store.path, f"D ({n_rows} x {ncols})", allow_large=run.allow_large)
+    try:
+        check_disk(block_disk * len(todo), store.path, f"D ({n_rows} x {ncols})", allow_large=run.allow_large)
+    except TooLargeError:
+        if not done:  # refused before any work: leave no empty work directory behind
+            remove_work_dir(store.path)
+        raise
     n_dofs = problem.Kff.shape[0]
     block_solved = 8 * n_rows * (blocks[0][1] - blocks[0][0])  # a block is solved in float64 whatever D's type
     est = estimate_memory(n_dofs, block_solved, 1 if run.scheduler is None and run.workers is None else 2)

@@ -98,6 +98,12 @@ class SupernodalFactor:
         return int(np.sum(nc * nc + 2 * nc * mb))
 
 
+class PatternError(np.linalg.LinAlgError):
+    """The factor's sparsity pattern cannot be recovered (entries cancelled to exact
+    zeros and the generic-valued refactorisation ordered differently, e.g. a 1e18
+    stiffness contrast); :func:`hailstorm.precompute.greens.factorize` then uses CHOLMOD."""
+
+
 def supernodal_factor(A: sp.spmatrix) -> SupernodalFactor:
     """Factorize the SPD ``A`` (SuperLU, symmetric mode) and arrange L in supernodes.
 
@@ -105,6 +111,8 @@ def supernodal_factor(A: sp.spmatrix) -> SupernodalFactor:
     ------
     numpy.linalg.LinAlgError
         ``A`` is not positive definite (a pivot is not positive).
+    PatternError
+        The factor's pattern cannot be recovered (see :class:`PatternError`).
     """
     from hailstorm.precompute.supernodal_kernels import gather_panels, pattern_is_closed  # compiled
 
@@ -185,7 +193,7 @@ def _with_symbolic_pattern(L: sp.csc_matrix, A: sp.csc_matrix, perm: np.ndarray)
     G.setdiag(np.asarray(abs(G).sum(axis=1)).ravel() + 1.0)
     lu = _superlu(G)
     if not np.array_equal(lu.perm_c, perm):  # pragma: no cover (the ordering depends on the pattern only)
-        raise np.linalg.LinAlgError("cannot recover the factor's pattern: the ordering changed")
+        raise PatternError("cannot recover the factor's pattern: the ordering changed")
     full = lu.L.tocsc()
     del lu
     full.sort_indices()

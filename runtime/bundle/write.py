@@ -24,6 +24,7 @@ import json
 import logging
 import os
 import shutil
+import stat
 import tempfile
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -416,7 +417,7 @@ def write_bundle(
                     os.replace(out, old)
                     os.replace(tmp, out)
                     tmp = old
-                shutil.rmtree(tmp, ignore_errors=True)
+                _discard_old_copy(tmp, out)
             else:
                 os.replace(tmp, out)
         except BaseException:
@@ -429,6 +430,29 @@ def write_bundle(
             shutil.rmtree(tmp, ignore_errors=True)
             raise
     return out
+
+
+def _discard_old_copy(old: Path, out: Path) -> None:
+    """Remove the replaced bundle's copy (our files: the bundle just exchanged out); a
+    read-only copy is made writable first; what still cannot be removed is reported."""
+    def writable_then_retry(func: Any, path: str, exc: Any) -> None:
+        parent = os.path.dirname(path)
+        try:
+            os.chmod(parent, os.stat(parent).st_mode | stat.S_IWUSR | stat.S_IXUSR)
+            if os.path.isdir(path) and not os.path.islink(path):
+                os.chmod(path, os.stat(path).st_mode | stat.S_IRWXU)
+            func(path)
+        except OSError:
+            pass
+
+    try:
+        os.chmod(old, os.stat(old).st_mode | stat.S_IRWXU)
+    except OSError:
+        pass
+    shutil.rmtree(old, onerror=writable_then_retry)
+    if old.exists():
+        log.warning("warning: the previous bundle of %s was replaced but its old copy %s could not be removed; "
+                    "delete it by hand", out, old)
 
 
 #: Columns of D cast per block by :func:`convert_bundle` (bounds its float64 temporaries).

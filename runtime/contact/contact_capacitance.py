@@ -36,7 +36,8 @@ from hailstorm.runtime.contact.weights import (
     vertex_forces,
 )
 
-__all__ = ["ACTIVE_SET_TOL", "ActiveSet", "Capacitance", "build", "capacitance", "contact_compliance", "from_weights"]
+__all__ = ["ACTIVE_SET_TOL", "ActiveSet", "Capacitance", "build", "capacitance", "contact_compliance", "from_weights",
+           "nonnegative_qp"]
 
 #: The active set releases a contact whose normal force pulls by more than this
 #: fraction of the largest, and re-activates one the seat penetrates by more
@@ -65,6 +66,101 @@ class ActiveSet:
     active: np.ndarray
     iterations: int
     multipliers: np.ndarray
+
+
+#: block-pivoting rounds of a frictionless unilateral solve before :func:`nonnegative_qp` takes
+#: over (it also takes over as soon as a set repeats); None: the iteration bound
+BLOCK_PIVOT_ROUNDS: int | None = None
+
+
+def _armijo_arc(Wt: np.ndarray, q: np.ndarray, y: np.ndarray, g: np.ndarray, d: np.ndarray,
+                free: np.ndarray) -> np.ndarray:
+    """Bertsekas' Armijo rule along the projection arc ``max(y + a d, 0)``, ``a = 1, 1/2, ...``."""
+    def value(z: np.ndarray) -> float:
+        return float(0.5 * z @ (Wt @ z) + q @ z)
+
+    q0, a = value(y), 1.0
+    for _ in range(80):
+        z = np.maximum(y + a * d, 0.0)
+        drop = -a * float(g[free] @ d[free]) + float(g[~free] @ (y[~free] - z[~free]))
+        if q0 - value(z) >= 1e-4 * drop:
+            return z
+        a *= 0.5
+    return y  # no decrease left at rounding level
+
+
+def nonnegative_qp(W: np.ndarray, q: np.ndarray, x0: np.ndarray | None = None, *, tol: float = ACTIVE_SET_TOL,
+                   max_iter: int = 200) -> tuple[np.ndarray, int]:
+    """Solve ``min 1/2 x^T W x + q^T x`` subject to ``x >= 0`` (the LCP ``x >= 0``,
+    ``W x + q >= 0``, ``x . (W x + q) = 0``) for a symmetric positive (semi)definite ``W``.
+
+    Bertsekas' projected Newton method (SIAM J. Control Optim. 20, 1982) on the
+    diagonally scaled problem (unit diagonal): a Newton step on the free
+    components, a gradient step on the ones held at the bound, the Armijo rule
+    along the projection arc. Every iteration decreases the convex objective, and
+    the method converges to the minimiser for any start (the cited theorem); the
+    active set is identified in finitely many steps, after which a full Newton
+    step is exact. No cycling, unlike block pivoting on a matrix that is not an
+    M-matrix.
+
+    Parameters
+    ----------
+    W : (n, n) ndarray
+        Symmetric positive semidefinite with a positive diagonal.
+    q : (n,) ndarray
+    x0 : (n,) ndarray, optional
+        Start (projected onto ``x >= 0``); default 0.
+    tol : float
+        Stop when ``|min(W_ii x_i, g_i)| <= tol * max(|q|, |W x|)`` for every ``i``
+        (``g = W x + q``): complementarity in the units of ``q``.
+    max_iter : int
+        Bound on the iterations (a safeguard, not a part of the method).
+
+    Returns
+    -------
+    x : (n,) ndarray
+    iterations : int
+
+    Raises
+    ------
+    ValueError
+        ``max_iter`` below 1, or a diagonal entry of ``W`` that is not positive.
+    RuntimeError
+        Not converged within ``max_iter`` iterations (rounding: ``W`` singular to
+        working precision).
+    """
+    if isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer)) or max_iter < 1:
+        raise ValueError(f"max_iter must be a positive integer, got {max_iter!r}")
+    W = np.asarray(W, dtype=np.float64)
+    q = np.asarray(q, dtype=np.float64)
+    n = q.size
+    diag = np.diag(W).copy()
+    if n and not (diag > 0).all():
+        raise ValueError("nonnegative_qp needs a positive diagonal of W")
+    sc = 1.0 / np.sqrt(diag) if n else diag
+    Wt = W * sc[:, None] * sc[None, :]
+    qt = q * sc
+    y = np.zeros(n) if x0 is None else np.maximum(np.asarray(x0, dtype=np.float64) / sc, 0.0)
+    for it in range(1, max_iter + 1):
+        g = Wt @ y + qt
+        r = np.minimum(y, g)  # the natural residual (scaled: units of q * sc)
+        scale = max(float(np.abs(qt).max(initial=0.0)), float(np.abs(Wt @ y).max(initial=0.0)),
+                    np.finfo(float).tiny)
+        if float(np.abs(r).max(initial=0.0)) <= tol * scale:
+            return y * sc, it
+        eps = min(float(np.abs(r).max()), float(np.abs(y).max(initial=0.0)) + scale)
+        free = ~((y <= eps) & (g > 0))
+        d = -g.copy()
+        if free.any():
+            F = np.flatnonzero(free)
+            d[F] = -SPDFactor(Wt[np.ix_(F, F)], symmetric=True).solve(g[F])
+        z = _armijo_arc(Wt, qt, y, g, d, free)
+        if np.array_equal(z, y):  # stalled at rounding level: the gradient step alone
+            z = _armijo_arc(Wt, qt, y, g, -g, np.zeros(n, bool))
+            if np.array_equal(z, y):
+                raise RuntimeError(f"nonnegative_qp: no progress at iteration {it} (W singular to working precision)")
+        y = z
+    raise RuntimeError(f"nonnegative_qp did not converge in {max_iter} iterations")
 
 
 def _constraint_rows(M: np.ndarray, loc: np.ndarray, w: np.ndarray, normals: np.ndarray, mode: str) -> np.ndarray:
@@ -400,10 +496,14 @@ class Capacitance:
             (``f . n > 0``) is released and the rest re-solved; a released
             contact is re-activated if the seat would penetrate the prescribed
             position (``(u - ubar) . n > 0``). Active-set iteration (block
-            pivoting, one flip per iteration once a set repeats); a sticky
-            contact is released as a whole. Needs the contact normals.
+            pivoting); frictionless, once a set repeats, the convex QP's
+            projected Newton method (:func:`nonnegative_qp`, which converges
+            for any SPD ``W``); sticky, one flip per iteration once a set
+            repeats (a sticky contact is released as a whole). Needs the
+            contact normals.
         max_iter : int, optional
-            Bound on active-set iterations (default ``2 s + 10``).
+            Bound on active-set iterations (default ``2 s + 10``; the QP's
+            iterations are bounded by it separately); a positive integer.
 
         Returns
         -------
@@ -412,16 +512,22 @@ class Capacitance:
         Raises
         ------
         ValueError
-            ``ubar`` of the wrong shape or not finite; ``unilateral`` without normals.
+            ``ubar`` of the wrong shape or not finite; ``unilateral`` without normals;
+            ``max_iter`` not a positive integer.
         RuntimeError
             The active set did not settle within ``max_iter`` iterations.
         """
+        if np.iscomplexobj(ubar) or np.asarray(ubar).dtype.kind not in "biuf":
+            raise ValueError(f"displacements must be real numbers [m], got {np.asarray(ubar).dtype}")
         ubar = np.asarray(ubar, dtype=np.float64)
         s = self.s
         if ubar.shape != (s, 3):
             raise ValueError(f"displacements must have shape ({s}, 3) to match the contacts, got {ubar.shape}")
         if not np.isfinite(ubar).all():
             raise ValueError("displacements contain NaN or infinity")
+        if max_iter is not None and (isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer))
+                                     or max_iter < 1):
+            raise ValueError(f"max_iter must be a positive integer (active-set iterations), got {max_iter!r}")
         rigid = self.rigid
         c = self._reduce(ubar)
         it = 1
@@ -451,6 +557,11 @@ class Capacitance:
                 if viol.size == 0:
                     break
                 key = active.tobytes()
+                if p == 1 and (key in seen or it == (BLOCK_PIVOT_ROUNDS or limit + 1)):
+                    # frictionless: the convex QP's solver, which cannot cycle, from here
+                    lam, active, extra = self._unilateral_qp(c, lam, limit, cn)
+                    it += extra
+                    break
                 if key in seen:
                     single = True  # block pivoting cycled: one flip per iteration
                 seen.add(key)
@@ -466,6 +577,30 @@ class Capacitance:
         if not active.all():
             lam = np.where(np.repeat(active, self.per_contact), lam, 0.0)
         return ActiveSet(forces=f, active=active, iterations=it, multipliers=lam)
+
+    def _unilateral_qp(self, c: np.ndarray, lam: np.ndarray, limit: int,
+                       cn: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+        """The frictionless unilateral solve as the convex QP :func:`nonnegative_qp` over
+        the live contacts (``x = -lambda``: ``min 1/2 x^T W x + c^T x``, ``x >= 0``), from
+        the block-pivoting iterate; then the set it finds re-solved exactly
+        (:meth:`_subset_multipliers`, as block pivoting ends) when that meets the same
+        tolerances, else the QP's own multipliers. Returns ``(lam, active, iterations)``."""
+        live = np.flatnonzero(~self.rigid)
+        W = self.W[np.ix_(live, live)]
+        x, iters = nonnegative_qp(W, c[live], np.maximum(-lam[live], 0.0), tol=ACTIVE_SET_TOL, max_iter=limit)
+        active = np.zeros(self.s, bool)
+        active[live[x > 0]] = True
+        exact = self._subset_multipliers(c, active)
+        un2 = self.W @ exact
+        fscale = max(float(np.abs(exact).max(initial=0.0)), np.finfo(float).tiny)
+        uscale = max(float(np.abs(cn).max(initial=0.0)), float(np.abs(un2).max(initial=0.0)), np.finfo(float).tiny)
+        ok = not (active & (exact > ACTIVE_SET_TOL * fscale)).any() and \
+            not (~active & ~self.rigid & (un2 - cn > ACTIVE_SET_TOL * uscale)).any()
+        if ok:
+            return exact, active, iters
+        lam = np.zeros(self.s)
+        lam[live] = -x
+        return lam, active, iters
 
     def forces(self, ubar: np.ndarray) -> np.ndarray:
         """Forces on the seat that impose prescribed contact-point displacements.

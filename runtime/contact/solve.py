@@ -174,6 +174,8 @@ def solve_contacts(
         If the unilateral active set does not settle within ``max_iter``.
     """
     mode = check_mode(mode)
+    if np.iscomplexobj(displacements) or np.asarray(displacements).dtype.kind not in "biuf":
+        raise ValueError(f"displacements must be real numbers [m], got {np.asarray(displacements).dtype}")
     if (not unilateral and normals is None and patch_radius is None and patch_profile in PATCH_PROFILES
             and (rows is None or (isinstance(rows, str) and rows == "all"))):
         fast = _point_contacts(gf, triangles, barycentric, displacements, mode, rows is not None)

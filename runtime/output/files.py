@@ -22,6 +22,7 @@ writers, so importing this module costs nothing.
 
 from __future__ import annotations
 
+import fcntl
 import json
 import logging
 import math
@@ -46,6 +47,7 @@ __all__ = [
     "ParaviewSeries",
     "StormOutput",
     "check_storm_out",
+    "clean_stale_partials",
     "summary",
     "write_animation",
     "write_paraview",
@@ -61,6 +63,14 @@ _MANIFEST_FORMAT = "hailstorm-storm-output"
 #: bytes per surface vertex of one frame's surface VTU on disk (measured: ~60-65 B on the
 #: default seat, zlib-compressed float64 fields), an upper bound for the disk estimate
 FRAME_BYTES_PER_VERTEX = 80
+
+
+def _bytes(n: float) -> str:
+    """A byte count in the largest fitting unit, three digits: '3.2 GiB', '150 KiB', '512 B'."""
+    for unit, k in (("TiB", 2**40), ("GiB", 2**30), ("MiB", 2**20), ("KiB", 2**10)):
+        if n >= k:
+            return f"{n / k:.3g} {unit}"
+    return f"{int(n)} B"
 
 
 class OutputError(ValueError):
@@ -344,15 +354,47 @@ def _our_files(out: Path) -> set[str] | None:
     return {str(f) for f in m["files"]} | {STORM_MANIFEST}
 
 
-def _foreign(out: Path) -> list[str]:
+#: how many foreign entries :func:`_foreign` collects before it stops (the message names five)
+_FOREIGN_SHOWN = 6
+
+
+def _foreign(out: Path, limit: int = _FOREIGN_SHOWN) -> list[str]:
     """What in the existing directory ``out`` hailstorm did not write (empty: ``out`` is
-    empty or holds exactly a previous storm output)."""
-    files, dirs = _listing(out)
+    empty or holds exactly a previous storm output), at most ``limit`` entries.
+
+    The scan is bounded: without a storm manifest the first entries of ``out`` are
+    foreign (nothing is descended into); with one, only the directories the manifest
+    lists are descended into, a file it does not list or a directory that holds none
+    of its files is foreign (and not descended into), and the scan stops at the
+    ``limit``-th foreign entry. So it visits at most the manifest's entries plus
+    ``limit``, whatever lies under ``out`` (``--out $HOME`` is refused at once).
+    """
     ours = _our_files(out)
+    found: list[str] = []
     if ours is None:
-        return files + [d + "/" for d in dirs if not any(f.startswith(d + "/") for f in files)]
-    parents = {Path(f).parent.as_posix() for f in ours}
-    return [f for f in files if f not in ours] + [d + "/" for d in dirs if d not in parents]
+        with os.scandir(out) as it:
+            for e in it:
+                found.append(e.name + ("/" if e.is_dir(follow_symlinks=False) else ""))
+                if len(found) >= limit:
+                    break
+        return sorted(found)
+    parents = {p.as_posix() for f in ours for p in Path(f).parents} - {"."}
+    todo = [""]
+    while todo and len(found) < limit:
+        rel = todo.pop()
+        with os.scandir(out / rel if rel else out) as it:
+            for e in it:
+                name = f"{rel}/{e.name}" if rel else e.name
+                if e.is_dir(follow_symlinks=False):
+                    if name in parents:
+                        todo.append(name)
+                        continue
+                    found.append(name + "/")
+                elif name not in ours:
+                    found.append(name)
+                if len(found) >= limit:
+                    break
+    return sorted(found)
 
 
 def check_storm_out(out: str | os.PathLike) -> None:
@@ -374,7 +416,7 @@ def check_storm_out(out: str | os.PathLike) -> None:
             raise OutputError(f"--out {out} exists and is not a directory; refusing to overwrite it")
         foreign = _foreign(out)
         if foreign:
-            shown = ", ".join(foreign[:5]) + (f" and {len(foreign) - 5} more" if len(foreign) > 5 else "")
+            shown = ", ".join(foreign[:5]) + (" and more" if len(foreign) > 5 else "")
             raise OutputError(f"--out {out} holds files that are not a hailstorm storm output ({shown}); "
                               "refusing to overwrite it (choose an empty or new directory)")
         if not os.access(out, os.W_OK | os.X_OK):
@@ -426,6 +468,8 @@ class StormOutput:
         self.series: ParaviewSeries | None = None
         self.files: list[str] = []
         self.committed = False
+        self._lock_fd: int | None = None
+        self._before: tuple | None = None
 
     def __enter__(self) -> "StormOutput":
         self.open()
@@ -450,9 +494,16 @@ class StormOutput:
             if self.disk_bytes is not None:
                 free = shutil.disk_usage(parent).free
                 if self.disk_bytes > free:
-                    raise OutputError(f"the outputs need about {self.disk_bytes / 2**30:.2f} GiB but {parent} has "
-                                      f"{free / 2**30:.2f} GiB free (lower [output] fps or the duration)")
-            self.staging = Path(tempfile.mkdtemp(prefix=f".{self.out.name}.partial-", dir=parent))
+                    raise OutputError(f"the outputs need about {_bytes(self.disk_bytes)} but {parent} has "
+                                      f"{_bytes(free)} free (lower [output] fps or the duration)")
+            clean_stale_partials(self.out)
+            running = _running_partials(self.out)
+            if running:
+                raise OutputError(f"another storm is writing --out {self.out} now ({running[0]}); wait for it "
+                                  "or choose another --out")
+            self._before = _state(self.out)
+            self.staging = Path(tempfile.mkdtemp(prefix=f".{self.out.name}{_PARTIAL}", dir=parent))
+            self._lock_fd = _hold_lock(self.staging / _PARTIAL_LOCK)
         except OSError as exc:
             raise OutputError(f"cannot write --out {self.out}: {exc.strerror or exc}") from None
         self.series = ParaviewSeries(self.gf, self.staging)
@@ -500,11 +551,19 @@ class StormOutput:
     def _commit(self) -> None:
         staging, out = self.staging, self.out
         assert staging is not None
+        if _state(out) != self._before:  # another storm (or the user) wrote --out during the run
+            self.staging = None  # kept, and named: never silently replaced, never lost
+            self._release()
+            raise OutputError(f"--out {out} was written by another run while this storm ran; not replacing it: "
+                              f"this storm's results are in {staging}")
+        (staging / _PARTIAL_LOCK).unlink(missing_ok=True)  # the flock stays on the open descriptor
         umask = os.umask(0)
         os.umask(umask)
         os.chmod(staging, 0o777 & ~umask)  # mkdtemp's directory is private; a plain mkdir's is not
         if out.is_dir() and any(out.iterdir()):
             if _foreign(out):  # someone wrote into it during the run: keep both
+                self.staging = None  # kept (the message names it), not removed by abort()
+                self._release()
                 raise OutputError(f"--out {out} changed during the run and now holds other files; "
                                   f"the results are in {staging}")
             old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=staging.parent))
@@ -517,12 +576,106 @@ class StormOutput:
             os.replace(staging, out)  # a new name, or over an empty directory
             self.committed = True
         self.staging = None
+        self._release()
+
+    def _release(self) -> None:
+        if self._lock_fd is not None:
+            os.close(self._lock_fd)
+            self._lock_fd = None
 
     def abort(self) -> None:
         """Remove the temporary directory (everything in it was written here)."""
         if self.staging is not None:
             shutil.rmtree(self.staging, ignore_errors=True)
             self.staging = None
+        self._release()
+
+
+#: the infix of a storm's temporary output directory, ``.OUT.partial-XXXX``
+_PARTIAL = ".partial-"
+#: a file in that directory that its writer holds an flock on for as long as it runs
+_PARTIAL_LOCK = ".hailstorm-writing"
+
+
+def _hold_lock(path: Path) -> int:
+    """Create ``path`` and hold an exclusive flock on it; returns the descriptor."""
+    fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o600)
+    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)  # a new file: never contended
+    return fd
+
+
+def _state(out: Path) -> tuple:
+    """What identifies ``out``'s content for a writer that replaces it: absent, or its
+    manifest's bytes (a storm output), or its listing's first entries (anything else)."""
+    if not out.exists():
+        return ("absent",)
+    try:
+        return ("manifest", (out / STORM_MANIFEST).read_bytes())
+    except OSError:
+        pass
+    try:
+        with os.scandir(out) as it:
+            return ("listing", tuple(sorted(e.name for _, e in zip(range(64), it))))
+    except OSError:
+        return ("unreadable",)
+
+
+def _running_partials(out: Path) -> list[Path]:
+    """The temporary directories of storms writing ``out`` now (their lock is held)."""
+    running = []
+    for d in sorted(out.absolute().parent.glob(f".{out.name}{_PARTIAL}*")):
+        lock = d / _PARTIAL_LOCK
+        try:
+            fd = os.open(lock, os.O_RDWR)
+        except OSError:
+            continue
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            fcntl.flock(fd, fcntl.LOCK_UN)
+        except BlockingIOError:
+            running.append(d)
+        finally:
+            os.close(fd)
+    return running
+
+
+def clean_stale_partials(out: str | os.PathLike) -> list[Path]:
+    """Remove the temporary directories (``.OUT.partial-*``) that killed storms
+    (SIGKILL, a power cut) left beside ``out``; returns the removed paths.
+
+    Only a directory whose writer's lock file is present and not locked is removed
+    (its writer is gone); a running storm's, or one without the lock file (not
+    certainly ours), is left alone.
+    """
+    out = Path(out)
+    parent = out.absolute().parent
+    removed: list[Path] = []
+    try:
+        candidates = sorted(parent.glob(f".{out.name}{_PARTIAL}*"))
+    except OSError:
+        return removed
+    for d in candidates:
+        lock = d / _PARTIAL_LOCK
+        if d.is_symlink() or not d.is_dir() or not lock.is_file():
+            continue
+        try:
+            fd = os.open(lock, os.O_RDWR)
+        except OSError:
+            continue
+        try:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                continue  # a storm is writing it
+            shutil.rmtree(d, ignore_errors=True)
+            if d.exists():
+                _log.warning("could not remove a killed storm's temporary output %s", d)
+            else:
+                _log.info("removed a killed storm's temporary output %s", d)
+                removed.append(d)
+        finally:
+            os.close(fd)
+    return removed
 
 
 def _remove_storm_output(path: Path) -> None:

@@ -137,7 +137,7 @@ from typing import Any, Callable
 import numpy as np
 
 from hailstorm.runtime.storm.collide import Collision, SurfaceIndex
-from hailstorm.runtime.compiled import KERNELS
+from hailstorm.runtime.compiled import KERNELS, closest_points
 from hailstorm.runtime.bundle.compliance import ElasticSource
 from hailstorm.runtime.storm.contact_set import ContactSet, ContactSets
 from hailstorm.runtime.storm.hail import GRAVITY, Air
@@ -147,7 +147,7 @@ from hailstorm.runtime.storm.recording import Frame, Recorder, StormResult, Stor
 from hailstorm.runtime.scene import Scene, SceneError
 from hailstorm.runtime.storm.seat import SeatState
 from hailstorm.runtime.storm.soft_contacts import SoftContacts
-from hailstorm.runtime.storm.stones import SpawnPlan, Stones
+from hailstorm.runtime.storm.stones import SpawnPlan, StoneError, Stones, check_stones
 from hailstorm.runtime.storm.warmup import HelperSpec, WarmReport, WarmTask, measured_seconds, warm_up
 
 __all__ = ["Frame", "Scene", "SceneError", "Storm", "StormResult", "StormStats", "run_storm", "warm_up_worker"]
@@ -199,6 +199,8 @@ class Storm:
         self.contacts = SoftContacts(contact, scene.time, sets, self.patches, self.integrator, self.seat, air)
         self.stats = StormStats(patch=contact.patch)
         self.t = 0.0
+        #: stones retired below the seat inside its footprint without ever touching it
+        self.fell_through = 0
         self.plan = SpawnPlan(scene.storm, hail, self.collision.lo, self.collision.hi,
                               np.random.default_rng(scene.storm.seed)) if spawn else SpawnPlan.empty()
         self.warm_report: WarmReport | None = self.warm_up() if warm else None
@@ -227,12 +229,32 @@ class Storm:
             self.contacts.release()
         gone = self.collision.retired(stones, live) if live.size else live
         if gone.size:
+            self.fell_through += self._below_footprint(gone)
             stones.retire(gone)
             self.patches.forget(gone.tolist())
             st.retired += int(gone.size)
         seat.end_step()
         self.t += dt
         st.steps += 1
+
+    def _below_footprint(self, ids: np.ndarray) -> int:
+        """How many of the stones ``ids`` never touched the seat yet are below it,
+        inside its footprint: they passed through it (a step or a speed too large)."""
+        lo, hi = self.collision.lo, self.collision.hi
+        p = self.stones.pos[ids]
+        below = (p[:, 2] < lo[2]) & ((p[:, :2] >= lo[:2]) & (p[:, :2] <= hi[:2])).all(axis=1)
+        return int((below & ~self.stones.hit[ids]).sum())
+
+    def passed_through_warning(self) -> str | None:
+        """A sentence when stones passed through the seat's footprint and none touched
+        it (0 impacts that are no physics: a step or a terminal speed too large for the
+        seat's thickness), else None."""
+        if self.fell_through == 0 or self.stones.hit.any():
+            return None
+        sc = self.scene
+        return (f"{self.fell_through:,} stones passed through the seat's footprint and none touched the seat "
+                f"(0 impacts): they crossed it within one step; lower dt ([time] dt = {sc.time.dt:g} s) or check "
+                f"the drag ([hail] cd = {sc.hail.cd:g}: a small cd gives a large terminal speed)")
 
     def _k_tri(self) -> np.ndarray | None:
         """The triangles' point stiffness when the integrator sizes sub-steps by it (computed once)."""
@@ -315,10 +337,50 @@ class Storm:
 
     # -- the public face (stones, seat, contacts) -----------------------------------
     def add_stones(self, pos: np.ndarray, vel: np.ndarray, radius: np.ndarray) -> np.ndarray:
-        """Add stones now; returns their ids."""
+        """Add stones now; returns their ids.
+
+        Parameters
+        ----------
+        pos : (3,) or (k, 3) array_like
+            Centres [m].
+        vel : (3,) or (k, 3) array_like
+            Velocities [m/s].
+        radius : float or (k,) array_like
+            Radii [m].
+
+        Raises
+        ------
+        hailstorm.runtime.storm.stones.StoneError
+            Bad shapes or values (:func:`~hailstorm.runtime.storm.stones.check_stones`),
+            or a stone whose centre lies inside the seat (below its surface).
+        """
+        pos, vel, radius = check_stones(pos, vel, radius)
+        self._check_outside(pos)
         ids = self.stones.add(pos, vel, radius)
         self.stats.hailstones += ids.size
         return ids
+
+    def _check_outside(self, pos: np.ndarray) -> None:
+        """Refuse stones whose centre is inside the (undeformed) seat: the closest
+        surface point's triangle normal points away from the centre. Only centres over
+        the seat's footprint and not above its top are looked at (spawned stones start
+        above it)."""
+        ix = self.collision.index
+        lo, hi = ix.bbox
+        inbox = np.flatnonzero(((pos[:, :2] >= lo[:2]) & (pos[:, :2] <= hi[:2])).all(axis=1) & (pos[:, 2] <= hi[2]))
+        if inbox.size == 0:
+            return
+        reach = 2.0 * (float(np.linalg.norm(hi - lo)) + np.abs(pos[inbox, 2] - lo[2])) + 1e-9
+        tri, _, point, _ = closest_points(ix.grid, ix.sample_radius, ix.vertices, ix.triangles, pos[inbox], reach)
+        found = tri >= 0
+        side = np.full(inbox.size, np.inf)
+        side[found] = np.einsum("ij,ij->i", pos[inbox][found] - point[found], ix.normals[tri[found]])
+        scale = float(np.linalg.norm(hi - lo))
+        inside = side < -1e-12 * scale
+        if inside.any():
+            i = int(np.flatnonzero(inside)[0])
+            raise StoneError(f"stone {int(inbox[i])} at {pos[inbox[i]].tolist()} starts inside the seat "
+                             f"({-side[i]:.3g} m below its surface); place stones above the surface")
 
     def frame(self) -> Frame:
         """The current state as a :class:`Frame`.
@@ -519,6 +581,9 @@ def run_storm(
         if bar is not None:
             bar.close()
     st, stones = storm.stats, storm.stones
+    through = storm.passed_through_warning()
+    if through is not None:
+        _log.warning("warning: %s", through)
     st.stones_hit = int(stones.hit.sum())
     # the one-time compile (a warm-up that compiled: the first run after an install) apart from the setup
     warm = storm.warm_report

@@ -17,7 +17,67 @@ import numpy as np
 from hailstorm.runtime.storm.hail import stone_mass, terminal_velocity
 from hailstorm.runtime.scene import HailSettings, StormSettings
 
-__all__ = ["SpawnPlan", "Stones"]
+__all__ = ["SpawnPlan", "StoneError", "Stones", "check_stones"]
+
+
+class StoneError(ValueError):
+    """Stones given to a storm are invalid (the message names the first bad one)."""
+
+
+def _first_bad(mask: np.ndarray) -> int:
+    return int(np.flatnonzero(mask)[0])
+
+
+def check_stones(pos: Any, vel: Any, radius: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The one validation of new stones (the API's and the scene's alike).
+
+    Parameters
+    ----------
+    pos : (3,) or (k, 3) array_like
+        Centres [m].
+    vel : (3,) or (k, 3) array_like
+        Velocities [m/s] (one row for all, or one per stone).
+    radius : float or (k,) array_like
+        Radii [m].
+
+    Returns
+    -------
+    pos, vel : (k, 3) float64 ndarray
+    radius : (k,) float64 ndarray
+
+    Raises
+    ------
+    StoneError
+        Wrong shapes, complex or non-numeric values, a NaN or infinite position or
+        velocity, or a radius that is not a finite positive number.
+    """
+    arrays = []
+    for name, value in (("position", pos), ("velocity", vel), ("radius", radius)):
+        a = np.asarray(value)
+        if a.dtype.kind not in "biuf":
+            raise StoneError(f"stone {name}s must be real numbers, got an array of {a.dtype}")
+        arrays.append(a.astype(np.float64))
+    p, v, r = arrays
+    if p.ndim not in (1, 2) or p.shape[-1] != 3:
+        raise StoneError(f"stone positions must have shape (3,) or (k, 3), got {p.shape}")
+    p = np.atleast_2d(p)
+    k = p.shape[0]
+    if v.shape not in ((3,), (1, 3), (k, 3)):
+        raise StoneError(f"stone velocities must have shape (3,) or ({k}, 3) for {k} stones, got {v.shape}")
+    if r.shape not in ((), (1,), (k,)):
+        raise StoneError(f"stone radii must be one number or {k} numbers for {k} stones, got shape {r.shape}")
+    v = np.broadcast_to(v.reshape(-1, 3), (k, 3))
+    r = np.broadcast_to(r.reshape(-1), (k,))
+    for name, a in (("position", p), ("velocity", v)):
+        bad = ~np.isfinite(a).all(axis=1)
+        if bad.any():
+            i = _first_bad(bad)
+            raise StoneError(f"stone {i} has a non-finite {name} {a[i].tolist()}")
+    bad = ~(np.isfinite(r) & (r > 0))
+    if bad.any():
+        i = _first_bad(bad)
+        raise StoneError(f"stone {i} has radius {float(r[i])!r}; a radius must be a finite positive number [m]")
+    return p, v, r
 
 #: the per-stone arrays and the value a new stone starts with (None: given to :meth:`Stones.add`)
 FIELDS: tuple[tuple[str, Any], ...] = (
@@ -90,10 +150,14 @@ class Stones:
         return int(self.pos.shape[0])
 
     def add(self, pos: np.ndarray, vel: np.ndarray, radius: np.ndarray) -> np.ndarray:
-        """Add stones; returns their ids."""
-        pos = np.atleast_2d(np.asarray(pos, dtype=np.float64))
-        vel = np.broadcast_to(np.asarray(vel, dtype=np.float64), pos.shape)
-        radius = np.broadcast_to(np.asarray(radius, dtype=np.float64), (pos.shape[0],))
+        """Add stones (checked by :func:`check_stones`); returns their ids.
+
+        Raises
+        ------
+        StoneError
+            See :func:`check_stones`.
+        """
+        pos, vel, radius = check_stones(pos, vel, radius)
         k = pos.shape[0]
         n = self.pos.shape[0]
         ids = np.arange(n, n + k)

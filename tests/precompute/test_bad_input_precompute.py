@@ -529,7 +529,11 @@ def test_a_second_writer_waits_for_the_first(small_box, tmp_path, caplog):
 def _build_in_process(out, young):
     from hailstorm.precompute import box_mesh
 
-    build_bundle(out, mesh=box_mesh((0.1, 0.1, 0.05), 0.02), young=young)
+    try:
+        build_bundle(out, mesh=box_mesh((0.1, 0.1, 0.05), 0.02), young=young)
+    except BundleError as exc:  # waited for a writer with other inputs: refused, not handed its bundle
+        assert "was just written by another run with other inputs" in str(exc)
+        sys.exit(3)
 
 
 def test_two_processes_writing_one_bundle(tmp_path):
@@ -542,7 +546,10 @@ def test_two_processes_writing_one_bundle(tmp_path):
         p.start()
     for p in procs:
         p.join(timeout=300)
-    assert [p.exitcode for p in procs] == [0, 0, 0]
+    # each writer either wrote (or reused) its own bundle or was refused with the one-line
+    # reason (issue #25: never silently handed the other's bundle); at least one wrote
+    codes = [p.exitcode for p in procs]
+    assert set(codes) <= {0, 3} and 0 in codes, codes
     assert load(out).young in (1e6, 2e6)
     assert sorted(q.name for q in tmp_path.iterdir()) == ["b"]
 
@@ -582,3 +589,156 @@ def test_ctrl_c_while_meshing_ends_the_process(tmp_path):
     assert any("meshing" in s for s in seen), seen
     assert p.returncode != 0
     assert list(tmp_path.iterdir()) == []
+
+
+# ----------------------------------------------------------------------------- issue #25, item 8
+
+def _contrast_box(contrast: float):
+    """The small box in two materials, the lower half ``contrast`` times stiffer."""
+    from hailstorm.precompute import box_mesh
+
+    mesh = box_mesh((0.1, 0.1, 0.05), 0.02)
+    c = mesh.points[mesh.tets].mean(axis=1)[:, 2]
+    mesh = TetMesh(mesh.points, mesh.tets, mesh.groups, mesh.source,
+                   {"hard": np.flatnonzero(c < 0.025), "soft": np.flatnonzero(c >= 0.025)})
+    return mesh, {"soft": (1e6, 0.3), "hard": (1e6 * contrast, 0.3)}
+
+
+def test_supernodal_falls_back_to_cholmod_when_the_pattern_cannot_be_recovered(tmp_path, monkeypatch, caplog):
+    """A 1e18 stiffness contrast can cancel factor entries to exact zeros whose pattern the
+    supernodal solver cannot recover ("the ordering changed"; forced here, the failure
+    depends on the rounding): the bundle is built with CHOLMOD instead, with a one-line
+    note, and its D is splu's (to the conditioning's rounding: relative 1e-6 of max |D|
+    at this contrast)."""
+    import hailstorm.precompute.supernodal as supernodal
+    from hailstorm.precompute.supernodal import PatternError
+
+    def refuse(A):
+        raise PatternError("cannot recover the factor's pattern: the ordering changed")
+
+    mesh, mats = _contrast_box(1e18)
+    ref = load(build_bundle(tmp_path / "splu", mesh=mesh, materials=mats, solver="splu"))
+    monkeypatch.setattr(supernodal, "supernodal_factor", refuse)
+    with caplog.at_level(logging.INFO, logger="hailstorm.precompute.greens"):
+        gf = load(build_bundle(tmp_path / "sn", mesh=mesh, materials=mats, solver="supernodal"))
+    notes = [r.getMessage() for r in caplog.records if "using CHOLMOD" in r.getMessage()]
+    assert len(notes) == 1 and "cannot recover the factor's pattern" in notes[0], caplog.text
+    D, R = np.asarray(gf.D), np.asarray(ref.D)
+    assert np.abs(D - R).max() <= 1e-6 * np.abs(R).max()
+
+
+# ----------------------------------------------------------------------------- issue #25, item 3 (bundles)
+
+def test_replacing_a_read_only_bundle_removes_its_old_copy(small_box, tmp_path):
+    """The replaced bundle was read-only: its old copy (``.b.tmp-*`` after the exchange) is
+    made writable and removed, not left hidden (as a non-root user the old code left it)."""
+    out = build_bundle(tmp_path / "b", mesh=small_box, young=1e6)
+    for p in [*out.iterdir(), out]:
+        p.chmod(0o555 if p.is_dir() else 0o444)
+    build_bundle(tmp_path / "b", mesh=small_box, young=2e6)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["b"]
+    assert load(tmp_path / "b").manifest["material"]["young"] == 2e6
+
+
+def test_an_old_copy_that_cannot_be_removed_is_reported(small_box, tmp_path, monkeypatch, caplog):
+    """The removal's failure is reported (one warning naming the copy), not ignored."""
+    import hailstorm.runtime.bundle.write as write
+
+    build_bundle(tmp_path / "b", mesh=small_box, young=1e6)
+    real = shutil.rmtree
+
+    def failing(path, *a, **k):
+        if ".b.tmp-" in str(path) or ".b.old-" in str(path):
+            return None  # nothing removed, no exception: as a read-only copy for a non-root user
+        return real(path, *a, **k)
+
+    monkeypatch.setattr(write.shutil, "rmtree", failing)
+    with caplog.at_level(logging.WARNING):
+        build_bundle(tmp_path / "b", mesh=small_box, young=2e6)
+    monkeypatch.undo()
+    left = [p.name for p in tmp_path.iterdir() if p.name.startswith(".b.")]
+    warned = [r.getMessage() for r in caplog.records if "could not be removed" in r.getMessage()]
+    assert len(left) == 1 and len(warned) == 1 and left[0] in warned[0], (left, caplog.text)
+
+
+def _fake_work_dir(out: Path) -> Path:
+    """What a replacement of ``out`` killed mid-way leaves: the work directory's own files."""
+    from hailstorm.precompute.blocks import work_dir
+
+    w = work_dir(out)
+    (w / "blocks").mkdir(parents=True)
+    (w / "blocks" / "0.json").write_text("{}")
+    (w / "compliance.npy").write_bytes(b"\0" * 4096)
+    (w / "work.json").write_text('{"key": "other inputs"}')
+    return w
+
+
+def test_an_up_to_date_reuse_removes_a_killed_replacements_work_directory(small_box, tmp_path):
+    out = build_bundle(tmp_path / "b", mesh=small_box)
+    w = _fake_work_dir(out)
+    assert build_bundle(tmp_path / "b", mesh=small_box) == out  # reused
+    assert not w.exists()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["b"]
+
+
+def test_a_disk_full_refusal_leaves_no_work_directory(small_box, tmp_path, monkeypatch):
+    import collections
+
+    import hailstorm.precompute.resources as resources
+    from hailstorm.precompute.resources import TooLargeError
+
+    usage = collections.namedtuple("usage", "total used free")
+    monkeypatch.setattr(resources.shutil, "disk_usage", lambda p: usage(10**9, 10**9, 0))
+    with pytest.raises(TooLargeError, match="of disk for D"):
+        build_bundle(tmp_path / "b", mesh=small_box)
+    monkeypatch.undo()
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
+# ----------------------------------------------------------------------------- issue #25, item 9 (bundles)
+
+def test_a_writer_that_waited_for_another_with_other_inputs_is_refused(small_box, tmp_path, monkeypatch):
+    """Two precomputes of one --out with different materials: the one that waited for the
+    lock finds the other's fresh bundle and refuses (one line), instead of replacing it
+    while the other reports success; the other's bundle stays. (The other writer's run is
+    played inside the lock's wait.)"""
+    import contextlib
+
+    import hailstorm.precompute.pipeline as pipeline
+    from hailstorm.runtime.bundle.write import bundle_lock as real_lock
+
+    out = tmp_path / "b"
+
+    @contextlib.contextmanager
+    def lock_after_the_other_writer(path, **kw):
+        monkeypatch.setattr(pipeline, "bundle_lock", real_lock)
+        build_bundle(out, mesh=small_box, young=1e6)  # the other writer, done while we waited
+        with real_lock(path, **kw) as held:
+            yield held
+
+    monkeypatch.setattr(pipeline, "bundle_lock", lock_after_the_other_writer)
+    with pytest.raises(BundleError, match="was just written by another run with other inputs"):
+        build_bundle(out, mesh=small_box, young=3e6)
+    assert load(out).manifest["material"]["young"] == 1e6
+    # run again (nobody writing now): it replaces the bundle, as a rerun should
+    assert load(build_bundle(out, mesh=small_box, young=3e6)).manifest["material"]["young"] == 3e6
+
+
+def test_a_writer_that_waited_for_another_with_the_same_inputs_reuses_its_bundle(small_box, tmp_path, monkeypatch):
+    import contextlib
+
+    import hailstorm.precompute.pipeline as pipeline
+    from hailstorm.runtime.bundle.write import bundle_lock as real_lock
+
+    out = tmp_path / "b"
+
+    @contextlib.contextmanager
+    def lock_after_the_other_writer(path, **kw):
+        monkeypatch.setattr(pipeline, "bundle_lock", real_lock)
+        build_bundle(out, mesh=small_box, young=1e6)
+        with real_lock(path, **kw) as held:
+            yield held
+
+    monkeypatch.setattr(pipeline, "bundle_lock", lock_after_the_other_writer)
+    key = load(build_bundle(out, mesh=small_box, young=1e6)).manifest["key"]
+    assert load(out).manifest["key"] == key

@@ -11,9 +11,9 @@ import pytest
 import hailstorm.runtime
 from hailstorm.precompute import build_bundle
 from hailstorm.precompute.blocks import work_dir
-from hailstorm.precompute.greens import ColumnProblem, column_blocks
+from hailstorm.precompute.greens import column_blocks
 from hailstorm.runtime.bundle.format import BundleError, array_hash
-from helpers import Interrupt, count_solves, interrupt_after
+from helpers import count_solves, interrupt_after
 
 #: small blocks, so that the 216-node box has several (its D is 648 x 375 columns... of 8 bytes)
 BLOCK = 40_000

@@ -3,7 +3,6 @@ a storm too large for the memory says the rule it broke."""
 
 import time
 
-import numpy as np
 import pytest
 from helpers import plate_gf
 

@@ -4,10 +4,12 @@ nothing written or lost (table-driven; in-process through ``hailstorm.cli.main``
 from __future__ import annotations
 
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from hailstorm.cli import EXIT_INPUT, main
@@ -62,6 +64,12 @@ ROWS = [
     ("rate-1e9", ["--scene", _scene("[storm]\nrate = 1e9\n")], "of memory"),
     ("scene-missing", ["--scene", lambda t: t / "nope.toml"], "cannot read scene file"),
     ("gf-missing", ["--gf", lambda t: t / "no-bundle"], "no-bundle"),
+    # issue #25
+    ("stones-2-million-in-0.1-s", ["--stones", "2000000", "--duration", "0.1"], "stone-steps/s"),
+    ("duration-1e308", ["--duration", "1e308"], "not a finite number of steps"),
+    ("duration-1e300-count-in-scientific-notation", ["--duration", "1e300"], "5e+303 steps"),
+    ("scene-not-utf8", ["--scene", lambda t: (t / "s.toml").write_bytes(b"[storm]\nduration = 0.1 # \xff\xfe\n")
+                        and t / "s.toml"], "s.toml is not a UTF-8 text file"),
 ]
 
 
@@ -74,7 +82,10 @@ def test_bad_storm_input_is_one_line_exit_3(seat_bundle, tmp_path, capsys, name,
         args += ["--gf", str(seat_bundle)]
     args += ["--no-video", "-q"]
     if not name.startswith(("dt", "rate")):  # those rows need the default duration and the rate
-        args += ["--duration", "0.01", "--stones", "1"]
+        if "--duration" not in args:
+            args += ["--duration", "0.01"]
+        if "--stones" not in args:
+            args += ["--stones", "1"]
     before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
     rc = main(["storm", *args])
     err = capsys.readouterr().err
@@ -82,6 +93,7 @@ def test_bad_storm_input_is_one_line_exit_3(seat_bundle, tmp_path, capsys, name,
     assert rc == EXIT_INPUT, err
     assert len(lines) == 1 and lines[0].startswith("hailstorm: error: "), err
     assert message in lines[0]
+    assert len(lines[0]) < 400, lines[0]  # no 300-digit numbers
     # nothing the user owns was touched, and no run was left behind
     assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
     assert not (tmp_path / "out").exists()
@@ -106,3 +118,394 @@ def test_a_large_storm_runs_with_allow_large(seat_bundle, tmp_path, monkeypatch)
     assert main(["storm", "--gf", str(seat_bundle), "--out", str(out), *TINY]) == EXIT_INPUT
     assert main(["storm", "--gf", str(seat_bundle), "--out", str(out), "--allow-large", *TINY]) == 0
     assert (out / "summary.json").is_file()
+
+
+# ---- the bounded --out scan (issue #25, item 1) ------------------------------------------------------------
+
+
+class _CountingScandir:
+    """``os.scandir`` that counts the entries it yields (os.walk uses it too)."""
+
+    def __init__(self, real):
+        self.real, self.seen = real, 0
+
+    def __call__(self, path="."):
+        counter, it = self, self.real(path)
+
+        class _It:
+            def __enter__(self):
+                return self
+
+            def __exit__(self, *exc):
+                it.close()
+
+            def __iter__(self):
+                return self
+
+            def __next__(self):
+                e = next(it)
+                counter.seen += 1
+                return e
+
+            def close(self):
+                it.close()
+
+        return _It()
+
+
+def _big_tree(root: Path, folders: int = 4000, files: int = 2) -> Path:
+    root.mkdir()
+    for i in range(folders):
+        (root / f"d{i:04d}").mkdir()
+        for j in range(files):
+            (root / f"d{i:04d}" / f"f{j}").write_bytes(b"")
+    return root
+
+
+@pytest.mark.parametrize("with_manifest", [False, True])
+def test_out_holding_a_big_foreign_tree_is_refused_after_a_bounded_scan(tmp_path, monkeypatch, with_manifest):
+    """``--out $HOME``: 4000 folders of user files (with or without a storm manifest on
+    top) are refused after visiting a handful of entries, not the whole tree (the old
+    check walked all 12 000 and then compared every folder with every file)."""
+    import json
+
+    from hailstorm.runtime.output.files import STORM_MANIFEST, OutputError, check_storm_out
+
+    root = _big_tree(tmp_path / "home")
+    if with_manifest:
+        (root / STORM_MANIFEST).write_text(json.dumps({"format": "hailstorm-storm-output", "version": 1,
+                                                       "files": ["summary.json", "frames/surface_0000.vtu"]}))
+    counting = _CountingScandir(os.scandir)
+    monkeypatch.setattr(os, "scandir", counting)
+    with pytest.raises(OutputError, match="not a hailstorm storm output") as err:
+        check_storm_out(root)
+    monkeypatch.undo()
+    assert counting.seen <= 20, counting.seen
+    assert "d" in str(err.value) and "more" in str(err.value)
+    assert len(str(err.value).splitlines()) == 1
+
+
+def test_bounded_scan_still_accepts_a_previous_storm_output_and_spots_one_stray_file(tmp_path):
+    """The bounded scan keeps the old answers: an exact previous output passes, one
+    extra file deep in its frames folder, or an extra empty folder, is named."""
+    import json
+
+    from hailstorm.runtime.output.files import STORM_MANIFEST, OutputError, check_storm_out
+
+    out = tmp_path / "run"
+    (out / "frames").mkdir(parents=True)
+    listed = ["summary.json", "storm.pvd", "frames/surface_0000.vtu", "frames/stones_0000.vtu"]
+    for f in listed:
+        (out / f).write_text("x")
+    (out / STORM_MANIFEST).write_text(json.dumps({"format": "hailstorm-storm-output", "version": 1,
+                                                  "files": listed}))
+    check_storm_out(out)
+    (out / "frames" / "notes.txt").write_text("mine")
+    with pytest.raises(OutputError, match="frames/notes.txt"):
+        check_storm_out(out)
+    (out / "frames" / "notes.txt").unlink()
+    (out / "extra").mkdir()
+    with pytest.raises(OutputError, match="extra/"):
+        check_storm_out(out)
+
+
+# ---- the scene's estimate and values through the API (issue #25, items 2, 6, 10) ---------------------------
+
+
+def test_a_burst_of_stones_is_refused_by_its_time_estimate():
+    """10 million stones in 0.05 s passed the memory and step checks and ran for hours:
+    the time estimate (stones x steps at the measured rate) refuses it, names the rule,
+    and --allow-large passes it; the default storm is far below the limit."""
+    from hailstorm.runtime.scene import MAX_SECONDS, STONE_STEPS_PER_SECOND, Scene, StormTooLarge
+
+    scene = Scene.from_flat(stones=10_000_000, duration=0.05)
+    est = scene.estimate()
+    assert est.seconds == pytest.approx(est.stones * est.steps / STONE_STEPS_PER_SECOND)
+    with pytest.raises(StormTooLarge, match=r"10,000,000 stones x 250 steps at 2e\+05 stone-steps/s"):
+        est.check()
+    est.check(allow_large=True)
+    assert Scene.default().estimate().seconds < MAX_SECONDS / 100
+
+
+def test_duration_overflowing_the_step_count_is_a_scene_error():
+    from hailstorm.runtime.scene import Scene, SceneError
+
+    with pytest.raises(SceneError, match="not a finite number of steps"):
+        Scene.from_flat(duration=1e308)
+    assert "e+303" in Scene.from_flat(duration=1e300).estimate().describe()
+
+
+def test_numpy_integers_are_integers_in_a_scene():
+    import numpy as np
+
+    from hailstorm.runtime.scene import Scene
+
+    scene = Scene.from_flat(stones=np.int64(5), seed=np.int32(3))
+    assert scene.storm.stones == 5 and type(scene.storm.stones) is int and scene.storm.seed == 3
+
+
+def test_non_utf8_scene_names_the_file(tmp_path):
+    from hailstorm.runtime.scene import Scene, SceneError
+
+    (tmp_path / "latin1.toml").write_bytes("[storm]\n# Grüße\nduration = 0.1\n".encode("latin-1"))
+    with pytest.raises(SceneError, match="latin1.toml is not a UTF-8 text file"):
+        Scene.from_toml(tmp_path / "latin1.toml")
+
+
+# ---- a killed storm's temporaries (issue #25, item 3) ------------------------------------------------------
+
+
+def _storm_cmd(seat_bundle, out, duration="3"):
+    return [sys.executable, "-m", "hailstorm.cli", "storm", "--gf", str(seat_bundle), "--out", str(out),
+            "--duration", duration, "--no-video", "-q"]
+
+
+def _wait_for_partial(tmp_path, proc, timeout=240.0):
+    import time
+
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < timeout:
+        found = list(tmp_path.glob(".out.partial-*"))
+        if found and any((found[0] / "frames").glob("*.vtu")):
+            return found[0]
+        assert proc.poll() is None, proc.communicate()
+        time.sleep(0.2)
+    raise AssertionError("the storm wrote no frames")
+
+
+@pytest.mark.parametrize("sig", ["SIGKILL", "SIGTERM"])
+def test_a_killed_storm_leaves_nothing_behind(seat_bundle, tmp_path, sig):
+    """SIGTERM: the storm removes its temporary directory and says so in one line (exit
+    143); SIGKILL: the next storm into the same --out removes the dead one's directory
+    (its lock is free) -- but never a running storm's."""
+    import signal as _signal
+
+    from hailstorm.runtime.output.files import clean_stale_partials
+
+    out = tmp_path / "out"
+    proc = subprocess.Popen(_storm_cmd(seat_bundle, out), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    partial = _wait_for_partial(tmp_path, proc)
+    assert clean_stale_partials(out) == []  # a running storm's directory is left alone
+    assert partial.is_dir()
+    proc.send_signal(getattr(_signal, sig))
+    _, err = proc.communicate(timeout=120)
+    if sig == "SIGTERM":
+        assert proc.returncode == 143
+        assert err.strip().splitlines() == ["hailstorm: terminated (SIGTERM)"], err
+        assert not partial.exists()
+    else:
+        assert partial.is_dir()  # nobody could clean up
+        assert main(["storm", "--gf", str(seat_bundle), "--out", str(out), *TINY]) == 0
+        assert not partial.exists()
+        assert (out / "summary.json").is_file()
+    assert not list(tmp_path.glob(".out.*"))
+
+
+def test_a_partial_without_our_lock_file_is_left_alone(tmp_path):
+    from hailstorm.runtime.output.files import clean_stale_partials
+
+    stranger = tmp_path / ".out.partial-abc"
+    stranger.mkdir()
+    (stranger / "data").write_text("not ours for certain")
+    assert clean_stale_partials(tmp_path / "out") == []
+    assert (stranger / "data").is_file()
+
+
+# ---- Storm.add_stones: one validation point (issue #25, item 4) --------------------------------------------
+
+_C = [0.06, 0.0, 0.01]  # 1 cm above the middle of the plate (the plate is z = 0, normal +z)
+# (id, pos, vel, radius, fragment of the error)
+STONE_ROWS = [
+    ("nan-position", [np.nan, 0.0, 0.01], [0, 0, -1.0], 0.005, "non-finite position"),
+    ("inf-velocity", _C, [0, 0, -np.inf], 0.005, "non-finite velocity"),
+    ("negative-radius", _C, [0, 0, -1.0], -0.005, "radius -0.005"),
+    ("zero-radius", _C, [0, 0, -1.0], 0.0, "radius 0.0"),
+    ("nan-radius", _C, [0, 0, -1.0], np.nan, "radius nan"),
+    ("position-of-two", [0.06, 0.0], [0, 0, -1.0], 0.005, "shape (3,) or (k, 3), got (2,)"),
+    ("velocities-of-the-wrong-count", [_C, _C], np.zeros((3, 3)), 0.005, "shape (3,) or (2, 3)"),
+    ("radii-of-the-wrong-count", [_C, _C], [0, 0, -1.0], [0.005, 0.005, 0.005], "one number or 2 numbers"),
+    ("complex-position", np.array(_C) + 1j, [0, 0, -1.0], 0.005, "real numbers"),
+    ("inside-the-seat", [0.06, 0.0, -0.002], [0, 0, -1.0], 0.001, "starts inside the seat"),
+]
+
+
+@pytest.fixture(scope="module")
+def plate_storm():
+    from helpers import plate_gf
+
+    from hailstorm.runtime.scene import Scene
+    from hailstorm.runtime.storm.driver import Storm
+
+    return Storm(plate_gf(), Scene.from_flat(duration=0.01), spawn=False, warm=False)
+
+
+@pytest.mark.parametrize("name, pos, vel, radius, message", STONE_ROWS, ids=[r[0] for r in STONE_ROWS])
+def test_bad_stones_are_refused_clearly(plate_storm, name, pos, vel, radius, message):
+    from hailstorm.runtime.storm.stones import StoneError
+
+    before = len(plate_storm.stones)
+    with pytest.raises(StoneError, match=re.escape(message)) as err:
+        plate_storm.add_stones(np.asarray(pos), np.asarray(vel), np.asarray(radius))
+    assert len(str(err.value).splitlines()) == 1
+    assert len(plate_storm.stones) == before and plate_storm.stats.hailstones == 0
+
+
+def test_good_stones_still_go_in(plate_storm):
+    """Above the seat, touching it, and outside its box: accepted (one row, or many)."""
+    ids = plate_storm.add_stones(np.array([[0.06, 0.0, 0.005], [0.06, 0.01, 0.02], [1.0, 1.0, 1.0]]),
+                                 np.array([0.0, 0.0, -1.0]), 0.005)
+    assert ids.tolist() == [0, 1, 2]
+    plate_storm.stones.retire(ids)
+
+
+# ---- silent empty storms (issue #25, item 5) ---------------------------------------------------------------
+
+EMPTY_ROWS = [
+    ("dt-1-s", dict(duration=2.0, dt=1.0, stones=50), "lower dt ([time] dt = 1 s)"),
+    ("cd-1e-9-tunnels", dict(duration=0.2, stones=50, cd=1e-9), "[hail] cd = 1e-09"),
+]
+
+
+@pytest.mark.parametrize("name, settings, message", EMPTY_ROWS, ids=[r[0] for r in EMPTY_ROWS])
+def test_stones_through_the_footprint_without_a_hit_warn(caplog, name, settings, message):
+    """0 impacts although the stones crossed the seat's footprint (they passed through
+    it in one step): a warning, as for the wind that carries every stone past."""
+    import logging
+
+    from helpers import plate_gf
+
+    from hailstorm.runtime.scene import Scene
+    from hailstorm.runtime.storm.driver import run_storm
+
+    with caplog.at_level(logging.WARNING):
+        result = run_storm(plate_gf(), Scene.from_flat(**settings), progress=False)
+    assert result.stats.impacts == 0
+    warned = [r.getMessage() for r in caplog.records if "passed through the seat's footprint" in r.getMessage()]
+    assert len(warned) == 1 and message in warned[0], caplog.text
+
+
+def test_a_storm_with_impacts_does_not_warn_of_passing_through(caplog):
+    import logging
+
+    from helpers import plate_gf
+
+    from hailstorm.runtime.scene import Scene
+    from hailstorm.runtime.storm.driver import run_storm
+
+    with caplog.at_level(logging.WARNING):
+        result = run_storm(plate_gf(), Scene.from_flat(duration=0.2, stones=50), progress=False)
+    assert result.stats.impacts > 0
+    assert "passed through" not in caplog.text
+
+
+def test_disk_full_refusal_states_sizes_in_adaptive_units(tmp_path, monkeypatch):
+    """'need about 0.00 GiB but ... has 0.00 GiB free' -> sizes a person can read."""
+    import collections
+
+    from helpers import plate_gf
+
+    import hailstorm.runtime.output.files as files
+    from hailstorm.runtime.output.files import OutputError, StormOutput
+
+    usage = collections.namedtuple("usage", "total used free")
+    monkeypatch.setattr(files.shutil, "disk_usage", lambda p: usage(10**6, 10**6, 300))
+    with pytest.raises(OutputError, match=r"need about 12\.1 KiB but .* has 300 B free"):
+        StormOutput(tmp_path / "out", plate_gf(), disk_bytes=12_345).open()
+    assert list(tmp_path.iterdir()) == []
+
+
+# ---- two writers, one --out (issue #25, item 9) ------------------------------------------------------------
+
+
+def test_a_second_storm_into_a_running_storms_out_is_refused(tmp_path):
+    from helpers import plate_gf
+
+    from hailstorm.runtime.output.files import OutputError, StormOutput
+
+    gf = plate_gf()
+    first = StormOutput(tmp_path / "out", gf, video=False)
+    first.open()
+    try:
+        with pytest.raises(OutputError, match="another storm is writing --out"):
+            StormOutput(tmp_path / "out", gf, video=False).open()
+    finally:
+        first.abort()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_storm_whose_out_was_written_meanwhile_keeps_both(seat_bundle, tmp_path):
+    """--out written by another run during this storm (a storm that started before this
+    one's check, another tool): this commit is refused, the other result stays, this
+    storm's is kept and named (was: the last writer silently replaced the other)."""
+    import json
+
+    from hailstorm.runtime.bundle.read import load
+    from hailstorm.runtime.output.files import STORM_MANIFEST, OutputError, StormOutput
+    from hailstorm.runtime.scene import Scene
+    from hailstorm.runtime.storm.driver import run_storm
+
+    gf = load(seat_bundle)
+    out = tmp_path / "out"
+    mine = StormOutput(out, gf, video=False)
+    mine.open()
+    result = run_storm(gf, Scene.from_flat(duration=0.01, stones=1, seed=2), progress=False, on_frame=mine.add)
+    out.mkdir()  # the other run's complete output lands first
+    (out / "summary.json").write_text('{"seed": 1}')
+    (out / STORM_MANIFEST).write_text(json.dumps({"format": "hailstorm-storm-output", "version": 1,
+                                                  "files": ["summary.json"]}))
+    with pytest.raises(OutputError, match="written by another run while this storm ran") as err:
+        mine.finish(result)
+    kept = Path(str(err.value).rsplit(" ", 1)[-1])
+    assert json.loads((kept / "summary.json").read_text())["seed"] == 2
+    assert json.loads((out / "summary.json").read_text()) == {"seed": 1}
+
+
+# ---- messages (issue #25, item 10) -------------------------------------------------------------------------
+
+
+def test_file_too_large_names_the_output(seat_bundle, tmp_path, capsys, monkeypatch):
+    """A write's EFBIG carries no file name: the one line names --out (and the limit)."""
+    import errno
+
+    import hailstorm.runtime.output.files as files
+
+    def too_large(self, frame):
+        raise OSError(errno.EFBIG, os.strerror(errno.EFBIG))
+
+    monkeypatch.setattr(files.ParaviewSeries, "add", too_large)
+    out = tmp_path / "out"
+    rc = main(["storm", "--gf", str(seat_bundle), "--out", str(out), *TINY])
+    lines = [line for line in capsys.readouterr().err.splitlines() if line.strip()]
+    assert rc == EXIT_INPUT and len(lines) == 1, lines
+    assert f"writing {out}: File too large" in lines[0] and "size limit" in lines[0]
+    assert list(tmp_path.iterdir()) == []
+
+
+def _pair_peak(gf, d, integrator="exact", r=0.005, v0=5.0):
+    """Peak contact force of two stones ``d`` apart dropped together on the seat's top."""
+    from hailstorm.runtime.scene import Scene
+    from hailstorm.runtime.storm.driver import Storm
+
+    c = np.asarray(gf.vertices)[int(np.argmax(np.asarray(gf.vertices)[:, 2]))]
+    sc = Scene.from_flat(duration=0.05, stones=0, integrator=integrator)
+    st = Storm(gf, sc, spawn=False)
+    st.add_stones(np.array([c + [-d / 2, 0, r + 2e-3], c + [d / 2, 0, r + 2e-3]]), np.tile([0.0, 0.0, -v0], (2, 1)),
+                  np.full(2, r))
+    for _ in range(int(0.02 / sc.time.dt)):
+        st.step()
+    return st.stats.max_contact_force
+
+
+def test_two_stones_nearly_coincident_peak_force_is_bounded(seat_bundle):
+    """Issue #25 reported 952 N for two stones 1e-7 m apart under the exact integrator
+    (4.6 N at 0 and 1e-9 m). Not reproduced here (the configuration was not recorded):
+    this documents and bounds it -- on the seat's top, at 0 to 1e-5 m apart, the peak is
+    that of the coincident pair within 5 % (measured: 6.24 N at every distance on the
+    cached 1476-vertex seat, 6.29 N at 1 mm)."""
+    from hailstorm.runtime.bundle.read import load
+
+    gf = load(seat_bundle)
+    peaks = {d: _pair_peak(gf, d) for d in (0.0, 1e-9, 1e-7, 1e-5)}
+    ref = peaks[0.0]
+    assert np.isfinite(ref) and ref > 0
+    assert all(abs(p - ref) <= 0.05 * ref for p in peaks.values()), peaks

@@ -81,7 +81,7 @@ def test_plan_positions_velocities_and_radii_follow_the_scene(wind):
     terminal speed downwards with the wind's horizontal velocity; where it would reach the
     seat's mid-height, falling at terminal speed with the wind, inside the box grown by the margin."""
     plan, st, hail = _plan(seed=11, stones=400, wind=wind, margin=0.015, spawn_height=0.07)
-    t, xy, z, vel, r = plan.rows[:, 0], plan.rows[:, 1:3], plan.rows[:, 3], plan.rows[:, 4:7], plan.rows[:, 7]
+    xy, z, vel, r = plan.rows[:, 1:3], plan.rows[:, 3], plan.rows[:, 4:7], plan.rows[:, 7]
     dist = hail.size_distribution()
     assert np.all(r >= dist.r_min) and np.all(r <= dist.r_max)
     assert np.ptp(r) > 0.0  # the default distribution is not fixed
