@@ -31,7 +31,6 @@ K_ff u = e_(j,d), read at the output dofs. Four solvers share one interface
 from __future__ import annotations
 
 import logging
-
 from dataclasses import dataclass
 from typing import Callable
 
