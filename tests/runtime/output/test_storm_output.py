@@ -211,7 +211,11 @@ def test_the_warm_up_covers_the_scenes_kernels_in_announced_tasks(gf, integrator
     assert any("free-flight" in m for m in names) and any("narrow-phase" in m for m in names)
     assert any("contact-set" in m for m in names) and any("the patch kernels" == m for m in names)
     assert [m for m in names if "integrator" in m] == [f"the {integrator} integrator's kernels"]
-    assert all(t.seconds > 0 for t in st.warm_tasks())
+    # measured seconds (the packaged ones cover the default scene's tasks; another integrator's
+    # are None, "not measured yet", until its first compile on this machine records them)
+    assert all(t.seconds is None or t.seconds > 0 for t in st.warm_tasks())
+    if integrator == "implicit":
+        assert all(t.seconds > 0 for t in st.warm_tasks())
     assert list(st.warm_report.times) and set(st.warm_report.times) == set(names)
     point = storm_mod.Storm(gf, _scene(integrator=integrator, patch="none"), warm=False)
     assert point.warm_report is None
