@@ -290,13 +290,13 @@ def test_one_default_mesh_size():
 
 
 def test_the_precompute_command_builds_the_default_seats_discretisation():
-    """``hailstorm precompute`` without options is the default storm's seat (P2 point columns:
-    chosen by measured accuracy), not the cheaper P1 of the library's ``build_bundle``."""
+    """``hailstorm precompute`` without options is the default storm's seat (P2, hat-load columns:
+    chosen by measured accuracy, with the near field), not the cheaper P1 of the library's ``build_bundle``."""
     from hailstorm.cli import _parser
     from hailstorm.runtime.scene import SeatSettings
 
     seat, args = SeatSettings.default(), _parser().parse_args(["precompute", "--out", "x"])
-    assert (args.order, args.load, args.volume_size) == (seat.order, seat.load, seat.volume_size) == (2, "point", None)
+    assert (args.order, args.load, args.volume_size) == (seat.order, seat.load, seat.volume_size) == (2, "hat", None)
 
 
 # ----------------------------------------------------------------------------- bundle rows (info / load)
