@@ -67,7 +67,7 @@ def _parser() -> argparse.ArgumentParser:
     pre = sub.add_parser("precompute", parents=[common], help="compute a Green's-function bundle for a seat")
     pre.add_argument("--mesh-size", type=_positive_float, default=DEFAULT_MESH_SIZE,
                      help=f"element size on the hail-facing surface in metres (default {DEFAULT_MESH_SIZE})")
-    from hailstorm.runtime.scene import SeatSettings
+    from hailstorm.runtime.storm.scene import SeatSettings
 
     seat = SeatSettings.default()
     pre.add_argument("--order", type=int, choices=(1, 2), default=seat.order,
@@ -117,7 +117,7 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _storm_args(p: argparse.ArgumentParser) -> None:
-    from hailstorm.runtime.scene import Scene  # noqa: PLC0415 (the packaged default scene, for the help texts)
+    from hailstorm.runtime.storm.scene import Scene  # noqa: PLC0415 (the packaged default scene, for the help texts)
 
     d = Scene.default()
     p.add_argument("--duration", type=_positive_float, default=None,
@@ -208,7 +208,7 @@ def _print_bundle(path: Path, rehash: bool = True) -> None:
 def _run_storm(args: argparse.Namespace) -> int:
     from hailstorm.runtime.bundle.read import load
     from hailstorm.runtime.output.files import StormOutput, check_storm_out
-    from hailstorm.runtime.scene import Scene, SeatSettings
+    from hailstorm.runtime.storm.scene import Scene, SeatSettings
     from hailstorm.runtime.storm.driver import run_storm
 
     scene = Scene.from_toml(args.scene) if args.scene is not None else Scene.default()

@@ -27,7 +27,7 @@ from hailstorm.runtime.contact import (
     solve_contacts,
 )
 from hailstorm.runtime.contact.hertz import HertzImpact, SphereContacts, hertz_force, hertz_impact, press_spheres
-from hailstorm.runtime.scene import (
+from hailstorm.runtime.storm.scene import (
     ContactSettings,
     HailSettings,
     OutputSettings,

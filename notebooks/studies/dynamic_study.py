@@ -144,7 +144,7 @@ class Pad:
 
 def default_pad(density: float = FOAM_DENSITY, **changes: float) -> Pad:
     """The default seat's foam (``meshes/default_scene.toml`` ``[seat]``) as a 15 mm pad of radius 60 mm."""
-    from hailstorm.runtime.scene import SeatSettings
+    from hailstorm.runtime.storm.scene import SeatSettings
 
     seat = SeatSettings.default()
     return replace(Pad(young=float(seat.young), poisson=float(seat.poisson), density=float(density)), **changes)
@@ -571,7 +571,7 @@ def pad_bundle(pad: Pad, mesh_size: float = 0.006, order: int = 2, width: float 
     once in the cache; the storm's Green's functions of the pad."""
     import hailstorm.runtime
     from hailstorm.precompute import box_mesh, build_bundle
-    from hailstorm.runtime.scene import SeatSettings
+    from hailstorm.runtime.storm.scene import SeatSettings
 
     load = SeatSettings.default().load if load is None else load
     mesh = box_mesh((width, width, pad.thickness), mesh_size)
@@ -658,7 +658,7 @@ def format_storm(rows: Sequence[Row], gf: Any) -> str:
 
 def terminal_speed(radius: float) -> float:
     """The terminal fall speed of a stone of the default scene's hail (``[hail]``: density, drag) [m/s]."""
-    from hailstorm.runtime.scene import Scene
+    from hailstorm.runtime.storm.scene import Scene
     from hailstorm.runtime.storm.hail import terminal_velocity
 
     hail = Scene.default().hail

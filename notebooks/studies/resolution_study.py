@@ -176,7 +176,7 @@ def main(argv: list[str] | None = None) -> None:
     args = ap.parse_args(argv)
     import hailstorm.runtime
     from hailstorm.precompute import build_bundle
-    from hailstorm.runtime.scene import SeatSettings
+    from hailstorm.runtime.storm.scene import SeatSettings
 
     print(f"# resolution study, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, load average "
           f"{os.getloadavg()[0]:.1f}")

@@ -168,8 +168,8 @@ def summary(result: Any, gf: Any = None) -> dict[str, Any]:
         The bundle the storm ran on. Given, the scene's ``[seat]`` section
         records the seat the bundle was computed for (its manifest: mesh size,
         order, material; the scene file's ``[seat]`` request,
-        :class:`~hailstorm.runtime.scene.SeatSettings`, is not part of the
-        :class:`~hailstorm.runtime.scene.Scene`), and ``bundle`` records its
+        :class:`~hailstorm.runtime.storm.scene.SeatSettings`, is not part of the
+        :class:`~hailstorm.runtime.storm.scene.Scene`), and ``bundle`` records its
         path and key. Without it the scene has no ``[seat]``.
     """
     d = dict(result.stats)
@@ -451,7 +451,7 @@ class StormOutput:
     video : bool
         Render ``storm.mp4`` (GIF fallback) from the written frames.
     disk_bytes : int, optional
-        Expected size of the outputs (:meth:`hailstorm.runtime.scene.Scene.estimate`):
+        Expected size of the outputs (:meth:`hailstorm.runtime.storm.scene.Scene.estimate`):
         refused up front if the file system has less free space.
     progress : bool
         A tqdm bar while rendering.

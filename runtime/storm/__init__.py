@@ -2,6 +2,9 @@
 
 Siblings, each a part the driver composes (none imports the driver):
 
+* :mod:`~hailstorm.runtime.storm.scene` -- the scene: :class:`Scene` and its
+  settings sections (TOML), the pre-flight estimate, the default seat's
+  ``[seat]`` settings;
 * :mod:`~hailstorm.runtime.storm.hail` -- hailstone physics: sizes, drag,
   terminal speed, the dashpot and the contact step's integrators;
 * :mod:`~hailstorm.runtime.storm.stones` -- the stones in flight and their spawning;
@@ -16,8 +19,9 @@ Siblings, each a part the driver composes (none imports the driver):
 * :mod:`~hailstorm.runtime.storm.warmup` -- the first run's compile;
 * :mod:`~hailstorm.runtime.storm.driver` -- :class:`Storm` and :func:`run_storm`.
 
-The driver's names are imported on first use (PEP 562), so that a part
-(``hailstorm.runtime.storm.hail``, which the scene reads) does not load the driver.
+The driver's names are imported on first use (PEP 562), so that a part (the
+scene, which the command line and the offline stage's estimates read) does
+not load the driver.
 """
 
 from __future__ import annotations

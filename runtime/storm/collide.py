@@ -27,7 +27,7 @@ from hailstorm.runtime.compiled.grid import surface_arrays
 from hailstorm.runtime.contact import policy
 from hailstorm.runtime.storm.hail import GRAVITY, Air
 from hailstorm.runtime.storm.recording import StormStats
-from hailstorm.runtime.scene import Scene
+from hailstorm.runtime.storm.scene import Scene
 from hailstorm.runtime.storm.seat import SeatState
 from hailstorm.runtime.storm.stones import Stones
 from hailstorm.runtime.bundle.compliance import ComplianceSource

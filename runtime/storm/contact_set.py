@@ -32,7 +32,7 @@ from hailstorm.runtime.storm.recording import StormStats
 from hailstorm.runtime.bundle.compliance import ElasticSource
 
 if TYPE_CHECKING:  # annotations only
-    from hailstorm.runtime.scene import ContactSettings
+    from hailstorm.runtime.storm.scene import ContactSettings
 
 __all__ = ["ContactSet", "ContactSets"]
 

@@ -144,7 +144,7 @@ from hailstorm.runtime.storm.hail import GRAVITY, Air
 from hailstorm.runtime.storm.integrators import ContactIntegrator
 from hailstorm.runtime.storm.patches import Patches
 from hailstorm.runtime.storm.recording import Frame, Recorder, StormResult, StormStats
-from hailstorm.runtime.scene import Scene, SceneError
+from hailstorm.runtime.storm.scene import Scene, SceneError
 from hailstorm.runtime.storm.seat import SeatState
 from hailstorm.runtime.storm.soft_contacts import SoftContacts
 from hailstorm.runtime.storm.stones import SpawnPlan, StoneError, Stones, check_stones
@@ -536,7 +536,7 @@ def run_storm(
 
     Raises
     ------
-    hailstorm.runtime.scene.StormTooLarge
+    hailstorm.runtime.storm.scene.StormTooLarge
         The estimate exceeds the machine and ``allow_large`` is not set.
     """
     scene = Scene.default() if scene is None else scene

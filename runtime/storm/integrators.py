@@ -24,7 +24,7 @@ from hailstorm.runtime.compiled import (
 )
 from hailstorm.runtime.storm.contact_set import ContactSet
 from hailstorm.runtime.storm.hail import X_GRID, Z_GRID, ContactStep, contact_modes
-from hailstorm.runtime.scene import ContactSettings, TimeSettings
+from hailstorm.runtime.storm.scene import ContactSettings, TimeSettings
 from hailstorm.runtime.storm.stones import Stones
 
 __all__ = ["ContactIntegrator"]

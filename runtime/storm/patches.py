@@ -19,7 +19,7 @@ import numpy as np
 from hailstorm.runtime.compiled import patch_compliance, patch_one, patch_radii
 from hailstorm.runtime.storm.hail import GRAVITY, Air
 from hailstorm.runtime.storm.recording import StormStats
-from hailstorm.runtime.scene import ContactSettings, TimeSettings
+from hailstorm.runtime.storm.scene import ContactSettings, TimeSettings
 from hailstorm.runtime.storm.seat import SeatState
 from hailstorm.runtime.storm.stones import Stones
 from hailstorm.runtime.contact.weights import PATCH_DROP, PATCH_FACING, disc_table, triangle_index

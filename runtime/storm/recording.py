@@ -20,7 +20,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from hailstorm.runtime.scene import Scene
+from hailstorm.runtime.storm.scene import Scene
 from hailstorm.runtime.storm.limits import VALIDITY_KEYS, ImpactLimits, summarise
 
 __all__ = ["Frame", "Recorder", "StormResult", "StormStats"]

@@ -23,7 +23,7 @@ from hailstorm.runtime.storm.integrators import ContactIntegrator
 from hailstorm.runtime.storm.limits import ImpactLimits
 from hailstorm.runtime.storm.patches import Patches
 from hailstorm.runtime.storm.recording import StormStats
-from hailstorm.runtime.scene import ContactSettings, TimeSettings
+from hailstorm.runtime.storm.scene import ContactSettings, TimeSettings
 from hailstorm.runtime.storm.seat import SeatState
 from hailstorm.runtime.storm.stones import Stones
 

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from hailstorm.runtime.storm.hail import stone_mass, terminal_velocity
-from hailstorm.runtime.scene import HailSettings, StormSettings
+from hailstorm.runtime.storm.scene import HailSettings, StormSettings
 
 __all__ = ["SpawnPlan", "StoneError", "Stones", "check_stones"]
 

@@ -105,7 +105,7 @@ def main() -> None:
     from hailstorm.runtime.storm.driver import Scene, run_storm
 
     from hailstorm.precompute import build_bundle
-    from hailstorm.runtime.scene import SeatSettings
+    from hailstorm.runtime.storm.scene import SeatSettings
 
     seat = SeatSettings.default()
 

@@ -44,7 +44,7 @@ def main() -> None:
     from numba.core import event
 
     import hailstorm.runtime
-    from hailstorm.runtime.scene import Scene, SeatSettings
+    from hailstorm.runtime.storm.scene import Scene, SeatSettings
 
     class CpuClock(event.Listener):
         """Records (process CPU time, event): compile seconds on a loaded machine (numba compiles in one thread)."""

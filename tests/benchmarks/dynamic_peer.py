@@ -26,7 +26,7 @@ import argparse
 def storm_validity(gf_path: str | None = None) -> dict:
     """The default storm's summary keys of the validity limits (and ``impacts``)."""
     import hailstorm.runtime
-    from hailstorm.runtime.scene import Scene, SeatSettings
+    from hailstorm.runtime.storm.scene import Scene, SeatSettings
     from hailstorm.runtime.storm.limits import VALIDITY_KEYS
 
     if gf_path is None:

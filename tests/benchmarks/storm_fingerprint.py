@@ -128,7 +128,7 @@ def main() -> None:
     args = ap.parse_args()
 
     import hailstorm.runtime
-    from hailstorm.runtime.scene import SeatSettings
+    from hailstorm.runtime.storm.scene import SeatSettings
 
     if args.gf:
         path = args.gf

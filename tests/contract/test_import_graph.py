@@ -1,5 +1,5 @@
 """The package's import graph: no cycles, and the storm driver is a leaf that only the
-CLI and the package faces import (its parts take explicit inputs, never the storm)."""
+CLI and the package faces import (its parts take explicit inputs, never the storm); arrows run down."""
 
 from __future__ import annotations
 
@@ -118,3 +118,29 @@ def test_the_private_import_check_sees_one(tmp_path):
     f = tmp_path / "m.py"
     f.write_text("from hailstorm.runtime.compiled.grid import _hidden, public\nimport hailstorm.runtime._secret\n")
     assert _private_imports(f) == ["hailstorm.runtime.compiled.grid._hidden", "hailstorm.runtime._secret"]
+
+
+def test_the_runtime_never_imports_the_offline_stage_or_the_cli():
+    """Arrows run down: no module of hailstorm.runtime imports hailstorm.precompute or hailstorm.cli,
+    and the scene sits with the storm it configures (runtime/storm/scene.py)."""
+    graph = _graph()
+    up = {m: sorted(d for d in deps if d.startswith(("hailstorm.precompute", "hailstorm.cli")))
+          for m, deps in graph.items() if m.startswith("hailstorm.runtime")}
+    assert not {m: d for m, d in up.items() if d}
+    assert "hailstorm.runtime.storm.scene" in graph
+
+
+def test_the_old_scene_path_warns_and_still_imports():
+    import importlib
+    import sys
+    import warnings
+
+    sys.modules.pop("hailstorm.runtime.scene", None)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        old = importlib.import_module("hailstorm.runtime.scene")
+    assert any(issubclass(w.category, DeprecationWarning) and "hailstorm.runtime.storm.scene" in str(w.message)
+               for w in caught)
+    from hailstorm.runtime import Scene
+
+    assert old.Scene is Scene

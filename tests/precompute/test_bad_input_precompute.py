@@ -283,7 +283,7 @@ def test_mesh_size_larger_than_the_body_warns(caplog):
 def test_one_default_mesh_size():
     from hailstorm.precompute.pipeline import DEFAULT_MESH_SIZE
     from hailstorm.cli import _parser
-    from hailstorm.runtime.scene import SeatSettings
+    from hailstorm.runtime.storm.scene import SeatSettings
 
     assert SeatSettings.default().mesh_size == DEFAULT_MESH_SIZE
     assert _parser().parse_args(["precompute", "--out", "x"]).mesh_size == DEFAULT_MESH_SIZE
@@ -293,7 +293,7 @@ def test_the_precompute_command_builds_the_default_seats_discretisation():
     """``hailstorm precompute`` without options is the default storm's seat (P2, hat-load columns:
     chosen by measured accuracy, with the near field), not the cheaper P1 of the library's ``build_bundle``."""
     from hailstorm.cli import _parser
-    from hailstorm.runtime.scene import SeatSettings
+    from hailstorm.runtime.storm.scene import SeatSettings
 
     seat, args = SeatSettings.default(), _parser().parse_args(["precompute", "--out", "x"])
     assert (args.order, args.load, args.volume_size) == (seat.order, seat.load, seat.volume_size) == (2, "hat", None)

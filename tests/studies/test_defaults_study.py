@@ -10,7 +10,7 @@ from hailstorm.precompute.geometry import Refinement
 from hailstorm.runtime import load
 from hailstorm.runtime.contact.weights import patch_weights, triangle_normals
 from hailstorm.runtime.storm.hail import stone_mass, terminal_velocity
-from hailstorm.runtime.scene import SeatSettings
+from hailstorm.runtime.storm.scene import SeatSettings
 from hailstorm.studies import defaults_study as ds
 from hailstorm.studies.study import LoadCase, locate_probes, nodal_loads
 
@@ -133,7 +133,7 @@ def test_volume_grading_keeps_the_surface_and_refines_the_volume(tmp_path):
 def test_volume_size_bad_input(tmp_path, capsys, small_box):
     from hailstorm.precompute.geometry import MeshError
     from hailstorm.cli import EXIT_INPUT, main
-    from hailstorm.runtime.scene import SceneError
+    from hailstorm.runtime.storm.scene import SceneError
 
     with pytest.raises(MeshError, match="must not exceed the surface mesh size"):
         build_bundle(tmp_path / "b", mesh_size=0.006, volume_size=0.008)
@@ -149,7 +149,7 @@ def test_volume_size_bad_input(tmp_path, capsys, small_box):
 
 
 def test_seat_settings_round_trip_with_grading(tmp_path):
-    from hailstorm.runtime.scene import Scene
+    from hailstorm.runtime.storm.scene import Scene
 
     seat = SeatSettings(mesh_size=0.006, order=2, load="hat", volume_size=0.004)
     p = tmp_path / "scene.toml"

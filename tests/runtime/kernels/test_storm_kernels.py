@@ -209,7 +209,7 @@ from numba.core.dispatcher import Dispatcher
 sys.path.insert(0, sys.argv[1])
 from helpers import plate_gf
 from hailstorm.runtime import compiled
-from hailstorm.runtime.scene import Scene
+from hailstorm.runtime.storm.scene import Scene
 from hailstorm.runtime.storm.driver import run_storm
 gf = plate_gf()
 for integ in ("implicit", "exact", "symplectic"):
@@ -237,7 +237,7 @@ def test_patch_radii_match_reference(gf, mode):
     (point stiffness, then the patch's own) and known ones (a previous contact set with
     forces, two of its radii out of date); the new contacts' weights are cached."""
     from hailstorm.runtime.storm.recording import StormStats
-    from hailstorm.runtime.scene import Scene
+    from hailstorm.runtime.storm.scene import Scene
     from hailstorm.runtime.storm.driver import Storm
     from reference.patches_ref import patch_radii_ref
 

@@ -14,7 +14,7 @@ import pytest
 
 from hailstorm.cli import main
 from hailstorm.runtime.output.files import STORM_MANIFEST, OutputError, StormOutput
-from hailstorm.runtime.scene import Scene
+from hailstorm.runtime.storm.scene import Scene
 from hailstorm.runtime.storm.driver import run_storm
 from helpers import plate_gf
 

@@ -7,7 +7,7 @@ import pytest
 from helpers import plate_gf
 
 from hailstorm.runtime.output.files import SUMMARY_UNITS, summary
-from hailstorm.runtime.scene import Scene
+from hailstorm.runtime.storm.scene import Scene
 from hailstorm.runtime.storm.driver import Storm, run_storm
 from hailstorm.runtime.storm.warmup import WarmReport
 
@@ -49,8 +49,8 @@ def test_compile_time_is_apart_from_the_setup(gf, monkeypatch):
 
 def test_the_memory_refusal_states_its_rule(monkeypatch):
     """The refusal names the fraction of the available memory a storm may use and that limit."""
-    import hailstorm.runtime.scene as scene
-    from hailstorm.runtime.scene import StormEstimate, StormTooLarge
+    import hailstorm.runtime.storm.scene as scene
+    from hailstorm.runtime.storm.scene import StormEstimate, StormTooLarge
 
     monkeypatch.setattr(scene, "available_memory", lambda: 10 * 2**30)
     est = StormEstimate(steps=10, stones=1, frames=1, memory_bytes=9 * 2**30)

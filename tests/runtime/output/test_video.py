@@ -6,7 +6,7 @@ import pytest
 
 from hailstorm.runtime.bundle.read import load
 from hailstorm.runtime.output.render import FRAME_SIZE, StormRenderer, write_animation
-from hailstorm.runtime.scene import Scene
+from hailstorm.runtime.storm.scene import Scene
 from hailstorm.runtime.storm.driver import Frame, Storm, run_storm
 
 ICE = 917.0  # the default scene's ice density [kg/m^3]

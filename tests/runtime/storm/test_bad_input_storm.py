@@ -111,7 +111,7 @@ def test_broken_pipe_exits_quietly(box_bundle, reader):
 
 def test_a_large_storm_runs_with_allow_large(seat_bundle, tmp_path, monkeypatch):
     """The override: the estimate is checked, and --allow-large passes it."""
-    import hailstorm.runtime.scene as scene_mod
+    import hailstorm.runtime.storm.scene as scene_mod
 
     monkeypatch.setattr(scene_mod, "MAX_STEPS", 10)  # 50 steps: "too many" here
     out = tmp_path / "out"
@@ -216,7 +216,7 @@ def test_a_burst_of_stones_is_refused_by_its_time_estimate():
     """10 million stones in 0.05 s passed the memory and step checks and ran for hours:
     the time estimate (stones x steps at the measured rate) refuses it, names the rule,
     and --allow-large passes it; the default storm is far below the limit."""
-    from hailstorm.runtime.scene import MAX_SECONDS, STONE_STEPS_PER_SECOND, Scene, StormTooLarge
+    from hailstorm.runtime.storm.scene import MAX_SECONDS, STONE_STEPS_PER_SECOND, Scene, StormTooLarge
 
     scene = Scene.from_flat(stones=10_000_000, duration=0.05)
     est = scene.estimate()
@@ -228,7 +228,7 @@ def test_a_burst_of_stones_is_refused_by_its_time_estimate():
 
 
 def test_duration_overflowing_the_step_count_is_a_scene_error():
-    from hailstorm.runtime.scene import Scene, SceneError
+    from hailstorm.runtime.storm.scene import Scene, SceneError
 
     with pytest.raises(SceneError, match="not a finite number of steps"):
         Scene.from_flat(duration=1e308)
@@ -238,14 +238,14 @@ def test_duration_overflowing_the_step_count_is_a_scene_error():
 def test_numpy_integers_are_integers_in_a_scene():
     import numpy as np
 
-    from hailstorm.runtime.scene import Scene
+    from hailstorm.runtime.storm.scene import Scene
 
     scene = Scene.from_flat(stones=np.int64(5), seed=np.int32(3))
     assert scene.storm.stones == 5 and type(scene.storm.stones) is int and scene.storm.seed == 3
 
 
 def test_non_utf8_scene_names_the_file(tmp_path):
-    from hailstorm.runtime.scene import Scene, SceneError
+    from hailstorm.runtime.storm.scene import Scene, SceneError
 
     (tmp_path / "latin1.toml").write_bytes("[storm]\n# Grüße\nduration = 0.1\n".encode("latin-1"))
     with pytest.raises(SceneError, match="latin1.toml is not a UTF-8 text file"):
@@ -333,7 +333,7 @@ STONE_ROWS = [
 def plate_storm():
     from helpers import plate_gf
 
-    from hailstorm.runtime.scene import Scene
+    from hailstorm.runtime.storm.scene import Scene
     from hailstorm.runtime.storm.driver import Storm
 
     return Storm(plate_gf(), Scene.from_flat(duration=0.01), spawn=False, warm=False)
@@ -374,7 +374,7 @@ def test_stones_through_the_footprint_without_a_hit_warn(caplog, name, settings,
 
     from helpers import plate_gf
 
-    from hailstorm.runtime.scene import Scene
+    from hailstorm.runtime.storm.scene import Scene
     from hailstorm.runtime.storm.driver import run_storm
 
     with caplog.at_level(logging.WARNING):
@@ -389,7 +389,7 @@ def test_a_storm_with_impacts_does_not_warn_of_passing_through(caplog):
 
     from helpers import plate_gf
 
-    from hailstorm.runtime.scene import Scene
+    from hailstorm.runtime.storm.scene import Scene
     from hailstorm.runtime.storm.driver import run_storm
 
     with caplog.at_level(logging.WARNING):
@@ -441,7 +441,7 @@ def test_a_storm_whose_out_was_written_meanwhile_keeps_both(seat_bundle, tmp_pat
 
     from hailstorm.runtime.bundle.read import load
     from hailstorm.runtime.output.files import STORM_MANIFEST, OutputError, StormOutput
-    from hailstorm.runtime.scene import Scene
+    from hailstorm.runtime.storm.scene import Scene
     from hailstorm.runtime.storm.driver import run_storm
 
     gf = load(seat_bundle)
@@ -483,7 +483,7 @@ def test_file_too_large_names_the_output(seat_bundle, tmp_path, capsys, monkeypa
 
 def _pair_peak(gf, d, integrator="exact", r=0.005, v0=5.0):
     """Peak contact force of two stones ``d`` apart dropped together on the seat's top."""
-    from hailstorm.runtime.scene import Scene
+    from hailstorm.runtime.storm.scene import Scene
     from hailstorm.runtime.storm.driver import Storm
 
     c = np.asarray(gf.vertices)[int(np.argmax(np.asarray(gf.vertices)[:, 2]))]

@@ -10,7 +10,7 @@ import pytest
 
 from hailstorm.precompute.geometry import box_mesh, boundary_triangles
 from hailstorm.runtime.contact.weights import hertz_radius
-from hailstorm.runtime.scene import Scene
+from hailstorm.runtime.storm.scene import Scene
 from hailstorm.runtime.storm.driver import Storm
 from hailstorm.runtime.storm.limits import (
     ImpactLimits,

@@ -17,7 +17,7 @@ from helpers import plate_gf
 
 from hailstorm.runtime.contact.near_field import near_field
 from hailstorm.runtime.contact.weights import hertz_radius, patch_weights, triangle_normals
-from hailstorm.runtime.scene import Scene
+from hailstorm.runtime.storm.scene import Scene
 from hailstorm.runtime.storm.hail import GRAVITY, Air
 from hailstorm.runtime.storm.patches import Patches
 from hailstorm.runtime.storm.recording import StormStats

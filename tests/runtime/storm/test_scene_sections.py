@@ -8,7 +8,7 @@ from importlib import resources
 
 import pytest
 
-from hailstorm.runtime.scene import (
+from hailstorm.runtime.storm.scene import (
     ContactSettings,
     HailSettings,
     OutputSettings,

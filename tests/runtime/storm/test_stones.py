@@ -9,7 +9,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from hailstorm.runtime.scene import Scene
+from hailstorm.runtime.storm.scene import Scene
 from hailstorm.runtime.storm.hail import terminal_velocity
 from hailstorm.runtime.storm.stones import SpawnPlan, Stones
 

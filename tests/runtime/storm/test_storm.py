@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from hailstorm.runtime.scene import Scene, SceneError
+from hailstorm.runtime.storm.scene import Scene, SceneError
 from hailstorm.runtime.storm.driver import Storm, run_storm
 from helpers import plate_gf
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from hailstorm.runtime.storm.hail import contact_step, damping_coefficients
-from hailstorm.runtime.scene import Scene
+from hailstorm.runtime.storm.scene import Scene
 from hailstorm.runtime.storm.driver import Storm
 from helpers import plate_gf
 

@@ -167,7 +167,7 @@ def test_the_storm_helper_fills_the_cache_with_the_parents_types(tmp_path, seat_
     code = """
 import json, sys
 from hailstorm.runtime import load
-from hailstorm.runtime.scene import Scene
+from hailstorm.runtime.storm.scene import Scene
 from hailstorm.runtime.storm.driver import Storm
 st = Storm(load(sys.argv[1]), Scene.default())
 r = st.warm_report
@@ -225,7 +225,7 @@ def test_the_storm_tasks_take_their_seconds_from_the_measurements(monkeypatch):
     """No task's seconds is typed in: every storm task asks :func:`measured_seconds`."""
     from helpers import plate_gf
 
-    from hailstorm.runtime.scene import Scene
+    from hailstorm.runtime.storm.scene import Scene
     from hailstorm.runtime.storm import driver
 
     asked = []

@@ -1,0 +1,856 @@
+"""Storm settings: the :class:`Scene` and its TOML file.
+
+A scene file has the sections ``[storm]``, ``[hail]``, ``[contact]``,
+``[time]``, ``[output]`` and ``[seat]``; every key is optional and takes the
+packaged default (``meshes/default_scene.toml``, installed as
+``hailstorm.meshes``) when absent. Unknown sections or keys and bad values
+raise :class:`SceneError` naming the file, the key and the problem.
+
+Use::
+
+    from hailstorm.runtime.storm.scene import Scene
+    scene = Scene.from_toml("scene.toml")      # or Scene.default(), Scene.from_flat(duration=0.2, ...)
+    scene.storm.duration, scene.time.dt        # one typed record per section
+    scene.with_(dt=1e-4).to_toml("copy.toml")  # a flat key goes to its section
+    seat = SeatSettings.from_toml("scene.toml")  # [seat]: the default seat's precompute settings
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import os
+import tomllib
+from dataclasses import dataclass
+from importlib import resources
+from pathlib import Path
+from typing import Any, ClassVar, Mapping
+
+import numpy as np
+
+from hailstorm.runtime.bundle.atomic import write_text_atomic
+from hailstorm.runtime.contact.near_field import NEAR_FIELDS
+from hailstorm.runtime.contact.validate import Mode
+from hailstorm.runtime.storm.hail import GRAVITY, Integrator, SizeDistribution, terminal_velocity
+
+__all__ = ["ContactSettings", "HailSettings", "OutputSettings", "Scene", "SceneError", "SeatSettings", "StormEstimate",
+           "StormSettings", "StormTooLarge", "TimeSettings"]
+
+
+class SceneError(ValueError):
+    """A scene file or value is invalid."""
+
+
+class StormTooLarge(SceneError):
+    """A storm would exceed the machine (memory, or a step count of hours); the
+    message names the estimate and the override."""
+
+
+#: above this many steps a storm is refused without ``allow_large`` (hours of stepping)
+MAX_STEPS = 10_000_000
+#: measured stepping rate [stone-steps per second of wall time] of the time estimate
+#: (work ~ stones x steps): on the default seat (1476 vertices, one core of this
+#: project's 2-core test machine), the default storm over 1 s ran 1.5e5 stone-steps/s
+#: (200 stones, 5000 steps, 6.5 s), 400 000 stones in free flight 0.9e7-1.2e7, 300 stones
+#: landing at once 7e3: contacts dominate, so the storm's figure, rounded up, is used
+STONE_STEPS_PER_SECOND = 2e5
+#: above this estimated stepping time [s] a storm is refused without ``allow_large``
+MAX_SECONDS = 3600.0
+#: a storm may hold at most this fraction of the available memory without ``allow_large``
+MEMORY_FRACTION = 0.8
+#: memory per stone over the run [bytes]: the spawn plan (64) and the per-stone state
+#: (~160), which grows by doubling (x2), rounded up
+BYTES_PER_STONE = 512
+#: memory per step [bytes]: the contact-force history (time, force, contacts)
+BYTES_PER_STEP = 24
+#: disk per frame and surface vertex [bytes]: the seat's VTU (measured ~60 on the
+#: default seat, zlib-compressed float64 fields and the triangles), rounded up
+DISK_BYTES_PER_VERTEX = 80
+
+
+def available_memory() -> int | None:
+    """Memory available to a new allocation [bytes] (``MemAvailable`` of
+    ``/proc/meminfo``, else the physical memory), or None if unknown."""
+    try:
+        with open("/proc/meminfo") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return int(os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def _size(n: float) -> str:
+    for unit, k in (("TiB", 2**40), ("GiB", 2**30), ("MiB", 2**20)):
+        if n >= k:
+            return f"{n / k:.3g} {unit}"
+    return f"{n / 2**10:.3g} KiB"
+
+
+def _count(n: float) -> str:
+    """A count for a message: ``12,345`` up to a trillion, else ``1.23e+300``."""
+    return f"{int(n):,}" if n < 1e12 else f"{float(n):.3g}"
+
+
+def _duration(seconds: float) -> str:
+    """``seconds`` in the largest fitting unit: "3.5 h", "12 min", "40 s"."""
+    for unit, k in (("days", 86400.0), ("h", 3600.0), ("min", 60.0)):
+        if seconds >= k:
+            return f"{seconds / k:.3g} {unit}"
+    return f"{seconds:.3g} s"
+
+
+@dataclass(frozen=True)
+class StormEstimate:
+    """What a storm will cost, before it runs (:meth:`Scene.estimate`).
+
+    Attributes
+    ----------
+    steps : int
+        Time steps (``duration / dt``; sub-steps come on top).
+    stones : int
+        Hailstones (the exact count, or the mean of the Poisson rate).
+    frames : int
+        Recorded frames.
+    memory_bytes : int
+        Memory the run holds beyond the bundle (stones, the per-step history,
+        frames if kept in memory).
+    disk_bytes : int or None
+        Size of the written outputs (None: the surface size was not given).
+
+    Notes
+    -----
+    The stepping time is estimated as ``stones * steps /``
+    :data:`STONE_STEPS_PER_SECOND` (every stone present for the whole storm:
+    exact for a burst of stones, an overestimate for a long storm whose stones
+    leave the seat).
+    """
+
+    steps: int
+    stones: int
+    frames: int
+    memory_bytes: int
+    disk_bytes: int | None = None
+
+    @property
+    def seconds(self) -> float:
+        """Estimated stepping time [s] (see the class notes)."""
+        return float(self.stones) * float(self.steps) / STONE_STEPS_PER_SECOND
+
+    def describe(self) -> str:
+        """One line: steps, stones, frames, memory (and disk)."""
+        text = (f"{_count(self.steps)} steps, {_count(self.stones)} stones, {_count(self.frames)} frames, "
+                f"~{_size(self.memory_bytes)} of memory")
+        return text + (f", ~{_size(self.disk_bytes)} on disk" if self.disk_bytes is not None else "")
+
+    def check(self, *, allow_large: bool = False) -> None:
+        """Refuse a storm that exceeds the machine.
+
+        Raises
+        ------
+        StormTooLarge
+            More than :data:`MAX_STEPS` steps, or more memory than
+            :data:`MEMORY_FRACTION` of the available memory; not raised with
+            ``allow_large`` (the CLI's ``--allow-large``).
+        """
+        if allow_large:
+            return
+        avail = available_memory()
+        if avail is not None and self.memory_bytes > MEMORY_FRACTION * avail:
+            raise StormTooLarge(f"the storm needs an estimated {_size(self.memory_bytes)} of memory "
+                                f"({self.describe()}); a storm may use at most {MEMORY_FRACTION:.0%} of the "
+                                f"memory available ({_size(avail)} available now, so at most "
+                                f"{_size(MEMORY_FRACTION * avail)}); lower the duration, the rate or the frame "
+                                "rate, or pass --allow-large (allow_large=True)")
+        if self.steps > MAX_STEPS:
+            raise StormTooLarge(f"the storm has {_count(self.steps)} steps ({self.describe()}), more than "
+                                f"{MAX_STEPS:,} (hours of computing); raise dt or lower the duration, "
+                                "or pass --allow-large (allow_large=True)")
+        if self.seconds > MAX_SECONDS:
+            raise StormTooLarge(f"the storm would take an estimated {_duration(self.seconds)} "
+                                f"({_count(self.stones)} stones x {_count(self.steps)} steps at "
+                                f"{STONE_STEPS_PER_SECOND:.3g} stone-steps/s), more than "
+                                f"{_duration(MAX_SECONDS)}; lower the stones, the rate or the duration, "
+                                "or pass --allow-large (allow_large=True)")
+
+
+#: Python types a scene value may have, per field annotation
+_TYPES: dict[str, tuple[type, ...]] = {
+    "float": (int, float), "int": (int,), "bool": (bool,), "str": (str,), "Mode": (str,), "Integrator": (str,),
+    "int | None": (int, type(None)), "float | None": (int, float, type(None)),
+}
+
+
+def _check_types(record: Any) -> None:
+    """Raise :class:`SceneError` for a field whose value has the wrong Python type."""
+    for f in dataclasses.fields(record):
+        types = _TYPES.get(str(f.type))
+        v = getattr(record, f.name)
+        if types is not None and isinstance(v, np.integer) and int in types:  # numpy integers are integers
+            v = int(v)
+            object.__setattr__(record, f.name, v)
+        if types is not None and (not isinstance(v, types) or (isinstance(v, bool) and bool not in types)):
+            kind = {"float": "a number", "int": "an integer", "bool": "true or false",
+                    "int | None": "an integer", "float | None": "a number"}.get(str(f.type), "a string")
+            raise SceneError(f"{f.name} must be {kind}, got {v!r}")
+
+
+def _positive(record: Any, names: tuple[str, ...], allow_zero: bool = False) -> None:
+    """Raise :class:`SceneError` unless every named field is a finite positive
+    (or, with ``allow_zero``, non-negative) number."""
+    for name in names:
+        v = getattr(record, name)
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or (v < 0 or (v == 0 and not allow_zero)):
+            raise SceneError(f"{name} must be a {'non-negative' if allow_zero else 'positive'} number, got {v!r}")
+
+
+def _bool(record: Any, names: tuple[str, ...]) -> None:
+    for name in names:
+        if not isinstance(getattr(record, name), bool):
+            raise SceneError(f"{name} must be true or false, got {getattr(record, name)!r}")
+
+
+class _Section:
+    """TOML layout of a settings record (one ``[section]`` of the scene file)."""
+
+    #: the record's TOML section
+    SECTION: ClassVar[str] = ""
+
+    @classmethod
+    def keys(cls) -> tuple[str, ...]:
+        """The record's keys (its fields), in TOML order."""
+        return tuple(f.name for f in dataclasses.fields(cls))  # type: ignore[arg-type]
+
+    def to_dict(self) -> dict[str, Any]:
+        """``{key: value}`` as in the TOML section (None values omitted, tuples as lists)."""
+        out = {}
+        for k in self.keys():
+            v = getattr(self, k)
+            if v is not None:
+                out[k] = list(v) if isinstance(v, tuple) else v
+        return out
+
+    @classmethod
+    def from_dict(cls, body: Any, *, source: str = "scene") -> Any:
+        """Build from the TOML section's ``{key: value}`` (integers accepted for numbers).
+
+        Raises
+        ------
+        SceneError
+            On an unknown key or a bad value (the message names ``source``).
+        """
+        if not isinstance(body, Mapping):
+            raise SceneError(f"{source}: [{cls.SECTION}] must be a table")
+        kinds = {f.name: str(f.type) for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
+        kwargs: dict[str, Any] = {}
+        for k, v in body.items():
+            if k not in kinds:
+                raise SceneError(f"{source}: unknown key {k!r} in [{cls.SECTION}]; known keys: {', '.join(kinds)}")
+            # users write 1 for 1.0
+            kwargs[k] = float(v) if kinds[k] == "float" and isinstance(v, int) and not isinstance(v, bool) else v
+        try:
+            return cls(**kwargs)
+        except (SceneError, TypeError) as exc:
+            raise SceneError(f"{source}: {exc}") from None
+
+
+@dataclass(frozen=True)
+class StormSettings(_Section):
+    """``[storm]``: how many stones, where and when (SI units).
+
+    Attributes
+    ----------
+    duration : float
+        Simulated time [s].
+    rate : float
+        Stones spawned per second over the seat's footprint (Poisson process).
+    stones : int or None
+        If given, exactly this many stones are spawned, uniformly over the
+        duration (overrides ``rate``).
+    seed : int
+        Random seed: the storm is reproducible from it.
+    spawn_height : float
+        Stones appear this far above the seat's highest point [m].
+    margin : float
+        The spawn footprint is the seat's xy bounding box grown by this [m];
+        stones that leave it (or fall below the seat) are retired.
+    wind : (3,) float
+        Air velocity [m/s] (drag acts on the velocity relative to it; stones
+        start with its horizontal part and are spawned upwind so they land
+        on the seat).
+    """
+
+    SECTION: ClassVar[str] = "storm"
+
+    duration: float = 0.2
+    rate: float = 1000.0
+    stones: int | None = None
+    seed: int = 0
+    spawn_height: float = 0.05
+    margin: float = 0.01
+    wind: tuple[float, float, float] = (0.0, 0.0, 0.0)
+
+    def __post_init__(self) -> None:
+        _check_types(self)
+        _positive(self, ("duration", "spawn_height"))
+        _positive(self, ("rate", "margin"), allow_zero=True)
+        if self.stones is not None and (isinstance(self.stones, bool) or not isinstance(self.stones, int) or self.stones < 0):
+            raise SceneError(f"stones must be a non-negative integer, got {self.stones!r}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, int) or self.seed < 0:
+            raise SceneError(f"seed must be a non-negative integer, got {self.seed!r}")
+        try:
+            w = tuple(float(x) for x in self.wind)
+        except (TypeError, ValueError):
+            raise SceneError(f"wind must be three numbers [m/s], got {self.wind!r}") from None
+        if len(w) != 3 or not all(math.isfinite(x) for x in w):
+            raise SceneError(f"wind must be three finite numbers [m/s], got {self.wind!r}")
+        object.__setattr__(self, "wind", w)
+
+
+@dataclass(frozen=True)
+class HailSettings(_Section):
+    """``[hail]``: the stones' sizes, ice and air.
+
+    Attributes
+    ----------
+    distribution, r_min, r_max, scale
+        Radius distribution (:class:`hailstorm.runtime.storm.hail.SizeDistribution`) [m].
+    density : float
+        Ice density [kg/m^3].
+    drag : bool
+        Quadratic air drag in flight (stones start at terminal velocity either way).
+    cd, rho_air : float
+        Drag coefficient and air density.
+    """
+
+    SECTION: ClassVar[str] = "hail"
+
+    distribution: str = "exponential"
+    r_min: float = 0.0025
+    r_max: float = 0.0125
+    scale: float = 0.002
+    density: float = 917.0
+    drag: bool = True
+    cd: float = 0.6
+    rho_air: float = 1.2
+
+    def __post_init__(self) -> None:
+        _check_types(self)
+        _positive(self, ("density", "cd", "rho_air"))
+        _bool(self, ("drag",))
+        try:
+            self.size_distribution()
+        except ValueError as exc:
+            raise SceneError(str(exc)) from None
+
+    def size_distribution(self) -> SizeDistribution:
+        """The radius distribution of these stones."""
+        return SizeDistribution(kind=self.distribution, r_min=float(self.r_min), r_max=float(self.r_max), scale=float(self.scale))
+
+
+@dataclass(frozen=True)
+class ContactSettings(_Section):
+    """``[contact]``: the contact model.
+
+    Attributes
+    ----------
+    mode : {"frictionless", "sticky"}
+        Contact model: normal force only, or all three components.
+    unilateral : bool
+        Release contacts that would pull.
+    restitution : float
+        Target coefficient of restitution of an impact (0..1), realised by a
+        contact damping (see :func:`hailstorm.runtime.storm.hail.damping_coefficients`).
+    patch : {"hertz", "none"}
+        Force distribution of a soft contact. ``"hertz"`` (default): a patch
+        contact, the stone's force spread over a disc with the Hertz pressure
+        profile (:func:`hailstorm.runtime.contact.weights.patch_weights`), of radius
+        :func:`hailstorm.runtime.contact.weights.hertz_radius` of the contact's *peak* force
+        (see the module notes); ``"none"``: a point contact (barycentric
+        weights on the contacted triangle; the dent is a one-vertex spike).
+    patch_min_radius : float
+        Floor of the patch radius [m] (default 1 mm: the Hertz radius of the
+        smallest default stone, 2.5 mm, resting under its own weight on the
+        2 MPa seat is 0.8 mm, so the floor only acts on contacts that are
+        opening or closing). A length, not a fraction of the mesh size: the
+        contact model must not change with the mesh.
+    patch_tolerance : float
+        Relative change of a contact's target radius that re-weights it
+        (default 0.2: 20%). Within it the contact keeps its weights and the
+        capacitance is not rebuilt (a 20% radius error changes the patch's
+        stiffness by ~20% but the radius itself only as ``F^(1/3)``).
+    near_field : {"auto", "halfspace", "none"}
+        Patches smaller than the surface elements resolved at their own scale
+        (:mod:`hailstorm.runtime.contact.near_field`): ``"auto"`` (default) on a
+        bundle whose columns answer hat loads (the default seat's), ``"none"``
+        the patch as the mesh carries it.
+    """
+
+    SECTION: ClassVar[str] = "contact"
+
+    mode: Mode = "frictionless"
+    unilateral: bool = True
+    restitution: float = 0.5
+    patch: str = "hertz"
+    patch_min_radius: float = 1e-3
+    patch_tolerance: float = 0.2
+    near_field: str = "auto"
+
+    def __post_init__(self) -> None:
+        _check_types(self)
+        _positive(self, ("patch_min_radius", "patch_tolerance"), allow_zero=True)
+        _bool(self, ("unilateral",))
+        if self.mode not in ("frictionless", "sticky"):
+            raise SceneError(f"mode must be 'frictionless' or 'sticky', got {self.mode!r}")
+        if self.patch not in ("hertz", "none"):
+            raise SceneError(f"patch must be 'hertz' or 'none', got {self.patch!r}")
+        if self.near_field not in NEAR_FIELDS:
+            raise SceneError(f"near_field must be one of {', '.join(map(repr, NEAR_FIELDS))}, got {self.near_field!r}")
+        if isinstance(self.restitution, bool) or not isinstance(self.restitution, (int, float)) or not 0.0 <= self.restitution <= 1.0:
+            raise SceneError(f"restitution must lie in [0, 1], got {self.restitution!r}")
+
+    @property
+    def sticky(self) -> bool:
+        """All three force components (``mode == "sticky"``)."""
+        return self.mode == "sticky"
+
+
+@dataclass(frozen=True)
+class TimeSettings(_Section):
+    """``[time]``: the step and the integrator.
+
+    Attributes
+    ----------
+    dt : float
+        Step [s] (frame/broad-phase step; near stones may be sub-stepped).
+    integrator : {"implicit", "symplectic", "exact"}
+        Contact integrator (:func:`hailstorm.runtime.storm.hail.contact_step`). ``"exact"``
+        solves the damped linear contact dynamics in closed form over the step
+        (no numerical damping, no stability limit, events located inside the
+        step), so it needs no ``omega_dt`` sub-steps.
+    adaptive : bool
+        Sub-step near stones (see :mod:`hailstorm.runtime.storm.driver`). ``False``: fixed ``dt``.
+    omega_dt : float
+        Target ``omega dt`` for moving contacts (``"symplectic"`` sub-steps to
+        half of it: its explicit dashpot's peak-force error is first order in
+        ``omega dt``).
+    approach_fraction : float
+        Largest travel per sub-step of an approaching stone, in radii.
+    max_substeps : int
+        Cap on sub-steps per step.
+    rest_speed : float
+        Normal speed below which a contact counts as resting [m/s].
+    """
+
+    SECTION: ClassVar[str] = "time"
+
+    dt: float = 2e-4
+    integrator: Integrator = "implicit"
+    adaptive: bool = True
+    omega_dt: float = 0.2
+    approach_fraction: float = 0.1
+    max_substeps: int = 64
+    rest_speed: float = 0.05
+
+    def __post_init__(self) -> None:
+        _check_types(self)
+        _positive(self, ("dt", "omega_dt", "approach_fraction"))
+        _positive(self, ("rest_speed",), allow_zero=True)
+        _bool(self, ("adaptive",))
+        if isinstance(self.max_substeps, bool) or not isinstance(self.max_substeps, int) or self.max_substeps < 1:
+            raise SceneError(f"max_substeps must be a positive integer, got {self.max_substeps!r}")
+        if self.integrator not in ("implicit", "symplectic", "exact"):
+            raise SceneError(f"integrator must be 'implicit', 'symplectic' or 'exact', got {self.integrator!r}")
+
+
+@dataclass(frozen=True)
+class OutputSettings(_Section):
+    """``[output]``: what is recorded.
+
+    Attributes
+    ----------
+    fps : float
+        Recorded frames per simulated second.
+    """
+
+    SECTION: ClassVar[str] = "output"
+
+    fps: float = 250.0
+
+    def __post_init__(self) -> None:
+        _check_types(self)
+        _positive(self, ("fps",))
+
+
+@dataclass(frozen=True)
+class SeatSettings(_Section):
+    """``[seat]``: the default seat's precompute settings, used when no bundle
+    is given (``hailstorm storm`` without ``--gf`` builds, or reuses from the
+    cache, the default saddle's Green's functions with them). Not part of the
+    :class:`Scene`: a storm runs on whatever bundle it is given.
+
+    Attributes
+    ----------
+    mesh_size : float
+        Element size on the top [m].
+    order : {1, 2}
+        Element order.
+    load : {"point", "hat"}
+        What a column of D answers (``hailstorm precompute --load``).
+    volume_size : float or None
+        Volume grading [m]: tetrahedra inside the pad at most this size under
+        the same surface mesh (``hailstorm precompute --volume-size``; at most
+        ``mesh_size``). None (the key left out): no grading.
+    young, poisson : float
+        Material [Pa], [-].
+    """
+
+    SECTION: ClassVar[str] = "seat"
+
+    mesh_size: float = 0.006
+    order: int = 2
+    load: str = "hat"
+    volume_size: float | None = None
+    young: float = 2.0e6
+    poisson: float = 0.35
+
+    def __post_init__(self) -> None:
+        _check_types(self)
+        _positive(self, ("mesh_size", "young"))
+        if self.order not in (1, 2) or isinstance(self.order, bool):
+            raise SceneError(f"order must be 1 or 2, got {self.order!r}")
+        if self.load not in ("point", "hat"):
+            raise SceneError(f"load must be 'point' or 'hat', got {self.load!r}")
+        if self.volume_size is not None:
+            _positive(self, ("volume_size",))
+            if self.volume_size > self.mesh_size:
+                raise SceneError(f"volume_size ({self.volume_size!r} m) must not exceed mesh_size "
+                                 f"({self.mesh_size!r} m): it refines the volume under the same surface")
+        if isinstance(self.poisson, bool) or not isinstance(self.poisson, (int, float)) or not -1.0 < self.poisson < 0.5:
+            raise SceneError(f"poisson must satisfy -1 < poisson < 0.5, got {self.poisson!r}")
+
+    @classmethod
+    def default(cls) -> "SeatSettings":
+        """The packaged default scene file's ``[seat]``."""
+        return cls.from_dict(_packaged_toml().get("seat", {}), source="default_scene.toml")
+
+    @classmethod
+    def from_toml(cls, path: str | Path) -> "SeatSettings":
+        """The ``[seat]`` of a scene file; keys it does not set take the packaged defaults.
+
+        Raises
+        ------
+        SceneError
+            The file cannot be read, is not TOML, or its ``[seat]`` is invalid.
+        """
+        body = _read_toml(Path(path)).get("seat", {})
+        if not isinstance(body, Mapping):
+            raise SceneError(f"{path}: [seat] must be a table")
+        return cls.from_dict({**cls.default().to_dict(), **body}, source=str(path))
+
+
+#: the records of a :class:`Scene`, by TOML section
+_RECORDS: dict[str, type[_Section]] = {
+    "storm": StormSettings, "hail": HailSettings, "contact": ContactSettings, "time": TimeSettings,
+    "output": OutputSettings,
+}
+#: section of every flat key (:meth:`Scene.from_flat`, :meth:`Scene.with_`)
+_SECTION_OF: dict[str, str] = {k: sec for sec, rec in _RECORDS.items() for k in rec.keys()}
+
+
+def _read_toml(path: Path) -> dict[str, Any]:
+    try:
+        return tomllib.loads(path.read_text(encoding="utf-8"))
+    except UnicodeDecodeError as exc:
+        raise SceneError(f"{path} is not a UTF-8 text file (a TOML scene): byte {exc.start} is "
+                         f"{exc.object[exc.start:exc.start + 1]!r}") from None
+    except OSError as exc:
+        raise SceneError(f"cannot read scene file {path}: {exc}") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise SceneError(f"{path} is not valid TOML: {exc}") from None
+
+
+def _packaged_toml() -> dict[str, Any]:
+    return tomllib.loads(resources.files("hailstorm.meshes").joinpath("default_scene.toml").read_text())
+
+
+@dataclass(frozen=True)
+class Scene:
+    """Storm settings (all SI units), one typed record per section of the TOML
+    file. Load with :meth:`from_toml` / :meth:`default`; build from flat keys
+    with :meth:`from_flat`, change with :meth:`with_`.
+
+    Attributes
+    ----------
+    storm : StormSettings
+        ``[storm]``: duration, rate or stones, seed, spawn height, margin, wind.
+    hail : HailSettings
+        ``[hail]``: radius distribution, ice density, drag.
+    contact : ContactSettings
+        ``[contact]``: mode, unilateral release, restitution, patch.
+    time : TimeSettings
+        ``[time]``: dt, integrator, sub-steps, rest speed.
+    output : OutputSettings
+        ``[output]``: frame rate.
+
+    The scene file's ``[seat]`` (the default seat's precompute settings) is
+    not part of the scene: see :class:`SeatSettings`.
+
+    Examples
+    --------
+    >>> sc = Scene.from_flat(duration=0.1, stones=12, dt=5e-4)   # each key to its section
+    >>> sc.storm.duration, sc.time.dt
+    (0.1, 0.0005)
+    >>> sc.with_(integrator="exact").time.integrator
+    'exact'
+    """
+
+    storm: StormSettings = dataclasses.field(default_factory=StormSettings)
+    hail: HailSettings = dataclasses.field(default_factory=HailSettings)
+    contact: ContactSettings = dataclasses.field(default_factory=ContactSettings)
+    time: TimeSettings = dataclasses.field(default_factory=TimeSettings)
+    output: OutputSettings = dataclasses.field(default_factory=OutputSettings)
+
+    def __post_init__(self) -> None:
+        for sec, rec in _RECORDS.items():
+            if not isinstance(getattr(self, sec), rec):
+                raise SceneError(f"{sec} must be a {rec.__name__}, got {getattr(self, sec)!r}")
+        if self.time.dt > self.storm.duration:
+            raise SceneError(f"dt ({self.time.dt!r} s) must not exceed duration ({self.storm.duration!r} s)")
+        if not math.isfinite(self.storm.duration / self.time.dt):
+            raise SceneError(f"duration / dt ({self.storm.duration!r} s / {self.time.dt!r} s) is not a finite "
+                             "number of steps; lower the duration")
+
+    @staticmethod
+    def _route(kw: Mapping[str, Any]) -> dict[str, dict[str, Any]]:
+        by_section: dict[str, dict[str, Any]] = {sec: {} for sec in _RECORDS}
+        for k, v in kw.items():
+            if k not in _SECTION_OF:
+                hint = " (a [seat] setting: see SeatSettings)" if k in SeatSettings.keys() else ""
+                raise SceneError(f"unknown scene setting {k!r}{hint}")
+            by_section[_SECTION_OF[k]][k] = v
+        return by_section
+
+    @classmethod
+    def from_flat(cls, **kw: Any) -> "Scene":
+        """A scene from flat keys, each routed to its section; the rest take the
+        records' defaults (the values of :meth:`default`).
+
+        ``Scene.from_flat(duration=0.1, dt=5e-4)`` is
+        ``Scene(storm=StormSettings(duration=0.1), time=TimeSettings(dt=5e-4))``.
+
+        Raises
+        ------
+        SceneError
+            An unknown key, or a bad value.
+        """
+        return cls(**{sec: _RECORDS[sec](**body) for sec, body in cls._route(kw).items()})
+
+    def with_(self, **kw: Any) -> "Scene":
+        """A copy with flat keys changed, each in its section (like
+        :func:`dataclasses.replace`): ``scene.with_(dt=5e-4, stones=3)``.
+
+        Raises
+        ------
+        SceneError
+            An unknown key, or a bad value.
+        """
+        changes = {sec: dataclasses.replace(getattr(self, sec), **body)
+                   for sec, body in self._route(kw).items() if body}
+        return dataclasses.replace(self, **changes)
+
+    # -- helpers ---------------------------------------------------------------
+    def n_steps(self) -> int:
+        """Time steps of the storm (as :func:`hailstorm.runtime.storm.driver.run_storm` takes them)."""
+        return max(1, int(round(self.storm.duration / self.time.dt)))
+
+    def estimate(self, n_vertices: int | None = None, *, keep_frames: bool = False) -> StormEstimate:
+        """Steps, stones, frames, memory and disk of this storm, before it runs.
+
+        Parameters
+        ----------
+        n_vertices : int, optional
+            Surface vertices of the bundle (for the frames' memory and disk).
+        keep_frames : bool
+            Frames held in memory (the Python API's default) rather than
+            streamed to disk.
+        """
+        sc = self.storm
+        steps = self.n_steps()
+        stones = sc.stones if sc.stones is not None else int(round(sc.rate * sc.duration))
+        frames = min(steps, int(math.ceil(sc.duration * self.output.fps - 1e-9))) + 1
+        # the stone count of a rate is Poisson: allow five standard deviations
+        high = stones if sc.stones is not None else stones + 5 * math.sqrt(stones) + 16
+        memory = BYTES_PER_STEP * steps + BYTES_PER_STONE * high
+        if keep_frames and n_vertices is not None:
+            memory += frames * (24 * n_vertices + 64)  # two float32 fields per vertex
+        disk = None if n_vertices is None else frames * (DISK_BYTES_PER_VERTEX * n_vertices + 4096)
+        return StormEstimate(steps=steps, stones=int(stones), frames=frames, memory_bytes=int(memory),
+                             disk_bytes=disk)
+
+    def physical_warnings(self, vertices: Any) -> list[str]:
+        """Settings that are valid but make the storm physically meaningless on this seat.
+
+        Checks: stones wider than the seat, a contact patch wider than the seat
+        (patch weights then fall back to a point contact), and wind or drag
+        settings with which no stone reaches the seat (an updraft, or a wind
+        without drag that carries every stone past it, or stones that fall
+        too slowly to arrive within the duration). The flight is integrated
+        here, independently of the storm's own flight code.
+
+        Parameters
+        ----------
+        vertices : (n, 3) array
+            The seat's surface vertices [m].
+
+        Returns
+        -------
+        list of str
+            One sentence per problem (empty: nothing found).
+        """
+        X = np.asarray(vertices, dtype=np.float64)
+        lo, hi = X.min(axis=0), X.max(axis=0)
+        width = float(min(hi[0] - lo[0], hi[1] - lo[1]))
+        sc, hail, contact = self.storm, self.hail, self.contact
+        out = []
+        if 2.0 * hail.r_max > width:
+            out.append(f"stones are larger than the seat: diameters up to {2e3 * hail.r_max:.4g} mm "
+                       f"on a seat {1e3 * width:.4g} mm wide ([hail] r_max)")
+        if contact.patch != "none" and 2.0 * contact.patch_min_radius > width:
+            out.append(f"the contact patch ({2e3 * contact.patch_min_radius:.4g} mm across, [contact] "
+                       f"patch_min_radius) is wider than the seat ({1e3 * width:.4g} mm): every contact "
+                       "falls back to a point contact")
+        if (sc.stones is None and sc.rate == 0) or sc.stones == 0:
+            return out
+        if not self._some_stone_lands(lo, hi):
+            out.append("no stone reaches the seat within the storm: with this wind and drag "
+                       f"([storm] wind = {list(sc.wind)}, [hail] drag = {str(hail.drag).lower()}, "
+                       f"cd = {hail.cd:g}, rho_air = {hail.rho_air:g}) every stone misses or arrives after "
+                       f"{sc.duration:g} s")
+        return out
+
+    def _some_stone_lands(self, lo: np.ndarray, hi: np.ndarray) -> bool:
+        """Whether a stone dropped from the spawn plane over the middle of the seat
+        (with the storm's upwind offset) reaches the seat's mid-height inside the
+        spawn footprint within the duration, for some radius."""
+        sc, hail = self.storm, self.hail
+        r = np.linspace(hail.r_min, hail.r_max, 9) if hail.distribution != "fixed" else np.array([hail.r_min])
+        vt = terminal_velocity(r, cd=hail.cd, rho_air=hail.rho_air, density=hail.density)
+        zmid = 0.5 * (lo[2] + hi[2])
+        z0 = hi[2] + sc.spawn_height + r
+        wind = np.asarray(sc.wind, dtype=np.float64)
+        t_fall = (z0 - zmid) / np.maximum(vt, 1e-9)
+        centre = 0.5 * (lo[:2] + hi[:2])
+        pos = np.column_stack([centre[None, :] - wind[None, :2] * t_fall[:, None], z0])
+        vel = np.column_stack([np.broadcast_to(wind[:2], (len(r), 2)), -vt])
+        if hail.drag and not np.any(wind):  # straight down at terminal speed
+            return bool(t_fall.min() <= sc.duration)
+        k = 3.0 * hail.cd * hail.rho_air / (8.0 * hail.density * r) if hail.drag else np.zeros_like(r)
+        n = 1000
+        h = sc.duration / n
+        g = np.array([0.0, 0.0, -GRAVITY])
+        for _ in range(n):
+            # drag implicit (stable for any h): v' = v + h (g - k |v - w| (v' - w))
+            kr = h * k * np.linalg.norm(vel - wind, axis=1)
+            vel = (vel + h * g + kr[:, None] * wind) / (1.0 + kr)[:, None]
+            pos = pos + h * vel
+            down = pos[:, 2] <= zmid
+            if down.any():
+                xy = pos[down, :2]
+                inside = np.all((xy >= lo[:2] - sc.margin) & (xy <= hi[:2] + sc.margin), axis=1)
+                if inside.any():
+                    return True
+                pos[down, 2] = np.inf  # missed: stop following it
+                vel[down] = 0.0
+            if np.all(~np.isfinite(pos[:, 2])):
+                return False
+        return False
+
+    def to_dict(self) -> dict[str, dict[str, Any]]:
+        """Nested ``{section: {key: value}}`` as in the TOML file (``stones`` omitted if None;
+        no ``[seat]``: see :class:`SeatSettings`)."""
+        return {sec: getattr(self, sec).to_dict() for sec in _RECORDS}
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], *, source: str = "scene") -> "Scene":
+        """Build from a nested ``{section: {key: value}}`` mapping (TOML layout);
+        absent sections and keys take the records' defaults. A ``[seat]``
+        section is validated (:class:`SeatSettings`) but not kept.
+
+        Raises
+        ------
+        SceneError
+            On an unknown section or key, or a bad value.
+        """
+        records: dict[str, Any] = {}
+        for sec, body in data.items():
+            if sec == "compute":
+                raise SceneError(f"{source}: [compute] backend is gone: the storm always runs its compiled (numba) "
+                                 "kernels; remove the [compute] section (NUMBA_DISABLE_JIT=1 runs them as Python, "
+                                 "for debugging)")
+            if sec == SeatSettings.SECTION:
+                SeatSettings.from_dict(body, source=source)
+                continue
+            if sec not in _RECORDS:
+                raise SceneError(f"{source}: unknown section [{sec}]; known sections: "
+                                 f"{', '.join([*_RECORDS, SeatSettings.SECTION])}")
+            records[sec] = _RECORDS[sec].from_dict(body, source=source)
+        try:
+            return cls(**records)
+        except SceneError as exc:
+            raise SceneError(f"{source}: {exc}") from None
+
+    @classmethod
+    def from_toml(cls, path: str | Path, *, base: "Scene | None" = None) -> "Scene":
+        """Load a scene TOML file. Keys it does not set take the values of ``base``
+        (default: :meth:`default`, the packaged ``default_scene.toml``). Its
+        ``[seat]`` is checked, not kept (read it with :meth:`SeatSettings.from_toml`)."""
+        path = Path(path)
+        data = _read_toml(path)
+        merged: dict[str, Any] = (base or cls.default()).to_dict()
+        for sec, body in data.items():
+            if isinstance(body, Mapping) and sec in merged:
+                merged[sec] = {**merged[sec], **body}
+            else:
+                merged[sec] = body
+        storm = data.get("storm", {})
+        if isinstance(storm, Mapping) and "stones" not in storm and (base is None or base.storm.stones is None):
+            merged["storm"].pop("stones", None)
+        return cls.from_dict(merged, source=str(path))
+
+    @classmethod
+    def default(cls) -> "Scene":
+        """The packaged default scene (``hailstorm.meshes/default_scene.toml``)."""
+        return cls.from_dict(_packaged_toml(), source="default_scene.toml")
+
+    def to_toml(self, path: str | Path | None = None, *, seat: SeatSettings | None = None) -> str:
+        """TOML text of this scene (written to ``path`` if given), with ``seat``
+        as its ``[seat]`` section if given."""
+
+        def fmt(v: Any) -> str:
+            if isinstance(v, bool):
+                return "true" if v else "false"
+            if isinstance(v, str):
+                return '"' + v.replace("\\", "\\\\").replace('"', '\\"') + '"'
+            if isinstance(v, (list, tuple)):
+                return "[" + ", ".join(fmt(x) for x in v) + "]"
+            if isinstance(v, float):
+                return repr(v)
+            return str(v)
+
+        sections = self.to_dict()
+        if seat is not None:
+            sections[SeatSettings.SECTION] = seat.to_dict()
+        lines = []
+        for sec, body in sections.items():
+            lines.append(f"[{sec}]")
+            lines += [f"{k} = {fmt(v)}" for k, v in body.items()]
+            lines.append("")
+        text = "\n".join(lines)
+        if path is not None:
+            write_text_atomic(path, text)
+        return text
