@@ -547,7 +547,7 @@ def test_two_processes_writing_one_bundle(tmp_path):
     for p in procs:
         p.join(timeout=300)
     # each writer either wrote (or reused) its own bundle or was refused with the one-line
-    # reason (issue #25: never silently handed the other's bundle); at least one wrote
+    # reason (never silently handed the other's bundle); at least one wrote
     codes = [p.exitcode for p in procs]
     assert set(codes) <= {0, 3} and 0 in codes, codes
     assert load(out).young in (1e6, 2e6)
@@ -591,7 +591,7 @@ def test_ctrl_c_while_meshing_ends_the_process(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-# ----------------------------------------------------------------------------- issue #25, item 8
+# ----------------------------------------------------------------------------- the supernodal solver's fallback
 
 def _contrast_box(contrast: float):
     """The small box in two materials, the lower half ``contrast`` times stiffer."""
@@ -627,7 +627,7 @@ def test_supernodal_falls_back_to_cholmod_when_the_pattern_cannot_be_recovered(t
     assert np.abs(D - R).max() <= 1e-6 * np.abs(R).max()
 
 
-# ----------------------------------------------------------------------------- issue #25, item 3 (bundles)
+# ----------------------------------------------------------------------------- bundles
 
 def test_replacing_a_read_only_bundle_removes_its_old_copy(small_box, tmp_path):
     """The replaced bundle was read-only: its old copy (``.b.tmp-*`` after the exchange) is
@@ -695,7 +695,7 @@ def test_a_disk_full_refusal_leaves_no_work_directory(small_box, tmp_path, monke
     assert sorted(p.name for p in tmp_path.iterdir()) == []
 
 
-# ----------------------------------------------------------------------------- issue #25, item 9 (bundles)
+# ----------------------------------------------------------------------------- bundles
 
 def test_a_writer_that_waited_for_another_with_other_inputs_is_refused(small_box, tmp_path, monkeypatch):
     """Two precomputes of one --out with different materials: the one that waited for the

@@ -1,6 +1,6 @@
 """The default seat: a foam pad on a rigid shell that dents locally instead of bending.
 
-Locality (issue #14): a 1 N load on a 5 mm disc at the rear, middle and nose moves
+Locality: a 1 N load on a 5 mm disc at the rear, middle and nose moves
 surface points farther than 40 mm from it by at most 0.2 x the displacement under it.
 Checked on a coarse 15 mm P1 mesh: there the 5 mm disc lies inside one triangle and
 P1 underestimates the dent under the load far more than the far field (the dent is

@@ -1,4 +1,4 @@
-"""Near-coincident stones (issue #11, item 2): two stones dropped on one spot.
+"""Near-coincident stones: two stones dropped on one spot.
 
 The compliance W of two contacts at (nearly) the same point is (nearly) singular;
 the storm takes its capacitance under the contact API's one policy (the

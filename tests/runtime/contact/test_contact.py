@@ -806,7 +806,7 @@ def test_patch_validation(box, kwargs, match):
 
 
 # ---------------------------------------------------------------------------
-# the contact core as one package (issue 12): public active set, protocol, one policy
+# the contact core as one package: public active set, protocol, one policy
 # ---------------------------------------------------------------------------
 @pytest.mark.parametrize("mode", ["sticky", "frictionless"])
 def test_capacitance_solve_is_the_active_set(box, mode):
@@ -871,7 +871,7 @@ def test_rigid_threshold_is_the_policy_constant(box, monkeypatch, fast):
 
 
 def test_contact_api_has_no_backend_switch(box):
-    """One implementation: the contact API takes no backend= (issue 12), and the kernels'
+    """One implementation: the contact API takes no backend=, and the kernels'
     package has no backend switch left to resolve."""
     import inspect
 

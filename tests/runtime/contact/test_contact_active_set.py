@@ -1,4 +1,4 @@
-"""The contact core's factor handling (issue 12, the fresh solve): the one SPD factor and
+"""The contact core's factor handling: the one SPD factor and
 the active set's re-solves with it, against dense algebra (numpy's solve of the principal
 block ``W[a, a]``) and against a fresh capacitance of the kept contacts alone."""
 

@@ -1,4 +1,4 @@
-"""The frictionless unilateral solve as a convex QP (issue #25, item 7): projected Newton
+"""The frictionless unilateral solve as a convex QP: projected Newton
 (:func:`nonnegative_qp`) converges where block pivoting cycles, meets the KKT conditions on
 1000 contacts, and gives today's answers where block pivoting settles."""
 

@@ -64,7 +64,7 @@ ROWS = [
     ("rate-1e9", ["--scene", _scene("[storm]\nrate = 1e9\n")], "of memory"),
     ("scene-missing", ["--scene", lambda t: t / "nope.toml"], "cannot read scene file"),
     ("gf-missing", ["--gf", lambda t: t / "no-bundle"], "no-bundle"),
-    # issue #25
+    # the second bad-input round
     ("stones-5-million-in-0.1-s", ["--stones", "5000000", "--duration", "0.1"], "stone-steps/s"),
     ("duration-1e308", ["--duration", "1e308"], "not a finite number of steps"),
     ("duration-1e300-count-in-scientific-notation", ["--duration", "1e300"], "5e+303 steps"),
@@ -120,7 +120,7 @@ def test_a_large_storm_runs_with_allow_large(seat_bundle, tmp_path, monkeypatch)
     assert (out / "summary.json").is_file()
 
 
-# ---- the bounded --out scan (issue #25, item 1) ------------------------------------------------------------
+# ---- the bounded --out scan ------------------------------------------------------------
 
 
 class _CountingScandir:
@@ -209,7 +209,7 @@ def test_bounded_scan_still_accepts_a_previous_storm_output_and_spots_one_stray_
         check_storm_out(out)
 
 
-# ---- the scene's estimate and values through the API (issue #25, items 2, 6, 10) ---------------------------
+# ---- the scene's estimate and values through the API ---------------------------
 
 
 def test_a_burst_of_stones_is_refused_by_its_time_estimate():
@@ -252,7 +252,7 @@ def test_non_utf8_scene_names_the_file(tmp_path):
         Scene.from_toml(tmp_path / "latin1.toml")
 
 
-# ---- a killed storm's temporaries (issue #25, item 3) ------------------------------------------------------
+# ---- a killed storm's temporaries ------------------------------------------------------
 
 
 def _storm_cmd(seat_bundle, out, duration="3"):
@@ -311,7 +311,7 @@ def test_a_partial_without_our_lock_file_is_left_alone(tmp_path):
     assert (stranger / "data").is_file()
 
 
-# ---- Storm.add_stones: one validation point (issue #25, item 4) --------------------------------------------
+# ---- Storm.add_stones: one validation point --------------------------------------------
 
 _C = [0.06, 0.0, 0.01]  # 1 cm above the middle of the plate (the plate is z = 0, normal +z)
 # (id, pos, vel, radius, fragment of the error)
@@ -358,7 +358,7 @@ def test_good_stones_still_go_in(plate_storm):
     plate_storm.stones.retire(ids)
 
 
-# ---- silent empty storms (issue #25, item 5) ---------------------------------------------------------------
+# ---- silent empty storms ---------------------------------------------------------------
 
 EMPTY_ROWS = [
     ("dt-1-s", dict(duration=2.0, dt=1.0, stones=50), "lower dt ([time] dt = 1 s)"),
@@ -414,7 +414,7 @@ def test_disk_full_refusal_states_sizes_in_adaptive_units(tmp_path, monkeypatch)
     assert list(tmp_path.iterdir()) == []
 
 
-# ---- two writers, one --out (issue #25, item 9) ------------------------------------------------------------
+# ---- two writers, one --out ------------------------------------------------------------
 
 
 def test_a_second_storm_into_a_running_storms_out_is_refused(tmp_path):
@@ -460,7 +460,7 @@ def test_a_storm_whose_out_was_written_meanwhile_keeps_both(seat_bundle, tmp_pat
     assert json.loads((out / "summary.json").read_text()) == {"seed": 1}
 
 
-# ---- messages (issue #25, item 10) -------------------------------------------------------------------------
+# ---- messages -------------------------------------------------------------------------
 
 
 def test_file_too_large_names_the_output(seat_bundle, tmp_path, capsys, monkeypatch):
@@ -497,7 +497,7 @@ def _pair_peak(gf, d, integrator="exact", r=0.005, v0=5.0):
 
 
 def test_two_stones_nearly_coincident_peak_force_is_bounded(seat_bundle):
-    """Issue #25 reported 952 N for two stones 1e-7 m apart under the exact integrator
+    """A report gave 952 N for two stones 1e-7 m apart under the exact integrator
     (4.6 N at 0 and 1e-9 m). Not reproduced here (the configuration was not recorded):
     this documents and bounds it -- on the seat's top, at 0 to 1e-5 m apart, the peak is
     that of the coincident pair within 5 % (measured: 6.24 N at every distance on the

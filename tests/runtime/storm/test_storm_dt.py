@@ -3,7 +3,7 @@
 The exact integrator takes one sub-step per step, so at dt = 0.5 ms a small stone's
 impact (a few tenths of a millisecond) opens and is released inside one sub-step.
 Its peak lies inside the sub-step, on the closed-form trajectory; the statistics and
-the frames must see it (issue #11, item 1).
+the frames must see it.
 """
 
 from __future__ import annotations
