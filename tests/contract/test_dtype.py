@@ -1,4 +1,4 @@
-"""D stored as float32 (issue 13 item 3): the cast, the checks of the storage type, the runtime on either.
+"""D stored as float32: the cast, the checks of the storage type, the runtime on either.
 
 The reference for a float32 bundle's contact results is dense float64 algebra on
 its own D (upcast, fancy-indexed blocks, an explicit B): the runtime reads D in
