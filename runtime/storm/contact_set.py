@@ -156,7 +156,10 @@ class ContactSets:
 
     def warm_up(self, t: int) -> None:
         """Load (or compile) the kernels of :meth:`build` with the storm loop's argument types (one
-        point contact on ``t``)."""
+        point contact on ``t``, and the near field's kernel on its vertices)."""
         t1 = np.array([t])
-        from_weights(self.gf, t1, np.full((1, 3), 1.0 / 3.0), self.normals[t1], self.mode,
-                     self.triangles[t1].astype(np.int64), np.full((1, 3), 1.0 / 3.0)).K
+        third = np.full((1, 3), 1.0 / 3.0)
+        verts = self.triangles[t1].astype(np.int64)
+        from_weights(self.gf, t1, third, self.normals[t1], self.mode, verts, third).K
+        if self.near is not None:
+            self.near.mesh_compliance(self.gf, verts, third, third @ self.X[verts[0]], self.normals[t1])
