@@ -742,3 +742,18 @@ def test_a_writer_that_waited_for_another_with_the_same_inputs_reuses_its_bundle
     monkeypatch.setattr(pipeline, "bundle_lock", lock_after_the_other_writer)
     key = load(build_bundle(out, mesh=small_box, young=1e6)).manifest["key"]
     assert load(out).manifest["key"] == key
+
+
+def test_the_block_example_at_12_mm_p2_builds_with_the_default_solver(tmp_path):
+    """A real case whose supernodal pattern check failed ("cannot recover the factor's pattern"):
+    the default solver now falls back to CHOLMOD, and D equals CHOLMOD's own to the solves'
+    rounding (both direct, the same SPD system)."""
+    import hailstorm.runtime
+
+    geo = ROOT / "examples" / "geometries" / "block.geo"
+    kw = dict(geometry=geo, mesh_size=0.012, order=2, young=5e5, poisson=0.4)
+    a = hailstorm.runtime.load(build_bundle(tmp_path / "default", **kw))
+    b = hailstorm.runtime.load(build_bundle(tmp_path / "cholmod", solver="cholmod", **kw))
+    Da, Db = np.asarray(a.D), np.asarray(b.D)
+    assert Da.shape == Db.shape
+    assert np.abs(Da - Db).max() <= 1e-8 * np.abs(Db).max()
