@@ -315,7 +315,8 @@ def test_unilateral_and_patch_solves_on_float32(box_bundle, f32):
         a, b = solve_contacts(g64, tri, bary, ubar, **kw), solve_contacts(g32, tri, bary, ubar, **kw)
         assert b.forces.dtype == np.float64
         if "unilateral" in kw:
-            np.testing.assert_array_equal(np.linalg.norm(a.forces, axis=1) > 0, np.linalg.norm(b.forces, axis=1) > 0)
+            loaded_a, loaded_b = np.linalg.norm(a.forces, axis=1) > 0, np.linalg.norm(b.forces, axis=1) > 0
+            assert (loaded_a == loaded_b).all()  # the same contacts carry force (booleans)
         kappa = np.linalg.cond(capacitance(g64, tri, bary).W)
         assert 0 < _rel(b.forces, a.forces) < 10 * kappa * U32
         assert 0 < _rel(b.surface_displacement, a.surface_displacement) < 10 * kappa * U32

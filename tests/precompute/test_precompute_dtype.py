@@ -113,7 +113,7 @@ def test_a_block_overflowing_float32_is_refused_and_not_recorded(tmp_path):
 
 
 def test_a_block_rounded_elsewhere_is_written_as_it_came(tmp_path):
-    """A RoundedBlock (cast where it was solved: a Dask worker) is stored bit for bit with its
+    """A RoundedBlock (cast where it was solved: a Dask worker) is stored exactly (one code path: the cast, then its storage) with its
     recorded error; one in the wrong storage type or shape is refused before any write."""
     from hailstorm.runtime.bundle.format import round_block
 

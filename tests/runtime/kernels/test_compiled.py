@@ -420,7 +420,7 @@ def _close_to_rounding(x, ref, cond, n, what=""):
     """``x`` equals ``ref`` to what LAPACK's backward-stable algorithms guarantee: a relative error of
     ``c n eps cond`` (c = 10, a generous constant for the growth factor). Two LAPACK builds (numpy's and
     scipy's OpenBLAS, or one build on two CPUs) differ by a few ulps times the conditioning, so the
-    comparison is never bit for bit."""
+    comparison is never exact."""
     scale = max(np.abs(ref).max(), np.finfo(float).tiny)
     assert np.abs(x - ref).max() <= 10 * max(n, 1) * EPS * max(cond, 1.0) * scale, what
 

@@ -180,7 +180,7 @@ def test_sorted_ints_is_np_sort():
 
 def test_modal_damping_interpolation_is_np_interp():
     """The dashpot's table look-up (compiled scalar interpolation, numpy's rule) equals
-    np.interp bit for bit on the restitution table: inside, at its nodes, beyond both
+    np.interp exactly (the same arithmetic, no BLAS) on the restitution table: inside, at its nodes, beyond both
     ends and on its flat (clipped) tail."""
     from hailstorm.runtime.compiled.modal import interp1
     from hailstorm.runtime.storm.hail import _X_GRID, _Z_GRID
