@@ -209,8 +209,8 @@ class Storm:
         """Advance the storm by one step ``dt``."""
         dt, st, stones, seat = self.scene.time.dt, self.stats, self.stones, self.seat
         due = self.plan.due(self.t + dt)
-        if due is not None:
-            self.add_stones(due[:, 1:4], due[:, 4:7], due[:, 7])
+        if due is not None:  # the plan's stones start above the seat: Stones.add's check is the one they need
+            st.hailstones += stones.add(due[:, 1:4], due[:, 4:7], due[:, 7]).size
         live = stones.live()
         near, far = self.collision.near_set(stones, live, dt, seat.umax_step) if live.size else (live, live)
         if far.size:
@@ -354,7 +354,7 @@ class Storm:
             Bad shapes or values (:func:`~hailstorm.runtime.storm.stones.check_stones`),
             or a stone whose centre lies inside the seat (below its surface).
         """
-        pos, vel, radius = check_stones(pos, vel, radius)
+        pos, vel, radius = check_stones(pos, vel, radius)  # normalised for the seat test (Stones.add checks again)
         self._check_outside(pos)
         ids = self.stones.add(pos, vel, radius)
         self.stats.hailstones += ids.size
@@ -363,8 +363,8 @@ class Storm:
     def _check_outside(self, pos: np.ndarray) -> None:
         """Refuse stones whose centre is inside the (undeformed) seat: the closest
         surface point's triangle normal points away from the centre. Only centres over
-        the seat's footprint and not above its top are looked at (spawned stones start
-        above it)."""
+        the seat's footprint and not above its top are looked at (the spawn plan's stones
+        start above it and do not come through here)."""
         ix = self.collision.index
         lo, hi = ix.bbox
         inbox = np.flatnonzero(((pos[:, :2] >= lo[:2]) & (pos[:, :2] <= hi[:2])).all(axis=1) & (pos[:, 2] <= hi[2]))
