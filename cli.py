@@ -14,6 +14,7 @@ import argparse
 import logging
 import signal
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -302,10 +303,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv[:1] + leading + argv[1:])
     logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO, format="%(message)s")
     logging.getLogger("skfem").setLevel(logging.WARNING)
-    from hailstorm.precompute.geometry import MeshError
-    from hailstorm.runtime.bundle.format import BundleError
-
     previous = _terminate_as_exception()
+    _TERMINATED.clear()
     try:
         if args.command == "precompute":
             rc = _run_precompute(args)
@@ -315,27 +314,48 @@ def main(argv: list[str] | None = None) -> int:
             rc = _run_storm(args)
         sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's exit
         return rc
-    except BrokenPipeError:  # `hailstorm info X | head -2`: the reader left; exit quietly
-        _silence_stdout()
-        return 1
-    except (MeshError, BundleError, ValueError) as exc:
-        print(f"hailstorm: error: {_one_line(exc)}", file=sys.stderr)
-        return EXIT_INPUT
-    except OSError as exc:  # files and directories the user named (missing, read-only, full disk...)
-        print(f"hailstorm: error: {_os_error(exc, getattr(args, 'out', None))}", file=sys.stderr)
-        return EXIT_INPUT
-    except MemoryError:
-        print("hailstorm: error: out of memory (a coarser mesh, a shorter storm or fewer stones needs less)", file=sys.stderr)
-        return EXIT_INPUT
-    except _Terminated:
-        print("hailstorm: terminated (SIGTERM)", file=sys.stderr)
-        return 128 + signal.SIGTERM
-    except KeyboardInterrupt:
-        print("hailstorm: interrupted", file=sys.stderr)
-        return 130
+    except BaseException as exc:
+        # SIGTERM first: its exception can surface wrapped in another one (a compiled
+        # kernel's dispatcher turns an exception raised while it returns into SystemError)
+        if _TERMINATED.is_set():
+            print("hailstorm: terminated (SIGTERM)", file=sys.stderr)
+            return 128 + signal.SIGTERM
+        rc = _user_error(exc, getattr(args, "out", None))
+        if rc is None:
+            raise
+        return rc
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
+
+
+def _user_error(exc: BaseException, out: Any) -> int | None:
+    """Report an error the user can act on in one line on stderr and return the exit
+    code; None for an error that is a defect (its traceback is wanted)."""
+    from hailstorm.precompute.geometry import MeshError
+    from hailstorm.runtime.bundle.format import BundleError
+
+    if isinstance(exc, BrokenPipeError):  # `hailstorm info X | head -2`: the reader left; exit quietly
+        _silence_stdout()
+        return 1
+    if isinstance(exc, (MeshError, BundleError, ValueError)):
+        print(f"hailstorm: error: {_one_line(exc)}", file=sys.stderr)
+        return EXIT_INPUT
+    if isinstance(exc, OSError):  # files and directories the user named (missing, read-only, full disk...)
+        print(f"hailstorm: error: {_os_error(exc, out)}", file=sys.stderr)
+        return EXIT_INPUT
+    if isinstance(exc, MemoryError):
+        print("hailstorm: error: out of memory (a coarser mesh, a shorter storm or fewer stones needs less)",
+              file=sys.stderr)
+        return EXIT_INPUT
+    if isinstance(exc, KeyboardInterrupt):
+        print("hailstorm: interrupted", file=sys.stderr)
+        return 130
+    return None
+
+
+#: set by the SIGTERM handler: whatever exception then ends the command, it ends as SIGTERM
+_TERMINATED = threading.Event()
 
 
 class _Terminated(Exception):
@@ -343,14 +363,13 @@ class _Terminated(Exception):
 
 
 def _raise_terminated(signum: int, frame: object) -> None:
+    _TERMINATED.set()
     raise _Terminated()
 
 
 def _terminate_as_exception() -> object | None:
     """Turn SIGTERM into :class:`_Terminated` (only in the main thread); returns the
     previous handler, or None if none was installed."""
-    import threading
-
     if threading.current_thread() is not threading.main_thread():
         return None
     return signal.signal(signal.SIGTERM, _raise_terminated)

@@ -509,3 +509,28 @@ def test_two_stones_nearly_coincident_peak_force_is_bounded(seat_bundle):
     ref = peaks[0.0]
     assert np.isfinite(ref) and ref > 0
     assert all(abs(p - ref) <= 0.05 * ref for p in peaks.values()), peaks
+
+
+def test_sigterm_wrapped_by_a_compiled_kernel_still_ends_as_sigterm(monkeypatch, capsys):
+    """A SIGTERM whose exception is raised while a numba dispatcher returns surfaces as a
+    SystemError ("returned a result with an exception set"): still exit 143, one line.
+    The signal is sent to this process for real; the wrapper is what the dispatcher does."""
+    import os
+    import signal as _signal
+
+    import hailstorm.cli as cli
+
+    def storm_killed_in_a_kernel(args):
+        try:
+            os.kill(os.getpid(), _signal.SIGTERM)
+            for _ in range(10_000):  # the handler runs at the next bytecode boundary
+                pass
+        except BaseException as exc:
+            raise SystemError("CPUDispatcher(<function step>) returned a result with an exception set") from exc
+        raise AssertionError("SIGTERM was not delivered")
+
+    monkeypatch.setattr(cli, "_run_storm", storm_killed_in_a_kernel)
+    previous = _signal.getsignal(_signal.SIGTERM)
+    assert cli.main(["storm", "-q"]) == 143
+    assert capsys.readouterr().err.strip().splitlines() == ["hailstorm: terminated (SIGTERM)"]
+    assert _signal.getsignal(_signal.SIGTERM) is previous  # the handler is put back
