@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hailstorm.runtime.storm.scene import available_memory as runtime_available_memory
+from hailstorm.runtime.resources import available_memory as runtime_available_memory
 
 #: Bytes of one column block of D, the unit of work and of what is written to disk at once
 #: (32 MiB: a few hundred blocks for 10 000 contactable vertices, each worth one file write).
@@ -133,7 +133,7 @@ def estimate_mesh(n_surface: int, n_contactable: int, n_points: int, order: int 
 
 def available_memory() -> int:
     """Bytes of memory available to a new computation (the runtime's
-    :func:`hailstorm.runtime.storm.scene.available_memory`; unknown counts as unlimited)."""
+    :func:`hailstorm.runtime.resources.available_memory`; unknown counts as unlimited)."""
     avail = runtime_available_memory()
     return 2**63 - 1 if avail is None else avail
 

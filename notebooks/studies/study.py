@@ -62,7 +62,7 @@ from hailstorm.precompute.fem import (
     vertex_dofs,
 )
 from hailstorm.precompute.geometry import TetMesh, boundary_triangles, mesh_default_seat
-from hailstorm.precompute.greens import compliance_matrix, factorize
+from hailstorm.precompute.greens import compliance_matrix, factorize, solver_spec
 from hailstorm.precompute.pipeline import build_bundle, default_cache_dir
 from hailstorm.runtime.bundle.atomic import replacing, write_text_atomic
 
@@ -671,7 +671,7 @@ def build_config(
     if mesh is None:
         mesh = mesher(mesh_size)
     t1 = time.perf_counter()
-    name = name or f"h{mesh_size:g}-p{order}-{solver}" + (f"-{tol:g}" if solver == "amg" else "") + f"-{contact_group}"
+    name = name or f"h{mesh_size:g}-p{order}-{solver}" + (f"-{tol:g}" if solver_spec(solver).uses_tol else "") + f"-{contact_group}"
     path = build_bundle(Path(workdir) / name, mesh=mesh, mesh_size=mesh_size, order=order, solver=solver, tol=tol,
                         contact_group=contact_group, reuse=False)
     t2 = time.perf_counter()

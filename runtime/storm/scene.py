@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import os
 import tomllib
 from dataclasses import dataclass
 from importlib import resources
@@ -31,6 +30,7 @@ import numpy as np
 from hailstorm.runtime.bundle.atomic import write_text_atomic
 from hailstorm.runtime.contact.near_field import NEAR_FIELDS
 from hailstorm.runtime.contact.validate import Mode
+from hailstorm.runtime.resources import available_memory
 from hailstorm.runtime.storm.hail import GRAVITY, Integrator, SizeDistribution, terminal_velocity
 
 __all__ = ["ContactSettings", "HailSettings", "OutputSettings", "Scene", "SceneError", "SeatSettings", "StormEstimate",
@@ -66,22 +66,6 @@ BYTES_PER_STEP = 24
 #: disk per frame and surface vertex [bytes]: the seat's VTU (measured ~60 on the
 #: default seat, zlib-compressed float64 fields and the triangles), rounded up
 DISK_BYTES_PER_VERTEX = 80
-
-
-def available_memory() -> int | None:
-    """Memory available to a new allocation [bytes] (``MemAvailable`` of
-    ``/proc/meminfo``, else the physical memory), or None if unknown."""
-    try:
-        with open("/proc/meminfo") as fh:
-            for line in fh:
-                if line.startswith("MemAvailable:"):
-                    return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    try:
-        return int(os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
-    except (ValueError, OSError, AttributeError):
-        return None
 
 
 def _size(n: float) -> str:

@@ -15,12 +15,6 @@ import pytest
 
 from hailstorm.runtime.storm.scene import Scene
 from hailstorm.runtime.storm.driver import Storm
-from helpers import plate_gf
-
-@pytest.fixture(scope="module")
-def gf():
-    return plate_gf()
-
 
 def _drop_pair(gf, integrator, d, patch, r=0.002, v0=5.0, dt=2e-4):
     """Two stones of radius ``r`` side by side ``d`` apart onto the flat plate at ``v0``:

@@ -11,12 +11,6 @@ import pytest
 pytest.importorskip("numba")
 
 from hailstorm.runtime import compiled as C  # noqa: E402
-from helpers import plate_gf  # noqa: E402
-
-
-@pytest.fixture(scope="module")
-def gf():
-    return plate_gf()
 
 
 def test_patch_weights_match_the_reference(seat_bundle):

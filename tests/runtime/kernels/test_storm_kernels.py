@@ -14,11 +14,6 @@ from reference.flight_ref import drag_ref, free_flight_ref, near_set_ref, retire
 from helpers import plate_gf
 
 
-@pytest.fixture(scope="module")
-def gf():
-    return plate_gf()
-
-
 def _bumpy(gf):
     """A lifted, bumpy copy of the plate (no two triangles coplanar)."""
     V = gf.vertices.copy()

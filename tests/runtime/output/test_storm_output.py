@@ -16,12 +16,6 @@ from hailstorm.cli import main
 from hailstorm.runtime.output.files import STORM_MANIFEST, OutputError, StormOutput
 from hailstorm.runtime.storm.scene import Scene
 from hailstorm.runtime.storm.driver import run_storm
-from helpers import plate_gf
-
-
-@pytest.fixture(scope="module")
-def gf():
-    return plate_gf()
 
 
 def _scene(**kw) -> Scene:

@@ -4,7 +4,6 @@ a storm too large for the memory says the rule it broke."""
 import time
 
 import pytest
-from helpers import plate_gf
 
 from hailstorm.runtime.output.files import SUMMARY_UNITS, summary
 from hailstorm.runtime.storm.scene import Scene
@@ -12,11 +11,6 @@ from hailstorm.runtime.storm.driver import Storm, run_storm
 from hailstorm.runtime.storm.warmup import WarmReport
 
 SCENE = dict(duration=0.02, stones=4, seed=1, spawn_height=0.02, r_min=0.003, r_max=0.006)
-
-
-@pytest.fixture(scope="module")
-def gf():
-    return plate_gf()
 
 
 def test_every_summary_figure_has_its_unit(gf):

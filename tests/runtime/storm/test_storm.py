@@ -9,12 +9,6 @@ import pytest
 
 from hailstorm.runtime.storm.scene import Scene, SceneError
 from hailstorm.runtime.storm.driver import Storm, run_storm
-from helpers import plate_gf
-
-
-@pytest.fixture(scope="module")
-def gf():
-    return plate_gf()
 
 
 @pytest.fixture(scope="module")
