@@ -9,6 +9,15 @@ writer's two renames is put back in place (:func:`clean_stale_temporaries`). A d
 only ever replaced if it holds exactly the files a bundle writer writes:
 nothing else is deleted.
 
+Why a lock of its own and not ``filelock``: both hold ``flock`` on a file, but
+``filelock``'s Unix lock leaves its ``.NAME.lock`` file behind in the user's
+directory after every build (it cannot remove the file safely), and a waiting
+writer cannot say whom it waits for. :func:`bundle_lock` unlinks the file while
+still holding it (a waiter that then locks the unlinked file notices and retries
+on the new one) and writes the holder's pid into it, which the waiting message
+and the refusal name (``tests/precompute/test_bad_input_precompute.py`` holds
+both: no file left, the pid named).
+
 :func:`write_bundle` writes the files of the format
 (:mod:`hailstorm.runtime.bundle.format`) into a temporary sibling and renames it
 into place; :class:`StagedArray` lets the offline stage hand over a D it has
