@@ -86,14 +86,12 @@ class ContactSets:
     """
 
     def __init__(self, gf: ElasticSource, contact: ContactSettings, normals: np.ndarray, patches: Patches) -> None:
-        sticky = contact.sticky
         self.gf = gf
-        self.mode = "sticky" if sticky else "frictionless"
+        self.contact = contact
         self.near = resolve_near_field(gf, contact.near_field) if contact.patch != "none" else None
         self.triangles = np.asarray(gf.triangles)
         self.young, self.poisson = float(gf.young), float(gf.poisson)
         self.X = np.asarray(gf.vertices, dtype=np.float64)
-        self.sticky = sticky
         self.normals = normals
         self.patches = patches
 
@@ -115,7 +113,7 @@ class ContactSets:
         local = None
         if self.near is not None and np.any(radius > 0):
             local = self.patches.near_blocks(self.near, stones, tris, bary, radius, verts, w, X, normals)
-        cap = from_weights(self.gf, tris, bary, normals, self.mode, verts, w, radius if np.any(radius > 0) else None,
+        cap = from_weights(self.gf, tris, bary, normals, self.contact.mode, verts, w, radius if np.any(radius > 0) else None,
                            local=local)
         if cap.rigid.any():
             raise RuntimeError("rigid contacts must be filtered before the capacitance")  # pragma: no cover
@@ -139,7 +137,7 @@ class ContactSets:
                       normals: np.ndarray, radius: np.ndarray, stone_radius: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """K and W of the set with each patch at Hertz's secant stiffness (module docstring)."""
         s = radius.size
-        if self.sticky:  # the normal self-compliance n^T W_kk n of each contact's 3 x 3 block
+        if self.contact.sticky:  # the normal self-compliance n^T W_kk n of each contact's 3 x 3 block
             Wb = W.reshape(s, 3, s, 3)[np.arange(s), :, np.arange(s), :]
             c = np.einsum("ki,kij,kj->k", normals, Wb, normals)
         else:
@@ -149,7 +147,7 @@ class ContactSets:
         else:
             o = sphere_mean_offset(self.X, verts, w, X, normals, radius, stone_radius)
         sk = np.sqrt(hertz_secant_factor(o, radius, stone_radius, c, self.young, self.poisson))
-        if self.sticky:
+        if self.contact.sticky:
             sk = np.repeat(sk, 3)
         scale = sk[:, None] * sk[None, :]
         return np.ascontiguousarray(K * scale), np.ascontiguousarray(W / scale)
@@ -160,6 +158,6 @@ class ContactSets:
         t1 = np.array([t])
         third = np.full((1, 3), 1.0 / 3.0)
         verts = self.triangles[t1].astype(np.int64)
-        from_weights(self.gf, t1, third, self.normals[t1], self.mode, verts, third).K
+        from_weights(self.gf, t1, third, self.normals[t1], self.contact.mode, verts, third).K
         if self.near is not None:
             self.near.mesh_compliance(self.gf, verts, third, third @ self.X[verts[0]], self.normals[t1])

@@ -45,15 +45,11 @@ class ContactIntegrator:
     def __init__(self, time: TimeSettings, contact: ContactSettings) -> None:
         self.name = time.integrator
         self.exact = time.integrator == "exact"
-        self.restitution = float(contact.restitution)
-        self.unilateral = bool(contact.unilateral)
-        self.adaptive = bool(time.adaptive)
-        self.sticky = contact.sticky
-        self.approach_fraction = float(time.approach_fraction)
-        self.rest_speed = float(time.rest_speed)
+        self.time = time
+        self.contact = contact
         self.hmin = time.dt / time.max_substeps
         #: the sub-steps are sized (adaptive implicit / symplectic), by the triangles' stiffness among others
-        self.sizes_substeps = self.adaptive and not self.exact
+        self.sizes_substeps = time.adaptive and not self.exact
         #: the sub-steps' omega h target: symplectic Euler's explicit dashpot makes its peak force
         #: first order in omega h (-21 % at 0.2, -5 % at 0.05 on one impact), so it takes half the
         #: scene's (measured, default scene: max force 68.8 / 72.9 N at dt 0.05 / 0.5 ms with the
@@ -70,13 +66,13 @@ class ContactIntegrator:
         lim, rcond = float(policy.COND_LIMIT), float(policy.PINV_RCOND)
         if self.exact:
             C = self.exact_damping(cc, mq)
-            qn, vn, act, force, seat, peak, pub = exact_step(q, vq, a, mq, gq, h, cc.K, cc.W, C, self.unilateral,
+            qn, vn, act, force, seat, peak, pub = exact_step(q, vq, a, mq, gq, h, cc.K, cc.W, C, self.contact.unilateral,
                                                              group, wts, always, lim, rcond)
             return ContactStep(q=qn, v=vn, active=act, force=force, seat_force=seat, peak_seat_force=peak,
                                peak_ubar=pub)
         K, W, C = self.contact_matrices(cc, mq, h)
         qn, vn, act, force, seat = substep_contacts(q, vq, a, mq, gq, h, K, W, C, self.name == "implicit",
-                                                    self.unilateral, group, wts, lim, rcond)
+                                                    self.contact.unilateral, group, wts, lim, rcond)
         return ContactStep(q=qn, v=vn, active=act, force=force, seat_force=seat, peak_seat_force=seat,
                            peak_ubar=qn - a)
 
@@ -92,7 +88,7 @@ class ContactIntegrator:
         cached with the set)."""
         if cc.C is None or cc.C.shape != (mq.size, mq.size):
             om2, Phi, sqm = self._modes(cc, mq)
-            cc.C = substep_damping(om2, Phi, sqm, self.restitution, 0.0, False, X_GRID, Z_GRID)
+            cc.C = substep_damping(om2, Phi, sqm, self.contact.restitution, 0.0, False, X_GRID, Z_GRID)
         return cc.C
 
     def contact_matrices(self, cc: ContactSet, mq: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -109,7 +105,7 @@ class ContactIntegrator:
         if self.name == "symplectic":
             om2 = explicit_modes(om2, float(h))
             K, W = modal_stiffness(om2, Phi, sqm)
-        C = substep_damping(om2, Phi, sqm, self.restitution, float(h), self.name == "implicit", X_GRID, Z_GRID)
+        C = substep_damping(om2, Phi, sqm, self.contact.restitution, float(h), self.name == "implicit", X_GRID, Z_GRID)
         return K, W, C
 
     def substep_size(self, stones: Stones, near: np.ndarray, h_left: float, cc: ContactSet | None,
@@ -126,8 +122,8 @@ class ContactIntegrator:
             cs, kd, cn, cx, cr = self._none, self._no_forces, self._no_e3, self._no_e3, self._no_forces
         return float(substep_size(near, float(h_left), float(self.hmin), stones.vel, stones.radius, stones.mass,
                                   stones.pos, stones.gap, stones.near_tri, stones.ctri, k_tri,
-                                  self.approach_fraction, self.rest_speed, self.omega_dt,
-                                  self.name == "symplectic", cs, kd, self.sticky, cn, cx, cr, g))
+                                  self.time.approach_fraction, self.time.rest_speed, self.omega_dt,
+                                  self.name == "symplectic", cs, kd, self.contact.sticky, cn, cx, cr, g))
 
     def warm_up(self, stones: Stones, k_tri: np.ndarray | None, g: np.ndarray, dt: float) -> None:
         """Load (or compile) the integrator's kernels with the storm loop's argument types."""

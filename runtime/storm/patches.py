@@ -62,10 +62,8 @@ class Patches:
         self.soft = soft
         self.seat = seat
         self.air = air
-        self.sticky = contact.sticky
-        self.min_radius = float(contact.patch_min_radius)
-        self.tolerance = float(contact.patch_tolerance)
-        self.rest_speed = float(time.rest_speed)
+        self.contact = contact
+        self.time = time
         self.e_star = float(gf.young) / (1.0 - float(gf.poisson) ** 2)
         self.enabled = contact.patch != "none"
         if self.enabled:
@@ -119,8 +117,8 @@ class Patches:
         seat = self.seat
         a, resizes, a0, off, wv, ww = patch_radii(
             ids, tris, stones.mass, stones.radius, stones.vel, stones.cbary, stones.crad, self.normals, GRAVITY,
-            self.air.wind, self.air.drag_coef, cs, kd, lam, self.sticky, self.k_tri, self.e_star,
-            self.min_radius, self.tolerance, self.rest_speed, *self._disc, PATCH_FACING,
+            self.air.wind, self.air.drag_coef, cs, kd, lam, self.contact.sticky, self.k_tri, self.e_star,
+            self.contact.patch_min_radius, self.contact.patch_tolerance, self.time.rest_speed, *self._disc, PATCH_FACING,
             PATCH_DROP, self._pidx, self.X, seat.D, seat.column_of)
         stats.patch_resizes += int(resizes)
         for i in np.flatnonzero(a0 > 0.0).tolist():
@@ -180,7 +178,7 @@ class Patches:
                     verts: np.ndarray, w: np.ndarray, centres: np.ndarray, normals: np.ndarray) -> np.ndarray:
         """The near-field blocks (s, p, p) of patch contacts (:meth:`NearField.blocks`), cached per
         stone with the same key as its weights (triangle, beta, radius); the new ones in one call."""
-        p = 3 if self.sticky else 1
+        p = 3 if self.contact.sticky else 1
         blocks = np.zeros((ids.size, p, p))
         keys = [(t, bary[i].tobytes(), a) for i, (t, a) in enumerate(zip(tris.tolist(), radius.tolist()))]
         todo = []
@@ -191,7 +189,7 @@ class Patches:
             else:
                 todo.append(i)
         if todo:
-            new = near.blocks(self.gf, radius[todo], verts[todo], w[todo], centres[todo], normals[todo], self.sticky)
+            new = near.blocks(self.gf, radius[todo], verts[todo], w[todo], centres[todo], normals[todo], self.contact.sticky)
             for i, b in zip(todo, new):
                 self._near[int(ids[i])] = (keys[i], b)
                 blocks[i] = b
@@ -213,7 +211,7 @@ class Patches:
         verts = self.triangles[[t]].astype(np.int64)
         patch_compliance(verts[0], w[0], n[0], self.seat.D, self.seat.column_of)
         if self.enabled:
-            patch_one(t, w[0], self.min_radius, n[0], 3.0, *self._disc, PATCH_FACING, PATCH_DROP,
+            patch_one(t, w[0], self.contact.patch_min_radius, n[0], 3.0, *self._disc, PATCH_FACING, PATCH_DROP,
                       self._pidx, self.X)
             self.radii(stones, self._none.astype(np.intp), self._none.astype(np.intp), None, None,
                        self._no_forces, StormStats())

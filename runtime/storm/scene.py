@@ -179,6 +179,9 @@ def _check_types(record: Any) -> None:
         if types is not None and isinstance(v, np.integer) and int in types:  # numpy integers are integers
             v = int(v)
             object.__setattr__(record, f.name, v)
+        if str(f.type) in ("float", "float | None") and isinstance(v, (int, np.floating)) and not isinstance(v, bool):
+            v = float(v)  # a number field holds a float: the parts pass it to the kernels as it is
+            object.__setattr__(record, f.name, v)
         if types is not None and (not isinstance(v, types) or (isinstance(v, bool) and bool not in types)):
             kind = {"float": "a number", "int": "an integer", "bool": "true or false",
                     "int | None": "an integer", "float | None": "a number"}.get(str(f.type), "a string")

@@ -56,11 +56,11 @@ class SoftContacts:
         self.integrator = integrator
         self.seat = seat
         self.air = air
-        self.sticky = contact.sticky
+        self.contact = contact
+        self.time = time
         self.patch = contact.patch != "none"
-        self.rest_speed = float(time.rest_speed)
         #: the impacts' validity measures (recorded, never fed back into the contact step)
-        self.limits = ImpactLimits(sets.gf, self.rest_speed)
+        self.limits = ImpactLimits(sets.gf, time.rest_speed)
         #: the current contact set (None: no soft contact) and its multipliers (the seat forces)
         self.current: ContactSet | None = None
         self.lam = np.zeros(0)
@@ -97,8 +97,8 @@ class SoftContacts:
         nk = cc.normals
         q, a, vq, gq, mq, always, acc = contact_prep(
             soft, stones.pos, stones.vel, stones.radius, stones.mass, GRAVITY, self.air.wind, self.air.drag_coef,
-            nk, cc.X, cc.rest, cc.Kdiag, self.sticky, exact, self.rest_speed)
-        if self.sticky:
+            nk, cc.X, cc.rest, cc.Kdiag, self.contact.sticky, exact, self.time.rest_speed)
+        if self.contact.sticky:
             group, wts = np.repeat(np.arange(s), 3), nk.ravel()
         else:
             group, wts = np.arange(s), np.ones(s)
@@ -109,7 +109,7 @@ class SoftContacts:
         impacts, fmax, indent, n_active = contact_post(
             soft, stones.pos, stones.vel, stones.ctri, stones.hit, open_before, nk, acc,
             q, a, vq, gq, res.q, res.v, res.active, res.seat_force, res.peak_seat_force, res.peak_ubar,
-            self.sticky, exact, h, self.rest_speed)
+            self.contact.sticky, exact, h, self.time.rest_speed)
         stats.impacts += int(impacts)
         self._observe_limits(cc, soft, stones.radius[soft], ~open_before, vin, res, stats)
         self.lam = res.seat_force
@@ -128,7 +128,7 @@ class SoftContacts:
         if not self.limits.watching(ids, vin is not None):
             return
         s = soft.size
-        if self.sticky:
+        if self.contact.sticky:
             act = res.active.reshape(s, 3).all(axis=1)
             f = np.maximum(np.linalg.norm(res.seat_force.reshape(s, 3), axis=1),
                            np.linalg.norm(res.peak_seat_force.reshape(s, 3), axis=1))
@@ -149,7 +149,7 @@ class SoftContacts:
         cc = self.current
         if cc is None or self.lam.size == 0:
             return np.zeros(0, dtype=np.intp), np.zeros((0, 3))
-        f = self.lam.reshape(-1, 3) if self.sticky else self.lam[:, None] * cc.normals
+        f = self.lam.reshape(-1, 3) if self.contact.sticky else self.lam[:, None] * cc.normals
         keep = ctri[cc.stones] >= 0
         return cc.stones[keep], f[keep]
 
@@ -159,7 +159,7 @@ class SoftContacts:
         e3, e = self._no_e3, self._no_forces
         b = np.zeros(0, dtype=bool)
         q, a, vq, gq, _, _, acc = contact_prep(none, stones.pos, stones.vel, stones.radius, stones.mass, GRAVITY,
-                                               self.air.wind, self.air.drag_coef, e3, e3, e, e, self.sticky, True,
+                                               self.air.wind, self.air.drag_coef, e3, e3, e, e, self.contact.sticky, True,
                                                1.0)
         contact_post(none, stones.pos, stones.vel, stones.ctri, stones.hit, b, e3, acc, q, a, vq, gq, e, e, b, e, e,
-                     e, self.sticky, True, 0.0, 1.0)
+                     e, self.contact.sticky, True, 0.0, 1.0)

@@ -187,7 +187,7 @@ def test_radius_band(gf, ratio, vn, resized):
     (tol = patch_tolerance = 0.2) and re-sizes to the target beyond it; to a target below ``a``
     only once it rests (amplitude below rest_speed), there once 1 % off."""
     p, st, ids, t, kd, lam, target, amp = _known(gf, ratio, vn, force=0.5 if vn else None)
-    assert (amp < p.rest_speed) == (vn == 0.0)
+    assert (amp < p.time.rest_speed) == (vn == 0.0)
     before = float(st.crad[0])
     stats = StormStats()
     a = p.radii(st, ids, t, ids, kd, lam, stats)

@@ -123,3 +123,17 @@ def test_sections_are_frozen_and_validate_on_their_own():
         with pytest.raises(SceneError, match=match):
             make()
     assert StormSettings(wind=[1, 0, 0]).wind == (1.0, 0.0, 0.0)
+
+
+def test_number_fields_hold_floats():
+    """A section is the one typed source its storm part reads (no copies cast at each part):
+    an integer given for a number field is stored as a float, so the compiled kernels see
+    one type whichever way the scene was written."""
+    import numpy as np
+
+    t = TimeSettings(rest_speed=0, dt=np.float32(1e-4))
+    assert type(t.rest_speed) is float and t.rest_speed == 0.0
+    assert type(t.dt) is float
+    c = ContactSettings(restitution=1, patch_tolerance=np.int64(1))
+    assert type(c.restitution) is float and type(c.patch_tolerance) is float
+    assert type(TimeSettings(max_substeps=np.int64(7)).max_substeps) is int  # integers stay integers
