@@ -19,18 +19,23 @@ of a sub-step (closest points, time of impact, contacts that open, hard walls:
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 
 import numpy as np
 
 from hailstorm.runtime.compiled import SampleGrid, flight, free_phase, near_set, penetration, retired
 from hailstorm.runtime.compiled.grid import surface_arrays
 from hailstorm.runtime.contact import policy
-from hailstorm.runtime.storm.hail import GRAVITY, Air
+from hailstorm.runtime.storm.hail import GRAVITY
 from hailstorm.runtime.storm.recording import StormStats
-from hailstorm.runtime.storm.scene import Scene
-from hailstorm.runtime.storm.seat import SeatState
-from hailstorm.runtime.storm.stones import Stones
-from hailstorm.runtime.bundle.compliance import ComplianceSource
+
+if TYPE_CHECKING:  # annotations only
+    from hailstorm.runtime.storm.hail import Air
+    from hailstorm.runtime.storm.scene import Scene
+    from hailstorm.runtime.storm.seat import SeatState
+    from hailstorm.runtime.storm.stones import Stones
+    from hailstorm.runtime.bundle.compliance import ComplianceSource
 
 __all__ = ["Collision", "SurfaceIndex"]
 

@@ -25,13 +25,14 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from hailstorm.runtime.contact.contact_capacitance import Capacitance, from_weights, resolve_near_field
+from hailstorm.runtime.contact.contact_capacitance import from_weights, resolve_near_field
 from hailstorm.runtime.contact.weights import hertz_mean_offset, hertz_secant_factor, sphere_mean_offset
-from hailstorm.runtime.storm.patches import Patches
-from hailstorm.runtime.storm.recording import StormStats
-from hailstorm.runtime.bundle.compliance import ElasticSource
 
 if TYPE_CHECKING:  # annotations only
+    from hailstorm.runtime.contact.contact_capacitance import Capacitance
+    from hailstorm.runtime.storm.patches import Patches
+    from hailstorm.runtime.storm.recording import StormStats
+    from hailstorm.runtime.bundle.compliance import ElasticSource
     from hailstorm.runtime.storm.scene import ContactSettings
 
 __all__ = ["ContactSet", "ContactSets"]

@@ -11,6 +11,8 @@ the set to the target restitution (:func:`hailstorm.runtime.storm.hail.modal_dam
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
 from hailstorm.runtime.contact import policy
@@ -22,10 +24,12 @@ from hailstorm.runtime.compiled import (
     substep_damping,
     substep_size,
 )
-from hailstorm.runtime.storm.contact_set import ContactSet
 from hailstorm.runtime.storm.hail import X_GRID, Z_GRID, ContactStep, contact_modes
-from hailstorm.runtime.storm.scene import ContactSettings, TimeSettings
-from hailstorm.runtime.storm.stones import Stones
+
+if TYPE_CHECKING:  # annotations only
+    from hailstorm.runtime.storm.contact_set import ContactSet
+    from hailstorm.runtime.storm.scene import ContactSettings, TimeSettings
+    from hailstorm.runtime.storm.stones import Stones
 
 __all__ = ["ContactIntegrator"]
 

@@ -17,15 +17,16 @@ from typing import TYPE_CHECKING, cast
 import numpy as np
 
 from hailstorm.runtime.compiled import patch_compliance, patch_one, patch_radii
-from hailstorm.runtime.storm.hail import GRAVITY, Air
+from hailstorm.runtime.storm.hail import GRAVITY
 from hailstorm.runtime.storm.recording import StormStats
-from hailstorm.runtime.storm.scene import ContactSettings, TimeSettings
-from hailstorm.runtime.storm.seat import SeatState
-from hailstorm.runtime.storm.stones import Stones
 from hailstorm.runtime.contact.weights import PATCH_DROP, PATCH_FACING, disc_table, triangle_index
-from hailstorm.runtime.bundle.compliance import ElasticSource
 
 if TYPE_CHECKING:  # annotations only
+    from hailstorm.runtime.storm.hail import Air
+    from hailstorm.runtime.storm.scene import ContactSettings, TimeSettings
+    from hailstorm.runtime.storm.seat import SeatState
+    from hailstorm.runtime.storm.stones import Stones
+    from hailstorm.runtime.bundle.compliance import ElasticSource
     from hailstorm.runtime.contact.near_field import NearField
 
 __all__ = ["Patches"]

@@ -16,12 +16,15 @@ import dataclasses
 import time
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, TYPE_CHECKING
 
 import numpy as np
 
-from hailstorm.runtime.storm.scene import Scene
-from hailstorm.runtime.storm.limits import VALIDITY_KEYS, ImpactLimits, summarise
+from hailstorm.runtime.storm.limits import VALIDITY_KEYS, summarise
+
+if TYPE_CHECKING:  # annotations only
+    from hailstorm.runtime.storm.scene import Scene
+    from hailstorm.runtime.storm.limits import ImpactLimits
 
 __all__ = ["Frame", "Recorder", "StormResult", "StormStats"]
 

@@ -11,16 +11,18 @@ the previous frame (an impact lasts about a millisecond, much less than a frame)
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import Protocol, TYPE_CHECKING
 
 import numpy as np
-from hailstorm.runtime.bundle.compliance import ComplianceSource
+
+if TYPE_CHECKING:  # annotations only
+    from hailstorm.runtime.bundle.compliance import ComplianceSource
 
 __all__ = ["LoadedSet", "SeatState"]
 
 
 class LoadedSet(Protocol):
-    """What the seat needs of a contact set (:class:`hailstorm.runtime.storm.soft_contacts.ContactSet`)."""
+    """What the seat needs of a contact set (:class:`hailstorm.runtime.storm.contact_set.ContactSet`)."""
 
     stones: np.ndarray  # (s,) stone ids
     G: np.ndarray  # (c, m) vertex forces on the loaded columns per unit multiplier

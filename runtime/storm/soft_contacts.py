@@ -12,22 +12,25 @@ and hands the forces to the seat.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, TYPE_CHECKING
 
 import numpy as np
 
 from hailstorm.runtime.compiled import contact_post, contact_prep
-from hailstorm.runtime.storm.contact_set import ContactSet, ContactSets
-from hailstorm.runtime.storm.hail import GRAVITY, Air
-from hailstorm.runtime.storm.integrators import ContactIntegrator
+from hailstorm.runtime.storm.hail import GRAVITY
 from hailstorm.runtime.storm.limits import ImpactLimits
-from hailstorm.runtime.storm.patches import Patches
-from hailstorm.runtime.storm.recording import StormStats
-from hailstorm.runtime.storm.scene import ContactSettings, TimeSettings
-from hailstorm.runtime.storm.seat import SeatState
-from hailstorm.runtime.storm.stones import Stones
 
-__all__ = ["ContactSet", "SoftContacts"]
+if TYPE_CHECKING:  # annotations only
+    from hailstorm.runtime.storm.contact_set import ContactSet, ContactSets
+    from hailstorm.runtime.storm.hail import Air
+    from hailstorm.runtime.storm.integrators import ContactIntegrator
+    from hailstorm.runtime.storm.patches import Patches
+    from hailstorm.runtime.storm.recording import StormStats
+    from hailstorm.runtime.storm.scene import ContactSettings, TimeSettings
+    from hailstorm.runtime.storm.seat import SeatState
+    from hailstorm.runtime.storm.stones import Stones
+
+__all__ = ["SoftContacts"]
 
 
 class SoftContacts:

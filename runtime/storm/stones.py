@@ -10,12 +10,14 @@ hands out the ones due in each step.
 from __future__ import annotations
 
 import bisect
-from typing import Any
+from typing import Any, TYPE_CHECKING
 
 import numpy as np
 
 from hailstorm.runtime.storm.hail import stone_mass, terminal_velocity
-from hailstorm.runtime.storm.scene import HailSettings, StormSettings
+
+if TYPE_CHECKING:  # annotations only
+    from hailstorm.runtime.storm.scene import HailSettings, StormSettings
 
 __all__ = ["SpawnPlan", "StoneError", "Stones", "check_stones"]
 
