@@ -1,6 +1,6 @@
 """A dynamic FEM peer for impacts: where the quasi-static Green's functions stop being true.
 
-``python -m hailstorm.studies.dynamic_study [--full | --terminal]`` (or
+``python -m hailstorm.studies.dynamic_study [--full | --terminal] [--plot PATH]`` (or
 ``python tests/benchmarks/dynamic_peer.py``) prints, for a grid of stone radii
 and impact speeds, the impact of one rigid ice sphere on the default seat's
 foam pad computed twice on the same finite-element pad:
@@ -82,6 +82,7 @@ __all__ = [
     "hertz_estimate",
     "main",
     "pad_mesh",
+    "plot_agreement",
     "StormImpact",
     "pad_bundle",
     "run_grid",
@@ -665,6 +666,83 @@ def terminal_speed(radius: float) -> float:
     return float(terminal_velocity(radius, cd=hail.cd, rho_air=hail.rho_air, density=hail.density))
 
 
+def plot_agreement(rows: Sequence[Row], path: str, tol: float = AGREE, density: float | None = None) -> str:
+    """Chart of where the quasi-static model is within ``tol`` of the dynamic peer.
+
+    One square per (radius, speed) of ``rows``: green where all four measures (peak
+    force, contact duration, rebound speed, largest dent) are within ``tol``, red where
+    one is not, labelled with the worst measure's error; the terminal fall speed of the
+    default scene's hail (:func:`terminal_speed`) is drawn over it, and the radii of its
+    storm (``[hail] r_min``-``r_max``) shaded. Written to ``path`` (PNG, or what its
+    suffix says); returns ``path``.
+    """
+    import os
+    import tempfile
+
+    import matplotlib
+
+    if "MPLBACKEND" not in os.environ:
+        matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+
+    from hailstorm.runtime.storm.scene import Scene
+
+    if not rows:
+        raise ValueError("plot_agreement needs at least one row")
+    names = {"force": "F", "duration": "t", "rebound": "e", "dent": "dent"}
+    hail = Scene.default().hail
+    fig, ax = plt.subplots(figsize=(7.5, 6.0), layout="constrained")
+    ax.axvspan(hail.r_min * 1e3, hail.r_max * 1e3, color="0.93", zorder=0,
+               label=f"the default storm's radii ({hail.r_min * 1e3:g}-{hail.r_max * 1e3:g} mm)")
+    radii = np.array([r.radius for r in rows])
+    speeds = np.array([r.speed for r in rows])
+    R = np.linspace(min(radii.min(), hail.r_min) * 0.8, max(radii.max(), hail.r_max) * 1.1, 200)
+    ax.plot(R * 1e3, [terminal_speed(x) for x in R], color="0.2", lw=1.5, zorder=1,
+            label=f"terminal fall speed of the scene's hail (C_d = {hail.cd:g}, air {hail.rho_air:g} kg/m³)")
+    for row in rows:
+        err = row.errors()
+        worst = max(err, key=lambda k: abs(err[k]))
+        ok = row.agrees(tol)
+        ax.scatter([row.radius * 1e3], [row.speed], marker="s", s=760, zorder=2,
+                   color="#4daf4a" if ok else "#e41a1c", edgecolors="k", linewidths=0.5)
+        ax.annotate(f"{names[worst]}\n{100 * err[worst]:+.1f}%", (row.radius * 1e3, row.speed), ha="center",
+                    va="center", fontsize=7, zorder=3, color="k" if ok else "w")
+    ax.set_yscale("log")
+    ax.set_ylim(speeds.min() / 1.5, speeds.max() * 1.5)
+    ax.set_xlim(R[0] * 1e3, R[-1] * 1e3)
+    ax.set_xlabel("stone radius R [mm]")
+    ax.set_ylabel("impact speed v [m/s]")
+    from matplotlib.ticker import FixedLocator, NullLocator, StrMethodFormatter
+
+    lo, hi = ax.get_ylim()
+    ax.yaxis.set_major_locator(FixedLocator([t for t in (0.5, 1, 2, 5, 10, 20, 30, 50, 100) if lo <= t <= hi]))
+    ax.yaxis.set_major_formatter(StrMethodFormatter("{x:g}"))
+    ax.yaxis.set_minor_locator(NullLocator())
+    rho = f" (foam {density:g} kg/m³)" if density is not None else ""
+    ax.set_title(f"Quasi-static model against the dynamic peer{rho}:\nall four measures (peak force, contact time, "
+                 f"rebound, dent) within {tol:.0%}?", fontsize=9)
+    handles, _ = ax.get_legend_handles_labels()
+    handles += [Line2D([], [], ls="", label="label: the largest of the four errors, quasi-static / dynamic - 1\n"
+                                            "(F peak force, t contact time, e rebound, dent)"),
+                Line2D([], [], ls="", marker="s", ms=9, mfc="#4daf4a", mec="k", label=f"within {tol:.0%}"),
+                Line2D([], [], ls="", marker="s", ms=9, mfc="#e41a1c", mec="k", label=f"beyond {tol:.0%}")]
+    fig.legend(handles=handles, fontsize=7.5, loc="outside lower center", ncol=2, frameon=False)
+    folder = os.path.dirname(os.path.abspath(path))
+    os.makedirs(folder, exist_ok=True)
+    suffix = os.path.splitext(path)[1] or ".png"
+    fd, tmp = tempfile.mkstemp(dir=folder, suffix=suffix)
+    os.close(fd)
+    try:
+        fig.savefig(tmp, dpi=150)
+        os.replace(tmp, path)
+    finally:
+        plt.close(fig)
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+    return path
+
+
 def main(argv: list[str] | None = None) -> int:
     """Print the quasi-static-vs-dynamic table (the small grid; ``--full``: the whole grid)."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -678,6 +756,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--radii", type=float, nargs="*", default=None, help="stone radii [m]")
     ap.add_argument("--steps-per-contact", type=int, default=200)
     ap.add_argument("--cells-per-radius", type=float, default=8.0)
+    ap.add_argument("--plot", default=None, metavar="PATH",
+                    help="also chart the rows: within/beyond 5%% on all four measures, over the terminal-speed curve")
     args = ap.parse_args(argv)
     try:
         pad = default_pad(_check_density("foam", args.density))
@@ -704,6 +784,8 @@ def main(argv: list[str] | None = None) -> int:
     ok = [r for r in rows if r.agrees()]
     print(f"quasi-static within {AGREE:.0%} of the dynamic peer on all four measures: "
           + (", ".join(f"R = {r.radius * 1e3:g} mm at {r.speed:.3g} m/s" for r in ok) if ok else "none"))
+    if args.plot:
+        print(f"chart: {plot_agreement(rows, args.plot, density=pad.density)}")
     return 0
 
 

@@ -8,6 +8,11 @@ Usage::
     python tests/benchmarks/dynamic_peer.py --terminal --storm-block   # and the same impacts in the storm
     python tests/benchmarks/dynamic_peer.py --no-storm      # the table only
     python tests/benchmarks/dynamic_peer.py --density 50    # another foam density [kg/m^3]
+    python tests/benchmarks/dynamic_peer.py --no-table      # the default storm's validity counts only
+    python tests/benchmarks/dynamic_peer.py --full --no-storm --plot notebooks/figures/dynamic_peer.png
+                                                            # and the chart of where the table is within 5 %
+    python tests/benchmarks/dynamic_peer.py --full --no-storm --out docs/_generated/dynamic_peer_full.txt
+                                                            # and the printed output into a file, with a header
 
 The table is :func:`hailstorm.studies.dynamic_study.main`'s: one rigid ice sphere on the
 default seat's foam pad (a 15 mm disc on a rigid base), dynamic (the pad's mass,
@@ -16,18 +21,38 @@ Green's-function assumption) and Hertz's half-space impact; the last column says
 the quasi-static model is within 5 % of the dynamic one on peak force, contact duration,
 rebound speed and largest dent. Then the default storm (``hailstorm storm``'s scene and
 cached seat bundle, or ``--gf DIR``) and its validity keys (docs/validity.md).
+
+``--out FILE`` writes what the run prints to FILE as well (the measured output docs/
+includes from docs/_generated/): first the line ``$ <command>`` (this script's command
+line without ``--out``), then one with the UTC date, the code's commit (``git rev-parse
+--short HEAD``, marked when the working tree has uncommitted changes) and the load
+average before the run, then the output, and last the run's wall time and the load
+average after it. The file is written whole at the end (a temporary file in the same
+folder, then ``os.replace``): a run that fails leaves an earlier file as it was.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
+import os
+import shlex
+import subprocess
+import sys
+import tempfile
+import time
+from datetime import datetime, timezone
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
 
 
-def storm_validity(gf_path: str | None = None) -> dict:
-    """The default storm's summary keys of the validity limits (and ``impacts``)."""
+def run_default_storm(gf_path: str | None = None):
+    """The default storm (the packaged scene) on ``gf_path`` (default: the default seat's bundle,
+    built or reused from the cache like ``hailstorm storm`` does); its result."""
     import hailstorm.runtime
     from hailstorm.runtime.storm.scene import Scene, SeatSettings
-    from hailstorm.runtime.storm.limits import VALIDITY_KEYS
 
     if gf_path is None:
         from hailstorm.precompute import build_bundle
@@ -35,11 +60,106 @@ def storm_validity(gf_path: str | None = None) -> dict:
         seat = SeatSettings.default()
         gf_path = build_bundle(None, mesh_size=seat.mesh_size, order=seat.order, load=seat.load,
                                volume_size=seat.volume_size, young=seat.young, poisson=seat.poisson, progress=False)
-    res = hailstorm.runtime.run_storm(hailstorm.runtime.load(gf_path), Scene.default(), progress=False)
-    return {k: res.stats[k] for k in ("hailstones", "impacts", "max_indentation_m", "max_patch_radius_m", *VALIDITY_KEYS)}
+    return hailstorm.runtime.run_storm(hailstorm.runtime.load(gf_path), Scene.default(), progress=False)
 
 
-def main() -> None:
+def _validity_keys(stats) -> dict:
+    from hailstorm.runtime.storm.limits import VALIDITY_KEYS
+
+    return {k: stats[k] for k in ("hailstones", "impacts", "max_indentation_m", "max_patch_radius_m", *VALIDITY_KEYS)}
+
+
+def storm_validity(gf_path: str | None = None) -> dict:
+    """The default storm's summary keys of the validity limits (and ``impacts``)."""
+    return _validity_keys(run_default_storm(gf_path).stats)
+
+
+def impact_spread(stats) -> list[str]:
+    """Per impact of a storm (its statistics' validity records): min, median and max of the
+    stone radius, ``a/R``, the estimated strain, ``delta/h`` and the local thickness."""
+    import numpy as np
+
+    from hailstorm.runtime.storm.limits import peak_strain
+
+    rec = stats.validity
+    if rec is None or rec.n == 0:
+        return ["per impact: no impacts"]
+    dh, aR, eps = rec.ratios()
+    hertz = peak_strain(aR, np.zeros_like(aR), rec.poisson)
+    rows = [("stone radius R [mm]", 1e3 * np.array(rec.radius)), ("a / R", aR), ("estimated peak strain", eps),
+            ("delta / h", dh), ("local thickness h [mm]", 1e3 * rec.thickness)]
+    lines = [f"{f'per impact ({rec.n} impacts):':<26} {'min':>10} {'median':>8} {'max':>8}"]
+    for name, x in rows:
+        lines.append(f"  {name:<24} {x.min():10.3g} {np.median(x):8.3g} {x.max():8.3g}")
+    lines.append(f"  the strain is Hertz's term ((2/pi)(1-2nu)/(1-nu) a/R) in {int((hertz >= dh).sum())} of "
+                 f"{rec.n} impacts, the layer's (delta/h) in the others")
+    return lines
+
+
+def _load_average() -> str:
+    try:
+        return " ".join(f"{x:.2f}" for x in os.getloadavg())
+    except OSError:  # not on this platform
+        return "n/a"
+
+
+def _commit() -> str:
+    """``git rev-parse --short HEAD`` of the repository, marked when its working tree has
+    uncommitted changes; "unknown" outside a git checkout (read-only git calls)."""
+    try:
+        sha = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True,
+                             text=True, timeout=30, check=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", str(ROOT), "status", "--porcelain", "--untracked-files=no"],
+                               capture_output=True, text=True, timeout=30, check=True).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    return sha + (" (with uncommitted changes in the working tree)" if dirty else "")
+
+
+class _Tee(io.TextIOBase):
+    """Writes to a stream and keeps a copy."""
+
+    def __init__(self, stream) -> None:
+        self.stream, self.copy = stream, io.StringIO()
+
+    def write(self, text: str) -> int:
+        self.stream.write(text)
+        return self.copy.write(text)
+
+    def flush(self) -> None:
+        self.stream.flush()
+
+
+def command_line(argv: list[str]) -> str:
+    """This script's command line, without ``--out FILE`` (it does not change what is printed)."""
+    keep, skip = [], False
+    for a in argv:
+        if skip:
+            skip = False
+        elif a == "--out":
+            skip = True
+        elif not a.startswith("--out="):
+            keep.append(a)
+    return shlex.join(["python", "tests/benchmarks/dynamic_peer.py", *keep])
+
+
+def write_atomically(path: str | os.PathLike, text: str) -> None:
+    """``text`` into ``path`` through a temporary file in the same folder and ``os.replace``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            f.write(text)
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        raise
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else list(argv)
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--full", action="store_true", help="the whole grid (6 speeds x 5 radii)")
     ap.add_argument("--terminal", action="store_true", help="each radius at its terminal fall speed")
@@ -47,22 +167,52 @@ def main() -> None:
     ap.add_argument("--storm-block", action="store_true",
                     help="the same impacts in the storm, on a block bundle of the pad (6 mm, P2)")
     ap.add_argument("--no-storm", action="store_true", help="skip the default storm's validity counts")
+    ap.add_argument("--no-table", action="store_true", help="skip the peer's table (the default storm's counts only)")
     ap.add_argument("--gf", default=None, help="bundle directory of the storm (default: the default seat's)")
-    args = ap.parse_args()
+    ap.add_argument("--plot", default=None, metavar="PATH", help="chart the table's rows into PATH (PNG)")
+    ap.add_argument("--out", default=None, metavar="FILE",
+                    help="also write the printed output to FILE, after a header (command, UTC date, commit, load)")
+    args = ap.parse_args(argv)
+    if args.no_table and args.no_storm:
+        ap.error("--no-table and --no-storm leave nothing to run")
 
+    if args.out is None:
+        return _run(args)
+    header = [f"$ {command_line(argv)}",
+              f"# {datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC, code of main {_commit()}, "
+              f"{os.cpu_count()} cores, load average before: {_load_average()}"]
+    print("\n".join(header), flush=True)
+    tee, t0 = _Tee(sys.stdout), time.perf_counter()
+    with contextlib.redirect_stdout(tee):
+        rc = _run(args)
+    footer = f"# wall time {time.perf_counter() - t0:.0f} s; load average after: {_load_average()}"
+    print(footer)
+    body = tee.copy.getvalue()
+    write_atomically(args.out, "\n".join(header) + "\n" + body + ("" if body.endswith("\n") else "\n") + footer + "\n")
+    return rc
+
+
+def _run(args: argparse.Namespace) -> int:
     from hailstorm.studies.dynamic_study import main as table
 
-    table((["--storm"] if args.storm_block else []) + (["--full"] if args.full else []) + (["--terminal", "--radii", "0.0025", "0.005", "0.0075", "0.01", "0.0125"]
-                                               if args.terminal else []) + ([] if args.density is None else ["--density", str(args.density)]))
+    if not args.no_table:
+        table((["--storm"] if args.storm_block else []) + (["--full"] if args.full else [])
+              + (["--terminal", "--radii", "0.0025", "0.005", "0.0075", "0.01", "0.0125"] if args.terminal else [])
+              + ([] if args.density is None else ["--density", str(args.density)])
+              + ([] if args.plot is None else ["--plot", args.plot]))
     if not args.no_storm:
         from hailstorm.runtime.storm.limits import validity_warning
 
-        v = storm_validity(args.gf)
-        print("\ndefault storm (hailstorm storm's scene and seat): validity keys of summary.json")
+        stats = run_default_storm(args.gf).stats
+        v = _validity_keys(stats)
+        seat = "the default seat" if args.gf is None else f"the bundle {args.gf}"
+        print(f"\ndefault storm (hailstorm storm's scene, on {seat}): validity keys of summary.json")
         for k, x in v.items():
             print(f"  {k:<36} {x:.4g}" if isinstance(x, float) else f"  {k:<36} {x}")
+        print("\n".join(impact_spread(stats)))
         print("warning: " + (validity_warning(v) or "none"))
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

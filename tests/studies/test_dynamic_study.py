@@ -4,6 +4,7 @@ the quasi-static limit, and its refusals."""
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -157,3 +158,58 @@ def test_storm_impact_on_a_block_bundle(box_bundle):
     res = storm_impact(gf, 0.006, 2.0, dt=1e-5)
     assert res.rebound_speed == pytest.approx(2.0, rel=0.01)
     assert res.peak_force > 0 and res.max_dent > 0 and res.duration > 20 * 1e-5
+
+
+def test_main_plots_the_quick_grid(tmp_path, capsys):
+    """``--plot PATH``: the chart of the small grid (3 speeds x 2 radii), within/beyond 5 % over the
+    terminal-speed curve, written as a PNG."""
+    out = tmp_path / "peer.png"
+    assert main(["--plot", str(out)]) == 0
+    assert out.is_file() and out.stat().st_size > 0
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert f"chart: {out}" in capsys.readouterr().out
+    assert [p.name for p in tmp_path.iterdir()] == ["peer.png"]  # no temporary file left behind
+
+
+def _dynamic_peer_script():
+    """tests/benchmarks/dynamic_peer.py as a module (a script, not a package)."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "dynamic_peer.py"
+    spec = importlib.util.spec_from_file_location("dynamic_peer_script", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_dynamic_peer_script_writes_its_output_with_a_header(tmp_path, capsys):
+    """``dynamic_peer.py --out FILE`` (with ``--plot`` passed on to the study): the file is the
+    command (without ``--out``), a line with the UTC date, the commit and the load average, then
+    what the run printed, then its wall time; written atomically (no temporary file left)."""
+    script = _dynamic_peer_script()
+    out, png = tmp_path / "gen" / "peer.txt", tmp_path / "peer.png"
+    argv = ["--terminal", "--no-storm", "--density", "200", "--plot", str(png), "--out", str(out)]
+    assert script.main(argv) == 0
+    printed = capsys.readouterr().out
+    lines = out.read_text().splitlines()
+    assert lines[0] == f"$ python tests/benchmarks/dynamic_peer.py --terminal --no-storm --density 200 --plot {png}"
+    assert re.match(r"# \d{4}-\d\d-\d\d \d\d:\d\d UTC, code of main \S+.*, load average before: ", lines[1])
+    assert lines[2].startswith("pad: E = 2e+06 Pa, nu = 0.35, rho = 200 kg/m^3")
+    assert any(line.startswith(" 12.5  20.4 |") for line in lines)
+    assert lines[-1].startswith("# wall time ") and "load average after" in lines[-1]
+    assert printed.splitlines() == lines  # the terminal saw the same
+    assert png.is_file() and png.stat().st_size > 0
+    assert [p.name for p in out.parent.iterdir()] == ["peer.txt"]
+
+
+def test_dynamic_peer_script_no_table(tmp_path, capsys, box_bundle):
+    """``--no-table``: the default storm's validity counts alone (here on a small box bundle);
+    with ``--no-storm`` as well there is nothing to run, refused."""
+    script = _dynamic_peer_script()
+    assert script.main(["--no-table", "--gf", str(box_bundle)]) == 0
+    printed = capsys.readouterr().out
+    assert "pad:" not in printed and "within 5%" not in printed
+    assert "validity keys of summary.json" in printed and "impacts_beyond_any_limit" in printed
+    with pytest.raises(SystemExit):
+        script.main(["--no-table", "--no-storm"])
