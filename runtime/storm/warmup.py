@@ -13,7 +13,7 @@ Tasks that share kernels (:attr:`WarmTask.shares`) stay in one process so that t
 compile once. Measured (docs/performance.md, "The first run's compile"): a cold
 default storm took 30.1 s of wall time with the helper against 39.2 s in one process
 (medians of three pairs on two loaded cores; ratio 0.69-1.42, median 0.82) for 12 %
-more CPU.
+more CPU (medians; 23 % pair by pair).
 
 A helper rebuilds the same storm from the bundle's directory and the scene (so
 that its kernels get exactly this process's argument types) through the
