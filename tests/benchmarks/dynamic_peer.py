@@ -20,12 +20,13 @@ Newmark average acceleration) against quasi-static (the same mesh without mass: 
 Green's-function assumption) and Hertz's half-space impact; the last column says where
 the quasi-static model is within 5 % of the dynamic one on peak force, contact duration,
 rebound speed and largest dent. Then the default storm (``hailstorm storm``'s scene and
-cached seat bundle, or ``--gf DIR``) and its validity keys (docs/validity.md).
+cached seat bundle, or ``--gf DIR``), its validity keys (docs/validity.md) and their
+spread over its impacts.
 
 ``--out FILE`` writes what the run prints to FILE as well (the measured output docs/
 includes from docs/_generated/): first the line ``$ <command>`` (this script's command
 line without ``--out``), then one with the UTC date, the code's commit (``git rev-parse
---short HEAD``, marked when the working tree has uncommitted changes) and the load
+--short HEAD``, and the tracked files outside docs/ that differ from it) and the load
 average before the run, then the output, and last the run's wall time and the load
 average after it. The file is written whole at the end (a temporary file in the same
 folder, then ``os.replace``): a run that fails leaves an earlier file as it was.
@@ -104,16 +105,22 @@ def _load_average() -> str:
 
 
 def _commit() -> str:
-    """``git rev-parse --short HEAD`` of the repository, marked when its working tree has
-    uncommitted changes; "unknown" outside a git checkout (read-only git calls)."""
+    """``git rev-parse --short HEAD`` of the repository, followed by the tracked files that differ
+    from it outside ``docs/`` and ``notebooks/figures/`` (what this script writes does not change
+    what it measures); "unknown" outside a git checkout (read-only git calls)."""
     try:
         sha = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True,
                              text=True, timeout=30, check=True).stdout.strip()
-        dirty = subprocess.run(["git", "-C", str(ROOT), "status", "--porcelain", "--untracked-files=no"],
-                               capture_output=True, text=True, timeout=30, check=True).stdout.strip()
+        status = subprocess.run(["git", "-C", str(ROOT), "status", "--porcelain", "--untracked-files=no"],
+                                capture_output=True, text=True, timeout=30, check=True).stdout
     except (OSError, subprocess.SubprocessError):
         return "unknown"
-    return sha + (" (with uncommitted changes in the working tree)" if dirty else "")
+    changed = [line[3:] for line in status.splitlines()
+               if line[3:] and not line[3:].startswith(("docs/", "notebooks/figures/"))]
+    if not changed:
+        return sha
+    more = f" and {len(changed) - 5} more" if len(changed) > 5 else ""
+    return f"{sha} with uncommitted changes to {', '.join(changed[:5])}{more}"
 
 
 class _Tee(io.TextIOBase):
