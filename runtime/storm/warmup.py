@@ -270,14 +270,16 @@ def load_factor() -> float:
 
 def estimate_text(seconds: float | None, factor: float | None = None) -> str:
     """The announced estimate of a compile of ``seconds`` CPU seconds: a range from the CPU
-    seconds stretched by the load (:func:`load_factor`) to twice that (``"about 9-18 s"``; a
-    shared machine stretches a compile beyond its load average: 60 CPU s took 559 s of wall at
-    load 7.4 on 2 CPUs, 9.3x, factor 4.2), or ``"time not measured yet"``."""
+    seconds (a process may still get a whole core on a loaded machine) to twice the CPU
+    seconds stretched by the load (:func:`load_factor`): ``"about 9-18 s"`` on an idle machine.
+    The load average predicts the stretch poorly both ways: 60 CPU s took 559 s of wall at
+    load 7.4 on 2 CPUs (9.3x, factor 4.2), while a fresh install's compile at factor 3.2 ran
+    at its CPU seconds (35.5 s of wall for 32 CPU s in two processes). Or ``"time not measured
+    yet"``."""
     if seconds is None:
         return "time not measured yet"
     f = load_factor() if factor is None else max(1.0, float(factor))
-    lo = seconds * f
-    return f"about {lo:.0f}-{2 * lo:.0f} s" + (f" at the current load (x{f:.1f})" if f > 1.05 else "")
+    return f"about {seconds:.0f}-{2 * seconds * f:.0f} s" + (f" at the current load (x{f:.1f})" if f > 1.05 else "")
 
 
 class _MissWatch(event.Listener):

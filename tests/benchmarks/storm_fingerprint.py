@@ -136,7 +136,8 @@ def main() -> None:
         from hailstorm.precompute import build_bundle
 
         seat = SeatSettings.default()
-        path = build_bundle(None, mesh_size=seat.mesh_size, order=seat.order, young=seat.young, poisson=seat.poisson)
+        path = build_bundle(None, mesh_size=seat.mesh_size, order=seat.order, load=seat.load,
+                            volume_size=seat.volume_size, young=seat.young, poisson=seat.poisson)
     gf = hailstorm.runtime.load(path)
     fp, raw = fingerprint(gf, args.configs.split(","))
     if args.write:

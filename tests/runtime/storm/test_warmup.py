@@ -190,16 +190,16 @@ print(json.dumps({"compiled": r.compiled, "helpers": r.helpers, "failed": r.help
 
 
 def test_estimates_are_ranges_scaled_by_the_load(monkeypatch):
-    """An estimate is a range from the measured CPU seconds stretched by the load (the load
-    average and this process over the usable CPUs, at least 1) to twice that; unmeasured says so."""
+    """An estimate is a range from the measured CPU seconds to twice them stretched by the load
+    (the load average and this process over the usable CPUs, at least 1); unmeasured says so."""
     assert warmup.estimate_text(9.0, 1.0) == "about 9-18 s"
-    assert warmup.estimate_text(9.0, 2.5) == "about 22-45 s at the current load (x2.5)"
+    assert warmup.estimate_text(9.0, 2.5) == "about 9-45 s at the current load (x2.5)"
     assert warmup.estimate_text(9.0, 0.3) == "about 9-18 s"  # an idle machine is no faster than the CPU
     assert warmup.estimate_text(None) == "time not measured yet"
     monkeypatch.setattr(warmup.os, "getloadavg", lambda: (6.0, 0.0, 0.0))
     monkeypatch.setattr(warmup.os, "sched_getaffinity", lambda pid: {0, 1})
     assert warmup.load_factor() == 3.5  # (6 + this process) / 2 CPUs
-    assert warmup.estimate_text(2.0) == "about 7-14 s at the current load (x3.5)"
+    assert warmup.estimate_text(2.0) == "about 2-14 s at the current load (x3.5)"
 
 
 def test_the_seconds_are_measured_at_a_compile_and_recorded(monkeypatch):
