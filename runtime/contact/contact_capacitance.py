@@ -69,8 +69,33 @@ class ActiveSet:
 
 
 #: block-pivoting rounds of a frictionless unilateral solve before :func:`nonnegative_qp` takes
-#: over (it also takes over as soon as a set repeats); None: the iteration bound
-BLOCK_PIVOT_ROUNDS: int | None = None
+#: over (it also takes over as soon as a set repeats, and at once when ``W`` is singular to
+#: working precision: block pivoting's subproblems are then solved by pseudo-inverse, an
+#: eigendecomposition per round, and need not converge)
+BLOCK_PIVOT_ROUNDS: int = 10
+#: the compliance added to every contact (relative to the mean of W's diagonal) when the
+#: frictionless unilateral QP is solved on a singular ``W`` (the minimiser is then unique; the
+#: set it finds is re-solved exactly)
+QP_SHIFT: float = 1e-8
+#: the shift of the unit-diagonal free block in :func:`nonnegative_qp`'s Newton step (so that
+#: a singular ``W`` still factors by Cholesky: a positive definite scaling of the step, which
+#: keeps the method convergent)
+NEWTON_SHIFT: float = 1e-10
+
+
+def _newton_step(A: np.ndarray, g: np.ndarray) -> np.ndarray:
+    """``-(A + mu I)^-1 g`` for a symmetric positive semidefinite ``A`` with unit diagonal, by
+    Cholesky; ``mu`` is :data:`NEWTON_SHIFT`, raised a hundredfold while the factor fails."""
+    from scipy.linalg import LinAlgError, cho_factor, cho_solve
+
+    mu = NEWTON_SHIFT
+    eye = np.eye(A.shape[0])
+    for _ in range(8):
+        try:
+            return -cho_solve(cho_factor(A + mu * eye, lower=True, check_finite=False), g, check_finite=False)
+        except LinAlgError:
+            mu *= 100.0
+    return -g  # not reached for a semidefinite A: the gradient step
 
 
 def _armijo_arc(Wt: np.ndarray, q: np.ndarray, y: np.ndarray, g: np.ndarray, d: np.ndarray,
@@ -153,7 +178,7 @@ def nonnegative_qp(W: np.ndarray, q: np.ndarray, x0: np.ndarray | None = None, *
         d = -g.copy()
         if free.any():
             F = np.flatnonzero(free)
-            d[F] = -SPDFactor(Wt[np.ix_(F, F)], symmetric=True).solve(g[F])
+            d[F] = _newton_step(Wt[np.ix_(F, F)], g[F])
         z = _armijo_arc(Wt, qt, y, g, d, free)
         if np.array_equal(z, y):  # stalled at rounding level: the gradient step alone
             z = _armijo_arc(Wt, qt, y, g, -g, np.zeros(n, bool))
@@ -496,9 +521,11 @@ class Capacitance:
             (``f . n > 0``) is released and the rest re-solved; a released
             contact is re-activated if the seat would penetrate the prescribed
             position (``(u - ubar) . n > 0``). Active-set iteration (block
-            pivoting); frictionless, once a set repeats, the convex QP's
-            projected Newton method (:func:`nonnegative_qp`, which converges
-            for any SPD ``W``); sticky, one flip per iteration once a set
+            pivoting); frictionless, once a set repeats, after
+            :data:`BLOCK_PIVOT_ROUNDS` rounds, or at once for a ``W`` singular to
+            working precision (then with a contact compliance of
+            :data:`QP_SHIFT`), the convex QP's projected Newton method
+            (:func:`nonnegative_qp`, which converges for any SPD ``W``); sticky, one flip per iteration once a set
             repeats (a sticky contact is released as a whole). Needs the
             contact normals.
         max_iter : int, optional
@@ -557,7 +584,7 @@ class Capacitance:
                 if viol.size == 0:
                     break
                 key = active.tobytes()
-                if p == 1 and (key in seen or it == (BLOCK_PIVOT_ROUNDS or limit + 1)):
+                if p == 1 and (key in seen or it >= BLOCK_PIVOT_ROUNDS or not self.exact):
                     # frictionless: the convex QP's solver, which cannot cycle, from here
                     lam, active, extra = self._unilateral_qp(c, lam, limit, cn)
                     it += extra
@@ -587,7 +614,13 @@ class Capacitance:
         tolerances, else the QP's own multipliers. Returns ``(lam, active, iterations)``."""
         live = np.flatnonzero(~self.rigid)
         W = self.W[np.ix_(live, live)]
-        x, iters = nonnegative_qp(W, c[live], np.maximum(-lam[live], 0.0), tol=ACTIVE_SET_TOL, max_iter=limit)
+        x0 = np.maximum(-lam[live], 0.0)
+        if not self.exact and live.size:  # singular (more contacts than the seat's vertices can tell
+            # apart): a contact compliance of QP_SHIFT of the mean one makes the minimiser unique; the
+            # pseudo-inverse's multipliers are no useful start
+            W = W + QP_SHIFT * float(np.diag(W).mean()) * np.eye(live.size)
+            x0 = None
+        x, iters = nonnegative_qp(W, c[live], x0, tol=ACTIVE_SET_TOL, max_iter=limit)
         active = np.zeros(self.s, bool)
         active[live[x > 0]] = True
         exact = self._subset_multipliers(c, active)

@@ -137,3 +137,43 @@ def test_complex_displacements_are_refused_not_made_real(box, unilateral):
     cap = capacitance(gf, tri, bary, mode="frictionless")
     with pytest.raises(ValueError, match="displacements must be real numbers"):
         cap.solve(ubar, unilateral=unilateral)
+
+
+@pytest.mark.parametrize("seed", [0])
+def test_1000_random_unilateral_contacts_on_the_seat_settle(seat_bundle, seed):
+    """The case the bad-input round measured: 1000 random frictionless unilateral contacts
+    through ``solve_contacts`` on a seat of 225 contactable vertices (W singular: more
+    contacts than the seat's vertices can tell apart) settle (before: "active set did not
+    settle in 2010 iterations"). Checked against SciPy's NNLS (Lawson-Hanson, finite
+    termination) on the same QP: the normal displacements ``W x`` are unique at every
+    minimiser of the convex QP even where the forces are not."""
+    from scipy.linalg import cholesky, solve_triangular
+    from scipy.optimize import nnls
+
+    from hailstorm.runtime.bundle.read import load
+
+    gf = load(seat_bundle)
+    rng = np.random.default_rng(seed)
+    tris = np.flatnonzero(gf.contactable[gf.triangles].all(axis=1) & ~gf.fixed[gf.triangles].all(axis=1))
+    s = 1000
+    tri = rng.choice(tris, size=s)
+    bary = rng.dirichlet([1.0, 1.0, 1.0], size=s)
+    n = triangle_normals(gf.vertices, gf.triangles[tri])
+    ubar = -1e-3 * n + rng.normal(scale=2e-4, size=(s, 3))
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(1):  # a threaded BLAS on a shared machine is 10x slower at this size
+        sol = solve_contacts(gf, tri, bary, ubar, mode="frictionless", unilateral=True, normals=n, rows=None)
+    fn = np.einsum("ki,ki->k", sol.forces, n)
+    assert (fn <= 1e-9 * np.abs(fn).max()).all()  # contacts only push
+    assert 0 < sol.active.sum() < s and (fn[~sol.active] == 0).all()
+    # the same QP (x = -lambda >= 0: min 1/2 x^T W x + c^T x) by NNLS on W's Cholesky factor
+    cap = capacitance(gf, tri, bary, mode="frictionless", normals=n)
+    W, c = cap.W, np.einsum("ki,ki->k", ubar, n)
+    R = cholesky(W + 1e-10 * np.diag(W).mean() * np.eye(s))  # W + eps I = R^T R (W is singular)
+    x, _ = nnls(R, -solve_triangular(R, c, trans="T"), maxiter=20 * s)
+    un_ref = W @ x
+    un = W @ -fn  # x = -lambda, lambda the signed normal forces
+    # the two differ by the shifts (1e-8 and 1e-10 of the mean compliance) and rounding in a
+    # singular W: a relative 1e-6 of the displacements is far above both, far below a changed set
+    assert np.abs(un - un_ref).max() <= 1e-6 * np.abs(c).max()
