@@ -77,10 +77,15 @@ class _Cholmod(_DenseColumns):
 
         A = sp.tril(A, format="csc")  # CHOLMOD reads one triangle
         A.sort_indices()
-        self._s = cholespy.CholeskySolverD(
-            A.shape[0], A.indptr.astype(np.int32), A.indices.astype(np.int32),
-            A.data.astype(np.float64), cholespy.MatrixType.CSC,
-        )
+        try:
+            self._s = cholespy.CholeskySolverD(
+                A.shape[0], A.indptr.astype(np.int32), A.indices.astype(np.int32),
+                A.data.astype(np.float64), cholespy.MatrixType.CSC,
+            )
+        except (ValueError, RuntimeError) as exc:  # cholespy's "Matrix is not positive definite!"
+            if "positive definite" in str(exc):
+                raise NotPositiveDefinite(f"CHOLMOD: {exc}") from None
+            raise
 
     def solve(self, B: np.ndarray) -> np.ndarray:
         B = np.ascontiguousarray(B, dtype=np.float64)
@@ -155,7 +160,23 @@ def factorize(A: sp.spmatrix, solver: str = "supernodal", *, near_null: np.ndarr
                           batch=spec.batch if batch is None else int(batch))
     except PatternError as exc:  # the supernodal factor's pattern check (e.g. a 1e18 stiffness contrast)
         _log.info("supernodal solver: %s; using CHOLMOD (cholespy) instead", exc)
-        return SOLVER_SPECS["cholmod"].build(A, near_null=near_null, tol=tol, threads=threads)
+        return factorize(A, "cholmod", near_null=near_null, tol=tol, threads=threads)
+    except np.linalg.LinAlgError as exc:
+        # a Cholesky factor that meets a non-positive pivot on an SPD matrix: rounding at an extreme
+        # stiffness contrast (materials and clamps are checked before the solve); LU pivots its way
+        if not spec.cholesky:
+            raise
+        _log.info("%s solver: %s (rounding at an extreme stiffness contrast); using SuperLU's LU instead",
+                  spec.title, _one_line(exc))
+        return SOLVER_SPECS["splu"].build(A, near_null=near_null, tol=tol, threads=threads)
+
+
+class NotPositiveDefinite(np.linalg.LinAlgError):
+    """A Cholesky factorization met a non-positive pivot."""
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split())
 
 
 @dataclass(frozen=True)
@@ -179,6 +200,9 @@ class SolverSpec:
         Needs the rigid-body modes (``near_null``).
     uses_tol : bool
         Iterative: solves each column to the relative residual ``tol`` (part of the bundle's key).
+    cholesky : bool
+        A Cholesky factor: a non-positive pivot (rounding at an extreme stiffness contrast) makes
+        :func:`factorize` fall back to SuperLU's LU.
     make : callable
         ``make(A, near_null, tol, threads, batch)`` -> the solver object.
     """
@@ -190,6 +214,7 @@ class SolverSpec:
     threads: bool
     needs_near_null: bool
     uses_tol: bool
+    cholesky: bool
     make: Callable[..., object]
 
     def build(self, A: sp.spmatrix, *, near_null: np.ndarray | None = None, tol: float = 1e-10,
@@ -211,14 +236,14 @@ def _dense(cls: type) -> Callable[..., object]:
 SOLVER_SPECS: dict[str, SolverSpec] = {
     spec.name: spec for spec in (
         SolverSpec("supernodal", "supernodal", DEFAULT_BATCH, proxy_fill=False, threads=True,
-                   needs_near_null=False, uses_tol=False,
+                   needs_near_null=False, uses_tol=False, cholesky=True,
                    make=lambda A, near_null, tol, threads, batch: SupernodalSolver(A, batch=batch, threads=threads)),
         SolverSpec("cholmod", "CHOLMOD", DEFAULT_BLOCK_COLUMNS, proxy_fill=True, threads=False,
-                   needs_near_null=False, uses_tol=False, make=_dense(_Cholmod)),
+                   needs_near_null=False, uses_tol=False, cholesky=True, make=_dense(_Cholmod)),
         SolverSpec("splu", "SuperLU", DEFAULT_BLOCK_COLUMNS, proxy_fill=True, threads=False,
-                   needs_near_null=False, uses_tol=False, make=_dense(_SuperLU)),
+                   needs_near_null=False, uses_tol=False, cholesky=False, make=_dense(_SuperLU)),
         SolverSpec("amg", "AMG", DEFAULT_BLOCK_COLUMNS, proxy_fill=False, threads=False,
-                   needs_near_null=True, uses_tol=True, make=_dense(_AMG)),
+                   needs_near_null=True, uses_tol=True, cholesky=False, make=_dense(_AMG)),
     )
 }
 

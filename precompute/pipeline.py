@@ -498,6 +498,10 @@ def _stream_compliance(out: Path, problem: ColumnProblem, key: str, progress: bo
     except OSError as exc:
         raise BundleError(f"cannot write D to {store.path}: {exc.strerror or exc}; {len(store.done)} of "
                           f"{len(blocks)} finished blocks are kept there (the same command resumes)") from exc
+    except Exception:
+        if not store.done:  # failed before any block (e.g. the factorization): nothing to resume
+            remove_work_dir(store.path)
+        raise
     finally:
         if bar is not None:
             bar.close()

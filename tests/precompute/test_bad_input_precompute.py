@@ -627,6 +627,52 @@ def test_supernodal_falls_back_to_cholmod_when_the_pattern_cannot_be_recovered(t
     assert np.abs(D - R).max() <= 1e-6 * np.abs(R).max()
 
 
+
+@pytest.mark.parametrize("where", ["supernodal", "cholmod"])
+def test_a_non_positive_pivot_falls_back_to_lu(tmp_path, monkeypatch, caplog, where):
+    """At a 1e18 stiffness contrast a Cholesky factor can meet a non-positive pivot on an SPD
+    matrix (rounding; reported for the layered example with the pad at 1e24 Pa, forced here):
+    the bundle is built with SuperLU's LU instead, with a one-line note, its D splu's (to the
+    conditioning's rounding, as above), and no work directory left behind."""
+    import hailstorm.precompute.supernodal as supernodal
+
+    def not_pd(*args, **kwargs):
+        raise np.linalg.LinAlgError("the matrix is not positive definite (a non-positive pivot)")
+
+    mesh, mats = _contrast_box(1e18)
+    ref = load(build_bundle(tmp_path / "splu", mesh=mesh, materials=mats, solver="splu"))
+    monkeypatch.setattr(supernodal, "supernodal_factor", not_pd)
+    if where == "cholmod":
+        import cholespy
+
+        def cholmod_not_pd(*args):
+            raise ValueError("Matrix is not positive definite!")  # cholespy's words
+
+        monkeypatch.setattr(cholespy, "CholeskySolverD", cholmod_not_pd)
+    with caplog.at_level(logging.INFO, logger="hailstorm.precompute.greens"):
+        gf = load(build_bundle(tmp_path / "b", mesh=mesh, materials=mats, solver=where))
+    notes = [r.getMessage() for r in caplog.records if "using SuperLU's LU" in r.getMessage()]
+    assert len(notes) == 1 and "not positive definite" in notes[0], caplog.text
+    D, R = np.asarray(gf.D), np.asarray(ref.D)
+    assert np.abs(D - R).max() <= 1e-6 * np.abs(R).max()
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []
+
+
+
+def test_a_solve_that_fails_before_any_block_leaves_no_work_directory(small_box, tmp_path, monkeypatch):
+    """An error in the solve before the first block (here every factorization refused) is
+    reported and leaves no ``.NAME.work`` behind: there is nothing to resume."""
+    import hailstorm.precompute.greens as greens
+
+    def broken(A, solver="supernodal", **kw):
+        raise RuntimeError("no factor today")
+
+    monkeypatch.setattr(greens, "factorize", broken)
+    with pytest.raises(RuntimeError, match="no factor today"):
+        build_bundle(tmp_path / "b", mesh=small_box)
+    assert sorted(p.name for p in tmp_path.iterdir()) == []
+
+
 # ----------------------------------------------------------------------------- bundles
 
 def test_replacing_a_read_only_bundle_removes_its_old_copy(small_box, tmp_path):
