@@ -544,14 +544,8 @@ class Capacitance:
         RuntimeError
             The active set did not settle within ``max_iter`` iterations.
         """
-        if np.iscomplexobj(ubar) or np.asarray(ubar).dtype.kind not in "biuf":
-            raise ValueError(f"displacements must be real numbers [m], got {np.asarray(ubar).dtype}")
-        ubar = np.asarray(ubar, dtype=np.float64)
+        ubar = self._displacements(ubar)
         s = self.s
-        if ubar.shape != (s, 3):
-            raise ValueError(f"displacements must have shape ({s}, 3) to match the contacts, got {ubar.shape}")
-        if not np.isfinite(ubar).all():
-            raise ValueError("displacements contain NaN or infinity")
         if max_iter is not None and (isinstance(max_iter, bool) or not isinstance(max_iter, (int, np.integer))
                                      or max_iter < 1):
             raise ValueError(f"max_iter must be a positive integer (active-set iterations), got {max_iter!r}")
@@ -649,12 +643,18 @@ class Capacitance:
         (s, 3) float ndarray
             Forces applied to the seat [N]; zero at rigid contacts.
         """
+        return self._expand(self._multipliers(self._reduce(self._displacements(ubar))))
+
+    def _displacements(self, ubar: np.ndarray) -> np.ndarray:
+        """Prescribed contact-point displacements checked (real, finite, (s, 3)) as float64."""
+        if np.iscomplexobj(ubar) or np.asarray(ubar).dtype.kind not in "biuf":
+            raise ValueError(f"displacements must be real numbers [m], got {np.asarray(ubar).dtype}")
         ubar = np.asarray(ubar, dtype=np.float64)
         if ubar.shape != (self.s, 3):
-            raise ValueError(f"ubar must have shape ({self.s}, 3), got {ubar.shape}")
+            raise ValueError(f"displacements must have shape ({self.s}, 3) to match the contacts, got {ubar.shape}")
         if not np.isfinite(ubar).all():
-            raise ValueError("ubar contains NaN or infinity")
-        return self._expand(self._multipliers(self._reduce(ubar)))
+            raise ValueError("displacements contain NaN or infinity")
+        return ubar
 
     def vertex_forces(self, forces: np.ndarray) -> np.ndarray:
         """Vertex forces ``f_V = B f_s`` as a (len(V), 3) array."""

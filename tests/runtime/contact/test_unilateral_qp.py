@@ -137,6 +137,8 @@ def test_complex_displacements_are_refused_not_made_real(box, unilateral):
     cap = capacitance(gf, tri, bary, mode="frictionless")
     with pytest.raises(ValueError, match="displacements must be real numbers"):
         cap.solve(ubar, unilateral=unilateral)
+    with pytest.raises(ValueError, match="displacements must be real numbers"):
+        cap.forces(ubar)  # the same check (was: the imaginary part dropped, a ComplexWarning at most)
 
 
 @pytest.mark.parametrize("seed", [0])
