@@ -213,18 +213,27 @@ def test_bounded_scan_still_accepts_a_previous_storm_output_and_spots_one_stray_
 
 
 def test_a_burst_of_stones_is_refused_by_its_time_estimate():
-    """10 million stones in 0.05 s passed the memory and step checks and ran for hours:
-    the time estimate (stones x steps at the measured rate) refuses it, names the rule,
-    and --allow-large passes it; the default storm is far below the limit."""
-    from hailstorm.runtime.storm.scene import MAX_SECONDS, STONE_STEPS_PER_SECOND, Scene, StormTooLarge
+    """10 million stones in 0.05 s passed the memory and step checks and ran for hours, and so
+    did 2 million: the time estimate (stones x steps at the measured rate; a burst, more than
+    one stone spawned per step, at the rate of stones landing together) refuses them, names
+    the rule, and --allow-large passes it; a long sparse storm is estimated at the flight rate;
+    the default storm is far below the limit."""
+    from hailstorm.runtime.storm.scene import (BURST_STONE_STEPS_PER_SECOND, MAX_SECONDS, STONE_STEPS_PER_SECOND,
+                                               Scene, StormTooLarge)
 
-    scene = Scene.from_flat(stones=10_000_000, duration=0.05)
-    est = scene.estimate()
-    assert est.seconds == pytest.approx(0.5 * est.stones * est.steps / STONE_STEPS_PER_SECOND)  # spawned over it
-    with pytest.raises(StormTooLarge, match=r"10,000,000 stones spawned over 250 steps, each present from its spawn on, at 2e\+05 stone-steps/s"):
-        est.check()
-    est.check(allow_large=True)
+    for stones, seconds in [(10_000_000, "2.07 days"), (2_000_000, "9.92 h")]:
+        est = Scene.from_flat(stones=stones, duration=0.05).estimate()
+        assert est.seconds == pytest.approx(0.5 * est.stones * est.steps / BURST_STONE_STEPS_PER_SECOND)
+        with pytest.raises(StormTooLarge, match=rf"estimated {seconds} \({stones:,} stones spawned over 250 steps, "
+                           r"each present from its spawn on, at 7e\+03 stone-steps/s \(a burst"):
+            est.check()
+        est.check(allow_large=True)
+    sparse = Scene.from_flat(stones=100_000, duration=100.0).estimate()  # 0.2 stones per step
+    assert sparse.seconds == pytest.approx(0.5 * sparse.stones * sparse.steps / STONE_STEPS_PER_SECOND)
+    with pytest.raises(StormTooLarge, match=r"at 2e\+05 stone-steps/s\), more than 1 h"):
+        sparse.check()
     assert Scene.default().estimate().seconds < MAX_SECONDS / 100
+    assert Scene.from_flat(stones=200, duration=0.05).estimate().seconds < 2.0  # a small burst runs
 
 
 def test_duration_overflowing_the_step_count_is_a_scene_error():
