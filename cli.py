@@ -304,7 +304,7 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO, format="%(message)s")
     logging.getLogger("skfem").setLevel(logging.WARNING)
     previous = _terminate_as_exception()
-    _TERMINATED.clear()
+    _RECEIVED.clear()
     try:
         if args.command == "precompute":
             rc = _run_precompute(args)
@@ -315,18 +315,18 @@ def main(argv: list[str] | None = None) -> int:
         sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's exit
         return rc
     except BaseException as exc:
-        # SIGTERM first: its exception can surface wrapped in another one (a compiled
+        # a termination signal first: its exception can surface wrapped in another one (a compiled
         # kernel's dispatcher turns an exception raised while it returns into SystemError)
-        if _TERMINATED.is_set():
-            print("hailstorm: terminated (SIGTERM)", file=sys.stderr)
-            return 128 + signal.SIGTERM
+        if _RECEIVED:
+            print(f"hailstorm: terminated ({signal.Signals(_RECEIVED[0]).name})", file=sys.stderr)
+            return 128 + _RECEIVED[0]
         rc = _user_error(exc, getattr(args, "out", None))
         if rc is None:
             raise
         return rc
     finally:
-        if previous is not None:
-            signal.signal(signal.SIGTERM, previous)
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
 
 
 def _user_error(exc: BaseException, out: Any) -> int | None:
@@ -354,25 +354,28 @@ def _user_error(exc: BaseException, out: Any) -> int | None:
     return None
 
 
-#: set by the SIGTERM handler: whatever exception then ends the command, it ends as SIGTERM
-_TERMINATED = threading.Event()
+#: the signals that end a command cleanly: ``kill`` and a closed terminal
+_TERMINATING = (signal.SIGTERM, signal.SIGHUP)
+#: the termination signals received (by the handler): whatever exception then ends the
+#: command, it ends as that signal (exit 128 + its number)
+_RECEIVED: list[int] = []
 
 
 class _Terminated(Exception):
-    """SIGTERM, raised in the main thread so that the writers' cleanup runs."""
+    """A termination signal, raised in the main thread so that the writers' cleanup runs."""
 
 
 def _raise_terminated(signum: int, frame: object) -> None:
-    _TERMINATED.set()
+    _RECEIVED.append(signum)
     raise _Terminated()
 
 
-def _terminate_as_exception() -> object | None:
-    """Turn SIGTERM into :class:`_Terminated` (only in the main thread); returns the
-    previous handler, or None if none was installed."""
+def _terminate_as_exception() -> dict[int, Any]:
+    """Turn the termination signals into :class:`_Terminated` (only in the main thread);
+    returns the previous handlers (empty if none was installed)."""
     if threading.current_thread() is not threading.main_thread():
-        return None
-    return signal.signal(signal.SIGTERM, _raise_terminated)
+        return {}
+    return {signum: signal.signal(signum, _raise_terminated) for signum in _TERMINATING}
 
 
 def _one_line(exc: BaseException) -> str:

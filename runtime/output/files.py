@@ -640,8 +640,9 @@ def _running_partials(out: Path) -> list[Path]:
 
 
 def clean_stale_partials(out: str | os.PathLike) -> list[Path]:
-    """Remove the temporary directories (``.OUT.partial-*``) that killed storms
-    (SIGKILL, a power cut) left beside ``out``; returns the removed paths.
+    """Remove the temporary directories (``.NAME.partial-*``) that killed storms
+    (SIGKILL, a power cut) left beside ``out``, whatever ``--out`` they were writing
+    (as bundle writers clean their whole folder); returns the removed paths.
 
     Only a directory whose writer's lock file is present and not locked is removed
     (its writer is gone); a running storm's, or one without the lock file (not
@@ -651,7 +652,7 @@ def clean_stale_partials(out: str | os.PathLike) -> list[Path]:
     parent = out.absolute().parent
     removed: list[Path] = []
     try:
-        candidates = sorted(parent.glob(f".{out.name}{_PARTIAL}*"))
+        candidates = sorted(parent.glob(f".*{_PARTIAL}*"))
     except OSError:
         return removed
     for d in candidates:

@@ -54,10 +54,10 @@ def check_stones(pos: Any, vel: Any, radius: Any) -> tuple[np.ndarray, np.ndarra
         velocity, or a radius that is not a finite positive number.
     """
     arrays = []
-    for name, value in (("position", pos), ("velocity", vel), ("radius", radius)):
+    for name, value in (("positions", pos), ("velocities", vel), ("radii", radius)):
         a = np.asarray(value)
         if a.dtype.kind not in "biuf":
-            raise StoneError(f"stone {name}s must be real numbers, got an array of {a.dtype}")
+            raise StoneError(f"stone {name} must be real numbers, got an array of {a.dtype}")
         arrays.append(a.astype(np.float64))
     p, v, r = arrays
     if p.ndim not in (1, 2) or p.shape[-1] != 3:

@@ -282,11 +282,11 @@ def _wait_for_partial(tmp_path, proc, timeout=240.0):
     raise AssertionError("the storm wrote no frames")
 
 
-@pytest.mark.parametrize("sig", ["SIGKILL", "SIGTERM"])
+@pytest.mark.parametrize("sig", ["SIGKILL", "SIGTERM", "SIGHUP"])
 def test_a_killed_storm_leaves_nothing_behind(seat_bundle, tmp_path, sig):
-    """SIGTERM: the storm removes its temporary directory and says so in one line (exit
-    143); SIGKILL: the next storm into the same --out removes the dead one's directory
-    (its lock is free) -- but never a running storm's."""
+    """SIGTERM (and SIGHUP, a closed terminal): the storm removes its temporary directory
+    and says so in one line (exit 128 + the signal); SIGKILL: the next storm into the same
+    --out removes the dead one's directory (its lock is free) -- but never a running storm's."""
     import signal as _signal
 
     from hailstorm.runtime.output.files import clean_stale_partials
@@ -298,9 +298,9 @@ def test_a_killed_storm_leaves_nothing_behind(seat_bundle, tmp_path, sig):
     assert partial.is_dir()
     proc.send_signal(getattr(_signal, sig))
     _, err = proc.communicate(timeout=120)
-    if sig == "SIGTERM":
-        assert proc.returncode == 143
-        assert err.strip().splitlines() == ["hailstorm: terminated (SIGTERM)"], err
+    if sig != "SIGKILL":
+        assert proc.returncode == 128 + getattr(_signal, sig), err
+        assert err.strip().splitlines() == [f"hailstorm: terminated ({sig})"], err
         assert not partial.exists()
     else:
         assert partial.is_dir()  # nobody could clean up
@@ -308,6 +308,19 @@ def test_a_killed_storm_leaves_nothing_behind(seat_bundle, tmp_path, sig):
         assert not partial.exists()
         assert (out / "summary.json").is_file()
     assert not list(tmp_path.glob(".out.*"))
+
+
+def test_a_killed_storms_partial_is_cleaned_by_a_storm_into_another_out(tmp_path):
+    """A killed storm's temporary directory (its lock file present, not held) beside another
+    --out is removed too, as bundle writers clean their folder."""
+    from hailstorm.runtime.output.files import clean_stale_partials
+
+    dead = tmp_path / ".first.partial-abc"
+    dead.mkdir()
+    (dead / ".hailstorm-writing").write_text("")
+    (dead / "summary.json").write_text("{}")
+    assert clean_stale_partials(tmp_path / "second") == [dead]
+    assert not dead.exists()
 
 
 def test_a_partial_without_our_lock_file_is_left_alone(tmp_path):
@@ -333,7 +346,8 @@ STONE_ROWS = [
     ("position-of-two", [0.06, 0.0], [0, 0, -1.0], 0.005, "shape (3,) or (k, 3), got (2,)"),
     ("velocities-of-the-wrong-count", [_C, _C], np.zeros((3, 3)), 0.005, "shape (3,) or (2, 3)"),
     ("radii-of-the-wrong-count", [_C, _C], [0, 0, -1.0], [0.005, 0.005, 0.005], "one number or 2 numbers"),
-    ("complex-position", np.array(_C) + 1j, [0, 0, -1.0], 0.005, "real numbers"),
+    ("complex-position", np.array(_C) + 1j, [0, 0, -1.0], 0.005, "stone positions must be real numbers"),
+    ("string-radius", _C, [0, 0, -1.0], "big", "stone radii must be real numbers"),
     ("inside-the-seat", [0.06, 0.0, -0.002], [0, 0, -1.0], 0.001, "starts inside the seat"),
 ]
 
@@ -539,7 +553,7 @@ def test_sigterm_wrapped_by_a_compiled_kernel_still_ends_as_sigterm(monkeypatch,
         raise AssertionError("SIGTERM was not delivered")
 
     monkeypatch.setattr(cli, "_run_storm", storm_killed_in_a_kernel)
-    previous = _signal.getsignal(_signal.SIGTERM)
+    previous = _signal.getsignal(_signal.SIGTERM), _signal.getsignal(_signal.SIGHUP)
     assert cli.main(["storm", "-q"]) == 143
     assert capsys.readouterr().err.strip().splitlines() == ["hailstorm: terminated (SIGTERM)"]
-    assert _signal.getsignal(_signal.SIGTERM) is previous  # the handler is put back
+    assert (_signal.getsignal(_signal.SIGTERM), _signal.getsignal(_signal.SIGHUP)) == previous  # put back
