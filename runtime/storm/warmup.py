@@ -10,10 +10,9 @@ argument types) and, as soon as a task turns out to compile (numba's
 tasks planned for them while this process compiles its own; it then waits for
 them and runs their tasks itself, which now only load what the helpers cached.
 Tasks that share kernels (:attr:`WarmTask.shares`) stay in one process so that those
-compile once. Measured (docs/performance.md, "The first run's compile"): a cold
-default storm took 30.1 s of wall time with the helper against 39.2 s in one process
-(medians of three pairs on two loaded cores; ratio 0.69-1.42, median 0.82) for 12 %
-more CPU (medians; 23 % pair by pair).
+compile once. Measured (``tests/benchmarks/compile_helper.py``, docs/performance.md): a
+cold default storm took 20.9 s of wall time with the helper against 35.5 s in one process
+(medians of three pairs on two quiet cores, ratio 0.52-0.67) for the same CPU time.
 
 A helper rebuilds the same storm from the bundle's directory and the scene (so
 that its kernels get exactly this process's argument types) through the
