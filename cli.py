@@ -212,16 +212,20 @@ def _run_storm(args: argparse.Namespace) -> int:
     from hailstorm.runtime.storm.scene import Scene, SeatSettings
     from hailstorm.runtime.storm.driver import run_storm
 
-    scene = Scene.from_toml(args.scene) if args.scene is not None else Scene.default()
-    data = scene.to_dict()
-    changed = False
+    overrides: dict[str, dict[str, Any]] = {}
     for section, options in (("storm", ("duration", "stones", "seed")), ("time", ("integrator", "dt"))):
         for k in options:
             if getattr(args, k) is not None:
-                data[section][k] = getattr(args, k)
-                changed = True
-    if changed:
-        scene = Scene.from_dict(data, source="command line")
+                overrides.setdefault(section, {})[k] = getattr(args, k)
+    if args.scene is not None:  # the file and the options checked together (a dt = 1 file with --duration 2)
+        scene = Scene.from_toml(args.scene, overrides=overrides)
+    else:
+        scene = Scene.default()
+        if overrides:
+            data = scene.to_dict()
+            for section, body in overrides.items():
+                data[section].update(body)
+            scene = Scene.from_dict(data, source="command line")
     # everything that can be refused cheaply, before the bundle and the storm
     # the default seat's precompute settings: the scene file's [seat], not part of the scene
     seat = SeatSettings.from_toml(args.scene) if args.scene is not None else SeatSettings.default()

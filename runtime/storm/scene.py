@@ -811,10 +811,13 @@ class Scene:
             raise SceneError(f"{source}: {exc}") from None
 
     @classmethod
-    def from_toml(cls, path: str | Path, *, base: "Scene | None" = None) -> "Scene":
+    def from_toml(cls, path: str | Path, *, base: "Scene | None" = None,
+                  overrides: Mapping[str, Mapping[str, Any]] | None = None) -> "Scene":
         """Load a scene TOML file. Keys it does not set take the values of ``base``
-        (default: :meth:`default`, the packaged ``default_scene.toml``). Its
-        ``[seat]`` is checked, not kept (read it with :meth:`SeatSettings.from_toml`)."""
+        (default: :meth:`default`, the packaged ``default_scene.toml``); ``overrides``
+        (``{section: {key: value}}``, e.g. the command line's options) replace the file's
+        before anything is checked, so that the file and the options are checked together.
+        Its ``[seat]`` is checked, not kept (read it with :meth:`SeatSettings.from_toml`)."""
         path = Path(path)
         data = _read_toml(path)
         merged: dict[str, Any] = (base or cls.default()).to_dict()
@@ -826,7 +829,13 @@ class Scene:
         storm = data.get("storm", {})
         if isinstance(storm, Mapping) and "stones" not in storm and (base is None or base.storm.stones is None):
             merged["storm"].pop("stones", None)
-        return cls.from_dict(merged, source=str(path))
+        if overrides:
+            for sec, body in merged.items():  # the file's own values first, section by section
+                if sec in _RECORDS:
+                    _RECORDS[sec].from_dict(body, source=str(path))
+            for sec, body in overrides.items():
+                merged[sec] = {**merged.get(sec, {}), **body}
+        return cls.from_dict(merged, source=str(path) + (" with the command line's options" if overrides else ""))
 
     @classmethod
     def default(cls) -> "Scene":

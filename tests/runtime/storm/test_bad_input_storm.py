@@ -3,6 +3,7 @@ nothing written or lost (table-driven; in-process through ``hailstorm.cli.main``
 
 from __future__ import annotations
 
+import json
 import os
 import re
 import subprocess
@@ -557,3 +558,23 @@ def test_sigterm_wrapped_by_a_compiled_kernel_still_ends_as_sigterm(monkeypatch,
     assert cli.main(["storm", "-q"]) == 143
     assert capsys.readouterr().err.strip().splitlines() == ["hailstorm: terminated (SIGTERM)"]
     assert (_signal.getsignal(_signal.SIGTERM), _signal.getsignal(_signal.SIGHUP)) == previous  # put back
+
+
+def test_a_scene_file_and_the_command_line_are_checked_together(tmp_path, seat_bundle):
+    """A scene with dt = 1 s run with --duration 2 was refused ("dt (1.0 s) must not exceed
+    duration (0.2 s)": the file was checked against its default duration before the option
+    applied); the two are now checked together, and a file alone is still refused."""
+    from hailstorm.runtime.storm.scene import Scene, SceneError
+
+    path = tmp_path / "dt1.toml"
+    path.write_text("[time]\ndt = 1.0\n")
+    scene = Scene.from_toml(path, overrides={"storm": {"duration": 2.0}})
+    assert scene.time.dt == 1.0 and scene.storm.duration == 2.0
+    with pytest.raises(SceneError, match=r"dt1.toml: dt \(1.0 s\) must not exceed duration \(0.2 s\)"):
+        Scene.from_toml(path)
+    with pytest.raises(SceneError, match="dt1.toml with the command line's options: dt"):
+        Scene.from_toml(path, overrides={"storm": {"duration": 0.5}})
+    out = tmp_path / "out"
+    assert main(["storm", "--gf", str(seat_bundle), "--scene", str(path), "--duration", "2", "--stones", "3",
+                 "--no-video", "-q", "--out", str(out)]) == 0
+    assert json.loads((out / "summary.json").read_text())["sim_time_s"] == pytest.approx(2.0)
