@@ -525,9 +525,9 @@ class Capacitance:
             :data:`BLOCK_PIVOT_ROUNDS` rounds, or at once for a ``W`` singular to
             working precision (then with a contact compliance of
             :data:`QP_SHIFT`), the convex QP's projected Newton method
-            (:func:`nonnegative_qp`, which converges for any SPD ``W``); sticky, one flip per iteration once a set
-            repeats (a sticky contact is released as a whole). Needs the
-            contact normals.
+            (:func:`nonnegative_qp`, which converges for any SPD ``W``);
+            sticky, one flip per iteration once a set repeats (a sticky
+            contact is released as a whole). Needs the contact normals.
         max_iter : int, optional
             Bound on active-set iterations (default ``2 s + 10``; the QP's
             iterations are bounded by it separately); a positive integer.
