@@ -172,11 +172,10 @@ class StormEstimate:
                                 f"{MAX_STEPS:,} (hours of computing); raise dt or lower the duration, "
                                 "or pass --allow-large (allow_large=True)")
         if self.seconds > MAX_SECONDS:
+            burst = " (a burst: more than one stone per step)" if self.rate != STONE_STEPS_PER_SECOND else ""
             raise StormTooLarge(f"the storm would take an estimated {_duration(self.seconds)} "
                                 f"({_count(self.stones)} stones spawned over {_count(self.steps)} steps, each "
-                                f"present from its spawn on, at {self.rate:.3g} stone-steps/s"
-                                f"{' (a burst: more than one stone per step)' if self.rate != STONE_STEPS_PER_SECOND else ''}"
-                                "), more than "
+                                f"present from its spawn on, at {self.rate:.3g} stone-steps/s{burst}), more than "
                                 f"{_duration(MAX_SECONDS)}; lower the stones, the rate or the duration, "
                                 "or pass --allow-large (allow_large=True)")
 
@@ -816,7 +815,8 @@ class Scene:
         """Load a scene TOML file. Keys it does not set take the values of ``base``
         (default: :meth:`default`, the packaged ``default_scene.toml``); ``overrides``
         (``{section: {key: value}}``, e.g. the command line's options) replace the file's
-        before anything is checked, so that the file and the options are checked together.
+        values once the file's own sections are checked, and the scene's rules across
+        sections (``dt`` at most ``duration``) are checked with them.
         Its ``[seat]`` is checked, not kept (read it with :meth:`SeatSettings.from_toml`)."""
         path = Path(path)
         data = _read_toml(path)
