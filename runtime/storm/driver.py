@@ -352,22 +352,26 @@ class Storm:
         ------
         hailstorm.runtime.storm.stones.StoneError
             Bad shapes or values (:func:`~hailstorm.runtime.storm.stones.check_stones`),
-            or a stone whose centre lies inside the seat (below its surface).
+            a stone whose centre lies inside the seat (below its surface), or one whose
+            body overlaps it by more than ``Collision.TOI_TOL`` of its radius.
         """
         pos, vel, radius = check_stones(pos, vel, radius)  # normalised for the seat test (Stones.add checks again)
-        self._check_outside(pos)
+        self._check_outside(pos, radius)
         ids = self.stones.add(pos, vel, radius)
         self.stats.hailstones += ids.size
         return ids
 
-    def _check_outside(self, pos: np.ndarray) -> None:
-        """Refuse stones whose centre is inside the (undeformed) seat: the closest
-        surface point's triangle normal points away from the centre. Only centres over
-        the seat's footprint and not above its top are looked at (the spawn plan's stones
-        start above it and do not come through here)."""
+    def _check_outside(self, pos: np.ndarray, radius: np.ndarray) -> None:
+        """Refuse stones whose centre is inside the (undeformed) seat (the closest surface
+        point's triangle normal points away from the centre), or whose body overlaps it by
+        more than the contact's opening gap (``Collision.TOI_TOL`` radii). Only stones
+        within a radius of the seat's footprint and not a radius above its top are looked
+        at (the spawn plan's stones start above it and do not come through here)."""
         ix = self.collision.index
         lo, hi = ix.bbox
-        inbox = np.flatnonzero(((pos[:, :2] >= lo[:2]) & (pos[:, :2] <= hi[:2])).all(axis=1) & (pos[:, 2] <= hi[2]))
+        r = np.broadcast_to(radius, (pos.shape[0],))
+        over = ((pos[:, :2] >= lo[:2] - r[:, None]) & (pos[:, :2] <= hi[:2] + r[:, None])).all(axis=1)
+        inbox = np.flatnonzero(over & (pos[:, 2] - r <= hi[2]))
         if inbox.size == 0:
             return
         reach = 2.0 * (float(np.linalg.norm(hi - lo)) + np.abs(pos[inbox, 2] - lo[2])) + 1e-9
@@ -381,6 +385,14 @@ class Storm:
             i = int(np.flatnonzero(inside)[0])
             raise StoneError(f"stone {int(inbox[i])} at {pos[inbox[i]].tolist()} starts inside the seat "
                              f"({-side[i]:.3g} m below its surface); place stones above the surface")
+        gap = np.full(inbox.size, np.inf)
+        gap[found] = np.linalg.norm(pos[inbox][found] - point[found], axis=1) - r[inbox][found]
+        over = gap < -self.collision.TOI_TOL * r[inbox]
+        if over.any():
+            i = int(np.flatnonzero(over)[0])
+            raise StoneError(f"stone {int(inbox[i])} of radius {float(r[inbox[i]]):.3g} m at {pos[inbox[i]].tolist()} "
+                             f"overlaps the seat by {-gap[i]:.3g} m; place stones at least their radius above "
+                             "the surface")
 
     def frame(self) -> Frame:
         """The current state as a :class:`Frame`.

@@ -350,6 +350,8 @@ STONE_ROWS = [
     ("complex-position", np.array(_C) + 1j, [0, 0, -1.0], 0.005, "stone positions must be real numbers"),
     ("string-radius", _C, [0, 0, -1.0], "big", "stone radii must be real numbers"),
     ("inside-the-seat", [0.06, 0.0, -0.002], [0, 0, -1.0], 0.001, "starts inside the seat"),
+    ("overlapping-the-seat", _C, [0, 0, -1.0], 0.02, "overlaps the seat by 0.01 m"),
+    ("a-kilometre-stone", _C, [0, 0, -1.0], 1e3, "overlaps the seat by 1e+03 m"),
 ]
 
 
@@ -375,10 +377,11 @@ def test_bad_stones_are_refused_clearly(plate_storm, name, pos, vel, radius, mes
 
 
 def test_good_stones_still_go_in(plate_storm):
-    """Above the seat, touching it, and outside its box: accepted (one row, or many)."""
-    ids = plate_storm.add_stones(np.array([[0.06, 0.0, 0.005], [0.06, 0.01, 0.02], [1.0, 1.0, 1.0]]),
-                                 np.array([0.0, 0.0, -1.0]), 0.005)
-    assert ids.tolist() == [0, 1, 2]
+    """Above the seat, touching it (within the contact's opening gap, 1 % of the radius), and
+    outside its box: accepted (one row, or many)."""
+    ids = plate_storm.add_stones(np.array([[0.06, 0.0, 0.005], [0.06, 0.01, 0.02], [1.0, 1.0, 1.0],
+                                           [0.06, 0.02, 0.00499]]), np.array([0.0, 0.0, -1.0]), 0.005)
+    assert ids.tolist() == [0, 1, 2, 3]
     plate_storm.stones.retire(ids)
 
 
