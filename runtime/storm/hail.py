@@ -170,7 +170,7 @@ class SizeDistribution:
         if not (np.isfinite(self.r_min) and self.r_min > 0):
             raise ValueError(f"r_min must be a positive radius in metres, got {self.r_min!r}")
         if self.kind != "fixed" and not (np.isfinite(self.r_max) and self.r_max >= self.r_min):
-            raise ValueError(f"r_max must be >= r_min ({self.r_min}), got {self.r_max!r}")
+            raise ValueError(f"r_max must be a finite radius >= r_min ({self.r_min}), got {self.r_max!r}")
         if self.kind == "exponential" and not (np.isfinite(self.scale) and self.scale > 0):
             raise ValueError(f"scale must be positive, got {self.scale!r}")
 

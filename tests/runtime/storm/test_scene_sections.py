@@ -112,6 +112,7 @@ def test_sections_are_frozen_and_validate_on_their_own():
         (lambda: StormSettings(duration=-1.0), "duration must be a positive"),
         (lambda: StormSettings(wind=(1.0, 2.0)), "wind must be three"),
         (lambda: HailSettings(r_min=0.01, r_max=0.005), "r_max"),
+        (lambda: HailSettings(r_max=float("inf")), "r_max must be a finite radius"),
         (lambda: HailSettings(drag="yes"), "drag must be true or false"),
         (lambda: ContactSettings(restitution=1.5), "restitution"),
         (lambda: TimeSettings(integrator="rk4"), "integrator"),
