@@ -6,6 +6,8 @@
   stability of the integrators, degenerate contacts, P1 locking.
 * :mod:`hailstorm.studies.hertz_study` - patch contacts against Hertz on a graded
   half-space block: force-indentation, a stone at rest, a stone's impact.
+* :mod:`hailstorm.studies.record` - the header (command, date, commit, load) and the
+  atomic write of a measurement the documentation includes.
 
 They use both stages (:mod:`hailstorm.precompute`, :mod:`hailstorm.runtime`);
 neither stage imports them.

@@ -40,16 +40,15 @@ built or read from the cache), ``--mesh-size`` builds it at another size.
 from __future__ import annotations
 
 import argparse
-import os
 import shlex
-import subprocess
 import sys
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any, Callable, Sequence
 
 import numpy as np
+
+from hailstorm.studies import record
 
 __all__ = ["Cluster", "ClusterTree", "HMatrix", "Partition", "admissible", "admissible_blocks", "cluster_tree",
            "colour_lower_bound", "coloured_forms", "colouring", "compress", "contact_vectors", "dofs",
@@ -800,15 +799,8 @@ def _pct(x: float) -> str:
 
 
 def _header(argv: Sequence[str]) -> list[str]:
-    try:
-        commit = subprocess.run(["git", "-C", str(Path(__file__).resolve().parents[2]), "rev-parse", "--short",
-                                 "HEAD"], capture_output=True, text=True, timeout=30).stdout.strip() or "unknown"
-    except (OSError, subprocess.SubprocessError):
-        commit = "unknown"
     cmd = "python -m hailstorm.studies.compression_study " + " ".join(shlex.quote(a) for a in argv)
-    return [f"$ {cmd.strip()}",
-            f"# {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, git {commit}, load average "
-            + " ".join(f"{x:.2f}" for x in os.getloadavg())]
+    return [f"$ {cmd.strip()}", record.stamp()]
 
 
 def _load(args: argparse.Namespace) -> Any:
@@ -865,7 +857,7 @@ def main(argv: list[str] | None = None) -> None:
     with threadpool_limits(1):  # many small SVDs: one BLAS thread each is faster, and the machine is shared
         _study(gf, args, emit, t_start)
     if args.out:
-        Path(args.out).write_text("\n".join(lines) + "\n")
+        record.write(args.out, lines)
 
 
 def _study(gf: Any, args: argparse.Namespace, emit: Callable[..., None], t_start: float) -> None:

@@ -70,7 +70,9 @@ def main(argv: list[str] | None = None) -> None:
         print(s, flush=True)
         lines.append(s)
 
-    load0 = os.getloadavg()
+    from hailstorm.studies import record
+
+    stamp = record.stamp()  # date, commit, load before the runs
     rows = {True: [], False: []}
     with tempfile.TemporaryDirectory() as tmp:
         for i in range(args.pairs):
@@ -89,16 +91,8 @@ def main(argv: list[str] | None = None) -> None:
     say(_row("wall ratio, pair by pair", w[False] / w[True], "{:7.2f}"))
     say(_row("CPU ratio, pair by pair", c[False] / c[True], "{:7.2f}"))
     if args.out is not None:
-        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                                cwd=Path(__file__).resolve().parent).stdout.strip() or "unknown"
         cmd = "python tests/benchmarks/compile_helper.py" + (f" --pairs {args.pairs}" if args.pairs != 3 else "")
-        stamp = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
-        head = [f"$ {cmd}", f"# {stamp}, code of main {commit}, {os.cpu_count()} cores, load average before: "
-                f"{' '.join(f'{x:.2f}' for x in load0)}, after: {' '.join(f'{x:.2f}' for x in os.getloadavg())}", ""]
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        tmp_out = args.out.with_name(f".{args.out.name}.tmp")
-        tmp_out.write_text("\n".join(head + lines) + "\n")
-        os.replace(tmp_out, args.out)
+        record.write(args.out, [f"$ {cmd}", stamp, f"# load average after: {record.load_average()}", "", *lines])
 
 
 if __name__ == "__main__":

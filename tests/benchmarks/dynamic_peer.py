@@ -37,16 +37,11 @@ from __future__ import annotations
 import argparse
 import contextlib
 import io
-import os
 import shlex
-import subprocess
 import sys
-import tempfile
 import time
-from datetime import datetime, timezone
-from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[2]
+from hailstorm.studies import record
 
 
 def run_default_storm(gf_path: str | None = None):
@@ -97,32 +92,6 @@ def impact_spread(stats) -> list[str]:
     return lines
 
 
-def _load_average() -> str:
-    try:
-        return " ".join(f"{x:.2f}" for x in os.getloadavg())
-    except OSError:  # not on this platform
-        return "n/a"
-
-
-def _commit() -> str:
-    """``git rev-parse --short HEAD`` of the repository, followed by the tracked files that differ
-    from it outside ``docs/`` and ``notebooks/figures/`` (what this script writes does not change
-    what it measures); "unknown" outside a git checkout (read-only git calls)."""
-    try:
-        sha = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True,
-                             text=True, timeout=30, check=True).stdout.strip()
-        status = subprocess.run(["git", "-C", str(ROOT), "status", "--porcelain", "--untracked-files=no"],
-                                capture_output=True, text=True, timeout=30, check=True).stdout
-    except (OSError, subprocess.SubprocessError):
-        return "unknown"
-    changed = [line[3:] for line in status.splitlines()
-               if line[3:] and not line[3:].startswith(("docs/", "notebooks/figures/"))]
-    if not changed:
-        return sha
-    more = f" and {len(changed) - 5} more" if len(changed) > 5 else ""
-    return f"{sha} with uncommitted changes to {', '.join(changed[:5])}{more}"
-
-
 class _Tee(io.TextIOBase):
     """Writes to a stream and keeps a copy."""
 
@@ -150,21 +119,6 @@ def command_line(argv: list[str]) -> str:
     return shlex.join(["python", "tests/benchmarks/dynamic_peer.py", *keep])
 
 
-def write_atomically(path: str | os.PathLike, text: str) -> None:
-    """``text`` into ``path`` through a temporary file in the same folder and ``os.replace``."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
-        raise
-
-
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -185,17 +139,15 @@ def main(argv: list[str] | None = None) -> int:
 
     if args.out is None:
         return _run(args)
-    header = [f"$ {command_line(argv)}",
-              f"# {datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC, code of main {_commit()}, "
-              f"{os.cpu_count()} cores, load average before: {_load_average()}"]
+    header = [f"$ {command_line(argv)}", record.stamp()]
     print("\n".join(header), flush=True)
     tee, t0 = _Tee(sys.stdout), time.perf_counter()
     with contextlib.redirect_stdout(tee):
         rc = _run(args)
-    footer = f"# wall time {time.perf_counter() - t0:.0f} s; load average after: {_load_average()}"
+    footer = f"# wall time {time.perf_counter() - t0:.0f} s; load average after: {record.load_average()}"
     print(footer)
     body = tee.copy.getvalue()
-    write_atomically(args.out, "\n".join(header) + "\n" + body + ("" if body.endswith("\n") else "\n") + footer + "\n")
+    record.write(args.out, [*header, body.rstrip("\n"), footer])
     return rc
 
 

@@ -1,0 +1,60 @@
+"""The header of a measurement written for the documentation (``docs/_generated/*.txt``).
+
+Every script that prints a table the docs include writes, with ``--out FILE``, the
+command as a ``$`` line, then :func:`stamp` (UTC date, the code's commit, cores,
+load average), then what it printed; :func:`write` puts it in place atomically.
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+from datetime import datetime, timezone
+from pathlib import Path
+
+from hailstorm.runtime.bundle.atomic import write_text_atomic
+
+__all__ = ["commit", "load_average", "stamp", "write"]
+
+#: the repository the measurements describe
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def load_average() -> str:
+    """The 1, 5 and 15 minute load averages, or "n/a" where the platform has none."""
+    try:
+        return " ".join(f"{x:.2f}" for x in os.getloadavg())
+    except OSError:
+        return "n/a"
+
+
+def commit() -> str:
+    """``git rev-parse --short HEAD`` of the repository, followed by the tracked files that differ
+    from it outside ``docs/`` and ``notebooks/figures/`` (what the scripts write does not change
+    what they measure); "unknown" outside a git checkout (read-only git calls)."""
+    try:
+        sha = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"], capture_output=True,
+                             text=True, timeout=30, check=True).stdout.strip()
+        status = subprocess.run(["git", "-C", str(ROOT), "status", "--porcelain", "--untracked-files=no"],
+                                capture_output=True, text=True, timeout=30, check=True).stdout
+    except (OSError, subprocess.SubprocessError):
+        return "unknown"
+    changed = [line[3:] for line in status.splitlines()
+               if line[3:] and not line[3:].startswith(("docs/", "notebooks/figures/"))]
+    if not changed:
+        return sha
+    more = f" and {len(changed) - 5} more" if len(changed) > 5 else ""
+    return f"{sha} with uncommitted changes to {', '.join(changed[:5])}{more}"
+
+
+def stamp() -> str:
+    """``# <UTC date>, code of main at git <commit>, <n> cores, load average before: <load>``."""
+    return (f"# {datetime.now(timezone.utc):%Y-%m-%d %H:%M} UTC, code of main at git {commit()}, "
+            f"{os.cpu_count()} cores, load average before: {load_average()}")
+
+
+def write(path: str | os.PathLike, lines: list[str]) -> Path:
+    """The lines (a header and what was printed) into ``path`` (its folder created), atomically."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return write_text_atomic(path, "\n".join(lines).rstrip("\n") + "\n")
