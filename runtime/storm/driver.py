@@ -370,8 +370,8 @@ class Storm:
         ix = self.collision.index
         lo, hi = ix.bbox
         r = np.broadcast_to(radius, (pos.shape[0],))
-        over = ((pos[:, :2] >= lo[:2] - r[:, None]) & (pos[:, :2] <= hi[:2] + r[:, None])).all(axis=1)
-        inbox = np.flatnonzero(over & (pos[:, 2] - r <= hi[2]))
+        footprint = ((pos[:, :2] >= lo[:2] - r[:, None]) & (pos[:, :2] <= hi[:2] + r[:, None])).all(axis=1)
+        inbox = np.flatnonzero(footprint & (pos[:, 2] - r <= hi[2]))
         if inbox.size == 0:
             return
         reach = 2.0 * (float(np.linalg.norm(hi - lo)) + np.abs(pos[inbox, 2] - lo[2])) + 1e-9
