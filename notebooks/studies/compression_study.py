@@ -43,323 +43,29 @@ import argparse
 import shlex
 import sys
 import time
-from dataclasses import dataclass, field
 from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from hailstorm.precompute.hmatrix import (
+    Cluster,
+    ClusterTree,
+    Partition,
+    admissible,
+    admissible_blocks,
+    block_slices,
+    cluster_tree,
+    compress,
+    dofs,
+    permuted,
+    svd,
+)
 from hailstorm.studies import record
 
-__all__ = ["Cluster", "ClusterTree", "HMatrix", "Partition", "admissible", "admissible_blocks", "cluster_tree",
+__all__ = ["Cluster", "ClusterTree", "Partition", "admissible", "admissible_blocks", "cluster_tree",
            "colour_lower_bound", "coloured_forms", "colouring", "compress", "contact_vectors", "dofs",
            "force_errors", "main",
            "measure", "peeling_solves", "probe_error", "random_contacts"]
-
-
-# --------------------------------------------------------------------------
-# cluster tree and admissible blocks
-# --------------------------------------------------------------------------
-@dataclass
-class Cluster:
-    """A node of a :class:`ClusterTree`: the points ``tree.perm[start:stop]``.
-
-    Attributes
-    ----------
-    start, stop : int
-        Range in the tree's ordering.
-    lo, hi : ndarray, shape (3,)
-        Bounding box of the cluster's points.
-    level : int
-        Depth (the root is 0).
-    children : tuple of int
-        Indices of the two halves in ``tree.nodes`` (empty for a leaf).
-    """
-
-    start: int
-    stop: int
-    lo: np.ndarray
-    hi: np.ndarray
-    level: int
-    children: tuple[int, ...] = ()
-
-    @property
-    def size(self) -> int:
-        """Number of points."""
-        return self.stop - self.start
-
-    @property
-    def diam(self) -> float:
-        """Diagonal of the bounding box."""
-        return float(np.linalg.norm(self.hi - self.lo))
-
-
-@dataclass
-class ClusterTree:
-    """Binary cluster tree of a point set.
-
-    Attributes
-    ----------
-    perm : ndarray of int, shape (n,)
-        Tree order -> point index; every cluster is a contiguous range of it.
-    nodes : list of Cluster
-        ``nodes[0]`` is the root.
-    """
-
-    perm: np.ndarray
-    nodes: list[Cluster]
-
-    def leaves(self) -> list[int]:
-        """Indices of the leaves, in tree order."""
-        return [i for i, c in enumerate(self.nodes) if not c.children]
-
-    def indices(self, node: int) -> np.ndarray:
-        """Point indices of cluster ``node``."""
-        c = self.nodes[node]
-        return self.perm[c.start:c.stop]
-
-    @property
-    def depth(self) -> int:
-        """Largest level of a node."""
-        return max(c.level for c in self.nodes)
-
-
-def cluster_tree(points: np.ndarray, leaf: int = 32, split: str = "middle") -> ClusterTree:
-    """Recursive bisection of ``points`` along the longest axis of each cluster's bounding box.
-
-    Parameters
-    ----------
-    points : ndarray, shape (n, d)
-        Coordinates.
-    leaf : int
-        A cluster of at most ``leaf`` points is not split.
-    split : {"middle", "median"}
-        Where a cluster is cut: at the middle of its bounding box (geometric
-        bisection: clusters of one level have about one size in space, the
-        leaves from 1 to ``leaf`` points) or at the median point (halves of
-        sizes differing by at most one, leaves of ``leaf // 2`` to ``leaf``
-        points, their size in space set by the local density).
-
-    Returns
-    -------
-    ClusterTree
-        A cluster of coincident points is a leaf whatever its size.
-    """
-    P = np.asarray(points, dtype=float)
-    if P.ndim != 2 or len(P) == 0:
-        raise ValueError("points must be a non-empty (n, d) array")
-    if leaf < 1:
-        raise ValueError(f"leaf must be >= 1, got {leaf}")
-    if split not in ("middle", "median"):
-        raise ValueError(f"split must be 'middle' or 'median', got {split!r}")
-    perm = np.arange(len(P))
-    nodes = [Cluster(0, len(P), P.min(axis=0), P.max(axis=0), 0)]
-    stack = [0]
-    while stack:
-        i = stack.pop()
-        c = nodes[i]
-        axis = int(np.argmax(c.hi - c.lo))
-        if c.size <= leaf or c.hi[axis] <= c.lo[axis]:
-            continue
-        idx = perm[c.start:c.stop].copy()
-        order = np.argsort(P[idx, axis], kind="stable")
-        perm[c.start:c.stop] = idx[order]
-        if split == "median":
-            half = c.size // 2
-        else:
-            half = int(np.searchsorted(P[idx[order], axis], 0.5 * (c.lo[axis] + c.hi[axis]), side="right"))
-        kids = []
-        for a, b in ((c.start, c.start + half), (c.start + half, c.stop)):
-            q = P[perm[a:b]]
-            nodes.append(Cluster(a, b, q.min(axis=0), q.max(axis=0), c.level + 1))
-            kids.append(len(nodes) - 1)
-        c.children = tuple(kids)
-        stack.extend(kids)
-    return ClusterTree(perm, nodes)
-
-
-def _box_distance(a: Cluster, b: Cluster) -> float:
-    gap = np.maximum(0.0, np.maximum(a.lo - b.hi, b.lo - a.hi))
-    return float(np.linalg.norm(gap))
-
-
-def admissible(a: Cluster, b: Cluster, eta: float) -> bool:
-    """``min(diam a, diam b) <= eta * dist(a, b)`` on bounding boxes, with a positive distance."""
-    d = _box_distance(a, b)
-    return d > 0.0 and min(a.diam, b.diam) <= eta * d
-
-
-@dataclass
-class Partition:
-    """The leaves of a block cluster tree.
-
-    Attributes
-    ----------
-    far : list of (int, int, int)
-        Admissible blocks ``(row node, column node, level)``: low rank.
-    near : list of (int, int, int)
-        Inadmissible leaves (a row or column leaf): dense.
-    visited : dict of int to list of (int, int)
-        Every block pair the recursion reached, by level (what peeling must
-        separate at that level).
-    """
-
-    far: list[tuple[int, int, int]] = field(default_factory=list)
-    near: list[tuple[int, int, int]] = field(default_factory=list)
-    visited: dict[int, list[tuple[int, int]]] = field(default_factory=dict)
-
-
-def admissible_blocks(rows: ClusterTree, cols: ClusterTree, eta: float) -> Partition:
-    """Split ``rows x cols`` into admissible (far) and dense (near) blocks.
-
-    Starting from the two roots: an admissible pair is a far block; otherwise,
-    if either is a leaf, a near block; otherwise the four pairs of children.
-
-    Parameters
-    ----------
-    rows, cols : ClusterTree
-    eta : float
-        Admissibility parameter (:func:`admissible`).
-
-    Returns
-    -------
-    Partition
-        Its blocks cover every (row, column) pair exactly once.
-    """
-    part = Partition()
-    stack = [(0, 0, 0)]
-    while stack:
-        i, j, lev = stack.pop()
-        part.visited.setdefault(lev, []).append((i, j))
-        a, b = rows.nodes[i], cols.nodes[j]
-        if admissible(a, b, eta):
-            part.far.append((i, j, lev))
-        elif not a.children or not b.children:
-            part.near.append((i, j, lev))
-        else:
-            stack.extend((ci, cj, lev + 1) for ci in a.children for cj in b.children)
-    return part
-
-
-def dofs(vertices: np.ndarray) -> np.ndarray:
-    """The three dofs (x, y, z) of each vertex, vertex-major."""
-    v = np.asarray(vertices, dtype=np.intp)
-    return (3 * v[:, None] + np.arange(3)).ravel()
-
-
-def _permuted(A: np.ndarray, rows: ClusterTree, cols: ClusterTree) -> np.ndarray:
-    return np.ascontiguousarray(np.asarray(A)[np.ix_(dofs(rows.perm), dofs(cols.perm))])
-
-
-def _slices(rows: ClusterTree, cols: ClusterTree, i: int, j: int) -> tuple[slice, slice]:
-    a, b = rows.nodes[i], cols.nodes[j]
-    return slice(3 * a.start, 3 * a.stop), slice(3 * b.start, 3 * b.stop)
-
-
-def _svd(B: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    import scipy.linalg
-
-    try:
-        return scipy.linalg.svd(B, full_matrices=False, lapack_driver="gesdd", check_finite=False)
-    except np.linalg.LinAlgError:  # gesdd can fail to converge; gesvd is slower and sturdier
-        return scipy.linalg.svd(B, full_matrices=False, lapack_driver="gesvd", check_finite=False)
-
-
-def _truncation_rank(s: np.ndarray, tol: float) -> int:
-    """Smallest k with ``||s[k:]|| <= tol * ||s||`` (sum of the tail's squares from the small end)."""
-    tail = np.concatenate([np.cumsum((s * s)[::-1])[::-1], [0.0]])
-    return int(np.argmax(tail <= tol * tol * tail[0]))
-
-
-# --------------------------------------------------------------------------
-# compression
-# --------------------------------------------------------------------------
-@dataclass
-class HMatrix:
-    """An H-matrix: dense near blocks and low-rank far blocks ``U @ V.T``.
-
-    Attributes
-    ----------
-    shape : (int, int)
-        Of the matrix it stands for, in the original (vertex-major) dof order.
-    row_dofs, col_dofs : ndarray of int
-        Tree order -> original dof, rows and columns.
-    blocks : list of (slice, slice, ndarray, ndarray or None)
-        ``(rows, cols, U, V)`` in tree order: a far block is ``U @ V.T``; a
-        near block (or a far one whose factors would be larger) is ``U`` with
-        ``V`` None.
-    ranks : list of int
-        Truncation rank of each far block, in :attr:`Partition.far` order.
-    """
-
-    shape: tuple[int, int]
-    row_dofs: np.ndarray
-    col_dofs: np.ndarray
-    blocks: list[tuple[slice, slice, np.ndarray, np.ndarray | None]]
-    ranks: list[int]
-
-    @property
-    def stored(self) -> int:
-        """Numbers stored (factors or dense entries)."""
-        return int(sum(U.size + (0 if V is None else V.size) for _, _, U, V in self.blocks))
-
-    def to_dense(self) -> np.ndarray:
-        """The matrix it stands for, dense, in the original dof order."""
-        M = np.zeros(self.shape)
-        Mp = np.zeros(self.shape)
-        for r, c, U, V in self.blocks:
-            Mp[r, c] = U if V is None else U @ V.T
-        M[np.ix_(self.row_dofs, self.col_dofs)] = Mp
-        return M
-
-    def matvec(self, x: np.ndarray) -> np.ndarray:
-        """``H @ x`` for a vector in the original column order."""
-        xp = np.asarray(x, dtype=float)[self.col_dofs]
-        yp = np.zeros(self.shape[0])
-        for r, c, U, V in self.blocks:
-            yp[r] += U @ xp[c] if V is None else U @ (V.T @ xp[c])
-        y = np.zeros(self.shape[0])
-        y[self.row_dofs] = yp
-        return y
-
-
-def compress(A: np.ndarray, rows: ClusterTree, cols: ClusterTree, part: Partition, tol: float) -> HMatrix:
-    """Compress ``A`` on the partition ``part``: far blocks by truncated SVD, near blocks dense.
-
-    Parameters
-    ----------
-    A : ndarray, shape (3 n_rows, 3 n_cols)
-        Vertex-major in the points of ``rows`` and ``cols`` (entry ``(3i+a, 3j+b)``).
-    rows, cols : ClusterTree
-    part : Partition
-        From :func:`admissible_blocks` on ``rows``, ``cols``.
-    tol : float
-        Each far block ``B`` is truncated to the smallest rank with
-        ``||B - B_k||_F <= tol ||B||_F``, so ``||A - H||_F <= tol ||A||_F``
-        (``tol = 0``: exact to rounding).
-
-    Returns
-    -------
-    HMatrix
-    """
-    if tol < 0:
-        raise ValueError(f"tol must be >= 0, got {tol}")
-    Ap = _permuted(A, rows, cols)
-    blocks: list[tuple[slice, slice, np.ndarray, np.ndarray | None]] = []
-    ranks = []
-    for i, j, _ in part.far:
-        r, c = _slices(rows, cols, i, j)
-        B = Ap[r, c]
-        U, s, Vt = _svd(B)
-        k = _truncation_rank(s, tol)
-        ranks.append(k)
-        if k * (B.shape[0] + B.shape[1]) < B.size:
-            blocks.append((r, c, U[:, :k] * s[:k], Vt[:k].T.copy()))
-        else:
-            blocks.append((r, c, (U[:, :k] * s[:k]) @ Vt[:k], None))
-    for i, j, _ in part.near:
-        r, c = _slices(rows, cols, i, j)
-        blocks.append((r, c, Ap[r, c].copy(), None))
-    return HMatrix(tuple(np.shape(A)), dofs(rows.perm), dofs(cols.perm), blocks, ranks)
 
 
 def measure(A: np.ndarray, rows: ClusterTree, cols: ClusterTree, part: Partition, tols: Sequence[float],
@@ -380,13 +86,14 @@ def measure(A: np.ndarray, rows: ClusterTree, cols: ClusterTree, part: Partition
     list of dict
         Per tolerance: ``tol``, ``far``, ``near`` (block counts), ``stored``,
         ``dense`` (numbers), ``near_stored`` (numbers in dense blocks),
-        ``ranks`` and ``levels`` (per far block), ``frob`` (``||A - H||_F /
+        ``ranks``, ``factored`` (stored as factors, else dense and exact) and
+        ``levels`` (per far block), ``frob`` (``||A - H||_F /
         ||A||_F``), ``col_err`` (per column, ``||(A - H) e_j|| / ||A e_j||``;
         0 for a zero column), and with probes ``W`` = ``Gr^T A Gc`` and
         ``W_H`` = ``Gr^T H Gc`` (``(P, P)``: single contacts on the diagonal,
         their couplings off it).
     """
-    Ap = _permuted(A, rows, cols)
+    Ap = permuted(A, rows, cols)
     m, n = Ap.shape
     col_norm2 = np.einsum("ij,ij->j", Ap, Ap)
     total2 = float(col_norm2.sum())
@@ -395,6 +102,7 @@ def measure(A: np.ndarray, rows: ClusterTree, cols: ClusterTree, part: Partition
     col_err2 = np.zeros((T, n))
     stored = np.zeros(T, dtype=np.int64)
     ranks = np.zeros((T, len(part.far)), dtype=np.int64)
+    factored = np.zeros((T, len(part.far)), dtype=bool)
     probes = Gr is not None and Gc is not None
     if probes:
         Grp = np.asarray(Gr)[dofs(rows.perm)]
@@ -403,9 +111,9 @@ def measure(A: np.ndarray, rows: ClusterTree, cols: ClusterTree, part: Partition
         P = W.shape[0]
         WE = np.zeros((T, P, P))
     for b, (i, j, _) in enumerate(part.far):
-        r, c = _slices(rows, cols, i, j)
+        r, c = block_slices(rows, cols, i, j)
         B = Ap[r, c]
-        U, s, Vt = _svd(B)
+        U, s, Vt = svd(B)
         s2 = s * s
         tail = np.concatenate([np.cumsum(s2[::-1])[::-1], [0.0]])
         ctail = np.vstack([np.cumsum((s2[:, None] * Vt * Vt)[::-1], axis=0)[::-1], np.zeros((1, Vt.shape[1]))])
@@ -418,14 +126,18 @@ def measure(A: np.ndarray, rows: ClusterTree, cols: ClusterTree, part: Partition
         for t, tol in enumerate(tols):
             k = int(np.argmax(tail <= tol * tol * tail[0]))
             ranks[t, b] = k
-            stored[t] += min(k * (B.shape[0] + B.shape[1]), B.size)
+            factored[t, b] = k * (B.shape[0] + B.shape[1]) < B.size
+            if not factored[t, b]:  # kept dense, and exact (as compress keeps it)
+                stored[t] += B.size
+                continue
+            stored[t] += k * (B.shape[0] + B.shape[1])
             err2[t] += tail[k]
             col_err2[t, c] += ctail[k]
             if probes and lr.size and lc.size:
                 WE[t][np.ix_(lr, lc)] += a[k:].T @ bb[k:]
     near_stored = 0
     for i, j, _ in part.near:
-        r, c = _slices(rows, cols, i, j)
+        r, c = block_slices(rows, cols, i, j)
         near_stored += (r.stop - r.start) * (c.stop - c.start)
     inv = np.zeros(n, dtype=np.intp)
     inv_dofs = dofs(cols.perm)
@@ -436,7 +148,8 @@ def measure(A: np.ndarray, rows: ClusterTree, cols: ClusterTree, part: Partition
     for t, tol in enumerate(tols):
         res: dict[str, Any] = {
             "tol": float(tol), "far": len(part.far), "near": len(part.near), "stored": int(stored[t] + near_stored),
-            "dense": int(m * n), "near_stored": int(near_stored), "ranks": ranks[t], "levels": levels,
+            "dense": int(m * n), "near_stored": int(near_stored), "ranks": ranks[t], "factored": factored[t],
+            "levels": levels,
             "frob": float(np.sqrt(err2[t] / total2)) if total2 > 0 else 0.0,
             "col_err": np.sqrt(col_err2[t] / safe)[inv] * (col_norm2[inv] > 0),
         }

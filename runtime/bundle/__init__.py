@@ -13,6 +13,9 @@ One folder for everything both stages agree on, each module one seam:
 * :mod:`~hailstorm.runtime.bundle.compliance` -- the compliance source:
   ``compliance(rows, cols)`` as the runtime reads it (dof indices, blocks of D,
   products with its columns);
+* :mod:`~hailstorm.runtime.bundle.hmatrix` -- a compressed D as stored
+  (format 3): dense near blocks, low-rank far blocks, its columns and products
+  (built by :mod:`hailstorm.precompute.hmatrix`);
 * :mod:`~hailstorm.runtime.bundle.stamps` -- "verified and unchanged since"
   stamps and the cache directory;
 * :mod:`~hailstorm.runtime.bundle.atomic` -- atomic file replacement.

@@ -57,11 +57,16 @@ __all__ = [
     "COMPLIANCE_DTYPES",
     "FORMAT_NAME",
     "FORMAT_VERSION",
+    "HMATRIX_ARRAY_SPECS",
+    "HMATRIX_FORMAT_VERSION",
+    "READ_VERSIONS",
     "MANIFEST",
     "MANIFEST_HASH",
     "BundleError",
     "RoundedBlock",
     "array_hash",
+    "array_specs",
+    "bundle_files",
     "check_compliance_dtype",
     "check_manifest",
     "compliance_dtype",
@@ -75,6 +80,11 @@ __all__ = [
 
 FORMAT_NAME = "hailstorm-greens-bundle"
 FORMAT_VERSION = 2
+#: the format of a bundle whose D is stored compressed (:mod:`hailstorm.runtime.bundle.hmatrix`):
+#: a reader of format 2 only refuses it by its version, never reads a wrong D
+HMATRIX_FORMAT_VERSION = 3
+#: the format versions this reader reads
+READ_VERSIONS = (FORMAT_VERSION, HMATRIX_FORMAT_VERSION)
 MANIFEST = "manifest.json"
 #: manifest entry holding the SHA-256 of the rest of the manifest
 MANIFEST_HASH = "manifest_sha256"
@@ -100,8 +110,29 @@ ARRAY_SPECS: dict[str, tuple[str, int]] = {
 COMPLIANCE_DTYPES: dict[str, np.dtype] = {"float64": np.dtype(np.float64), "float32": np.dtype(np.float32)}
 
 
-#: Every file a bundle writer writes into a bundle directory.
-BUNDLE_FILES = frozenset({MANIFEST, *(f"{name}.npy" for name in ARRAY_SPECS)})
+#: The arrays of a compressed (format 3) bundle: D's H-matrix in place of ``compliance``.
+HMATRIX_ARRAY_SPECS: dict[str, tuple[str, int]] = {
+    **{k: v for k, v in ARRAY_SPECS.items() if k != "compliance"},
+    "hmatrix_rows": ("i", 1),
+    "hmatrix_cols": ("i", 1),
+    "hmatrix_blocks": ("i", 2),
+    "hmatrix_data": ("f", 1),
+}
+
+
+
+def array_specs(version: int) -> dict[str, tuple[str, int]]:
+    """The arrays (name -> dtype kind, ndim) of a bundle of format ``version``."""
+    return HMATRIX_ARRAY_SPECS if version == HMATRIX_FORMAT_VERSION else ARRAY_SPECS
+
+
+def bundle_files(version: int) -> frozenset[str]:
+    """The files of a complete bundle of format ``version``."""
+    return frozenset({MANIFEST, *(f"{name}.npy" for name in array_specs(version))})
+
+
+#: Every file a bundle writer writes into a bundle directory (dense or compressed).
+BUNDLE_FILES = bundle_files(FORMAT_VERSION) | bundle_files(HMATRIX_FORMAT_VERSION)
 
 
 class BundleError(ValueError):
@@ -259,8 +290,21 @@ def check_manifest(manifest: Any, m: Path) -> None:
             raise BundleError(f"{m}: manifest entry {k!r} is {manifest[k]!r}, expected an object; the bundle is damaged")
     for k in manifest.get("timings_s", {}):
         need(manifest["timings_s"], k, (int, float), "timings_s.", _is_number, "a number of seconds")
+    if manifest.get("format_version") == HMATRIX_FORMAT_VERSION:
+        comp = need(manifest, "compliance", dict, "", what="an object describing the compressed D")
+        need(comp, "storage", str, "compliance.", lambda v: v == "hmatrix", "'hmatrix'")
+        need(comp, "shape", list, "compliance.", lambda v: len(v) == 2 and all(
+            isinstance(n, int) and not isinstance(n, bool) and n >= 0 for n in v), "two sizes")
+        for k in ("tol", "stored_bytes", "dense_bytes", "far_blocks", "blocks", "max_rank"):
+            need(comp, k, (int, float), "compliance.", _is_number, "a finite number")
+        error = need(comp, "error", dict, "compliance.", what="an object")
+        for k in ("columns", "max", "median"):
+            need(error, k, (int, float), "compliance.error.", _is_number, "a finite number")
+        if "options" in manifest and "dtype" in manifest["options"]:
+            raise BundleError(f"{m}: a compressed bundle stores D in float64; its manifest names options.dtype; "
+                              "the bundle is damaged")
     arrays = need(manifest, "arrays", dict, "", what="an object listing the arrays")
-    for name in ARRAY_SPECS:
+    for name in array_specs(manifest.get("format_version")):
         entry = need(arrays, name, dict, "arrays.", what="an object")
         where = f"arrays.{name}."
         need(entry, "file", str, where, _plain_name, "a file name inside the bundle")
@@ -336,10 +380,14 @@ def read_manifest(path: str | os.PathLike) -> dict[str, Any]:
                           "it is not a hailstorm bundle manifest, or the bundle is damaged")
     if manifest.get("format") != FORMAT_NAME:
         raise BundleError(f"{m} is not a hailstorm bundle manifest (format={manifest.get('format')!r})")
-    if manifest.get("format_version") != FORMAT_VERSION:
+    version = manifest.get("format_version")
+    if version not in READ_VERSIONS:
+        newer = isinstance(version, int) and not isinstance(version, bool) and version > max(READ_VERSIONS)
         raise BundleError(
-            f"bundle {path} has format version {manifest.get('format_version')!r}; "
-            f"this hailstorm reads version {FORMAT_VERSION}. Re-run `hailstorm precompute`."
+            f"bundle {path} has format version {version!r}; this hailstorm reads versions "
+            f"{' and '.join(map(str, READ_VERSIONS))}. "
+            + ("A newer hailstorm wrote it: upgrade hailstorm to read it." if newer
+               else "Re-run `hailstorm precompute`.")
         )
     check_manifest(manifest, m)
     if manifest_hash(manifest) != manifest[MANIFEST_HASH]:
@@ -372,7 +420,7 @@ def read_arrays(path: str | os.PathLike, *, verify: bool = True, mmap: bool = Tr
     manifest = read_manifest(path)
     entries = manifest["arrays"]
     data: dict[str, np.ndarray] = {}
-    for name, (kind, ndim) in ARRAY_SPECS.items():
+    for name, (kind, ndim) in array_specs(manifest["format_version"]).items():
         entry = entries[name]
         f = path / entry["file"]
         if not f.is_file():
@@ -398,6 +446,8 @@ def read_arrays(path: str | os.PathLike, *, verify: bool = True, mmap: bool = Tr
             raise BundleError(f"bundle {path}: {name} has dtype kind {a.dtype.kind}/ndim {a.ndim}, expected {kind}/{ndim}")
         if name == "compliance":
             check_compliance_dtype(manifest, a.dtype, path)
+        if name == "hmatrix_data" and a.dtype != np.float64:
+            raise BundleError(f"bundle {path}: {name} is {a.dtype}, expected float64")
         if verify and (rehash or not is_stamped(f, entry["sha256"])):
             digest, bad = scan_array(a)
             if digest != entry["sha256"]:
@@ -405,6 +455,6 @@ def read_arrays(path: str | os.PathLike, *, verify: bool = True, mmap: bool = Tr
             if bad:
                 raise BundleError(f"bundle {path}: {name} holds {bad} non-finite (NaN or inf) values")
             stamp(f, entry["sha256"])
-        data[name] = a if name == "compliance" else np.asarray(a)
+        data[name] = a if name in ("compliance", "hmatrix_data") else np.asarray(a)
 
     return manifest, data

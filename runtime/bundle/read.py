@@ -2,7 +2,8 @@
 
 A bundle's files and manifest are :mod:`hailstorm.runtime.bundle.format`; it is
 written by :func:`hailstorm.runtime.bundle.write.write_bundle`, and
-:func:`convert_bundle` writes a copy with D in another storage type. This
+:func:`convert_bundle` writes a copy with D in another storage type
+(:func:`hailstorm.precompute.hmatrix.compress_bundle` a compressed one). This
 module depends on numpy alone (no gmsh, no scikit-fem).
 """
 
@@ -16,10 +17,12 @@ from typing import Any
 import numpy as np
 
 from hailstorm.runtime.bundle.format import (
+    HMATRIX_FORMAT_VERSION,
     BundleError,
     is_bundle,
     read_arrays,
 )
+from hailstorm.runtime.bundle.hmatrix import HMatrix
 from hailstorm.runtime.bundle.compliance import apply_columns, column_dofs, dof3, gather
 
 __all__ = ["GreensFunctions", "load", "stranded_copies", "vertex_normals"]
@@ -54,6 +57,11 @@ class GreensFunctions:
         float64 blocks.
     manifest : dict
         Everything the offline stage recorded (options, key, timings).
+    hmatrix : HMatrix or None
+        A compressed bundle's stored D (format 3: an H-matrix within
+        ``manifest["compliance"]["tol"]`` of the exact D per column); None for a
+        dense bundle. :attr:`D` is then its dense expansion, in memory (float64):
+        the compression saves the bundle's bytes on disk, not the runtime's memory.
     """
 
     path: Path
@@ -69,6 +77,7 @@ class GreensFunctions:
     D: np.ndarray = field(repr=False)
     #: column block of D for each surface vertex, -1 where not contactable
     column_of: np.ndarray = field(repr=False)
+    hmatrix: HMatrix | None = field(default=None, repr=False)
 
     @property
     def young(self) -> float:
@@ -254,6 +263,13 @@ def load(path: str | os.PathLike, *, verify: bool = True, mmap: bool = True, reh
 
     n = data["vertices"].shape[0]
     nc = int(data["contactable"].sum())
+    hmatrix = None
+    if manifest["format_version"] == HMATRIX_FORMAT_VERSION:
+        try:
+            hmatrix = HMatrix.from_arrays(tuple(manifest["compliance"]["shape"]), data)
+        except ValueError as exc:
+            raise BundleError(f"bundle {path} is inconsistent: {exc}") from None
+        data["compliance"] = hmatrix.to_dense()
     problems = []
     if data["vertices"].shape[1] != 3:
         problems.append("vertices is not (n, 3)")
@@ -286,4 +302,5 @@ def load(path: str | os.PathLike, *, verify: bool = True, mmap: bool = True, reh
         surface_nodes=data["surface_nodes"],
         D=data["compliance"],
         column_of=column_of,
+        hmatrix=hmatrix,
     )

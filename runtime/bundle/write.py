@@ -50,9 +50,13 @@ from hailstorm.runtime.bundle.format import (
     COMPLIANCE_DTYPES,
     FORMAT_NAME,
     FORMAT_VERSION,
+    HMATRIX_FORMAT_VERSION,
     MANIFEST,
     MANIFEST_HASH,
     BundleError,
+    READ_VERSIONS,
+    array_specs,
+    bundle_files,
     check_compliance_dtype,
     check_manifest,
     is_bundle,
@@ -294,7 +298,8 @@ def check_replaceable(out: str | os.PathLike) -> None:
             f"--out {out} holds files that are not part of a hailstorm bundle ({shown}); "
             "refusing to replace it (move them away, or choose another directory)"
         )
-    missing = sorted(BUNDLE_FILES - {e.name for e in entries})
+    names = {e.name for e in entries}
+    missing = min((sorted(bundle_files(v) - names) for v in READ_VERSIONS), key=len)  # of the nearer layout
     if missing or not is_bundle(out):
         raise BundleError(
             f"--out {out} is not a complete hailstorm bundle ("
@@ -351,7 +356,9 @@ def write_bundle(
         one ``out`` take turns (:func:`bundle_lock`); temporaries left by a
         killed writer are removed first.
     arrays
-        Every array named in :data:`ARRAY_SPECS`; floating-point arrays must be
+        Every array named in :data:`ARRAY_SPECS` (a dense bundle, format 2) or in
+        :data:`HMATRIX_ARRAY_SPECS` (D stored as an H-matrix, format 3; chosen by
+        the presence of ``hmatrix_data``); floating-point arrays must be
         finite. A :class:`StagedArray` is moved into the bundle as it is (and
         moved back if the bundle cannot be completed).
     manifest
@@ -365,16 +372,19 @@ def write_bundle(
         The bundle directory.
     """
     out = Path(out).absolute()
-    missing = set(ARRAY_SPECS) - set(arrays)
+    version = HMATRIX_FORMAT_VERSION if "compliance" not in arrays and "hmatrix_data" in arrays else FORMAT_VERSION
+    specs = array_specs(version)
+    missing = set(specs) - set(arrays)
     if missing:
         raise BundleError(f"cannot write bundle: arrays missing: {sorted(missing)}")
-    d_in = arrays["compliance"]
-    # before any hashing: D's storage type and the manifest agree (a staged D names its own)
-    dtype = np.dtype(d_in.dtype) if isinstance(d_in, StagedArray) else np.asarray(d_in).dtype
-    check_compliance_dtype({"options": manifest.get("options") or {}, "arrays": {"compliance": {"dtype": dtype.str}}},
-                            dtype, out)
+    if version == FORMAT_VERSION:
+        d_in = arrays["compliance"]
+        # before any hashing: D's storage type and the manifest agree (a staged D names its own)
+        dtype = np.dtype(d_in.dtype) if isinstance(d_in, StagedArray) else np.asarray(d_in).dtype
+        check_compliance_dtype({"options": manifest.get("options") or {},
+                                "arrays": {"compliance": {"dtype": dtype.str}}}, dtype, out)
     prepared = {}
-    for name in ARRAY_SPECS:
+    for name in specs:
         if isinstance(arrays[name], StagedArray):
             prepared[name] = (arrays[name], arrays[name].sha256)
             continue
@@ -407,7 +417,7 @@ def write_bundle(
                                  "bytes": size}
             full = dict(manifest)
             full.pop(MANIFEST_HASH, None)
-            full.update(format=FORMAT_NAME, format_version=FORMAT_VERSION, arrays=entries)
+            full.update(format=FORMAT_NAME, format_version=version, arrays=entries)
             full[MANIFEST_HASH] = manifest_hash(full)
             check_manifest(full, out / MANIFEST)  # never write a bundle that load would refuse
             with open(tmp / MANIFEST, "w") as fh:
@@ -534,6 +544,8 @@ def convert_bundle(
     out = Path(out).absolute()
     check_writable(out.parent)
     gf = load(src, verify=True)
+    if gf.hmatrix is not None:
+        raise BundleError(f"{gf.path} stores D compressed (an H-matrix in float64); convert its dense source")
     D = gf.D
     name, source = names[target], names[D.dtype]
     cast = np.empty(D.shape, dtype=target, order="F")

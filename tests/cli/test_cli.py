@@ -145,3 +145,26 @@ def test_backend_option_is_gone(tmp_path):
     assert run.returncode == 3 and "Traceback" not in run.stderr
     assert "[compute]" in run.stderr and "remove" in run.stderr and len(run.stderr.strip().splitlines()) == 1
     assert not (tmp_path / "o").exists()
+
+
+def test_precompute_tol_stores_d_compressed_and_info_prints_its_error(tmp_path):
+    out = tmp_path / "gf"
+    run = run_cli("precompute", "--mesh-size", 0.015, "--order", 1, "--load", "point", "--tol", 1e-3,
+                  "--out", out, "-q")
+    assert run.returncode == 0, run.stderr
+    gf = hailstorm.runtime.load(out)
+    assert gf.manifest["format_version"] == 3 and gf.manifest["compliance"]["tol"] == 1e-3
+    info = run_cli("info", out).stdout
+    err = gf.manifest["compliance"]["error"]
+    assert "as an H-matrix" in info
+    assert f"tol 0.001: measured against {err['columns']} exact columns" in info
+    assert f"max {err['max']:.2e}" in info
+
+
+@pytest.mark.parametrize("tol", ["0.5", "0", "-1e-3", "nan"])
+def test_precompute_tol_out_of_range_is_one_line_exit_3(tmp_path, tol):
+    run = run_cli("precompute", "--mesh-size", 0.015, "--order", 1, f"--tol={tol}", "--out", tmp_path / "b",
+                  check=False)
+    assert run.returncode == 3, run.stderr
+    assert run.stderr.count("\n") == 1 and "compression tolerance" in run.stderr and "[1e-12, 0.1]" in run.stderr
+    assert not (tmp_path / "b").exists()

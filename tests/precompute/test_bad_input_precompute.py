@@ -27,11 +27,12 @@ from hailstorm.precompute.geometry import MeshError, TetMesh, check_clamped, che
 from hailstorm.runtime.bundle.read import load
 from hailstorm.runtime.bundle.format import (
     ARRAY_SPECS,
-    BUNDLE_FILES,
+    FORMAT_VERSION,
     MANIFEST,
     MANIFEST_HASH,
     BundleError,
     array_hash,
+    bundle_files,
     manifest_hash,
 )
 from hailstorm.runtime.bundle.write import bundle_lock, clean_stale_temporaries
@@ -412,7 +413,7 @@ def test_writing_a_manifest_load_would_refuse_is_refused(box_bundle, tmp_path):
 def test_rebuilding_replaces_a_bundle_but_never_user_files(small_box, tmp_path):
     out = build_bundle(tmp_path / "b", mesh=small_box, young=1e6)
     build_bundle(out, mesh=small_box, young=2e6)  # a bundle of bundle files: replaced
-    assert load(out).young == 2e6 and set(os.listdir(out)) == BUNDLE_FILES
+    assert load(out).young == 2e6 and set(os.listdir(out)) == bundle_files(FORMAT_VERSION)
     (out / "NOTES.txt").write_text("mine")
     with pytest.raises(BundleError, match=r"\(NOTES.txt\)"):
         build_bundle(out, mesh=small_box, young=3e6)

@@ -1,0 +1,509 @@
+"""Compressing the compliance: cluster trees, admissible blocks and the H-matrix of a bundle's D.
+
+The construction side of :mod:`hailstorm.runtime.bundle.hmatrix` (which stores and
+evaluates the result):
+
+* :func:`cluster_tree` -- recursive bisection of the vertices (leaves of at most
+  ``leaf`` vertices); every cluster is a contiguous range of the tree's order;
+* :func:`admissible_blocks` -- the block partition: a pair of clusters with
+  ``min(diam) <= eta * dist`` (bounding boxes) is a far block, a pair with a
+  leaf that is not is a near block, any other pair is split into its children;
+* :func:`compress` -- a matrix on that partition: far blocks truncated by SVD to
+  a relative Frobenius tolerance per block (kept dense where the factors would
+  be larger), near blocks dense;
+* :func:`compress_compliance` -- the H-matrix of a bundle's D (rows: every
+  surface vertex, columns: the contactable ones) at a target column error,
+  measured on exact columns drawn at random (:func:`column_errors`);
+* :func:`compress_bundle` -- a compressed copy of a dense bundle (format 3).
+
+Its source is the dense D, read block by block (a memory-mapped bundle's D is
+read once per far and near block, never whole): the construction saves the
+stored bytes (:doc:`scale`), not the solves.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import logging
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from hailstorm.runtime.bundle.format import ARRAY_SPECS, MANIFEST_HASH, BundleError
+from hailstorm.runtime.bundle.hmatrix import HMatrix
+from hailstorm.runtime.bundle.read import GreensFunctions, load
+from hailstorm.runtime.bundle.write import check_writable, write_bundle
+
+__all__ = [
+    "DEFAULT_ETA",
+    "DEFAULT_LEAF",
+    "ERROR_COLUMNS",
+    "TOL_RANGE",
+    "Cluster",
+    "ClusterTree",
+    "Partition",
+    "admissible",
+    "admissible_blocks",
+    "block_slices",
+    "Compressed",
+    "check_tol",
+    "cluster_tree",
+    "column_errors",
+    "compress",
+    "compress_bundle",
+    "compress_compliance",
+    "compressed_key",
+    "dofs",
+    "permuted",
+    "svd",
+    "truncation_rank",
+]
+
+log = logging.getLogger("hailstorm.precompute")
+
+#: admissibility of the stored H-matrix: 4.5-11x fewer numbers than D on the seat at 6-3 mm,
+#: every column within 1 % (docs/_generated/compression_*.txt)
+DEFAULT_ETA = 2.0
+#: vertices per leaf cluster (96 dofs): the near blocks stay small, the tree shallow
+DEFAULT_LEAF = 32
+#: exact columns drawn at random to measure a compressed D's error (all of them when fewer)
+ERROR_COLUMNS = 200
+#: the target column errors --tol accepts: below 1e-12 rounding is the error, above 0.1 a
+#: contact's stiffness is no longer the one the seat has
+TOL_RANGE = (1e-12, 0.1)
+#: halvings of the per-block truncation when the measured column error misses the target
+RETRIES = 4
+
+
+# --------------------------------------------------------------------------
+# cluster tree and admissible blocks
+# --------------------------------------------------------------------------
+@dataclass
+class Cluster:
+    """A node of a :class:`ClusterTree`: the points ``tree.perm[start:stop]``.
+
+    Attributes
+    ----------
+    start, stop : int
+        Range in the tree's ordering.
+    lo, hi : ndarray, shape (3,)
+        Bounding box of the cluster's points.
+    level : int
+        Depth (the root is 0).
+    children : tuple of int
+        Indices of the two halves in ``tree.nodes`` (empty for a leaf).
+    """
+
+    start: int
+    stop: int
+    lo: np.ndarray
+    hi: np.ndarray
+    level: int
+    children: tuple[int, ...] = ()
+
+    @property
+    def size(self) -> int:
+        """Number of points."""
+        return self.stop - self.start
+
+    @property
+    def diam(self) -> float:
+        """Diagonal of the bounding box."""
+        return float(np.linalg.norm(self.hi - self.lo))
+
+
+@dataclass
+class ClusterTree:
+    """Binary cluster tree of a point set.
+
+    Attributes
+    ----------
+    perm : ndarray of int, shape (n,)
+        Tree order -> point index; every cluster is a contiguous range of it.
+    nodes : list of Cluster
+        ``nodes[0]`` is the root.
+    """
+
+    perm: np.ndarray
+    nodes: list[Cluster]
+
+    def leaves(self) -> list[int]:
+        """Indices of the leaves, in tree order."""
+        return [i for i, c in enumerate(self.nodes) if not c.children]
+
+    def indices(self, node: int) -> np.ndarray:
+        """Point indices of cluster ``node``."""
+        c = self.nodes[node]
+        return self.perm[c.start:c.stop]
+
+    @property
+    def depth(self) -> int:
+        """Largest level of a node."""
+        return max(c.level for c in self.nodes)
+
+
+def cluster_tree(points: np.ndarray, leaf: int = 32, split: str = "middle") -> ClusterTree:
+    """Recursive bisection of ``points`` along the longest axis of each cluster's bounding box.
+
+    Parameters
+    ----------
+    points : ndarray, shape (n, d)
+        Coordinates.
+    leaf : int
+        A cluster of at most ``leaf`` points is not split.
+    split : {"middle", "median"}
+        Where a cluster is cut: at the middle of its bounding box (geometric
+        bisection: clusters of one level have about one size in space, the
+        leaves from 1 to ``leaf`` points) or at the median point (halves of
+        sizes differing by at most one, leaves of ``leaf // 2`` to ``leaf``
+        points, their size in space set by the local density).
+
+    Returns
+    -------
+    ClusterTree
+        A cluster of coincident points is a leaf whatever its size.
+    """
+    P = np.asarray(points, dtype=float)
+    if P.ndim != 2 or len(P) == 0:
+        raise ValueError("points must be a non-empty (n, d) array")
+    if leaf < 1:
+        raise ValueError(f"leaf must be >= 1, got {leaf}")
+    if split not in ("middle", "median"):
+        raise ValueError(f"split must be 'middle' or 'median', got {split!r}")
+    perm = np.arange(len(P))
+    nodes = [Cluster(0, len(P), P.min(axis=0), P.max(axis=0), 0)]
+    stack = [0]
+    while stack:
+        i = stack.pop()
+        c = nodes[i]
+        axis = int(np.argmax(c.hi - c.lo))
+        if c.size <= leaf or c.hi[axis] <= c.lo[axis]:
+            continue
+        idx = perm[c.start:c.stop].copy()
+        order = np.argsort(P[idx, axis], kind="stable")
+        perm[c.start:c.stop] = idx[order]
+        if split == "median":
+            half = c.size // 2
+        else:
+            half = int(np.searchsorted(P[idx[order], axis], 0.5 * (c.lo[axis] + c.hi[axis]), side="right"))
+        kids = []
+        for a, b in ((c.start, c.start + half), (c.start + half, c.stop)):
+            q = P[perm[a:b]]
+            nodes.append(Cluster(a, b, q.min(axis=0), q.max(axis=0), c.level + 1))
+            kids.append(len(nodes) - 1)
+        c.children = tuple(kids)
+        stack.extend(kids)
+    return ClusterTree(perm, nodes)
+
+
+def _box_distance(a: Cluster, b: Cluster) -> float:
+    gap = np.maximum(0.0, np.maximum(a.lo - b.hi, b.lo - a.hi))
+    return float(np.linalg.norm(gap))
+
+
+def admissible(a: Cluster, b: Cluster, eta: float) -> bool:
+    """``min(diam a, diam b) <= eta * dist(a, b)`` on bounding boxes, with a positive distance."""
+    d = _box_distance(a, b)
+    return d > 0.0 and min(a.diam, b.diam) <= eta * d
+
+
+@dataclass
+class Partition:
+    """The leaves of a block cluster tree.
+
+    Attributes
+    ----------
+    far : list of (int, int, int)
+        Admissible blocks ``(row node, column node, level)``: low rank.
+    near : list of (int, int, int)
+        Inadmissible leaves (a row or column leaf): dense.
+    visited : dict of int to list of (int, int)
+        Every block pair the recursion reached, by level (what peeling must
+        separate at that level).
+    """
+
+    far: list[tuple[int, int, int]] = field(default_factory=list)
+    near: list[tuple[int, int, int]] = field(default_factory=list)
+    visited: dict[int, list[tuple[int, int]]] = field(default_factory=dict)
+
+
+def admissible_blocks(rows: ClusterTree, cols: ClusterTree, eta: float) -> Partition:
+    """Split ``rows x cols`` into admissible (far) and dense (near) blocks.
+
+    Starting from the two roots: an admissible pair is a far block; otherwise,
+    if either is a leaf, a near block; otherwise the four pairs of children.
+
+    Parameters
+    ----------
+    rows, cols : ClusterTree
+    eta : float
+        Admissibility parameter (:func:`admissible`).
+
+    Returns
+    -------
+    Partition
+        Its blocks cover every (row, column) pair exactly once.
+    """
+    part = Partition()
+    stack = [(0, 0, 0)]
+    while stack:
+        i, j, lev = stack.pop()
+        part.visited.setdefault(lev, []).append((i, j))
+        a, b = rows.nodes[i], cols.nodes[j]
+        if admissible(a, b, eta):
+            part.far.append((i, j, lev))
+        elif not a.children or not b.children:
+            part.near.append((i, j, lev))
+        else:
+            stack.extend((ci, cj, lev + 1) for ci in a.children for cj in b.children)
+    return part
+
+
+def dofs(vertices: np.ndarray) -> np.ndarray:
+    """The three dofs (x, y, z) of each vertex, vertex-major."""
+    v = np.asarray(vertices, dtype=np.intp)
+    return (3 * v[:, None] + np.arange(3)).ravel()
+
+
+def permuted(A: np.ndarray, rows: ClusterTree, cols: ClusterTree) -> np.ndarray:
+    """``A`` (vertex-major dofs of the points of ``rows`` and ``cols``) in tree order."""
+    return np.ascontiguousarray(np.asarray(A)[np.ix_(dofs(rows.perm), dofs(cols.perm))])
+
+
+def block_slices(rows: ClusterTree, cols: ClusterTree, i: int, j: int) -> tuple[slice, slice]:
+    """The dof ranges (tree order) of the block of row cluster ``i`` and column cluster ``j``."""
+    a, b = rows.nodes[i], cols.nodes[j]
+    return slice(3 * a.start, 3 * a.stop), slice(3 * b.start, 3 * b.stop)
+
+
+def svd(B: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Thin SVD ``U, s, Vt`` of ``B`` (LAPACK's gesdd, gesvd where it does not converge)."""
+    import scipy.linalg
+
+    try:
+        return scipy.linalg.svd(B, full_matrices=False, lapack_driver="gesdd", check_finite=False)
+    except np.linalg.LinAlgError:  # gesdd can fail to converge; gesvd is slower and sturdier
+        return scipy.linalg.svd(B, full_matrices=False, lapack_driver="gesvd", check_finite=False)
+
+
+def truncation_rank(s: np.ndarray, tol: float) -> int:
+    """Smallest k with ``||s[k:]|| <= tol * ||s||`` (sum of the tail's squares from the small end)."""
+    tail = np.concatenate([np.cumsum((s * s)[::-1])[::-1], [0.0]])
+    return int(np.argmax(tail <= tol * tol * tail[0]))
+
+
+# --------------------------------------------------------------------------
+# compression
+# --------------------------------------------------------------------------
+def compress(A: Any, rows: ClusterTree, cols: ClusterTree, part: Partition, tol: float) -> HMatrix:
+    """Compress ``A`` on the partition ``part``: far blocks by truncated SVD, near blocks dense.
+
+    Parameters
+    ----------
+    A : array_like, shape (3 n_rows, 3 n_cols)
+        Vertex-major in the points of ``rows`` and ``cols`` (entry ``(3i+a, 3j+b)``);
+        read one block at a time (a memory-mapped array is never read whole).
+    rows, cols : ClusterTree
+    part : Partition
+        From :func:`admissible_blocks` on ``rows``, ``cols``.
+    tol : float
+        Each far block ``B`` is truncated to the smallest rank with
+        ``||B - B_k||_F <= tol ||B||_F``, so ``||A - H||_F <= tol ||A||_F``
+        (``tol = 0``: exact to rounding). A far block whose factors would hold
+        more numbers than itself is kept dense (and exact).
+
+    Returns
+    -------
+    HMatrix
+        Its far (factored) blocks first, in ``part.far`` order, then the dense ones.
+    """
+    if not tol >= 0:
+        raise ValueError(f"tol must be >= 0, got {tol}")
+    rd, cd = dofs(rows.perm), dofs(cols.perm)
+    table: list[tuple[int, ...]] = []
+    chunks: list[np.ndarray] = []
+    offset = 0
+    dense: list[tuple[slice, slice, np.ndarray]] = []
+
+    def put(r: slice, c: slice, k: int, *arrays: np.ndarray) -> None:
+        nonlocal offset
+        table.append((r.start, r.stop, c.start, c.stop, k, offset))
+        for x in arrays:
+            chunks.append(np.asarray(x, dtype=np.float64).ravel(order="F"))
+            offset += x.size
+
+    def read(r: slice, c: slice) -> np.ndarray:
+        return np.asarray(A[np.ix_(rd[r], cd[c])], dtype=np.float64)
+
+    for i, j, _ in part.far:
+        r, c = block_slices(rows, cols, i, j)
+        B = read(r, c)
+        U, s, Vt = svd(B)
+        k = truncation_rank(s, tol)
+        if k * (B.shape[0] + B.shape[1]) < B.size:
+            put(r, c, k, U[:, :k] * s[:k], Vt[:k].T)
+        else:
+            dense.append((r, c, B))
+    for r, c, B in dense:
+        put(r, c, -1, B)
+    for i, j, _ in part.near:
+        r, c = block_slices(rows, cols, i, j)
+        put(r, c, -1, read(r, c))
+    data = np.concatenate(chunks) if chunks else np.zeros(0)
+    return HMatrix((int(np.shape(A)[0]), int(np.shape(A)[1])), rd.astype(np.int64), cd.astype(np.int64),
+                   np.asarray(table, dtype=np.int64).reshape(-1, 6), data)
+
+
+def column_errors(H: HMatrix, D: Any, cols: np.ndarray) -> np.ndarray:
+    """``||H e_j - D e_j|| / ||D e_j||`` for the columns ``cols`` of the exact ``D`` (0 for a zero column)."""
+    cols = np.asarray(cols, dtype=np.intp)
+    exact = np.asarray(D[:, cols], dtype=np.float64)
+    diff = np.linalg.norm(H.columns(cols) - exact, axis=0)
+    norm = np.linalg.norm(exact, axis=0)
+    return np.where(norm > 0, diff / np.where(norm > 0, norm, 1.0), 0.0)
+
+
+def check_tol(tol: float) -> float:
+    """``tol`` as a float, or ValueError unless it is a target column error in :data:`TOL_RANGE`."""
+    lo, hi = TOL_RANGE
+    if isinstance(tol, bool) or not isinstance(tol, (int, float, np.floating)) or not np.isfinite(tol) \
+            or not lo <= tol <= hi:
+        raise ValueError(f"the compression tolerance must be a relative column error in [{lo:g}, {hi:g}], "
+                         f"got {tol!r}")
+    return float(tol)
+
+
+@dataclass(frozen=True)
+class Compressed:
+    """A compressed compliance and what it cost (:func:`compress_compliance`).
+
+    Attributes
+    ----------
+    H : HMatrix
+    tol : float
+        The target column error.
+    block_tol : float
+        The per-block truncation that met it.
+    error : dict
+        ``columns`` (how many exact columns were compared), ``max`` and ``median``
+        relative column error, ``seed``.
+    seconds : float
+        Wall time of the compression and the error measurement.
+    """
+
+    H: HMatrix
+    tol: float
+    block_tol: float
+    error: dict[str, Any] = field(default_factory=dict)
+    seconds: float = 0.0
+
+
+def compress_compliance(gf: GreensFunctions, tol: float, *, eta: float = DEFAULT_ETA, leaf: int = DEFAULT_LEAF,
+                        columns: int = ERROR_COLUMNS, seed: int = 0) -> Compressed:
+    """The H-matrix of a bundle's D whose columns are within ``tol`` of D's.
+
+    Rows are clustered over every surface vertex, columns over the contactable
+    ones (:func:`cluster_tree`, :func:`admissible_blocks`); the far blocks are
+    truncated to ``tol`` each (:func:`compress`) and the result's error is
+    measured on ``columns`` exact columns of D drawn at random (all of D's when it
+    has fewer). Where that error exceeds ``tol`` the truncation is halved (at
+    most :data:`RETRIES` times).
+
+    Raises
+    ------
+    ValueError
+        ``tol`` is outside :data:`TOL_RANGE`, or unreachable: the message names
+        the error reached.
+    """
+    tol = check_tol(tol)
+    t0 = time.perf_counter()
+    D = gf.D
+    ci = np.flatnonzero(gf.contactable)
+    cv = np.empty(len(ci), dtype=np.intp)
+    cv[gf.column_of[ci]] = ci  # column block -> vertex
+    V = np.asarray(gf.vertices, dtype=np.float64)
+    rows, cols = cluster_tree(V, leaf=leaf), cluster_tree(V[cv], leaf=leaf)
+    part = admissible_blocks(rows, cols, eta)
+    rng = np.random.default_rng(seed)
+    n = D.shape[1]
+    picked = np.sort(rng.choice(n, size=min(columns, n), replace=False))
+    block_tol = tol
+    for _ in range(RETRIES + 1):
+        H = compress(D, rows, cols, part, block_tol)
+        err = column_errors(H, D, picked)
+        if err.max(initial=0.0) <= tol:
+            break
+        block_tol /= 2
+    else:
+        raise ValueError(f"the compression tolerance {tol:g} is unreachable for {gf.path}: the closest H-matrix "
+                         f"(per-block truncation {block_tol * 2:g}) has columns off by up to {err.max():.3g}")
+    error = {"columns": int(picked.size), "max": float(err.max(initial=0.0)),
+             "median": float(np.median(err)) if err.size else 0.0, "seed": int(seed)}
+    return Compressed(H, tol, block_tol, error, time.perf_counter() - t0)
+
+
+def compressed_key(key: str, tol: float) -> str:
+    """The cache key of the compressed copy, at ``tol``, of the dense bundle of key ``key``."""
+    return hashlib.sha256(f"{key}\0hmatrix tol {float(tol)!r}".encode()).hexdigest()
+
+
+def compress_bundle(src: str | os.PathLike, out: str | os.PathLike, tol: float, *, key: str | None = None,
+                    seed: int = 0) -> Path:
+    """Write a compressed copy of the dense bundle ``src`` at ``out`` (format 3).
+
+    Everything but D is copied as is; D becomes the H-matrix of
+    :func:`compress_compliance`. The manifest's ``compliance`` entry records
+    the storage (``"hmatrix"``), the target ``tol``, the per-block truncation,
+    the admissibility and leaf size, the stored and the dense bytes, and the
+    error measured against exact columns drawn at random; ``hailstorm info``
+    prints them. Written like any bundle (hashed, atomic, locked).
+
+    Parameters
+    ----------
+    src
+        A dense (format 2) float64 bundle.
+    out
+        Where to write (may be ``src``: replaced atomically once the copy is complete).
+    tol
+        Target relative error of every column of D (:data:`TOL_RANGE`).
+    key
+        The copy's cache key (default: the SHA-256 of the source's key and ``tol``).
+    seed
+        Of the columns drawn to measure the error.
+
+    Raises
+    ------
+    BundleError
+        ``src`` is not a valid dense float64 bundle, or ``out`` cannot be written.
+    ValueError
+        ``tol`` is out of range or unreachable.
+    """
+    tol = check_tol(tol)
+    out = Path(out).absolute()
+    check_writable(out.parent)
+    gf = load(src, verify=True)
+    if gf.hmatrix is not None:
+        raise BundleError(f"{gf.path} is already compressed (tol {gf.manifest['compliance']['tol']:g}); "
+                          "compress its dense source")
+    if gf.D.dtype != np.float64:
+        raise BundleError(f"{gf.path} stores D as {gf.D.dtype}; compress a float64 bundle")
+    c = compress_compliance(gf, tol, seed=seed)
+    log.info("compressed D %d x %d to %.1f %% of its numbers (max column error %.2g over %d exact columns) in %.1f s",
+             *gf.D.shape, 100 * c.H.stored / gf.D.size, c.error["max"], c.error["columns"], c.seconds)
+    manifest = {k: v for k, v in gf.manifest.items() if k not in ("format", "format_version", "arrays", MANIFEST_HASH)}
+    manifest["key"] = key or compressed_key(gf.manifest["key"], tol)
+    manifest["compliance"] = {
+        "storage": "hmatrix", "shape": list(gf.D.shape), "tol": tol, "block_tol": c.block_tol,
+        "eta": DEFAULT_ETA, "leaf": DEFAULT_LEAF, "far_blocks": int(c.H.ranks.size),
+        "blocks": int(len(c.H.blocks)), "max_rank": int(c.H.ranks.max(initial=0)),
+        "stored_bytes": int(c.H.data.nbytes), "dense_bytes": int(gf.D.size * 8),
+        "error": c.error, "source_key": gf.manifest["key"], "seconds": round(c.seconds, 3),
+    }
+    arrays: dict[str, Any] = {k: getattr(gf, k) for k in ARRAY_SPECS if k != "compliance"}
+    arrays.update(c.H.to_arrays())
+    return write_bundle(out, arrays, manifest)
+

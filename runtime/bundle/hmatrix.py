@@ -1,0 +1,174 @@
+"""A compressed compliance: the hierarchical matrix (H-matrix) a compressed bundle stores instead of D.
+
+The compliance of a padded seat is smooth away from its load: a block of D whose
+rows and columns are clusters of vertices far apart (relative to their size) is
+numerically low rank. An H-matrix keeps such *far* blocks as factors
+``U @ V.T`` and every other (*near*) block dense. This module is the stored form
+and its evaluation (what the runtime reads); its construction, the cluster trees,
+the admissibility and the truncation, is the offline stage's
+(:mod:`hailstorm.precompute.hmatrix`).
+
+Storage (four arrays of a format-3 bundle, :mod:`hailstorm.runtime.bundle.format`):
+
+* ``hmatrix_rows`` (3n,) int -- tree position -> row of D (vertex-major dofs);
+* ``hmatrix_cols`` (3c,) int -- tree position -> column of D;
+* ``hmatrix_blocks`` (k, 6) int -- per block ``r0, r1, c0, c1`` (its rows and
+  columns in tree order, half-open), ``rank`` (-1 for a dense block) and
+  ``offset`` into the data;
+* ``hmatrix_data`` (N,) float64 -- a dense block's entries (column-major), or
+  a far block's ``U`` (``(r1 - r0) x rank``, column-major) followed by its
+  ``V`` (``(c1 - c0) x rank``).
+
+The blocks tile the matrix: every entry lies in exactly one block
+(:meth:`HMatrix.check`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Mapping
+
+import numpy as np
+
+__all__ = ["HMATRIX_ARRAYS", "HMatrix"]
+
+#: the bundle arrays an H-matrix is stored in, by :class:`HMatrix` attribute
+HMATRIX_ARRAYS = {"hmatrix_rows": "row_dofs", "hmatrix_cols": "col_dofs", "hmatrix_blocks": "blocks",
+                  "hmatrix_data": "data"}
+
+
+@dataclass(frozen=True, eq=False)
+class HMatrix:
+    """A matrix stored as dense near blocks and low-rank far blocks ``U @ V.T``.
+
+    Attributes
+    ----------
+    shape : (int, int)
+        Of the matrix it stands for (D: ``(3n, 3c)``).
+    row_dofs, col_dofs : (m,), (n,) int ndarray
+        Tree position -> row / column of the matrix.
+    blocks : (k, 6) int ndarray
+        ``r0, r1, c0, c1, rank, offset`` per block (rank -1: dense).
+    data : (N,) float64 ndarray
+        The blocks' numbers (see the module's docstring).
+    """
+
+    shape: tuple[int, int]
+    row_dofs: np.ndarray
+    col_dofs: np.ndarray
+    blocks: np.ndarray
+    data: np.ndarray
+
+    # ---------------------------------------------------------------- reading
+    def factors(self, b: int) -> tuple[np.ndarray, np.ndarray | None]:
+        """Block ``b``: ``(dense, None)`` or ``(U, V)`` (views into :attr:`data`)."""
+        r0, r1, c0, c1, k, off = (int(x) for x in self.blocks[b])
+        m, n = r1 - r0, c1 - c0
+        if k < 0:
+            return self.data[off:off + m * n].reshape(m, n, order="F"), None
+        U = self.data[off:off + m * k].reshape(m, k, order="F")
+        V = self.data[off + m * k:off + (m + n) * k].reshape(n, k, order="F")
+        return U, V
+
+    @property
+    def stored(self) -> int:
+        """Numbers stored (dense entries and factors)."""
+        return int(self.data.size)
+
+    @property
+    def ranks(self) -> np.ndarray:
+        """Rank of each far (factored) block."""
+        k = self.blocks[:, 4]
+        return k[k >= 0]
+
+    def columns(self, cols: np.ndarray) -> np.ndarray:
+        """``H[:, cols]``, dense, rows in the matrix's own order.
+
+        Parameters
+        ----------
+        cols : (p,) int array_like
+            Columns of the matrix (original order; repeats allowed).
+
+        Returns
+        -------
+        (m, p) float64 ndarray, column-major
+        """
+        cols = np.asarray(cols, dtype=np.intp).ravel()
+        pos = self._col_position[cols]
+        order = np.argsort(pos, kind="stable")
+        spos = pos[order]
+        out_p = np.zeros((self.shape[0], cols.size), order="F")
+        lo = np.searchsorted(spos, self.blocks[:, 2], side="left")
+        hi = np.searchsorted(spos, self.blocks[:, 3], side="left")
+        for b in np.flatnonzero(hi > lo):
+            r0, r1, c0 = (int(x) for x in self.blocks[b, :3])
+            sel = order[lo[b]:hi[b]]
+            local = spos[lo[b]:hi[b]] - c0
+            X, V = self.factors(int(b))
+            out_p[r0:r1, sel] = X[:, local] if V is None else X @ V[local].T
+        out = np.empty_like(out_p)
+        out[self.row_dofs] = out_p
+        return out
+
+    def matvec(self, x: np.ndarray) -> np.ndarray:
+        """``H @ x`` for ``x`` of shape (n,) or (n, p) in the original column order."""
+        x = np.asarray(x, dtype=float)
+        xp = x[self.col_dofs]
+        yp = np.zeros((self.shape[0],) + x.shape[1:])
+        for b in range(len(self.blocks)):
+            r0, r1, c0, c1 = (int(v) for v in self.blocks[b, :4])
+            X, V = self.factors(b)
+            yp[r0:r1] += X @ xp[c0:c1] if V is None else X @ (V.T @ xp[c0:c1])
+        y = np.empty_like(yp)
+        y[self.row_dofs] = yp
+        return y
+
+    def to_dense(self) -> np.ndarray:
+        """The matrix it stands for: dense, float64, column-major (the layout of a dense bundle's D)."""
+        return self.columns(np.arange(self.shape[1]))
+
+    @property
+    def _col_position(self) -> np.ndarray:
+        inv = np.empty(self.shape[1], dtype=np.intp)
+        inv[self.col_dofs] = np.arange(self.shape[1])
+        return inv
+
+    # ---------------------------------------------------------------- storage
+    def to_arrays(self) -> dict[str, np.ndarray]:
+        """The bundle arrays (:data:`HMATRIX_ARRAYS`)."""
+        return {name: np.asarray(getattr(self, attr)) for name, attr in HMATRIX_ARRAYS.items()}
+
+    @classmethod
+    def from_arrays(cls, shape: tuple[int, int], arrays: Mapping[str, np.ndarray]) -> "HMatrix":
+        """The H-matrix stored in a bundle's arrays, checked (:meth:`check`)."""
+        h = cls((int(shape[0]), int(shape[1])),
+                *(np.asarray(arrays[name], dtype=np.float64 if attr == "data" else np.int64)
+                  for name, attr in HMATRIX_ARRAYS.items()))
+        h.check()
+        return h
+
+    def check(self) -> None:
+        """Raise ValueError unless the permutations are permutations and the blocks tile the matrix
+        with their numbers inside :attr:`data`."""
+        m, n = self.shape
+        for name, p, size in (("rows", self.row_dofs, m), ("columns", self.col_dofs, n)):
+            if p.shape != (size,) or not np.array_equal(np.sort(p), np.arange(size)):
+                raise ValueError(f"the H-matrix's {name} are not a permutation of 0..{size - 1}")
+        B = self.blocks
+        if B.ndim != 2 or B.shape[1] != 6:
+            raise ValueError(f"the H-matrix's block table has shape {B.shape}, expected (k, 6)")
+        r0, r1, c0, c1, k, off = B.T
+        if np.any((r0 < 0) | (r1 > m) | (r0 >= r1) | (c0 < 0) | (c1 > n) | (c0 >= c1) | (k < -1) | (off < 0)):
+            raise ValueError("an H-matrix block lies outside the matrix or has a negative rank or offset")
+        size = np.where(k < 0, (r1 - r0) * (c1 - c0), (r1 - r0 + c1 - c0) * np.maximum(k, 0))
+        if np.any(off + size > self.data.size):
+            raise ValueError("an H-matrix block's numbers run past the end of its data")
+        if int(((r1 - r0) * (c1 - c0)).sum()) != m * n:
+            raise ValueError("the H-matrix's blocks do not tile the matrix (their areas do not add up to it)")
+        # a block table that sums right along every row and every column: each entry is covered once
+        for lo, hi, width, size, full in ((r0, r1, c1 - c0, m, n), (c0, c1, r1 - r0, n, m)):
+            cover = np.zeros(size + 1, dtype=np.int64)
+            np.add.at(cover, lo, width)
+            np.add.at(cover, hi, -width)
+            if not np.all(np.cumsum(cover)[:size] == full):
+                raise ValueError("the H-matrix's blocks do not cover every entry exactly once")

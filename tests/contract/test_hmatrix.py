@@ -1,0 +1,178 @@
+"""The compressed compliance: the stored H-matrix, compressed bundles (format 3), their errors and refusals."""
+
+import json
+import shutil
+
+import numpy as np
+import pytest
+
+from hailstorm.precompute import build_bundle
+from hailstorm.precompute import hmatrix as construct
+from hailstorm.precompute.hmatrix import (
+    ERROR_COLUMNS,
+    admissible_blocks,
+    check_tol,
+    cluster_tree,
+    compress,
+    compress_bundle,
+    dofs,
+)
+from hailstorm.runtime.bundle import format as bundle_format
+from hailstorm.runtime.bundle.format import MANIFEST, BundleError
+from hailstorm.runtime.bundle.hmatrix import HMatrix
+from hailstorm.runtime.bundle.read import load
+from hailstorm.runtime.bundle.write import convert_bundle
+from hailstorm.runtime.contact.hertz import press_spheres
+
+
+@pytest.fixture(scope="module")
+def seat_h(seat_bundle, tmp_path_factory):
+    """The 15 mm seat's bundle compressed to 1e-3, beside its dense source."""
+    return compress_bundle(seat_bundle, tmp_path_factory.mktemp("gfh") / "seat_h", 1e-3)
+
+
+@pytest.fixture(scope="module")
+def box_H(box_bundle):
+    gf = load(box_bundle)
+    V = np.asarray(gf.vertices, float)
+    ci = np.flatnonzero(gf.contactable)
+    cv = np.empty(len(ci), dtype=np.intp)
+    cv[gf.column_of[ci]] = ci
+    rows, cols = cluster_tree(V, leaf=8), cluster_tree(V[cv], leaf=8)
+    D = np.asarray(gf.D)
+    return D, compress(D, rows, cols, admissible_blocks(rows, cols, 1.0), 1e-2)
+
+
+def test_columns_and_products_are_the_expanded_matrix(box_H):
+    D, H = box_H
+    assert (H.ranks >= 0).all() and H.ranks.size > 0, "the box has far blocks stored as factors"
+    full = H.to_dense()
+    assert full.flags.f_contiguous and full.shape == D.shape
+    cols = np.array([5, 0, 5, D.shape[1] - 1, 17])  # unsorted, repeated
+    # the same products of factors over other column subsets: equal to rounding (BLAS kernels differ)
+    assert np.allclose(H.columns(cols), full[:, cols], rtol=0, atol=1e-14 * np.abs(full).max())
+    x = np.random.default_rng(1).standard_normal((D.shape[1], 2))
+    scale = np.abs(full).max() * np.abs(x).sum(axis=0).max()
+    assert np.allclose(H.matvec(x), full @ x, rtol=0, atol=1e-13 * scale)
+    # within the truncation: ||D - H||_F <= tol ||D||_F (each far block to 1e-2 of itself)
+    assert np.linalg.norm(D - full) <= 1e-2 * np.linalg.norm(D)
+    assert 0 < np.linalg.norm(D - full)  # and truly compressed, not a copy
+
+
+def test_stored_arrays_round_trip_and_bad_tables_are_refused(box_H):
+    _, H = box_H
+    arrays = H.to_arrays()
+    again = HMatrix.from_arrays(H.shape, arrays)
+    assert np.allclose(again.to_dense(), H.to_dense(), rtol=0, atol=1e-14 * np.abs(H.data).max())
+    bad = dict(arrays, hmatrix_rows=arrays["hmatrix_rows"][::-1].copy())
+    bad["hmatrix_rows"][0] = bad["hmatrix_rows"][1]
+    with pytest.raises(ValueError, match="not a permutation"):
+        HMatrix.from_arrays(H.shape, bad)
+    blocks = arrays["hmatrix_blocks"].copy()
+    blocks[0, 3] = blocks[0, 2] + 1 if blocks[0, 3] - blocks[0, 2] > 1 else blocks[0, 3]  # a hole in the tiling
+    blocks[1] = blocks[0]
+    with pytest.raises(ValueError, match="tile|cover|past the end"):
+        HMatrix.from_arrays(H.shape, dict(arrays, hmatrix_blocks=blocks))
+    with pytest.raises(ValueError, match="past the end"):
+        HMatrix.from_arrays(H.shape, dict(arrays, hmatrix_data=arrays["hmatrix_data"][:-1]))
+
+
+def test_compressed_bundle_is_within_tol_of_every_column(seat_bundle, seat_h):
+    dense, h = load(seat_bundle), load(seat_h)
+    assert h.manifest["format_version"] == 3 and h.hmatrix is not None and dense.hmatrix is None
+    comp = h.manifest["compliance"]
+    assert comp["storage"] == "hmatrix" and comp["tol"] == 1e-3
+    # the error the bundle records: 200 exact columns drawn at random, and it holds for every column
+    assert comp["error"]["columns"] == min(ERROR_COLUMNS, dense.D.shape[1]) == 200
+    err = np.linalg.norm(h.D - dense.D, axis=0) / np.linalg.norm(dense.D, axis=0)
+    assert err.max() <= 1e-3
+    assert comp["error"]["max"] <= err.max() + 1e-15 and comp["error"]["median"] > 0
+    assert comp["stored_bytes"] == h.hmatrix.data.nbytes < comp["dense_bytes"] == dense.D.size * 8
+    assert comp["source_key"] == dense.manifest["key"] != h.manifest["key"]
+    # everything else is the source's
+    for name in ("vertices", "triangles", "areas", "fixed", "contactable", "volume_tets", "surface_nodes"):
+        assert np.array_equal(getattr(h, name), getattr(dense, name))
+
+
+def test_contacts_on_the_compressed_bundle_are_the_dense_ones(seat_bundle, seat_h):
+    """press_spheres (Hertz patches, near field) reads the compressed D like the dense one: forces within 0.1 %."""
+    dense, h = load(seat_bundle), load(seat_h)
+    rng = np.random.default_rng(4)
+    tri = np.flatnonzero(dense.contactable[dense.triangles].all(axis=1))
+    tri = rng.choice(tri, size=6, replace=False)
+    bary = rng.dirichlet(np.ones(3), size=6)
+    args = (tri, bary, np.full(6, 1.5e-3), 5e-3)
+    a, b = press_spheres(dense, *args), press_spheres(h, *args)
+    assert np.allclose(b.normal_force, a.normal_force, rtol=1e-3, atol=0)
+    assert np.allclose(b.patch_radius, a.patch_radius, rtol=1e-3, atol=0)
+    ua, ub = a.solution.surface_displacement, b.solution.surface_displacement
+    assert np.abs(ub - ua).max() <= 1e-3 * np.abs(ua).max()
+
+
+def test_a_reader_of_format_2_only_refuses_a_compressed_bundle(seat_h, monkeypatch):
+    """What a hailstorm from before compressed bundles says: a version error, never a wrong D."""
+    monkeypatch.setattr(bundle_format, "READ_VERSIONS", (2,))
+    with pytest.raises(BundleError, match="format version 3.*upgrade hailstorm"):
+        load(seat_h)
+
+
+def test_a_newer_format_asks_for_an_upgrade(seat_h, tmp_path):
+    b = shutil.copytree(seat_h, tmp_path / "b")
+    m = json.loads((b / MANIFEST).read_text())
+    m["format_version"] = 7
+    (b / MANIFEST).write_text(json.dumps(m))
+    with pytest.raises(BundleError, match="version 7.*upgrade hailstorm"):
+        load(b)
+
+
+def test_tampered_factors_are_refused(seat_h, tmp_path):
+    b = shutil.copytree(seat_h, tmp_path / "b")
+    data = np.load(b / "hmatrix_data.npy")
+    data[np.argmax(np.abs(data))] *= 1.01
+    np.save(b / "hmatrix_data.npy", data)
+    with pytest.raises(BundleError, match="hash"):
+        load(b)
+
+
+@pytest.mark.parametrize("tol", [0.0, -1e-3, 0.5, 1e-13, float("nan"), float("inf"), True])
+def test_tol_out_of_range_is_refused(tol):
+    with pytest.raises(ValueError, match=r"compression tolerance .*\[1e-12, 0\.1\]"):
+        check_tol(tol)
+
+
+def test_unreachable_tol_names_the_error_reached(seat_bundle, tmp_path, monkeypatch):
+    monkeypatch.setattr(construct, "column_errors", lambda H, D, cols: np.full(len(cols), 0.05))
+    with pytest.raises(ValueError, match=r"1e-05 is unreachable.*off by up to 0\.05"):
+        compress_bundle(seat_bundle, tmp_path / "h", 1e-5)
+    assert not (tmp_path / "h").exists()
+
+
+def test_compressing_needs_a_dense_float64_source(seat_bundle, seat_h, tmp_path):
+    with pytest.raises(BundleError, match="already compressed"):
+        compress_bundle(seat_h, tmp_path / "x", 1e-2)
+    f32 = convert_bundle(seat_bundle, tmp_path / "f32", "float32")
+    with pytest.raises(BundleError, match="float32; compress a float64"):
+        compress_bundle(f32, tmp_path / "y", 1e-2)
+    with pytest.raises(BundleError, match="stores D compressed"):
+        convert_bundle(seat_h, tmp_path / "z", "float32")
+
+
+def test_build_bundle_compresses_reuses_and_keys_by_tol(small_box, tmp_path):
+    out = tmp_path / "b"
+    dense = build_bundle(tmp_path / "dense", mesh=small_box, order=1)
+    p = build_bundle(out, mesh=small_box, order=1, compress_tol=1e-2)
+    first = load(p)
+    assert first.hmatrix is not None
+    assert first.manifest["compliance"]["source_key"] == load(dense).manifest["key"]
+    mtime = (out / "hmatrix_data.npy").stat().st_mtime_ns
+    assert build_bundle(out, mesh=small_box, order=1, compress_tol=1e-2) == p  # up to date: reused
+    assert (out / "hmatrix_data.npy").stat().st_mtime_ns == mtime
+    again = load(build_bundle(out, mesh=small_box, order=1, compress_tol=1e-4))
+    assert again.manifest["key"] != first.manifest["key"] and again.manifest["compliance"]["tol"] == 1e-4
+    assert load(build_bundle(out, mesh=small_box, order=1)).hmatrix is None  # dense again on request
+    with pytest.raises(ValueError, match="float64"):
+        build_bundle(tmp_path / "c", mesh=small_box, order=1, compress_tol=1e-2, dtype="float32")
+
+
+def test_dofs_are_vertex_major():
+    assert dofs(np.array([2, 0])).tolist() == [6, 7, 8, 0, 1, 2]
