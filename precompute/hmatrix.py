@@ -60,6 +60,7 @@ __all__ = [
     "dofs",
     "permuted",
     "svd",
+    "low_rank",
     "truncation_rank",
 ]
 
@@ -296,6 +297,48 @@ def truncation_rank(s: np.ndarray, tol: float) -> int:
     return int(np.argmax(tail <= tol * tol * tail[0]))
 
 
+#: blocks with both sides above this many rows are factored by a randomized range finder
+#: (cost ~ m n k) rather than a full SVD (~ m n min(m, n)); at tol below RANDOMIZED_MIN_TOL the
+#: error test ||B||^2 - ||Q^T B||^2 would cancel, and the full SVD is used
+RANDOMIZED_MIN_SIDE = 192
+RANDOMIZED_MIN_TOL = 1e-6
+
+
+def low_rank(B: np.ndarray, tol: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """Factors ``X, V`` (``X = U s``) of the smallest rank with ``||B - X V^T||_F <= tol ||B||_F``.
+
+    A full SVD for small blocks and small ``tol``; otherwise a randomized range
+    finder (Halko, Martinsson & Tropp, SIAM Rev. 53 (2011) 217) whose sample
+    grows until the range error ``||B - Q Q^T B||_F^2 = ||B||_F^2 - ||Q^T B||_F^2``
+    (exact for an orthonormal Q) is at most a quarter of the budget, then the SVD of
+    ``Q^T B`` truncated within what remains: the bound holds exactly, not in
+    expectation.
+    """
+    m, n = B.shape
+    if min(m, n) < RANDOMIZED_MIN_SIDE or tol < RANDOMIZED_MIN_TOL:
+        U, s, Vt = svd(B)
+        k = truncation_rank(s, tol)
+        return U[:, :k] * s[:k], Vt[:k].T
+    total = float(np.einsum("ij,ij->", B, B))
+    budget = tol * tol * total
+    ell = 24
+    while True:
+        Q, _ = np.linalg.qr(B @ rng.standard_normal((n, ell)))
+        C = Q.T @ B
+        missed = max(total - float(np.einsum("ij,ij->", C, C)), 0.0)
+        if missed <= budget / 4 or 2 * ell >= min(m, n):
+            break
+        ell *= 2
+    if missed > budget / 4:  # the sample reached the block's size: the exact SVD
+        U, s, Vt = svd(B)
+        k = truncation_rank(s, tol)
+        return U[:, :k] * s[:k], Vt[:k].T
+    Uc, s, Vt = svd(C)
+    tail = np.concatenate([np.cumsum((s * s)[::-1])[::-1], [0.0]])
+    k = int(np.argmax(tail <= budget - missed))
+    return Q @ (Uc[:, :k] * s[:k]), Vt[:k].T
+
+
 # --------------------------------------------------------------------------
 # compression
 # --------------------------------------------------------------------------
@@ -327,7 +370,6 @@ def compress(A: Any, rows: ClusterTree, cols: ClusterTree, part: Partition, tol:
     table: list[tuple[int, ...]] = []
     chunks: list[np.ndarray] = []
     offset = 0
-    dense: list[tuple[slice, slice, np.ndarray]] = []
 
     def put(r: slice, c: slice, k: int, *arrays: np.ndarray) -> None:
         nonlocal offset
@@ -336,23 +378,44 @@ def compress(A: Any, rows: ClusterTree, cols: ClusterTree, part: Partition, tol:
             chunks.append(np.asarray(x, dtype=np.float64).ravel(order="F"))
             offset += x.size
 
-    def read(r: slice, c: slice) -> np.ndarray:
-        return np.asarray(A[np.ix_(rd[r], cd[c])], dtype=np.float64)
+    slab: dict[tuple[int, int], np.ndarray] = {}
 
-    for i, j, _ in part.far:
-        r, c = block_slices(rows, cols, i, j)
+    def read(r: slice, c: slice) -> np.ndarray:
+        """The block, from its column cluster's slab of A (all rows in tree order), read once per
+        cluster: whole columns are what a column-major (memory-mapped) D reads fast."""
+        key = (c.start, c.stop)
+        if key not in slab:
+            slab.clear()
+            slab[key] = np.asarray(A[:, cd[c]], dtype=np.float64)[rd]
+        return slab[key][r]
+
+    rng = np.random.default_rng(0)
+    far = [block_slices(rows, cols, i, j) for i, j, _ in part.far]
+    near = [block_slices(rows, cols, i, j) for i, j, _ in part.near]
+
+    def tag(rc: tuple[slice, slice]) -> tuple[int, int, int, int]:
+        return rc[0].start, rc[0].stop, rc[1].start, rc[1].stop
+
+    is_far = {tag(rc) for rc in far}
+    factors: dict[tuple[int, int, int, int], tuple[np.ndarray, np.ndarray]] = {}
+    exact: dict[tuple[int, int, int, int], np.ndarray] = {}
+    for r, c in sorted(far + near, key=lambda rc: (rc[1].start, rc[1].stop)):  # one slab per column cluster
         B = read(r, c)
-        U, s, Vt = svd(B)
-        k = truncation_rank(s, tol)
-        if k * (B.shape[0] + B.shape[1]) < B.size:
-            put(r, c, k, U[:, :k] * s[:k], Vt[:k].T)
-        else:
-            dense.append((r, c, B))
-    for r, c, B in dense:
-        put(r, c, -1, B)
-    for i, j, _ in part.near:
-        r, c = block_slices(rows, cols, i, j)
-        put(r, c, -1, read(r, c))
+        t = tag((r, c))
+        if t in is_far:
+            X, V = low_rank(B, tol, rng)
+            if X.shape[1] * (B.shape[0] + B.shape[1]) < B.size:
+                factors[t] = (X, V)
+                continue
+        exact[t] = B.copy()
+    slab.clear()
+    for r, c in far:  # factored far blocks first, in the partition's order
+        if tag((r, c)) in factors:
+            X, V = factors[tag((r, c))]
+            put(r, c, X.shape[1], X, V)
+    for r, c in far + near:
+        if tag((r, c)) in exact:
+            put(r, c, -1, exact[tag((r, c))])
     data = np.concatenate(chunks) if chunks else np.zeros(0)
     return HMatrix((int(np.shape(A)[0]), int(np.shape(A)[1])), rd.astype(np.int64), cd.astype(np.int64),
                    np.asarray(table, dtype=np.int64).reshape(-1, 6), data)

@@ -176,3 +176,18 @@ def test_build_bundle_compresses_reuses_and_keys_by_tol(small_box, tmp_path):
 
 def test_dofs_are_vertex_major():
     assert dofs(np.array([2, 0])).tolist() == [6, 7, 8, 0, 1, 2]
+
+
+@pytest.mark.parametrize("tol", [1e-1, 1e-3, 1e-5, 1e-8])
+def test_low_rank_meets_its_bound_and_the_svd_rank(tol):
+    """The randomized range finder (blocks of 192 and more) keeps ||B - X V^T||_F <= tol ||B||_F exactly,
+    at a rank within a few of the truncated SVD's (the optimum)."""
+    rng = np.random.default_rng(3)
+    m, n = 400, 300
+    U, _ = np.linalg.qr(rng.standard_normal((m, n)))
+    V, _ = np.linalg.qr(rng.standard_normal((n, n)))
+    B = (U * np.exp(-0.35 * np.arange(n))) @ V.T  # a far block's decaying spectrum
+    X, W = construct.low_rank(B, tol, np.random.default_rng(0))
+    assert np.linalg.norm(B - X @ W.T) <= tol * np.linalg.norm(B) * (1 + 1e-12)
+    best = construct.truncation_rank(np.linalg.svd(B, compute_uv=False), tol)
+    assert best <= X.shape[1] <= best + 3

@@ -1,0 +1,129 @@
+"""What a compressed D (``hailstorm precompute --tol``) costs and changes, against the dense bundle it came from.
+
+For each tolerance: the compression's wall time, the stored and the dense bytes,
+the error the bundle records (200 exact columns at random) and the worst over
+*every* column, the time to load each bundle, and what a user reads off them:
+``press_spheres`` forces of stones of 2.5, 5 and 12.5 mm pressed to the depth of
+a Hertz impact at terminal speed (one at a time at 30 random places, and 20 at
+once), dense against compressed.
+
+    python tests/benchmarks/bench_compressed.py                    # the default seat (built or read from the cache)
+    python tests/benchmarks/bench_compressed.py --gf DIR --tols 1e-2,1e-3 --out docs/_generated/compressed_default_seat.txt
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from hailstorm.precompute.hmatrix import compress_bundle
+from hailstorm.runtime import load
+from hailstorm.runtime.contact.hertz import press_spheres
+from hailstorm.studies import record
+
+#: stone radii [m] and their Hertz impact depths at terminal speed on the default seat's foam
+#: (docs/_generated/resolution_seat.txt: 1.111, 2.931, 10.573 mm)
+STONES = ((2.5e-3, 1.111e-3), (5e-3, 2.931e-3), (12.5e-3, 10.573e-3))
+
+
+def _default_seat() -> Path:
+    from hailstorm.precompute import build_bundle
+    from hailstorm.runtime.storm.scene import SeatSettings
+
+    seat = SeatSettings.default()
+    return build_bundle(mesh_size=seat.mesh_size, order=seat.order, load=seat.load, young=seat.young,
+                        poisson=seat.poisson, volume_size=seat.volume_size)
+
+
+def _places(gf, count: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    ok = np.flatnonzero(gf.contactable[gf.triangles].all(axis=1))
+    return rng.choice(ok, size=count, replace=False), rng.dirichlet(np.ones(3), size=count)
+
+
+def _forces(gf, tri, bary, radius, depth, together: bool) -> np.ndarray:
+    """Normal forces of spheres pressed to ``depth``: all at once, or each on its own."""
+    if together:
+        return press_spheres(gf, tri, bary, np.full(len(tri), depth), radius, rows=None).normal_force
+    return np.array([press_spheres(gf, tri[i:i + 1], bary[i:i + 1], [depth], radius, rows=None).normal_force[0]
+                     for i in range(len(tri))])
+
+
+def _timed_load(path: Path, repeat: int = 3) -> tuple[object, list[float]]:
+    times = []
+    for _ in range(repeat):
+        t = time.perf_counter()
+        gf = load(path, verify=False)
+        times.append(time.perf_counter() - t)
+    return gf, times
+
+
+def _mmm(x: list[float]) -> str:
+    return f"{min(x):.3f}/{float(np.median(x)):.3f}/{max(x):.3f}"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--gf", type=Path, default=None, help="a dense bundle (default: the default seat)")
+    ap.add_argument("--tols", default="1e-2,1e-3", help="comma-separated target column errors")
+    ap.add_argument("--places", type=int, default=30, help="random places per stone size")
+    ap.add_argument("--out", type=Path, default=None, help="also write the output there (with its header)")
+    args = ap.parse_args(argv)
+    stamp = record.stamp()
+    lines: list[str] = []
+
+    def emit(text: str = "") -> None:
+        print(text, flush=True)
+        lines.append(text)
+
+    src = args.gf or _default_seat()
+    dense, dense_load = _timed_load(src)
+    n_rows, n_cols = dense.D.shape
+    emit(f"dense bundle {src}: D {n_rows} x {n_cols} ({dense.D.nbytes / 2**20:.1f} MiB), "
+         f"{dense.manifest['mesh'].get('source')}, P{dense.order}, load {dense.manifest['options'].get('load')}")
+    emit(f"load (no re-hash), min/median/max of 3: dense {_mmm(dense_load)} s")
+    tri, bary = _places(dense, args.places, seed=1)
+    tri20, bary20 = _places(dense, 20, seed=2)
+    together = STONES[:2]  # 20 stones of 12.5 mm at 10.6 mm overlap on the seat
+    reference = {R: (_forces(dense, tri, bary, R, d, False),
+                     _forces(dense, tri20, bary20, R, d, True) if (R, d) in together else None) for R, d in STONES}
+    emit()
+    emit("| tol | compress s | stored MiB | dense / stored | recorded max (200 cols) | recorded median | "
+         "max over all columns | load s min/med/max | one stone: max |dF|/F | 20 stones: max |dF|/max F |")
+    emit("|---|---|---|---|---|---|---|---|---|---|")
+    for tol in (float(t) for t in args.tols.split(",")):
+        with tempfile.TemporaryDirectory(dir=Path(src).parent) as tmp:
+            t0 = time.perf_counter()
+            path = compress_bundle(src, Path(tmp) / "h", tol)
+            seconds = time.perf_counter() - t0
+            h, h_load = _timed_load(path)
+            comp = h.manifest["compliance"]
+            col = np.linalg.norm(np.asarray(h.D) - np.asarray(dense.D), axis=0) / np.linalg.norm(dense.D, axis=0)
+            one = many = 0.0
+            for R, d in STONES:
+                a1, a20 = reference[R]
+                one = max(one, float(np.max(np.abs(_forces(h, tri, bary, R, d, False) - a1) / a1)))
+                if a20 is not None:
+                    many = max(many, float(np.max(np.abs(_forces(h, tri20, bary20, R, d, True) - a20))
+                                           / np.abs(a20).max()))
+            emit(f"| {tol:g} | {seconds:.1f} | {comp['stored_bytes'] / 2**20:.1f} | "
+                 f"{comp['dense_bytes'] / comp['stored_bytes']:.1f} | {comp['error']['max']:.2e} | "
+                 f"{comp['error']['median']:.2e} | {col.max():.2e} | {_mmm(h_load)} | {one:.1e} | {many:.1e} |")
+            del h
+    emit()
+    emit(f"stones: R = {', '.join(f'{R * 1e3:g} mm at {d * 1e3:g} mm' for R, d in STONES)} (Hertz impact depths at "
+         f"terminal speed); one at a time at {args.places} random places, and 20 at once (2.5 and 5 mm)")
+    if args.out:
+        cmd = "python tests/benchmarks/bench_compressed.py " + " ".join(map(shlex.quote, argv or sys.argv[1:]))
+        record.write(args.out, [f"$ {cmd}", stamp, f"# load average after: {record.load_average()}", "", *lines])
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
