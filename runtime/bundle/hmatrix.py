@@ -21,16 +21,35 @@ Storage (four arrays of a format-3 bundle, :mod:`hailstorm.runtime.bundle.format
 
 The blocks tile the matrix: every entry lies in exactly one block
 (:meth:`HMatrix.check`).
+
+The runtime's compiled kernels read a dense D. :func:`expanded` gives them one
+without holding it in memory: the H-matrix expanded once, column block by
+column block, into ``<cache>/expanded/`` and memory-mapped from there (a
+stamped file of this project, rebuilt when its stamp does not match), so a
+compressed bundle costs the runtime what a dense one does: the pages of D it
+touches.
 """
 
 from __future__ import annotations
 
+import logging
+import os
+import shutil
+import tempfile
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Mapping
 
 import numpy as np
 
-__all__ = ["HMATRIX_ARRAYS", "HMatrix"]
+from hailstorm.runtime.bundle.stamps import default_cache_dir, is_stamped, stamp
+
+__all__ = ["EXPAND_COLUMNS", "HMATRIX_ARRAYS", "HMatrix", "expanded"]
+
+log = logging.getLogger(__name__)
+
+#: columns of D expanded at a time into the memory-mapped cache (bounds the expansion's memory)
+EXPAND_COLUMNS = 512
 
 #: the bundle arrays an H-matrix is stored in, by :class:`HMatrix` attribute
 HMATRIX_ARRAYS = {"hmatrix_rows": "row_dofs", "hmatrix_cols": "col_dofs", "hmatrix_blocks": "blocks",
@@ -172,3 +191,53 @@ class HMatrix:
             np.add.at(cover, hi, -width)
             if not np.all(np.cumsum(cover)[:size] == full):
                 raise ValueError("the H-matrix's blocks do not cover every entry exactly once")
+
+
+def expanded(H: HMatrix, tag: str, *, cache: str | os.PathLike | None = None, rebuild: bool = False) -> np.ndarray:
+    """``H`` as a dense, column-major, read-only memory-mapped float64 array, expanded once into the cache.
+
+    Parameters
+    ----------
+    H : HMatrix
+    tag : str
+        What identifies ``H`` (the bundle's key and the hash of its data): the
+        cache file's name and the stamp it must match.
+    cache : path, optional
+        The cache directory (default :func:`hailstorm.runtime.bundle.stamps.default_cache_dir`).
+    rebuild : bool
+        Expand again even if a stamped expansion is there.
+
+    Returns
+    -------
+    ndarray, shape ``H.shape``
+        Memory-mapped from ``<cache>/expanded/<tag>.npy``; where the cache
+        cannot hold it (unwritable, or less free space than D's bytes), the
+        expansion in memory instead (logged).
+    """
+    folder = Path(cache) if cache is not None else default_cache_dir() / "expanded"
+    target = folder / f"{tag[:40]}.npy"
+    if not rebuild and target.is_file() and is_stamped(target, tag):
+        return np.load(target, mmap_mode="r")
+    need = H.shape[0] * H.shape[1] * 8
+    try:
+        folder.mkdir(parents=True, exist_ok=True)
+        if shutil.disk_usage(folder).free < need + (64 << 20):
+            raise OSError(f"{need / 2**30:.2f} GiB needed, {shutil.disk_usage(folder).free / 2**30:.2f} GiB free")
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=folder)
+        os.close(fd)
+        try:
+            out = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.float64, shape=H.shape, fortran_order=True)
+            for j in range(0, H.shape[1], EXPAND_COLUMNS):
+                out[:, j:j + EXPAND_COLUMNS] = H.columns(np.arange(j, min(j + EXPAND_COLUMNS, H.shape[1])))
+            out.flush()
+            del out
+            os.replace(tmp, target)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+    except OSError as exc:
+        log.info("expanding the compressed D in memory (%.2f GiB): the cache %s cannot hold it (%s)",
+                 need / 2**30, folder, exc)
+        return H.to_dense()
+    stamp(target, tag)
+    return np.load(target, mmap_mode="r")

@@ -3,12 +3,15 @@
 A bundle's files and manifest are :mod:`hailstorm.runtime.bundle.format`; it is
 written by :func:`hailstorm.runtime.bundle.write.write_bundle`, and
 :func:`convert_bundle` writes a copy with D in another storage type
-(:func:`hailstorm.precompute.hmatrix.compress_bundle` a compressed one). This
-module depends on numpy alone (no gmsh, no scikit-fem).
+(:func:`hailstorm.precompute.hmatrix.compress_bundle` a compressed one). It
+writes nothing into a bundle: only verification stamps and, for a compressed
+bundle, the expansion of its D, both in the cache. This module depends on numpy
+alone (no gmsh, no scikit-fem).
 """
 
 from __future__ import annotations
 
+import hashlib
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,7 +25,7 @@ from hailstorm.runtime.bundle.format import (
     is_bundle,
     read_arrays,
 )
-from hailstorm.runtime.bundle.hmatrix import HMatrix
+from hailstorm.runtime.bundle.hmatrix import HMatrix, expanded
 from hailstorm.runtime.bundle.compliance import apply_columns, column_dofs, dof3, gather
 
 __all__ = ["GreensFunctions", "load", "stranded_copies", "vertex_normals"]
@@ -60,8 +63,11 @@ class GreensFunctions:
     hmatrix : HMatrix or None
         A compressed bundle's stored D (format 3: an H-matrix within
         ``manifest["compliance"]["tol"]`` of the exact D per column); None for a
-        dense bundle. :attr:`D` is then its dense expansion, in memory (float64):
-        the compression saves the bundle's bytes on disk, not the runtime's memory.
+        dense bundle. :attr:`D` is then its dense expansion (float64), expanded
+        once into the cache and memory-mapped from there
+        (:func:`hailstorm.runtime.bundle.hmatrix.expanded`; in memory with
+        ``mmap=False``): the runtime touches the pages of D it reads, as with a
+        dense bundle, and the compression saves the bundle's bytes.
     """
 
     path: Path
@@ -269,7 +275,8 @@ def load(path: str | os.PathLike, *, verify: bool = True, mmap: bool = True, reh
             hmatrix = HMatrix.from_arrays(tuple(manifest["compliance"]["shape"]), data)
         except ValueError as exc:
             raise BundleError(f"bundle {path} is inconsistent: {exc}") from None
-        data["compliance"] = hmatrix.to_dense()
+        tag = hashlib.sha256(f"{manifest['key']}\0{manifest['arrays']['hmatrix_data']['sha256']}".encode()).hexdigest()
+        data["compliance"] = expanded(hmatrix, tag, rebuild=rehash) if mmap else hmatrix.to_dense()
     problems = []
     if data["vertices"].shape[1] != 3:
         problems.append("vertices is not (n, 3)")

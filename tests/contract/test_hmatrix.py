@@ -191,3 +191,34 @@ def test_low_rank_meets_its_bound_and_the_svd_rank(tol):
     assert np.linalg.norm(B - X @ W.T) <= tol * np.linalg.norm(B) * (1 + 1e-12)
     best = construct.truncation_rank(np.linalg.svd(B, compute_uv=False), tol)
     assert best <= X.shape[1] <= best + 3
+
+
+def test_a_compressed_d_is_expanded_once_into_the_cache_and_memory_mapped(seat_bundle, seat_h, tmp_path,
+                                                                         monkeypatch):
+    monkeypatch.setenv("HAILSTORM_CACHE", str(tmp_path / "cache"))
+    first = load(seat_h)
+    assert isinstance(first.D, np.memmap) and first.D.flags.f_contiguous and not first.D.flags.writeable
+    (cached,) = (tmp_path / "cache" / "expanded").glob("*.npy")
+    before = cached.stat().st_mtime_ns
+    D = np.array(first.D)
+    assert np.allclose(D, first.hmatrix.to_dense(), rtol=0, atol=1e-14 * np.abs(D).max())
+    again = load(seat_h)
+    assert cached.stat().st_mtime_ns == before and np.array_equal(again.D, D)  # reused
+    # an expansion changed behind the project's back fails its stamp and is rebuilt
+    spoiled = np.load(cached, mmap_mode="r+")
+    spoiled[0, 0] += 1.0
+    spoiled.flush()
+    del spoiled
+    rebuilt = load(seat_h)
+    assert np.array_equal(rebuilt.D, D) and cached.stat().st_mtime_ns != before
+    in_memory = load(seat_h, mmap=False)
+    assert not isinstance(in_memory.D, np.memmap) and np.array_equal(in_memory.D, D)
+
+
+def test_an_unwritable_cache_expands_in_memory(seat_h, tmp_path, monkeypatch):
+    blocker = tmp_path / "not-a-dir"
+    blocker.write_text("a file where the cache would be")
+    monkeypatch.setenv("HAILSTORM_CACHE", str(blocker))
+    gf = load(seat_h, verify=False)
+    assert not isinstance(gf.D, np.memmap) and gf.D.shape == tuple(gf.manifest["compliance"]["shape"])
+    assert blocker.read_text() == "a file where the cache would be"
