@@ -176,3 +176,17 @@ def test_missing_distributed_is_a_clear_error(tmp_path, small_box, monkeypatch):
     with pytest.raises(ClusterError, match=r"pip install 'hailstorm\[dask\]'"):
         build_bundle(tmp_path / "b", mesh=small_box, workers=2)
     assert not (tmp_path / "b").exists()
+
+
+def test_cluster_gives_the_serial_compressed_d(tmp_path, small_box, cluster, serial):
+    """``compress_tol`` on a Dask cluster: the same H-matrix as in one process (the columns it is built
+    from agree to rounding, and its truncation and error sample are seeded)."""
+    here = hailstorm.runtime.load(build_bundle(tmp_path / "here", mesh=small_box, young=1e6, poisson=0.3,
+                                               block_bytes=BLOCK, compress_tol=1e-3))
+    there = hailstorm.runtime.load(build_bundle(tmp_path / "there", mesh=small_box, young=1e6, poisson=0.3,
+                                                block_bytes=BLOCK, scheduler=cluster.scheduler_address,
+                                                compress_tol=1e-3))
+    assert there.manifest["key"] == here.manifest["key"]
+    assert np.array_equal(there.hmatrix.blocks[:, :4], here.hmatrix.blocks[:, :4])
+    assert _rel(there.D, here.D) <= 1e-10 and _rel(there.D, serial.D) <= 1e-3
+    assert there.manifest["compliance"]["error"]["max"] <= 1e-3

@@ -276,3 +276,18 @@ def test_storm_drop_against_hertz_impact(coarse_block):
     assert 0.85 < s.max_force / h.max_force < 0.95  # 0.875 x 1.024
     assert 0.92 < s.duration / h.duration < 0.99  # 0.977 x 0.975
     assert dr.patch_radius == pytest.approx(np.sqrt(0.01 * h.max_depth), rel=0.1)  # near Hertz's sqrt(R delta_max)
+
+
+def test_press_spheres_settles_where_the_plain_update_cycles(seat_bundle):
+    """Deep 12.5 mm stones on the 15 mm seat: the plain fixed-point update a <- hertz_radius(F(a))
+    cycled at 7 of these 60 places (50 iterations, RuntimeError); bracketing and bisection settle
+    every one, at a radius consistent with its force to within the jump of F(a) where the patch's
+    vertex set changes (measured below 0.4 %)."""
+    gf = hailstorm.runtime.load(seat_bundle)
+    rng = np.random.default_rng(0)
+    ok = np.flatnonzero(gf.contactable[gf.triangles].all(axis=1))
+    tri, bary = rng.choice(ok, size=60, replace=False), rng.dirichlet(np.ones(3), size=60)
+    for i in range(60):
+        res = press_spheres(gf, tri[i:i + 1], bary[i:i + 1], [10.573e-3], 12.5e-3, rows=None)
+        a_of_f = hailstorm.runtime.hertz_radius(res.normal_force, 12.5e-3, gf.young, gf.poisson)
+        np.testing.assert_allclose(res.patch_radius, a_of_f, rtol=1e-2)
