@@ -485,9 +485,7 @@ def compress_compliance(gf: GreensFunctions, tol: float, *, eta: float = DEFAULT
     tol = check_tol(tol)
     t0 = time.perf_counter()
     D = gf.D
-    ci = np.flatnonzero(gf.contactable)
-    cv = np.empty(len(ci), dtype=np.intp)
-    cv[gf.column_of[ci]] = ci  # column block -> vertex
+    cv = gf.contact_vertices  # column block -> vertex
     V = np.asarray(gf.vertices, dtype=np.float64)
     rows, cols = cluster_tree(V, leaf=leaf), cluster_tree(V[cv], leaf=leaf)
     part = admissible_blocks(rows, cols, eta)

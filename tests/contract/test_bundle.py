@@ -102,13 +102,16 @@ def test_mismatched_bundle_is_refused(box_bundle, seat_bundle, tmp_path):
         load(b)
 
 
-def test_other_format_version_is_refused(box_bundle, tmp_path):
+@pytest.mark.parametrize("version, advice", [(99, "A newer hailstorm wrote it: upgrade hailstorm"),
+                                             (1, "Re-run `hailstorm precompute`")])
+def test_other_format_version_is_refused(box_bundle, tmp_path, version, advice):
     b = _copy(box_bundle, tmp_path / "b")
     m = json.loads((b / MANIFEST).read_text())
-    m["format_version"] = 99
+    m["format_version"] = version
     (b / MANIFEST).write_text(json.dumps(m))
-    with pytest.raises(BundleError, match="version 99"):
+    with pytest.raises(BundleError, match=f"version {version}; this hailstorm reads versions 2 and 3") as err:
         load(b)
+    assert advice in str(err.value)
 
 
 def test_non_bundle_directory_is_never_overwritten(small_box, tmp_path):
