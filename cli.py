@@ -202,10 +202,10 @@ def _print_bundle(path: Path, rehash: bool = True) -> None:
         if len(m["materials"]) > 1:
             start, stop = mat["tets"]
             print(f"  volume {mat['volume']}: E = {mat['young']:g} Pa, nu = {mat['poisson']:g}, {stop - start} tets")
-    comp = m.get("compliance")
     if gf.hmatrix is None:
         print(f"D        {gf.D.shape[0]} x {gf.D.shape[1]} {gf.dtype} ({gf.D.nbytes / 2**20:.1f} MiB)")
     else:
+        comp = m["compliance"]
         err = comp["error"]
         print(f"D        {gf.D.shape[0]} x {gf.D.shape[1]} as an H-matrix: {comp['stored_bytes'] / 2**20:.1f} MiB stored "
               f"of {comp['dense_bytes'] / 2**20:.1f} MiB dense ({comp['dense_bytes'] / max(comp['stored_bytes'], 1):.1f}x "

@@ -275,8 +275,7 @@ def load(path: str | os.PathLike, *, verify: bool = True, mmap: bool = True, reh
             hmatrix = HMatrix.from_arrays(tuple(manifest["compliance"]["shape"]), data)
         except ValueError as exc:
             raise BundleError(f"bundle {path} is inconsistent: {exc}") from None
-        tag = hashlib.sha256(f"{manifest['key']}\0{manifest['arrays']['hmatrix_data']['sha256']}".encode()).hexdigest()
-        data["compliance"] = expanded(hmatrix, tag, rebuild=rehash) if mmap else hmatrix.to_dense()
+    shape = hmatrix.shape if hmatrix is not None else data["compliance"].shape
     problems = []
     if data["vertices"].shape[1] != 3:
         problems.append("vertices is not (n, 3)")
@@ -285,8 +284,8 @@ def load(path: str | os.PathLike, *, verify: bool = True, mmap: bool = True, reh
             problems.append(f"{name} has shape {data[name].shape}, expected ({n},)")
     if data["triangles"].size and (data["triangles"].min() < 0 or data["triangles"].max() >= n):
         problems.append("triangles index outside the vertices")
-    if data["compliance"].shape != (3 * n, 3 * nc):
-        problems.append(f"compliance has shape {data['compliance'].shape}, expected {(3 * n, 3 * nc)}")
+    if tuple(shape) != (3 * n, 3 * nc):
+        problems.append(f"compliance has shape {tuple(shape)}, expected {(3 * n, 3 * nc)}")
     if np.any(data["fixed"] & data["contactable"]):
         problems.append("some vertices are both fixed and contactable")
     if data["surface_nodes"].size and data["surface_nodes"].max() >= data["volume_points"].shape[0]:
@@ -294,6 +293,9 @@ def load(path: str | os.PathLike, *, verify: bool = True, mmap: bool = True, reh
     if problems:
         raise BundleError(f"bundle {path} is inconsistent: " + "; ".join(problems))
 
+    if hmatrix is not None:  # checked: expand it (once, into the cache) for the compiled kernels
+        tag = hashlib.sha256(f"{manifest['key']}\0{manifest['arrays']['hmatrix_data']['sha256']}".encode()).hexdigest()
+        data["compliance"] = expanded(hmatrix, tag, rebuild=rehash) if mmap else hmatrix.to_dense()
     column_of = np.full(n, -1, dtype=np.intp)
     column_of[data["contactable"]] = np.arange(nc)
     return GreensFunctions(

@@ -226,3 +226,27 @@ def test_a_storm_on_the_compressed_bundle_is_the_dense_storm(seat_bundle, seat_h
     ua = np.stack([f.displacement for f in a.frames])
     ub = np.stack([f.displacement for f in b.frames])
     assert np.abs(ub - ua).max() <= 2e-3 * np.abs(ua).max()
+
+
+def test_a_compressed_bundle_of_the_wrong_shape_is_refused_before_it_is_expanded(seat_h, tmp_path, monkeypatch):
+    """An H-matrix that does not fit the surface (one contactable vertex fewer, hashes redone) is refused as
+    inconsistent, and nothing is expanded."""
+    import json
+
+    from hailstorm.runtime.bundle import read
+    from hailstorm.runtime.bundle.format import MANIFEST, array_hash, manifest_hash
+
+    b = shutil.copytree(seat_h, tmp_path / "b")
+    contactable = np.load(b / "contactable.npy")
+    contactable[np.flatnonzero(contactable)[0]] = False
+    np.save(b / "contactable.npy", contactable)
+    m = json.loads((b / MANIFEST).read_text())
+    m["arrays"]["contactable"].update(sha256=array_hash(contactable), bytes=(b / "contactable.npy").stat().st_size)
+    del m["manifest_sha256"]
+    m["manifest_sha256"] = manifest_hash(m)
+    (b / MANIFEST).write_text(json.dumps(m))
+    calls = []
+    monkeypatch.setattr(read, "expanded", lambda *args, **kw: calls.append(args))
+    with pytest.raises(BundleError, match=r"inconsistent: compliance has shape"):
+        load(b)
+    assert not calls
