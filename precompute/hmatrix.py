@@ -76,6 +76,8 @@ ERROR_COLUMNS = 200
 #: the target column errors --tol accepts: below 1e-12 rounding is the error, above 0.1 a
 #: contact's stiffness is no longer the one the seat has
 TOL_RANGE = (1e-12, 0.1)
+#: whole columns of D read at a time into a column cluster's slab
+SLAB_COLUMNS = 256
 #: halvings of the per-block truncation when the measured column error misses the target
 RETRIES = 4
 
@@ -342,14 +344,33 @@ def low_rank(B: np.ndarray, tol: float, rng: np.random.Generator) -> tuple[np.nd
 # --------------------------------------------------------------------------
 # compression
 # --------------------------------------------------------------------------
-def compress(A: Any, rows: ClusterTree, cols: ClusterTree, part: Partition, tol: float) -> HMatrix:
+def _bar(total: int, desc: str, show: bool) -> Any:
+    """A tqdm bar over ``total`` steps on stderr, or a stand-in that counts nothing."""
+    if show:
+        from tqdm.auto import tqdm
+
+        return tqdm(total=total, desc=desc, unit="block", leave=False)
+
+    class _Quiet:
+        def update(self, n: int = 1) -> None:
+            pass
+
+        def close(self) -> None:
+            pass
+
+    return _Quiet()
+
+
+def compress(A: Any, rows: ClusterTree, cols: ClusterTree, part: Partition, tol: float, *,
+             progress: bool = False) -> HMatrix:
     """Compress ``A`` on the partition ``part``: far blocks by truncated SVD, near blocks dense.
 
     Parameters
     ----------
     A : array_like, shape (3 n_rows, 3 n_cols)
         Vertex-major in the points of ``rows`` and ``cols`` (entry ``(3i+a, 3j+b)``);
-        read one block at a time (a memory-mapped array is never read whole).
+        read one column cluster at a time, the rows its blocks span (a memory-mapped
+        array is never read whole at once).
     rows, cols : ClusterTree
     part : Partition
         From :func:`admissible_blocks` on ``rows``, ``cols``.
@@ -358,6 +379,8 @@ def compress(A: Any, rows: ClusterTree, cols: ClusterTree, part: Partition, tol:
         ``||B - B_k||_F <= tol ||B||_F``, so ``||A - H||_F <= tol ||A||_F``
         (``tol = 0``: exact to rounding). A far block whose factors would hold
         more numbers than itself is kept dense (and exact).
+    progress : bool
+        A progress bar over the blocks.
 
     Returns
     -------
@@ -378,17 +401,6 @@ def compress(A: Any, rows: ClusterTree, cols: ClusterTree, part: Partition, tol:
             chunks.append(np.asarray(x, dtype=np.float64).ravel(order="F"))
             offset += x.size
 
-    slab: dict[tuple[int, int], np.ndarray] = {}
-
-    def read(r: slice, c: slice) -> np.ndarray:
-        """The block, from its column cluster's slab of A (all rows in tree order), read once per
-        cluster: whole columns are what a column-major (memory-mapped) D reads fast."""
-        key = (c.start, c.stop)
-        if key not in slab:
-            slab.clear()
-            slab[key] = np.asarray(A[:, cd[c]], dtype=np.float64)[rd]
-        return slab[key][r]
-
     rng = np.random.default_rng(0)
     far = [block_slices(rows, cols, i, j) for i, j, _ in part.far]
     near = [block_slices(rows, cols, i, j) for i, j, _ in part.near]
@@ -397,18 +409,33 @@ def compress(A: Any, rows: ClusterTree, cols: ClusterTree, part: Partition, tol:
         return rc[0].start, rc[0].stop, rc[1].start, rc[1].stop
 
     is_far = {tag(rc) for rc in far}
+    by_cluster: dict[tuple[int, int], list[slice]] = {}
+    for r, c in far + near:
+        by_cluster.setdefault((c.start, c.stop), []).append(r)
     factors: dict[tuple[int, int, int, int], tuple[np.ndarray, np.ndarray]] = {}
     exact: dict[tuple[int, int, int, int], np.ndarray] = {}
-    for r, c in sorted(far + near, key=lambda rc: (rc[1].start, rc[1].stop)):  # one slab per column cluster
-        B = read(r, c)
-        t = tag((r, c))
-        if t in is_far:
-            X, V = low_rank(B, tol, rng)
-            if X.shape[1] * (B.shape[0] + B.shape[1]) < B.size:
-                factors[t] = (X, V)
-                continue
-        exact[t] = B.copy()
-    slab.clear()
+    bar = _bar(len(far) + len(near), "compressing D", progress)
+    for (c0, c1), row_ranges in sorted(by_cluster.items()):
+        # the column cluster's blocks from one slab of A: its rows spanned by those blocks (tree order),
+        # read SLAB_COLUMNS whole columns at a time (what a column-major, memory-mapped D reads fast)
+        lo, hi = min(r.start for r in row_ranges), max(r.stop for r in row_ranges)
+        slab = np.empty((hi - lo, c1 - c0))
+        for j in range(c0, c1, SLAB_COLUMNS):
+            k = min(j + SLAB_COLUMNS, c1)
+            slab[:, j - c0:k - c0] = np.asarray(A[:, cd[j:k]], dtype=np.float64)[rd[lo:hi]]
+        for r in row_ranges:
+            c = slice(c0, c1)
+            B = slab[r.start - lo:r.stop - lo]
+            t = tag((r, c))
+            bar.update()
+            if t in is_far:
+                X, V = low_rank(B, tol, rng)
+                if X.shape[1] * (B.shape[0] + B.shape[1]) < B.size:
+                    factors[t] = (X, V)
+                    continue
+            exact[t] = B.copy()
+        del slab
+    bar.close()
     for r, c in far:  # factored far blocks first, in the partition's order
         if tag((r, c)) in factors:
             X, V = factors[tag((r, c))]
@@ -466,7 +493,7 @@ class Compressed:
 
 
 def compress_compliance(gf: GreensFunctions, tol: float, *, eta: float = DEFAULT_ETA, leaf: int = DEFAULT_LEAF,
-                        columns: int = ERROR_COLUMNS, seed: int = 0) -> Compressed:
+                        columns: int = ERROR_COLUMNS, seed: int = 0, progress: bool = False) -> Compressed:
     """The H-matrix of a bundle's D whose columns are within ``tol`` of D's.
 
     Rows are clustered over every surface vertex, columns over the contactable
@@ -494,7 +521,7 @@ def compress_compliance(gf: GreensFunctions, tol: float, *, eta: float = DEFAULT
     picked = np.sort(rng.choice(n, size=min(columns, n), replace=False))
     block_tol = tol
     for _ in range(RETRIES + 1):
-        H = compress(D, rows, cols, part, block_tol)
+        H = compress(D, rows, cols, part, block_tol, progress=progress)
         err = column_errors(H, D, picked)
         if err.max(initial=0.0) <= tol:
             break
@@ -513,7 +540,7 @@ def compressed_key(key: str, tol: float) -> str:
 
 
 def compress_bundle(src: str | os.PathLike, out: str | os.PathLike, tol: float, *, key: str | None = None,
-                    seed: int = 0) -> Path:
+                    seed: int = 0, progress: bool = False) -> Path:
     """Write a compressed copy of the dense bundle ``src`` at ``out`` (format 3).
 
     Everything but D is copied as is; D becomes the H-matrix of
@@ -535,6 +562,8 @@ def compress_bundle(src: str | os.PathLike, out: str | os.PathLike, tol: float, 
         The copy's cache key (default: the SHA-256 of the source's key and ``tol``).
     seed
         Of the columns drawn to measure the error.
+    progress
+        A progress bar over the blocks.
 
     Raises
     ------
@@ -552,7 +581,7 @@ def compress_bundle(src: str | os.PathLike, out: str | os.PathLike, tol: float, 
                           "compress its dense source")
     if gf.D.dtype != np.float64:
         raise BundleError(f"{gf.path} stores D as {gf.D.dtype}; compress a float64 bundle")
-    c = compress_compliance(gf, tol, seed=seed)
+    c = compress_compliance(gf, tol, seed=seed, progress=progress)
     log.info("compressed D %d x %d to %.1f %% of its numbers (max column error %.2g over %d exact columns) in %.1f s",
              *gf.D.shape, 100 * c.H.stored / gf.D.size, c.error["max"], c.error["columns"], c.seconds)
     manifest = {k: v for k, v in gf.manifest.items() if k not in ("format", "format_version", "arrays", MANIFEST_HASH)}

@@ -368,7 +368,7 @@ def build_bundle(
     if compress_tol is None:
         return out
     try:  # the dense bundle, replaced by its compressed copy (atomically, under the bundle's lock)
-        return compress_bundle(out, out, compress_tol, key=final_key)
+        return compress_bundle(out, out, compress_tol, key=final_key, progress=progress)
     except OSError as exc:
         raise BundleError(f"cannot write bundle {out}: {exc.strerror or exc} ({exc.filename or out})") from exc
 
