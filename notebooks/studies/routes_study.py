@@ -1,0 +1,167 @@
+"""The default seat's frontier with the new routes: the near field and a compressed D beside the dense one.
+
+For each surface size (P2, hat columns, the half-space near field: the default seat's settings but
+the size), one row per storage (dense, and compressed with ``--tol``):
+
+* **error**: the force at Hertz's depth of stones of 2.5, 5 and 12.5 mm at rest and at the peak of an
+  impact at terminal speed, at the rear, middle and nose, on a vertex, an edge and a centroid
+  (:func:`hailstorm.studies.resolution_study.seat_table`), against the finest size's dense bundle:
+  the largest and the median |error| over the 54 cases, and the largest over the stones a storm
+  mostly has (2.5 and 5 mm);
+* **precompute**: the bundle's recorded mesh + assembly + solve seconds, and the compression's;
+* **stored**: the bytes of D as stored (dense, or the H-matrix);
+* **runtime**: a fresh contact solve of 100 random point contacts with the surface's displacement
+  (``solve_contacts``, min/median/max of repeated calls), and a short storm's real-time factor
+  (the default scene over ``--duration``, min/median/max of ``--repeat`` runs; higher is faster).
+
+Bundles are built (or read from the cache) as the default seat is: ``--sizes`` in mm, the last the
+reference. Run ``python -m hailstorm.studies.routes_study [--sizes 6,4,3] [--tol 1e-2] [--out FILE]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any, Sequence
+
+import numpy as np
+
+from hailstorm.studies import record
+
+__all__ = ["main", "route_rows", "solve_times", "storm_rtf"]
+
+
+def solve_times(gf: Any, contacts: int = 100, repeat: int = 20, seed: int = 0) -> list[float]:
+    """Wall seconds of ``solve_contacts`` (frictionless, bilateral, surface displacement on every vertex)
+    for ``contacts`` random point contacts on contactable triangles, ``repeat`` calls (the first one
+    excluded: it compiles)."""
+    from hailstorm.runtime.contact.solve import solve_contacts
+
+    rng = np.random.default_rng(seed)
+    ok = np.flatnonzero(gf.contactable[gf.triangles].all(axis=1))
+    tri = rng.choice(ok, size=contacts, replace=False)
+    bary = rng.dirichlet(np.ones(3), size=contacts)
+    ubar = np.zeros((contacts, 3))
+    ubar[:, 2] = -1e-4
+    times = []
+    for _ in range(repeat + 1):
+        t = time.perf_counter()
+        solve_contacts(gf, tri, bary, ubar, mode="frictionless")
+        times.append(time.perf_counter() - t)
+    return times[1:]
+
+
+def storm_rtf(gf: Any, duration: float, repeat: int) -> list[float]:
+    """Real-time factors (simulated over wall time) of the default scene over ``duration`` on ``gf``,
+    ``repeat`` runs after one that is not counted (it loads the compiled kernels and warms the caches)."""
+    from hailstorm.runtime.storm.driver import run_storm
+    from hailstorm.runtime.storm.scene import Scene
+
+    scene = Scene.default().with_(duration=duration)
+    out = []
+    for _ in range(repeat + 1):
+        t = time.perf_counter()
+        run_storm(gf, scene, progress=False, keep_frames=False)
+        out.append(duration / (time.perf_counter() - t))
+    return out[1:]
+
+
+def _bundle(size: float) -> Any:
+    import hailstorm.runtime
+    from hailstorm.precompute import build_bundle
+    from hailstorm.runtime.storm.scene import SeatSettings
+
+    seat = SeatSettings.default()
+    return hailstorm.runtime.load(build_bundle(None, mesh_size=size, order=seat.order, load=seat.load,
+                                               young=seat.young, poisson=seat.poisson,
+                                               volume_size=seat.volume_size, progress=True))
+
+
+def _errors(gf: Any, ref: Any) -> dict[str, float]:
+    from hailstorm.studies.resolution_study import SITES, seat_table
+
+    rows = seat_table(gf, ref, near_field="halfspace")
+    err = np.array([[abs(r[s]) for s in SITES] for r in rows])
+    small = np.array([r["R_mm"] < 6 for r in rows])
+    return {"max": float(err.max()), "median": float(np.median(err)), "small": float(err[small].max())}
+
+
+def route_rows(sizes: Sequence[float], tol: float, duration: float, repeat: int) -> list[dict[str, Any]]:
+    """One row per size and storage (see the module notes); the last size is the reference."""
+    from hailstorm.precompute.hmatrix import compress_bundle
+    from hailstorm.runtime import load
+
+    gfs = [_bundle(h) for h in sizes]
+    ref = gfs[-1]
+    rows = []
+    for h, gf in zip(sizes, gfs):
+        t = gf.manifest.get("timings_s", {})
+        pre = sum(float(t.get(k, 0.0)) for k in ("mesh", "assemble", "solve"))
+        err = _errors(gf, ref) if gf is not ref else None
+        dense = {"size_mm": h * 1e3, "storage": "dense", "columns": gf.D.shape[1], "err": err,
+                 "precompute_s": pre, "compress_s": 0.0, "stored_MiB": gf.D.nbytes / 2**20,
+                 "solve_ms": [1e3 * x for x in solve_times(gf)], "rtf": storm_rtf(gf, duration, repeat)}
+        rows.append(dense)
+        with tempfile.TemporaryDirectory(dir=Path(gf.path).parent) as tmp:
+            t0 = time.perf_counter()
+            hgf = load(compress_bundle(gf.path, Path(tmp) / "h", tol))
+            seconds = time.perf_counter() - t0
+            comp = hgf.manifest["compliance"]
+            herr = _errors(hgf, ref)
+            rows.append({"size_mm": h * 1e3, "storage": f"H {tol:g}", "columns": gf.D.shape[1], "err": herr,
+                         "precompute_s": pre, "compress_s": seconds, "stored_MiB": comp["stored_bytes"] / 2**20,
+                         "col_err": comp["error"]["max"],
+                         "solve_ms": [1e3 * x for x in solve_times(hgf)], "rtf": storm_rtf(hgf, duration, repeat)})
+            del hgf
+    return rows
+
+
+def _mmm(x: Sequence[float], fmt: str) -> str:
+    return "/".join(format(v, fmt) for v in (min(x), float(np.median(x)), max(x)))
+
+
+def format_rows(rows: Sequence[dict[str, Any]]) -> list[str]:
+    out = ["| size mm | D stored as | columns | force error max % | median % | 2.5-5 mm stones max % | "
+           "precompute s | + compress s | stored MiB | s=100 solve ms min/med/max | storm RTF min/med/max |",
+           "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in rows:
+        e = r["err"]
+        errs = ("reference", "", "") if e is None else (f"{100 * e['max']:.1f}", f"{100 * e['median']:.1f}",
+                                                          f"{100 * e['small']:.1f}")
+        out.append(f"| {r['size_mm']:g} | {r['storage']} | {r['columns']} | {errs[0]} | {errs[1]} | {errs[2]} | "
+                   f"{r['precompute_s']:.1f} | {r['compress_s']:.1f} | {r['stored_MiB']:.1f} | "
+                   f"{_mmm(r['solve_ms'], '.1f')} | {_mmm(r['rtf'], '.2f')} |")
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(prog="python -m hailstorm.studies.routes_study", description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--sizes", default="6,4,3", help="surface sizes in mm, the last the reference (default 6,4,3)")
+    ap.add_argument("--tol", type=float, default=1e-2, help="the compressed rows' --tol (default 1e-2)")
+    ap.add_argument("--duration", type=float, default=0.2, help="simulated seconds of each storm (default 0.2, "
+                    "the default storm's)")
+    ap.add_argument("--repeat", type=int, default=3, help="storms per row (default 3)")
+    ap.add_argument("--out", type=Path, default=None, help="also write the table there (with its header)")
+    args = ap.parse_args(argv)
+    stamp = record.stamp()
+    sizes = [float(x) * 1e-3 for x in args.sizes.split(",")]
+    rows = route_rows(sizes, args.tol, args.duration, args.repeat)
+    lines = format_rows(rows)
+    lines += ["", f"force error: 54 cases (stones of 2.5, 5, 12.5 mm at rest and at the peak of an impact at "
+              f"terminal speed; rear, middle, nose; vertex, edge, centroid) against the {args.sizes.split(',')[-1]} "
+              "mm dense bundle, with the near field; precompute: the bundle's mesh + assembly + solve seconds as "
+              f"recorded; storm: the default scene over {args.duration:g} s"]
+    print("\n".join(lines))
+    if args.out:
+        cmd = "python -m hailstorm.studies.routes_study " + " ".join(map(shlex.quote, argv or sys.argv[1:]))
+        record.write(args.out, [f"$ {cmd}", stamp, f"# load average after: {record.load_average()}", "", *lines])
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
