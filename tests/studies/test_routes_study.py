@@ -1,0 +1,27 @@
+"""hailstorm.studies.routes_study on coarse seats: the rows it reports are the bundles' own figures."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from hailstorm.studies import routes_study
+
+
+def test_route_rows_on_coarse_seats(tmp_path, monkeypatch):
+    monkeypatch.setenv("HAILSTORM_CACHE", str(tmp_path / "cache"))
+    rows = routes_study.route_rows([0.02, 0.015], tol=1e-2, duration=0.01, repeat=1)
+    assert [(r["size_mm"], r["storage"]) for r in rows] == [(20.0, "dense"), (20.0, "H 0.01"),
+                                                            (15.0, "dense"), (15.0, "H 0.01")]
+    dense20, h20, ref, h15 = rows
+    assert ref["err"] is None  # the reference
+    # the compressed D stores less and reads as the dense one: the same errors to the compression's tol
+    for d, h in ((dense20, h20), (ref, h15)):
+        assert h["stored_MiB"] < d["stored_MiB"] and h["col_err"] <= 1e-2
+        assert h["precompute_s"] == d["precompute_s"] > 0 and h["compress_s"] > 0
+    assert h15["err"]["max"] <= 2e-2  # against its own dense source
+    assert abs(h20["err"]["max"] - dense20["err"]["max"]) <= 2e-2
+    assert 0 <= dense20["err"]["median"] <= dense20["err"]["max"] and dense20["err"]["small"] <= dense20["err"]["max"]
+    for r in rows:
+        assert len(r["solve_ms"]) == 20 and all(np.isfinite(r["solve_ms"])) and len(r["rtf"]) == 1
+    table = routes_study.format_rows(rows)
+    assert len(table) == 2 + len(rows) and "| 15 | dense | " in table[4] and "reference" in table[4]
