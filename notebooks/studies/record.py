@@ -14,7 +14,7 @@ from pathlib import Path
 
 from hailstorm.runtime.bundle.atomic import write_text_atomic
 
-__all__ = ["commit", "load_average", "stamp", "write"]
+__all__ = ["commit", "load_average", "stamp", "write", "write_run"]
 
 #: the repository the measurements describe
 ROOT = Path(__file__).resolve().parents[2]
@@ -58,3 +58,9 @@ def write(path: str | os.PathLike, lines: list[str]) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     return write_text_atomic(path, "\n".join(lines).rstrip("\n") + "\n")
+
+
+def write_run(path: str | os.PathLike, command: str, stamp_before: str, lines: list[str]) -> Path:
+    """A run's output into ``path``: ``$ command``, the :func:`stamp` taken before the run, the load
+    average after it, a blank line, then ``lines`` (:func:`write`)."""
+    return write(path, [f"$ {command}", stamp_before, f"# load average after: {load_average()}", "", *lines])

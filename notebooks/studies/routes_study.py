@@ -159,7 +159,7 @@ def main(argv: list[str] | None = None) -> int:
     print("\n".join(lines))
     if args.out:
         cmd = "python -m hailstorm.studies.routes_study " + " ".join(map(shlex.quote, argv or sys.argv[1:]))
-        record.write(args.out, [f"$ {cmd}", stamp, f"# load average after: {record.load_average()}", "", *lines])
+        record.write_run(args.out, cmd, stamp, lines)
     return 0
 
 

@@ -143,7 +143,7 @@ def main(argv: list[str] | None = None) -> int:
          f"terminal speed); one at a time at {args.places} random places, and 20 at once (2.5 and 5 mm)")
     if args.out:
         cmd = "python tests/benchmarks/bench_compressed.py " + " ".join(map(shlex.quote, argv or sys.argv[1:]))
-        record.write(args.out, [f"$ {cmd}", stamp, f"# load average after: {record.load_average()}", "", *lines])
+        record.write_run(args.out, cmd, stamp, lines)
     return 0
 
 

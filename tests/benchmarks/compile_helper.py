@@ -92,7 +92,7 @@ def main(argv: list[str] | None = None) -> None:
     say(_row("CPU ratio, pair by pair", c[False] / c[True], "{:7.2f}"))
     if args.out is not None:
         cmd = "python tests/benchmarks/compile_helper.py" + (f" --pairs {args.pairs}" if args.pairs != 3 else "")
-        record.write(args.out, [f"$ {cmd}", stamp, f"# load average after: {record.load_average()}", "", *lines])
+        record.write_run(args.out, cmd, stamp, lines)
 
 
 if __name__ == "__main__":
