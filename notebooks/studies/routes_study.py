@@ -58,7 +58,7 @@ def solve_times(gf: Any, contacts: int = 100, repeat: int = 20, seed: int = 0) -
 def storm_rtf(gf: Any, duration: float, repeat: int) -> list[float]:
     """Real-time factors (simulated over wall time) of the default scene over ``duration`` on ``gf``,
     ``repeat`` runs after one that is not counted (it loads the compiled kernels and warms the caches)."""
-    from hailstorm.runtime.storm.driver import run_storm
+    from hailstorm.runtime import run_storm
     from hailstorm.runtime.storm.scene import Scene
 
     scene = Scene.default().with_(duration=duration)

@@ -214,7 +214,7 @@ def test_an_unwritable_cache_expands_in_memory(seat_h, tmp_path, monkeypatch):
 def test_a_storm_on_the_compressed_bundle_is_the_dense_storm(seat_bundle, seat_h):
     """The same storm on both bundles (the frames read the expanded D): the same impacts, and the
     contact forces and dents within the compression's 1e-3 per column."""
-    from hailstorm.runtime.storm.driver import run_storm
+    from hailstorm.runtime import run_storm
     from hailstorm.runtime.storm.scene import Scene
 
     scene = Scene.from_flat(duration=0.04, stones=30, seed=5)

@@ -1,0 +1,29 @@
+"""hailstorm.studies.targets_study's measurements on small settings."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+import hailstorm.runtime
+from hailstorm.precompute.hmatrix import compress_bundle
+from hailstorm.runtime.storm.scene import Scene, SeatSettings
+from hailstorm.studies import targets_study
+
+
+def test_precompute_cost_measures_a_compressed_build_in_a_child(tmp_path, monkeypatch):
+    monkeypatch.setenv("HAILSTORM_CACHE", str(tmp_path / "cache"))
+    seat = dataclasses.replace(SeatSettings.default(), mesh_size=0.02, order=1, load="point")
+    cost = targets_study.precompute_cost(1e-2, seat)
+    assert cost["wall_s"] > 0 and 0 < cost["peak_GiB"] < 24
+    assert 0 < cost["stored_MiB"] < cost["dense_MiB"]
+
+
+def test_storm_side_by_side_interleaves_after_a_warm_up(seat_bundle, tmp_path, monkeypatch):
+    monkeypatch.setenv("HAILSTORM_CACHE", str(tmp_path / "cache"))
+    dense = hailstorm.runtime.load(seat_bundle)
+    compressed = hailstorm.runtime.load(compress_bundle(seat_bundle, tmp_path / "h", 1e-2))
+    rtf = targets_study.storm_side_by_side(dense, compressed, rounds=2,
+                                           scene=Scene.from_flat(duration=0.01, stones=5, seed=1))
+    assert set(rtf) == {"dense", "compressed"} and all(len(v) == 2 and np.all(np.array(v) > 0) for v in rtf.values())
