@@ -59,6 +59,9 @@ __all__ = ["ClusterError", "SolveStats", "check_scheduler", "cluster_client", "r
 
 #: Seconds to wait for a scheduler (an unreachable one is refused after this).
 CONNECT_TIMEOUT_S = 10.0
+#: times one block is submitted again after the cluster cancelled it (its shipped problem lost with a
+#: worker; seen under load when a worker is killed) before the run gives up
+CANCEL_RETRIES = 3
 
 
 class ClusterError(ValueError):
@@ -269,15 +272,17 @@ def _solve_on_cluster(problem, blocks, todo, on_block, client, key, on_first, st
     t0 = time.perf_counter()
     n_workers = max(1, len(client.scheduler_info().get("workers", {})))
     stats.workers = n_workers
-    shipped = client.scatter(problem, broadcast=True, hash=False)  # once per worker
+    ship = {"problem": client.scatter(problem, broadcast=True, hash=False)}  # once per worker
     queue = list(todo)
     window = 2 * n_workers
     meta: dict[Any, int] = {}
+    retries: dict[int, int] = {}
 
     def submit(i: int):
         start, stop = blocks[i]
-        fut = client.submit(solve_on_worker, shipped, key, start, stop, dtype, pure=False,
-                            key=f"hailstorm-block-{key[:12]}-{i}")
+        again = f"-again{retries[i]}" if retries.get(i) else ""
+        fut = client.submit(solve_on_worker, ship["problem"], key, start, stop, dtype, pure=False,
+                            key=f"hailstorm-block-{key[:12]}-{i}{again}")
         meta[fut] = i
         return fut
 
@@ -287,8 +292,18 @@ def _solve_on_cluster(problem, blocks, todo, on_block, client, key, on_first, st
             i = meta.pop(fut)
             try:
                 values, worker, factor_s, (nnz_L, flops) = fut.result()
-            except distributed.client.FutureCancelledError as exc:  # pragma: no cover - client shutting down
-                raise ClusterError(f"block {i} was cancelled on the cluster ({exc})") from None
+            except distributed.client.FutureCancelledError as exc:
+                # the scheduler dropped the block: a worker that died took the shipped problem with it
+                # (seen under load), or the client is closing. Blocks are idempotent: ship the problem
+                # again if it is gone and submit the block anew, a few times at most.
+                retries[i] = retries.get(i, 0) + 1
+                if retries[i] > CANCEL_RETRIES or client.status != "running":
+                    raise ClusterError(f"block {i} was cancelled on the cluster ({exc})") from None
+                if ship["problem"].status != "finished":
+                    ship["problem"] = client.scatter(problem, broadcast=True, hash=False)
+                log.info("block %d was cancelled on the cluster (%s); submitting it again", i, exc)
+                pending.add(submit(i))
+                continue
             except ValueError as exc:  # round_block: an entry overflows the storage type
                 raise ValueError(f"block {i}: {exc}") from None
             except Exception as exc:
@@ -318,7 +333,7 @@ def _solve_on_cluster(problem, blocks, todo, on_block, client, key, on_first, st
     finally:
         for fut in list(meta):
             fut.cancel()
-        shipped.release()
+        ship["problem"].release()
     stats.factor_s = max(stats.factors.values(), default=stats.factor_s)
     stats.solve_s = time.perf_counter() - t0
     return stats

@@ -190,3 +190,24 @@ def test_cluster_gives_the_serial_compressed_d(tmp_path, small_box, cluster, ser
     assert np.array_equal(there.hmatrix.blocks[:, :4], here.hmatrix.blocks[:, :4])
     assert _rel(there.D, here.D) <= 1e-10 and _rel(there.D, serial.D) <= 1e-3
     assert there.manifest["compliance"]["error"]["max"] <= 1e-3
+
+
+def test_a_block_the_cluster_cancels_is_submitted_again(tmp_path, small_box, cluster, serial, monkeypatch):
+    """A block future the scheduler cancels (its shipped problem lost with a killed worker, seen under
+    load) is submitted anew: the bundle is complete and the serial one, each block written once."""
+    real = distributed.Client.submit
+    cancelled = []
+
+    def submit(self, *args, **kwargs):
+        fut = real(self, *args, **kwargs)
+        if not cancelled and str(kwargs.get("key", "")).startswith("hailstorm-block"):
+            cancelled.append(kwargs["key"])
+            fut.cancel()
+        return fut
+
+    monkeypatch.setattr(distributed.Client, "submit", submit)
+    written = _counting_writes(monkeypatch)
+    gf = hailstorm.runtime.load(build_bundle(tmp_path / "b", mesh=small_box, young=1e6, poisson=0.3,
+                                             block_bytes=BLOCK, scheduler=cluster.scheduler_address))
+    assert cancelled and sorted(written) == list(range(gf.manifest["solve_stats"]["blocks"]))
+    assert _rel(gf.D, serial.D) <= 1e-12
