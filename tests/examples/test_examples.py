@@ -34,7 +34,7 @@ def run_example(name: str, cwd: Path, cache: Path, *args: str) -> str:
 
 def test_every_example_is_tested():
     tested = {"api_walkthrough", "layered_materials", "user_geometry", "scene_file", "read_paraview",
-              "speed_vs_accuracy"}
+              "speed_vs_accuracy", "compressed_bundle"}
     assert {p.stem for p in EXAMPLES.glob("*.py")} == tested
 
 
@@ -51,6 +51,14 @@ def test_layered_materials(tmp_path, cache):
     out = run_example("layered_materials", tmp_path, cache, "--small")
     assert "pad: E = 500000 Pa, nu = 0.3, shell: E = 2e+09 Pa, nu = 0.4" in out
     assert "on the stiff shell" in out  # the script itself fails if the shell did not make the dent shallower
+
+
+def test_compressed_bundle(tmp_path, cache):
+    out = run_example("compressed_bundle", tmp_path, cache, "--small")
+    assert "as an H-matrix" in out and "measured against 200 exact columns" in out  # `hailstorm info`
+    line = next(x for x in out.splitlines() if x.startswith("D stored:"))
+    stored, dense = (float(x.split(" MiB")[0].split()[-1]) for x in line.split(" against "))
+    assert stored < 0.6 * dense  # the script itself fails if the forces differ by more than the tolerance
 
 
 def test_user_geometry(tmp_path, cache):
