@@ -77,6 +77,7 @@ __all__ = [
     "axisymmetric_matrices",
     "compare",
     "default_pad",
+    "format_corrections",
     "format_storm",
     "format_table",
     "hertz_estimate",
@@ -86,6 +87,7 @@ __all__ = [
     "StormImpact",
     "pad_bundle",
     "run_grid",
+    "scalar_corrections",
     "storm_impact",
     "simulate_impact",
     "terminal_speed",
@@ -657,6 +659,50 @@ def format_storm(rows: Sequence[Row], gf: Any) -> str:
     return "\n".join(lines)
 
 
+def scalar_corrections(rows: Sequence[Row]) -> list[dict[str, float]]:
+    """What a one-number correction of the quasi-static contact, matched to the peer's peak force,
+    would predict for the other three measures, per row (ratios dynamic / quasi-static).
+
+    With Hertz's impact scalings (``F ~ k^(2/5) m^(3/5) v^(6/5)``, ``t ~ k^(-2/5) m^(2/5) v^(-1/5)``,
+    ``dent ~ k^(-2/5) m^(2/5) v^(4/5)``): a *pad stiffness factor* ``s = f^(5/2)`` (``f`` the peer's
+    force ratio) predicts ``t = 1/f``, ``dent = 1/f`` and no loss; an *added pad mass* picked up at the
+    touch and left behind at the release (``r = (m + m_p)/m = f^(-5/3)``) predicts ``t = 1/f``,
+    ``dent = f^(2/3)`` and ``e = f^(5/3)``.
+
+    Returns
+    -------
+    list of dict
+        Per row: ``R_mm``, ``v``, the peer's ``f``, ``t``, ``dent``, ``e`` and each model's predicted
+        ``t``, ``dent``, ``e`` (keys ``stiff_*``, ``mass_*``).
+    """
+    out = []
+    for r in rows:
+        d, q = r.dynamic, r.quasi_static
+        f = d.peak_force / q.peak_force
+        out.append({"R_mm": r.radius * 1e3, "v": r.speed, "f": f, "t": d.duration / q.duration,
+                    "dent": d.max_dent / q.max_dent, "e": d.restitution / q.restitution,
+                    "stiff_t": 1 / f, "stiff_dent": 1 / f, "stiff_e": 1.0,
+                    "mass_t": 1 / f, "mass_dent": f ** (2 / 3), "mass_e": f ** (5 / 3)})
+    return out
+
+
+def format_corrections(rows: Sequence[Row]) -> str:
+    """:func:`scalar_corrections` as a table: the peer's ratios, each model's, and its worst miss."""
+    c = scalar_corrections(rows)
+    lines = [" R mm v m/s |  F d/q | t d/q  stiff   mass | dent d/q  stiff   mass | e d/q  stiff   mass",
+             "-" * 92]
+    for x in c:
+        lines.append(f"{x['R_mm']:5.1f} {x['v']:5.1f} | {x['f']:6.3f} | {x['t']:5.3f} {x['stiff_t']:6.3f} "
+                     f"{x['mass_t']:6.3f} | {x['dent']:8.3f} {x['stiff_dent']:6.3f} {x['mass_dent']:6.3f} | "
+                     f"{x['e']:5.3f} {x['stiff_e']:6.3f} {x['mass_e']:6.3f}")
+    for name in ("stiff", "mass"):
+        miss = {k: max(abs(x[f"{name}_{k}"] / x[k] - 1) for x in c) for k in ("t", "dent", "e")}
+        label = "pad stiffness factor" if name == "stiff" else "added pad mass"
+        lines.append(f"{label}, matched to the peak force: worst miss of the peer's contact time "
+                     f"{100 * miss['t']:.1f} %, dent {100 * miss['dent']:.1f} %, restitution {100 * miss['e']:.1f} %")
+    return "\n".join(lines)
+
+
 def terminal_speed(radius: float) -> float:
     """The terminal fall speed of a stone of the default scene's hail (``[hail]``: density, drag) [m/s]."""
     from hailstorm.runtime.storm.scene import Scene
@@ -756,6 +802,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--radii", type=float, nargs="*", default=None, help="stone radii [m]")
     ap.add_argument("--steps-per-contact", type=int, default=200)
     ap.add_argument("--cells-per-radius", type=float, default=8.0)
+    ap.add_argument("--corrections", action="store_true",
+                    help="also what a one-number correction matched to the peak force would predict (scalar_corrections)")
     ap.add_argument("--plot", default=None, metavar="PATH",
                     help="also chart the rows: within/beyond 5%% on all four measures, over the terminal-speed curve")
     args = ap.parse_args(argv)
@@ -779,6 +827,8 @@ def main(argv: list[str] | None = None) -> int:
     except ValueError as exc:  # a bad radius or speed, a peer too coarse for its impact
         ap.error(str(exc))
     print(format_table(rows))
+    if args.corrections:
+        print(format_corrections(rows))
     if args.storm:
         print(format_storm(rows, pad_bundle(pad)))
     ok = [r for r in rows if r.agrees()]

@@ -131,6 +131,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-table", action="store_true", help="skip the peer's table (the default storm's counts only)")
     ap.add_argument("--gf", default=None, help="bundle directory of the storm (default: the default seat's)")
     ap.add_argument("--plot", default=None, metavar="PATH", help="chart the table's rows into PATH (PNG)")
+    ap.add_argument("--corrections", action="store_true",
+                    help="also what a one-number correction matched to the peak force would predict")
     ap.add_argument("--out", default=None, metavar="FILE",
                     help="also write the printed output to FILE, after a header (command, UTC date, commit, load)")
     args = ap.parse_args(argv)
@@ -158,7 +160,8 @@ def _run(args: argparse.Namespace) -> int:
         table((["--storm"] if args.storm_block else []) + (["--full"] if args.full else [])
               + (["--terminal", "--radii", "0.0025", "0.005", "0.0075", "0.01", "0.0125"] if args.terminal else [])
               + ([] if args.density is None else ["--density", str(args.density)])
-              + ([] if args.plot is None else ["--plot", args.plot]))
+              + ([] if args.plot is None else ["--plot", args.plot])
+              + (["--corrections"] if args.corrections else []))
     if not args.no_storm:
         from hailstorm.runtime.storm.limits import validity_warning
 

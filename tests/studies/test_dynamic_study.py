@@ -11,6 +11,7 @@ import pytest
 
 from hailstorm.studies.dynamic_study import (
     FOAM_DENSITY,
+    ICE_DENSITY,
     Pad,
     PeerResolutionError,
     axisymmetric_matrices,
@@ -114,6 +115,34 @@ def test_a_fast_small_stone_is_not_quasi_static():
     assert row.errors()["force"] > 0.1 and not row.agrees()
     text = format_table([row])
     assert "2.5  30.0" in text and text.splitlines()[-1].endswith("no")
+
+
+def test_scalar_corrections_follow_hertz_scalings_and_miss_the_peer():
+    """A correction matched to the peak force (a pad stiffness factor, an added pad mass) predicts the other
+    measures by Hertz's scalings (checked against the closed-form impact); on the 2.5 mm stone at 30 m/s
+    neither reproduces the peer: the stiffness factor deepens the dent the peer keeps, the added mass
+    loses more speed than the pad's waves take."""
+    from hailstorm.runtime.contact.hertz import hertz_impact
+    from hailstorm.studies.dynamic_study import format_corrections, scalar_corrections
+
+    pad = default_pad()
+    row = compare(pad, 0.0025, 30.0)
+    (c,) = scalar_corrections([row])
+    f = c["f"]
+    m = ICE_DENSITY * 4 / 3 * np.pi * 0.0025**3
+    base = hertz_impact(m, 30.0, 0.0025, pad.young, pad.poisson)
+    softer = hertz_impact(m, 30.0, 0.0025, pad.young * f**2.5, pad.poisson)  # stiffness x f^(5/2)
+    assert softer.max_force / base.max_force == pytest.approx(f, rel=1e-9)
+    assert softer.duration / base.duration == pytest.approx(c["stiff_t"], rel=1e-9)
+    assert softer.max_depth / base.max_depth == pytest.approx(c["stiff_dent"], rel=1e-9)
+    r = f ** (-5 / 3)  # the added mass: m r hit at v / r (momentum), released at that speed
+    heavier = hertz_impact(m * r, 30.0 / r, 0.0025, pad.young, pad.poisson)
+    assert heavier.max_force / base.max_force == pytest.approx(f, rel=1e-9)
+    assert heavier.duration / base.duration == pytest.approx(c["mass_t"], rel=1e-9)
+    assert heavier.max_depth / base.max_depth == pytest.approx(c["mass_dent"], rel=1e-9)
+    assert c["mass_e"] == pytest.approx(1 / r)
+    assert c["stiff_dent"] / c["dent"] - 1 > 0.1 and c["mass_e"] < c["e"] - 0.05
+    assert "worst miss" in format_corrections([row])
 
 
 def test_density_must_be_positive():
