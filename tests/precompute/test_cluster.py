@@ -187,7 +187,10 @@ def test_cluster_gives_the_serial_compressed_d(tmp_path, small_box, cluster, ser
                                                 block_bytes=BLOCK, scheduler=cluster.scheduler_address,
                                                 compress_tol=1e-3))
     assert there.manifest["key"] == here.manifest["key"]
-    assert np.array_equal(there.hmatrix.blocks[:, :4], here.hmatrix.blocks[:, :4])
+    def tiling(H):  # the blocks' places (a far block kept dense where its rank crosses the threshold moves)
+        return sorted(map(tuple, H.blocks[:, :4].tolist()))
+
+    assert tiling(there.hmatrix) == tiling(here.hmatrix)
     assert _rel(there.D, here.D) <= 1e-10 and _rel(there.D, serial.D) <= 1e-3
     assert there.manifest["compliance"]["error"]["max"] <= 1e-3
 
