@@ -8,13 +8,15 @@ load average), then what it printed; :func:`write` puts it in place atomically.
 from __future__ import annotations
 
 import os
+import shlex
 import subprocess
+import sys
 from datetime import datetime, timezone
 from pathlib import Path
 
 from hailstorm.runtime.bundle.atomic import write_text_atomic
 
-__all__ = ["commit", "load_average", "stamp", "write", "write_run"]
+__all__ = ["command", "commit", "load_average", "min_median_max", "stamp", "write", "write_run"]
 
 #: the repository the measurements describe
 ROOT = Path(__file__).resolve().parents[2]
@@ -64,3 +66,16 @@ def write_run(path: str | os.PathLike, command: str, stamp_before: str, lines: l
     """A run's output into ``path``: ``$ command``, the :func:`stamp` taken before the run, the load
     average after it, a blank line, then ``lines`` (:func:`write`)."""
     return write(path, [f"$ {command}", stamp_before, f"# load average after: {load_average()}", "", *lines])
+
+
+def command(prog: str, argv: list[str] | None) -> str:
+    """The command line of a run, as its ``$`` line shows it: ``prog`` and the arguments (``sys.argv``'s
+    when ``argv`` is None), shell-quoted."""
+    return " ".join([prog, *map(shlex.quote, sys.argv[1:] if argv is None else argv)])
+
+
+def min_median_max(x, fmt: str = ".3f") -> str:
+    """``min/median/max`` of repeated measurements, each formatted with ``fmt``."""
+    import numpy as np
+
+    return "/".join(format(v, fmt) for v in (min(x), float(np.median(x)), max(x)))

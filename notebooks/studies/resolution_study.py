@@ -26,11 +26,25 @@ from typing import Any, Sequence
 
 import numpy as np
 
-__all__ = ["SITES", "block_bundle", "block_table", "locate", "main", "seat_sites", "seat_table", "stone_depths"]
+__all__ = ["SITES", "block_bundle", "block_table", "locate", "main", "seat_bundle", "seat_sites", "seat_table",
+           "stone_depths"]
 
 #: where on a triangle a contact lands
 SITES = ("vertex", "edge", "centroid")
 _BARY = {"vertex": np.array([1.0, 0.0, 0.0]), "edge": np.array([0.5, 0.5, 0.0]), "centroid": np.full(3, 1 / 3)}
+
+
+def seat_bundle(mesh_size: float, progress: bool = False) -> Any:
+    """The default seat (``[seat]`` of the default scene: P2, hat columns, its material) at another surface
+    size, built or read from the cache, loaded."""
+    import hailstorm.runtime
+    from hailstorm.precompute import build_bundle
+    from hailstorm.runtime.storm.scene import SeatSettings
+
+    seat = SeatSettings.default()
+    return hailstorm.runtime.load(build_bundle(None, mesh_size=mesh_size, order=seat.order, load=seat.load,
+                                               young=seat.young, poisson=seat.poisson,
+                                               volume_size=seat.volume_size, progress=progress))
 
 
 def block_bundle(out: Any = None, mesh_size: float = 0.006, order: int = 2, young: float = 2.0e6,
@@ -174,10 +188,6 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--skip-block", action="store_true")
     ap.add_argument("--skip-seat", action="store_true")
     args = ap.parse_args(argv)
-    import hailstorm.runtime
-    from hailstorm.precompute import build_bundle
-    from hailstorm.runtime.storm.scene import SeatSettings
-
     print(f"# resolution study, {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, load average "
           f"{os.getloadavg()[0]:.1f}")
     print(f"# command: python -m hailstorm.studies.resolution_study --mesh-size {args.mesh_size} "
@@ -192,13 +202,8 @@ def main(argv: list[str] | None = None) -> None:
                 r[k] = 100 * r[k]
         _print_rows(rows, keys, {k: "+.1f" for k in keys[2:]} | {"a_mm": ".1f", "R_mm": ".1f"})
     if not args.skip_seat:
-        seat = SeatSettings.default()
 
-        def seat_bundle(h: float) -> Any:
-            return hailstorm.runtime.load(build_bundle(None, mesh_size=h, order=seat.order, load="hat",
-                                                       young=seat.young, poisson=seat.poisson, progress=True))
-
-        gf, ref = seat_bundle(args.mesh_size), seat_bundle(args.reference_size)
+        gf, ref = seat_bundle(args.mesh_size, progress=True), seat_bundle(args.reference_size, progress=True)
         for nf in ("halfspace", "none"):
             print(f"\n## Default seat ({args.mesh_size * 1e3:g} mm) against {args.reference_size * 1e3:g} mm, "
                   f"near_field={nf!r}: force at Hertz's depth, relative difference [%]\n")

@@ -21,7 +21,6 @@ reference. Run ``python -m hailstorm.studies.routes_study [--sizes 6,4,3] [--tol
 from __future__ import annotations
 
 import argparse
-import shlex
 import sys
 import tempfile
 import time
@@ -70,17 +69,6 @@ def storm_rtf(gf: Any, duration: float, repeat: int) -> list[float]:
     return out[1:]
 
 
-def _bundle(size: float) -> Any:
-    import hailstorm.runtime
-    from hailstorm.precompute import build_bundle
-    from hailstorm.runtime.storm.scene import SeatSettings
-
-    seat = SeatSettings.default()
-    return hailstorm.runtime.load(build_bundle(None, mesh_size=size, order=seat.order, load=seat.load,
-                                               young=seat.young, poisson=seat.poisson,
-                                               volume_size=seat.volume_size, progress=True))
-
-
 def _errors(gf: Any, ref: Any) -> dict[str, float]:
     from hailstorm.studies.resolution_study import SITES, seat_table
 
@@ -95,7 +83,9 @@ def route_rows(sizes: Sequence[float], tol: float, duration: float, repeat: int)
     from hailstorm.precompute.hmatrix import compress_bundle
     from hailstorm.runtime import load
 
-    gfs = [_bundle(h) for h in sizes]
+    from hailstorm.studies.resolution_study import seat_bundle
+
+    gfs = [seat_bundle(h, progress=True) for h in sizes]
     ref = gfs[-1]
     rows = []
     for h, gf in zip(sizes, gfs):
@@ -120,10 +110,6 @@ def route_rows(sizes: Sequence[float], tol: float, duration: float, repeat: int)
     return rows
 
 
-def _mmm(x: Sequence[float], fmt: str) -> str:
-    return "/".join(format(v, fmt) for v in (min(x), float(np.median(x)), max(x)))
-
-
 def format_rows(rows: Sequence[dict[str, Any]]) -> list[str]:
     out = ["| size mm | D stored as | columns | force error max % | median % | 2.5-5 mm stones max % | "
            "precompute s | + compress s | stored MiB | s=100 solve ms min/med/max | storm RTF min/med/max |",
@@ -134,7 +120,7 @@ def format_rows(rows: Sequence[dict[str, Any]]) -> list[str]:
                                                           f"{100 * e['small']:.1f}")
         out.append(f"| {r['size_mm']:g} | {r['storage']} | {r['columns']} | {errs[0]} | {errs[1]} | {errs[2]} | "
                    f"{r['precompute_s']:.1f} | {r['compress_s']:.1f} | {r['stored_MiB']:.1f} | "
-                   f"{_mmm(r['solve_ms'], '.1f')} | {_mmm(r['rtf'], '.2f')} |")
+                   f"{record.min_median_max(r['solve_ms'], '.1f')} | {record.min_median_max(r['rtf'], '.2f')} |")
     return out
 
 
@@ -158,8 +144,7 @@ def main(argv: list[str] | None = None) -> int:
               f"recorded; storm: the default scene over {args.duration:g} s"]
     print("\n".join(lines))
     if args.out:
-        cmd = "python -m hailstorm.studies.routes_study " + " ".join(map(shlex.quote, argv or sys.argv[1:]))
-        record.write_run(args.out, cmd, stamp, lines)
+        record.write_run(args.out, record.command("python -m hailstorm.studies.routes_study", argv), stamp, lines)
     return 0
 
 

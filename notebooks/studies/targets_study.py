@@ -25,7 +25,6 @@ from __future__ import annotations
 import argparse
 import os
 import resource
-import shlex
 import subprocess
 import sys
 import tempfile
@@ -81,10 +80,6 @@ def storm_side_by_side(dense: Any, compressed: Any, rounds: int = 2, scene: Any 
     return out
 
 
-def _mmm(x: list[float]) -> str:
-    return f"{min(x):.2f}/{float(np.median(x)):.2f}/{max(x):.2f}"
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m hailstorm.studies.targets_study", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -94,10 +89,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=None, help="also write the lines there (with their header)")
     args = ap.parse_args(argv)
     import hailstorm.runtime
-    from hailstorm.precompute import build_bundle
     from hailstorm.precompute.hmatrix import compress_bundle
     from hailstorm.runtime.storm.scene import SeatSettings
-    from hailstorm.studies.resolution_study import SITES, block_bundle, block_table, seat_table
+    from hailstorm.studies.resolution_study import SITES, block_bundle, block_table, seat_bundle, seat_table
     from hailstorm.studies.routes_study import solve_times
 
     stamp = record.stamp()
@@ -114,12 +108,7 @@ def main(argv: list[str] | None = None) -> int:
     cost = precompute_cost(args.tol)  # first: the only child process, so its peak RSS is its own
     seat = SeatSettings.default()
 
-    def bundle(h: float) -> Any:
-        return hailstorm.runtime.load(build_bundle(None, mesh_size=h, order=seat.order, load=seat.load,
-                                                   young=seat.young, poisson=seat.poisson,
-                                                   volume_size=seat.volume_size))
-
-    gf, ref = bundle(seat.mesh_size), bundle(args.reference_size)
+    gf, ref = seat_bundle(seat.mesh_size), seat_bundle(args.reference_size)
     rows = seat_table(gf, ref, "halfspace")
     err = np.array([[r[s] for s in SITES] for r in rows])
     worst, spread = float(np.abs(err).max()), float((err.max(axis=1) - err.min(axis=1)).max())
@@ -148,14 +137,14 @@ def main(argv: list[str] | None = None) -> int:
         rtf = storm_side_by_side(gf, hgf, args.rounds)
         del hgf
     say("storm 2 000 stones / 2 s / dt 0.5 ms at least as fast as the dense D, side by side",
-        f"RTF compressed {_mmm(rtf['compressed'])} vs dense {_mmm(rtf['dense'])} (min/median/max)",
+        f"RTF compressed {record.min_median_max(rtf['compressed'], '.2f')} vs dense "
+        f"{record.min_median_max(rtf['dense'], '.2f')} (min/median/max)",
         float(np.median(rtf["compressed"])) >= 0.95 * float(np.median(rtf["dense"])))
     say("a 50 000-vertex surface precomputed and stormed within 8 GiB, and on Dask with the same answer",
         "not built: the compressed D is filled from the dense build and expanded for the runtime (docs/scale.md)",
         None)
     if args.out:
-        cmd = "python -m hailstorm.studies.targets_study " + " ".join(map(shlex.quote, argv or sys.argv[1:]))
-        record.write_run(args.out, cmd, stamp, lines)
+        record.write_run(args.out, record.command("python -m hailstorm.studies.targets_study", argv), stamp, lines)
     return 0
 
 

@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import shlex
 import shutil
 import sys
 import tempfile
@@ -29,22 +28,15 @@ import numpy as np
 from hailstorm.precompute.hmatrix import compress_bundle
 from hailstorm.runtime import load
 from hailstorm.runtime.contact.hertz import press_spheres
+from hailstorm.runtime.storm.scene import SeatSettings
 from hailstorm.studies import record
+from hailstorm.studies.resolution_study import seat_bundle
 
 #: stone radii [m] and their Hertz impact depths at terminal speed on the default seat's foam
 #: (docs/_generated/resolution_seat.txt: 1.111, 2.931, 10.573 mm)
 STONES = ((2.5e-3, 1.111e-3), (5e-3, 2.931e-3), (12.5e-3, 10.573e-3))
 #: iterations of press_spheres' patch sizing (its default, 50, does not settle every deep 12.5 mm stone at 3 mm)
 MAX_ITER = 200
-
-
-def _default_seat() -> Path:
-    from hailstorm.precompute import build_bundle
-    from hailstorm.runtime.storm.scene import SeatSettings
-
-    seat = SeatSettings.default()
-    return build_bundle(mesh_size=seat.mesh_size, order=seat.order, load=seat.load, young=seat.young,
-                        poisson=seat.poisson, volume_size=seat.volume_size)
 
 
 def _places(gf, count: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
@@ -79,10 +71,6 @@ def _timed_load(path: Path, repeat: int = 3) -> tuple[object, list[float]]:
     return gf, times
 
 
-def _mmm(x: list[float]) -> str:
-    return f"{min(x):.3f}/{float(np.median(x)):.3f}/{max(x):.3f}"
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--gf", type=Path, default=None, help="a dense bundle (default: the default seat)")
@@ -97,12 +85,12 @@ def main(argv: list[str] | None = None) -> int:
         print(text, flush=True)
         lines.append(text)
 
-    src = args.gf or _default_seat()
+    src = args.gf or seat_bundle(SeatSettings.default().mesh_size).path
     dense, dense_load = _timed_load(src)
     n_rows, n_cols = dense.D.shape
     emit(f"dense bundle {src}: D {n_rows} x {n_cols} ({dense.D.nbytes / 2**20:.1f} MiB), "
          f"{dense.manifest['mesh'].get('source')}, P{dense.order}, load {dense.manifest['options'].get('load')}")
-    emit(f"load (no re-hash), min/median/max of 3: dense {_mmm(dense_load)} s")
+    emit(f"load (no re-hash), min/median/max of 3: dense {record.min_median_max(dense_load)} s")
     cache = Path(tempfile.mkdtemp(prefix="hailstorm-bench-cache-"))
     os.environ["HAILSTORM_CACHE"] = str(cache)  # the compressed bundles' expansions: a fresh cache, removed after
     tri, bary = _places(dense, args.places, seed=1)
@@ -131,7 +119,7 @@ def main(argv: list[str] | None = None) -> int:
                                            / np.abs(a20).max()))
             emit(f"| {tol:g} | {seconds:.1f} | {comp['stored_bytes'] / 2**20:.1f} | "
                  f"{comp['dense_bytes'] / comp['stored_bytes']:.1f} | {comp['error']['max']:.2e} | "
-                 f"{comp['error']['median']:.2e} | {col.max():.2e} | {h_load[0]:.3f} | {_mmm(h_load[1:])} | {one:.1e} | {many:.1e} |")
+                 f"{comp['error']['median']:.2e} | {col.max():.2e} | {h_load[0]:.3f} | {record.min_median_max(h_load[1:])} | {one:.1e} | {many:.1e} |")
             del h
     shutil.rmtree(cache, ignore_errors=True)
     unsettled = sum(int(np.isnan(reference[R][0]).sum()) for R, _ in STONES)
@@ -142,8 +130,7 @@ def main(argv: list[str] | None = None) -> int:
     emit(f"stones: R = {', '.join(f'{R * 1e3:g} mm at {d * 1e3:g} mm' for R, d in STONES)} (Hertz impact depths at "
          f"terminal speed); one at a time at {args.places} random places, and 20 at once (2.5 and 5 mm)")
     if args.out:
-        cmd = "python tests/benchmarks/bench_compressed.py " + " ".join(map(shlex.quote, argv or sys.argv[1:]))
-        record.write_run(args.out, cmd, stamp, lines)
+        record.write_run(args.out, record.command("python tests/benchmarks/bench_compressed.py", argv), stamp, lines)
     return 0
 
 
