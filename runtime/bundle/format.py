@@ -120,7 +120,6 @@ HMATRIX_ARRAY_SPECS: dict[str, tuple[str, int]] = {
 }
 
 
-
 def array_specs(version: int) -> dict[str, tuple[str, int]]:
     """The arrays (name -> dtype kind, ndim) of a bundle of format ``version``."""
     return HMATRIX_ARRAY_SPECS if version == HMATRIX_FORMAT_VERSION else ARRAY_SPECS

@@ -221,8 +221,9 @@ def expanded(H: HMatrix, tag: str, *, cache: str | os.PathLike | None = None, re
     need = H.shape[0] * H.shape[1] * 8
     try:
         folder.mkdir(parents=True, exist_ok=True)
-        if shutil.disk_usage(folder).free < need + (64 << 20):
-            raise OSError(f"{need / 2**30:.2f} GiB needed, {shutil.disk_usage(folder).free / 2**30:.2f} GiB free")
+        free = shutil.disk_usage(folder).free
+        if free < need + (64 << 20):
+            raise OSError(f"{need / 2**30:.2f} GiB needed, {free / 2**30:.2f} GiB free")
         fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=folder)
         os.close(fd)
         try:
