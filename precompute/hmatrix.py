@@ -433,7 +433,7 @@ def compress(A: Any, rows: ClusterTree, cols: ClusterTree, part: Partition, tol:
                 if X.shape[1] * (B.shape[0] + B.shape[1]) < B.size:
                     factors[t] = (X, V)
                     continue
-            exact[t] = B.copy()
+            exact[t] = B.ravel(order="F")  # the copy put() stores as it is (column-major)
         del slab
     bar.close()
     for r, c in far:  # factored far blocks first, in the partition's order
