@@ -44,7 +44,7 @@ step solves the linear complementarity problem of the candidate nodes'
 multipliers exactly (active set on the Schur complement of the step's
 effective stiffness, the sphere's own Newmark equation included). The contact
 nodes' normal dofs carry no mass (Khenous, Laborde & Renard's mass
-redistribution, :func:`_without_contact_mass`: with it Newmark creates no
+redistribution, :func:`without_contact_mass`: with it Newmark creates no
 energy at contact and release). Gravity is
 left out of both models (the comparison is of the pad's inertia alone).
 
@@ -91,6 +91,7 @@ __all__ = [
     "storm_impact",
     "simulate_impact",
     "terminal_speed",
+    "without_contact_mass",
 ]
 
 #: foam density [kg/m^3]: flexible polyurethane foams ~20-100 (Gibson & Ashby, Cellular Solids, 2nd ed.)
@@ -321,6 +322,8 @@ class ImpactResult:
     steps : int
     history : (k, 4) ndarray
         Per step: time [s], contact force [N], sphere penetration x [m], dent at the axis [m].
+    modes : int or None
+        The pad's dynamics cut to this many modes (:mod:`hailstorm.studies.pad_modes`); None: all.
     """
 
     dynamic: bool
@@ -333,6 +336,7 @@ class ImpactResult:
     dt: float
     steps: int
     history: np.ndarray = field(repr=False)
+    modes: int | None = None
 
     @property
     def restitution(self) -> float:
@@ -367,7 +371,7 @@ def _lcp(S: np.ndarray, q: np.ndarray, active: np.ndarray) -> tuple[np.ndarray, 
     return lam, lam > 0
 
 
-def _without_contact_mass(M: Any, dofs: np.ndarray) -> Any:
+def without_contact_mass(M: Any, dofs: np.ndarray) -> Any:
     """The mass matrix with the rows and columns of the contact dofs removed (zeroed).
 
     Khenous, Laborde & Renard, Mass redistribution method for finite element contact
@@ -401,7 +405,7 @@ def _check_resolution(cell: float, a: float, dt: float, duration: float, what: s
 
 def simulate_impact(mesh: PadMesh, radius: float, speed: float, *, dynamic: bool = True, dt: float | None = None,
                     steps_per_contact: int = 200, ice_density: float = ICE_DENSITY,
-                    beta: float = 0.25, gamma: float = 0.5) -> ImpactResult:
+                    beta: float = 0.25, gamma: float = 0.5, modes: Any = None) -> ImpactResult:
     """A rigid ice sphere hitting the pad at ``speed`` along its axis (Newmark, unilateral contact).
 
     Parameters
@@ -420,6 +424,10 @@ def simulate_impact(mesh: PadMesh, radius: float, speed: float, *, dynamic: bool
         [kg/m^3] (> 0).
     beta, gamma : float
         Newmark's parameters (default: average acceleration).
+    modes : PadModes, optional
+        The pad's dynamics in these modes only, the rest quasi-static (the mode-acceleration
+        form, :mod:`hailstorm.studies.pad_modes`; the same Newmark rule per mode: with every
+        mode of the massless-contact pad it is the full peer). Needs ``dynamic``.
 
     Returns
     -------
@@ -449,15 +457,25 @@ def simulate_impact(mesh: PadMesh, radius: float, speed: float, *, dynamic: bool
     r_c = mesh.top_r[cand]
     phi = radius - np.sqrt(radius**2 - r_c**2)
     C = mesh.top_uz[cand]  # u_z dofs of the candidate nodes (indices into the free dofs)
-    M = _without_contact_mass(mesh.M, C) if dynamic else None
-    K_eff = mesh.K + M / (beta * dt * dt) if dynamic else mesh.K
+    if modes is not None and not dynamic:
+        raise ValueError("simulate_impact: modes need dynamic=True")
+    modal = modes is not None
+    full = dynamic and not modal  # Newmark on every dof
+    M = without_contact_mass(mesh.M, C) if full else None
+    K_eff = mesh.K + M / (beta * dt * dt) if full else mesh.K
     lu = splu(K_eff.tocsc())
     n = K_eff.shape[0]
     E = np.zeros((n, C.size))
     E[C, np.arange(C.size)] = 1.0
     G = lu.solve(E)  # K_eff^-1 C^T
     c = beta * dt * dt / m
-    S = G[C] + c  # C K_eff^-1 C^T + c 1 1^T
+    S_pad = G[C]  # C K_eff^-1 C^T
+    if modal:  # the retained modes' share of the static compliance, as far as a step lets them move
+        PC, w2 = modes.shapes[C], modes.omega2
+        lag = 1.0 / (1.0 + beta * dt * dt * w2)
+        S_pad = S_pad - (PC * (lag / w2)) @ PC.T
+        eta, eta_v, eta_a = np.zeros(w2.size), np.zeros(w2.size), np.zeros(w2.size)
+    S = S_pad + c  # ... + c 1 1^T: the sphere's own Newmark equation
     u, v, acc = np.zeros(n), np.zeros(n), np.zeros(n)
     x, xv, xa = 0.0, float(speed), 0.0
     active = np.zeros(C.size, dtype=bool)
@@ -467,22 +485,34 @@ def simulate_impact(mesh: PadMesh, radius: float, speed: float, *, dynamic: bool
     while t < t_end:
         t += dt
         x_hat = x + dt * xv + (0.5 - beta) * dt * dt * xa
-        if dynamic:
+        if full:
             u_hat = u + dt * v + (0.5 - beta) * dt * dt * acc
             u_free = lu.solve(M @ u_hat) / (beta * dt * dt)
+            u_free_C = u_free[C]
+        elif modal:
+            eta_hat = eta + dt * eta_v + (0.5 - beta) * dt * dt * eta_a
+            u_free_C = PC @ (eta_hat * lag)
         else:
-            u_free = np.zeros(n)
-        q = phi - x_hat - u_free[C]
+            u_free_C = np.zeros(C.size)
+        q = phi - x_hat - u_free_C
         lam, active = _lcp(S, q, active)
         F = float(lam.sum())
-        u_new = u_free - G @ lam
         x_new = x_hat - c * F
         xa_new = -F / m
-        if dynamic:
-            acc_new = (u_new - u_hat) / (beta * dt * dt)
-            v = v + dt * ((1 - gamma) * acc + gamma * acc_new)
-            acc = acc_new
-        u = u_new
+        if modal:  # the contact nodes alone: the dent at the axis is the first candidate's
+            f_m = -(PC.T @ lam)
+            eta_new = (eta_hat + beta * dt * dt * f_m) * lag
+            eta_a_new = f_m - w2 * eta_new
+            eta_v = eta_v + dt * ((1 - gamma) * eta_a + gamma * eta_a_new)
+            eta, eta_a = eta_new, eta_a_new
+            u[centre] = u_free_C[0] - S_pad[0] @ lam
+        else:
+            u_new = (u_free if full else 0.0) - G @ lam
+            if full:
+                acc_new = (u_new - u_hat) / (beta * dt * dt)
+                v = v + dt * ((1 - gamma) * acc + gamma * acc_new)
+                acc = acc_new
+            u = u_new
         xv = xv + dt * ((1 - gamma) * xa + gamma * xa_new)
         x, xa = x_new, xa_new
         hist.append((t, F, x, -u[centre]))
@@ -497,7 +527,7 @@ def simulate_impact(mesh: PadMesh, radius: float, speed: float, *, dynamic: bool
     duration = last_touch + 0.5 * dt if last_touch > 0 else 0.0
     res = ImpactResult(dynamic=dynamic, speed=float(speed), peak_force=float(H[:, 1].max()), duration=duration,
                        rebound_speed=float(-xv), max_dent=float(H[:, 3].max()), max_contact_radius=max_r, dt=dt,
-                       steps=len(hist), history=H)
+                       steps=len(hist), history=H, modes=modes.count if modal else None)
     _check_resolution(mesh.cell, max_r if max_r > 0 else a_ref, dt, max(duration, dt), "as measured")
     return res
 
