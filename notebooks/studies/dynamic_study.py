@@ -29,7 +29,7 @@ the contact radius under the stone (scikit-fem, the weak forms weighted by
 ``2 pi r``). Side edge free, underside clamped, ``u_r = 0`` on the axis.
 
 Density: flexible polyurethane foams span roughly 20-100 kg/m^3 (Gibson & Ashby,
-*Cellular Solids*, 2nd ed. 1997); the default, :data:`FOAM_DENSITY` = 70 kg/m^3, gives wave
+*Cellular Solids*, 2nd ed. 1997); the default, :data:`~hailstorm.studies.axisymmetric.FOAM_DENSITY` = 70 kg/m^3, gives wave
 speeds of 214 m/s (dilatational) and 103 m/s (shear) with E = 2 MPa. The
 inertia of the pad scales with the density: ``--density`` changes it.
 
@@ -65,16 +65,20 @@ from typing import Any, Sequence
 import numpy as np
 
 from hailstorm.runtime.contact.hertz import HertzImpact, hertz_impact
+from hailstorm.studies.axisymmetric import (
+    FOAM_DENSITY,
+    Pad,
+    PadMesh,
+    contact_lcp,
+    pad_mesh,
+    without_contact_mass,
+)
 
 __all__ = [
-    "FOAM_DENSITY",
     "ICE_DENSITY",
     "ImpactResult",
-    "Pad",
-    "PadMesh",
     "PeerResolutionError",
     "Row",
-    "axisymmetric_matrices",
     "compare",
     "default_pad",
     "format_corrections",
@@ -82,7 +86,6 @@ __all__ = [
     "format_table",
     "hertz_estimate",
     "main",
-    "pad_mesh",
     "plot_agreement",
     "StormImpact",
     "pad_bundle",
@@ -91,11 +94,8 @@ __all__ = [
     "storm_impact",
     "simulate_impact",
     "terminal_speed",
-    "without_contact_mass",
 ]
 
-#: foam density [kg/m^3]: flexible polyurethane foams ~20-100 (Gibson & Ashby, Cellular Solids, 2nd ed.)
-FOAM_DENSITY = 70.0
 #: ice density [kg/m^3] (the default scene's ``[hail] density``)
 ICE_DENSITY = 917.0
 #: the grid of the short run and of ``--full`` (speeds [m/s], radii [m])
@@ -109,41 +109,6 @@ AGREE = 0.05
 
 class PeerResolutionError(ValueError):
     """A peer run asked on a mesh or a time step too coarse for its impact (the message has the numbers)."""
-
-
-@dataclass(frozen=True)
-class Pad:
-    """A disc-shaped foam pad on a rigid base.
-
-    Attributes
-    ----------
-    young, poisson : float
-        The foam [Pa], [-].
-    density : float
-        [kg/m^3] (> 0).
-    thickness, radius : float
-        The disc [m].
-    """
-
-    young: float = 2.0e6
-    poisson: float = 0.35
-    density: float = FOAM_DENSITY
-    thickness: float = 0.015
-    radius: float = 0.06
-
-    def __post_init__(self) -> None:
-        for name in ("young", "density", "thickness", "radius"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise ValueError(f"pad {name} must be a positive number, got {v!r}")
-        if not (-1.0 < self.poisson < 0.5):
-            raise ValueError(f"pad poisson must be in (-1, 0.5), got {self.poisson!r}")
-
-    @property
-    def wave_speeds(self) -> tuple[float, float]:
-        """Dilatational and shear wave speeds [m/s]."""
-        E, nu, rho = self.young, self.poisson, self.density
-        return (math.sqrt(E * (1 - nu) / ((1 + nu) * (1 - 2 * nu) * rho)), math.sqrt(E / (2 * (1 + nu) * rho)))
 
 
 def default_pad(density: float = FOAM_DENSITY, **changes: float) -> Pad:
@@ -165,134 +130,6 @@ def hertz_estimate(pad: Pad, radius: float, speed: float, ice_density: float = I
     """Hertz's quasi-static impact of the stone on a half-space of the pad's material (no gravity)."""
     m = _check_density("ice", ice_density) * 4.0 / 3.0 * math.pi * radius**3
     return hertz_impact(m, speed, radius, pad.young, pad.poisson)
-
-
-# ---------------------------------------------------------------------------------------------
-# the axisymmetric pad
-# ---------------------------------------------------------------------------------------------
-@dataclass
-class PadMesh:
-    """The pad's (r, z) mesh and its matrices (:func:`pad_mesh`).
-
-    Attributes
-    ----------
-    pad : Pad
-    r, z : (nr,), (nz,) ndarray
-        Grid lines [m] (z = 0 the clamped base, z = thickness the top).
-    K, M : scipy.sparse matrix
-        Stiffness and mass on the free dofs (``2 pi r``-weighted) [N/m], [kg].
-    free : (f,) int ndarray
-        Free dofs of the vector P1 basis.
-    top_r : (t,) ndarray
-        Radii of the top nodes [m], ascending.
-    top_uz : (t,) int ndarray
-        Their u_z dofs, as indices into ``free``.
-    cell : float
-        Cell size at the axis under the contact [m].
-    """
-
-    pad: Pad
-    r: np.ndarray
-    z: np.ndarray
-    K: Any
-    M: Any
-    free: np.ndarray
-    top_r: np.ndarray
-    top_uz: np.ndarray
-    cell: float
-
-
-def _graded(length: float, fine: float, extent: float, growth: float) -> np.ndarray:
-    """Points 0 .. length: cells of ``fine`` up to ``extent``, then growing by ``growth``."""
-    extent = min(extent, length)
-    n = max(1, int(math.ceil(extent / fine)))
-    pts = list(np.linspace(0.0, n * fine, n + 1))
-    h = fine
-    while pts[-1] < length:
-        h *= growth
-        pts.append(pts[-1] + h)
-    pts = np.array(pts)
-    if pts.size > 2 and length - pts[-2] < 0.5 * (pts[-2] - pts[-3]):
-        pts = np.delete(pts, -2)  # no sliver at the end
-    pts[-1] = length
-    return pts[pts <= length]
-
-
-def axisymmetric_matrices(mesh: Any, young: float, poisson: float, density: float) -> tuple[Any, Any, Any]:
-    """Stiffness and mass of axisymmetric linear elasticity on an (r, z) triangle mesh.
-
-    With ``u = (u_r, u_z)``: strains ``e_rr = du_r/dr``, ``e_zz = du_z/dz``,
-    ``e_tt = u_r / r``, ``e_rz = (du_r/dz + du_z/dr) / 2``; the energy density
-    ``lambda tr(e)^2 / 2 + mu e:e`` and the kinetic energy ``rho |u'|^2 / 2``,
-    both integrated over ``2 pi r dr dz`` (scikit-fem ``BilinearForm``; the
-    quadrature points are inside the triangles, never on the axis).
-
-    Returns
-    -------
-    K, M : scipy.sparse.csr_matrix
-        On every dof of the vector P1 basis [N/m], [kg].
-    basis : skfem.Basis
-    """
-    from skfem import Basis, BilinearForm, ElementTriP1, ElementVector, asm
-    from skfem.helpers import dot, grad
-
-    lam = young * poisson / ((1 + poisson) * (1 - 2 * poisson))
-    mu = young / (2 * (1 + poisson))
-    basis = Basis(mesh, ElementVector(ElementTriP1()), intorder=3)
-
-    def strains(u: Any, r: np.ndarray) -> tuple[Any, Any, Any, Any]:
-        g = grad(u)
-        return g[0, 0], g[1, 1], u[0] / r, 0.5 * (g[0, 1] + g[1, 0])
-
-    @BilinearForm
-    def stiffness(u: Any, v: Any, w: Any) -> Any:
-        r = w.x[0]
-        a, b = strains(u, r), strains(v, r)
-        tr_u, tr_v = a[0] + a[1] + a[2], b[0] + b[1] + b[2]
-        return 2 * np.pi * r * (lam * tr_u * tr_v + 2 * mu * (a[0] * b[0] + a[1] * b[1] + a[2] * b[2] + 2 * a[3] * b[3]))
-
-    @BilinearForm
-    def mass(u: Any, v: Any, w: Any) -> Any:
-        return 2 * np.pi * w.x[0] * density * dot(u, v)
-
-    return asm(stiffness, basis).tocsr(), asm(mass, basis).tocsr(), basis
-
-
-def pad_mesh(pad: Pad, cell: float, extent: float, growth: float = 1.15) -> PadMesh:
-    """The pad's graded (r, z) mesh and matrices: cells of ``cell`` within ``extent`` of the
-    contact (radially from the axis, downwards from the top), growing by ``growth`` beyond.
-
-    Parameters
-    ----------
-    pad : Pad
-    cell : float
-        Cell size under the contact [m] (> 0).
-    extent : float
-        Reach of the fine cells [m].
-    growth : float
-        Ratio of neighbouring cells beyond it (> 1).
-    """
-    from skfem import MeshTri
-
-    if not (cell > 0 and extent > 0 and growth > 1):
-        raise ValueError(f"pad_mesh needs cell > 0, extent > 0, growth > 1, got {cell!r}, {extent!r}, {growth!r}")
-    r = _graded(pad.radius, cell, extent, growth)
-    depth = _graded(pad.thickness, cell, extent, growth)
-    z = np.sort(pad.thickness - depth)
-    z[0] = 0.0
-    mesh = MeshTri.init_tensor(r, z)
-    K, M, basis = axisymmetric_matrices(mesh, pad.young, pad.poisson, pad.density)
-    x = mesh.p
-    nd = basis.nodal_dofs  # (2, nodes): u_r, u_z dofs
-    tol = 1e-12 * pad.thickness
-    fixed = np.concatenate([nd[:, x[1] < tol].ravel(), nd[0, x[0] < tol]])
-    free = np.setdiff1d(np.arange(basis.N), fixed)
-    top = np.flatnonzero(x[1] > pad.thickness - tol)
-    top = top[np.argsort(x[0, top])]
-    pos = np.full(basis.N, -1)
-    pos[free] = np.arange(free.size)
-    return PadMesh(pad=pad, r=r, z=z, K=K[free][:, free].tocsc(), M=M[free][:, free].tocsc(), free=free,
-                   top_r=x[0, top], top_uz=pos[nd[1, top]], cell=float(r[1] - r[0]))
 
 
 # ---------------------------------------------------------------------------------------------
@@ -342,52 +179,6 @@ class ImpactResult:
     def restitution(self) -> float:
         """Rebound over impact speed."""
         return self.rebound_speed / self.speed
-
-
-def _lcp(S: np.ndarray, q: np.ndarray, active: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``lam >= 0``, ``w = S lam + q >= 0``, ``lam . w = 0`` for SPD ``S`` (active set from
-    ``active``; an exact non-negative least squares if it cycles). Returns lam and the active set."""
-    p = q.size
-    tol = 1e-12 * max(float(np.abs(q).max(initial=0.0)), 1e-300)
-    A = active.copy()
-    for _ in range(4 * p + 10):
-        lam = np.zeros(p)
-        if A.any():
-            lam[A] = np.linalg.solve(S[np.ix_(A, A)], -q[A])
-        neg = A & (lam < -tol)
-        if neg.any():
-            A &= ~neg
-            continue
-        w = S @ lam + q
-        viol = ~A & (w < -tol)
-        if not viol.any():
-            return np.clip(lam, 0.0, None), A
-        A |= viol
-    from scipy.linalg import cholesky, solve_triangular
-    from scipy.optimize import nnls
-
-    L = cholesky(S, lower=True)
-    lam, _ = nnls(L.T, -solve_triangular(L, q, lower=True))
-    return lam, lam > 0
-
-
-def without_contact_mass(M: Any, dofs: np.ndarray) -> Any:
-    """The mass matrix with the rows and columns of the contact dofs removed (zeroed).
-
-    Khenous, Laborde & Renard, Mass redistribution method for finite element contact
-    problems in elastodynamics, Eur. J. Mech. A/Solids 27 (2008) 918-932: without
-    inertia on the contact nodes' normal dofs the semi-discrete problem is well posed
-    and the Newmark average-acceleration scheme no longer creates energy at the
-    contact's onset and release (measured here: restitution 1.15 at 30 m/s with the
-    consistent mass, <= 1 without it). The mass removed is that of the top layer of
-    cells under the sphere, ~``rho pi R^2 cell / 2``: below 0.1 % of the stone's.
-    """
-    from scipy.sparse import diags
-
-    keep = np.ones(M.shape[0])
-    keep[dofs] = 0.0
-    P = diags(keep)
-    return (P @ M @ P).tocsc()
 
 
 def _check_resolution(cell: float, a: float, dt: float, duration: float, what: str) -> None:
@@ -495,7 +286,7 @@ def simulate_impact(mesh: PadMesh, radius: float, speed: float, *, dynamic: bool
         else:
             u_free_C = np.zeros(C.size)
         q = phi - x_hat - u_free_C
-        lam, active = _lcp(S, q, active)
+        lam, active = contact_lcp(S, q, active)
         F = float(lam.sum())
         x_new = x_hat - c * F
         xa_new = -F / m

@@ -23,7 +23,7 @@ above answer quasi-statically. The contact sees the compliance
 in a step ``h`` and a free displacement carried by the modes.
 
 The modes are those of the peer's pad with the contact nodes' normal mass removed
-(the peer's mass redistribution, :func:`~hailstorm.studies.dynamic_study.without_contact_mass`):
+(the peer's mass redistribution, :func:`~hailstorm.studies.axisymmetric.without_contact_mass`):
 a massless dof has no finite mode and is quasi-static by construction.
 
 What it measures
@@ -44,15 +44,14 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from hailstorm.studies.axisymmetric import FOAM_DENSITY, PadMesh, pad_mesh, without_contact_mass
 from hailstorm.studies.dynamic_study import (
-    FOAM_DENSITY,
-    PadMesh,
     Row,
     compare,
     default_pad,
+    hertz_estimate,
     simulate_impact,
     terminal_speed,
-    without_contact_mass,
 )
 
 __all__ = ["PadModes", "ModalRow", "format_modal", "main", "modal_rows", "pad_modes"]
@@ -140,8 +139,6 @@ def modal_rows(pad: Any, radii: Sequence[float], counts: Sequence[int] = COUNTS,
                speeds: Sequence[float] | None = None, **kw: Any) -> list[ModalRow]:
     """Each stone (at ``speeds``, default its terminal speed) on the peer, and the peer cut to
     ``counts`` modes; ``kw``: :func:`~hailstorm.studies.dynamic_study.compare`'s resolution."""
-    from hailstorm.studies.dynamic_study import hertz_estimate, pad_mesh
-
     out = []
     speeds = [terminal_speed(R) for R in radii] if speeds is None else list(speeds)
     cells = float(kw.get("cells_per_radius", 8.0))

@@ -9,7 +9,9 @@ One line per target, its figure measured here and whether it is met:
    edge and a centroid (:func:`hailstorm.studies.resolution_study.seat_table`, the near field on):
    the largest error, and the largest spread over where on the mesh the stone lands;
 2. ``press_spheres`` on a thick block of the foam with the default seat's settings against Hertz,
-   Hertz radius 0.5-8 mm at a/R = 0.2 and 0.4 (:func:`~hailstorm.studies.resolution_study.block_table`);
+   Hertz radius 0.5-8 mm at a/R = 0.2 and 0.4, and against the block's own converged force for
+   Hertz's paraboloid (:func:`~hailstorm.studies.resolution_study.block_table`: Hertz's half-space
+   is not the block);
 3. the default seat's precompute with ``--tol`` from an empty cache, in a child process: wall time,
    the child's peak resident memory, the compliance's stored bytes;
 4. a fresh solve of 100 point contacts with the whole surface's displacement (median);
@@ -121,9 +123,14 @@ def main(argv: list[str] | None = None) -> int:
     block = block_bundle(mesh_size=seat.mesh_size)
     brows = block_table(block, a_over_R=0.2) + block_table(block, a_over_R=0.4)
     berr = np.array([[r[f"halfspace:{s}"] for s in SITES] for r in brows])
-    bworst = float(np.abs(berr).max())
+    bown = np.array([[r[f"halfspace:{s}:block"] for s in SITES] for r in brows])
+    floor = max(brows, key=lambda r: abs(r["block"]))
+    bworst, bown_worst = float(np.abs(berr).max()), float(np.abs(bown).max())
     say("press_spheres on a thick block within 2 % of Hertz (a 0.5-8 mm, a/R 0.2 and 0.4)",
-        f"{100 * bworst:.1f} % worst", bworst <= 0.02)
+        f"{100 * bworst:.1f} % worst against Hertz; {100 * bown_worst:.1f} % worst against the block's own "
+        f"converged force for Hertz's paraboloid, which is itself {100 * floor['block']:+.1f} % off Hertz at "
+        f"a = {floor['a_mm']:g} mm (its clamp 400 mm down)",
+        True if bworst <= 0.02 else "met against the block, NOT MET against Hertz" if bown_worst <= 0.02 else False)
     say(f"default precompute from an empty cache <= 60 s wall (with --tol {args.tol:g})",
         f"{cost['wall_s']:.1f} s", cost["wall_s"] <= 60)
     say("peak memory <= 2 GiB", f"{cost['peak_GiB']:.2f} GiB (the precompute's process)", cost["peak_GiB"] <= 2)

@@ -9,18 +9,15 @@ import re
 import numpy as np
 import pytest
 
+from hailstorm.studies.axisymmetric import FOAM_DENSITY, Pad, axisymmetric_matrices, pad_mesh
 from hailstorm.studies.dynamic_study import (
-    FOAM_DENSITY,
     ICE_DENSITY,
-    Pad,
     PeerResolutionError,
-    axisymmetric_matrices,
     compare,
     default_pad,
     format_table,
     hertz_estimate,
     main,
-    pad_mesh,
     simulate_impact,
 )
 

@@ -8,7 +8,8 @@ import math
 import numpy as np
 import pytest
 
-from hailstorm.studies.dynamic_study import default_pad, hertz_estimate, pad_mesh, simulate_impact
+from hailstorm.studies.axisymmetric import pad_mesh, without_contact_mass
+from hailstorm.studies.dynamic_study import default_pad, hertz_estimate, simulate_impact
 from hailstorm.studies.pad_modes import main, modal_rows, pad_modes
 
 
@@ -24,8 +25,6 @@ def small_pad():
 
 def test_modes_solve_the_eigenproblem_and_are_mass_normalised(small_pad):
     mesh, _, _, C = small_pad
-    from hailstorm.studies.dynamic_study import without_contact_mass
-
     m = pad_modes(mesh, 12, massless=C)
     M = without_contact_mass(mesh.M, C)
     P = m.shapes
