@@ -207,7 +207,7 @@ def _print_bundle(path: Path, rehash: bool = True) -> None:
     else:
         comp = m["compliance"]
         err = comp["error"]
-        print(f"D        {gf.D.shape[0]} x {gf.D.shape[1]} as an H-matrix: {comp['stored_bytes'] / 2**20:.1f} MiB stored "
+        print(f"D        {gf.hmatrix.shape[0]} x {gf.hmatrix.shape[1]} as an H-matrix: {comp['stored_bytes'] / 2**20:.1f} MiB stored "
               f"of {comp['dense_bytes'] / 2**20:.1f} MiB dense ({comp['dense_bytes'] / max(comp['stored_bytes'], 1):.1f}x "
               f"smaller); {comp['far_blocks']} low-rank blocks of {comp['blocks']}, ranks up to {comp['max_rank']}")
         print(f"error    tol {comp['tol']:g}: measured against {err['columns']} exact columns drawn at random, "

@@ -11,11 +11,12 @@ alone (no gmsh, no scikit-fem).
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import numpy as np
 
@@ -28,7 +29,7 @@ from hailstorm.runtime.bundle.format import (
 from hailstorm.runtime.bundle.hmatrix import HMatrix, expanded
 from hailstorm.runtime.bundle.compliance import apply_columns, column_dofs, dof3, gather
 
-__all__ = ["GreensFunctions", "load", "stranded_copies", "vertex_normals"]
+__all__ = ["CompressedGreensFunctions", "GreensFunctions", "load", "stranded_copies", "vertex_normals"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -63,11 +64,11 @@ class GreensFunctions:
     hmatrix : HMatrix or None
         A compressed bundle's stored D (format 3: an H-matrix within
         ``manifest["compliance"]["tol"]`` of the exact D per column); None for a
-        dense bundle. :attr:`D` is then its dense expansion (float64), expanded
-        once into the cache and memory-mapped from there
-        (:func:`hailstorm.runtime.bundle.hmatrix.expanded`; in memory with
-        ``mmap=False``): the runtime touches the pages of D it reads, as with a
-        dense bundle, and the compression saves the bundle's bytes.
+        dense bundle. :attr:`D` is then its dense expansion (float64), made on
+        first use (:class:`CompressedGreensFunctions`), once into the cache and
+        memory-mapped from there (:func:`hailstorm.runtime.bundle.hmatrix.expanded`;
+        in memory with ``mmap=False``): the runtime touches the pages of D it
+        reads, as with a dense bundle, and the compression saves the bundle's bytes.
     """
 
     path: Path
@@ -200,6 +201,46 @@ class GreensFunctions:
         return apply_columns(self, column_dofs(self, vertices), forces.ravel(), rows)
 
 
+class CompressedGreensFunctions(GreensFunctions):
+    """A compressed bundle's Green's functions: :attr:`D` is expanded from :attr:`hmatrix` on first use.
+
+    Loading reads and checks the H-matrix only; what reads :attr:`D` (the contact
+    core, the storm) triggers the expansion, once (:func:`load`'s ``mmap``: into the
+    cache and memory-mapped, else in memory). What needs only the bundle's metadata
+    (``hailstorm info``) never expands it. :attr:`expanded` says whether it happened.
+    """
+
+    @classmethod
+    def lazy(cls, expand: Callable[[], np.ndarray], **fields: Any) -> "CompressedGreensFunctions":
+        """The bundle with ``fields`` (every :class:`GreensFunctions` field but D) and ``expand()`` making D."""
+        gf = cls(D=None, **fields)  # type: ignore[arg-type]
+        gf.__dict__["_expand"] = expand
+        return gf
+
+    @property  # type: ignore[override]
+    def D(self) -> np.ndarray:
+        """The dense expansion of :attr:`hmatrix` (float64, column-major), made on first use."""
+        dense = self.__dict__.get("_dense")
+        if dense is None:
+            dense = self.__dict__["_expand"]()
+            self.__dict__["_dense"] = dense
+        return dense
+
+    @D.setter
+    def D(self, value: np.ndarray | None) -> None:
+        self.__dict__["_dense"] = value
+
+    @property
+    def expanded(self) -> bool:
+        """True once :attr:`D` has been made."""
+        return self.__dict__.get("_dense") is not None
+
+    @property
+    def dtype(self) -> np.dtype:
+        """float64: an H-matrix is stored and expanded in float64."""
+        return np.dtype(np.float64)
+
+
 def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """Area-weighted unit vertex normals of an oriented triangle surface, (n, 3)."""
     p = vertices[triangles]
@@ -293,23 +334,15 @@ def load(path: str | os.PathLike, *, verify: bool = True, mmap: bool = True, reh
     if problems:
         raise BundleError(f"bundle {path} is inconsistent: " + "; ".join(problems))
 
-    if hmatrix is not None:  # checked: expand it (once, into the cache) for the compiled kernels
-        tag = hashlib.sha256(f"{manifest['key']}\0{manifest['arrays']['hmatrix_data']['sha256']}".encode()).hexdigest()
-        data["compliance"] = expanded(hmatrix, tag, rebuild=rehash) if mmap else hmatrix.to_dense()
     column_of = np.full(n, -1, dtype=np.intp)
     column_of[data["contactable"]] = np.arange(nc)
-    return GreensFunctions(
-        path=path,
-        manifest=manifest,
-        vertices=data["vertices"],
-        triangles=data["triangles"],
-        fixed=data["fixed"],
-        contactable=data["contactable"],
-        areas=data["areas"],
-        volume_points=data["volume_points"],
-        volume_tets=data["volume_tets"],
-        surface_nodes=data["surface_nodes"],
-        D=data["compliance"],
-        column_of=column_of,
-        hmatrix=hmatrix,
-    )
+    fields = dict(path=path, manifest=manifest, vertices=data["vertices"], triangles=data["triangles"],
+                  fixed=data["fixed"], contactable=data["contactable"], areas=data["areas"],
+                  volume_points=data["volume_points"], volume_tets=data["volume_tets"],
+                  surface_nodes=data["surface_nodes"], column_of=column_of, hmatrix=hmatrix)
+    if hmatrix is None:
+        return GreensFunctions(D=data["compliance"], **fields)
+    # checked: expanded on first use (once, into the cache) for the compiled kernels
+    tag = hashlib.sha256(f"{manifest['key']}\0{manifest['arrays']['hmatrix_data']['sha256']}".encode()).hexdigest()
+    expand = functools.partial(expanded, hmatrix, tag, rebuild=rehash) if mmap else hmatrix.to_dense
+    return CompressedGreensFunctions.lazy(expand, **fields)

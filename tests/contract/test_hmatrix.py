@@ -203,6 +203,24 @@ def test_a_compressed_d_is_expanded_once_into_the_cache_and_memory_mapped(seat_b
     assert not isinstance(in_memory.D, np.memmap) and np.allclose(in_memory.D, D, rtol=0, atol=rounding)
 
 
+def test_loading_and_info_leave_a_compressed_d_unexpanded(seat_h, tmp_path, monkeypatch, capsys):
+    """The expansion waits for the first read of D: ``hailstorm info`` (which re-hashes every file) and a
+    load write nothing into the cache; the first ``gf.D`` does, once."""
+    from hailstorm.cli import main
+    from hailstorm.runtime.bundle.read import CompressedGreensFunctions
+
+    monkeypatch.setenv("HAILSTORM_CACHE", str(tmp_path / "cache"))
+    expansions = lambda: sorted((tmp_path / "cache").glob("expanded/*.npy"))  # noqa: E731
+    assert main(["info", str(seat_h)]) == 0
+    assert "as an H-matrix" in capsys.readouterr().out and expansions() == []
+    gf = load(seat_h)
+    assert isinstance(gf, CompressedGreensFunctions) and not gf.expanded and gf.dtype == np.float64
+    assert expansions() == []
+    D = gf.D
+    assert gf.expanded and gf.D is D and len(expansions()) == 1
+    assert D.shape == gf.hmatrix.shape
+
+
 def test_an_unwritable_cache_expands_in_memory(seat_h, tmp_path, monkeypatch):
     blocker = tmp_path / "not-a-dir"
     blocker.write_text("a file where the cache would be")
