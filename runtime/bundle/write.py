@@ -166,7 +166,7 @@ def _acquire(lock: Path, out: Path, wait: bool) -> int:
                 if not wait:
                     raise BundleError(f"bundle {out} is being written by another process (pid {holder}); "
                                       "try again when it has finished") from None
-                log.warning("waiting for another hailstorm (pid %s) to finish writing %s ...", holder, out)
+                log.info("waiting for another hailstorm (pid %s) to finish writing %s ...", holder, out)
                 fcntl.flock(fd, fcntl.LOCK_EX)
             st = os.fstat(fd)
             try:

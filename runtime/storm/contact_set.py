@@ -67,6 +67,7 @@ class ContactSet:
     Kdiag: np.ndarray  # diag(K), a contiguous writable copy (what the compiled kernels take)
     C: np.ndarray | None = None  # exact-integrator dashpot (cached)
     modes: tuple | None = None  # (omega^2, Phi, sqrt(m)) of M^-1/2 K M^-1/2 (cached, contact_modes)
+    mode_masses: np.ndarray | None = None  # the masses the cached modes (and C) were computed with
 
 
 class ContactSets:

@@ -82,16 +82,19 @@ class ContactIntegrator:
 
     @staticmethod
     def _modes(cc: ContactSet, mq: np.ndarray) -> tuple:
-        """The contact set's normal modes (cached with the set)."""
-        if cc.modes is None or cc.modes[2].shape != mq.shape:
+        """The contact set's normal modes (cached with the set, for the masses they were computed with;
+        other masses drop the cached dashpot too)."""
+        if cc.modes is None or cc.mode_masses is None or not np.array_equal(cc.mode_masses, mq):
             cc.modes = contact_modes(cc.K, mq)
+            cc.mode_masses = np.array(mq, dtype=np.float64)
+            cc.C = None
         return cc.modes
 
     def exact_damping(self, cc: ContactSet, mq: np.ndarray) -> np.ndarray:
         """Exact-integrator dashpot of a contact set, per mode (:func:`hailstorm.runtime.storm.hail.modal_damping`;
         cached with the set)."""
+        om2, Phi, sqm = self._modes(cc, mq)  # (cached; a change of masses drops C)
         if cc.C is None or cc.C.shape != (mq.size, mq.size):
-            om2, Phi, sqm = self._modes(cc, mq)
             cc.C = substep_damping(om2, Phi, sqm, self.contact.restitution, 0.0, False, X_GRID, Z_GRID)
         return cc.C
 

@@ -514,7 +514,7 @@ def test_a_second_writer_waits_for_the_first(small_box, tmp_path, caplog):
         other.join(timeout=60)
         assert refused and "being written by another process (pid" in refused[0]
         t = threading.Thread(target=lambda: done.setdefault("path", build_bundle(out, mesh=small_box)))
-        with caplog.at_level(logging.WARNING):
+        with caplog.at_level(logging.INFO):
             t.start()
             for _ in range(2400):
                 if any("waiting for another hailstorm" in r.getMessage() for r in caplog.records):

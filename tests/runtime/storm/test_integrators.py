@@ -163,6 +163,9 @@ def test_exact_dashpot_realises_the_restitution_of_one_impact(gf):
     mq = np.array([M])
     C = integ.exact_damping(cc, mq)
     assert integ.exact_damping(cc, mq) is C  # cached with the set
+    heavier = integ.exact_damping(cc, 4.0 * mq)  # other masses (same shape): modes and dashpot anew
+    assert heavier is not C and heavier[0, 0] == pytest.approx(2.0 * C[0, 0], rel=1e-4)  # c ~ sqrt(k m)
+    C = integ.exact_damping(cc, mq)
     zeta = C[0, 0] / (2.0 * M * om)
     wd = np.sqrt(1.0 - zeta**2)
     t1 = np.arctan2(wd, zeta) / (wd * om)  # the first zero of the compression's velocity
