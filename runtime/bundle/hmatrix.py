@@ -44,12 +44,22 @@ import numpy as np
 
 from hailstorm.runtime.bundle.stamps import default_cache_dir, is_stamped, stamp
 
-__all__ = ["EXPAND_COLUMNS", "HMATRIX_ARRAYS", "HMatrix", "expanded"]
+__all__ = ["EXPAND_COLUMNS", "FLOAT32_TOL", "HMATRIX_ARRAYS", "HMatrix", "expanded", "expansion_dtype"]
 
 log = logging.getLogger(__name__)
 
 #: columns of D expanded at a time into the memory-mapped cache (bounds the expansion's memory)
 EXPAND_COLUMNS = 512
+
+#: the least compression tolerance whose bundles expand into float32 (:func:`expansion_dtype`): float32
+#: rounds an entry by at most 2^-24 ~ 6e-8 of itself, under 1 % of such a tolerance
+FLOAT32_TOL = 1e-5
+
+
+def expansion_dtype(tol: float) -> np.dtype:
+    """The type a compressed D of tolerance ``tol`` is expanded into: float32 from :data:`FLOAT32_TOL` up
+    (half the bytes every kernel reads, for a rounding under 1 % of the compression's error), else float64."""
+    return np.dtype(np.float32 if tol >= FLOAT32_TOL else np.float64)
 
 #: the bundle arrays an H-matrix is stored in, by :class:`HMatrix` attribute
 HMATRIX_ARRAYS = {"hmatrix_rows": "row_dofs", "hmatrix_cols": "col_dofs", "hmatrix_blocks": "blocks",
@@ -142,9 +152,11 @@ class HMatrix:
         y[self.row_dofs] = yp
         return y
 
-    def to_dense(self) -> np.ndarray:
-        """The matrix it stands for: dense, float64, column-major (the layout of a dense bundle's D)."""
-        return self.columns(np.arange(self.shape[1]))
+    def to_dense(self, dtype: np.dtype | type = np.float64) -> np.ndarray:
+        """The matrix it stands for: dense, column-major (the layout of a dense bundle's D), in ``dtype``
+        (rounded to nearest from the float64 products)."""
+        dense = self.columns(np.arange(self.shape[1]))
+        return dense if np.dtype(dtype) == np.float64 else dense.astype(dtype, order="F")
 
     @property
     def _col_position(self) -> np.ndarray:
@@ -193,8 +205,9 @@ class HMatrix:
                 raise ValueError("the H-matrix's blocks do not cover every entry exactly once")
 
 
-def expanded(H: HMatrix, tag: str, *, cache: str | os.PathLike | None = None, rebuild: bool = False) -> np.ndarray:
-    """``H`` as a dense, column-major, read-only memory-mapped float64 array, expanded once into the cache.
+def expanded(H: HMatrix, tag: str, *, dtype: np.dtype | type = np.float64, cache: str | os.PathLike | None = None,
+             rebuild: bool = False) -> np.ndarray:
+    """``H`` as a dense, column-major, read-only memory-mapped array of ``dtype``, expanded once into the cache.
 
     Parameters
     ----------
@@ -202,6 +215,8 @@ def expanded(H: HMatrix, tag: str, *, cache: str | os.PathLike | None = None, re
     tag : str
         What identifies ``H`` (the bundle's key and the hash of its data): the
         cache file's name and the stamp it must match.
+    dtype : float64 or float32
+        Of the expansion (:func:`expansion_dtype`; part of the file's name and stamp).
     cache : path, optional
         The cache directory (default :func:`hailstorm.runtime.bundle.stamps.default_cache_dir`).
     rebuild : bool
@@ -214,11 +229,13 @@ def expanded(H: HMatrix, tag: str, *, cache: str | os.PathLike | None = None, re
         cannot hold it (unwritable, or less free space than D's bytes), the
         expansion in memory instead (logged).
     """
+    dtype = np.dtype(dtype)
+    tag = f"{tag}-{dtype.name}"
     folder = Path(cache) if cache is not None else default_cache_dir() / "expanded"
-    target = folder / f"{tag[:40]}.npy"
+    target = folder / f"{tag[:40]}-{dtype.name}.npy"
     if not rebuild and target.is_file() and is_stamped(target, tag):
         return np.load(target, mmap_mode="r")
-    need = H.shape[0] * H.shape[1] * 8
+    need = H.shape[0] * H.shape[1] * dtype.itemsize
     try:
         folder.mkdir(parents=True, exist_ok=True)
         free = shutil.disk_usage(folder).free
@@ -227,7 +244,7 @@ def expanded(H: HMatrix, tag: str, *, cache: str | os.PathLike | None = None, re
         fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp", dir=folder)
         os.close(fd)
         try:
-            out = np.lib.format.open_memmap(tmp, mode="w+", dtype=np.float64, shape=H.shape, fortran_order=True)
+            out = np.lib.format.open_memmap(tmp, mode="w+", dtype=dtype, shape=H.shape, fortran_order=True)
             for j in range(0, H.shape[1], EXPAND_COLUMNS):
                 out[:, j:j + EXPAND_COLUMNS] = H.columns(np.arange(j, min(j + EXPAND_COLUMNS, H.shape[1])))
             out.flush()
@@ -239,6 +256,6 @@ def expanded(H: HMatrix, tag: str, *, cache: str | os.PathLike | None = None, re
     except OSError as exc:
         log.info("expanding the compressed D in memory (%.2f GiB): the cache %s cannot hold it (%s)",
                  need / 2**30, folder, exc)
-        return H.to_dense()
+        return H.to_dense(dtype)
     stamp(target, tag)
     return np.load(target, mmap_mode="r")

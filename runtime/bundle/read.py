@@ -26,7 +26,7 @@ from hailstorm.runtime.bundle.format import (
     is_bundle,
     read_arrays,
 )
-from hailstorm.runtime.bundle.hmatrix import HMatrix, expanded
+from hailstorm.runtime.bundle.hmatrix import HMatrix, expanded, expansion_dtype
 from hailstorm.runtime.bundle.compliance import apply_columns, column_dofs, dof3, gather
 
 __all__ = ["CompressedGreensFunctions", "GreensFunctions", "load", "stranded_copies", "vertex_normals"]
@@ -64,8 +64,8 @@ class GreensFunctions:
     hmatrix : HMatrix or None
         A compressed bundle's stored D (format 3: an H-matrix within
         ``manifest["compliance"]["tol"]`` of the exact D per column); None for a
-        dense bundle. :attr:`D` is then its dense expansion (float64), made on
-        first use (:class:`CompressedGreensFunctions`), once into the cache and
+        dense bundle. :attr:`D` is then its dense expansion (float32 for a
+        tolerance of 1e-5 or more, else float64), made on first use (:class:`CompressedGreensFunctions`), once into the cache and
         memory-mapped from there (:func:`hailstorm.runtime.bundle.hmatrix.expanded`;
         in memory with ``mmap=False``): the runtime touches the pages of D it
         reads, as with a dense bundle, and the compression saves the bundle's bytes.
@@ -211,10 +211,12 @@ class CompressedGreensFunctions(GreensFunctions):
     """
 
     @classmethod
-    def lazy(cls, expand: Callable[[], np.ndarray], **fields: Any) -> "CompressedGreensFunctions":
-        """The bundle with ``fields`` (every :class:`GreensFunctions` field but D) and ``expand()`` making D."""
+    def lazy(cls, expand: Callable[[], np.ndarray], dtype: np.dtype, **fields: Any) -> "CompressedGreensFunctions":
+        """The bundle with ``fields`` (every :class:`GreensFunctions` field but D) and ``expand()`` making D
+        in ``dtype``."""
         gf = cls(D=None, **fields)  # type: ignore[arg-type]
         gf.__dict__["_expand"] = expand
+        gf.__dict__["_dtype"] = np.dtype(dtype)
         return gf
 
     @property  # type: ignore[override]
@@ -237,8 +239,10 @@ class CompressedGreensFunctions(GreensFunctions):
 
     @property
     def dtype(self) -> np.dtype:
-        """float64: an H-matrix is stored and expanded in float64."""
-        return np.dtype(np.float64)
+        """The expansion's type (:func:`hailstorm.runtime.bundle.hmatrix.expansion_dtype`: float32 for a
+        tolerance of 1e-5 or more, else float64; the H-matrix itself is stored in float64)."""
+        dense = self.__dict__.get("_dense")
+        return dense.dtype if dense is not None else self.__dict__.get("_dtype", np.dtype(np.float64))
 
 
 def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
@@ -344,5 +348,7 @@ def load(path: str | os.PathLike, *, verify: bool = True, mmap: bool = True, reh
         return GreensFunctions(D=data["compliance"], **fields)
     # checked: expanded on first use (once, into the cache) for the compiled kernels
     tag = hashlib.sha256(f"{manifest['key']}\0{manifest['arrays']['hmatrix_data']['sha256']}".encode()).hexdigest()
-    expand = functools.partial(expanded, hmatrix, tag, rebuild=rehash) if mmap else hmatrix.to_dense
-    return CompressedGreensFunctions.lazy(expand, **fields)
+    dtype = expansion_dtype(float(manifest["compliance"]["tol"]))
+    expand = (functools.partial(expanded, hmatrix, tag, dtype=dtype, rebuild=rehash) if mmap
+              else functools.partial(hmatrix.to_dense, dtype))
+    return CompressedGreensFunctions.lazy(expand, dtype, **fields)

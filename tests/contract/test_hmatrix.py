@@ -185,10 +185,13 @@ def test_a_compressed_d_is_expanded_once_into_the_cache_and_memory_mapped(seat_b
     monkeypatch.setenv("HAILSTORM_CACHE", str(tmp_path / "cache"))
     first = load(seat_h)
     assert isinstance(first.D, np.memmap) and first.D.flags.f_contiguous and not first.D.flags.writeable
+    assert first.D.dtype == np.float32 == first.dtype  # tol 1e-3: float32's rounding is 1e-4 of it
     (cached,) = (tmp_path / "cache" / "expanded").glob("*.npy")
     before = cached.stat().st_mtime_ns
     D = np.array(first.D)
-    assert np.allclose(D, first.hmatrix.to_dense(), rtol=0, atol=1e-14 * np.abs(D).max())
+    exact = first.hmatrix.to_dense()
+    assert np.array_equal(D, exact.astype(np.float32))  # rounded to nearest, nothing else
+    assert np.abs(D - exact).max() <= 2.0**-24 * np.abs(exact).max()
     again = load(seat_h)
     assert cached.stat().st_mtime_ns == before and np.array_equal(again.D, D)  # reused
     # an expansion changed behind the project's back fails its stamp and is rebuilt
@@ -197,10 +200,20 @@ def test_a_compressed_d_is_expanded_once_into_the_cache_and_memory_mapped(seat_b
     spoiled.flush()
     del spoiled
     rebuilt = load(seat_h)
-    rounding = 1e-14 * np.abs(D).max()  # the same products of factors, in other column batches: BLAS may round apart
+    # the same products of factors, in other column batches: BLAS may round them apart by an ulp of float64,
+    # which can move a float32 rounding by one float32 ulp
+    rounding = 2.0**-23 * np.abs(D).max()
     assert np.allclose(rebuilt.D, D, rtol=0, atol=rounding) and cached.stat().st_mtime_ns != before
     in_memory = load(seat_h, mmap=False)
     assert not isinstance(in_memory.D, np.memmap) and np.allclose(in_memory.D, D, rtol=0, atol=rounding)
+    assert in_memory.D.dtype == np.float32
+
+
+def test_a_tight_tolerance_expands_into_float64():
+    from hailstorm.runtime.bundle.hmatrix import FLOAT32_TOL, expansion_dtype
+
+    assert expansion_dtype(1e-2) == expansion_dtype(FLOAT32_TOL) == np.float32
+    assert expansion_dtype(FLOAT32_TOL / 2) == expansion_dtype(1e-8) == np.float64
 
 
 def test_loading_and_info_leave_a_compressed_d_unexpanded(seat_h, tmp_path, monkeypatch, capsys):
@@ -214,11 +227,11 @@ def test_loading_and_info_leave_a_compressed_d_unexpanded(seat_h, tmp_path, monk
     assert main(["info", str(seat_h)]) == 0
     assert "as an H-matrix" in capsys.readouterr().out and expansions() == []
     gf = load(seat_h)
-    assert isinstance(gf, CompressedGreensFunctions) and not gf.expanded and gf.dtype == np.float64
+    assert isinstance(gf, CompressedGreensFunctions) and not gf.expanded and gf.dtype == np.float32
     assert expansions() == []
     D = gf.D
     assert gf.expanded and gf.D is D and len(expansions()) == 1
-    assert D.shape == gf.hmatrix.shape
+    assert D.shape == gf.hmatrix.shape and D.dtype == gf.dtype
 
 
 def test_an_unwritable_cache_expands_in_memory(seat_h, tmp_path, monkeypatch):
@@ -230,14 +243,16 @@ def test_an_unwritable_cache_expands_in_memory(seat_h, tmp_path, monkeypatch):
     assert blocker.read_text() == "a file where the cache would be"
 
 
-def test_a_storm_on_the_compressed_bundle_is_the_dense_storm(seat_bundle, seat_h):
-    """The same storm on both bundles (the frames read the expanded D): the same impacts, and the
-    contact forces and dents within the compression's 1e-3 per column."""
+def test_a_storm_on_the_compressed_bundle_is_the_dense_storm(seat_bundle, seat_h, tmp_path):
+    """The same storm on both bundles (the frames read the expanded D, float32 at this tolerance; the dense
+    D rounded to float32 too): the same impacts, and the contact forces and dents within the compression's
+    1e-3 per column."""
     from hailstorm.runtime import run_storm
     from hailstorm.runtime.storm.scene import Scene
 
     scene = Scene.from_flat(duration=0.04, stones=30, seed=5)
-    a = run_storm(load(seat_bundle), scene, progress=False, keep_frames=True)
+    a = run_storm(load(convert_bundle(seat_bundle, tmp_path / "f32", "float32")), scene, progress=False,
+                  keep_frames=True)
     b = run_storm(load(seat_h), scene, progress=False, keep_frames=True)
     assert a.stats.impacts == b.stats.impacts > 0
     assert b.stats.max_contact_force == pytest.approx(a.stats.max_contact_force, rel=1e-3)
