@@ -44,7 +44,7 @@ step solves the linear complementarity problem of the candidate nodes'
 multipliers exactly (active set on the Schur complement of the step's
 effective stiffness, the sphere's own Newmark equation included). The contact
 nodes' normal dofs carry no mass (Khenous, Laborde & Renard's mass
-redistribution, :func:`without_contact_mass`: with it Newmark creates no
+redistribution, :func:`~hailstorm.studies.axisymmetric.without_contact_mass`: with it Newmark creates no
 energy at contact and release). Gravity is
 left out of both models (the comparison is of the pad's inertia alone).
 

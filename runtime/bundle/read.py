@@ -65,7 +65,8 @@ class GreensFunctions:
         A compressed bundle's stored D (format 3: an H-matrix within
         ``manifest["compliance"]["tol"]`` of the exact D per column); None for a
         dense bundle. :attr:`D` is then its dense expansion (float32 for a
-        tolerance of 1e-5 or more, else float64), made on first use (:class:`CompressedGreensFunctions`), once into the cache and
+        tolerance of 1e-5 or more, else float64), made on first use
+        (:class:`CompressedGreensFunctions`), once into the cache and
         memory-mapped from there (:func:`hailstorm.runtime.bundle.hmatrix.expanded`;
         in memory with ``mmap=False``): the runtime touches the pages of D it
         reads, as with a dense bundle, and the compression saves the bundle's bytes.
@@ -221,7 +222,7 @@ class CompressedGreensFunctions(GreensFunctions):
 
     @property  # type: ignore[override]
     def D(self) -> np.ndarray:
-        """The dense expansion of :attr:`hmatrix` (float64, column-major), made on first use."""
+        """The dense expansion of :attr:`hmatrix` (column-major, in :attr:`dtype`), made on first use."""
         dense = self.__dict__.get("_dense")
         if dense is None:
             dense = self.__dict__["_expand"]()
