@@ -16,6 +16,7 @@ impact on its axis) and the references built on it:
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 from typing import Any
@@ -254,6 +255,26 @@ class DiscPress:
     dofs: int
 
 
+@functools.lru_cache(maxsize=2)
+def _top_compliance(pad: Pad, radius: float, depth: float, cells_per_radius: float,
+                    growth: float) -> tuple[np.ndarray, np.ndarray, int]:
+    """:func:`press_disc`'s static compliance among its candidate top nodes, their radii and the mesh's
+    free dofs (kept for the last two presses: the sphere and the paraboloid share one mesh and factor)."""
+    from scipy.sparse.linalg import splu
+
+    a = math.sqrt(radius * depth)
+    mesh = pad_mesh(pad, cell=a / cells_per_radius, extent=1.5 * a, growth=growth)
+    cand = np.flatnonzero(mesh.top_r < min(0.999 * radius, 2.0 * a))
+    C, r = mesh.top_uz[cand], mesh.top_r[cand]
+    n = mesh.K.shape[0]
+    E = np.zeros((n, C.size))
+    E[C, np.arange(C.size)] = 1.0
+    S = splu(mesh.K.tocsc()).solve(E)[C]
+    S.flags.writeable = False
+    r.flags.writeable = False
+    return S, r, n
+
+
 def press_disc(pad: Pad, radius: float, depth: float, *, profile: str = "sphere", cells_per_radius: float = 32.0,
                growth: float = 1.04) -> DiscPress:
     """A rigid frictionless sphere of ``radius`` pressed ``depth`` into the pad's top on its axis, statically.
@@ -279,25 +300,16 @@ def press_disc(pad: Pad, radius: float, depth: float, *, profile: str = "sphere"
         Non-positive radius, depth or resolution; an unknown profile; a contact that reaches the
         last candidate node.
     """
-    from scipy.sparse.linalg import splu
-
     if not (radius > 0 and depth > 0 and cells_per_radius > 0):
         raise ValueError(f"press_disc needs radius, depth, cells_per_radius > 0, got {radius!r}, {depth!r}, "
                          f"{cells_per_radius!r}")
     if profile not in ("sphere", "paraboloid"):
         raise ValueError(f"press_disc: profile must be 'sphere' or 'paraboloid', got {profile!r}")
-    a = math.sqrt(radius * depth)
-    mesh = pad_mesh(pad, cell=a / cells_per_radius, extent=1.5 * a, growth=growth)
-    cand = np.flatnonzero(mesh.top_r < min(0.999 * radius, 2.0 * a))
-    C, r = mesh.top_uz[cand], mesh.top_r[cand]
-    n = mesh.K.shape[0]
-    E = np.zeros((n, C.size))
-    E[C, np.arange(C.size)] = 1.0
-    S = splu(mesh.K.tocsc()).solve(E)[C]
+    S, r, n = _top_compliance(pad, radius, depth, float(cells_per_radius), float(growth))
     phi = radius - np.sqrt(radius * radius - r * r) if profile == "sphere" else r * r / (2.0 * radius)
-    lam, _ = contact_lcp(S, phi - depth, np.zeros(C.size, dtype=bool))
+    lam, _ = contact_lcp(S, phi - depth, np.zeros(r.size, dtype=bool))
     touching = np.flatnonzero(lam > 0)
-    if touching.size and touching[-1] == C.size - 1:
+    if touching.size and touching[-1] == r.size - 1:
         raise ValueError(f"press_disc: the contact reaches the last candidate node at r = {r[-1] * 1e3:.3g} mm "
                          f"(sphere radius {radius * 1e3:.3g} mm, depth {depth * 1e3:.3g} mm)")
     return DiscPress(force=float(lam.sum()), contact_radius=float(r[touching[-1]]) if touching.size else 0.0, dofs=n)

@@ -85,6 +85,8 @@ __all__ = [
     "format_storm",
     "format_table",
     "hertz_estimate",
+    "impact_errors",
+    "impact_mesh",
     "main",
     "plot_agreement",
     "StormImpact",
@@ -341,25 +343,33 @@ class Row:
 
     def errors(self) -> dict[str, float]:
         """Quasi-static over dynamic, minus 1, per measure."""
-        d, q = self.dynamic, self.quasi_static
-        return {"force": q.peak_force / d.peak_force - 1, "duration": q.duration / d.duration - 1,
-                "rebound": q.rebound_speed / d.rebound_speed - 1, "dent": q.max_dent / d.max_dent - 1}
+        return impact_errors(self.quasi_static, self.dynamic)
 
     def agrees(self, tol: float = AGREE) -> bool:
         """All four measures within ``tol``."""
         return all(abs(e) <= tol for e in self.errors().values())
 
 
+def impact_errors(model: ImpactResult, reference: ImpactResult) -> dict[str, float]:
+    """``model`` over ``reference``, minus 1, per measure: peak force, duration, rebound, largest dent."""
+    m, r = model, reference
+    return {"force": m.peak_force / r.peak_force - 1, "duration": m.duration / r.duration - 1,
+            "rebound": m.rebound_speed / r.rebound_speed - 1, "dent": m.max_dent / r.max_dent - 1}
+
+
+def impact_mesh(pad: Pad, radius: float, speed: float, cells_per_radius: float = 8.0,
+                ice_density: float = ICE_DENSITY) -> PadMesh:
+    """The peer's mesh for one impact: fine cells of Hertz's contact radius over ``cells_per_radius``
+    within 1.5 contact radii of the impact (growing by 1.15 beyond)."""
+    a = math.sqrt(radius * hertz_estimate(pad, radius, speed, ice_density).max_depth)
+    return pad_mesh(pad, cell=a / cells_per_radius, extent=1.5 * a)
+
+
 def compare(pad: Pad, radius: float, speed: float, *, cells_per_radius: float = 8.0, steps_per_contact: int = 200,
             ice_density: float = ICE_DENSITY) -> Row:
-    """The impact of one stone, dynamic and quasi-static on the same mesh, and Hertz's.
-
-    The mesh's fine cells are Hertz's contact radius over ``cells_per_radius``
-    and reach 1.5 contact radii from the impact (growing by 1.15 beyond).
-    """
+    """The impact of one stone, dynamic and quasi-static on the same mesh (:func:`impact_mesh`), and Hertz's."""
     ref = hertz_estimate(pad, radius, speed, ice_density)
-    a = math.sqrt(radius * ref.max_depth)
-    mesh = pad_mesh(pad, cell=a / cells_per_radius, extent=1.5 * a)
+    mesh = impact_mesh(pad, radius, speed, cells_per_radius, ice_density)
     kw = dict(steps_per_contact=steps_per_contact, ice_density=ice_density)
     dyn = simulate_impact(mesh, radius, speed, dynamic=True, **kw)
     qs = simulate_impact(mesh, radius, speed, dynamic=False, **kw)

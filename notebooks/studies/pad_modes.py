@@ -44,12 +44,13 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from hailstorm.studies.axisymmetric import FOAM_DENSITY, PadMesh, pad_mesh, without_contact_mass
+from hailstorm.studies.axisymmetric import FOAM_DENSITY, PadMesh, without_contact_mass
 from hailstorm.studies.dynamic_study import (
     Row,
     compare,
     default_pad,
-    hertz_estimate,
+    impact_errors,
+    impact_mesh,
     simulate_impact,
     terminal_speed,
 )
@@ -136,26 +137,21 @@ class ModalRow:
 
 
 def modal_rows(pad: Any, radii: Sequence[float], counts: Sequence[int] = COUNTS, *,
-               speeds: Sequence[float] | None = None, **kw: Any) -> list[ModalRow]:
-    """Each stone (at ``speeds``, default its terminal speed) on the peer, and the peer cut to
-    ``counts`` modes; ``kw``: :func:`~hailstorm.studies.dynamic_study.compare`'s resolution."""
+               speeds: Sequence[float] | None = None, cells_per_radius: float = 8.0,
+               steps_per_contact: int = 200) -> list[ModalRow]:
+    """Each stone (at ``speeds``, default its terminal speed) on the peer (:func:`compare`, its mesh
+    :func:`impact_mesh`), and the peer cut to ``counts`` modes."""
     out = []
     speeds = [terminal_speed(R) for R in radii] if speeds is None else list(speeds)
-    cells = float(kw.get("cells_per_radius", 8.0))
-    steps = int(kw.get("steps_per_contact", 200))
     for R, v in zip(radii, speeds):
-        row = compare(pad, R, v, cells_per_radius=cells, steps_per_contact=steps)
-        ref = hertz_estimate(pad, R, v)
-        a = math.sqrt(R * ref.max_depth)
-        mesh = pad_mesh(pad, cell=a / cells, extent=1.5 * a)  # compare's mesh
+        row = compare(pad, R, v, cells_per_radius=cells_per_radius, steps_per_contact=steps_per_contact)
+        mesh = impact_mesh(pad, R, v, cells_per_radius)
         C = mesh.top_uz[mesh.top_r < 0.999 * R]  # the peer's contact candidates
         errs, freqs = [], []
         for n in counts:
             modes = pad_modes(mesh, n, massless=C)
-            r = simulate_impact(mesh, R, v, modes=modes, steps_per_contact=steps)
-            d = row.dynamic
-            errs.append({"force": r.peak_force / d.peak_force - 1, "duration": r.duration / d.duration - 1,
-                         "rebound": r.rebound_speed / d.rebound_speed - 1, "dent": r.max_dent / d.max_dent - 1})
+            r = simulate_impact(mesh, R, v, modes=modes, steps_per_contact=steps_per_contact)
+            errs.append(impact_errors(r, row.dynamic))
             freqs.append(modes.max_frequency)
         out.append(ModalRow(row=row, counts=tuple(counts), frequencies=tuple(freqs), errors=tuple(errs)))
     return out
