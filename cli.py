@@ -54,7 +54,6 @@ def _float(text: str) -> float:
 def _parser() -> argparse.ArgumentParser:
     from hailstorm.precompute.fem import DEFAULT_POISSON, DEFAULT_YOUNG  # noqa: PLC0415 (cheap module)
     from hailstorm.precompute.greens import SOLVER_SPECS
-    from hailstorm.precompute.pipeline import DEFAULT_MESH_SIZE
 
     p = argparse.ArgumentParser(
         prog="hailstorm",
@@ -66,11 +65,12 @@ def _parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command")
 
     pre = sub.add_parser("precompute", parents=[common], help="compute a Green's-function bundle for a seat")
-    pre.add_argument("--mesh-size", type=_positive_float, default=DEFAULT_MESH_SIZE,
-                     help=f"element size on the hail-facing surface in metres (default {DEFAULT_MESH_SIZE})")
     from hailstorm.runtime.storm.scene import SeatSettings
 
     seat = SeatSettings.default()
+    pre.add_argument("--mesh-size", type=_positive_float, default=seat.mesh_size,
+                     help=f"element size on the hail-facing surface in metres (default {seat.mesh_size}: the "
+                     "default seat's)")
     pre.add_argument("--order", type=int, choices=(1, 2), default=seat.order,
                      help=f"P1 or P2 tetrahedra (default {seat.order}: the default seat's, chosen by measured accuracy)")
     pre.add_argument("--volume-size", type=_positive_float, default=None, metavar="H",

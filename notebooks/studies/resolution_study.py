@@ -53,12 +53,17 @@ def seat_bundle(mesh_size: float, progress: bool = False) -> Any:
 BLOCK_HALF_WIDTH, BLOCK_DEPTH = 0.4, 0.4
 
 
-def block_bundle(out: Any = None, mesh_size: float = 0.006, order: int = 2, young: float = 2.0e6,
+def block_bundle(out: Any = None, mesh_size: float | None = None, order: int = 2, young: float = 2.0e6,
                  poisson: float = 0.35) -> Any:
-    """A graded block of foam clamped 400 mm down, ``mesh_size`` on its top centre, hat-load columns."""
+    """A graded block of foam clamped 400 mm down, ``mesh_size`` on its top centre (``None``: the
+    default seat's), hat-load columns."""
     import hailstorm.runtime
     from hailstorm.precompute import build_bundle
     from hailstorm.precompute.halfspace import halfspace_block
+    from hailstorm.runtime.storm.scene import SeatSettings
+
+    if mesh_size is None:
+        mesh_size = SeatSettings.default().mesh_size
 
     mesh = halfspace_block(half_width=BLOCK_HALF_WIDTH, depth=BLOCK_DEPTH, top_half_width=0.025, fine_size=mesh_size,
                            fine_radius=0.04, coarse_size=0.1, growth=0.3)
@@ -219,7 +224,11 @@ def main(argv: list[str] | None = None) -> None:
 
     ap = argparse.ArgumentParser(prog="python -m hailstorm.studies.resolution_study", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--mesh-size", type=float, default=0.006, help="element size on the top [m] (default 0.006)")
+    from hailstorm.runtime.storm.scene import SeatSettings
+
+    size = SeatSettings.default().mesh_size
+    ap.add_argument("--mesh-size", type=float, default=size, help=f"element size on the top [m] (default {size}: "
+                    "the default seat's)")
     ap.add_argument("--reference-size", type=float, default=0.003, help="the finer seat's [m] (default 0.003)")
     ap.add_argument("--skip-block", action="store_true")
     ap.add_argument("--skip-seat", action="store_true")
