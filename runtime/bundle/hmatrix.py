@@ -42,14 +42,19 @@ from typing import Mapping
 
 import numpy as np
 
-from hailstorm.runtime.bundle.stamps import default_cache_dir, is_stamped, stamp
+from hailstorm.runtime.bundle.stamps import default_cache_dir, forget, is_stamped, stamp, stamped_hash
 
-__all__ = ["EXPAND_COLUMNS", "FLOAT32_TOL", "HMATRIX_ARRAYS", "HMatrix", "expanded", "expansion_dtype"]
+__all__ = ["EXPAND_COLUMNS", "EXPANDED_BUDGET", "FLOAT32_TOL", "HMATRIX_ARRAYS", "HMatrix", "expanded",
+           "expansion_dtype", "prune_expansions"]
 
 log = logging.getLogger(__name__)
 
 #: columns of D expanded at a time into the memory-mapped cache (bounds the expansion's memory)
 EXPAND_COLUMNS = 512
+
+#: bytes the expansions in ``<cache>/expanded/`` may hold together: writing one that takes them past it
+#: removes the oldest others (:func:`prune_expansions`; an expansion is rebuilt on its next use)
+EXPANDED_BUDGET = 4 << 30
 
 #: the least compression tolerance whose bundles expand into float32 (:func:`expansion_dtype`): float32
 #: rounds an entry by at most 2^-24 ~ 6e-8 of itself, under 1 % of such a tolerance
@@ -258,4 +263,62 @@ def expanded(H: HMatrix, tag: str, *, dtype: np.dtype | type = np.float64, cache
                  need / 2**30, folder, exc)
         return H.to_dense(dtype)
     stamp(target, tag)
+    prune_expansions(folder, keep=target)
     return np.load(target, mmap_mode="r")
+
+
+def prune_expansions(folder: str | os.PathLike, keep: str | os.PathLike | None = None,
+                     budget: int | None = None) -> list[Path]:
+    """Remove the oldest expansions in ``folder`` until those left hold at most ``budget`` bytes.
+
+    Only files this project wrote there are candidates: ``*-float32.npy`` and
+    ``*-float64.npy`` whose stamp (:func:`hailstorm.runtime.bundle.stamps.stamped_hash`)
+    still matches them and names their own type; anything else in ``folder``,
+    and ``keep`` (the expansion just written), stays. Oldest first by
+    modification time. A removed expansion is rebuilt on its next use.
+
+    Parameters
+    ----------
+    folder : path
+        ``<cache>/expanded``.
+    keep : path, optional
+        Never removed.
+    budget : int, optional
+        Bytes (default :data:`EXPANDED_BUDGET`).
+
+    Returns
+    -------
+    list of Path
+        The files removed.
+    """
+    budget = EXPANDED_BUDGET if budget is None else int(budget)
+    keep_path = Path(keep).resolve() if keep is not None else None
+    ours = []
+    for p in Path(folder).glob("*.npy"):
+        dtype = p.stem.rsplit("-", 1)[-1]
+        sha = stamped_hash(p) if dtype in ("float32", "float64") else None
+        if sha is None or not sha.endswith(f"-{dtype}"):
+            continue
+        try:
+            st = p.stat()
+        except OSError:
+            continue
+        ours.append((st.st_mtime_ns, st.st_size, p))
+    total = sum(size for _, size, _ in ours)
+    removed = []
+    for _, size, p in sorted(ours):
+        if total <= budget:
+            break
+        if keep_path is not None and p.resolve() == keep_path:
+            continue
+        try:
+            p.unlink()
+        except OSError as exc:
+            log.debug("could not remove the expansion %s: %s", p, exc)
+            continue
+        forget(p)
+        total -= size
+        removed.append(p)
+        log.info("removed the expansion %s (%.2f GiB; the expansions' budget is %.2f GiB)", p.name,
+                 size / 2**30, budget / 2**30)
+    return removed

@@ -29,7 +29,7 @@ from hailstorm.runtime.bundle.atomic import write_text_atomic
 
 log = logging.getLogger(__name__)
 
-__all__ = ["default_cache_dir", "is_stamped", "stamp"]
+__all__ = ["default_cache_dir", "forget", "is_stamped", "stamp", "stamped_hash"]
 
 
 def default_cache_dir() -> Path:
@@ -61,6 +61,27 @@ def is_stamped(path: str | os.PathLike, sha256: str) -> bool:
         return isinstance(rec, dict) and rec == {**_identity(path), "sha256": sha256}
     except (OSError, ValueError):
         return False
+
+
+def stamped_hash(path: str | os.PathLike) -> str | None:
+    """The hash ``path``, as it is now, was stamped with, or None (no stamp, or the file changed since)."""
+    path = Path(path)
+    try:
+        rec = json.loads(_stamp_file(path).read_text())
+        if isinstance(rec, dict) and {k: v for k, v in rec.items() if k != "sha256"} == _identity(path):
+            sha = rec.get("sha256")
+            return sha if isinstance(sha, str) else None
+    except (OSError, ValueError):
+        pass
+    return None
+
+
+def forget(path: str | os.PathLike) -> None:
+    """Remove the stamp of ``path`` (best effort; the file itself is not touched)."""
+    try:
+        _stamp_file(Path(path)).unlink(missing_ok=True)
+    except OSError as exc:
+        log.debug("could not remove the stamp of %s: %s", path, exc)
 
 
 def stamp(path: str | os.PathLike, sha256: str) -> None:

@@ -243,6 +243,39 @@ def test_an_unwritable_cache_expands_in_memory(seat_h, tmp_path, monkeypatch):
     assert blocker.read_text() == "a file where the cache would be"
 
 
+def test_old_expansions_beyond_the_budget_are_removed_and_nothing_else(box_H, tmp_path, monkeypatch):
+    """Writing an expansion past the budget removes the oldest of this project's expansions (and their
+    stamps); the one just written, a file the project did not write and an expansion changed since its
+    stamp stay; a removed one is rebuilt, equal, on its next use."""
+    import os
+
+    from hailstorm.runtime.bundle import hmatrix as runtime_h
+    from hailstorm.runtime.bundle.stamps import stamp, stamped_hash
+
+    monkeypatch.setenv("HAILSTORM_CACHE", str(tmp_path / "cache"))
+    folder = tmp_path / "cache" / "expanded"
+    _, H = box_H
+    size = H.shape[0] * H.shape[1] * 8
+    paths = []
+    for i, tag in enumerate(["first", "second"]):
+        runtime_h.expanded(H, tag, cache=folder)
+        (p,) = set(folder.glob(f"{tag}*.npy"))
+        os.utime(p, ns=(10**18 + i, 10**18 + i))  # oldest first (utime changes ctime: stamp again)
+        stamp(p, f"{tag}-float64")
+        paths.append(p)
+    foreign = folder / "mine-float64.npy"  # a user's file with an expansion's name: no stamp
+    np.save(foreign, np.zeros(3))
+    os.utime(foreign, ns=(1, 1))
+    monkeypatch.setattr(runtime_h, "EXPANDED_BUDGET", 2 * size + size // 2)
+    third = runtime_h.expanded(H, "third", cache=folder)  # three expansions > 2.5 of them: the oldest goes
+    assert not paths[0].exists() and stamped_hash(paths[0]) is None
+    assert paths[1].exists() and foreign.exists() and len(list(folder.glob("third*.npy"))) == 1
+    assert runtime_h.prune_expansions(folder, budget=0, keep=next(folder.glob("third*.npy"))) == [paths[1]]
+    assert foreign.exists() and np.array_equal(np.asarray(third), H.to_dense())
+    again = runtime_h.expanded(H, "first", cache=folder)  # rebuilt on its next use
+    assert np.array_equal(np.asarray(again), H.to_dense())
+
+
 def test_a_storm_on_the_compressed_bundle_is_the_dense_storm(seat_bundle, seat_h, tmp_path):
     """The same storm on both bundles (the frames read the expanded D, float32 at this tolerance; the dense
     D rounded to float32 too): the same impacts, and the contact forces and dents within the compression's
