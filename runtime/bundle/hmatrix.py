@@ -239,7 +239,10 @@ def expanded(H: HMatrix, tag: str, *, dtype: np.dtype | type = np.float64, cache
     folder = Path(cache) if cache is not None else default_cache_dir() / "expanded"
     target = folder / f"{tag[:40]}-{dtype.name}.npy"
     if not rebuild and target.is_file() and is_stamped(target, tag):
-        return np.load(target, mmap_mode="r")
+        try:
+            return np.load(target, mmap_mode="r")
+        except FileNotFoundError:  # pruned by another process since the check: expand it again
+            pass
     need = H.shape[0] * H.shape[1] * dtype.itemsize
     try:
         folder.mkdir(parents=True, exist_ok=True)
