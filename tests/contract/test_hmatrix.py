@@ -266,12 +266,16 @@ def test_old_expansions_beyond_the_budget_are_removed_and_nothing_else(box_H, tm
     foreign = folder / "mine-float64.npy"  # a user's file with an expansion's name: no stamp
     np.save(foreign, np.zeros(3))
     os.utime(foreign, ns=(1, 1))
+    runtime_h.expanded(H, "changed", cache=folder)
+    (changed,) = set(folder.glob("changed*.npy"))
+    os.utime(changed, ns=(2, 2))  # changed behind the project's back: its stamp no longer matches
     monkeypatch.setattr(runtime_h, "EXPANDED_BUDGET", 2 * size + size // 2)
     third = runtime_h.expanded(H, "third", cache=folder)  # three expansions > 2.5 of them: the oldest goes
     assert not paths[0].exists() and stamped_hash(paths[0]) is None
     assert paths[1].exists() and foreign.exists() and len(list(folder.glob("third*.npy"))) == 1
     assert runtime_h.prune_expansions(folder, budget=0, keep=next(folder.glob("third*.npy"))) == [paths[1]]
     assert foreign.exists() and np.array_equal(np.asarray(third), H.to_dense())
+    assert changed.exists() and stamped_hash(changed) is None
     again = runtime_h.expanded(H, "first", cache=folder)  # rebuilt on its next use
     assert np.array_equal(np.asarray(again), H.to_dense())
 
