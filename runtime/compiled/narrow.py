@@ -28,7 +28,16 @@ def _unit(x, out):  # pragma: no cover (compiled)
 
 
 @kernel
-def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, ctri, cbary, gap, near_tri, surf, tri_normals,
+def _opening(toi_tol, radius, offset):  # pragma: no cover (compiled)
+    """The gap within which a stone's contact opens: ``toi_tol`` of its contact radius, or of
+    its offset when it flies through a patch's dead zone (so that it engages where it should)."""
+    if offset > 0.0:
+        return toi_tol * min(radius - offset, offset)
+    return toi_tol * radius
+
+
+@kernel
+def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, offset, ctri, cbary, gap, near_tri, surf, tri_normals,
                soft, fixed, rigid_weight, umax, use_u, D, fcols, fv, g, wind, drag_coef, restitution):  # pragma: no cover
     """The first phases of one storm sub-step for the near stones, in place: closest
     points, time of impact, contacts that open, hard walls.
@@ -37,8 +46,10 @@ def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, ctri, cbary, gap, 
     ``(t, beta)`` while its stone stays over the triangle, else moves to the closest
     point of the undeformed surface. With ``toi`` the sub-step ends when the first
     approaching stone reaches the tangent plane at its closest point; contacts open
-    within ``toi_tol`` radii (approaching or overlapping), the stone put on the
-    surface; contacts on hard triangles (or on the clamped edge or corner of a soft
+    within ``toi_tol`` radii (approaching or overlapping; ``toi_tol`` of the offset in
+    a patch's dead zone), the stone put on the surface; a stone's contact surface is the sphere of radius ``radius - offset``
+    (the queries reach its whole sphere; :meth:`hailstorm.runtime.storm.stones.Stones.contact_radius`),
+    contacts on hard triangles (or on the clamped edge or corner of a soft
     one: at most ``rigid_weight`` of the closest point's barycentric weight on free
     vertices, :data:`hailstorm.runtime.contact.policy.RIGID_WEIGHT`) bounce at once.
 
@@ -114,7 +125,7 @@ def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, ctri, cbary, gap, 
             tri[j] = tt
             dist[j] = dd
             near_tri[i] = tt
-            gp[j] = dd - radius[i]
+            gp[j] = dd - (radius[i] - offset[i])
         gap[i] = gp[j]
     timing = toi and queried
     # time of impact: the first approaching stone to reach its tangent plane
@@ -122,7 +133,7 @@ def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, ctri, cbary, gap, 
         tmin = np.inf
         for j in range(k):
             i = near[j]
-            if in_contact[j] or not np.isfinite(gp[j]) or not gp[j] > toi_tol * radius[i]:
+            if in_contact[j] or not np.isfinite(gp[j]) or not gp[j] > _opening(toi_tol, radius[i], offset[i]):
                 continue
             for e in range(3):
                 dvec[e] = pos[i, e] - point[j, e]
@@ -139,7 +150,7 @@ def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, ctri, cbary, gap, 
         i = near[j]
         if in_contact[j] or tri[j] < 0:
             continue
-        eps = toi_tol * radius[i]
+        eps = _opening(toi_tol, radius[i], offset[i])
         if timing:
             if not gp[j] < eps:
                 continue
@@ -149,7 +160,7 @@ def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, ctri, cbary, gap, 
             vn = vel[i, 0] * nrm[0] + vel[i, 1] * nrm[1] + vel[i, 2] * nrm[2]
             if not (vn < 0.0 or gp[j] < -eps):
                 continue
-        elif not dist[j] < radius[i]:
+        elif not dist[j] < radius[i] - offset[i]:
             continue
         t = tri[j]
         ctri[i] = t

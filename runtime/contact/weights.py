@@ -66,7 +66,6 @@ __all__ = [
     "disc_rule",
     "disc_table",
     "hertz_mean_offset",
-    "hertz_secant_factor",
     "hertz_radius",
     "interpolate",
     "locate",
@@ -209,43 +208,6 @@ def sphere_mean_offset(points: np.ndarray, verts: np.ndarray, weights: np.ndarra
     m2_disc = 0.4 * a * a
     resolved = np.where(m2 > m2_disc, m2_disc / np.where(m2 > 0, m2, 1.0), 1.0)
     return hertz_mean_offset(a, sphere_radius) * resolved
-
-
-def hertz_secant_factor(sphere_offset: Any, patch_radius: Any, sphere_radius: Any, self_compliance: Any,
-                        young: float, poisson: float) -> np.ndarray:
-    """``kappa``: the factor that turns a patch's stiffness into Hertz's secant stiffness, (s,).
-
-    A patch of radius ``a`` under a sphere of radius ``R`` carries, at rest,
-    ``F = k (delta - o)`` (:func:`sphere_mean_offset` ``o``: the profile's
-    weighted mean lies ``o`` short of the lowest point ``delta``; ``k = 1 / c``,
-    ``c`` the patch's self-compliance). That law is affine: a fixed patch would
-    carry no force until ``delta > o``, a dead zone at the start of every impact.
-    The storm's contacts use the linear law through the same point instead,
-    ``F = kappa k delta`` with ``kappa = F_a / (F_a + k o)``, where
-    ``F_a = 4 E* a^3 / (3 R)`` is the force whose Hertz radius is ``a``: at that
-    force both laws give the same depth, and at ``delta = 0`` the force is 0.
-    On a resolved patch ``o = a^2 / (5 R)`` and ``kappa -> 0.8``, Hertz's secant
-    ``F / (k delta)``; a point contact (``a = 0``) has ``kappa = 1``.
-
-    Parameters
-    ----------
-    sphere_offset : (s,) array_like
-        ``o`` [m] (:func:`sphere_mean_offset`).
-    patch_radius, sphere_radius : (s,) array_like
-        ``a`` and ``R`` [m].
-    self_compliance : (s,) array_like
-        ``c``: each patch's normal self-compliance (the diagonal of W) [m/N].
-    young, poisson : float
-        The material under the surface.
-    """
-    o = np.asarray(sphere_offset, dtype=np.float64)
-    a = np.asarray(patch_radius, dtype=np.float64)
-    R = np.asarray(sphere_radius, dtype=np.float64)
-    c = np.asarray(self_compliance, dtype=np.float64)
-    e_star = young / (1.0 - poisson**2)
-    f_a = 4.0 * e_star * a**3 / (3.0 * np.where(R > 0, R, 1.0))
-    ok = (a > 0) & (R > 0) & (f_a > 0) & (c > 0)
-    return np.where(ok, 1.0 / (1.0 + o / np.where(ok, c * f_a, 1.0)), 1.0)
 
 
 # --------------------------------------------------------------------------

@@ -148,20 +148,23 @@ class Collision:
 
     def free_phase(self, stones: Stones, near: np.ndarray, h: float, seat: SeatState, stats: StormStats) -> float:
         """Closest points, time of impact, contacts that open, hard walls
-        (:func:`hailstorm.runtime.compiled.free_phase`). Returns the sub-step taken."""
+        (:func:`hailstorm.runtime.compiled.free_phase`), on each stone's contact surface
+        (:meth:`Stones.contact_radius`). Returns the sub-step taken."""
         use_u, cols, forces = seat.kernel_load()
         h, walls = free_phase(
-            near, h, self.toi, self.TOI_TOL, self.hmin, stones.pos, stones.vel, stones.radius, stones.ctri,
-            stones.cbary, stones.gap, stones.near_tri, self.surface, self.index.normals, self.soft, self.fixed,
+            near, h, self.toi, self.TOI_TOL, self.hmin, stones.pos, stones.vel, stones.radius, stones.offset,
+            stones.ctri, stones.cbary, stones.gap, stones.near_tri, self.surface, self.index.normals, self.soft, self.fixed,
             self.rigid_weight, seat.umax, use_u, seat.D, cols, forces, GRAVITY, self.air.wind, self.air.drag_coef, self.restitution)
         stats.wall_contacts += int(walls)
         return float(h)
 
     def penetration(self, stones: Stones, near: np.ndarray, dt: float, seat: SeatState, stats: StormStats) -> None:
-        """The near stones' overlap with the deformed surface, into the statistics."""
+        """The near stones' overlap with the deformed surface, into the statistics (their
+        contact surfaces', :meth:`Stones.contact_radius`: a patch contact's sphere reaches
+        its offset deeper than the mean of the dent under it, by the model)."""
         use_u, cols, forces = seat.kernel_load()
         mp, mpc, mrc, spc, npc, mpf = penetration(
-            near, float(dt), stones.pos, stones.vel, stones.radius, stones.ctri, self.surface, seat.umax, use_u,
+            near, float(dt), stones.pos, stones.vel, stones.contact_radius(), stones.ctri, self.surface, seat.umax, use_u,
             seat.D, cols, forces)
         stats.max_penetration_m = max(stats.max_penetration_m, mp)
         stats.max_penetration_contact_m = max(stats.max_penetration_contact_m, mpc)

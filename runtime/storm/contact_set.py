@@ -4,18 +4,24 @@
 radius]) -- W = Bᵀ D B and K = W⁻¹ from the one constructor
 :func:`hailstorm.runtime.contact.contact_capacitance.from_weights`, under the contact
 core's one SPD policy (:class:`hailstorm.runtime.contact.policy.SPDFactor`) --
-with what the storm adds: the stones, their reference points, the Hertz secant
-scaling of patch contacts and the integrators' cached damping and modes. It is
+with what the storm adds: the stones, their reference points and anchors (the
+sphere's offset over a patch) and the integrators' cached damping and modes. It is
 built by :meth:`ContactSets.build` from the patch weights the storm caches per
 stone, and kept while the set is unchanged.
 
-A patch contact's K is Hertz's secant stiffness: W and K are scaled by
-``sqrt(kappa)`` on both sides (:func:`hailstorm.runtime.contact.weights.hertz_secant_factor`),
-so one contact carries ``kappa k delta`` and a coupled set stays symmetric, the
-force on the stone equal to the force on the seat. Without it a patch that
-prescribes the stone's lowest-point displacement as its mean is ~1.25x too
-stiff on a half-space (1.4x measured: a resting 20 mm stone sank 0.69 of
-Hertz's depth on the 0.35 mm block; now 0.91, the mesh's own stiffness).
+A patch contact carries Hertz's law through the point of its patch radius,
+the affine law of :func:`hailstorm.runtime.contact.hertz.press_spheres`: the disc's
+pressure-weighted mean displacement lies ``o`` short of the stone's lowest point
+(:func:`hailstorm.runtime.contact.weights.hertz_mean_offset`, or
+:func:`~hailstorm.runtime.contact.weights.sphere_mean_offset` as far as the mesh follows
+the sphere without the near field), so the contact's anchor lies ``o`` deeper
+than the stone's radius (:attr:`ContactSet.rest` ``= R - o``) and its force is
+``k (delta - o)``, K and W the capacitance's own. The stone reaches that
+depth with no force (the narrow phase measures its gap with the radius
+``R - o``: :meth:`hailstorm.runtime.storm.stones.Stones.contact_radius`). On a
+half-space an impact then has Hertz's peak force and deepest indentation and
+0.99 of its duration (:func:`affine_impact`; the linear law through the origin
+it replaces, Hertz's secant stiffness, had 0.875, 0.915 and 0.977).
 """
 
 from __future__ import annotations
@@ -26,7 +32,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from hailstorm.runtime.contact.contact_capacitance import from_weights, resolve_near_field
-from hailstorm.runtime.contact.weights import hertz_mean_offset, hertz_secant_factor, sphere_mean_offset
+from hailstorm.runtime.contact.weights import hertz_mean_offset, sphere_mean_offset
 
 if TYPE_CHECKING:  # annotations only
     from hailstorm.runtime.contact.contact_capacitance import Capacitance
@@ -43,8 +49,9 @@ class ContactSet:
     """The capacitance of the storm's current set of soft contacts (:meth:`ContactSets.build`),
     kept while the set (stones, triangles, patch radii) is unchanged.
 
-    ``W`` and ``K`` are the capacitance's (:attr:`capacitance`), with patch contacts
-    at Hertz's secant stiffness (module docstring); ``G``, ``cols`` and ``DVV`` are
+    ``W`` and ``K`` are the capacitance's (:attr:`capacitance`); a patch contact's
+    anchor ``rest`` is its stone's radius less the sphere's offset ``offset``
+    (module docstring); ``G``, ``cols`` and ``DVV`` are
     :meth:`Capacitance.loaded_columns` and :meth:`Capacitance.vertex_response`.
     """
 
@@ -60,7 +67,8 @@ class ContactSet:
     bary: np.ndarray
     normals: np.ndarray
     X: np.ndarray  # undeformed contact points (s, 3) (the patch centres)
-    rest: np.ndarray  # (s,) distance along the normal from the reference point to the stone's centre at contact
+    rest: np.ndarray  # (s,) distance along the normal from the reference point to the stone's centre at zero force
+    offset: np.ndarray  # (s,) the sphere's offset o over each patch (0: point contact); rest = R - offset
     patch_radius: np.ndarray  # (s,) patch radius [m] (0: point contact)
     verts: np.ndarray  # (s, P) vertices carrying each contact's force
     weights: np.ndarray  # (s, P) their weights (B: block (verts[k, p], k) = weights[k, p] I3)
@@ -98,9 +106,11 @@ class ContactSets:
         self.patches = patches
 
     def build(self, stones: np.ndarray, tris: np.ndarray, bary: np.ndarray, key: tuple, rest: np.ndarray,
-              stats: StormStats, radius: np.ndarray | None = None) -> ContactSet:
+              stats: StormStats, radius: np.ndarray | None = None, offset: np.ndarray | None = None) -> ContactSet:
         """The capacitance of the soft contacts ``stones`` on ``tris`` at ``bary`` (point
-        contacts, or patches of ``radius``); ``rest``: the stones' radii."""
+        contacts, or patches of ``radius``); ``rest``: the stones' radii; ``offset``: the
+        sphere's offset of each contact's engagement (:meth:`offsets`, sized at its stone's
+        first touch; None: 0)."""
         normals = self.normals[tris]
         s = stones.size
         if radius is None:
@@ -123,36 +133,28 @@ class ContactSets:
         cols, G = cap.loaded_columns()
         # reference point: the contact point (the patch centre). A patch contact prescribes the
         # pressure-weighted mean normal displacement of the surface under the disc, measured from
-        # the tangent plane at the contact point (the plane of the disc): the stone's lowest point
-        # follows it. (Measuring from the weighted mean undeformed surface point sum_p w_p X_p
-        # instead, which lies below the tangent plane on the convex seat, opens every contact with
-        # a small gap: measured restitution 0.488 instead of 0.499 for the single drop.)
-        if np.any(radius > 0):
-            K, W = self._hertz_secant(K, W, verts, cap.weights, X, normals, radius, rest)
+        # the tangent plane at the contact point (the plane of the disc); the stone's lowest point
+        # lies the sphere's offset below it. (Measuring from the weighted mean undeformed surface
+        # point sum_p w_p X_p instead, which lies below the tangent plane on the convex seat, opens
+        # every contact with a small gap: measured restitution 0.488 instead of 0.499 for the
+        # single drop.)
+        offset = np.zeros(s) if offset is None else np.asarray(offset, dtype=np.float64)
         stats.capacitance_rebuilds += 1
         return ContactSet(key=key, capacitance=cap, W=W, K=K, G=G, cols=cols, DVV=cap.vertex_response(),
-                          stones=stones, tris=tris, bary=bary, normals=normals, X=X, rest=rest,
-                          patch_radius=radius.copy(), verts=verts, weights=cap.weights,
+                          stones=stones, tris=tris, bary=bary, normals=normals, X=X, rest=rest - offset,
+                          offset=offset, patch_radius=radius.copy(), verts=verts, weights=cap.weights,
                           Kdiag=np.diag(K).copy())
 
-    def _hertz_secant(self, K: np.ndarray, W: np.ndarray, verts: np.ndarray, w: np.ndarray, X: np.ndarray,
-                      normals: np.ndarray, radius: np.ndarray, stone_radius: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """K and W of the set with each patch at Hertz's secant stiffness (module docstring)."""
-        s = radius.size
-        if self.contact.sticky:  # the normal self-compliance n^T W_kk n of each contact's 3 x 3 block
-            Wb = W.reshape(s, 3, s, 3)[np.arange(s), :, np.arange(s), :]
-            c = np.einsum("ki,kij,kj->k", normals, Wb, normals)
-        else:
-            c = np.diag(W).copy()
-        if self.near is not None:  # the stone's profile over its own disc (resolved at its scale)
-            o = hertz_mean_offset(radius, stone_radius)
-        else:
-            o = sphere_mean_offset(self.X, verts, w, X, normals, radius, stone_radius)
-        sk = np.sqrt(hertz_secant_factor(o, radius, stone_radius, c, self.young, self.poisson))
-        if self.contact.sticky:
-            sk = np.repeat(sk, 3)
-        scale = sk[:, None] * sk[None, :]
-        return np.ascontiguousarray(K * scale), np.ascontiguousarray(W / scale)
+    def offsets(self, verts: np.ndarray, w: np.ndarray, X: np.ndarray, normals: np.ndarray, radius: np.ndarray,
+                stone_radius: np.ndarray) -> np.ndarray:
+        """The sphere's offset over each patch (module docstring), (s,) [m]: Hertz's
+        ``a^2 / (5 R)`` with the near field (the sphere over its own disc), else as far as
+        the mesh follows it; 0 for point contacts (``radius`` 0)."""
+        if not np.any(radius > 0):
+            return np.zeros(radius.size)
+        if self.near is not None:
+            return hertz_mean_offset(radius, stone_radius)
+        return sphere_mean_offset(self.X, verts, w, X, normals, radius, stone_radius)
 
     def warm_up(self, t: int) -> None:
         """Load (or compile) the kernels of :meth:`build` with the storm loop's argument types (one

@@ -216,6 +216,7 @@ class Storm:
         if far.size:
             self.collision.fly(stones, far, dt)
             stones.gap[far] = np.inf
+            stones.offset[far] = 0.0  # (far from the seat: any engagement is over)
         if near.size:
             self.collision.penetration(stones, near, dt, seat, st)
             t_left, n_sub = dt, 0
@@ -268,6 +269,8 @@ class Storm:
         stones = self.stones
         was_open = stones.ctri[near] >= 0
         h = self.collision.free_phase(stones, near, h, self.seat, self.stats)
+        self._end_engagements(near)
+        h = self.contacts.engage(stones, near, was_open, h, self.stats)
         in_contact = stones.ctri[near] >= 0
         soft = near[in_contact]
         free = near[~in_contact] if soft.size else near
@@ -279,6 +282,18 @@ class Storm:
             self.collision.fly(stones, free, h)
         self.stats.substeps += 1
         return h
+
+    def _end_engagements(self, near: np.ndarray) -> None:
+        """Stones out of contact whose sphere is clear of the surface again (their contact
+        surface's gap beyond their offset): their engagement is over, the next touch is a
+        new impact (:meth:`SoftContacts.engage`)."""
+        stones = self.stones
+        free = near[stones.ctri[near] < 0]
+        o = stones.offset[free]
+        done = free[(o > 0.0) & (stones.gap[free] > o)]
+        if done.size:
+            stones.gap[done] -= stones.offset[done]
+            stones.offset[done] = 0.0
 
     def warm_tasks(self) -> list[WarmTask]:
         """The kernels the loop calls, in tasks that load (or compile) them with the loop's

@@ -19,7 +19,7 @@ import numpy as np
 from hailstorm.runtime.compiled import patch_compliance, patch_one, patch_radii
 from hailstorm.runtime.storm.hail import GRAVITY
 from hailstorm.runtime.storm.recording import StormStats
-from hailstorm.runtime.contact.weights import PATCH_DROP, PATCH_FACING, disc_table, triangle_index
+from hailstorm.runtime.contact.weights import PATCH_DROP, PATCH_FACING, disc_table, hertz_radius, triangle_index
 
 if TYPE_CHECKING:  # annotations only
     from hailstorm.runtime.storm.hail import Air
@@ -107,7 +107,9 @@ class Patches:
         falls. A moving contact keeps its radius until the target exceeds
         ``a (1 + tol)`` (``tol = patch_tolerance``; a falling target never shrinks it
         mid-impact); a resting one is re-sized to its target, up or down, once it is
-        ``REST_TOLERANCE`` (1 %) off. One kernel
+        ``REST_TOLERANCE`` (1 %) off. A contact that opens in an engagement sized at
+        its stone's first touch (:meth:`first_touch`; ``stones.offset > 0``) keeps that
+        radius. One kernel
         (:func:`hailstorm.runtime.compiled.patch_radii`); the new contacts' weights at
         their first radius go to the weights cache.
         """
@@ -116,17 +118,60 @@ class Patches:
         else:
             cs, kd, lam = self._none, self._no_forces, self._no_forces
         seat = self.seat
+        # a stone in an engagement it was sized for (its first touch, :meth:`first_touch`) keeps
+        # that radius when its contact (re)opens: the kernel sizes new contacts afresh
+        new = np.isin(ids, cs, invert=True) & (stones.offset[ids] > 0.0) & (stones.crad[ids] > 0.0)
+        kept = stones.crad[ids[new]].copy()
         a, resizes, a0, off, wv, ww = patch_radii(
             ids, tris, stones.mass, stones.radius, stones.vel, stones.cbary, stones.crad, self.normals, GRAVITY,
             self.air.wind, self.air.drag_coef, cs, kd, lam, self.contact.sticky, self.k_tri, self.e_star,
             self.contact.patch_min_radius, self.contact.patch_tolerance, self.time.rest_speed, *self._disc, PATCH_FACING,
             PATCH_DROP, self._pidx, self.X, seat.D, seat.column_of)
         stats.patch_resizes += int(resizes)
+        if new.any():
+            a[new] = kept
+            stones.crad[ids[new]] = kept
+            a0[new] = 0.0
         for i in np.flatnonzero(a0 > 0.0).tolist():
             j = int(ids[i])
             self._cache[j] = (int(tris[i]), stones.cbary[j].tobytes(), float(a0[i]), wv[off[i]:off[i + 1]],
                               ww[off[i]:off[i + 1]])
             stats.patch_weights_computed += 1
+        if a.size:
+            stats.max_patch_radius_m = max(stats.max_patch_radius_m, float(a.max()))
+        return a
+
+    def first_touch(self, stones: Stones, ids: np.ndarray, tris: np.ndarray, near: NearField | None,
+                    stats: StormStats, rounds: int = 2) -> np.ndarray:
+        """The patch radius of the impacts of stones ``ids`` that touch the seat on ``tris``
+        now (updated in ``stones.crad``), before their contacts carry force.
+
+        The sizing of a new contact (:meth:`radii`: the triangle's point stiffness, then
+        the patch's own from D alone); with a near field ``rounds`` more fixed-point
+        steps with the stiffness the contact set will have, ``1 / (w^T D w + c(a) -
+        w^T H w)`` (:meth:`NearField.blocks`), so that the radius and the sphere's offset
+        of the impact follow from the stiffness its peak force sees. The expected peak
+        force is that of a contact that just opened, ``F_eq + sqrt(F_eq^2 + k m v_n^2)``
+        (``F_eq`` the weight along the normal).
+        """
+        a = self.radii(stones, ids, tris, None, None, self._no_forces, stats)
+        if near is None or ids.size == 0:
+            return a
+        n = self.normals[tris]
+        vn = np.einsum("kd,kd->k", stones.vel[ids], n)
+        m, R = stones.mass[ids], stones.radius[ids]
+        f_eq = m * GRAVITY * np.clip(n[:, 2], 0.0, None)
+        bary = stones.cbary[ids]
+        X = np.einsum("kj,kjd->kd", bary, self.X[self.triangles[tris]])
+        for _ in range(rounds):
+            verts, w = self.weights(ids, tris, bary, a, n, stats)
+            c = 1.0 / np.maximum(self.stiffness(verts, w, n), 1e-300)
+            c = c + near.blocks(self.gf, a, verts, w, X, n, False)[:, 0, 0]
+            k = 1.0 / np.maximum(c, 1e-300)
+            fp = f_eq + np.sqrt(f_eq**2 + k * m * vn**2)
+            a = np.maximum(hertz_radius(fp, R, float(self.gf.young), float(self.gf.poisson),
+                                        a_min=self.contact.patch_min_radius, a_max=R), self.contact.patch_min_radius)
+        stones.crad[ids] = a
         if a.size:
             stats.max_patch_radius_m = max(stats.max_patch_radius_m, float(a.max()))
         return a

@@ -88,13 +88,15 @@ class SoftContacts:
         if self.patch:
             rad = self.patches.radii(stones, soft, tris, cc.stones if cc is not None else None,
                                      cc.Kdiag if cc is not None else None, self.lam, stats)
-            key = tuple(zip(soft.tolist(), tris.tolist(), rad.tolist()))
+            if cc is not None:
+                self._follow_radius(stones, soft, tris, rad, cc, stats)
+            key = tuple(zip(soft.tolist(), tris.tolist(), rad.tolist(), stones.offset[soft].tolist()))
         else:
             rad = None
             key = tuple(zip(soft.tolist(), tris.tolist()))
         if cc is None or cc.key != key:
             cc = self.current = self.sets.build(soft, tris, stones.cbary[soft].copy(), key,
-                                                stones.radius[soft].copy(), stats, rad)
+                                                stones.radius[soft].copy(), stats, rad, stones.offset[soft].copy())
         exact = self.integrator.exact
         s = soft.size
         nk = cc.normals
@@ -118,9 +120,82 @@ class SoftContacts:
         self.lam = res.seat_force
         self.seat.set_forces(cc, res.seat_force, res.peak_seat_force)
         stats.max_contact_force = max(stats.max_contact_force, float(fmax))
-        if n_active:
+        if n_active:  # (the kernel's indentation is the contact surface's; the stone's own adds its offset)
+            if cc.offset.any():
+                indent = self._deepest(cc, res)
             stats.max_indentation_m = max(stats.max_indentation_m, float(indent))
         stats.max_simultaneous_contacts = max(stats.max_simultaneous_contacts, int(n_active))
+
+    def _follow_radius(self, stones: Stones, soft: np.ndarray, tris: np.ndarray, rad: np.ndarray, cc: ContactSet,
+                       stats: StormStats) -> None:
+        """Contacts of the current set whose patch was re-sized (:meth:`Patches.radii`): the
+        sphere's offset follows the new radius, and the stone moves with its contact surface
+        by the change (outward when the offset shrinks), so the spring's compression, and
+        with it the force but for the new stiffness, is unchanged."""
+        order = np.argsort(cc.stones)
+        at = np.minimum(np.searchsorted(cc.stones, soft, sorter=order), cc.stones.size - 1)
+        pos = order[at]
+        known = cc.stones[pos] == soft
+        known[known] = cc.patch_radius[pos[known]] != rad[known]
+        if not known.any():
+            return
+        ids, t, a = soft[known], tris[known], rad[known]
+        n = self.sets.normals[t]
+        bary = stones.cbary[ids]
+        verts, w = self.patches.weights(ids, t, bary, a, n, stats)
+        X = np.einsum("kj,kjd->kd", bary, self.sets.X[self.sets.triangles[t]])
+        o = self.sets.offsets(verts.astype(np.int64, copy=False), w, X, n, a, stones.radius[ids])
+        stones.pos[ids] += (stones.offset[ids] - o)[:, None] * n
+        stones.offset[ids] = o
+
+    def _deepest(self, cc: ContactSet, res: Any) -> float:
+        """The deepest indentation of the stones' lowest points among the contacts that carried
+        force within the sub-step: the contact surface's (``-peak_ubar``) plus the sphere's offset."""
+        s = cc.stones.size
+        if self.contact.sticky:
+            touched = res.active.reshape(s, 3).all(axis=1) | (np.abs(res.peak_seat_force.reshape(s, 3)).sum(axis=1) > 0)
+            ub = np.einsum("kd,kd->k", res.peak_ubar.reshape(s, 3), cc.normals)
+        else:
+            touched = res.active | (res.peak_seat_force != 0.0)
+            ub = res.peak_ubar
+        return float((cc.offset - ub)[touched].max())
+
+    def engage(self, stones: Stones, near: np.ndarray, was_open: np.ndarray, h: float, stats: StormStats) -> float:
+        """Patch contacts that opened in this sub-step's free phase on a stone's first touch
+        (no engagement running): size each impact's patch
+        (:meth:`Patches.first_touch`) and its sphere's offset ``o``
+        (:meth:`ContactSets.offsets`), kept in ``stones.offset`` for the engagement. A stone
+        with ``o > 0`` is not in contact yet: its contact closes again and it flies on to its
+        contact surface, the sphere of radius ``R - o``, ``o`` further along the normal,
+        which the sub-step (shortened from ``h``, returned) ends at or before (gravity's
+        pull along the normal counted, drag's slowing not; at least the shortest sub-step,
+        as the time of impact). Point contacts (``patch = "none"``) have no offset: ``h``
+        unchanged."""
+        if not self.patch:
+            return h
+        opened = near[(stones.ctri[near] >= 0) & ~was_open & (stones.offset[near] == 0.0)]
+        if opened.size == 0:
+            return h
+        tris = stones.ctri[opened]
+        n = self.sets.normals[tris]
+        vn = -np.einsum("kd,kd->k", stones.vel[opened], n)  # approach speed
+        a = self.patches.first_touch(stones, opened, tris, self.sets.near, stats)
+        bary = stones.cbary[opened]
+        verts, w = self.patches.weights(opened, tris, bary, a, n, stats)
+        X = np.einsum("kj,kjd->kd", bary, self.sets.X[self.sets.triangles[tris]])
+        o = self.sets.offsets(verts.astype(np.int64, copy=False), w, X, n, a, stones.radius[opened])
+        stones.offset[opened] = o
+        later = o > 0.0
+        if later.any():
+            ids = opened[later]
+            stones.ctri[ids] = -1
+            stones.gap[ids] = o[later]
+            w0, an = vn[later], GRAVITY * np.clip(n[later, 2], 0.0, None)  # (drag only slows it: never past)
+            den = w0 + np.sqrt(w0 * w0 + 2.0 * an * o[later])
+            t = np.where(den > 0.0, 2.0 * o[later] / np.where(den > 0.0, den, 1.0), np.inf)
+            if np.isfinite(t).any():
+                h = min(h, max(float(t.min()), self.time.dt / self.time.max_substeps))
+        return h
 
     def _observe_limits(self, cc: ContactSet, soft: np.ndarray, radius: np.ndarray, opening: np.ndarray,
                         vin: np.ndarray | None, res: Any, stats: StormStats) -> None:
@@ -136,12 +211,12 @@ class SoftContacts:
             f = np.maximum(np.linalg.norm(res.seat_force.reshape(s, 3), axis=1),
                            np.linalg.norm(res.peak_seat_force.reshape(s, 3), axis=1))
             touched = (act | (np.linalg.norm(res.peak_seat_force.reshape(s, 3), axis=1) > 0.0)).tolist()
-            indent = (-np.einsum("kd,kd->k", res.peak_ubar.reshape(s, 3), cc.normals)).tolist()
+            indent = (cc.offset - np.einsum("kd,kd->k", res.peak_ubar.reshape(s, 3), cc.normals)).tolist()
             force = f.tolist()
         else:
             act, seat, peak = res.active.tolist(), res.seat_force.tolist(), res.peak_seat_force.tolist()
             touched = [a or p != 0.0 for a, p in zip(act, peak)]
-            indent = [-u for u in res.peak_ubar.tolist()]
+            indent = (cc.offset - res.peak_ubar).tolist()
             force = [max(abs(f), abs(p)) for f, p in zip(seat, peak)]
         self.limits.observe(ids, radius.tolist(), cc.tris.tolist(), cc.bary.tolist(), opening.tolist(),
                             None if vin is None else vin.tolist(), touched, indent, force)

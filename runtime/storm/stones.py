@@ -84,8 +84,8 @@ def check_stones(pos: Any, vel: Any, radius: Any) -> tuple[np.ndarray, np.ndarra
 #: the per-stone arrays and the value a new stone starts with (None: given to :meth:`Stones.add`)
 FIELDS: tuple[tuple[str, Any], ...] = (
     ("pos", None), ("vel", None), ("radius", None), ("mass", None), ("alive", True), ("ctri", -1),
-    ("cbary", 0.0), ("gap", np.inf), ("hit", False), ("near_tri", -1), ("crad", 0.0), ("budget", 0.0),
-    ("bud_u", 0.0),
+    ("cbary", 0.0), ("gap", np.inf), ("hit", False), ("near_tri", -1), ("crad", 0.0), ("offset", 0.0),
+    ("budget", 0.0), ("bud_u", 0.0),
 )
 
 
@@ -110,6 +110,11 @@ class Stones:
         Closest triangle at the last query.
     crad : (k,) ndarray
         Patch radius of the stone's contact (0: none yet).
+    offset : (k,) ndarray
+        The patch's sphere offset ``o`` of the stone's current approach or contact [m]
+        (0: none): its contact surface is the sphere of radius ``radius - offset``
+        (:meth:`contact_radius`; the module notes of :mod:`hailstorm.runtime.storm.driver`,
+        "Patch contacts").
     budget, bud_u : (k,) ndarray
         Broad phase: a lower bound of the distance to the seat [m] and the
         displacement bound it allows for [m] (:func:`hailstorm.runtime.compiled.near_set`).
@@ -126,6 +131,7 @@ class Stones:
     hit: np.ndarray
     near_tri: np.ndarray
     crad: np.ndarray
+    offset: np.ndarray
     budget: np.ndarray
     bud_u: np.ndarray
 
@@ -142,6 +148,7 @@ class Stones:
         self.hit = np.zeros(0, dtype=bool)
         self.near_tri = np.zeros(0, dtype=np.intp)
         self.crad = np.zeros(0)
+        self.offset = np.zeros(0)
         self.budget = np.zeros(0)
         self.bud_u = np.zeros(0)
         self._buffers = {name: getattr(self, name) for name, _ in FIELDS}
@@ -183,6 +190,11 @@ class Stones:
         self._live = None
         return ids
 
+    def contact_radius(self) -> np.ndarray:
+        """Radius of each stone's contact surface, ``radius - offset`` (k,) [m]: what the
+        narrow phase and the contact's anchor measure the gap with."""
+        return self.radius - self.offset
+
     def live(self) -> np.ndarray:
         """Ids of the live stones (cached until a spawn or a retirement)."""
         if self._live is None:
@@ -193,6 +205,7 @@ class Stones:
         """Stones ``ids`` left the seat's region."""
         self.alive[ids] = False
         self.ctri[ids] = -1
+        self.offset[ids] = 0.0
         self._live = None
 
 

@@ -1,6 +1,6 @@
 """The storm's contact set on its own (:class:`ContactSets` / :class:`ContactSet`): a set's W is
 ``G^T D G`` written out on the dense D of the bundle (``gf.compliance``), its K inverts W, patch
-contacts carry Hertz's secant scaling (worked out by hand from the module's statement), the
+contacts are anchored the sphere's offset deep (worked out by hand from the module's statement), the
 seat's view of the set (``G``, ``cols``, ``DVV``) is the same D, and the storm builds a set once
 and reuses it while the set does not change.
 
@@ -160,14 +160,12 @@ def test_W_changes_with_the_set(gf, dense_D):
 
 
 # ----------------------------------------------------------------------------------------------
-# patch contacts: the Hertz secant scaling
+# patch contacts: the sphere's offset
 # ----------------------------------------------------------------------------------------------
-def secant_kappa(gf, verts, w, X, normals, a, R, c, resolved):
-    """Hertz's secant factor by hand (the module's statement): the profile's mean offset ``o`` (a
-    disc the mesh resolves: ``a^2 / 5R``; as the mesh follows it: times ``min(1, (2 a^2 / 5) / m2)``,
-    ``m2`` the weights' tangential second moment about the contact point), the force whose Hertz
-    radius is ``a``, ``F_a = 4 E* a^3 / 3R``, and ``kappa = F_a / (F_a + o / c)``."""
-    E_star = gf.young / (1.0 - gf.poisson**2)
+def sphere_offset(gf, verts, w, X, normals, a, R, resolved):
+    """The sphere's offset over a patch by hand (the module's statement): ``a^2 / 5R`` on a disc the
+    near field resolves; as the mesh follows it, times ``min(1, (2 a^2 / 5) / m2)``, ``m2`` the
+    weights' tangential second moment about the contact point; 0 for a point contact."""
     o = a * a / (5.0 * R)
     if not resolved:
         m2 = np.empty(a.size)
@@ -175,25 +173,32 @@ def secant_kappa(gf, verts, w, X, normals, a, R, c, resolved):
             rho = gf.vertices[verts[k]] - X[k]
             rho -= np.outer(rho @ normals[k], normals[k])
             m2[k] = np.sum(w[k] * np.sum(rho * rho, axis=1))
-        o = o * np.minimum(1.0, 0.4 * a * a / m2)
-    F_a = 4.0 * E_star * a**3 / (3.0 * R)
-    return F_a / (F_a + o / c), o, F_a
+        o = o * np.where(a > 0, np.minimum(1.0, 0.4 * a * a / np.where(m2 > 0, m2, 1.0)), 0.0)
+    return o
 
 
 @pytest.mark.parametrize("near", ["none", "halfspace"])
-def test_patch_set_is_the_capacitance_at_hertz_secant_stiffness(gf, dense_D, near):
-    """Patch contacts (radii 2.5, 4 and 6 mm: within a triangle and across several): the capacitance's
-    W is ``G^T D G`` with the contact API's patch weights (plus, with the half-space near field, its
-    per-contact diagonal correction ``c(a) - w^T H w``); the set's W and K are the capacitance's
-    scaled by ``sqrt(kappa_i kappa_j)`` with kappa worked out by hand; K W = I; and each contact's
-    secant line ``F = (1 / W'_kk) delta`` passes through its patch law's point at the force whose
-    Hertz radius is the patch's: ``delta = c F_a + o``."""
+def test_patch_set_is_the_capacitance_with_the_sphere_offset(gf, dense_D, near):
+    """Patch contacts (radii 2.5, 4 and 6 mm: within a triangle and across several): the set's W
+    is ``G^T D G`` with the contact API's patch weights (plus, with the half-space near field, its
+    per-contact diagonal correction ``c(a) - w^T H w``), unscaled; K W = I; the offsets
+    (:meth:`ContactSets.offsets`) are the sphere's worked out by hand, and a set built with them
+    anchors each contact that far below its stone's radius (``rest = R - o``): on a resolved
+    half-space patch its law ``F = (delta - o) / W_kk`` carries Hertz's force at Hertz's depth."""
     a = np.array([0.0025, 0.004, 0.006])
     sets, patches, contact = make_sets(gf, patch="hertz", near_field=near)
     normals = np.tile(UP, (3, 1))
     stats = StormStats()
-    cc = sets.build(STONES, TRIS, BARY, (1,), RADII, stats, a)
+    X = np.einsum("kj,kjd->kd", BARY, gf.vertices[gf.triangles[TRIS]])
+    verts, w = patches.weights(STONES, TRIS, BARY, a, normals, stats)
+    o = sets.offsets(verts.astype(np.int64), w, X, normals, a, RADII)
+    np.testing.assert_allclose(o, sphere_offset(gf, verts, w, X, normals, a, RADII, near == "halfspace"),
+                               rtol=1e-12)
+    assert np.all(o > 0) and np.all(o <= a * a / (5 * RADII) * (1 + 1e-12))
+    cc = sets.build(STONES, TRIS, BARY, (1,), RADII, stats, a, o)
     np.testing.assert_array_equal(cc.patch_radius, a)
+    np.testing.assert_array_equal(cc.offset, o)
+    np.testing.assert_allclose(cc.rest, RADII - o, rtol=1e-15)
     # the weights are the contact API's (padding aside)
     want_v, want_w = patch_weights(gf, TRIS, BARY, a, normals)
     n = gf.vertices.shape[0]
@@ -205,7 +210,6 @@ def test_patch_set_is_the_capacitance_at_hertz_secant_stiffness(gf, dense_D, nea
     assert np.count_nonzero(cc.weights[2]) > 3  # the widest one spreads over several vertices
     G = G_dense(B_dense(n, cc.verts, cc.weights), normals, False)
     W_cap = G.T @ dense_D @ G
-    X = np.einsum("kj,kjd->kd", BARY, gf.vertices[gf.triangles[TRIS]])
     if near == "halfspace":
         nf = near_field("halfspace", gf.young, gf.poisson)
         c_a = 3.0 * (1.0 - gf.poisson**2) / (5.0 * gf.young * a)  # Johnson 3.41: the Hertz disc's mean
@@ -213,38 +217,35 @@ def test_patch_set_is_the_capacitance_at_hertz_secant_stiffness(gf, dense_D, nea
         W_cap[np.diag_indices(3)] += c_a - whw
     scale = max(np.abs(W_cap).max(), 1e-300)
     np.testing.assert_allclose(cc.capacitance.W, W_cap, rtol=1e-12, atol=1e-14 * scale)
-    c = np.diag(W_cap)
-    kappa, o, F_a = secant_kappa(gf, cc.verts, cc.weights, X, normals, a, RADII, c, near == "halfspace")
-    assert np.all((kappa > 0.5) & (kappa < 1.0))  # a real correction (0.8 on a resolved half-space patch)
-    sk = np.sqrt(np.outer(kappa, kappa))
-    # (kappa by hand: a few operations more than the module's; rounding ~1e-15 relative)
-    np.testing.assert_allclose(cc.W, W_cap / sk, rtol=1e-12, atol=1e-14 * scale)
+    np.testing.assert_allclose(cc.W, W_cap, rtol=1e-12, atol=1e-14 * scale)
     K_cap = np.linalg.inv(W_cap)  # cond(W) ~ 10: the inverse to ~1e-15 relative
-    np.testing.assert_allclose(cc.K, K_cap * sk, rtol=1e-10, atol=1e-12 * np.abs(K_cap).max())
+    np.testing.assert_allclose(cc.K, K_cap, rtol=1e-10, atol=1e-12 * np.abs(K_cap).max())
     np.testing.assert_allclose(cc.K @ cc.W, np.eye(3), rtol=0, atol=1e-12)
     np.testing.assert_array_equal(cc.Kdiag, np.diag(cc.K))
-    # the secant law of each contact alone passes through (c F_a + o, F_a)
-    np.testing.assert_allclose((c * F_a + o) / np.diag(cc.W), F_a, rtol=1e-12)
     assert stats.capacitance_rebuilds == 1
+    # without an offset (a set built before any engagement) the anchors are the stones' radii
+    plain = sets.build(STONES, TRIS, BARY, (2,), RADII, stats, a)
+    np.testing.assert_array_equal(plain.rest, RADII)
 
 
-def test_a_point_contact_in_a_patch_set_is_not_scaled(gf, dense_D):
-    """Radius 0 in a set of patches: a point contact (its barycentric weights), kappa = 1 (no
-    Hertz offset for a point)."""
+def test_a_point_contact_in_a_patch_set_has_no_offset(gf, dense_D):
+    """Radius 0 in a set of patches: a point contact (its barycentric weights), offset 0 (no
+    sphere profile over a point), its W the capacitance's."""
     a = np.array([0.004, 0.0, 0.006])
-    sets, _, _ = make_sets(gf, patch="hertz", near_field="none")
-    cc = sets.build(STONES, TRIS, BARY, (1,), RADII, StormStats(), a)
+    sets, patches, _ = make_sets(gf, patch="hertz", near_field="none")
+    normals = np.tile(UP, (3, 1))
+    stats = StormStats()
+    verts, w = patches.weights(STONES, TRIS, BARY, a, normals, stats)
+    X = np.einsum("kj,kjd->kd", BARY, gf.vertices[gf.triangles[TRIS]])
+    o = sets.offsets(verts.astype(np.int64), w, X, normals, a, RADII)
+    assert o[1] == 0.0 and np.all(o[[0, 2]] > 0)
+    cc = sets.build(STONES, TRIS, BARY, (1,), RADII, stats, a, o)
     w1 = np.zeros(gf.vertices.shape[0])
     np.add.at(w1, cc.verts[1], cc.weights[1])
     np.testing.assert_allclose(w1[gf.triangles[TRIS[1]]], BARY[1], rtol=1e-15)
     assert np.isclose(w1.sum(), 1.0, rtol=1e-15)
-    W_cap = cc.capacitance.W
-    # the point contact's own entry keeps the capacitance's value; its couplings carry only the others' scale
-    assert cc.W[1, 1] == pytest.approx(W_cap[1, 1], rel=1e-14)
-    ratio = W_cap / cc.W  # sqrt(kappa_i kappa_j)
-    kappa = np.diag(ratio)
-    assert kappa[1] == pytest.approx(1.0, rel=1e-14) and np.all(kappa[[0, 2]] < 1.0)
-    np.testing.assert_allclose(ratio, np.sqrt(np.outer(kappa, kappa)), rtol=1e-12)
+    np.testing.assert_array_equal(cc.W, cc.capacitance.W)
+    assert cc.rest[1] == RADII[1]
 
 
 # ----------------------------------------------------------------------------------------------
