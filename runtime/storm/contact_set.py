@@ -18,10 +18,12 @@ the sphere without the near field), so the contact's anchor lies ``o`` deeper
 than the stone's radius (:attr:`ContactSet.rest` ``= R - o``) and its force is
 ``k (delta - o)``, K and W the capacitance's own. The stone reaches that
 depth with no force (the narrow phase measures its gap with the radius
-``R - o``: :meth:`hailstorm.runtime.storm.stones.Stones.contact_radius`). On a
+``R - o``: :meth:`hailstorm.runtime.storm.stones.Stones.contact_radius`; the
+engagement is :meth:`hailstorm.runtime.storm.soft_contacts.SoftContacts.engage`). On a
 half-space an impact then has Hertz's peak force and deepest indentation and
-0.99 of its duration (:func:`affine_impact`; the linear law through the origin
-it replaces, Hertz's secant stiffness, had 0.875, 0.915 and 0.977).
+0.990 of its duration (``hailstorm.studies.hertz_study.affine_oscillator``; the
+linear law through the origin it replaces, Hertz's secant stiffness, had
+0.875, 0.915 and 0.977).
 """
 
 from __future__ import annotations

@@ -66,9 +66,22 @@ Each soft contact spreads its force over a disc of radius ``a`` around the
 contact point, with the Hertz pressure profile (consistent P1 nodal loads,
 :func:`hailstorm.runtime.contact.weights.patch_weights`); the contact prescribes the
 pressure-weighted mean normal displacement of the surface under the disc
-(measured from the tangent plane at the contact point), which the stone's
-lowest point follows. ``patch = "none"`` gives the point contacts of the
-course hint (barycentric weights on one triangle).
+(measured from the tangent plane at the contact point), which lies the
+sphere's offset ``o`` (:meth:`~hailstorm.runtime.storm.contact_set.ContactSets.offsets`:
+``a^2 / (5 R)`` on a resolved disc) short of the stone's lowest point: the
+affine law ``F = k (delta - o)`` of :func:`hailstorm.runtime.contact.hertz.press_spheres`,
+Hertz's through the patch's radius. ``patch = "none"`` gives the point
+contacts of the course hint (barycentric weights on one triangle).
+
+* Engagement: when a stone first touches the seat
+  (:meth:`~hailstorm.runtime.storm.soft_contacts.SoftContacts.engage`) its
+  impact's patch is sized and its offset fixed; the contact closes again and
+  the stone flies through the dead zone to its contact surface, the sphere of
+  radius ``R - o`` (the narrow phase's), where the contact opens with no force.
+  The stone keeps its offset, and the patch its radius, until its sphere is
+  clear of the surface again (``Storm._end_engagements``); a re-sized patch
+  carries the offset along and the stone with it, keeping the spring's
+  compression.
 
 * Radius: ``a = hertz_radius(F_peak, R, E, nu)`` clipped to
   ``[patch_min_radius, R]``, with ``F_peak`` the peak force of the contact's

@@ -31,7 +31,7 @@ def _drop_pair(gf, integrator, d, patch, r=0.002, v0=5.0, dt=2e-4):
         vb = st.vel[:, 2].copy()
         st.step()
         for i in range(2):
-            now = bool(st.ctri[i] >= 0)
+            now = bool(st.ctri[i] >= 0 or st.stones.offset[i] > 0)  # in contact, or in a patch's dead zone
             if now and not was[i] and v_in[i] is None:
                 v_in[i] = -float(vb[i])
             if was[i] and not now and v_in[i] is not None and v_out[i] is None:
