@@ -126,6 +126,9 @@ def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, offset, ctri, cbar
             dist[j] = dd
             near_tri[i] = tt
             gp[j] = dd - (radius[i] - offset[i])
+            if offset[i] > 0.0 and gp[j] > offset[i]:  # its sphere is clear: the engagement is over
+                gp[j] -= offset[i]
+                offset[i] = 0.0
         gap[i] = gp[j]
     timing = toi and queried
     # time of impact: the first approaching stone to reach its tangent plane

@@ -79,7 +79,8 @@ contacts of the course hint (barycentric weights on one triangle).
   the stone flies through the dead zone to its contact surface, the sphere of
   radius ``R - o`` (the narrow phase's), where the contact opens with no force.
   The stone keeps its offset, and the patch its radius, until its sphere is
-  clear of the surface again (``Storm._end_engagements``); a re-sized patch
+  clear of the surface again (the narrow phase,
+  :func:`hailstorm.runtime.compiled.free_phase`); a re-sized patch
   carries the offset along and the stone with it, keeping the spring's
   compression.
 
@@ -282,9 +283,11 @@ class Storm:
         stones = self.stones
         was_open = stones.ctri[near] >= 0
         h = self.collision.free_phase(stones, near, h, self.seat, self.stats)
-        self._end_engagements(near)
-        h = self.contacts.engage(stones, near, was_open, h, self.stats)
         in_contact = stones.ctri[near] >= 0
+        opened = in_contact & ~was_open
+        if self.patches.enabled and opened.any():
+            h = self.contacts.engage(stones, near[opened], h, self.stats)
+            in_contact = stones.ctri[near] >= 0
         soft = near[in_contact]
         free = near[~in_contact] if soft.size else near
         if soft.size:
@@ -295,18 +298,6 @@ class Storm:
             self.collision.fly(stones, free, h)
         self.stats.substeps += 1
         return h
-
-    def _end_engagements(self, near: np.ndarray) -> None:
-        """Stones out of contact whose sphere is clear of the surface again (their contact
-        surface's gap beyond their offset): their engagement is over, the next touch is a
-        new impact (:meth:`SoftContacts.engage`)."""
-        stones = self.stones
-        free = near[stones.ctri[near] < 0]
-        o = stones.offset[free]
-        done = free[(o > 0.0) & (stones.gap[free] > o)]
-        if done.size:
-            stones.gap[done] -= stones.offset[done]
-            stones.offset[done] = 0.0
 
     def warm_tasks(self) -> list[WarmTask]:
         """The kernels the loop calls, in tasks that load (or compile) them with the loop's

@@ -120,7 +120,13 @@ class Patches:
         seat = self.seat
         # a stone in an engagement it was sized for (its first touch, :meth:`first_touch`) keeps
         # that radius when its contact (re)opens: the kernel sizes new contacts afresh
-        new = np.isin(ids, cs, invert=True) & (stones.offset[ids] > 0.0) & (stones.crad[ids] > 0.0)
+        if cs.size == ids.size and np.array_equal(cs, ids):  # the same set: no contact is new
+            new = np.zeros(ids.size, dtype=bool)
+        else:
+            new = (stones.offset[ids] > 0.0) & (stones.crad[ids] > 0.0)
+        if cs.size and new.any():
+            known = set(cs.tolist())
+            new &= np.fromiter((j not in known for j in ids.tolist()), dtype=bool, count=ids.size)
         kept = stones.crad[ids[new]].copy()
         a, resizes, a0, off, wv, ww = patch_radii(
             ids, tris, stones.mass, stones.radius, stones.vel, stones.cbary, stones.crad, self.normals, GRAVITY,

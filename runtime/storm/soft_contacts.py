@@ -86,9 +86,10 @@ class SoftContacts:
         key: tuple[tuple[Any, ...], ...]
         cc = self.current
         if self.patch:
+            resizes = stats.patch_resizes
             rad = self.patches.radii(stones, soft, tris, cc.stones if cc is not None else None,
                                      cc.Kdiag if cc is not None else None, self.lam, stats)
-            if cc is not None:
+            if cc is not None and stats.patch_resizes > resizes:
                 self._follow_radius(stones, soft, tris, rad, cc, stats)
             key = tuple(zip(soft.tolist(), tris.tolist(), rad.tolist(), stones.offset[soft].tolist()))
         else:
@@ -160,9 +161,9 @@ class SoftContacts:
             ub = res.peak_ubar
         return float((cc.offset - ub)[touched].max())
 
-    def engage(self, stones: Stones, near: np.ndarray, was_open: np.ndarray, h: float, stats: StormStats) -> float:
-        """Patch contacts that opened in this sub-step's free phase on a stone's first touch
-        (no engagement running): size each impact's patch
+    def engage(self, stones: Stones, opened: np.ndarray, h: float, stats: StormStats) -> float:
+        """Patch contacts of stones ``opened`` in this sub-step's free phase: those on a stone's
+        first touch (no engagement running), size each impact's patch
         (:meth:`Patches.first_touch`) and its sphere's offset ``o``
         (:meth:`ContactSets.offsets`), kept in ``stones.offset`` for the engagement. A stone
         with ``o > 0`` is not in contact yet: its contact closes again and it flies on to its
@@ -173,7 +174,7 @@ class SoftContacts:
         unchanged."""
         if not self.patch:
             return h
-        opened = near[(stones.ctri[near] >= 0) & ~was_open & (stones.offset[near] == 0.0)]
+        opened = opened[stones.offset[opened] == 0.0]
         if opened.size == 0:
             return h
         tris = stones.ctri[opened]
