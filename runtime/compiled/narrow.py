@@ -27,6 +27,12 @@ def _unit(x, out):  # pragma: no cover (compiled)
     return ln
 
 
+#: a stone in a patch's dead zone moves at most this many radii per sub-step (its contact
+#: surface is within the dead zone of the seat: a tangent plane predicts the time of impact
+#: only over a short way on a curved seat)
+DEAD_ZONE_REACH = 0.1
+
+
 @kernel
 def _opening(toi_tol, radius, offset):  # pragma: no cover (compiled)
     """The gap within which a stone's contact opens: ``toi_tol`` of its contact radius, or of
@@ -146,6 +152,9 @@ def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, offset, ctri, cbar
             if w > 0.0 and gp[j] < w * h + 0.5 * abs(an) * h * h:
                 disc = math.sqrt(max(w * w + 2.0 * an * gp[j], 0.0))
                 tmin = min(tmin, 2.0 * gp[j] / max(w + disc, 1e-12))
+            if offset[i] > 0.0:  # in a patch's dead zone, at the surface: the tangent plane holds only so far
+                tmin = min(tmin, DEAD_ZONE_REACH * radius[i] / max(math.sqrt(
+                    vel[i, 0] ** 2 + vel[i, 1] ** 2 + vel[i, 2] ** 2), 1e-12))
         if tmin < np.inf:
             h = min(h, max(tmin, hmin))
     # contacts that open, at their closest points

@@ -17,6 +17,7 @@ from typing import Any, TYPE_CHECKING
 import numpy as np
 
 from hailstorm.runtime.compiled import contact_post, contact_prep
+from hailstorm.runtime.compiled.narrow import DEAD_ZONE_REACH
 from hailstorm.runtime.storm.hail import GRAVITY
 from hailstorm.runtime.storm.limits import ImpactLimits
 
@@ -170,7 +171,9 @@ class SoftContacts:
         contact surface, the sphere of radius ``R - o``, ``o`` further along the normal,
         which the sub-step (shortened from ``h``, returned) ends at or before (gravity's
         pull along the normal counted, drag's slowing not; at least the shortest sub-step,
-        as the time of impact). Point contacts (``patch = "none"``) have no offset: ``h``
+        as the time of impact), and in which the stone moves at most
+        :data:`~hailstorm.runtime.compiled.narrow.DEAD_ZONE_REACH` radii (the narrow phase's
+        bound in the dead zone). Point contacts (``patch = "none"``) have no offset: ``h``
         unchanged."""
         if not self.patch:
             return h
@@ -194,8 +197,9 @@ class SoftContacts:
             w0, an = vn[later], GRAVITY * np.clip(n[later, 2], 0.0, None)  # (drag only slows it: never past)
             den = w0 + np.sqrt(w0 * w0 + 2.0 * an * o[later])
             t = np.where(den > 0.0, 2.0 * o[later] / np.where(den > 0.0, den, 1.0), np.inf)
-            if np.isfinite(t).any():
-                h = min(h, max(float(t.min()), self.time.dt / self.time.max_substeps))
+            speed = np.maximum(np.linalg.norm(stones.vel[ids], axis=1), 1e-12)
+            t = np.minimum(t, DEAD_ZONE_REACH * stones.radius[ids] / speed)  # (as the narrow phase's)
+            h = min(h, max(float(t.min()), self.time.dt / self.time.max_substeps))
         return h
 
     def _observe_limits(self, cc: ContactSet, soft: np.ndarray, radius: np.ndarray, opening: np.ndarray,
