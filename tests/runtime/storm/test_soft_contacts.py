@@ -258,3 +258,56 @@ def test_a_pulling_contact_is_released_and_the_seat_unloaded(gf):
     got_ids, got_f = sc_.forces(st.ctri)
     assert got_ids.size == 0 and got_f.shape == (0, 3)
     np.testing.assert_array_equal(seat.u, np.zeros_like(u))
+
+
+# ----------------------------------------------------------------------------------------------
+# the engagement: the dead zone of the patch law
+# ----------------------------------------------------------------------------------------------
+def test_a_stone_flies_through_its_dead_zone_then_engages_with_no_force(gf):
+    """A 5 mm stone falling at 2 m/s onto the plate (exact integrator, restitution 1, no drag),
+    stepped by hand: at its first touch its patch is sized and its offset o fixed
+    (a^2 / (5 R) as far as the mesh follows the sphere, ``ContactSets.offsets``), its contact
+    closes again and the sub-step ends where it reaches its contact surface, o deeper
+    (gravity's 2 g o / v^2 ~ 1e-3 aside); there the contact opens (``F = k (delta - o)``: no
+    force yet), carries force below it, and once the sphere is clear of the
+    plate again the engagement is over (offset 0) and the rebound is the impact speed."""
+    from hailstorm.runtime import Storm
+
+    sc = Scene.from_flat(duration=0.05, stones=0, drag=False, integrator="exact", restitution=1.0, dt=1e-4)
+    st = Storm(gf, sc, spawn=False)
+    R, v0 = 0.005, 2.0
+    x = gf.vertices[gf.triangles[cell(6, 6)]].mean(axis=0)
+    st.add_stones((x + [0.0, 0.0, R + 1e-6])[None, :], np.array([[0.0, 0.0, -v0]]), np.array([R]))
+    stones = st.stones
+    near = np.array([0])
+    seen = []
+    for _ in range(200):
+        was_open = stones.ctri[near] >= 0
+        h = st.collision.free_phase(stones, near, 1e-4, st.seat, st.stats)
+        opened = (stones.ctri[near] >= 0) & ~was_open
+        off0 = float(stones.offset[0])
+        if opened.any():
+            h = st.contacts.engage(stones, near[opened], h, st.stats)
+        if off0 == 0.0 and stones.offset[0] > 0.0:  # the first touch
+            o = float(stones.offset[0])
+            assert stones.ctri[0] == -1  # not in contact yet
+            assert 0 < o <= stones.crad[0] ** 2 / (5 * R) * (1 + 1e-12)
+            assert h * v0 == pytest.approx(o, rel=2e-3)  # the sub-step ends at the contact surface
+            depth0 = -float(stones.pos[0, 2] - R)
+            seen.append("touch")
+        if stones.ctri[0] >= 0:
+            if "engaged" not in seen and "touch" in seen:
+                seen.append("engaged")  # on its contact surface: o below the plate, the spring at rest
+                assert -float(stones.pos[0, 2] - R) == pytest.approx(depth0 + o, rel=0.02)
+            st.contacts.advance(stones, near, near, was_open, h, st.stats)
+            if abs(st.contacts.lam[0]) > 0 and "force" not in seen:
+                seen.append("force")
+                assert st.stats.max_indentation_m > o  # the stone's own depth: its offset and more
+        else:
+            st.contacts.release()
+            st.collision.fly(stones, near, h)
+        if "force" in seen and stones.ctri[0] < 0 and stones.offset[0] == 0.0 and stones.vel[0, 2] > 0:
+            break
+    assert seen[:3] == ["touch", "engaged", "force"], seen
+    assert stones.offset[0] == 0.0 and stones.pos[0, 2] > R  # clear of the plate: the engagement is over
+    assert stones.vel[0, 2] == pytest.approx(v0, rel=2e-3)  # restitution 1 (gravity over the contact aside)
