@@ -48,16 +48,19 @@ def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, offset, ctri, cbar
     """The first phases of one storm sub-step for the near stones, in place: closest
     points, time of impact, contacts that open, hard walls.
 
-    Stones without a contact query the deformed surface; an open contact keeps its
-    ``(t, beta)`` while its stone stays over the triangle, else moves to the closest
-    point of the undeformed surface. With ``toi`` the sub-step ends when the first
-    approaching stone reaches the tangent plane at its closest point; contacts open
-    within ``toi_tol`` radii (approaching or overlapping; ``toi_tol`` of the offset in
-    a patch's dead zone), the stone put on the surface; a stone's contact surface is the sphere of radius ``radius - offset``
-    (the queries reach its whole sphere; :meth:`hailstorm.runtime.storm.stones.Stones.contact_radius`),
-    contacts on hard triangles (or on the clamped edge or corner of a soft
-    one: at most ``rigid_weight`` of the closest point's barycentric weight on free
-    vertices, :data:`hailstorm.runtime.contact.policy.RIGID_WEIGHT`) bounce at once.
+    A stone's contact surface is the sphere of radius ``radius - offset``
+    (:meth:`hailstorm.runtime.storm.stones.Stones.contact_radius`; the queries reach its
+    whole sphere). Stones without a contact query the deformed surface; an open contact
+    keeps its ``(t, beta)`` while its stone stays over the triangle, else moves to the
+    closest point of the undeformed surface. With ``toi`` the sub-step ends when the
+    first approaching stone reaches the tangent plane at its closest point (one
+    approaching in a patch's dead zone moves at most ``DEAD_ZONE_REACH`` radii); contacts
+    open within ``toi_tol`` radii (approaching or overlapping; ``toi_tol`` of the offset in
+    a patch's dead zone), the stone put on the surface. A free stone whose sphere is
+    clear of the surface ends its engagement (``offset`` set to 0, in place). Contacts on
+    hard triangles (or on the clamped edge or corner of a soft one: at most
+    ``rigid_weight`` of the closest point's barycentric weight on free vertices,
+    :data:`hailstorm.runtime.contact.policy.RIGID_WEIGHT`) bounce at once.
 
     Returns
     -------
@@ -152,7 +155,7 @@ def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, offset, ctri, cbar
             if w > 0.0 and gp[j] < w * h + 0.5 * abs(an) * h * h:
                 disc = math.sqrt(max(w * w + 2.0 * an * gp[j], 0.0))
                 tmin = min(tmin, 2.0 * gp[j] / max(w + disc, 1e-12))
-            if offset[i] > 0.0:  # in a patch's dead zone, at the surface: the tangent plane holds only so far
+            if offset[i] > 0.0 and w > 0.0:  # approaching in a patch's dead zone: the tangent plane holds only so far
                 tmin = min(tmin, DEAD_ZONE_REACH * radius[i] / max(math.sqrt(
                     vel[i, 0] ** 2 + vel[i, 1] ** 2 + vel[i, 2] ** 2), 1e-12))
         if tmin < np.inf:
