@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from hailstorm.runtime.contact.contact_capacitance import from_weights, resolve_near_field
-from hailstorm.runtime.contact.weights import hertz_mean_offset, sphere_mean_offset
+from hailstorm.runtime.contact.weights import contact_points, hertz_mean_offset, sphere_mean_offset
 
 if TYPE_CHECKING:  # annotations only
     from hailstorm.runtime.contact.contact_capacitance import Capacitance
@@ -146,6 +146,15 @@ class ContactSets:
                           stones=stones, tris=tris, bary=bary, normals=normals, X=X, rest=rest - offset,
                           offset=offset, patch_radius=radius.copy(), verts=verts, weights=cap.weights,
                           Kdiag=np.diag(K).copy())
+
+    def patch_offsets(self, ids: np.ndarray, tris: np.ndarray, bary: np.ndarray, radius: np.ndarray,
+                      stone_radius: np.ndarray, stats: StormStats) -> np.ndarray:
+        """:meth:`offsets` of the patches of radius ``radius`` of stones ``ids`` on ``tris`` at
+        ``bary`` (their weights from the per-stone cache, :meth:`Patches.weights`), (s,) [m]."""
+        normals = self.normals[tris]
+        verts, w = self.patches.weights(ids, tris, bary, radius, normals, stats)
+        X = contact_points(self.X, self.triangles, tris, bary)
+        return self.offsets(verts.astype(np.int64, copy=False), w, X, normals, radius, stone_radius)
 
     def offsets(self, verts: np.ndarray, w: np.ndarray, X: np.ndarray, normals: np.ndarray, radius: np.ndarray,
                 stone_radius: np.ndarray) -> np.ndarray:

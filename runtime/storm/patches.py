@@ -19,7 +19,8 @@ import numpy as np
 from hailstorm.runtime.compiled import patch_compliance, patch_one, patch_radii
 from hailstorm.runtime.storm.hail import GRAVITY
 from hailstorm.runtime.storm.recording import StormStats
-from hailstorm.runtime.contact.weights import PATCH_DROP, PATCH_FACING, disc_table, hertz_radius, triangle_index
+from hailstorm.runtime.contact.weights import (PATCH_DROP, PATCH_FACING, contact_points, disc_table, hertz_radius,
+                                               triangle_index)
 
 if TYPE_CHECKING:  # annotations only
     from hailstorm.runtime.storm.hail import Air
@@ -168,7 +169,7 @@ class Patches:
         m, R = stones.mass[ids], stones.radius[ids]
         f_eq = m * GRAVITY * np.clip(n[:, 2], 0.0, None)
         bary = stones.cbary[ids]
-        X = np.einsum("kj,kjd->kd", bary, self.X[self.triangles[tris]])
+        X = contact_points(self.X, self.triangles, tris, bary)
         for _ in range(rounds):
             verts, w = self.weights(ids, tris, bary, a, n, stats)
             c = 1.0 / np.maximum(self.stiffness(verts, w, n), 1e-300)

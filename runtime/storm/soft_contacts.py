@@ -141,13 +141,9 @@ class SoftContacts:
         known[known] = cc.patch_radius[pos[known]] != rad[known]
         if not known.any():
             return
-        ids, t, a = soft[known], tris[known], rad[known]
-        n = self.sets.normals[t]
-        bary = stones.cbary[ids]
-        verts, w = self.patches.weights(ids, t, bary, a, n, stats)
-        X = np.einsum("kj,kjd->kd", bary, self.sets.X[self.sets.triangles[t]])
-        o = self.sets.offsets(verts.astype(np.int64, copy=False), w, X, n, a, stones.radius[ids])
-        stones.pos[ids] += (stones.offset[ids] - o)[:, None] * n
+        ids, t = soft[known], tris[known]
+        o = self.sets.patch_offsets(ids, t, stones.cbary[ids], rad[known], stones.radius[ids], stats)
+        stones.pos[ids] += (stones.offset[ids] - o)[:, None] * self.sets.normals[t]
         stones.offset[ids] = o
 
     def _deepest(self, cc: ContactSet, res: Any) -> float:
@@ -166,7 +162,7 @@ class SoftContacts:
         """Patch contacts of stones ``opened`` in this sub-step's free phase: those on a stone's
         first touch (no engagement running), size each impact's patch
         (:meth:`Patches.first_touch`) and its sphere's offset ``o``
-        (:meth:`ContactSets.offsets`), kept in ``stones.offset`` for the engagement. A stone
+        (:meth:`ContactSets.patch_offsets`), kept in ``stones.offset`` for the engagement. A stone
         with ``o > 0`` is not in contact yet: its contact closes again and it flies on to its
         contact surface, the sphere of radius ``R - o``, ``o`` further along the normal,
         which the sub-step (shortened from ``h``, returned) ends at or before (gravity's
@@ -184,10 +180,7 @@ class SoftContacts:
         n = self.sets.normals[tris]
         vn = -np.einsum("kd,kd->k", stones.vel[opened], n)  # approach speed
         a = self.patches.first_touch(stones, opened, tris, self.sets.near, stats)
-        bary = stones.cbary[opened]
-        verts, w = self.patches.weights(opened, tris, bary, a, n, stats)
-        X = np.einsum("kj,kjd->kd", bary, self.sets.X[self.sets.triangles[tris]])
-        o = self.sets.offsets(verts.astype(np.int64, copy=False), w, X, n, a, stones.radius[opened])
+        o = self.sets.patch_offsets(opened, tris, stones.cbary[opened], a, stones.radius[opened], stats)
         stones.offset[opened] = o
         later = o > 0.0
         if later.any():
