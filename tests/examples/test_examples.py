@@ -69,7 +69,7 @@ def test_user_geometry(tmp_path, cache):
 
 def test_scene_file(tmp_path, cache):
     out = run_example("scene_file", tmp_path, cache, "--small")
-    assert "[time] integrator = 'exact'" in out
+    assert "[time] dt = 0.0005" in out
     assert "ran: integrator exact, dt 0.0005 s, 5 stones" in out
     assert (tmp_path / "scene-out" / "changed.toml").is_file()
 

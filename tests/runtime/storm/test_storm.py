@@ -19,7 +19,7 @@ def short_storm(gf):
 
 def test_scene_default_and_round_trip(tmp_path):
     sc = Scene.default()
-    assert sc.time.integrator == "implicit" and sc.contact.mode == "frictionless"
+    assert sc.time.integrator == "exact" and sc.contact.mode == "frictionless"
     # patch contact is the default for hail, in the packaged scene and the dataclass alike
     assert sc.contact.patch == Scene().contact.patch == "hertz"
     assert sc.contact.patch_min_radius == Scene().contact.patch_min_radius == 1e-3
