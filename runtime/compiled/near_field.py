@@ -22,11 +22,11 @@ __all__ = ["edge_term", "hat_compliance", "hat_potential"]
 
 
 @kernel
-def _hats(y0, y1, p, e1, e2, det):  # pragma: no cover (compiled)
+def _hats(y0, y1, p0, p1, e10, e11, e20, e21, det):  # pragma: no cover (compiled)
     """The three hat functions of the plane triangle (p, p + e1, p + e2) at (y0, y1)."""
-    d0, d1 = y0 - p[0], y1 - p[1]
-    l1 = (d0 * e2[1] - d1 * e2[0]) / det
-    l2 = (e1[0] * d1 - e1[1] * d0) / det
+    d0, d1 = y0 - p0, y1 - p1
+    l1 = (d0 * e21 - d1 * e20) / det
+    l2 = (e10 * d1 - e11 * d0) / det
     return 1.0 - l1 - l2, l1, l2
 
 
@@ -37,14 +37,16 @@ def edge_term(x0, x1, P, out):  # pragma: no cover (compiled)
     ``T`` split into the triangles ``(x, p, q)`` over its edges (signed); along
     each ray from ``x`` the kernel cancels the Jacobian and the linear ``phi``
     integrates exactly, leaving ``(h L / 2) int_0^1 (phi(x) + phi(y(s))) / |y(s) - x| ds``
-    over the edge: ``asinh`` and a square root.
+    over the edge: ``asinh`` and a square root. (Scalar arithmetic only: it runs
+    for every vertex and triangle of every patch, and allocates nothing.)
     """
-    e1 = P[1] - P[0]
-    e2 = P[2] - P[0]
-    det = e1[0] * e2[1] - e1[1] * e2[0]
+    P00, P01 = P[0, 0], P[0, 1]
+    e10, e11 = P[1, 0] - P00, P[1, 1] - P01
+    e20, e21 = P[2, 0] - P00, P[2, 1] - P01
+    det = e10 * e21 - e11 * e20
     if det == 0.0:
         return
-    px0, px1, px2 = _hats(x0, x1, P[0], e1, e2, det)
+    px0, px1, px2 = _hats(x0, x1, P00, P01, e10, e11, e20, e21, det)
     for a in range(3):
         b = (a + 1) % 3
         p0, p1 = P[a, 0], P[a, 1]
@@ -61,8 +63,8 @@ def edge_term(x0, x1, P, out):  # pragma: no cover (compiled)
         r0 = math.sqrt(r0x * r0x + r0y * r0y)
         r1 = math.sqrt((q0 - x0) ** 2 + (q1 - x1) ** 2)
         ash = math.asinh(L * (1.0 - s0) / h) - math.asinh(-L * s0 / h)
-        a0, a1, a2 = _hats(p0, p1, P[0], e1, e2, det)
-        b0, b1, b2 = _hats(q0, q1, P[0], e1, e2, det)
+        a0, a1, a2 = _hats(p0, p1, P00, P01, e10, e11, e20, e21, det)
+        b0, b1, b2 = _hats(q0, q1, P00, P01, e10, e11, e20, e21, det)
         sign = (1.0 if cross > 0 else -1.0) * (1.0 if det > 0 else -1.0)
         f = sign * h * L / 2.0
         out[0] += f * ((px0 + a0 + (b0 - a0) * s0) / L * ash + (b0 - a0) / L2 * (r1 - r0))
@@ -94,14 +96,18 @@ def hat_compliance(verts, weights, centres, normals, X, T, areas, fan_ptr, fan_t
     mark = np.full(T.shape[0], -1, np.int64)
     wpos = np.zeros(X.shape[0])  # the current patch's weight of each vertex (0: not in it)
     tri = np.empty(T.shape[0], np.int64)
-    Q = np.empty((3, 2))
     acc = np.zeros(3)
     for k in range(s):
-        n = normals[k] / math.sqrt(normals[k, 0] ** 2 + normals[k, 1] ** 2 + normals[k, 2] ** 2)
-        ref = np.array([1.0, 0.0, 0.0]) if abs(n[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
-        t1 = np.cross(n, ref)
-        t1 /= math.sqrt(t1[0] ** 2 + t1[1] ** 2 + t1[2] ** 2)
-        t2 = np.cross(n, t1)
+        ln = math.sqrt(normals[k, 0] ** 2 + normals[k, 1] ** 2 + normals[k, 2] ** 2)
+        n0, n1, n2 = normals[k, 0] / ln, normals[k, 1] / ln, normals[k, 2] / ln
+        # the tangent plane's axes t1 = n x ref, t2 = n x t1 (ref: x, or y when n is near x)
+        if abs(n0) < 0.9:
+            a0, a1, a2 = 0.0, n2, -n1
+        else:
+            a0, a1, a2 = -n2, 0.0, n0
+        la = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
+        a0, a1, a2 = a0 / la, a1 / la, a2 / la
+        b0, b1, b2 = n1 * a2 - n2 * a1, n2 * a0 - n0 * a2, n0 * a1 - n1 * a0
         # the patch's vertices (weight > 0) and the facing triangles of their fans
         nt = 0
         for p in range(P):
@@ -116,26 +122,36 @@ def hat_compliance(verts, weights, centres, normals, X, T, areas, fan_ptr, fan_t
                 if mark[t] == k:
                     continue
                 mark[t] = k
-                A, B, C = X[T[t, 0]], X[T[t, 1]], X[T[t, 2]]
-                tn = np.cross(B - A, C - A)
-                if tn[0] * n[0] + tn[1] * n[1] + tn[2] * n[2] >= 0.5 * math.sqrt(tn[0] ** 2 + tn[1] ** 2 + tn[2] ** 2):
+                i0, i1, i2 = T[t, 0], T[t, 1], T[t, 2]
+                u0, u1, u2 = X[i1, 0] - X[i0, 0], X[i1, 1] - X[i0, 1], X[i1, 2] - X[i0, 2]
+                w0, w1, w2 = X[i2, 0] - X[i0, 0], X[i2, 1] - X[i0, 1], X[i2, 2] - X[i0, 2]
+                c0, c1, c2 = u1 * w2 - u2 * w1, u2 * w0 - u0 * w2, u0 * w1 - u1 * w0
+                if c0 * n0 + c1 * n1 + c2 * n2 >= 0.5 * math.sqrt(c0 * c0 + c1 * c1 + c2 * c2):
                     tri[nt] = t
                     nt += 1
+        # their corners on the plane, once per patch
+        x0c, x1c, x2c = centres[k, 0], centres[k, 1], centres[k, 2]
+        Q = np.empty((nt, 3, 2))
+        for it in range(nt):
+            for c in range(3):
+                j = T[tri[it], c]
+                e0, e1, e2 = X[j, 0] - x0c, X[j, 1] - x1c, X[j, 2] - x2c
+                Q[it, c, 0] = e0 * a0 + e1 * a1 + e2 * a2
+                Q[it, c, 1] = e0 * b0 + e1 * b1 + e2 * b2
         total = 0.0
         for p in range(P):
             wi = weights[k, p]
             if wi <= 0.0:
                 continue
-            d = X[verts[k, p]] - centres[k]
-            x0, x1 = d[0] * t1[0] + d[1] * t1[1] + d[2] * t1[2], d[0] * t2[0] + d[1] * t2[1] + d[2] * t2[2]
+            v = verts[k, p]
+            e0, e1, e2 = X[v, 0] - x0c, X[v, 1] - x1c, X[v, 2] - x2c
+            y0, y1 = e0 * a0 + e1 * a1 + e2 * a2, e0 * b0 + e1 * b1 + e2 * b2
             for it in range(nt):
+                acc[0] = 0.0
+                acc[1] = 0.0
+                acc[2] = 0.0
+                edge_term(y0, y1, Q[it], acc)
                 t = tri[it]
-                for c in range(3):
-                    e = X[T[t, c]] - centres[k]
-                    Q[c, 0] = e[0] * t1[0] + e[1] * t1[1] + e[2] * t1[2]
-                    Q[c, 1] = e[0] * t2[0] + e[1] * t2[1] + e[2] * t2[2]
-                acc[:] = 0.0
-                edge_term(x0, x1, Q, acc)
                 for c in range(3):  # column j = corner c of t, if j carries weight in this patch
                     j = T[t, c]
                     if wpos[j] > 0.0:
