@@ -20,7 +20,6 @@ from hailstorm.runtime.compiled.contacts import inv_spd
 from hailstorm.runtime.compiled.expm import expm
 from hailstorm.runtime.compiled.lapack import solve
 from hailstorm.runtime.compiled.modal import (
-    equilibrium_py,
     explicit_modes_py,
     modal_damping_py,
     modal_stiffness_py,
@@ -29,9 +28,6 @@ from hailstorm.runtime.compiled.modal import (
 
 __all__ = ["exact_step", "explicit_modes", "modal_stiffness", "substep_contacts", "substep_damping", "substep_size"]
 
-
-#: the static equilibrium of the exact step (the one definition in :mod:`hailstorm.runtime.compiled.modal`, compiled)
-_equilibrium = kernel(equilibrium_py)
 
 #: the closed-form single contact of the exact integrator: the one definition in :mod:`hailstorm.runtime.compiled.modal`, compiled
 _scalar_exact = kernel(scalar_exact_py)
@@ -299,7 +295,7 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond
         ga = g[idx]
         aa = a[idx]
         ce = _dashpot(idx, Cn, damp_g, group, always)
-        q_eq = aa + _equilibrium(Ka, ma * ga)
+        q_eq = aa + _sub(W, idx) @ (ma * ga)  # the static equilibrium: Ka^-1 (m g) = W[a, a] m g
         A = _state_matrix(Ka, ma, ce)
         lam, V, Vi, ok = _modal(A)
         z0 = np.concatenate((q[idx] - q_eq, v[idx]))
@@ -395,7 +391,7 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond
                 # (the last segment may have released contacts: the capacitance of those left)
                 Ka = inv_spd(_sub(W, idx), cond_limit, rcond) if idx.size < n else K
                 ce = _dashpot(idx, Cn, damp_g, group, always)
-                q_eq = a[idx] + _equilibrium(Ka, m[idx] * g[idx])
+                q_eq = a[idx] + _sub(W, idx) @ (m[idx] * g[idx])
                 A = _state_matrix(Ka, m[idx], ce)
                 lam, V, Vi, ok = _modal(A)
                 z0 = np.concatenate((q[idx] - q_eq, v[idx]))

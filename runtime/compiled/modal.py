@@ -5,8 +5,7 @@ call as they are: one definition of each.
 
 * :func:`modal_damping_py` -- the dashpot per normal mode (target restitution);
 * :func:`explicit_modes_py`, :func:`modal_stiffness_py` -- the modes an explicit step carries;
-* :func:`scalar_exact_py`, :func:`equilibrium_py` -- the exact integrator's closed-form
-  single contact and static equilibrium;
+* :func:`scalar_exact_py` -- the exact integrator's closed-form single contact;
 * :func:`interp_py` / :data:`interp1` -- ``np.interp`` for one value, numpy's rule (compiled).
 """
 
@@ -18,8 +17,7 @@ import numpy as np
 
 from hailstorm.runtime.compiled.jit import kernel
 
-__all__ = ["equilibrium_py", "explicit_modes_py", "interp1", "interp_py", "modal_damping_py", "modal_stiffness_py",
-           "scalar_exact_py"]
+__all__ = ["explicit_modes_py", "interp1", "interp_py", "modal_damping_py", "modal_stiffness_py", "scalar_exact_py"]
 
 
 def interp_py(x, xp, fp):
@@ -218,22 +216,3 @@ def scalar_exact_py(q: float, v: float, a: float, m: float, g: float, dt: float,
     if unilateral and always and -k * (q - a) - c * v < 0.0 and v >= 0.0:
         return q, v, True, False, umin, umax
     return q, v, True, True, umin, umax
-
-
-def equilibrium_py(K, f):
-    """``K x = f`` for the static equilibrium; for a singular ``K`` (coincident contacts:
-    the pseudo-inverse capacitance has zero modes) the least-squares, min-norm ``x``
-    (the part of ``f`` on the zero modes, which moves coincident stones relative to
-    each other, is not carried). Plain numpy that :mod:`hailstorm.runtime.compiled` also compiles."""
-    ok = True
-    try:
-        x = np.linalg.solve(K, f)
-    except Exception:
-        ok = False
-        x = f.copy()
-    if ok:
-        r = K @ x - f
-        ok = np.all(np.isfinite(x)) and np.sqrt(np.sum(r * r)) <= 1e-9 * np.sqrt(np.sum(f * f)) + 1e-300
-    if not ok:
-        x = np.linalg.lstsq(K, f, rcond=1e-10)[0]
-    return x

@@ -6,17 +6,37 @@ Vectorised numpy over the components of a contact set; the exact integrator's mo
 solution with :func:`scipy.linalg.expm` where the eigenbasis is (nearly) defective,
 evaluated at every sample time from the segment's start (the kernel takes one
 ``expm`` per grid and its powers). It shares with the kernels only the plain-Python
-statements of the scalar closed form and the static equilibrium
-(:mod:`hailstorm.runtime.compiled.modal`) and the contact core's SPD policy.
+statement of the scalar closed form (:mod:`hailstorm.runtime.compiled.modal`) and the
+contact core's SPD policy; its static equilibrium solves with the capacitance
+(:func:`equilibrium_ref`) where the kernel multiplies by the compliance.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from hailstorm.runtime.compiled.modal import equilibrium_py, scalar_exact_py
+from hailstorm.runtime.compiled.modal import scalar_exact_py
 from hailstorm.runtime.contact.policy import spd_inverse
 from hailstorm.runtime.storm.hail import INTEGRATORS, ContactStep
+
+
+def equilibrium_ref(K: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """``K x = f`` for the static equilibrium; for a singular ``K`` (coincident contacts:
+    the pseudo-inverse capacitance has zero modes) the least-squares, min-norm ``x``
+    (the part of ``f`` on the zero modes, which moves coincident stones relative to
+    each other, is not carried)."""
+    ok = True
+    try:
+        x = np.linalg.solve(K, f)
+    except Exception:
+        ok = False
+        x = f.copy()
+    if ok:
+        r = K @ x - f
+        ok = np.all(np.isfinite(x)) and np.sqrt(np.sum(r * r)) <= 1e-9 * np.sqrt(np.sum(f * f)) + 1e-300
+    if not ok:
+        x = np.linalg.lstsq(K, f, rcond=1e-10)[0]
+    return x
 
 
 def contact_step_ref(
@@ -250,7 +270,7 @@ def exact_step_ref(q, v, a, m, g, dt, K, W, C, unilateral, group, wts, always_da
             break
         ma, ga, aa = m[idx], g[idx], a[idx]
         ce = dashpot(idx)
-        q_eq = aa + equilibrium_py(Ka, ma * ga)
+        q_eq = aa + equilibrium_ref(Ka, ma * ga)
         modal = _Modal(Ka, ma, ce)
         z0 = np.concatenate([q[idx] - q_eq, v[idx]])
         na = idx.size
@@ -334,7 +354,7 @@ def exact_step_ref(q, v, a, m, g, dt, K, W, C, unilateral, group, wts, always_da
                 # (the last segment may have released contacts: the capacitance of those left)
                 Ka = spd_inverse(W[np.ix_(idx, idx)]) if idx.size < n else K_full[np.ix_(idx, idx)]
                 ce = dashpot(idx)
-                q_eq = a[idx] + equilibrium_py(Ka, m[idx] * g[idx])
+                q_eq = a[idx] + equilibrium_ref(Ka, m[idx] * g[idx])
                 ze = _Modal(Ka, m[idx], ce).at(np.concatenate([q[idx] - q_eq, v[idx]]), np.array([h]))[:, 0]
                 q[idx], v[idx] = ze[:idx.size] + q_eq, ze[idx.size:]
                 track(idx, Ka, (q[idx] - a[idx])[:, None])
