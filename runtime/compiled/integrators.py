@@ -39,8 +39,10 @@ def _gsum(x, group, wts, ng, ident):  # pragma: no cover (compiled)
     if ident:
         return x.copy()
     out = np.zeros((ng, x.shape[1]))
-    for i in range(x.shape[0]):
-        out[group[i]] += wts[i] * x[i]
+    for i in range(x.shape[0]):  # (element by element: a broadcast += compiles numba's shape-error path, ~1.5 s)
+        gi, wi = group[i], wts[i]
+        for c in range(x.shape[1]):
+            out[gi, c] += wi * x[i, c]
     return out
 
 
