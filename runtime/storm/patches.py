@@ -12,6 +12,7 @@ stones, stiffness and forces, and the statistics. The weights themselves are
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING, cast
 
 import numpy as np
@@ -19,7 +20,7 @@ import numpy as np
 from hailstorm.runtime.compiled import patch_compliance, patch_one, patch_radii
 from hailstorm.runtime.storm.hail import GRAVITY
 from hailstorm.runtime.storm.recording import StormStats
-from hailstorm.runtime.contact.weights import (PATCH_DROP, PATCH_FACING, contact_points, disc_table, hertz_radius,
+from hailstorm.runtime.contact.weights import (PATCH_DROP, PATCH_FACING, contact_points, disc_table,
                                                triangle_index)
 
 if TYPE_CHECKING:  # annotations only
@@ -30,7 +31,7 @@ if TYPE_CHECKING:  # annotations only
     from hailstorm.runtime.bundle.compliance import ElasticSource
     from hailstorm.runtime.contact.near_field import NearField
 
-__all__ = ["Patches"]
+__all__ = ["Patches", "peak_radius"]
 
 #: a stone's cached weights: (triangle, beta bytes, radius, vertices, weights)
 _Cached = tuple[int, bytes, float, np.ndarray, np.ndarray]
@@ -149,17 +150,20 @@ class Patches:
         return a
 
     def first_touch(self, stones: Stones, ids: np.ndarray, tris: np.ndarray, near: NearField | None,
-                    stats: StormStats, rounds: int = 2) -> np.ndarray:
+                    stats: StormStats) -> np.ndarray:
         """The patch radius of the impacts of stones ``ids`` that touch the seat on ``tris``
         now (updated in ``stones.crad``), before their contacts carry force.
 
         The sizing of a new contact (:meth:`radii`: the triangle's point stiffness, then
-        the patch's own from D alone); with a near field ``rounds`` more fixed-point
-        steps with the stiffness the contact set will have, ``1 / (w^T D w + c(a) -
-        w^T H w)`` (:meth:`NearField.blocks`), so that the radius and the sphere's offset
-        of the impact follow from the stiffness its peak force sees. The expected peak
-        force is that of a contact that just opened, ``F_eq + sqrt(F_eq^2 + k m v_n^2)``
-        (``F_eq`` the weight along the normal).
+        the patch's own from D alone, ``a0``). With a near field, the radius then follows
+        from the stiffness the contact set will have, ``k(a) = 1 / (b + c(a))``: ``c(a)`` the
+        kernel's compliance of the contact's own disc, ``b = w^T D w - w^T H w`` the body's
+        part (:meth:`NearField.blocks`), evaluated once, at ``a0``: the body's part is smooth
+        at the contact and barely changes with the radius. The radius is the fixed point
+        of ``a = a_Hertz(F_eq + sqrt(F_eq^2 + k(a) m v_n^2))`` (:func:`peak_radius`), the
+        expected peak force of a contact that just opened (``F_eq`` the weight along the
+        normal), so that the radius and the sphere's offset of the impact follow from the
+        stiffness its peak force sees.
         """
         a = self.radii(stones, ids, tris, None, None, self._no_forces, stats)
         if near is None or ids.size == 0:
@@ -170,14 +174,12 @@ class Patches:
         f_eq = m * GRAVITY * np.clip(n[:, 2], 0.0, None)
         bary = stones.cbary[ids]
         X = contact_points(self.X, self.triangles, tris, bary)
-        for _ in range(rounds):
-            verts, w = self.weights(ids, tris, bary, a, n, stats)
-            c = 1.0 / np.maximum(self.stiffness(verts, w, n), 1e-300)
-            c = c + near.blocks(self.gf, a, verts, w, X, n, False)[:, 0, 0]
-            k = 1.0 / np.maximum(c, 1e-300)
-            fp = f_eq + np.sqrt(f_eq**2 + k * m * vn**2)
-            a = np.maximum(hertz_radius(fp, R, float(self.gf.young), float(self.gf.poisson),
-                                        a_min=self.contact.patch_min_radius, a_max=R), self.contact.patch_min_radius)
+        verts, w = self.weights(ids, tris, bary, a, n, stats)
+        c = 1.0 / np.maximum(self.stiffness(verts, w, n), 1e-300)
+        c = c + near.blocks(self.gf, a, verts, w, X, n, False)[:, 0, 0]
+        disc = float(near.compliance(np.ones(1))[0][0])  # c(a) = disc / a
+        body = c - disc / np.where(a > 0.0, a, np.inf)
+        a = peak_radius(body, disc, a, f_eq, m * vn**2, R, self.e_star, self.contact.patch_min_radius)
         stones.crad[ids] = a
         if a.size:
             stats.max_patch_radius_m = max(stats.max_patch_radius_m, float(a.max()))
@@ -290,3 +292,57 @@ class Patches:
             w = np.matmul(np.matmul(Bn[:, None, :], blk), Bn[:, :, None])[:, 0, 0]
             out[t] = np.where(w > 0, 1.0 / np.where(w > 0, w, 1.0), 0.0)
         return out
+
+
+def peak_radius(body: np.ndarray, disc: float, start: np.ndarray, f_eq: np.ndarray, mv2: np.ndarray, stone_radius: np.ndarray,
+                e_star: float, a_min: float, rtol: float = 1e-12, max_iter: int = 100) -> np.ndarray:
+    """The patch radius of an impact's expected peak force, with the near field: the fixed point of
+    ``a = clip(a_Hertz(F(a)), a_min, R)``.
+
+    ``F(a) = F_eq + sqrt(F_eq^2 + k(a) m v_n^2)`` is the peak force of a linear oscillator of
+    stiffness ``k(a) = 1 / (b + d / a)`` that meets the surface at the normal speed ``v_n``
+    (``b`` the body's compliance beyond the kernel's, ``d / a`` the kernel's compliance of the
+    Hertz disc, ``3 / (5 a E*)`` for the half-space,
+    :func:`hailstorm.runtime.contact.near_field.halfspace_patch_compliance`),
+    and ``a_Hertz(F) = (3 F R / (4 E*))^(1/3)`` (:func:`hailstorm.runtime.contact.weights.hertz_radius`).
+    The map contracts by about 1/6 per step (``a ~ F^(1/3)``, ``F ~ k^(1/2)``, ``k ~ a``), so
+    plain iteration from ``start`` converges in a few steps. Scalar work per stone (an impact
+    opens one or two contacts at a time): plain floats.
+
+    Parameters
+    ----------
+    body : (s,) ndarray
+        ``b`` [m/N] (may be negative: a body stiffer than the half-space; the total compliance
+        is floored at 1e-300).
+    disc : float
+        ``d`` [m^2/N]: the kernel's compliance of a disc of radius 1 m.
+    start : (s,) ndarray
+        First radii [m] (> 0 where the result is wanted; 0 stays 0, a point contact).
+    f_eq, mv2 : (s,) ndarray
+        The weight along the normal [N] and ``m v_n^2`` [J x 2].
+    stone_radius : (s,) ndarray
+        ``R`` [m], the ceiling.
+    e_star : float
+        ``E / (1 - nu^2)`` [Pa] of Hertz's radius.
+    a_min : float
+        The floor [m].
+
+    Returns
+    -------
+    (s,) ndarray
+    """
+    out = np.array(start, dtype=np.float64, copy=True)
+    for i, (a, b, fe, mv, R) in enumerate(zip(out.tolist(), np.asarray(body).tolist(), np.asarray(f_eq).tolist(),
+                                             np.asarray(mv2).tolist(), np.asarray(stone_radius).tolist())):
+        if not a > 0.0:
+            continue
+        for _ in range(max_iter):
+            k = 1.0 / max(b + disc / a, 1e-300)
+            F = fe + math.sqrt(fe * fe + k * mv)
+            a_new = max(min(math.cbrt(3.0 * F * R / (4.0 * e_star)), R), a_min)
+            done = abs(a_new - a) <= rtol * a
+            a = a_new
+            if done or not a > 0.0:
+                break
+        out[i] = a
+    return out

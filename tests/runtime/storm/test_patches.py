@@ -19,7 +19,7 @@ from hailstorm.runtime.contact.near_field import near_field
 from hailstorm.runtime.contact.weights import hertz_radius, patch_weights, triangle_normals
 from hailstorm.runtime.storm.scene import Scene
 from hailstorm.runtime.storm.hail import GRAVITY, Air
-from hailstorm.runtime.storm.patches import Patches
+from hailstorm.runtime.storm.patches import Patches, peak_radius
 from hailstorm.runtime.storm.recording import StormStats
 from hailstorm.runtime.storm.seat import SeatState
 from hailstorm.runtime.storm.stones import Stones
@@ -237,6 +237,77 @@ def test_new_contact_is_sized_with_the_triangle_then_its_patch(gf, tol):
     va, wa = patch_weights(gf, tris, bary, a, np.tile(UP, (3, 1)))
     for i in range(3):
         np.testing.assert_allclose(dense(gf, verts[i], w[i]), dense(gf, va[i], wa[i]), rtol=1e-12, atol=1e-15)
+
+
+def test_peak_radius_on_a_half_space_is_the_closed_form():
+    """No body term (``b = 0``) and no weight: ``k = a / d`` and ``a^3 = (3 R / (4 E*)) sqrt(k m v^2)``,
+    so ``a^(5/2) = (3 R / (4 E*)) sqrt(m v^2 / d)``. With a weight and a body term the result is a
+    fixed point of its own map (to the iteration's 1e-12); the floor, the ceiling and a point
+    contact (start 0) are kept."""
+    e_star = YOUNG / (1.0 - POISSON**2)
+    d = 3.0 / (5.0 * e_star)
+    R = np.array([0.0025, 0.005, 0.0125, 0.004, 0.003, 0.01])
+    mv2 = np.array([0.01, 0.1, 2.0, 1e-12, 5.0, 0.2])
+    f_eq = np.zeros(6)
+    start = np.full(6, 1e-3)
+    start[5] = 0.0
+    a = peak_radius(np.zeros(6), d, start, f_eq, mv2, R, e_star, 1e-4)
+    closed = (3.0 * R / (4.0 * e_star) * np.sqrt(mv2 / d)) ** 0.4
+    free = slice(0, 3)
+    assert np.all((closed[free] > 1e-4) & (closed[free] < R[free]))
+    np.testing.assert_allclose(a[free], closed[free], rtol=1e-10)
+    assert a[3] == 1e-4 and closed[3] < 1e-4  # the floor
+    assert a[4] == R[4] and closed[4] > R[4]  # the ceiling
+    assert a[5] == 0.0  # a point contact stays one
+    # a weight and a body term (softer, and stiffer than the half-space): a fixed point of the map
+    b = np.array([2e-4, -1e-5, 5e-5])
+    fe = np.array([0.002, 0.05, 0.5])
+    a = peak_radius(b, d, np.full(3, 2e-3), fe, mv2[:3], R[:3], e_star, 1e-4)
+    k = 1.0 / (b + d / a)
+    F = fe + np.sqrt(fe**2 + k * mv2[:3])
+    np.testing.assert_allclose(a, np.clip(np.cbrt(3.0 * F * R[:3] / (4.0 * e_star)), 1e-4, R[:3]), rtol=1e-10)
+    assert a[0] < closed[0]  # a softer body: a smaller peak force, a smaller patch
+
+
+@pytest.mark.parametrize("vn", [-3.0, -12.0])
+def test_first_touch_radius_is_the_fixed_point_of_its_mesh(gf, vn):
+    """With the near field the first-touch radius solves ``a = a_Hertz(F_peak(k(a)))``,
+    ``1 / k(a) = w^T D w + c(a) - w^T H w`` with the body's part ``w^T D w - w^T H w`` of the patch
+    at the first radius ``a0`` (by hand: ``patch_weights``, ``g^T D g``, ``NearField.blocks``). Held
+    to the fixed point with the whole model re-evaluated at every radius (the weights and both
+    sums at each iterate) within 0.5 % (measured here: 0.17 % at most, against 3-47 % for ``a0``):
+    the body's part is smooth in ``a``. (In a 2 000-stone storm on the default seat the largest of
+    1 064 first touches was 1.7 % of the radius, the median 0.1 %.)"""
+    p = make_patches(gf, patch_min_radius=1e-4)
+    nf = near_field("halfspace", gf.young, gf.poisson)
+    tris = np.array([cell(6, 6), cell(4, 5, 1), cell(7, 3)])
+    bary = np.array([[0.2, 0.3, 0.5], [1 / 3, 1 / 3, 1 / 3], [0.9, 0.05, 0.05]])
+    R = np.array([0.0025, 0.005, 0.0125])
+    st, ids = stones_on(gf, tris, bary, R, np.column_stack([np.zeros((3, 2)), np.full(3, vn)]))
+    m, f_eq = st.mass[ids], st.mass[ids] * GRAVITY
+    normals = np.tile(UP, (3, 1))
+    X = np.einsum("ka,kad->kd", bary, gf.vertices[gf.triangles[tris]])
+    e_star = YOUNG / (1.0 - POISSON**2)
+
+    def model_compliance(a):
+        v, w = patch_weights(gf, tris, bary, a, normals)
+        dw = np.array([compliance_by_hand(gf, v[i], w[i], UP) for i in range(3)])
+        return dw + nf.blocks(gf, a, v, w, X, normals, False)[:, 0, 0]
+
+    a0 = p.radii(st, ids, tris, None, None, np.zeros(0), StormStats()).copy()
+    st.crad[ids] = 0.0
+    got = p.first_touch(st, ids, tris, nf, StormStats())
+    np.testing.assert_array_equal(st.crad[ids], got)
+    d = float(nf.compliance(np.ones(1))[0][0])
+    body = model_compliance(a0) - d / a0
+    np.testing.assert_allclose(got, peak_radius(body, d, a0, f_eq, m * vn**2, R, e_star, 1e-4), rtol=1e-9)
+    full = a0.copy()
+    for _ in range(30):
+        k = 1.0 / model_compliance(full)
+        full = hertz(f_eq + np.sqrt(f_eq**2 + k * m * vn**2), R, 1e-4)
+    assert np.all((full > 1e-4) & (full < R))
+    assert np.max(np.abs(a0 / full - 1)) > 0.05  # the first radius alone is off
+    np.testing.assert_allclose(got, full, rtol=5e-3)
 
 
 # ----------------------------------------------------------------------------------------------
