@@ -90,7 +90,10 @@ contacts of the course hint (barycentric weights on one triangle).
   ``F_eq + sqrt((F - F_eq)^2 + k m v_n^2)`` (``F`` the previous sub-step's
   force, ``k`` the contact's stiffness). For a new contact (``F = 0``) this is
   the impact's expected peak force, with the stiffness of the patch itself
-  (one fixed-point iteration from the triangle's point stiffness). The
+  (one fixed-point iteration from the triangle's point stiffness; with the
+  near field, the fixed point of the radius with the body's part of the
+  compliance taken at that first radius,
+  :meth:`~hailstorm.runtime.storm.patches.Patches.first_touch`). The
   estimate is nearly constant during an impact, so the disc is sized for the
   deepest dent and the contact keeps one set of weights for the whole impact.
 * Rebuilds: a contact is re-weighted (and the capacitance rebuilt) only when
