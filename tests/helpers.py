@@ -18,16 +18,18 @@ __all__ = ["Interrupt", "count_solves", "interrupt_after", "plate_gf"]
 
 
 def plate_gf(n: int = 13, size: float = 0.12, young: float = 2e6, poisson: float = 0.35,
-             thickness: float | None = None) -> GreensFunctions:
+             thickness: float | None = None, fold: float = 0.0) -> GreensFunctions:
     """A flat square plate at z = 0 (normal +z) with a Boussinesq-like compliance.
 
     ``D_ij = (1 - nu^2) / (pi E r_ij) I3`` between distinct vertices and
     ``1 / (E h)`` on the diagonal (``h`` the grid spacing); the boundary ring
-    is clamped, the interior contactable.
+    is clamped, the interior contactable. ``fold`` [rad] bends it along the grid line
+    ``x = size / 2`` (``n`` odd): ``z = -tan(fold) |x - size / 2|``, a ridge (``fold > 0``,
+    a convex edge whose faces' normals differ by ``2 fold``) or a valley (``fold < 0``).
     """
     x = np.linspace(0.0, size, n)
     X, Y = np.meshgrid(x, x - size / 2, indexing="ij")
-    V = np.column_stack([X.ravel(), Y.ravel(), np.zeros(n * n)])
+    V = np.column_stack([X.ravel(), Y.ravel(), -np.tan(fold) * np.abs(X.ravel() - size / 2)])
     tris = []
     for i in range(n - 1):
         for j in range(n - 1):

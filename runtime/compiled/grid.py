@@ -13,7 +13,7 @@ import numpy as np
 
 from hailstorm.runtime.compiled.jit import kernel
 
-__all__ = ["SampleGrid", "closest_points", "sorted_ints", "surface_arrays"]
+__all__ = ["SampleGrid", "closest_one", "closest_points", "sorted_ints", "surface_arrays", "triangle_distance"]
 
 
 @kernel
@@ -144,6 +144,18 @@ def _closest_on_triangle(p, a, b, c, out_bary):  # pragma: no cover (compiled)
     b2 = min(max(w, 0.0), 1.0)
     s = b0 + b1 + b2
     out_bary[0] = b0 / s; out_bary[1] = b1 / s; out_bary[2] = b2 / s
+
+
+@kernel
+def triangle_distance(p, a, b, c, out_bary):  # pragma: no cover (compiled)
+    """Distance from ``p`` to triangle (a, b, c); writes its closest point's barycentric coordinates
+    to ``out_bary``."""
+    _closest_on_triangle(p, a, b, c, out_bary)
+    d = 0.0
+    for e in range(3):
+        x = out_bary[0] * a[e] + out_bary[1] * b[e] + out_bary[2] * c[e] - p[e]
+        d += x * x
+    return math.sqrt(d)
 
 
 @kernel

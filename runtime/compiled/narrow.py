@@ -14,7 +14,7 @@ import numpy as np
 
 from hailstorm.runtime.compiled.jit import kernel
 from hailstorm.runtime.compiled.flight import drag_dot
-from hailstorm.runtime.compiled.grid import closest_one
+from hailstorm.runtime.compiled.grid import closest_one, triangle_distance
 
 __all__ = ["free_phase", "penetration"]
 
@@ -43,20 +43,37 @@ def _opening(toi_tol, radius, offset):  # pragma: no cover (compiled)
 
 
 @kernel
-def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, offset, ctri, cbary, gap, near_tri, surf, tri_normals,
-               soft, fixed, rigid_weight, umax, use_u, D, fcols, fv, g, wind, drag_coef, restitution):  # pragma: no cover
+def _plane_distance(i, t, pos, cbary, X, T, tri_normals):  # pragma: no cover (compiled)
+    """The distance of stone ``i``'s centre from the plane of triangle ``t`` (through the point
+    ``cbary[i]`` of it), along its normal."""
+    dn = 0.0
+    for e in range(3):
+        xe = 0.0
+        for c in range(3):
+            xe += cbary[i, c] * X[T[t, c], e]
+        dn += tri_normals[t, e] * (pos[i, e] - xe)
+    return dn
+
+
+@kernel
+def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, offset, shift, ctri, cbary, gap, near_tri, surf,
+               tri_normals, soft, fixed, rigid_weight, umax, use_u, D, fcols, fv, g, wind, drag_coef,
+               restitution):  # pragma: no cover
     """The first phases of one storm sub-step for the near stones, in place: closest
     points, time of impact, contacts that open, hard walls.
 
     A stone's contact surface is the sphere of radius ``radius - offset``
     (:meth:`hailstorm.runtime.storm.stones.Stones.contact_radius`; the queries reach its
     whole sphere). Stones without a contact query the deformed surface; an open contact
-    keeps its ``(t, beta)`` while its stone stays over the triangle, else moves to the
-    closest point of the undeformed surface. With ``toi`` the sub-step ends when the
+    keeps its ``(t, beta)`` while the closest point of the undeformed surface lies on that
+    triangle (inside it or on its boundary), else moves to it; its anchor lies ``shift`` out
+    along the triangle's normal (:attr:`hailstorm.runtime.storm.stones.Stones.shift`; the module
+    notes of :mod:`hailstorm.runtime.storm.driver`, "Facets"). With ``toi`` the sub-step ends when the
     first approaching stone reaches the tangent plane at its closest point (one
     approaching in a patch's dead zone moves at most ``DEAD_ZONE_REACH`` radii); contacts
     open within ``toi_tol`` radii (approaching or overlapping; ``toi_tol`` of the offset in
-    a patch's dead zone), the stone put on the surface. A free stone whose sphere is
+    a patch's dead zone), the stone put on the surface along its triangle's normal (its
+    contact surface at the plane of the triangle through the closest point). A free stone whose sphere is
     clear of the surface ends its engagement (``offset`` set to 0, in place). Contacts on
     hard triangles (or on the clamped edge or corner of a soft one: at most
     ``rigid_weight`` of the closest point's barycentric weight on free vertices,
@@ -92,6 +109,7 @@ def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, offset, ctri, cbar
         for e in range(3):
             point[j, e] = np.nan
     gp = np.zeros(k)
+    bt = np.empty(3)
     nrm = np.empty(3)
     dvec = np.empty(3)
     queried = False
@@ -99,33 +117,28 @@ def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, offset, ctri, cbar
         i = near[j]
         if ctri[i] >= 0:
             in_contact[j] = True
-            # does the centre still project onto the contact triangle (undeformed)?
+            # the closest point of the undeformed surface: the contact keeps its (t, beta) while
+            # that point lies on t (inside it or on its boundary), else moves there (module notes)
             t = ctri[i]
-            n0 = tri_normals[t, 0]; n1 = tri_normals[t, 1]; n2 = tri_normals[t, 2]
-            a = T[t, 0]; b = T[t, 1]; c = T[t, 2]
-            v00 = X[b, 0] - X[a, 0]; v01 = X[b, 1] - X[a, 1]; v02 = X[b, 2] - X[a, 2]
-            v10 = X[c, 0] - X[a, 0]; v11 = X[c, 1] - X[a, 1]; v12 = X[c, 2] - X[a, 2]
-            w0 = pos[i, 0] - X[a, 0]; w1 = pos[i, 1] - X[a, 1]; w2 = pos[i, 2] - X[a, 2]
-            wn = w0 * n0 + w1 * n1 + w2 * n2
-            w0 -= wn * n0; w1 -= wn * n1; w2 -= wn * n2
-            d00 = v00 * v00 + v01 * v01 + v02 * v02
-            d01 = v00 * v10 + v01 * v11 + v02 * v12
-            d11 = v10 * v10 + v11 * v11 + v12 * v12
-            d20 = w0 * v00 + w1 * v01 + w2 * v02
-            d21 = w0 * v10 + w1 * v11 + w2 * v12
-            den = d00 * d11 - d01 * d01
-            b1 = (d11 * d20 - d01 * d21) / den
-            b2 = (d00 * d21 - d01 * d20) / den
-            if not (b1 >= -1e-3 and b2 >= -1e-3 and b1 + b2 <= 1.0 + 1e-3):
-                # slid off: the closest point of the undeformed surface (the contact stays open)
-                tt, dd = closest_one(pos[i], 2.0 * radius[i] + umax + 1e-3, 0.0, undeformed, surf, D, fcols, fv,
-                                      done0, Y0, bary[j], point[j])
-                ctri[i] = tt
-                if tt >= 0:
-                    for e in range(3):
-                        cbary[i, e] = bary[j, e]
+            tt, dd = closest_one(pos[i], 2.0 * radius[i] + umax + 1e-3, 0.0, undeformed, surf, D, fcols, fv,
+                                  done0, Y0, bary[j], point[j])
+            moved = False
+            if tt < 0:  # (nothing within reach: the contact is gone)
+                ctri[i] = -1
+                shift[i] = 0.0
                 tri[j] = tt
                 dist[j] = dd
+            elif tt != t:
+                a = T[t, 0]; b = T[t, 1]; c = T[t, 2]
+                moved = triangle_distance(pos[i], X[a], X[b], X[c], bt) > dd + 1e-9 * radius[i]
+            if moved:  # to the closest point; the spring's length carried over if it would shorten
+                before = _plane_distance(i, t, pos, cbary, X, T, tri_normals) + shift[i]
+                ctri[i] = tt
+                for e in range(3):
+                    cbary[i, e] = bary[j, e]
+                tri[j] = tt
+                dist[j] = dd
+                shift[i] = max(before - _plane_distance(i, tt, pos, cbary, X, T, tri_normals), 0.0)
         else:
             queried = True
             sp = math.sqrt(vel[i, 0] ** 2 + vel[i, 1] ** 2 + vel[i, 2] ** 2)
@@ -181,15 +194,20 @@ def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, offset, ctri, cbar
         ctri[i] = t
         for e in range(3):
             cbary[i, e] = bary[j, e]
-        if timing:
-            for e in range(3):
-                pos[i, e] -= gp[j] * tri_normals[t, e]
-        else:
+        # put on the surface along the triangle's normal, its contact surface touching the plane of
+        # the triangle through the (deformed) closest point: inside a triangle that is out by the
+        # overlap; on an edge or a corner, where that plane passes nearer than the point, a little
+        # further (the spring starts at its rest length, not compressed by the plane's tilt)
+        dn = 0.0
+        for e in range(3):
+            dn += tri_normals[t, e] * (pos[i, e] - point[j, e])
+        push = (radius[i] - offset[i]) - dn
+        if not timing:
             vn = vel[i, 0] * tri_normals[t, 0] + vel[i, 1] * tri_normals[t, 1] + vel[i, 2] * tri_normals[t, 2]
-            if vn < 0.0:
-                depth = max(-gp[j], 0.0)
-                for e in range(3):
-                    pos[i, e] += depth * tri_normals[t, e]
+            push = max(push, 0.0) if vn < 0.0 else 0.0
+        for e in range(3):
+            pos[i, e] += push * tri_normals[t, e]
+        shift[i] = 0.0
     # hard walls: out of the wall, restitution bounce, the contact closes
     walls = 0
     for j in range(k):

@@ -153,7 +153,7 @@ class Collision:
         use_u, cols, forces = seat.kernel_load()
         h, walls = free_phase(
             near, h, self.toi, self.TOI_TOL, self.hmin, stones.pos, stones.vel, stones.radius, stones.offset,
-            stones.ctri, stones.cbary, stones.gap, stones.near_tri, self.surface, self.index.normals, self.soft, self.fixed,
+            stones.shift, stones.ctri, stones.cbary, stones.gap, stones.near_tri, self.surface, self.index.normals, self.soft, self.fixed,
             self.rigid_weight, seat.umax, use_u, seat.D, cols, forces, GRAVITY, self.air.wind, self.air.drag_coef, self.restitution)
         stats.wall_contacts += int(walls)
         return float(h)

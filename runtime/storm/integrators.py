@@ -124,7 +124,7 @@ class ContactIntegrator:
         if not self.sizes_substeps or k_tri is None:
             return h_left  # exact: no stability/accuracy limit; impacts are caught by time of impact
         if cc is not None and cc.stones.size:
-            cs, kd, cn, cx, cr = cc.stones, cc.Kdiag, cc.normals, cc.X, cc.rest
+            cs, kd, cn, cx, cr = cc.stones, cc.Kdiag, cc.normals, cc.X, cc.rest - stones.shift[cc.stones]
         else:
             cs, kd, cn, cx, cr = self._none, self._no_forces, self._no_e3, self._no_e3, self._no_forces
         return float(substep_size(near, float(h_left), float(self.hmin), stones.vel, stones.radius, stones.mass,

@@ -104,7 +104,7 @@ class SoftContacts:
         nk = cc.normals
         q, a, vq, gq, mq, always, acc = contact_prep(
             soft, stones.pos, stones.vel, stones.radius, stones.mass, GRAVITY, self.air.wind, self.air.drag_coef,
-            nk, cc.X, cc.rest, cc.Kdiag, self.contact.sticky, exact, self.time.rest_speed)
+            nk, cc.X, cc.rest - stones.shift[soft], cc.Kdiag, self.contact.sticky, exact, self.time.rest_speed)
         if self.contact.sticky:
             group, wts = np.repeat(np.arange(s), 3), nk.ravel()
         else:

@@ -85,7 +85,7 @@ def check_stones(pos: Any, vel: Any, radius: Any) -> tuple[np.ndarray, np.ndarra
 FIELDS: tuple[tuple[str, Any], ...] = (
     ("pos", None), ("vel", None), ("radius", None), ("mass", None), ("alive", True), ("ctri", -1),
     ("cbary", 0.0), ("gap", np.inf), ("hit", False), ("near_tri", -1), ("crad", 0.0), ("offset", 0.0),
-    ("budget", 0.0), ("bud_u", 0.0),
+    ("shift", 0.0), ("budget", 0.0), ("bud_u", 0.0),
 )
 
 
@@ -115,6 +115,11 @@ class Stones:
         (0: none): its contact surface is the sphere of radius ``radius - offset``
         (:meth:`contact_radius`; the module notes of :mod:`hailstorm.runtime.storm.driver`,
         "Patch contacts").
+    shift : (k,) ndarray
+        How far the anchor of the stone's open contact lies out along its triangle's normal [m]
+        (0 when the contact opens): set when the contact moves to a triangle whose plane is
+        nearer, so that the spring does not jump shorter (the module notes of
+        :mod:`hailstorm.runtime.storm.driver`, "Facets").
     budget, bud_u : (k,) ndarray
         Broad phase: a lower bound of the distance to the seat [m] and the
         displacement bound it allows for [m] (:func:`hailstorm.runtime.compiled.near_set`).
@@ -132,6 +137,7 @@ class Stones:
     near_tri: np.ndarray
     crad: np.ndarray
     offset: np.ndarray
+    shift: np.ndarray
     budget: np.ndarray
     bud_u: np.ndarray
 
@@ -149,6 +155,7 @@ class Stones:
         self.near_tri = np.zeros(0, dtype=np.intp)
         self.crad = np.zeros(0)
         self.offset = np.zeros(0)
+        self.shift = np.zeros(0)
         self.budget = np.zeros(0)
         self.bud_u = np.zeros(0)
         self._buffers = {name: getattr(self, name) for name, _ in FIELDS}

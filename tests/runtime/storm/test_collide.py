@@ -247,8 +247,13 @@ def test_free_phase_against_the_deformed_surface(gf, fz):
     else:
         assert st.ctri[0] == ref.triangle[0]
         np.testing.assert_allclose(st.cbary[0], ref.bary[0], rtol=0, atol=1e-9)
-        # put on the deformed surface along the (undeformed) normal: up by the overlap
-        np.testing.assert_allclose(st.pos[0], pos - gap * UP, rtol=0, atol=1e-15)
+        # put on the deformed surface along the triangle's (undeformed) normal, R from the plane
+        # through its closest point (on the bump's slope a little more than the overlap)
+        Y = gf.vertices + u
+        c = ref.bary[0] @ Y[gf.triangles[ref.triangle[0]]]
+        np.testing.assert_allclose(st.pos[0][:2], pos[:2], rtol=0, atol=ATOL)
+        assert (st.pos[0] - c) @ UP == pytest.approx(R, rel=1e-12)
+        assert st.pos[0][2] - pos[2] == pytest.approx(-gap, rel=0.02)
     # the rest surface would have said otherwise
     rest = closest_brute(pos[None], gf.vertices, gf.triangles)
     assert (rest.distance[0] - R < Collision.TOI_TOL * R) == (fz < 0)
