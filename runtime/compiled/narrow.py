@@ -43,6 +43,27 @@ def _opening(toi_tol, radius, offset):  # pragma: no cover (compiled)
 
 
 @kernel
+def _over_triangle(p, t, X, T, tri_normals):  # pragma: no cover (compiled)
+    """Does ``p`` project onto triangle ``t`` (undeformed; 1e-3 of its edges' slack)?"""
+    n0 = tri_normals[t, 0]; n1 = tri_normals[t, 1]; n2 = tri_normals[t, 2]
+    a = T[t, 0]; b = T[t, 1]; c = T[t, 2]
+    v00 = X[b, 0] - X[a, 0]; v01 = X[b, 1] - X[a, 1]; v02 = X[b, 2] - X[a, 2]
+    v10 = X[c, 0] - X[a, 0]; v11 = X[c, 1] - X[a, 1]; v12 = X[c, 2] - X[a, 2]
+    w0 = p[0] - X[a, 0]; w1 = p[1] - X[a, 1]; w2 = p[2] - X[a, 2]
+    wn = w0 * n0 + w1 * n1 + w2 * n2
+    w0 -= wn * n0; w1 -= wn * n1; w2 -= wn * n2
+    d00 = v00 * v00 + v01 * v01 + v02 * v02
+    d01 = v00 * v10 + v01 * v11 + v02 * v12
+    d11 = v10 * v10 + v11 * v11 + v12 * v12
+    d20 = w0 * v00 + w1 * v01 + w2 * v02
+    d21 = w0 * v10 + w1 * v11 + w2 * v12
+    den = d00 * d11 - d01 * d01
+    b1 = (d11 * d20 - d01 * d21) / den
+    b2 = (d00 * d21 - d01 * d20) / den
+    return b1 >= -1e-3 and b2 >= -1e-3 and b1 + b2 <= 1.0 + 1e-3
+
+
+@kernel
 def _plane_distance(i, t, pos, cbary, X, T, tri_normals):  # pragma: no cover (compiled)
     """The distance of stone ``i``'s centre from the plane of triangle ``t`` (through the point
     ``cbary[i]`` of it), along its normal."""
@@ -118,8 +139,13 @@ def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, offset, shift, ctr
         if ctri[i] >= 0:
             in_contact[j] = True
             # the closest point of the undeformed surface: the contact keeps its (t, beta) while
-            # that point lies on t (inside it or on its boundary), else moves there (module notes)
+            # that point lies on t (inside it or on its boundary), else moves there (module notes);
+            # asked only once the centre no longer projects onto t (a nearer plane inside t's prism,
+            # past a concave edge's bisector, is taken up by the shift when the contact moves)
             t = ctri[i]
+            if _over_triangle(pos[i], t, X, T, tri_normals):
+                gap[i] = 0.0
+                continue
             tt, dd = closest_one(pos[i], 2.0 * radius[i] + umax + 1e-3, 0.0, undeformed, surf, D, fcols, fv,
                                   done0, Y0, bary[j], point[j])
             moved = False
