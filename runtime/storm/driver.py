@@ -9,7 +9,8 @@ Use::
 
 Algorithm of one step (``dt`` = ``scene.time.dt``)
 -------------------------------------------------
-1. Spawn the stones due in this step.
+1. Spawn the stones due in this step (each placed back along its path by its spawn
+   time's lead over the step's start).
 2. Broad phase by *conservative advancement*: every flying stone carries a
    lower bound of its distance to the deformed seat (``budget``: nearest
    k-d tree sample minus the sample radius, the stone radius and 1.5x the
@@ -254,7 +255,10 @@ class Storm:
         dt, st, stones, seat = self.scene.time.dt, self.stats, self.stones, self.seat
         due = self.plan.due(self.t + dt)
         if due is not None:  # the plan's stones start above the seat: Stones.add's check is the one they need
-            st.hailstones += stones.add(due[:, 1:4], due[:, 4:7], due[:, 7]).size
+            # each at its own spawn time: at the step's start it is still that far back along its
+            # (steady, terminal) path, so that where and when it lands does not depend on dt
+            early = (due[:, 0] - self.t)[:, None]
+            st.hailstones += stones.add(due[:, 1:4] - early * due[:, 4:7], due[:, 4:7], due[:, 7]).size
         live = stones.live()
         near, far = self.collision.near_set(stones, live, dt, seat.umax_step) if live.size else (live, live)
         if far.size:

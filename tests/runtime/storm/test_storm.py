@@ -377,7 +377,7 @@ def test_patch_and_point_storms_on_the_seat(seat_bundle):
     # short of the stone's lowest point (runtime/storm/contact_set.py), so the stone may overlap the
     # interpolated surface at its contact point by that much more than a point contact, not more
     assert ph["max_penetration_contact_m"] <= pn["max_penetration_contact_m"] + 0.2 * ph["max_indentation_m"]
-    assert ph["max_penetration_contact_m"] > 0.0
+    assert pn["max_penetration_contact_m"] > 0.0  # (a point load's spike of a dent tilts into the sphere)
     again = run_storm(gf, out["hertz"].scene, progress=False)
     assert np.array_equal(again.frames[-1].positions, out["hertz"].frames[-1].positions)
     assert np.array_equal(again.frames[-1].displacement, out["hertz"].frames[-1].displacement)

@@ -177,3 +177,22 @@ def test_400_stone_storm_agrees_across_dt(default_seat, integrator):
     """A 400-stone storm on the default seat: the same agreement (before the fix, exact:
     203 stones / 129.5 N at 0.05 ms, 156 / 116.7 N at 0.5 ms)."""
     _assert_dt_agreement(default_seat, integrator, stones=400)
+
+
+def test_spawned_stones_fly_where_their_plan_puts_them_whatever_dt():
+    """A stone of the spawn plan starts at its own spawn time, not at the start of the step it
+    falls in (it was up to dt early, and so up to dt v further down: 5.8 mm apart between dt
+    0.5 and 0.05 ms here, landing earlier and, on a curved seat, elsewhere): at a common instant
+    before any impact, every stone of a storm over the plate is where it is at dt 0.05 ms, to
+    1e-9 m (the steady terminal fall integrated over other steps)."""
+    gf = plate_gf()
+    pos = []
+    for dt in (5e-4, 5e-5):
+        sc = Scene.from_flat(duration=0.004, stones=30, seed=2, dt=dt, spawn_height=0.3)
+        st = Storm(gf, sc)
+        for _ in range(int(round(0.004 / dt))):
+            st.step()
+        assert st.stats["impacts"] == 0 and st.pos.shape[0] == 30  # all still in the air
+        pos.append(st.pos.copy())
+    assert np.ptp(st.plan.rows[:, 0]) > 0.003  # spawned over most of the run: in most steps at dt 0.5 ms
+    np.testing.assert_allclose(pos[0], pos[1], rtol=0, atol=1e-9)
