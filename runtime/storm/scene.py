@@ -439,7 +439,7 @@ class TimeSettings(_Section):
         the step), so it needs no ``omega_dt`` sub-steps and its peak forces are the
         model's own; ``"implicit"`` (backward Euler) and ``"symplectic"`` report peak
         forces first order in ``omega_dt`` (the default storm's implicit peak is
-        12.8 % above the exact one at ``omega_dt = 0.2``, see docs/how-it-works.md).
+        12.1 % above the exact one at ``omega_dt = 0.2``, see docs/how-it-works.md).
     adaptive : bool
         Sub-step near stones (see :mod:`hailstorm.runtime.storm.driver`). ``False``: fixed ``dt``.
     omega_dt : float
