@@ -257,7 +257,8 @@ class ParaviewSeries:
         stname = f"frames/stones_{i:04d}.vtu"
         meshio.write(self.outdir / stname, meshio.Mesh(pos, [("vertex", np.arange(k, dtype=np.int64)[:, None])],
                                                        point_data={"radius": radii, "id": ids, "force": forces}))
-        umax = float(np.linalg.norm(peak, axis=1).max()) if len(peak) else 0.0
+        # (in float64, as the renderer takes the norms: its colour scale's top bounds every pixel)
+        umax = float(np.linalg.norm(np.asarray(peak, dtype=np.float64), axis=1).max()) if len(peak) else 0.0
         self.entries.append((float(frame.t), sname, stname, int(frame.contacts), umax))
 
     def close(self) -> Path:

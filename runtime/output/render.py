@@ -331,7 +331,9 @@ class StormRenderer:
         peak_norm = getattr(frames, "peak_norm", None)
         if peak_norm is None:
             def peak_norm(i: int) -> float:
-                return float(np.linalg.norm(shown_displacement(frames[i]), axis=1).max(initial=0.0))
+                # (in float64, as :meth:`render` takes the norms: a float32 norm rounds below them)
+                return float(np.linalg.norm(np.asarray(shown_displacement(frames[i]), dtype=np.float64),
+                                            axis=1).max(initial=0.0))
         peak = max(peak_norm(i) for i in which)
         last = frames[which[-1]]
         end = float(last.t)

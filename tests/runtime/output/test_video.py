@@ -265,11 +265,13 @@ def _watchable(gf, scene):
 
 def test_the_default_storm_shows_a_dent_in_most_frames(seat_bundle):
     """The default scene on the default saddle (coarse mesh): a dent shows in at least 80 % of the
-    recorded frames and a stone in contact in at least 15 % (counted from the frames' data); the
-    old default rate (200 stones/s) gave ~37 % and ~2 % on the default seat."""
+    recorded frames and a stone in contact in at least 10 % (counted from the frames' data); the
+    old default rate (200 stones/s) gave ~37 % and ~2 % on the default seat. (The pressing frames
+    are a count out of 51, about +-3 frames of sampling noise at 20 %: 12 % here and 25 % on the
+    default seat, 16 % and 29 % before each spawned stone started at its own spawn time.)"""
     gf = load(seat_bundle)
     dents, pressing = _watchable(gf, Scene.default())
-    assert dents >= 0.8 and pressing >= 0.15, (dents, pressing)
+    assert dents >= 0.8 and pressing >= 0.10, (dents, pressing)
     sparse, _ = _watchable(gf, Scene.default().with_(rate=200.0))  # the old default: mostly a grey seat
     assert sparse < 0.6, sparse
 
