@@ -16,7 +16,7 @@ from hailstorm.runtime.compiled.jit import kernel
 from hailstorm.runtime.compiled.flight import drag_dot
 from hailstorm.runtime.compiled.grid import closest_one, triangle_distance
 
-__all__ = ["free_phase", "penetration"]
+__all__ = ["contact_normal", "free_phase", "penetration"]
 
 
 @kernel
@@ -64,21 +64,78 @@ def _over_triangle(p, t, X, T, tri_normals):  # pragma: no cover (compiled)
 
 
 @kernel
-def _plane_distance(i, t, pos, cbary, X, T, tri_normals):  # pragma: no cover (compiled)
-    """The distance of stone ``i``'s centre from the plane of triangle ``t`` (through the point
-    ``cbary[i]`` of it), along its normal."""
+def _plane_distance(i, t, pos, cbary, cnormal, X, T):  # pragma: no cover (compiled)
+    """The distance of stone ``i``'s centre from its contact's plane: through the point
+    ``cbary[i]`` of triangle ``t``, at right angles to the contact's normal ``cnormal[i]``."""
     dn = 0.0
     for e in range(3):
         xe = 0.0
         for c in range(3):
             xe += cbary[i, c] * X[T[t, c], e]
-        dn += tri_normals[t, e] * (pos[i, e] - xe)
+        dn += cnormal[i, e] * (pos[i, e] - xe)
     return dn
 
 
+#: a barycentric weight at most this counts as 0 (the closest point on that side's edge or corner)
+_ON_BOUNDARY = 1e-12
+
+
 @kernel
-def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, offset, shift, ctri, cbary, gap, near_tri, surf,
-               tri_normals, soft, fixed, rigid_weight, umax, use_u, D, fcols, fv, g, wind, drag_coef,
+def contact_normal(p, t, bary, X, T, tri_normals, corner, sharp_edge, sharp_vertex, bt,
+                   out):  # pragma: no cover (compiled)
+    """The unit normal of a contact at ``bary`` on triangle ``t`` (undeformed) of the sphere
+    centred at ``p``, into ``out`` (``bt``: scratch).
+
+    The faceted surface read as a smooth one: the normals at the triangle's corners
+    interpolated at ``bary`` (``corner``, (m, 3, 3), :func:`hailstorm.runtime.storm.collide.corner_normals`),
+    continuous across an edge. But where ``p`` lies over a sharp edge or corner of ``t``
+    (``sharp_edge`` (m, 3): edge ``k`` from corner ``k`` to ``k + 1``; ``sharp_vertex`` (n,):
+    :func:`hailstorm.runtime.storm.collide.sharp_features`), the closest point of ``t`` on it,
+    the direction from that point to ``p``: the sphere on the edge, turning from one side's
+    normal to the other's. The triangle's normal where either does not face its side."""
+    dn = 0.0
+    ln = 0.0
+    for e in range(3):
+        out[e] = bary[0] * corner[t, 0, e] + bary[1] * corner[t, 1, e] + bary[2] * corner[t, 2, e]
+        dn += out[e] * tri_normals[t, e]
+        ln += out[e] * out[e]
+    ln = math.sqrt(ln)
+    if dn > 0.0 and ln > 0.0:
+        for e in range(3):
+            out[e] /= ln
+    else:
+        for e in range(3):
+            out[e] = tri_normals[t, e]
+    a = T[t, 0]; b = T[t, 1]; c = T[t, 2]
+    triangle_distance(p, X[a], X[b], X[c], bt)
+    zeros = 0
+    k0 = -1
+    kv = -1
+    for k in range(3):
+        if bt[k] <= _ON_BOUNDARY:
+            zeros += 1
+            k0 = k
+        else:
+            kv = k
+    if zeros == 0:
+        return
+    sharp = sharp_edge[t, (k0 + 1) % 3] if zeros == 1 else sharp_vertex[T[t, kv]]
+    if not sharp:
+        return
+    f0 = p[0] - (bt[0] * X[a, 0] + bt[1] * X[b, 0] + bt[2] * X[c, 0])
+    f1 = p[1] - (bt[0] * X[a, 1] + bt[1] * X[b, 1] + bt[2] * X[c, 1])
+    f2 = p[2] - (bt[0] * X[a, 2] + bt[1] * X[b, 2] + bt[2] * X[c, 2])
+    fn = f0 * tri_normals[t, 0] + f1 * tri_normals[t, 1] + f2 * tri_normals[t, 2]
+    fl = math.sqrt(f0 * f0 + f1 * f1 + f2 * f2)
+    if fl > 0.0 and fn > 1e-9 * fl:
+        out[0] = f0 / fl
+        out[1] = f1 / fl
+        out[2] = f2 / fl
+
+
+@kernel
+def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, offset, shift, ctri, cbary, cnormal, gap, near_tri, surf,
+               tri_normals, corner, sharp_edge, sharp_vertex, soft, fixed, rigid_weight, umax, use_u, D, fcols, fv, g, wind, drag_coef,
                restitution):  # pragma: no cover
     """The first phases of one storm sub-step for the near stones, in place: closest
     points, time of impact, contacts that open, hard walls.
@@ -88,13 +145,17 @@ def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, offset, shift, ctr
     whole sphere). Stones without a contact query the deformed surface; an open contact
     keeps its ``(t, beta)`` while the closest point of the undeformed surface lies on that
     triangle (inside it or on its boundary), else moves to it; its anchor lies ``shift`` out
-    along the triangle's normal (:attr:`hailstorm.runtime.storm.stones.Stones.shift`; the module
+    along its normal ``cnormal`` (:func:`contact_normal` of the corners' normals ``corner`` and
+    the sharp edges and corners ``sharp_edge``, ``sharp_vertex``, set where the contact opens or
+    moves;
+    :attr:`hailstorm.runtime.storm.stones.Stones.shift`; the module
     notes of :mod:`hailstorm.runtime.storm.driver`, "Facets"). With ``toi`` the sub-step ends when the
     first approaching stone reaches the tangent plane at its closest point (one
     approaching in a patch's dead zone moves at most ``DEAD_ZONE_REACH`` radii); contacts
     open within ``toi_tol`` radii (approaching or overlapping; ``toi_tol`` of the offset in
-    a patch's dead zone), the stone put on the surface along its triangle's normal (its
-    contact surface at the plane of the triangle through the closest point). A free stone whose sphere is
+    a patch's dead zone), the stone put on the surface along the contact's normal (its
+    contact surface at the closest point; the anchor out by the normal's tilt from the
+    direction to that point). A free stone whose sphere is
     clear of the surface ends its engagement (``offset`` set to 0, in place). Contacts on
     hard triangles (or on the clamped edge or corner of a soft one: at most
     ``rigid_weight`` of the closest point's barycentric weight on free vertices,
@@ -158,13 +219,16 @@ def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, offset, shift, ctr
                 a = T[t, 0]; b = T[t, 1]; c = T[t, 2]
                 moved = triangle_distance(pos[i], X[a], X[b], X[c], bt) > dd + 1e-9 * radius[i]
             if moved:  # to the closest point; the spring's length carried over if it would shorten
-                before = _plane_distance(i, t, pos, cbary, X, T, tri_normals) + shift[i]
+                before = _plane_distance(i, t, pos, cbary, cnormal, X, T) + shift[i]
                 ctri[i] = tt
                 for e in range(3):
                     cbary[i, e] = bary[j, e]
+                contact_normal(pos[i], tt, cbary[i], X, T, tri_normals, corner, sharp_edge, sharp_vertex, bt, nrm)
+                for e in range(3):
+                    cnormal[i, e] = nrm[e]
                 tri[j] = tt
                 dist[j] = dd
-                shift[i] = max(before - _plane_distance(i, tt, pos, cbary, X, T, tri_normals), 0.0)
+                shift[i] = max(before - _plane_distance(i, tt, pos, cbary, cnormal, X, T), 0.0)
         else:
             queried = True
             sp = math.sqrt(vel[i, 0] ** 2 + vel[i, 1] ** 2 + vel[i, 2] ** 2)
@@ -220,20 +284,24 @@ def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, offset, shift, ctr
         ctri[i] = t
         for e in range(3):
             cbary[i, e] = bary[j, e]
-        # put on the surface along the triangle's normal, its contact surface touching the plane of
-        # the triangle through the (deformed) closest point: inside a triangle that is out by the
-        # overlap; on an edge or a corner, where that plane passes nearer than the point, a little
-        # further (the spring starts at its rest length, not compressed by the plane's tilt)
+        # put on the surface along the contact's normal, its contact surface at the (deformed)
+        # closest point: out by the overlap (in by a gap within the tolerance); where the normal
+        # is not the direction from that point to the centre (the smooth surface's normal, tilted
+        # from the facet's, or an edge's side), the anchor lies out by the difference, so that
+        # the spring starts at its rest length (or compressed by the overlap of a stone that is
+        # not approaching, without the time of impact)
+        contact_normal(pos[i], t, cbary[i], X, T, tri_normals, corner, sharp_edge, sharp_vertex, bt, nrm)
         dn = 0.0
         for e in range(3):
-            dn += tri_normals[t, e] * (pos[i, e] - point[j, e])
-        push = (radius[i] - offset[i]) - dn
+            cnormal[i, e] = nrm[e]
+            dn += nrm[e] * (pos[i, e] - point[j, e])
+        push = (radius[i] - offset[i]) - dist[j]
         if not timing:
-            vn = vel[i, 0] * tri_normals[t, 0] + vel[i, 1] * tri_normals[t, 1] + vel[i, 2] * tri_normals[t, 2]
+            vn = vel[i, 0] * nrm[0] + vel[i, 1] * nrm[1] + vel[i, 2] * nrm[2]
             push = max(push, 0.0) if vn < 0.0 else 0.0
         for e in range(3):
-            pos[i, e] += push * tri_normals[t, e]
-        shift[i] = 0.0
+            pos[i, e] += push * nrm[e]
+        shift[i] = max(dist[j] - dn, 0.0)
     # hard walls: out of the wall, restitution bounce, the contact closes
     walls = 0
     for j in range(k):

@@ -241,11 +241,11 @@ def _hertz_target(kk, f, f_eq, m, vn, R, e_star, a_min):  # pragma: no cover (co
 
 
 @kernel
-def patch_radii(stones, tris, mass, radius, vel, cbary, crad, tnormals, g, wind, drag_coef, cc_stones, Kdiag,
+def patch_radii(stones, tris, mass, radius, vel, cbary, crad, cnormal, g, wind, drag_coef, cc_stones, Kdiag,
                 lam, sticky, k_tri, e_star, a_min, tol, rest_speed, rule_off, rule_x, rule_y, rule_w, facing,
                 drop, pidx, X, D, column_of):  # pragma: no cover (compiled)
     """The storm's patch sizing (:meth:`hailstorm.runtime.storm.patches.Patches.radii`, the rule): the patch radius of
-    each soft contact, written to ``crad``.
+    each soft contact, written to ``crad``; ``cnormal``: the stones' contact normals.
 
     ``cc_stones``, ``Kdiag``, ``lam``: the previous contact set's stones, the diagonal
     of its capacitance and its multipliers (a stone found there is a *known*
@@ -276,7 +276,7 @@ def patch_radii(stones, tris, mass, radius, vel, cbary, crad, tnormals, g, wind,
     for i in range(s):
         j = stones[i]
         t = tris[i]
-        n = tnormals[t]
+        n = cnormal[j]
         m = mass[j]
         R = radius[j]
         vn = vel[j, 0] * n[0] + vel[j, 1] * n[1] + vel[j, 2] * n[2]

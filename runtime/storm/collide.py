@@ -19,6 +19,7 @@ of a sub-step (closest points, time of impact, contacts that open, hard walls:
 
 from __future__ import annotations
 
+import math
 from typing import TYPE_CHECKING
 
 
@@ -37,11 +38,117 @@ if TYPE_CHECKING:  # annotations only
     from hailstorm.runtime.storm.stones import Stones
     from hailstorm.runtime.bundle.compliance import ComplianceSource
 
-__all__ = ["Collision", "SurfaceIndex"]
+__all__ = ["CREASE_ANGLE", "Collision", "SurfaceIndex", "corner_normals", "sharp_features"]
+
+#: two triangles that meet at a vertex at more than this angle between their normals [rad] are
+#: on either side of a sharp edge: neither smooths the other's corner normal (:func:`corner_normals`)
+CREASE_ANGLE = math.radians(60.0)
+
+
+def corner_normals(triangles: np.ndarray, face_normals: np.ndarray, face_areas: np.ndarray,
+                   crease: float = CREASE_ANGLE) -> np.ndarray:
+    """The surface's normal at each triangle's corners, read as a smooth surface but at its sharp
+    edges: at corner ``i`` of triangle ``t`` (vertex ``v``), the area-weighted mean of the normals of
+    the triangles around ``v`` within ``crease`` of ``t``'s normal (``t`` itself included), (m, 3, 3).
+
+    Inside a smooth region every triangle around a vertex gives that vertex the same normal, so
+    the normal interpolated over the triangles (:func:`hailstorm.runtime.compiled.narrow.contact_normal`)
+    is continuous across their edges; a triangle on a sharp edge keeps its side's. Memory O(m):
+    a vertex whose triangles all lie within ``crease / 2`` of their mean normal takes that mean
+    at every corner (any two of them are within ``crease``); only the others are summed corner
+    by corner.
+
+    Parameters
+    ----------
+    triangles : (m, 3) int ndarray
+    face_normals : (m, 3) ndarray
+        Unit normals of the triangles.
+    face_areas : (m,) ndarray
+        Their areas.
+    crease : float
+        [rad].
+    """
+    T = np.asarray(triangles, dtype=np.intp)
+    m = T.shape[0]
+    n = int(T.max()) + 1 if m else 0
+    weighted = face_areas[:, None] * face_normals
+    S = np.zeros((n, 3))
+    np.add.at(S, T.ravel(), np.repeat(weighted, 3, axis=0))
+    ln = np.linalg.norm(S, axis=1, keepdims=True)
+    mean = S / np.where(ln > 0, ln, 1.0)
+    # the largest angle of a triangle's normal from its corner's vertex mean, per vertex
+    cos_dev = np.ones(n)
+    np.minimum.at(cos_dev, T.ravel(), np.einsum("kd,kd->k", np.repeat(face_normals, 3, axis=0), mean[T.ravel()]))
+    out = mean[T]
+    mixed = np.flatnonzero(~(cos_dev >= math.cos(0.5 * crease)) | (ln[:, 0] <= 0))
+    if mixed.size:
+        corners = np.flatnonzero(np.isin(T.ravel(), mixed))
+        cv = T.ravel()[corners]
+        order = np.argsort(cv, kind="stable")
+        cv, corners = cv[order], corners[order]
+        start = np.flatnonzero(np.r_[True, cv[1:] != cv[:-1]])
+        ends = np.r_[start[1:], cv.size]
+        flat = out.reshape(-1, 3)
+        cos_c = math.cos(crease)
+        for lo, hi in zip(start.tolist(), ends.tolist()):
+            f = corners[lo:hi] // 3  # the triangles around this vertex, one per corner
+            nf = face_normals[f]
+            keep = (nf @ nf.T) >= cos_c  # (k, k): corner i takes triangle j
+            acc = keep.astype(np.float64) @ weighted[f]
+            la = np.linalg.norm(acc, axis=1, keepdims=True)
+            flat[corners[lo:hi]] = np.where(la > 0, acc / np.where(la > 0, la, 1.0), nf)
+    return out
+
+
+def sharp_features(triangles: np.ndarray, face_normals: np.ndarray, n_vertices: int,
+                   crease: float = CREASE_ANGLE) -> tuple[np.ndarray, np.ndarray]:
+    """The surface's sharp edges and corners: where the smooth reading (:func:`corner_normals`)
+    stops, and a sphere over the edge touches it as an edge.
+
+    Parameters
+    ----------
+    triangles : (m, 3) int ndarray
+    face_normals : (m, 3) ndarray
+        Unit normals of the triangles.
+    n_vertices : int
+    crease : float
+        [rad].
+
+    Returns
+    -------
+    sharp_edge : (m, 3) bool ndarray
+        Edge ``k`` of triangle ``t`` (from its corner ``k`` to corner ``k + 1``) meets its
+        neighbour's at more than ``crease`` between their normals, or has no neighbour.
+    sharp_vertex : (n_vertices,) bool ndarray
+        The vertex ends a sharp edge.
+    """
+    T = np.asarray(triangles, dtype=np.intp)
+    m = T.shape[0]
+    a, b = T.ravel(), T[:, [1, 2, 0]].ravel()  # edge k of t: row 3 t + k
+    key = np.minimum(a, b) * np.int64(n_vertices) + np.maximum(a, b)
+    order = np.argsort(key, kind="stable")
+    ks = key[order]
+    sharp = np.ones(3 * m, dtype=bool)
+    pair = np.flatnonzero(ks[1:] == ks[:-1])  # two triangles on one edge (sorted neighbours)
+    e1, e2 = order[pair], order[pair + 1]
+    cos = np.einsum("kd,kd->k", face_normals[e1 // 3], face_normals[e2 // 3])
+    # (an edge of more than two triangles stays sharp)
+    single = np.ones(pair.size, dtype=bool)
+    if pair.size > 1:
+        run = (pair[1:] == pair[:-1] + 1)
+        single[1:] &= ~run
+        single[:-1] &= ~run
+    smooth = single & (cos >= math.cos(crease))
+    sharp[e1[smooth]] = False
+    sharp[e2[smooth]] = False
+    sharp_vertex = np.zeros(n_vertices, dtype=bool)
+    sharp_vertex[a[sharp]] = True
+    sharp_vertex[b[sharp]] = True
+    return sharp.reshape(m, 3), sharp_vertex
 
 
 class SurfaceIndex:
-    """The surface's samples, their grid, the triangle normals and the bounding box.
+    """The surface's samples, their grid, the triangle and corner normals and the bounding box.
 
     Parameters
     ----------
@@ -91,6 +198,10 @@ class SurfaceIndex:
         ln = np.linalg.norm(fn, axis=1, keepdims=True)
         #: outward unit normals of the undeformed triangles
         self.normals = fn / np.where(ln > 0, ln, 1.0)
+        #: the surface's normals at the triangles' corners (m, 3, 3) (:func:`corner_normals`)
+        self.corner_normals = corner_normals(self.triangles, self.normals, 0.5 * ln[:, 0])
+        #: the sharp edges (m, 3) and corners (n,) (:func:`sharp_features`)
+        self.sharp_edges, self.sharp_vertices = sharp_features(self.triangles, self.normals, len(self.vertices))
         self.bbox = (self.vertices.min(axis=0), self.vertices.max(axis=0))
 
 
@@ -153,8 +264,9 @@ class Collision:
         use_u, cols, forces = seat.kernel_load()
         h, walls = free_phase(
             near, h, self.toi, self.TOI_TOL, self.hmin, stones.pos, stones.vel, stones.radius, stones.offset,
-            stones.shift, stones.ctri, stones.cbary, stones.gap, stones.near_tri, self.surface, self.index.normals, self.soft, self.fixed,
-            self.rigid_weight, seat.umax, use_u, seat.D, cols, forces, GRAVITY, self.air.wind, self.air.drag_coef, self.restitution)
+            stones.shift, stones.ctri, stones.cbary, stones.cnormal, stones.gap, stones.near_tri, self.surface,
+            self.index.normals, self.index.corner_normals, self.index.sharp_edges, self.index.sharp_vertices,
+            self.soft, self.fixed, self.rigid_weight, seat.umax, use_u, seat.D, cols, forces, GRAVITY, self.air.wind, self.air.drag_coef, self.restitution)
         stats.wall_contacts += int(walls)
         return float(h)
 

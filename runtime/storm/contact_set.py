@@ -107,13 +107,13 @@ class ContactSets:
         self.normals = normals
         self.patches = patches
 
-    def build(self, stones: np.ndarray, tris: np.ndarray, bary: np.ndarray, key: tuple, rest: np.ndarray,
-              stats: StormStats, radius: np.ndarray | None = None, offset: np.ndarray | None = None) -> ContactSet:
-        """The capacitance of the soft contacts ``stones`` on ``tris`` at ``bary`` (point
-        contacts, or patches of ``radius``); ``rest``: the stones' radii; ``offset``: the
-        sphere's offset of each contact's engagement (:meth:`offsets`, sized at its stone's
-        first touch; None: 0)."""
-        normals = self.normals[tris]
+    def build(self, stones: np.ndarray, tris: np.ndarray, bary: np.ndarray, normals: np.ndarray, key: tuple,
+              rest: np.ndarray, stats: StormStats, radius: np.ndarray | None = None,
+              offset: np.ndarray | None = None) -> ContactSet:
+        """The capacitance of the soft contacts ``stones`` on ``tris`` at ``bary`` with unit
+        ``normals`` (:attr:`Stones.cnormal`; point contacts, or patches of ``radius``);
+        ``rest``: the stones' radii; ``offset``: the sphere's offset of each contact's
+        engagement (:meth:`offsets`, sized at its stone's first touch; None: 0)."""
         s = stones.size
         if radius is None:
             verts, w = self.triangles[tris], bary
@@ -147,11 +147,11 @@ class ContactSets:
                           offset=offset, patch_radius=radius.copy(), verts=verts, weights=cap.weights,
                           Kdiag=np.diag(K).copy())
 
-    def patch_offsets(self, ids: np.ndarray, tris: np.ndarray, bary: np.ndarray, radius: np.ndarray,
-                      stone_radius: np.ndarray, stats: StormStats) -> np.ndarray:
+    def patch_offsets(self, ids: np.ndarray, tris: np.ndarray, bary: np.ndarray, normals: np.ndarray,
+                      radius: np.ndarray, stone_radius: np.ndarray, stats: StormStats) -> np.ndarray:
         """:meth:`offsets` of the patches of radius ``radius`` of stones ``ids`` on ``tris`` at
-        ``bary`` (their weights from the per-stone cache, :meth:`Patches.weights`), (s,) [m]."""
-        normals = self.normals[tris]
+        ``bary`` with unit ``normals`` (their weights from the per-stone cache,
+        :meth:`Patches.weights`), (s,) [m]."""
         verts, w = self.patches.weights(ids, tris, bary, radius, normals, stats)
         X = contact_points(self.X, self.triangles, tris, bary)
         return self.offsets(verts.astype(np.int64, copy=False), w, X, normals, radius, stone_radius)

@@ -131,7 +131,7 @@ class Patches:
             new &= np.fromiter((j not in known for j in ids.tolist()), dtype=bool, count=ids.size)
         kept = stones.crad[ids[new]].copy()
         a, resizes, a0, off, wv, ww = patch_radii(
-            ids, tris, stones.mass, stones.radius, stones.vel, stones.cbary, stones.crad, self.normals, GRAVITY,
+            ids, tris, stones.mass, stones.radius, stones.vel, stones.cbary, stones.crad, stones.cnormal, GRAVITY,
             self.air.wind, self.air.drag_coef, cs, kd, lam, self.contact.sticky, self.k_tri, self.e_star,
             self.contact.patch_min_radius, self.contact.patch_tolerance, self.time.rest_speed, *self._disc, PATCH_FACING,
             PATCH_DROP, self._pidx, self.X, seat.D, seat.column_of)
@@ -142,8 +142,8 @@ class Patches:
             a0[new] = 0.0
         for i in np.flatnonzero(a0 > 0.0).tolist():
             j = int(ids[i])
-            self._cache[j] = (int(tris[i]), stones.cbary[j].tobytes(), float(a0[i]), wv[off[i]:off[i + 1]],
-                              ww[off[i]:off[i + 1]])
+            self._cache[j] = (int(tris[i]), stones.cbary[j].tobytes() + stones.cnormal[j].tobytes(), float(a0[i]),
+                              wv[off[i]:off[i + 1]], ww[off[i]:off[i + 1]])
             stats.patch_weights_computed += 1
         if a.size:
             stats.max_patch_radius_m = max(stats.max_patch_radius_m, float(a.max()))
@@ -168,7 +168,7 @@ class Patches:
         a = self.radii(stones, ids, tris, None, None, self._no_forces, stats)
         if near is None or ids.size == 0:
             return a
-        n = self.normals[tris]
+        n = stones.cnormal[ids]
         vn = np.einsum("kd,kd->k", stones.vel[ids], n)
         m, R = stones.mass[ids], stones.radius[ids]
         f_eq = m * GRAVITY * np.clip(n[:, 2], 0.0, None)
@@ -199,7 +199,7 @@ class Patches:
                 normals: np.ndarray, stats: StormStats) -> tuple[np.ndarray, np.ndarray]:
         """Padded (s, P) vertex lists and weights of patch contacts, cached per stone.
 
-        A contact keeps its ``(triangle, beta)`` while its stone stays over the
+        A contact keeps its ``(triangle, beta)`` and normal while its stone stays over the
         triangle and its radius while the force stays within the tolerance, so
         the weights are reused until one of them changes.
         """
@@ -207,7 +207,7 @@ class Patches:
         todo = []
         for i, (j, t, a) in enumerate(zip(ids.tolist(), tris.tolist(), radius.tolist())):
             c = self._cache.get(j)
-            if c is not None and c[0] == t and c[2] == a and c[1] == bary[i].tobytes():
+            if c is not None and c[0] == t and c[2] == a and c[1] == bary[i].tobytes() + normals[i].tobytes():
                 out[i] = (c[3], c[4])
             else:
                 todo.append(i)
@@ -217,7 +217,8 @@ class Patches:
             for i in todo:
                 v, w_ = patch_one(int(tris[i]), bary[i], float(radius[i]), normals[i], 3.0, *self._disc,
                                   PATCH_FACING, PATCH_DROP, self._pidx, self.X)
-                self._cache[int(ids[i])] = (int(tris[i]), bary[i].tobytes(), float(radius[i]), v, w_)
+                self._cache[int(ids[i])] = (int(tris[i]), bary[i].tobytes() + normals[i].tobytes(), float(radius[i]), v,
+                                            w_)
                 out[i] = (v, w_)
         done = cast(list[tuple[np.ndarray, np.ndarray]], out)  # every slot is filled above
         P = max(3, max((o[0].size for o in done), default=0))
@@ -232,10 +233,11 @@ class Patches:
     def near_blocks(self, near: NearField, ids: np.ndarray, tris: np.ndarray, bary: np.ndarray, radius: np.ndarray,
                     verts: np.ndarray, w: np.ndarray, centres: np.ndarray, normals: np.ndarray) -> np.ndarray:
         """The near-field blocks (s, p, p) of patch contacts (:meth:`NearField.blocks`), cached per
-        stone with the same key as its weights (triangle, beta, radius); the new ones in one call."""
+        stone with the same key as its weights (triangle, beta and normal, radius); the new ones in one call."""
         p = 3 if self.contact.sticky else 1
         blocks = np.zeros((ids.size, p, p))
-        keys = [(t, bary[i].tobytes(), a) for i, (t, a) in enumerate(zip(tris.tolist(), radius.tolist()))]
+        keys = [(t, bary[i].tobytes() + normals[i].tobytes(), a) for i, (t, a) in enumerate(zip(tris.tolist(),
+                                                                                               radius.tolist()))]
         todo = []
         for i, j in enumerate(ids.tolist()):
             c = self._near.get(j)

@@ -97,7 +97,7 @@ class SoftContacts:
             rad = None
             key = tuple(zip(soft.tolist(), tris.tolist()))
         if cc is None or cc.key != key:
-            cc = self.current = self.sets.build(soft, tris, stones.cbary[soft].copy(), key,
+            cc = self.current = self.sets.build(soft, tris, stones.cbary[soft].copy(), stones.cnormal[soft].copy(), key,
                                                 stones.radius[soft].copy(), stats, rad, stones.offset[soft].copy())
         exact = self.integrator.exact
         s = soft.size
@@ -142,8 +142,9 @@ class SoftContacts:
         if not known.any():
             return
         ids, t = soft[known], tris[known]
-        o = self.sets.patch_offsets(ids, t, stones.cbary[ids], rad[known], stones.radius[ids], stats)
-        stones.pos[ids] += (stones.offset[ids] - o)[:, None] * self.sets.normals[t]
+        o = self.sets.patch_offsets(ids, t, stones.cbary[ids], stones.cnormal[ids], rad[known], stones.radius[ids],
+                                    stats)
+        stones.pos[ids] += (stones.offset[ids] - o)[:, None] * stones.cnormal[ids]
         stones.offset[ids] = o
 
     def _deepest(self, cc: ContactSet, res: Any) -> float:
@@ -177,10 +178,10 @@ class SoftContacts:
         if opened.size == 0:
             return h
         tris = stones.ctri[opened]
-        n = self.sets.normals[tris]
+        n = stones.cnormal[opened]
         vn = -np.einsum("kd,kd->k", stones.vel[opened], n)  # approach speed
         a = self.patches.first_touch(stones, opened, tris, self.sets.near, stats)
-        o = self.sets.patch_offsets(opened, tris, stones.cbary[opened], a, stones.radius[opened], stats)
+        o = self.sets.patch_offsets(opened, tris, stones.cbary[opened], n, a, stones.radius[opened], stats)
         stones.offset[opened] = o
         later = o > 0.0
         if later.any():

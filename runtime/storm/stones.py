@@ -84,7 +84,7 @@ def check_stones(pos: Any, vel: Any, radius: Any) -> tuple[np.ndarray, np.ndarra
 #: the per-stone arrays and the value a new stone starts with (None: given to :meth:`Stones.add`)
 FIELDS: tuple[tuple[str, Any], ...] = (
     ("pos", None), ("vel", None), ("radius", None), ("mass", None), ("alive", True), ("ctri", -1),
-    ("cbary", 0.0), ("gap", np.inf), ("hit", False), ("near_tri", -1), ("crad", 0.0), ("offset", 0.0),
+    ("cbary", 0.0), ("cnormal", 0.0), ("gap", np.inf), ("hit", False), ("near_tri", -1), ("crad", 0.0), ("offset", 0.0),
     ("shift", 0.0), ("budget", 0.0), ("bud_u", 0.0),
 )
 
@@ -102,6 +102,11 @@ class Stones:
         Contact triangle (-1: none).
     cbary : (k, 3) ndarray
         The contact point's barycentric coordinates on ``ctri``.
+    cnormal : (k, 3) ndarray
+        The open contact's unit normal, set when it opens or moves: its triangle's normal,
+        or on an edge or a corner of the faceted surface the direction from that closest
+        point to the centre (the module notes of :mod:`hailstorm.runtime.storm.driver`,
+        "Facets").
     gap : (k,) ndarray
         Last known distance to the surface minus the radius (inf: unknown).
     hit : (k,) bool ndarray
@@ -116,7 +121,7 @@ class Stones:
         (:meth:`contact_radius`; the module notes of :mod:`hailstorm.runtime.storm.driver`,
         "Patch contacts").
     shift : (k,) ndarray
-        How far the anchor of the stone's open contact lies out along its triangle's normal [m]
+        How far the anchor of the stone's open contact lies out along its normal [m]
         (0 when the contact opens): set when the contact moves to a triangle whose plane is
         nearer, so that the spring does not jump shorter (the module notes of
         :mod:`hailstorm.runtime.storm.driver`, "Facets").
@@ -132,6 +137,7 @@ class Stones:
     alive: np.ndarray
     ctri: np.ndarray
     cbary: np.ndarray
+    cnormal: np.ndarray
     gap: np.ndarray
     hit: np.ndarray
     near_tri: np.ndarray
@@ -150,6 +156,7 @@ class Stones:
         self.alive = np.zeros(0, dtype=bool)
         self.ctri = np.zeros(0, dtype=np.intp)
         self.cbary = np.zeros((0, 3))
+        self.cnormal = np.zeros((0, 3))
         self.gap = np.zeros(0)
         self.hit = np.zeros(0, dtype=bool)
         self.near_tri = np.zeros(0, dtype=np.intp)

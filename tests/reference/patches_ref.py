@@ -21,7 +21,7 @@ from hailstorm.runtime.compiled.patches import REST_TOLERANCE
 
 
 def patch_radii_ref(ids: np.ndarray, tris: np.ndarray, mass: np.ndarray, radius: np.ndarray, vel: np.ndarray,
-                    accel: np.ndarray, crad: np.ndarray, normals: np.ndarray, cc_stones: np.ndarray | None,
+                    accel: np.ndarray, crad: np.ndarray, cnormal: np.ndarray, cc_stones: np.ndarray | None,
                     K: np.ndarray | None, lam: np.ndarray, sticky: bool, k_tri: np.ndarray,
                     patch_stiffness: Callable[[np.ndarray, np.ndarray, np.ndarray, np.ndarray], np.ndarray],
                     young: float, poisson: float, min_radius: float, tolerance: float,
@@ -29,10 +29,11 @@ def patch_radii_ref(ids: np.ndarray, tris: np.ndarray, mass: np.ndarray, radius:
     """Radii (s,) of contacts ``ids`` on ``tris`` and the number of resized known contacts.
 
     ``accel``: (s, 3) non-contact acceleration of the stones; ``crad``: their current
-    radii; ``patch_stiffness(ids, tris, a, n)``: the normal stiffness of patches.
+    radii; ``cnormal``: the stones' contact normals; ``patch_stiffness(ids, tris, a, n)``: the
+    normal stiffness of patches.
     """
     m, R = mass[ids], radius[ids]
-    n = normals[tris]
+    n = cnormal[ids]
     vn = np.einsum("ij,ij->i", vel[ids], n)
     gn = np.einsum("ij,ij->i", accel, n)
     f_eq = m * np.clip(-gn, 0.0, None)

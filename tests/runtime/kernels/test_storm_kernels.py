@@ -247,6 +247,11 @@ def test_patch_radii_match_reference(gf, mode):
     stones = st.stones
     stones.ctri[ids] = tris
     stones.cbary[ids] = bary
+    # contact normals: the triangles', half of them turned by 0.2 rad (as on an edge's side)
+    turn = np.where(np.arange(6) % 2 == 1, 0.2, 0.0)[:, None]
+    side = np.cross(st.index.normals[tris], [0.6, 0.8, 0.0])
+    cn = np.cos(turn) * st.index.normals[tris] + np.sin(turn) * side / np.linalg.norm(side, axis=1, keepdims=True)
+    stones.cnormal[ids] = cn
     wind = np.asarray(sc.storm.wind, dtype=float)
     coef = 3.0 * sc.hail.cd * sc.hail.rho_air / (8.0 * sc.hail.density)
     accel = drag_ref(stones.vel[ids], stones.radius[ids], wind, coef) + [0.0, 0.0, -GRAVITY]
@@ -259,14 +264,14 @@ def test_patch_radii_match_reference(gf, mode):
         cs = K = None
         lam = np.zeros(0)
         if known:  # a previous set with the first four stones and some forces
-            prev = st.contacts.sets.build(ids[:4], tris[:4], bary[:4].copy(), ("prev",), r[:4].copy(),
-                                          StormStats(), stones.crad[ids[:4]])
+            prev = st.contacts.sets.build(ids[:4], tris[:4], bary[:4].copy(), cn[:4].copy(), ("prev",),
+                                          r[:4].copy(), StormStats(), stones.crad[ids[:4]])
             cs, K = prev.stones, prev.K
             lam = -rng.uniform(0.1, 20.0, 4 * (3 if mode == "sticky" else 1))
             stones.crad[ids[:2]] *= 0.5  # two known contacts whose radius is out of date
         crad0 = stones.crad.copy()
         a_ref, resized_ref = patch_radii_ref(ids, tris, stones.mass, stones.radius, stones.vel, accel, crad0,
-                                             st.index.normals, cs, K, lam, mode == "sticky", st.patches.k_tri,
+                                             stones.cnormal, cs, K, lam, mode == "sticky", st.patches.k_tri,
                                              k_patch, gf.young, gf.poisson, sc.contact.patch_min_radius,
                                              sc.contact.patch_tolerance, sc.time.rest_speed)
         stats = StormStats()

@@ -527,8 +527,9 @@ def test_two_stones_nearly_coincident_peak_force_is_bounded(seat_bundle):
     """A report gave 952 N for two stones 1e-7 m apart under the exact integrator
     (4.6 N at 0 and 1e-9 m). Not reproduced here (the configuration was not recorded):
     this documents and bounds it -- on the seat's top, at 0 to 1e-5 m apart, the peak is
-    that of the coincident pair within 5 % (measured: 6.24 N at every distance on the
-    cached 1476-vertex seat, 6.29 N at 1 mm)."""
+    that of the coincident pair within 5 % (measured: 10.27 N at every distance on the
+    15 mm seat: the two contacts share their point and its normal, the smooth surface's
+    there; with a normal from each centre's direction to that point, 1e-7 m apart gave 21.2 N)."""
     from hailstorm.runtime.bundle.read import load
 
     gf = load(seat_bundle)

@@ -166,7 +166,7 @@ def test_open_contact_keeps_its_point_until_the_stone_slides_off(gf):
     col, sc = make(gf)
     p, t, b = on_cell(5, 7, 0.7, 0.2)
     st, ids = stones_at(p + R * UP, [0.0, 0.0, 0.0])
-    st.ctri[0], st.cbary[0] = t, b
+    st.ctri[0], st.cbary[0], st.cnormal[0] = t, b, UP
     q, _, _ = on_cell(5, 7, 0.8, 0.3)  # moved within the triangle
     st.pos[0] = q + (R - 1e-4) * UP
     col.free_phase(st, ids, sc.time.dt, SeatState(gf), StormStats())
@@ -247,13 +247,17 @@ def test_free_phase_against_the_deformed_surface(gf, fz):
     else:
         assert st.ctri[0] == ref.triangle[0]
         np.testing.assert_allclose(st.cbary[0], ref.bary[0], rtol=0, atol=1e-9)
-        # put on the deformed surface along the triangle's (undeformed) normal, R from the plane
-        # through its closest point (on the bump's slope a little more than the overlap)
+        # put on the deformed surface along the contact's normal (the flat plate's, up) by the
+        # overlap, its anchor out by the normal's tilt from the direction to the closest point
+        # (on the bump's slope), so that the spring starts at its rest length R
         Y = gf.vertices + u
         c = ref.bary[0] @ Y[gf.triangles[ref.triangle[0]]]
+        np.testing.assert_allclose(st.cnormal[0], UP, atol=1e-15)
         np.testing.assert_allclose(st.pos[0][:2], pos[:2], rtol=0, atol=ATOL)
-        assert (st.pos[0] - c) @ UP == pytest.approx(R, rel=1e-12)
-        assert st.pos[0][2] - pos[2] == pytest.approx(-gap, rel=0.02)
+        assert st.pos[0][2] - pos[2] == pytest.approx(-gap, rel=1e-9)
+        assert st.shift[0] == pytest.approx(ref.distance[0] - (pos - c) @ UP, rel=1e-9)
+        assert st.shift[0] > 1e-6  # (the premise: the bump's slope)
+        assert (st.pos[0] - c) @ UP + st.shift[0] == pytest.approx(R, rel=1e-12)
     # the rest surface would have said otherwise
     rest = closest_brute(pos[None], gf.vertices, gf.triangles)
     assert (rest.distance[0] - R < Collision.TOI_TOL * R) == (fz < 0)
@@ -274,7 +278,7 @@ def test_penetration_statistics_by_hand(gf):
     pos = np.array([p + (r - d) * UP for (p, _, _), r, d in zip(feet, radii, depth)])
     st, ids = stones_at(pos, np.zeros(3), radii)
     for k in (3, 4):
-        st.ctri[k], st.cbary[k] = feet[k][1], feet[k][2]
+        st.ctri[k], st.cbary[k], st.cnormal[k] = feet[k][1], feet[k][2], UP
     stats = StormStats()
     col.penetration(st, ids, sc.time.dt, SeatState(gf), stats)
     tol = dict(rel=1e-9, abs=1e-15)  # r - (z - 0): a difference of mm numbers

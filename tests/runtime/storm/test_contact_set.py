@@ -31,6 +31,7 @@ from hailstorm.runtime.storm.stones import Stones
 
 N = 13
 UP = np.array([0.0, 0.0, 1.0])
+UP3 = np.tile(UP, (3, 1))  # the flat plate's normals at three contacts
 
 
 def cell(i, j, upper=0):
@@ -106,7 +107,7 @@ def test_point_set_W_is_GtDG_and_K_its_inverse(gf, dense_D, sticky):
     sets, _, _ = make_sets(gf, normals, patch="none", mode="sticky" if sticky else "frictionless")
     stats = StormStats()
     key = (("a", 1),)
-    cc = sets.build(STONES, TRIS, BARY, key, RADII, stats)
+    cc = sets.build(STONES, TRIS, BARY, NORMALS, key, RADII, stats)
     n = gf.vertices.shape[0]
     B = B_dense(n, gf.triangles[TRIS], BARY)
     G = G_dense(B, NORMALS, sticky)
@@ -147,12 +148,12 @@ def test_W_changes_with_the_set(gf, dense_D):
     """A set of two of the three contacts is the 2 x 2 block of the three's W (nothing cached across
     sets), and moving a contact to another point changes its row of W as G^T D G says."""
     sets, _, _ = make_sets(gf, patch="none")
-    full = sets.build(STONES, TRIS, BARY, (1,), RADII, StormStats())
-    sub = sets.build(STONES[[2, 0]], TRIS[[2, 0]], BARY[[2, 0]], (2,), RADII[[2, 0]], StormStats())
+    full = sets.build(STONES, TRIS, BARY, UP3, (1,), RADII, StormStats())
+    sub = sets.build(STONES[[2, 0]], TRIS[[2, 0]], BARY[[2, 0]], UP3[[2, 0]], (2,), RADII[[2, 0]], StormStats())
     np.testing.assert_allclose(sub.W, full.W[np.ix_([2, 0], [2, 0])], rtol=1e-12)
     bary2 = BARY.copy()
     bary2[1] = [0.8, 0.1, 0.1]
-    moved = sets.build(STONES, TRIS, bary2, (3,), RADII, StormStats())
+    moved = sets.build(STONES, TRIS, bary2, UP3, (3,), RADII, StormStats())
     n = gf.vertices.shape[0]
     G = G_dense(B_dense(n, gf.triangles[TRIS], bary2), np.tile(UP, (3, 1)), False)
     np.testing.assert_allclose(moved.W, G.T @ dense_D @ G, rtol=1e-12)
@@ -195,7 +196,7 @@ def test_patch_set_is_the_capacitance_with_the_sphere_offset(gf, dense_D, near):
     np.testing.assert_allclose(o, sphere_offset(gf, verts, w, X, normals, a, RADII, near == "halfspace"),
                                rtol=1e-12)
     assert np.all(o > 0) and np.all(o <= a * a / (5 * RADII) * (1 + 1e-12))
-    cc = sets.build(STONES, TRIS, BARY, (1,), RADII, stats, a, o)
+    cc = sets.build(STONES, TRIS, BARY, UP3, (1,), RADII, stats, a, o)
     np.testing.assert_array_equal(cc.patch_radius, a)
     np.testing.assert_array_equal(cc.offset, o)
     np.testing.assert_allclose(cc.rest, RADII - o, rtol=1e-15)
@@ -224,7 +225,7 @@ def test_patch_set_is_the_capacitance_with_the_sphere_offset(gf, dense_D, near):
     np.testing.assert_array_equal(cc.Kdiag, np.diag(cc.K))
     assert stats.capacitance_rebuilds == 1
     # without an offset (a set built before any engagement) the anchors are the stones' radii
-    plain = sets.build(STONES, TRIS, BARY, (2,), RADII, stats, a)
+    plain = sets.build(STONES, TRIS, BARY, UP3, (2,), RADII, stats, a)
     np.testing.assert_array_equal(plain.rest, RADII)
 
 
@@ -239,7 +240,7 @@ def test_a_point_contact_in_a_patch_set_has_no_offset(gf, dense_D):
     X = np.einsum("kj,kjd->kd", BARY, gf.vertices[gf.triangles[TRIS]])
     o = sets.offsets(verts.astype(np.int64), w, X, normals, a, RADII)
     assert o[1] == 0.0 and np.all(o[[0, 2]] > 0)
-    cc = sets.build(STONES, TRIS, BARY, (1,), RADII, stats, a, o)
+    cc = sets.build(STONES, TRIS, BARY, UP3, (1,), RADII, stats, a, o)
     w1 = np.zeros(gf.vertices.shape[0])
     np.add.at(w1, cc.verts[1], cc.weights[1])
     np.testing.assert_allclose(w1[gf.triangles[TRIS[1]]], BARY[1], rtol=1e-15)
@@ -270,6 +271,7 @@ def resting_stones(gf, tris, bary, radius, depth=2e-5):
     ids = st.add(X + (np.asarray(radius) - depth)[:, None] * UP, np.zeros(3), radius)
     st.ctri[ids] = tris
     st.cbary[ids] = bary
+    st.cnormal[ids] = UP
     return st, ids
 
 

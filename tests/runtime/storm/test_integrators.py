@@ -63,7 +63,7 @@ def contact_set(gf, sc, tris=(cell(6, 6),), bary=((0.3, 0.3, 0.4),), stones=None
     tris = np.asarray(tris)
     s = tris.size
     stones = np.arange(s) if stones is None else np.asarray(stones)
-    return sets.build(stones, tris, np.asarray(bary, dtype=float), (0,), np.full(s, rest), StormStats())
+    return sets.build(stones, tris, np.asarray(bary, dtype=float), normals[tris], (0,), np.full(s, rest), StormStats())
 
 
 def integrator(sc, name):
@@ -308,6 +308,7 @@ def stones_for(gf, cc, ubar, vn, radius=0.006):
                  radius)
     st.ctri[ids] = cc.tris
     st.cbary[ids] = cc.bary
+    st.cnormal[ids] = cc.normals
     st.near_tri[ids] = cc.tris
     st.gap[ids] = 1.0
     assert np.array_equal(ids, cc.stones) and s == ids.size

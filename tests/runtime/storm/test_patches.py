@@ -92,6 +92,7 @@ def stones_on(gf, tris, bary, radius, vel):
     X = np.einsum("ka,kad->kd", bary, gf.vertices[gf.triangles[tris]])
     ids = st.add(X + np.asarray(radius)[:, None] * UP, vel, radius)
     st.cbary[ids] = bary
+    st.cnormal[ids] = UP  # (the plate's)
     return st, ids
 
 

@@ -64,6 +64,7 @@ def in_contact(gf, tris, bary, radius, ubar, vel):
     ids = st.add(X + (np.asarray(radius) + np.asarray(ubar))[:, None] * UP, np.atleast_2d(vel), radius)
     st.ctri[ids] = tris
     st.cbary[ids] = bary
+    st.cnormal[ids] = UP
     return st, ids, X
 
 

@@ -320,7 +320,7 @@ def test_patch_weights_are_cached_per_contact(gf):
     st = Storm(gf, sc, spawn=False)
     t = np.flatnonzero(st.soft)[len(np.flatnonzero(st.soft)) // 2]
     st.add_stones(gf.vertices[gf.triangles[t]].mean(axis=0) + [0, 0, 0.01], [0, 0, -5.0], 0.006)
-    st.ctri[0], st.cbary[0] = t, 1.0 / 3.0
+    st.ctri[0], st.cbary[0], st.stones.cnormal[0] = t, 1.0 / 3.0, st.index.normals[t]
     args = (np.array([0]), np.array([t]), st.cbary[[0]], np.array([0.004]), st.index.normals[[t]], st.stats)
     verts, w = st.patches.weights(*args)
     assert (w > 0).sum() > 3 and w.sum() == pytest.approx(1.0)
