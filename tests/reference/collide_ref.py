@@ -112,3 +112,30 @@ def closest_brute(points: np.ndarray, X: np.ndarray, triangles: np.ndarray, reac
         if d[j] <= reach[i]:
             out.triangle[i], out.bary[i], out.point[i], out.distance[i] = j, bc[j], cp[j], d[j]
     return out
+
+
+def contact_normal_ref(p: np.ndarray, t: int, bary: np.ndarray, X: np.ndarray, triangles: np.ndarray,
+                       tri_normals: np.ndarray, corner: np.ndarray, sharp_edge: np.ndarray,
+                       sharp_vertex: np.ndarray) -> np.ndarray:
+    """The contact normal of a sphere centred at ``p`` in contact at ``bary`` on triangle ``t``, the
+    plain way (the oracle of :func:`hailstorm.runtime.compiled.narrow.contact_normal`): the corner
+    normals interpolated at ``bary``; where ``p``'s closest point on ``t`` lies on a sharp edge or
+    corner of it, the direction from that point to ``p``; the triangle's normal where either
+    does not face its side."""
+    T = np.asarray(triangles)
+    n_t = np.asarray(tri_normals[t], dtype=np.float64)
+    m = np.asarray(bary, dtype=np.float64) @ np.asarray(corner[t], dtype=np.float64)
+    n = m / np.linalg.norm(m) if m @ n_t > 0 else n_t
+    P = np.asarray(X, dtype=np.float64)[T[t]]
+    q, bc = closest_point_on_triangles(p[None], P[0][None], P[1][None], P[2][None])
+    zero = bc[0] <= 1e-12
+    if not zero.any():
+        return n
+    if zero.sum() == 1:  # on the edge opposite the zero corner: from corner k0 + 1 to k0 + 2
+        sharp = bool(sharp_edge[t, (int(np.flatnonzero(zero)[0]) + 1) % 3])
+    else:
+        sharp = bool(sharp_vertex[T[t, int(np.flatnonzero(~zero)[0])]])
+    f = p - q[0]
+    if sharp and np.linalg.norm(f) > 0 and f @ n_t > 1e-9 * np.linalg.norm(f):
+        return f / np.linalg.norm(f)
+    return n
