@@ -41,8 +41,12 @@ if TYPE_CHECKING:  # annotations only
 __all__ = ["CREASE_ANGLE", "Collision", "SurfaceIndex", "corner_normals", "sharp_features"]
 
 #: two triangles that meet at a vertex at more than this angle between their normals [rad] are
-#: on either side of a sharp edge: neither smooths the other's corner normal (:func:`corner_normals`)
-CREASE_ANGLE = math.radians(60.0)
+#: on either side of a sharp edge: neither smooths the other's corner normal (:func:`corner_normals`).
+#: Measured on the default seat (400 stones, 0.4 s, dt 0.1 ms): at 30 degrees and below its stones
+#: in flight overlap the facets by at most 0.03 mm, at 40-60 degrees by 0.37 mm (the smooth
+#: normal tilted from the facets of an edge bent by 30-40 degrees: the contact's spring leans on a
+#: plane the facets do not follow)
+CREASE_ANGLE = math.radians(30.0)
 
 
 def corner_normals(triangles: np.ndarray, face_normals: np.ndarray, face_areas: np.ndarray,
@@ -199,9 +203,10 @@ class SurfaceIndex:
         #: outward unit normals of the undeformed triangles
         self.normals = fn / np.where(ln > 0, ln, 1.0)
         #: the surface's normals at the triangles' corners (m, 3, 3) (:func:`corner_normals`)
-        self.corner_normals = corner_normals(self.triangles, self.normals, 0.5 * ln[:, 0])
+        self.corner_normals = corner_normals(self.triangles, self.normals, 0.5 * ln[:, 0], CREASE_ANGLE)
         #: the sharp edges (m, 3) and corners (n,) (:func:`sharp_features`)
-        self.sharp_edges, self.sharp_vertices = sharp_features(self.triangles, self.normals, len(self.vertices))
+        self.sharp_edges, self.sharp_vertices = sharp_features(self.triangles, self.normals, len(self.vertices),
+                                                               CREASE_ANGLE)
         self.bbox = (self.vertices.min(axis=0), self.vertices.max(axis=0))
 
 

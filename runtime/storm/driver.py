@@ -134,7 +134,7 @@ property of the contact model (see DESIGN: vertex pressure masks), not of the
 time integration.
 
 Facets: the seat's surface is a triangle mesh, read as the facets of a smooth
-surface but at its sharp edges (more than ``CREASE_ANGLE``, 60 degrees, between
+surface but at its sharp edges (more than ``CREASE_ANGLE``, 30 degrees, between
 two triangles' normals: :func:`hailstorm.runtime.storm.collide.corner_normals`,
 :func:`~hailstorm.runtime.storm.collide.sharp_features`). A contact's normal
 (``Stones.cnormal``, :func:`hailstorm.runtime.compiled.narrow.contact_normal`)
