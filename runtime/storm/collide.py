@@ -271,7 +271,8 @@ class Collision:
             near, h, self.toi, self.TOI_TOL, self.hmin, stones.pos, stones.vel, stones.radius, stones.offset,
             stones.shift, stones.ctri, stones.cbary, stones.cnormal, stones.gap, stones.near_tri, self.surface,
             self.index.normals, self.index.corner_normals, self.index.sharp_edges, self.index.sharp_vertices,
-            self.soft, self.fixed, self.rigid_weight, seat.umax, use_u, seat.D, cols, forces, GRAVITY, self.air.wind, self.air.drag_coef, self.restitution)
+            self.soft, self.fixed, self.rigid_weight, seat.umax, use_u, seat.D, cols, forces, GRAVITY, self.air.wind,
+            self.air.drag_coef, self.restitution)
         stats.wall_contacts += int(walls)
         return float(h)
 

@@ -84,7 +84,7 @@ class SoftContacts:
         capacitance of their contact set, with unilateral release; update the seat's
         forces and the statistics."""
         tris = stones.ctri[soft]
-        key: tuple[tuple[Any, ...], ...]
+        key: tuple[Any, ...]
         cc = self.current
         if self.patch:
             resizes = stats.patch_resizes
@@ -96,6 +96,9 @@ class SoftContacts:
         else:
             rad = None
             key = tuple(zip(soft.tolist(), tris.tolist()))
+        # (a contact that closed and opened again on its triangle between two sub-steps has a new
+        # point and normal: they are in the key)
+        key += (stones.cbary[soft].tobytes() + stones.cnormal[soft].tobytes(),)
         if cc is None or cc.key != key:
             cc = self.current = self.sets.build(soft, tris, stones.cbary[soft].copy(), stones.cnormal[soft].copy(), key,
                                                 stones.radius[soft].copy(), stats, rad, stones.offset[soft].copy())
