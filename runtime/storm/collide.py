@@ -29,6 +29,7 @@ from hailstorm.runtime.compiled import SampleGrid, flight, free_phase, near_set,
 from hailstorm.runtime.compiled.grid import surface_arrays
 from hailstorm.runtime.contact import policy
 from hailstorm.runtime.storm.hail import GRAVITY
+from hailstorm.runtime.storm.limits import vertex_normals
 from hailstorm.runtime.storm.recording import StormStats
 
 if TYPE_CHECKING:  # annotations only
@@ -49,8 +50,7 @@ __all__ = ["CREASE_ANGLE", "Collision", "SurfaceIndex", "corner_normals", "sharp
 CREASE_ANGLE = math.radians(30.0)
 
 
-def corner_normals(triangles: np.ndarray, face_normals: np.ndarray, face_areas: np.ndarray,
-                   crease: float = CREASE_ANGLE) -> np.ndarray:
+def corner_normals(vertices: np.ndarray, triangles: np.ndarray, crease: float = CREASE_ANGLE) -> np.ndarray:
     """The surface's normal at each triangle's corners, read as a smooth surface but at its sharp
     edges: at corner ``i`` of triangle ``t`` (vertex ``v``), the area-weighted mean of the normals of
     the triangles around ``v`` within ``crease`` of ``t``'s normal (``t`` itself included), (m, 3, 3).
@@ -58,33 +58,29 @@ def corner_normals(triangles: np.ndarray, face_normals: np.ndarray, face_areas: 
     Inside a smooth region every triangle around a vertex gives that vertex the same normal, so
     the normal interpolated over the triangles (:func:`hailstorm.runtime.compiled.narrow.contact_normal`)
     is continuous across their edges; a triangle on a sharp edge keeps its side's. Memory O(m):
-    a vertex whose triangles all lie within ``crease / 2`` of their mean normal takes that mean
-    at every corner (any two of them are within ``crease``); only the others are summed corner
-    by corner.
+    a vertex whose triangles all lie within ``crease / 2`` of their mean normal
+    (:func:`hailstorm.runtime.storm.limits.vertex_normals`) takes that mean at every corner (any
+    two of them are within ``crease``); only the others are summed corner by corner.
 
     Parameters
     ----------
+    vertices : (n, 3) ndarray
     triangles : (m, 3) int ndarray
-    face_normals : (m, 3) ndarray
-        Unit normals of the triangles.
-    face_areas : (m,) ndarray
-        Their areas.
+        Outward triangles.
     crease : float
         [rad].
     """
+    X = np.asarray(vertices, dtype=np.float64)
     T = np.asarray(triangles, dtype=np.intp)
-    m = T.shape[0]
-    n = int(T.max()) + 1 if m else 0
-    weighted = face_areas[:, None] * face_normals
-    S = np.zeros((n, 3))
-    np.add.at(S, T.ravel(), np.repeat(weighted, 3, axis=0))
-    ln = np.linalg.norm(S, axis=1, keepdims=True)
-    mean = S / np.where(ln > 0, ln, 1.0)
+    weighted = np.cross(X[T[:, 1]] - X[T[:, 0]], X[T[:, 2]] - X[T[:, 0]])  # 2 x area x unit normal
+    ln = np.linalg.norm(weighted, axis=1, keepdims=True)
+    face = weighted / np.where(ln > 0, ln, 1.0)
+    mean = vertex_normals(X, T)
     # the largest angle of a triangle's normal from its corner's vertex mean, per vertex
-    cos_dev = np.ones(n)
-    np.minimum.at(cos_dev, T.ravel(), np.einsum("kd,kd->k", np.repeat(face_normals, 3, axis=0), mean[T.ravel()]))
+    cos_dev = np.ones(len(X))
+    np.minimum.at(cos_dev, T.ravel(), np.einsum("kd,kd->k", np.repeat(face, 3, axis=0), mean[T.ravel()]))
     out = mean[T]
-    mixed = np.flatnonzero(~(cos_dev >= math.cos(0.5 * crease)) | (ln[:, 0] <= 0))
+    mixed = np.flatnonzero(~(cos_dev >= math.cos(0.5 * crease)))
     if mixed.size:
         corners = np.flatnonzero(np.isin(T.ravel(), mixed))
         cv = T.ravel()[corners]
@@ -96,7 +92,7 @@ def corner_normals(triangles: np.ndarray, face_normals: np.ndarray, face_areas: 
         cos_c = math.cos(crease)
         for lo, hi in zip(start.tolist(), ends.tolist()):
             f = corners[lo:hi] // 3  # the triangles around this vertex, one per corner
-            nf = face_normals[f]
+            nf = face[f]
             keep = (nf @ nf.T) >= cos_c  # (k, k): corner i takes triangle j
             acc = keep.astype(np.float64) @ weighted[f]
             la = np.linalg.norm(acc, axis=1, keepdims=True)
@@ -203,7 +199,7 @@ class SurfaceIndex:
         #: outward unit normals of the undeformed triangles
         self.normals = fn / np.where(ln > 0, ln, 1.0)
         #: the surface's normals at the triangles' corners (m, 3, 3) (:func:`corner_normals`)
-        self.corner_normals = corner_normals(self.triangles, self.normals, 0.5 * ln[:, 0], CREASE_ANGLE)
+        self.corner_normals = corner_normals(self.vertices, self.triangles, CREASE_ANGLE)
         #: the sharp edges (m, 3) and corners (n,) (:func:`sharp_features`)
         self.sharp_edges, self.sharp_vertices = sharp_features(self.triangles, self.normals, len(self.vertices),
                                                                CREASE_ANGLE)

@@ -88,7 +88,7 @@ def test_corner_normals_are_the_mean_of_the_faces_within_the_crease():
     area = 0.5 * np.linalg.norm(fn, axis=1)
     fn /= 2.0 * area[:, None]
     for crease, fold_normal in ((CREASE_ANGLE, None), (0.3, "own")):
-        got = corner_normals(T, fn, area, crease)
+        got = corner_normals(X, T, crease)
         for t in range(len(T)):
             for i in range(3):
                 around = [f for f in range(len(T)) if T[t, i] in T[f] and fn[f] @ fn[t] >= np.cos(crease)]
