@@ -100,17 +100,15 @@ def corner_normals(vertices: np.ndarray, triangles: np.ndarray, crease: float = 
     return out
 
 
-def sharp_features(triangles: np.ndarray, face_normals: np.ndarray, n_vertices: int,
+def sharp_features(vertices: np.ndarray, triangles: np.ndarray,
                    crease: float = CREASE_ANGLE) -> tuple[np.ndarray, np.ndarray]:
     """The surface's sharp edges and corners: where the smooth reading (:func:`corner_normals`)
     stops, and a sphere over the edge touches it as an edge.
 
     Parameters
     ----------
+    vertices : (n, 3) ndarray
     triangles : (m, 3) int ndarray
-    face_normals : (m, 3) ndarray
-        Unit normals of the triangles.
-    n_vertices : int
     crease : float
         [rad].
 
@@ -119,11 +117,16 @@ def sharp_features(triangles: np.ndarray, face_normals: np.ndarray, n_vertices: 
     sharp_edge : (m, 3) bool ndarray
         Edge ``k`` of triangle ``t`` (from its corner ``k`` to corner ``k + 1``) meets its
         neighbour's at more than ``crease`` between their normals, or has no neighbour.
-    sharp_vertex : (n_vertices,) bool ndarray
+    sharp_vertex : (n,) bool ndarray
         The vertex ends a sharp edge.
     """
+    X = np.asarray(vertices, dtype=np.float64)
     T = np.asarray(triangles, dtype=np.intp)
     m = T.shape[0]
+    n_vertices = len(X)
+    face_normals = np.cross(X[T[:, 1]] - X[T[:, 0]], X[T[:, 2]] - X[T[:, 0]])
+    ln = np.linalg.norm(face_normals, axis=1, keepdims=True)
+    face_normals /= np.where(ln > 0, ln, 1.0)
     a, b = T.ravel(), T[:, [1, 2, 0]].ravel()  # edge k of t: row 3 t + k
     key = np.minimum(a, b) * np.int64(n_vertices) + np.maximum(a, b)
     order = np.argsort(key, kind="stable")
@@ -201,8 +204,7 @@ class SurfaceIndex:
         #: the surface's normals at the triangles' corners (m, 3, 3) (:func:`corner_normals`)
         self.corner_normals = corner_normals(self.vertices, self.triangles, CREASE_ANGLE)
         #: the sharp edges (m, 3) and corners (n,) (:func:`sharp_features`)
-        self.sharp_edges, self.sharp_vertices = sharp_features(self.triangles, self.normals, len(self.vertices),
-                                                               CREASE_ANGLE)
+        self.sharp_edges, self.sharp_vertices = sharp_features(self.vertices, self.triangles, CREASE_ANGLE)
         self.bbox = (self.vertices.min(axis=0), self.vertices.max(axis=0))
 
 

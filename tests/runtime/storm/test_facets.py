@@ -106,9 +106,7 @@ def test_sharp_edges_are_the_creases_and_the_border(fold, sharp):
     plate's border); a sharp vertex ends a sharp edge."""
     gf = plate_gf(fold=fold)
     X, T = np.asarray(gf.vertices), np.asarray(gf.triangles)
-    fn = np.cross(X[T[:, 1]] - X[T[:, 0]], X[T[:, 2]] - X[T[:, 0]])
-    fn /= np.linalg.norm(fn, axis=1, keepdims=True)
-    edge, vertex = sharp_features(T, fn, len(X))
+    edge, vertex = sharp_features(X, T)
     lo, hi = X[:, :2].min(axis=0), X[:, :2].max(axis=0)
     border = np.isclose(X[:, :2], lo).any(axis=1) | np.isclose(X[:, :2], hi).any(axis=1)
     fold_line = np.isclose(X[:, 0], RIDGE_X)
