@@ -33,8 +33,14 @@ if TYPE_CHECKING:  # annotations only
 
 __all__ = ["Patches", "peak_radius"]
 
-#: a stone's cached weights: (triangle, beta bytes, radius, vertices, weights)
+#: a stone's cached weights: (triangle, its point's key (:func:`_point`), radius, vertices, weights)
 _Cached = tuple[int, bytes, float, np.ndarray, np.ndarray]
+
+
+def _point(bary: np.ndarray, normal: np.ndarray) -> bytes:
+    """What identifies a contact's point on its triangle in the caches: its barycentric
+    coordinates and its normal (which changes only with them, where the contact opens or moves)."""
+    return bary.tobytes() + normal.tobytes()
 
 
 class Patches:
@@ -142,7 +148,7 @@ class Patches:
             a0[new] = 0.0
         for i in np.flatnonzero(a0 > 0.0).tolist():
             j = int(ids[i])
-            self._cache[j] = (int(tris[i]), stones.cbary[j].tobytes() + stones.cnormal[j].tobytes(), float(a0[i]),
+            self._cache[j] = (int(tris[i]), _point(stones.cbary[j], stones.cnormal[j]), float(a0[i]),
                               wv[off[i]:off[i + 1]], ww[off[i]:off[i + 1]])
             stats.patch_weights_computed += 1
         if a.size:
@@ -207,7 +213,7 @@ class Patches:
         todo = []
         for i, (j, t, a) in enumerate(zip(ids.tolist(), tris.tolist(), radius.tolist())):
             c = self._cache.get(j)
-            if c is not None and c[0] == t and c[2] == a and c[1] == bary[i].tobytes() + normals[i].tobytes():
+            if c is not None and c[0] == t and c[2] == a and c[1] == _point(bary[i], normals[i]):
                 out[i] = (c[3], c[4])
             else:
                 todo.append(i)
@@ -217,8 +223,7 @@ class Patches:
             for i in todo:
                 v, w_ = patch_one(int(tris[i]), bary[i], float(radius[i]), normals[i], 3.0, *self._disc,
                                   PATCH_FACING, PATCH_DROP, self._pidx, self.X)
-                self._cache[int(ids[i])] = (int(tris[i]), bary[i].tobytes() + normals[i].tobytes(), float(radius[i]), v,
-                                            w_)
+                self._cache[int(ids[i])] = (int(tris[i]), _point(bary[i], normals[i]), float(radius[i]), v, w_)
                 out[i] = (v, w_)
         done = cast(list[tuple[np.ndarray, np.ndarray]], out)  # every slot is filled above
         P = max(3, max((o[0].size for o in done), default=0))
@@ -236,8 +241,7 @@ class Patches:
         stone with the same key as its weights (triangle, beta and normal, radius); the new ones in one call."""
         p = 3 if self.contact.sticky else 1
         blocks = np.zeros((ids.size, p, p))
-        keys = [(t, bary[i].tobytes() + normals[i].tobytes(), a) for i, (t, a) in enumerate(zip(tris.tolist(),
-                                                                                               radius.tolist()))]
+        keys = [(t, _point(bary[i], normals[i]), a) for i, (t, a) in enumerate(zip(tris.tolist(), radius.tolist()))]
         todo = []
         for i, j in enumerate(ids.tolist()):
             c = self._near.get(j)
