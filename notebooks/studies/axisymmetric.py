@@ -23,11 +23,14 @@ from typing import Any
 
 import numpy as np
 
+from hailstorm.runtime.storm.limits import PAD_DENSITY
+
 __all__ = ["FOAM_DENSITY", "DiscPress", "Pad", "PadMesh", "axisymmetric_matrices", "contact_lcp", "pad_mesh",
            "press_disc", "without_contact_mass"]
 
-#: foam density [kg/m^3]: flexible polyurethane foams ~20-100 (Gibson & Ashby, Cellular Solids, 2nd ed.)
-FOAM_DENSITY = 70.0
+#: foam density [kg/m^3]: flexible polyurethane foams ~20-100 (Gibson & Ashby, Cellular Solids, 2nd ed.);
+#: the scene's default ``[validity] pad_density``
+FOAM_DENSITY = PAD_DENSITY
 
 
 @dataclass(frozen=True)

@@ -65,6 +65,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from hailstorm.runtime.contact.hertz import HertzImpact, hertz_impact
+from hailstorm.runtime.storm.limits import ValidityLimits, contact_time_ratio
 from hailstorm.studies.axisymmetric import (
     FOAM_DENSITY,
     Pad,
@@ -84,9 +85,11 @@ __all__ = [
     "format_corrections",
     "format_storm",
     "format_table",
+    "format_time_limit",
     "hertz_estimate",
     "impact_errors",
     "impact_mesh",
+    "largest_error",
     "main",
     "plot_agreement",
     "StormImpact",
@@ -96,6 +99,7 @@ __all__ = [
     "storm_impact",
     "simulate_impact",
     "terminal_speed",
+    "time_ratio",
 ]
 
 #: ice density [kg/m^3] (the default scene's ``[hail] density``)
@@ -107,6 +111,8 @@ FULL_SPEEDS, FULL_RADII = (1.0, 2.0, 5.0, 10.0, 20.0, 30.0), (0.0025, 0.005, 0.0
 MIN_STEPS_PER_CONTACT, MIN_CELLS_PER_RADIUS = 20, 4.0
 #: agreement the table marks [-]
 AGREE = 0.05
+#: the foam densities of ``--limit`` [kg/m^3]: the default and the low end of what E = 2 MPa implies
+LIMIT_DENSITIES = (FOAM_DENSITY, 200.0)
 
 
 class PeerResolutionError(ValueError):
@@ -472,6 +478,39 @@ def format_table(rows: Sequence[Row], tol: float = AGREE) -> str:
     return "\n".join(lines)
 
 
+def time_ratio(row: Row, pad: Pad, ice_density: float = ICE_DENSITY) -> float:
+    """The storm's contact-time measure of the row's impact, ``t_c / T``
+    (:func:`hailstorm.runtime.storm.limits.contact_time_ratio` at the pad's thickness)."""
+    m = ice_density * 4.0 / 3.0 * math.pi * row.radius**3
+    return float(contact_time_ratio(m, row.radius, row.speed, row.thickness, pad.young, pad.poisson, pad.density))
+
+
+def largest_error(row: Row) -> tuple[str, float]:
+    """The measure the quasi-static model misses most on, and by how much (quasi-static / dynamic - 1)."""
+    return max(row.errors().items(), key=lambda kv: abs(kv[1]))
+
+
+def format_time_limit(grids: Sequence[tuple[Pad, Sequence[Row]]], limit: float = ValidityLimits.contact_time,
+                      tol: float = AGREE) -> str:
+    """Every impact of ``grids`` (pads and their rows) sorted by the storm's ``t_c / T``
+    (:func:`time_ratio`), with the quasi-static model's largest error, and whether the
+    limit ``t_c / T >= limit`` separates the impacts within ``tol`` of the peer from the others."""
+    rows = sorted(((time_ratio(r, pad), pad, r) for pad, rs in grids for r in rs), key=lambda x: x[0])
+    head = f"{'rho kg/m^3':>10} {'R mm':>5} {'v m/s':>5} | {'t_c/T':>5} | {'worst error':>18} | within {tol:.0%} | within the limit"
+    lines = [head, "-" * len(head)]
+    for tr, pad, r in rows:
+        name, err = largest_error(r)
+        lines.append(f"{pad.density:10.0f} {r.radius * 1e3:5.1f} {r.speed:5.1f} | {tr:5.2f} | {name:>9} {100 * err:+7.1f} % | "
+                     f"{'yes' if r.agrees(tol) else 'no':>9} | {'yes' if tr >= limit else 'no'}")
+    inside = [abs(largest_error(r)[1]) for tr, _, r in rows if tr >= limit]
+    bad = [tr for tr, _, r in rows if not r.agrees(tol)]
+    lines.append(f"t_c/T >= {limit:g} (the storm's limit): {len(inside)} of {len(rows)} impacts, the largest error of the "
+                 f"four measures {100 * max(inside, default=0.0):.1f} %")
+    lines.append(f"beyond {tol:.0%} of the peer on some measure: {len(bad)} impacts, t_c/T up to {max(bad, default=0.0):.2f}"
+                 f" -> the limit {'separates them' if max(bad, default=0.0) < limit else 'does NOT separate them'}")
+    return "\n".join(lines)
+
+
 def format_storm(rows: Sequence[Row], gf: Any) -> str:
     """The same impacts in the storm (:func:`storm_impact` on ``gf``) against the dynamic peer
     (``vs dyn``) and against the peer's quasi-static column (``vs qs``: the storm's own
@@ -641,6 +680,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--cells-per-radius", type=float, default=8.0)
     ap.add_argument("--corrections", action="store_true",
                     help="also what a one-number correction matched to the peak force would predict (scalar_corrections)")
+    ap.add_argument("--limit", action="store_true",
+                    help="the whole grid at 70 and 200 kg/m^3, sorted by the storm's contact-time measure t_c/T "
+                         "(the measured limit of docs/validity.md) instead of the table")
     ap.add_argument("--plot", default=None, metavar="PATH",
                     help="also chart the rows: within/beyond 5%% on all four measures, over the terminal-speed curve")
     args = ap.parse_args(argv)
@@ -648,8 +690,8 @@ def main(argv: list[str] | None = None) -> int:
         pad = default_pad(_check_density("foam", args.density))
     except ValueError as exc:
         ap.error(str(exc))  # one line, exit 2
-    speeds = args.speeds or (FULL_SPEEDS if args.full else SMALL_SPEEDS)
-    radii = args.radii or (FULL_RADII if args.full else SMALL_RADII)
+    speeds = args.speeds or (FULL_SPEEDS if args.full or args.limit else SMALL_SPEEDS)
+    radii = args.radii or (FULL_RADII if args.full or args.limit else SMALL_RADII)
     cp, cs = pad.wave_speeds
     print(f"pad: E = {pad.young:g} Pa, nu = {pad.poisson:g}, rho = {pad.density:g} kg/m^3, {pad.thickness * 1e3:g} mm "
           f"thick, radius {pad.radius * 1e3:g} mm on a rigid base; waves {cp:.0f} m/s (P), {cs:.0f} m/s (S)")
@@ -657,6 +699,13 @@ def main(argv: list[str] | None = None) -> int:
           f"{args.steps_per_contact} steps per Hertz contact time, {args.cells_per_radius:g} cells per Hertz radius")
     try:
         kw = dict(cells_per_radius=args.cells_per_radius, steps_per_contact=args.steps_per_contact)
+        if args.limit:
+            pads = [default_pad(rho) for rho in LIMIT_DENSITIES]
+            print("the same pad at " + " and ".join(f"rho = {p.density:g} kg/m^3 (waves {p.wave_speeds[0]:.0f}, "
+                                                     f"{p.wave_speeds[1]:.0f} m/s)" for p in pads)
+                  + f"; t_c/T: Hertz's contact time over 4 h / c_s (the storm's measure, docs/validity.md)")
+            print(format_time_limit([(p, run_grid(p, radii, speeds, **kw)) for p in pads]))
+            return 0
         if args.terminal:
             rows = [compare(pad, R, float(terminal_speed(R)), **kw) for R in radii]
         else:

@@ -125,7 +125,8 @@ SUMMARY_UNITS: dict[str, str | None] = {
     "impacts_beyond_strain_limit": "count", "impacts_beyond_any_limit": "count",
     "max_indentation_thickness_ratio": "1", "max_contact_radius_ratio": "1", "max_strain_ratio": "1",
     "min_impact_thickness_m": "m", "limit_indentation_thickness_ratio": "1", "limit_contact_radius_ratio": "1",
-    "limit_strain_ratio": "1",
+    "limit_strain_ratio": "1", "impacts_beyond_contact_time_limit": "count", "min_contact_time_ratio": "1",
+    "limit_contact_time_ratio": "1", "pad_density": "kg/m^3",
 }
 
 

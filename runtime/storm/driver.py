@@ -253,7 +253,8 @@ class Storm:
         self.patches = Patches(gf, contact, scene.time, self.seat, normals, self.collision.soft, air)
         sets = ContactSets(gf, contact, normals, self.patches)
         self.integrator = ContactIntegrator(scene.time, contact)
-        self.contacts = SoftContacts(contact, scene.time, sets, self.patches, self.integrator, self.seat, air)
+        self.contacts = SoftContacts(contact, scene.time, sets, self.patches, self.integrator, self.seat, air,
+                                     scene.validity.pad_density)
         self.stats = StormStats(patch=contact.patch)
         self.t = 0.0
         #: stones retired below the seat inside its footprint without ever touching it

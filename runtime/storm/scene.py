@@ -1,7 +1,7 @@
 """Storm settings: the :class:`Scene` and its TOML file.
 
 A scene file has the sections ``[storm]``, ``[hail]``, ``[contact]``,
-``[time]``, ``[output]`` and ``[seat]``; every key is optional and takes the
+``[time]``, ``[output]``, ``[validity]`` and ``[seat]``; every key is optional and takes the
 packaged default (``meshes/default_scene.toml``, installed as
 ``hailstorm.meshes``) when absent. Unknown sections or keys and bad values
 raise :class:`SceneError` naming the file, the key and the problem.
@@ -28,13 +28,14 @@ from typing import Any, ClassVar, Mapping
 import numpy as np
 
 from hailstorm.runtime.bundle.atomic import write_text_atomic
+from hailstorm.runtime.storm.limits import PAD_DENSITY
 from hailstorm.runtime.contact.near_field import NEAR_FIELDS
 from hailstorm.runtime.contact.validate import Mode
 from hailstorm.runtime.resources import available_memory
 from hailstorm.runtime.storm.hail import GRAVITY, Integrator, SizeDistribution, terminal_velocity
 
 __all__ = ["ContactSettings", "HailSettings", "OutputSettings", "Scene", "SceneError", "SeatSettings", "StormEstimate",
-           "StormSettings", "StormTooLarge", "TimeSettings"]
+           "StormSettings", "StormTooLarge", "TimeSettings", "ValiditySettings"]
 
 
 class SceneError(ValueError):
@@ -495,6 +496,28 @@ class OutputSettings(_Section):
 
 
 @dataclass(frozen=True)
+class ValiditySettings(_Section):
+    """``[validity]``: what the validity limits need to know of the seat that the
+    storm's model does not use (:mod:`hailstorm.runtime.storm.limits`).
+
+    Attributes
+    ----------
+    pad_density : float
+        The pad foam's density [kg/m^3]. The quasi-static model has no mass in the
+        seat; the density sets the pad's wave speeds, so how long an impact must last
+        for the pad to follow it quasi-statically (the contact-time limit).
+    """
+
+    SECTION: ClassVar[str] = "validity"
+
+    pad_density: float = PAD_DENSITY
+
+    def __post_init__(self) -> None:
+        _check_types(self)
+        _positive(self, ("pad_density",))
+
+
+@dataclass(frozen=True)
 class SeatSettings(_Section):
     """``[seat]``: the default seat's precompute settings, used when no bundle
     is given (``hailstorm storm`` without ``--gf`` builds, or reuses from the
@@ -564,7 +587,7 @@ class SeatSettings(_Section):
 #: the records of a :class:`Scene`, by TOML section
 _RECORDS: dict[str, type[_Section]] = {
     "storm": StormSettings, "hail": HailSettings, "contact": ContactSettings, "time": TimeSettings,
-    "output": OutputSettings,
+    "output": OutputSettings, "validity": ValiditySettings,
 }
 #: section of every flat key (:meth:`Scene.from_flat`, :meth:`Scene.with_`)
 _SECTION_OF: dict[str, str] = {k: sec for sec, rec in _RECORDS.items() for k in rec.keys()}
@@ -604,6 +627,8 @@ class Scene:
         ``[time]``: dt, integrator, sub-steps, rest speed.
     output : OutputSettings
         ``[output]``: frame rate.
+    validity : ValiditySettings
+        ``[validity]``: the pad's density (for the validity limits only).
 
     The scene file's ``[seat]`` (the default seat's precompute settings) is
     not part of the scene: see :class:`SeatSettings`.
@@ -622,6 +647,7 @@ class Scene:
     contact: ContactSettings = dataclasses.field(default_factory=ContactSettings)
     time: TimeSettings = dataclasses.field(default_factory=TimeSettings)
     output: OutputSettings = dataclasses.field(default_factory=OutputSettings)
+    validity: ValiditySettings = dataclasses.field(default_factory=ValiditySettings)
 
     def __post_init__(self) -> None:
         for sec, rec in _RECORDS.items():

@@ -19,7 +19,7 @@ import numpy as np
 from hailstorm.runtime.compiled import contact_post, contact_prep
 from hailstorm.runtime.compiled.narrow import DEAD_ZONE_REACH
 from hailstorm.runtime.storm.hail import GRAVITY
-from hailstorm.runtime.storm.limits import ImpactLimits
+from hailstorm.runtime.storm.limits import PAD_DENSITY, ImpactLimits
 
 if TYPE_CHECKING:  # annotations only
     from hailstorm.runtime.storm.contact_set import ContactSet, ContactSets
@@ -51,10 +51,12 @@ class SoftContacts:
     seat : SeatState
         Receives the contact forces.
     air : Air
+    pad_density : float
+        The pad foam's density [kg/m^3], for the validity limits only (:class:`ImpactLimits`).
     """
 
     def __init__(self, contact: ContactSettings, time: TimeSettings, sets: ContactSets, patches: Patches, integrator: ContactIntegrator,
-                 seat: SeatState, air: Air) -> None:
+                 seat: SeatState, air: Air, pad_density: float = PAD_DENSITY) -> None:
         self.sets = sets
         self.patches = patches
         self.integrator = integrator
@@ -64,7 +66,7 @@ class SoftContacts:
         self.time = time
         self.patch = contact.patch != "none"
         #: the impacts' validity measures (recorded, never fed back into the contact step)
-        self.limits = ImpactLimits(sets.gf, time.rest_speed)
+        self.limits = ImpactLimits(sets.gf, time.rest_speed, pad_density=pad_density)
         #: the current contact set (None: no soft contact) and its multipliers (the seat forces)
         self.current: ContactSet | None = None
         self.lam = np.zeros(0)
@@ -121,7 +123,7 @@ class SoftContacts:
             q, a, vq, gq, res.q, res.v, res.active, res.seat_force, res.peak_seat_force, res.peak_ubar,
             self.contact.sticky, exact, h, self.time.rest_speed)
         stats.impacts += int(impacts)
-        self._observe_limits(cc, soft, stones.radius[soft], ~open_before, vin, res, stats)
+        self._observe_limits(cc, soft, stones.radius[soft], stones.mass[soft], ~open_before, vin, res, stats)
         self.lam = res.seat_force
         self.seat.set_forces(cc, res.seat_force, res.peak_seat_force)
         stats.max_contact_force = max(stats.max_contact_force, float(fmax))
@@ -199,8 +201,8 @@ class SoftContacts:
             h = min(h, max(float(t.min()), self.time.dt / self.time.max_substeps))
         return h
 
-    def _observe_limits(self, cc: ContactSet, soft: np.ndarray, radius: np.ndarray, opening: np.ndarray,
-                        vin: np.ndarray | None, res: Any, stats: StormStats) -> None:
+    def _observe_limits(self, cc: ContactSet, soft: np.ndarray, radius: np.ndarray, mass: np.ndarray,
+                        opening: np.ndarray, vin: np.ndarray | None, res: Any, stats: StormStats) -> None:
         """Hand the sub-step's per-contact peaks to the validity measures (:class:`ImpactLimits`),
         with the touched rule of :func:`hailstorm.runtime.compiled.contact_post`."""
         stats.validity = self.limits
@@ -220,7 +222,7 @@ class SoftContacts:
             touched = [a or p != 0.0 for a, p in zip(act, peak)]
             indent = (cc.offset - res.peak_ubar).tolist()
             force = [max(abs(f), abs(p)) for f, p in zip(seat, peak)]
-        self.limits.observe(ids, radius.tolist(), cc.tris.tolist(), cc.bary.tolist(), opening.tolist(),
+        self.limits.observe(ids, radius.tolist(), mass.tolist(), cc.tris.tolist(), cc.bary.tolist(), opening.tolist(),
                             None if vin is None else vin.tolist(), touched, indent, force)
 
     def forces(self, ctri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

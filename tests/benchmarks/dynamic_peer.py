@@ -5,6 +5,7 @@ Usage::
     python tests/benchmarks/dynamic_peer.py                 # small grid (3 speeds x 2 radii) + the default storm
     python tests/benchmarks/dynamic_peer.py --full          # speeds 1-30 m/s x radii 2.5-12.5 mm (6 x 5)
     python tests/benchmarks/dynamic_peer.py --terminal      # each radius at its terminal speed (the default storm)
+    python tests/benchmarks/dynamic_peer.py --limit --no-storm   # the grid at 70 and 200 kg/m^3 by the storm's t_c/T
     python tests/benchmarks/dynamic_peer.py --terminal --storm-block   # and the same impacts in the storm
     python tests/benchmarks/dynamic_peer.py --no-storm      # the table only
     python tests/benchmarks/dynamic_peer.py --density 50    # another foam density [kg/m^3]
@@ -75,20 +76,28 @@ def impact_spread(stats) -> list[str]:
     stone radius, ``a/R``, the estimated strain, ``delta/h`` and the local thickness."""
     import numpy as np
 
-    from hailstorm.runtime.storm.limits import peak_strain
+    from hailstorm.runtime.storm.limits import contact_time_ratio, peak_strain
 
     rec = stats.validity
     if rec is None or rec.n == 0:
         return ["per impact: no impacts"]
     dh, aR, eps = rec.ratios()
+    tr = rec.time_ratios()
     hertz = peak_strain(aR, np.zeros_like(aR), rec.poisson)
-    rows = [("stone radius R [mm]", 1e3 * np.array(rec.radius)), ("a / R", aR), ("estimated peak strain", eps),
-            ("delta / h", dh), ("local thickness h [mm]", 1e3 * rec.thickness)]
+    rows = [("stone radius R [mm]", 1e3 * np.array(rec.radius)), ("normal speed v [m/s]", np.array(rec.speed)),
+            ("a / R", aR), ("estimated peak strain", eps), ("delta / h", dh),
+            (f"t_c / T at {rec.pad_density:g} kg/m^3", tr), ("local thickness h [mm]", 1e3 * rec.thickness)]
     lines = [f"{f'per impact ({rec.n} impacts):':<26} {'min':>10} {'median':>8} {'max':>8}"]
     for name, x in rows:
         lines.append(f"  {name:<24} {x.min():10.3g} {np.median(x):8.3g} {x.max():8.3g}")
     lines.append(f"  the strain is Hertz's term ((2/pi)(1-2nu)/(1-nu) a/R) in {int((hertz >= dh).sum())} of "
                  f"{rec.n} impacts, the layer's (delta/h) in the others")
+    limit = rec.limits.contact_time
+    for rho in (70.0, 200.0):
+        t = contact_time_ratio(rec.mass, rec.radius, rec.speed, rec.thickness, rec.young, rec.poisson, rho)
+        ok = np.array(rec.radius)[t >= limit]
+        lines.append(f"  with the pad at {rho:g} kg/m^3: {int((t < limit).sum())} of {rec.n} impacts below t_c/T "
+                     f"{limit:g}" + (f" (the smallest stone within it: R = {1e3 * ok.min():.1f} mm)" if ok.size else ""))
     return lines
 
 
@@ -124,6 +133,8 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--full", action="store_true", help="the whole grid (6 speeds x 5 radii)")
     ap.add_argument("--terminal", action="store_true", help="each radius at its terminal fall speed")
+    ap.add_argument("--limit", action="store_true",
+                    help="the whole grid at 70 and 200 kg/m^3 sorted by the storm's contact-time measure t_c/T")
     ap.add_argument("--density", type=float, default=None, help="foam density [kg/m^3] (default 70)")
     ap.add_argument("--storm-block", action="store_true",
                     help="the same impacts in the storm, on a block bundle of the pad (6 mm, P2)")
@@ -158,6 +169,7 @@ def _run(args: argparse.Namespace) -> int:
 
     if not args.no_table:
         table((["--storm"] if args.storm_block else []) + (["--full"] if args.full else [])
+              + (["--limit"] if args.limit else [])
               + (["--terminal", "--radii", "0.0025", "0.005", "0.0075", "0.01", "0.0125"] if args.terminal else [])
               + ([] if args.density is None else ["--density", str(args.density)])
               + ([] if args.plot is None else ["--plot", args.plot])

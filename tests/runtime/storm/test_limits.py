@@ -9,15 +9,18 @@ import numpy as np
 import pytest
 
 from hailstorm.precompute.geometry import box_mesh, boundary_triangles
+from hailstorm.runtime.contact.hertz import hertz_impact
 from hailstorm.runtime.contact.weights import hertz_radius
 from hailstorm.runtime.storm.scene import Scene
 from hailstorm.runtime.storm.driver import Storm
 from hailstorm.runtime.storm.limits import (
+    PAD_DENSITY,
     ImpactLimits,
     PadThickness,
     RayCaster,
     ValidityLimits,
     boundary_faces,
+    contact_time_ratio,
     peak_strain,
     surface_thickness,
     validity_warning,
@@ -123,6 +126,30 @@ def _inner_top_triangle(gf) -> int:
     return int(np.flatnonzero(ok)[0])
 
 
+M5 = 917.0 * 4 / 3 * np.pi * 0.005**3  # an ice stone of 5 mm
+
+
+def _time_ratio(m, R, v, h, young, poisson, density):
+    """t_c / T from Hertz's impact (hertz_impact's duration) and the shear wave's quarter period across h."""
+    c_s = np.sqrt(young / (2 * (1 + poisson) * density))
+    return hertz_impact(m, v, R, young, poisson).duration / (4 * h / c_s)
+
+
+def test_contact_time_ratio_is_hertzs_time_over_the_pads_wave_period():
+    """contact_time_ratio against hertz_impact's duration (its closed form) and 4 h / c_s, over sizes, speeds
+    and densities; it scales as rho^(-1/2) and 1/h; no speed gives no measure (inf), no pad under the impact 0."""
+    for R, v, h, rho in [(0.0025, 9.1, 0.015, 70.0), (0.0125, 20.4, 0.015, 200.0), (0.005, 0.3, 0.04, 30.0)]:
+        m = 917.0 * 4 / 3 * np.pi * R**3
+        got = contact_time_ratio(m, R, v, h, 2e6, 0.35, rho)
+        assert got == pytest.approx(_time_ratio(m, R, v, h, 2e6, 0.35, rho), rel=1e-12)
+        assert contact_time_ratio(m, R, -v, 2 * h, 2e6, 0.35, 4 * rho) == pytest.approx(got / 4, rel=1e-12)
+    r = contact_time_ratio([M5, M5, M5], [0.005] * 3, [0.0, 3.0, 3.0], [H, np.inf, H], 1e6, 0.3, 70.0)
+    assert r[0] == np.inf and r[1] == 0.0 and 0 < r[2] < np.inf
+    # the peer's 2.5 mm stone at its terminal 9.1 m/s on the 70 kg/m^3 pad: 0.36 ms against 4 h / c_s = 0.58 ms
+    assert float(contact_time_ratio(917 * 4 / 3 * np.pi * 0.0025**3, 0.0025, 9.1, 0.015, 2e6, 0.35, 70.0)) == \
+        pytest.approx(0.61, abs=0.01)
+
+
 def _limits(rest_speed: float = 0.05) -> ImpactLimits:
     return ImpactLimits(_box_source(), rest_speed)
 
@@ -135,7 +162,7 @@ def test_impact_records_follow_the_storms_impact_rule():
     tri = _inner_top_triangle(_box_source())
 
     def obs(opening, vin, touched, indent, force):  # one stone (id 3, R = 5 mm) at the triangle's centroid
-        lim.observe([3], [0.005], [tri], [[1 / 3] * 3], [opening], [vin], [touched], [indent], [force])
+        lim.observe([3], [0.005], [M5], [tri], [[1 / 3] * 3], [opening], [vin], [touched], [indent], [force])
 
     obs(True, -0.01, True, 1e-4, 0.1)  # a slow touch: no record
     assert lim.n == 0 and lim.summary()["impacts_beyond_any_limit"] == 0
@@ -153,6 +180,11 @@ def test_impact_records_follow_the_storms_impact_rule():
     assert st["max_indentation_thickness_ratio"] == pytest.approx(0.15)
     assert st["impacts_beyond_indentation_limit"] == 1 and st["min_impact_thickness_m"] == pytest.approx(H)
     assert st["impacts_beyond_radius_limit"] == int(aR[0] > 0.3) and st["impacts_beyond_strain_limit"] == 1
+    assert lim.speed == [3.0] and lim.mass == [M5]  # at the onset
+    tr = lim.time_ratios()
+    assert tr[0] == pytest.approx(_time_ratio(M5, 0.005, 3.0, H, 1e6, 0.3, PAD_DENSITY), rel=1e-12)
+    assert st["min_contact_time_ratio"] == pytest.approx(tr[0]) and st["pad_density"] == PAD_DENSITY
+    assert st["impacts_beyond_contact_time_limit"] == int(tr[0] < 1.6)
     obs(True, -0.01, True, 5e-3, 5.0)  # a slow re-touch: the impact's record is closed
     assert lim.indentation[0] == 3e-3 and lim.n == 1
 
@@ -162,6 +194,7 @@ def test_counts_against_the_stated_limits():
     assert (st["limit_indentation_thickness_ratio"], st["limit_contact_radius_ratio"], st["limit_strain_ratio"]) == (
         ValidityLimits.indentation_thickness, ValidityLimits.contact_radius, ValidityLimits.strain) == (0.1, 0.3, 0.05)
     lim.radius, lim._thickness = [0.005] * 3, np.full(3, H)  # thicknesses known: nothing to cast
+    lim.mass, lim.speed = [M5] * 3, [0.06, 5.0, 30.0]
     # a/R from the force: a = (3 F R / (4 E*))^(1/3), so F = 4 E* a^3 / (3 R)
     Es = 1e6 / (1 - 0.3**2)
     aR = np.array([0.05, 0.2, 0.5])
@@ -172,7 +205,12 @@ def test_counts_against_the_stated_limits():
     eps = peak_strain(aR, np.array(lim.indentation) / H, 0.3)
     assert st["impacts_beyond_strain_limit"] == int((eps > 0.05).sum())
     assert st["max_strain_ratio"] == pytest.approx(eps.max())
-    assert st["impacts_beyond_any_limit"] == int(((np.array(lim.indentation) / H > 0.1) | (aR > 0.3) | (eps > 0.05)).sum())
+    tr = np.array([_time_ratio(M5, 0.005, v, H, 1e6, 0.3, PAD_DENSITY) for v in lim.speed])
+    assert st["limit_contact_time_ratio"] == ValidityLimits.contact_time == 1.6
+    assert st["impacts_beyond_contact_time_limit"] == int((tr < 1.6).sum()) and 0 < int((tr < 1.6).sum()) < 3
+    assert st["min_contact_time_ratio"] == pytest.approx(tr.min(), rel=1e-12)
+    assert st["impacts_beyond_any_limit"] == int(((np.array(lim.indentation) / H > 0.1) | (aR > 0.3) | (eps > 0.05)
+                                                  | (tr < 1.6)).sum())
     assert st["max_contact_radius_ratio"] == pytest.approx(0.5, rel=1e-12)
     assert dict(st)["max_contact_radius_ratio"] == st["max_contact_radius_ratio"] and "validity" not in dict(st)
 
@@ -199,7 +237,13 @@ def test_a_drop_on_the_box_records_its_impact(box_gf, integrator, mode, patch):
     assert S["max_contact_radius_ratio"] == pytest.approx(a / R, rel=1e-12)
     assert S["max_strain_ratio"] == pytest.approx(float(peak_strain(a / R, S["max_indentation_m"] / H, 0.3)), rel=1e-12)
     assert S["min_impact_thickness_m"] == pytest.approx(H, rel=1e-12)
-    beyond = [S["max_indentation_thickness_ratio"] > 0.1, S["max_contact_radius_ratio"] > 0.3, S["max_strain_ratio"] > 0.05]
+    # its first impact's normal speed: 4 m/s and 1 mm of gravity's pull; the box is E = 1 MPa, nu = 0.3
+    v = np.sqrt(4.0**2 + 2 * 9.81 * 1e-3)
+    m = 917.0 * 4 / 3 * np.pi * R**3
+    assert lim.speed[0] == pytest.approx(v, rel=1e-3)
+    assert lim.time_ratios()[0] == pytest.approx(_time_ratio(m, R, v, H, 1e6, 0.3, PAD_DENSITY), rel=1e-3)
+    beyond = [S["max_indentation_thickness_ratio"] > 0.1, S["max_contact_radius_ratio"] > 0.3, S["max_strain_ratio"] > 0.05,
+              S["min_contact_time_ratio"] < 1.6]
     assert (S["impacts_beyond_any_limit"] > 0) == any(beyond)
 
 
@@ -213,6 +257,12 @@ def test_validity_warning_names_the_numbers():
     assert msg.startswith("22 of 22 impacts are beyond the model's validity limits")
     assert "indentation/thickness up to 0.172 (limit 0.1, 6 impacts beyond)" in msg
     assert "contact radius/stone radius up to 0.648 (limit 0.3, 22 impacts beyond)" in msg
+    assert "contact time/pad wave period down to 0 (limit 1.6 at 70 kg/m^3, 0 impacts beyond)" in msg
+    older = {k: v for k, v in st.items() if "contact_time" not in k and k != "pad_density"}
+    assert "contact time" not in validity_warning(older)  # a summary.json of an older version: no such keys
+    st.update(impacts_beyond_contact_time_limit=9, min_contact_time_ratio=0.613, limit_contact_time_ratio=1.6,
+              pad_density=70.0)
+    assert "contact time/pad wave period down to 0.613 (limit 1.6 at 70 kg/m^3, 9 impacts beyond)" in validity_warning(st)
     assert "docs/validity.md" in msg and "\n" not in msg
 
 
@@ -232,10 +282,11 @@ def test_cli_storm_warns_once_and_the_summary_carries_the_limits(box_gf, tmp_pat
     s = json.loads((out / "summary.json").read_text())
     for k in ("impacts_beyond_indentation_limit", "impacts_beyond_radius_limit", "impacts_beyond_strain_limit",
               "impacts_beyond_any_limit", "max_indentation_thickness_ratio", "max_contact_radius_ratio",
-              "max_strain_ratio", "min_impact_thickness_m"):
+              "max_strain_ratio", "min_impact_thickness_m", "impacts_beyond_contact_time_limit",
+              "min_contact_time_ratio"):
         assert k in s
-    assert (s["limit_indentation_thickness_ratio"], s["limit_contact_radius_ratio"], s["limit_strain_ratio"]) == (
-        0.1, 0.3, 0.05)
+    assert (s["limit_indentation_thickness_ratio"], s["limit_contact_radius_ratio"], s["limit_strain_ratio"],
+            s["limit_contact_time_ratio"], s["pad_density"]) == (0.1, 0.3, 0.05, 1.6, 70.0)
     warned = [r.getMessage() for r in caplog.records if "validity limits" in r.getMessage()]
     if stones:
         assert s["impacts"] > 0 and s["impacts_beyond_any_limit"] > 0  # 1 MPa foam: every stone is beyond

@@ -17,10 +17,11 @@ from hailstorm.runtime.storm.scene import (
     SeatSettings,
     StormSettings,
     TimeSettings,
+    ValiditySettings,
 )
 
 SECTIONS = {"storm": StormSettings, "hail": HailSettings, "contact": ContactSettings, "time": TimeSettings,
-            "output": OutputSettings}
+            "output": OutputSettings, "validity": ValiditySettings}
 
 
 def _packaged() -> dict:
@@ -73,6 +74,7 @@ def test_scene_round_trips_through_toml_with_its_seat(tmp_path):
         time=TimeSettings(dt=1e-4, integrator="exact", adaptive=False, omega_dt=0.1, approach_fraction=0.2,
                           max_substeps=8, rest_speed=0.02),
         output=OutputSettings(fps=100.0),
+        validity=ValiditySettings(pad_density=200.0),
     )
     for sec in SECTIONS:  # really every section differs from the default
         assert getattr(sc, sec) != getattr(Scene.default(), sec)
@@ -138,3 +140,11 @@ def test_number_fields_hold_floats():
     c = ContactSettings(restitution=1, patch_tolerance=np.int64(1))
     assert type(c.restitution) is float and type(c.patch_tolerance) is float
     assert type(TimeSettings(max_substeps=np.int64(7)).max_substeps) is int  # integers stay integers
+
+
+@pytest.mark.parametrize("value", [0.0, -70.0, float("nan"), "70"])
+def test_pad_density_must_be_a_positive_number(tmp_path, value):
+    """[validity] pad_density (the contact-time limit's foam density) is refused unless a positive number."""
+    with pytest.raises(SceneError, match="pad_density must be"):
+        Scene.from_flat(pad_density=value)
+    assert Scene.from_flat(pad_density=200).validity.pad_density == 200.0
