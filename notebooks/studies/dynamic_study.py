@@ -703,7 +703,7 @@ def main(argv: list[str] | None = None) -> int:
             pads = [default_pad(rho) for rho in LIMIT_DENSITIES]
             print("the same pad at " + " and ".join(f"rho = {p.density:g} kg/m^3 (waves {p.wave_speeds[0]:.0f}, "
                                                      f"{p.wave_speeds[1]:.0f} m/s)" for p in pads)
-                  + f"; t_c/T: Hertz's contact time over 4 h / c_s (the storm's measure, docs/validity.md)")
+                  + "; t_c/T: Hertz's contact time over 4 h / c_s (the storm's measure, docs/validity.md)")
             print(format_time_limit([(p, run_grid(p, radii, speeds, **kw)) for p in pads]))
             return 0
         if args.terminal:
