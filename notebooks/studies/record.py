@@ -7,16 +7,19 @@ load average), then what it printed; :func:`write` puts it in place atomically.
 
 from __future__ import annotations
 
+import io
 import os
 import shlex
 import subprocess
 import sys
 from datetime import datetime, timezone
 from pathlib import Path
+from typing import Any
 
 from hailstorm.runtime.bundle.atomic import write_text_atomic
 
-__all__ = ["command", "commit", "load_average", "min_median_max", "stamp", "write", "write_run"]
+__all__ = ["Tee", "command", "commit", "load_average", "min_median_max", "stamp", "whole_output", "without_out", "write",
+           "write_run"]
 
 #: the repository the measurements describe
 ROOT = Path(__file__).resolve().parents[2]
@@ -79,3 +82,49 @@ def min_median_max(x, fmt: str = ".3f") -> str:
     import numpy as np
 
     return "/".join(format(v, fmt) for v in (min(x), float(np.median(x)), max(x)))
+
+
+class Tee(io.TextIOBase):
+    """Writes to a stream and keeps a copy (``copy``): what a script prints, for its ``--out`` file."""
+
+    def __init__(self, stream) -> None:
+        self.stream, self.copy = stream, io.StringIO()
+
+    def write(self, text: str) -> int:
+        self.stream.write(text)
+        return self.copy.write(text)
+
+    def flush(self) -> None:
+        self.stream.flush()
+
+
+def without_out(argv: list[str]) -> list[str]:
+    """A script's arguments without ``--out FILE`` / ``--out=FILE`` (it does not change what is printed)."""
+    keep, skip = [], False
+    for a in argv:
+        if skip:
+            skip = False
+        elif a == "--out":
+            skip = True
+        elif not a.startswith("--out="):
+            keep.append(a)
+    return keep
+
+
+def whole_output(path: str | os.PathLike, prog: str, argv: list[str], run) -> Any:
+    """Call ``run()``, printing as it goes, and write what it printed to ``path``: the ``$`` line
+    (``prog`` and ``argv`` without ``--out``), :func:`stamp` before the run, the output, and the
+    run's wall time and the load average after it (:func:`write`: a run that fails leaves an
+    earlier file as it was). Returns what ``run`` returns."""
+    import contextlib
+    import time
+
+    header = [f"$ {shlex.join([*shlex.split(prog), *without_out(argv)])}", stamp()]
+    print("\n".join(header), flush=True)
+    tee, t0 = Tee(sys.stdout), time.perf_counter()
+    with contextlib.redirect_stdout(tee):
+        result = run()
+    footer = f"# wall time {time.perf_counter() - t0:.0f} s; load average after: {load_average()}"
+    print(footer)
+    write(path, [*header, tee.copy.getvalue().rstrip("\n"), footer])
+    return result

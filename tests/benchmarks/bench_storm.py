@@ -6,6 +6,8 @@ Usage::
     python tests/benchmarks/bench_storm.py --stones 400 --duration 0.4 --repeat 1
     python tests/benchmarks/bench_storm.py --gf DIR --configs exact,implicit,baseline
     python tests/benchmarks/bench_storm.py --configs exact-point,exact    # patch vs point contact
+    python tests/benchmarks/bench_storm.py --stones 400 --duration 0.4 --repeat 1 --configs exact,baseline \
+        --baseline-duration 0.1 --out docs/_generated/bench_storm.txt  # and into the docs, with a header
 
 Each configuration runs the same storm (same seed) ``--repeat`` times and
 prints RTF (simulated / wall time, video excluded) min / median / max, steps,
@@ -35,6 +37,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 import statistics
 
 import numpy as np
@@ -87,7 +90,8 @@ def seat_drop(gf, integrator: str, adaptive: bool, dt: float, r: float = 0.005, 
     return dict(e=e, pen=st.stats["max_penetration_m"])
 
 
-def main() -> None:
+def main(argv: list[str] | None = None) -> None:
+    argv = sys.argv[1:] if argv is None else list(argv)
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--gf", help="bundle directory (default: the default seat of the scene's [seat], built or reused from the cache)")
     ap.add_argument("--today-gf", help="bundle of the '-today' configurations (default: the default seat with point-load "
@@ -99,7 +103,19 @@ def main() -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--configs", default="exact-point,exact,baseline-point,baseline")
     ap.add_argument("--baseline-duration", type=float, default=0.2)
-    args = ap.parse_args()
+    ap.add_argument("--out", default=None, metavar="FILE",
+                    help="also write the printed output to FILE, after a header (command, UTC date, commit, load)")
+    args = ap.parse_args(argv)
+    if args.out is None:
+        run(args)
+    else:
+        from hailstorm.studies import record
+
+        record.whole_output(args.out, "python tests/benchmarks/bench_storm.py", argv, lambda: run(args))
+
+
+def run(args: argparse.Namespace) -> None:
+    """The configurations of ``args``, one line each, and the notes."""
 
     import hailstorm.runtime
     from hailstorm.runtime.storm.driver import Scene, run_storm

@@ -36,11 +36,7 @@ folder, then ``os.replace``): a run that fails leaves an earlier file as it was.
 from __future__ import annotations
 
 import argparse
-import contextlib
-import io
-import shlex
 import sys
-import time
 
 from hailstorm.studies import record
 
@@ -101,33 +97,6 @@ def impact_spread(stats) -> list[str]:
     return lines
 
 
-class _Tee(io.TextIOBase):
-    """Writes to a stream and keeps a copy."""
-
-    def __init__(self, stream) -> None:
-        self.stream, self.copy = stream, io.StringIO()
-
-    def write(self, text: str) -> int:
-        self.stream.write(text)
-        return self.copy.write(text)
-
-    def flush(self) -> None:
-        self.stream.flush()
-
-
-def command_line(argv: list[str]) -> str:
-    """This script's command line, without ``--out FILE`` (it does not change what is printed)."""
-    keep, skip = [], False
-    for a in argv:
-        if skip:
-            skip = False
-        elif a == "--out":
-            skip = True
-        elif not a.startswith("--out="):
-            keep.append(a)
-    return shlex.join(["python", "tests/benchmarks/dynamic_peer.py", *keep])
-
-
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else list(argv)
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -152,16 +121,7 @@ def main(argv: list[str] | None = None) -> int:
 
     if args.out is None:
         return _run(args)
-    header = [f"$ {command_line(argv)}", record.stamp()]
-    print("\n".join(header), flush=True)
-    tee, t0 = _Tee(sys.stdout), time.perf_counter()
-    with contextlib.redirect_stdout(tee):
-        rc = _run(args)
-    footer = f"# wall time {time.perf_counter() - t0:.0f} s; load average after: {record.load_average()}"
-    print(footer)
-    body = tee.copy.getvalue()
-    record.write(args.out, [*header, body.rstrip("\n"), footer])
-    return rc
+    return record.whole_output(args.out, "python tests/benchmarks/dynamic_peer.py", argv, lambda: _run(args))
 
 
 def _run(args: argparse.Namespace) -> int:
