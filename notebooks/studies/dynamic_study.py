@@ -90,6 +90,7 @@ __all__ = [
     "impact_errors",
     "impact_mesh",
     "largest_error",
+    "limit_speed",
     "main",
     "plot_agreement",
     "StormImpact",
@@ -485,6 +486,15 @@ def time_ratio(row: Row, pad: Pad, ice_density: float = ICE_DENSITY) -> float:
     return float(contact_time_ratio(m, row.radius, row.speed, row.thickness, pad.young, pad.poisson, pad.density))
 
 
+def limit_speed(radius: float, pad: Pad, limit: float = ValidityLimits.contact_time,
+                ice_density: float = ICE_DENSITY) -> float:
+    """The impact speed [m/s] at which a stone of ``radius`` on ``pad`` meets the storm's contact-time
+    limit, ``t_c / T = limit``: slower impacts are within it (Hertz's ``t_c`` goes as ``v^(-1/5)``)."""
+    m = ice_density * 4.0 / 3.0 * math.pi * radius**3
+    at_one = float(contact_time_ratio(m, radius, 1.0, pad.thickness, pad.young, pad.poisson, pad.density))
+    return (at_one / limit) ** 5
+
+
 def largest_error(row: Row) -> tuple[str, float]:
     """The measure the quasi-static model misses most on, and by how much (quasi-static / dynamic - 1)."""
     return max(row.errors().items(), key=lambda kv: abs(kv[1]))
@@ -595,7 +605,8 @@ def plot_agreement(rows: Sequence[Row], path: str, tol: float = AGREE, density: 
     force, contact duration, rebound speed, largest dent) are within ``tol``, red where
     one is not, labelled with the worst measure's error; the terminal fall speed of the
     default scene's hail (:func:`terminal_speed`) is drawn over it, and the radii of its
-    storm (``[hail] r_min``-``r_max``) shaded. Written to ``path`` (PNG, or what its
+    storm (``[hail] r_min``-``r_max``) shaded, and with ``density`` the storm's contact-time limit
+    (:func:`limit_speed`). Written to ``path`` (PNG, or what its
     suffix says); returns ``path``.
     """
     import os
@@ -622,6 +633,12 @@ def plot_agreement(rows: Sequence[Row], path: str, tol: float = AGREE, density: 
     R = np.linspace(min(radii.min(), hail.r_min) * 0.8, max(radii.max(), hail.r_max) * 1.1, 200)
     ax.plot(R * 1e3, [terminal_speed(x) for x in R], color="0.2", lw=1.5, zorder=1,
             label=f"terminal fall speed of the scene's hail (C_d = {hail.cd:g}, air {hail.rho_air:g} kg/m³)")
+    if density is not None:  # the storm's contact-time limit on this pad: within it below the line
+        pad = default_pad(density, thickness=rows[0].thickness)
+        lim = ValidityLimits.contact_time
+        ax.plot(R * 1e3, [limit_speed(x, pad, lim) for x in R], color="#377eb8", lw=1.5, ls="--", zorder=1,
+                label=f"the storm's contact-time limit, t_c/T = {lim:g} (docs/validity.md): impacts below the line are "
+                      "within it")
     for row in rows:
         err = row.errors()
         worst = max(err, key=lambda k: abs(err[k]))

@@ -119,7 +119,7 @@ def test_the_contact_time_limit_separates_the_peers_impacts():
     default pad: a 2.5 mm stone at 30 m/s (t_c / T 0.48) is beyond it and off by more than 5 %, a 12.5 mm
     stone at 2 m/s (4.2) within it and within 3.5 % on all four measures; the table says so."""
     from hailstorm.runtime.storm.limits import ValidityLimits
-    from hailstorm.studies.dynamic_study import format_time_limit, largest_error, time_ratio
+    from hailstorm.studies.dynamic_study import Row, format_time_limit, largest_error, limit_speed, time_ratio
 
     pad = default_pad()
     fast, slow = compare(pad, 0.0025, 30.0), compare(pad, 0.0125, 2.0)
@@ -129,6 +129,12 @@ def test_the_contact_time_limit_separates_the_peers_impacts():
     lines = text.splitlines()
     assert "2.5  30.0 |  0.48" in lines[2] and lines[2].endswith("no") and lines[3].endswith("yes")
     assert "1 of 2 impacts" in text and "the limit separates them" in text
+    for R in (0.0025, 0.0125):  # the chart's line: the speed at which t_c / T is the limit
+        v = limit_speed(R, pad)
+        row = Row(radius=R, speed=v, dynamic=fast.dynamic, quasi_static=fast.quasi_static, hertz=fast.hertz, dofs=0,
+                  thickness=pad.thickness)
+        assert time_ratio(row, pad) == pytest.approx(ValidityLimits.contact_time, rel=1e-12)
+    assert limit_speed(0.0025, pad) < 2.0 < 10.0 < limit_speed(0.0125, pad)  # the grid: 2.5 mm at 2 m/s beyond
 
 
 def test_scalar_corrections_follow_hertz_scalings_and_miss_the_peer():
