@@ -637,8 +637,7 @@ def plot_agreement(rows: Sequence[Row], path: str, tol: float = AGREE, density: 
         pad = default_pad(density, thickness=rows[0].thickness)
         lim = ValidityLimits.contact_time
         ax.plot(R * 1e3, [limit_speed(x, pad, lim) for x in R], color="#377eb8", lw=1.5, ls="--", zorder=1,
-                label=f"the storm's contact-time limit, t_c/T = {lim:g} (docs/validity.md): impacts below the line are "
-                      "within it")
+                label=f"the storm's contact-time limit t_c/T = {lim:g}: within it below")
     for row in rows:
         err = row.errors()
         worst = max(err, key=lambda k: abs(err[k]))
