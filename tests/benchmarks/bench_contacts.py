@@ -128,7 +128,19 @@ def main(argv=None) -> int:
     ap.add_argument("--dtype-only", action="store_true", help="only the float32 against float64 section")
     ap.add_argument("--threads", type=int, default=1,
                     help="BLAS threads (default 1: the dense systems are small; 0 = library default)")
+    ap.add_argument("--out", default=None, metavar="FILE",
+                    help="also write the printed output to FILE, after a header (command, UTC date, commit, load)")
     args = ap.parse_args(argv)
+    if args.out is not None:
+        from hailstorm.studies import record
+
+        return record.whole_output(args.out, "python tests/benchmarks/bench_contacts.py",
+                                   sys.argv[1:] if argv is None else list(argv), lambda: run(args))
+    return run(args)
+
+
+def run(args: argparse.Namespace) -> int:
+    """The sections of ``args``, printed."""
     if args.threads > 0:
         try:
             from threadpoolctl import threadpool_limits
