@@ -79,7 +79,9 @@ Degenerate cases (documented choices)
   the minimum-norm forces that best realise the prescription: coincident
   contacts share the force equally and stay finite even when they prescribe
   conflicting displacements (least-squares compromise). No Tikhonov shift is
-  applied to well-conditioned systems, so the regular case is exact.
+  applied to well-conditioned systems, so the regular case is exact. (``W`` is the
+  symmetric part of ``G^T D G``: ``G^T D G`` itself on a point-load bundle, whose D
+  is symmetric; a hat-load D is not, docs/verification.md, "reciprocity".)
 """
 
 from hailstorm.runtime.contact.contact_capacitance import ActiveSet, Capacitance, capacitance

@@ -10,9 +10,11 @@ Usage::
 For s in {1, 10, 100} random contacts on contactable triangles it times
 ``hailstorm.runtime.solve_contacts`` with full-surface deformation (min / median / max
 over repeats),
-one direct FEM saddle-point solve with the same constraints
-(scipy sparse direct, clamp eliminated, the stiffness assembled beforehand and
-not timed), and a Sherman-Morrison-Woodbury ``Capacitance.add`` against a fresh
+one direct FEM saddle-point solve with the same constraints and loads (hat loads
+on a hat-load bundle; scipy sparse direct, clamp eliminated, the stiffness
+assembled beforehand and not timed; ``err``: the largest force difference over
+the largest force, which on a hat-load bundle is what the contact solves'
+symmetric part of ``W`` changes, docs/verification.md, "reciprocity"), and a Sherman-Morrison-Woodbury ``Capacitance.add`` against a fresh
 ``capacitance`` build. Targets: s = 100 solve + full-surface deformation
 <= 1 ms median; s = 10 >= 1e4 x faster than the direct FEM solve.
 
@@ -90,18 +92,35 @@ def direct_fem_setup(gf):
     K = fem.stiffness_matrix(basis, gf.young, gf.poisson)
     clamp = fem.clamp_dofs(basis, mesh)
     free = fem.free_dofs(K.shape[0], clamp)
-    return dict(basis=basis, Kff=K[free][:, free].tocsr(), free=free, ndof=K.shape[0], fem=fem)
+    hat = None
+    if gf.manifest["options"].get("load") == "hat":  # the bundle's columns answer hat loads: so do the FEM's forces
+        from hailstorm.precompute.greens import hat_load_matrix
+
+        cv = gf.contact_vertices
+        hat = hat_load_matrix(basis, gf.surface_nodes[cv], gf.areas[cv]).tocsc()
+    return dict(basis=basis, Kff=K[free][:, free].tocsr(), free=free, ndof=K.shape[0], fem=fem, hat=hat)
 
 
 def saddle_matrix(gf, ref, tri, bary):
-    """The FEM saddle-point matrix [[K, C^T], [C, 0]] of sticky contacts (CSC)."""
+    """The FEM saddle-point matrix [[K, L], [C, 0]] of sticky contacts (CSC): ``C`` the contact points'
+    displacement (the vertices' nodal values, weighted by ``bary``), ``L`` where their forces act: ``C^T``
+    (unit forces at the vertices) on a point-load bundle, the same weights of the vertices' consistent hat
+    loads (:func:`hailstorm.precompute.greens.hat_load_matrix`) on a hat-load bundle, as its columns."""
     fem, basis = ref["fem"], ref["basis"]
     s = len(tri)
-    dofs = fem.vertex_dofs(basis, gf.surface_nodes[gf.triangles[tri]].ravel()).reshape(s, 3, 3)
+    verts = gf.triangles[tri]
+    dofs = fem.vertex_dofs(basis, gf.surface_nodes[verts].ravel()).reshape(s, 3, 3)
     rows = np.repeat(np.arange(3 * s).reshape(s, 1, 3), 3, axis=1)  # (k, a, d) -> row 3k + d
     vals = np.repeat(bary[:, :, None], 3, axis=2)
     C = sp.csr_matrix((vals.ravel(), (rows.ravel(), dofs.ravel())), shape=(3 * s, ref["ndof"]))[:, ref["free"]]
-    return sp.bmat([[ref["Kff"], C.T], [C, None]], format="csc")
+    if ref["hat"] is None:
+        return sp.bmat([[ref["Kff"], C.T], [C, None]], format="csc")
+    # column 3i + d: sum over the triangle's corners a of bary[i, a] times the hat load (vertex a, direction d)
+    hcols = (3 * gf.column_of[verts][:, :, None] + np.arange(3)).transpose(0, 2, 1)  # (s, d, a)
+    W = sp.csc_matrix((np.repeat(bary[:, None, :], 3, axis=1).ravel(), (hcols.ravel(), np.repeat(np.arange(3 * s), 3))),
+                      shape=(ref["hat"].shape[1], 3 * s))
+    L = (ref["hat"] @ W)[ref["free"]]
+    return sp.bmat([[ref["Kff"], L], [C, None]], format="csc")
 
 
 def direct_fem_solve(gf, ref, tri, bary, ubar):
