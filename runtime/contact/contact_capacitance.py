@@ -831,6 +831,12 @@ class Capacitance:
         c = _constraint_rows(DGn, loc_old, self.weights, self.normals, self.mode)  # (m_old, p)
         d = _constraint_rows(DGn, loc_new, pw, n, self.mode)
         d = 0.5 * (d + d.T)
+        # W is symmetrised (contact_compliance): its new column is the mean of G_old^T D G_new and
+        # (G_new^T D G_old)^T, which differ where D is not symmetric (a hat-load bundle)
+        GnD = np.einsum("byr,b->ry", D_VV[dof3(loc_new[0]), :].reshape(-1, 3, D_VV.shape[1]), pw[0])  # D_VV^T G_new
+        if self.mode != "sticky":
+            GnD = GnD @ n[0][:, None]
+        c = 0.5 * (c + _constraint_rows(np.ascontiguousarray(GnD), loc_old, self.weights, self.normals, self.mode))
         if not rigid_new:
             d = d + L_new[0]
         mo = p * old_s
