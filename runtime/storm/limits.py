@@ -75,9 +75,9 @@ from hailstorm.runtime.contact.weights import hertz_radius
 
 __all__ = [
     "ImpactLimits",
+    "PAD_DENSITY",
     "PadThickness",
     "RayCaster",
-    "PAD_DENSITY",
     "ValidityLimits",
     "VALIDITY_KEYS",
     "boundary_faces",
@@ -94,6 +94,7 @@ __all__ = [
 #: the default pad foam's density [kg/m^3]: flexible polyurethane foams span about 20-100
 #: (Gibson & Ashby, *Cellular Solids*, 2nd ed. 1997); the scene's ``[validity] pad_density``
 PAD_DENSITY = 70.0
+
 
 @dataclass(frozen=True)
 class ValidityLimits:

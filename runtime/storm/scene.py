@@ -28,11 +28,11 @@ from typing import Any, ClassVar, Mapping
 import numpy as np
 
 from hailstorm.runtime.bundle.atomic import write_text_atomic
-from hailstorm.runtime.storm.limits import PAD_DENSITY
 from hailstorm.runtime.contact.near_field import NEAR_FIELDS
 from hailstorm.runtime.contact.validate import Mode
 from hailstorm.runtime.resources import available_memory
 from hailstorm.runtime.storm.hail import GRAVITY, Integrator, SizeDistribution, terminal_velocity
+from hailstorm.runtime.storm.limits import PAD_DENSITY
 
 __all__ = ["ContactSettings", "HailSettings", "OutputSettings", "Scene", "SceneError", "SeatSettings", "StormEstimate",
            "StormSettings", "StormTooLarge", "TimeSettings", "ValiditySettings"]
