@@ -7,11 +7,13 @@ load average), then what it printed; :func:`write` puts it in place atomically.
 
 from __future__ import annotations
 
+import contextlib
 import io
 import os
 import shlex
 import subprocess
 import sys
+import time
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -116,9 +118,6 @@ def whole_output(path: str | os.PathLike, prog: str, argv: list[str], run) -> An
     (``prog`` and ``argv`` without ``--out``), :func:`stamp` before the run, the output, and the
     run's wall time and the load average after it (:func:`write`: a run that fails leaves an
     earlier file as it was). Returns what ``run`` returns."""
-    import contextlib
-    import time
-
     header = [f"$ {shlex.join([*shlex.split(prog), *without_out(argv)])}", stamp()]
     print("\n".join(header), flush=True)
     tee, t0 = Tee(sys.stdout), time.perf_counter()

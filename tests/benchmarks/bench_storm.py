@@ -37,8 +37,8 @@ from __future__ import annotations
 
 import argparse
 import os
-import sys
 import statistics
+import sys
 
 import numpy as np
 
