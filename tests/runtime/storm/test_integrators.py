@@ -13,7 +13,6 @@ with stiffness ``k = K[0, 0]`` and mass ``m`` is the oscillator ``m q'' = -k (q 
 
 from __future__ import annotations
 
-
 import numpy as np
 import pytest
 from helpers import plate_gf
