@@ -11,7 +11,7 @@ contact work in compiled kernels (:mod:`hailstorm.runtime.compiled`).
 * :func:`press_spheres` -> :class:`SphereContacts` (rigid spheres, Hertz-consistent patches);
   :func:`hertz_impact` -> :class:`HertzImpact` (Hertz's quasi-static impact, the reference);
 * :class:`Scene` (its sections :class:`StormSettings`, :class:`HailSettings`,
-  :class:`ContactSettings`, :class:`TimeSettings`, :class:`OutputSettings`; the default seat's
+  :class:`ContactSettings`, :class:`TimeSettings`, :class:`OutputSettings`, :class:`ValiditySettings`; the default seat's
   precompute settings :class:`SeatSettings`), :func:`run_storm` -> :class:`StormResult` (the hail storm);
   :class:`Storm`, the storm driver stepped by hand (studies, tests).
 """
@@ -36,6 +36,7 @@ from hailstorm.runtime.storm.scene import (
     SeatSettings,
     StormSettings,
     TimeSettings,
+    ValiditySettings,
 )
 from hailstorm.runtime.storm.driver import Storm, StormResult, run_storm
 
@@ -56,6 +57,7 @@ __all__ = [
     "StormResult",
     "StormSettings",
     "TimeSettings",
+    "ValiditySettings",
     "barycentric_matrix",
     "capacitance",
     "hertz_force",
