@@ -77,6 +77,7 @@ from hailstorm.studies.axisymmetric import (
 
 __all__ = [
     "ICE_DENSITY",
+    "LIMIT_DENSITIES",
     "ImpactResult",
     "PeerResolutionError",
     "Row",
@@ -479,20 +480,23 @@ def format_table(rows: Sequence[Row], tol: float = AGREE) -> str:
     return "\n".join(lines)
 
 
+def _ice_time_ratio(radius: float, speed: float, thickness: float, pad: Pad, ice_density: float) -> float:
+    """``t_c / T`` of an ice sphere (:func:`hailstorm.runtime.storm.limits.contact_time_ratio`)."""
+    m = ice_density * 4.0 / 3.0 * math.pi * radius**3
+    return float(contact_time_ratio(m, radius, speed, thickness, pad.young, pad.poisson, pad.density))
+
+
 def time_ratio(row: Row, pad: Pad, ice_density: float = ICE_DENSITY) -> float:
     """The storm's contact-time measure of the row's impact, ``t_c / T``
-    (:func:`hailstorm.runtime.storm.limits.contact_time_ratio` at the pad's thickness)."""
-    m = ice_density * 4.0 / 3.0 * math.pi * row.radius**3
-    return float(contact_time_ratio(m, row.radius, row.speed, row.thickness, pad.young, pad.poisson, pad.density))
+    (:func:`hailstorm.runtime.storm.limits.contact_time_ratio` at the row's pad thickness)."""
+    return _ice_time_ratio(row.radius, row.speed, row.thickness, pad, ice_density)
 
 
 def limit_speed(radius: float, pad: Pad, limit: float = ValidityLimits.contact_time,
                 ice_density: float = ICE_DENSITY) -> float:
     """The impact speed [m/s] at which a stone of ``radius`` on ``pad`` meets the storm's contact-time
     limit, ``t_c / T = limit``: slower impacts are within it (Hertz's ``t_c`` goes as ``v^(-1/5)``)."""
-    m = ice_density * 4.0 / 3.0 * math.pi * radius**3
-    at_one = float(contact_time_ratio(m, radius, 1.0, pad.thickness, pad.young, pad.poisson, pad.density))
-    return (at_one / limit) ** 5
+    return (_ice_time_ratio(radius, 1.0, pad.thickness, pad, ice_density) / limit) ** 5
 
 
 def largest_error(row: Row) -> tuple[str, float]:

@@ -73,6 +73,7 @@ def impact_spread(stats) -> list[str]:
     import numpy as np
 
     from hailstorm.runtime.storm.limits import contact_time_ratio, peak_strain
+    from hailstorm.studies.dynamic_study import LIMIT_DENSITIES
 
     rec = stats.validity
     if rec is None or rec.n == 0:
@@ -89,7 +90,7 @@ def impact_spread(stats) -> list[str]:
     lines.append(f"  the strain is Hertz's term ((2/pi)(1-2nu)/(1-nu) a/R) in {int((hertz >= dh).sum())} of "
                  f"{rec.n} impacts, the layer's (delta/h) in the others")
     limit = rec.limits.contact_time
-    for rho in (70.0, 200.0):
+    for rho in LIMIT_DENSITIES:
         t = contact_time_ratio(rec.mass, rec.radius, rec.speed, rec.thickness, rec.young, rec.poisson, rho)
         ok = np.array(rec.radius)[t >= limit]
         lines.append(f"  with the pad at {rho:g} kg/m^3: {int((t < limit).sum())} of {rec.n} impacts below t_c/T "
