@@ -84,6 +84,20 @@ def _block_sites(gf: Any) -> dict[str, tuple[int, np.ndarray]]:
     return {s: (tc, _BARY[s]) for s in SITES}
 
 
+#: the near-field models the tables compare: the model, the model without D's hat-scale defect
+#: (:mod:`hailstorm.runtime.contact.hat_defect`), the discrete model
+MODELS = ("halfspace", "nodefect", "none")
+
+
+def model(name: str, gf: Any) -> Any:
+    """The ``near_field`` argument of :data:`MODELS` entry ``name`` on bundle ``gf``."""
+    from hailstorm.runtime.contact.near_field import NearField
+
+    if name == "nodefect":
+        return NearField("halfspace", float(gf.young), float(gf.poisson), defect=False)
+    return name
+
+
 def block_disc(young: float, poisson: float):
     """The axisymmetric stand-in of :func:`block_bundle`'s block: a disc of the block's top area
     (radius ``2 w / sqrt(pi)``, ``w`` the half width) and depth, clamped underneath, side free.
@@ -120,9 +134,9 @@ def block_table(gf: Any, radii: Sequence[float] = (0.5e-3, 1e-3, 2e-3, 4e-3, 8e-
             F_block = press_disc(disc, R, d, profile="paraboloid").force
             row["block"] = F_block / F - 1.0
             row["block_sphere"] = press_disc(disc, R, d).force / F - 1.0
-        for nf in ("halfspace", "none"):
+        for nf in MODELS:
             for site, (t, b) in _block_sites(gf).items():
-                res = press_spheres(gf, [t], [b], [d], R, rows=None, near_field=nf)
+                res = press_spheres(gf, [t], [b], [d], R, rows=None, near_field=model(nf, gf))
                 row[f"{nf}:{site}"] = float(res.normal_force[0] / F - 1.0)
                 if F_block is not None:
                     row[f"{nf}:{site}:block"] = float(res.normal_force[0] / F_block - 1.0)
@@ -209,7 +223,7 @@ def seat_table(gf: Any, ref: Any, near_field: str = "halfspace") -> list[dict[st
                 for body in (gf, ref):
                     t, b = locate(body, p)
                     forces.append(press_spheres(body, [t], [b], [st.depth], st.radius, rows=None,
-                                                near_field=near_field).normal_force[0])
+                                                near_field=model(near_field, body)).normal_force[0])
                 row[site] = float(forces[0] / forces[1] - 1.0)
                 row[f"{site}_N"] = float(forces[1])
             rows.append(row)
@@ -307,7 +321,7 @@ def main(argv: list[str] | None = None) -> None:
                     "paraboloid force, - 1 [%]", "")
             rows = block_table(gf, a_over_R=a_over_R)
             keys = (["a_mm", "R_mm", "block", "block_sphere"]
-                    + [f"{nf}:{s}" for nf in ("halfspace", "none") for s in SITES]
+                    + [f"{nf}:{s}" for nf in MODELS for s in SITES]
                     + [f"halfspace:{s}:block" for s in SITES])
             for r in rows:
                 for k in keys[2:]:
@@ -328,7 +342,7 @@ def main(argv: list[str] | None = None) -> None:
                                                                    "patch_mm": ".2f"}))
     if not args.skip_seat:
         gf, ref = seat_bundle(args.mesh_size, progress=True), seat_bundle(args.reference_size, progress=True)
-        for nf in ("halfspace", "none"):
+        for nf in MODELS:
             say("", f"## Default seat ({args.mesh_size * 1e3:g} mm) against {args.reference_size * 1e3:g} mm, "
                     f"near_field={nf!r}: force at Hertz's depth, relative difference [%]", "")
             rows = seat_table(gf, ref, nf)

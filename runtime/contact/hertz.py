@@ -42,8 +42,8 @@ from hailstorm.runtime.contact.weights import (
     hertz_mean_offset,
     hertz_radius,
     patch_weights,
+    smooth_normals,
     sphere_mean_offset,
-    triangle_normals,
 )
 
 __all__ = ["HertzImpact", "SphereContacts", "hertz_force", "hertz_impact", "press_spheres"]
@@ -189,7 +189,10 @@ def press_spheres(
     sphere_radii : float or (s,) float array_like
         Sphere radii ``R`` [m] (> 0).
     normals : (s, 3) float array_like, optional
-        Outward normals (default: the triangles').
+        Outward normals along which each sphere presses (default: the surface's smooth normal at
+        the point, :func:`hailstorm.runtime.contact.weights.smooth_normals`; a triangle's own
+        normal jumps between facets, and a sphere on a vertex of the 6 mm seat pressed along
+        one facet's normal, 11 degrees off, came out 7.5 % softer than on a 3 mm seat).
     rows : "all", None or (r,) int array_like
         Where to evaluate the surface displacement (see :func:`hailstorm.runtime.solve_contacts`).
     tol : float
@@ -231,7 +234,10 @@ def press_spheres(
     if normals is None:
         if t.size and (t.min() < 0 or t.max() >= len(gf.triangles)):
             raise IndexError("triangle index out of range")
-        n = triangle_normals(np.asarray(gf.vertices), np.asarray(gf.triangles)[t])
+        bary = np.asarray(barycentric, dtype=np.float64)
+        if bary.shape != (s, 3):
+            raise ValueError(f"barycentric must have shape ({s}, 3), got {bary.shape}")
+        n = smooth_normals(np.asarray(gf.vertices), np.asarray(gf.triangles), t, barycentric)
     else:
         n = np.asarray(normals, dtype=np.float64).reshape(s, 3)
     E, nu = float(gf.young), float(gf.poisson)

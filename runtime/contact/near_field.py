@@ -10,7 +10,7 @@ the triangle the contact sits.
 
 The resolved model keeps what the mesh knows and replaces what it cannot::
 
-    W_kk = w^T D w  -  w^T H w  +  c(a)
+    W_kk = w^T D w  -  w^T H w  +  c(a)  +  e(w)
 
 * ``w^T D w``: the patch's compliance from the precomputed D (the body: the
   pad, its clamp, the shell, curvature, other materials);
@@ -21,7 +21,10 @@ The resolved model keeps what the mesh knows and replaces what it cannot::
   represents it*;
 * ``c(a)``: the kernel's compliance of the contact's own Hertz disc
   (:func:`halfspace_patch_compliance`), resolved at its own scale whatever
-  the mesh.
+  the mesh;
+* ``e(w)``: D's own error at the scale of one hat load, measured on the
+  bundle (:mod:`hailstorm.runtime.contact.hat_defect`; ``NearField(defect=False)``
+  leaves it out).
 
 ``D - H`` is the body's response minus the half-space's: smooth at the
 contact (for a body thicker than the contact and a kernel of its material),
@@ -31,14 +34,14 @@ scale. The subtraction needs D's columns to answer hat loads (``load =
 a point-load column's near field is the mesh's singular point response,
 which no kernel reproduces.
 
-Measured (``python -m hailstorm.studies.resolution_study``): rigid spheres of
-Hertz radius 0.5-8 mm pressed into a thick block of the pad's foam with the
-default seat's settings (6 mm, P2, hat loads) carry Hertz's force to
-+0.3..+2.3 % on a vertex, an edge and a centroid alike (the discrete model:
-+33..+1400 %, by site); on the default seat the force at a given depth is
-within 3.6 % of a 3 mm seat's for stones of 2.5-12.5 mm at rest and at the
-peak of an impact at terminal speed (one case, a 12.5 mm stone 10.6 mm deep
-into the pad at the rear, -7.5 %), against up to +155 % without it.
+Measured (``python -m hailstorm.studies.resolution_study``, tables in
+``docs/_generated/resolution_*.txt``): rigid spheres of Hertz radius 0.5-8 mm
+pressed into a thick block of the pad's foam with the default seat's settings
+(6 mm, P2, hat loads) carry Hertz's force on a vertex, an edge and a centroid
+alike (the discrete model: +33..+1400 %, by site), and on the default seat the
+force at a given depth is close to a 3 mm seat's for stones of 2.5-12.5 mm at
+rest and at the peak of an impact at terminal speed, against up to +155 %
+without it (``docs/choosing-settings.md`` quotes the figures).
 
 The correction is a per-contact block on the diagonal of the contact
 compliance ``W`` (in the contact's constrained components): the capacitance,
@@ -58,6 +61,7 @@ from typing import Any
 import numpy as np
 
 from hailstorm.runtime.compiled.near_field import hat_compliance
+from hailstorm.runtime.contact.hat_defect import hat_defect, patch_defect
 
 __all__ = [
     "NEAR_FIELDS",
@@ -116,11 +120,16 @@ class NearField:
         The near-field kernel.
     young, poisson : float
         The material of the kernel (the bundle's under the contactable surface).
+    defect : bool
+        Add D's own error at the scale of one hat load to each patch
+        (:mod:`hailstorm.runtime.contact.hat_defect`; default True, False for the studies
+        that measure what it brings).
     """
 
     kernel: str
     young: float
     poisson: float
+    defect: bool = True
 
     def compliance(self, radius: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The kernel's normal and tangential self-compliance of a Hertz disc of ``radius`` [m/N]."""
@@ -138,9 +147,17 @@ class NearField:
         k_n = (1.0 - self.poisson**2) / (np.pi * self.young)
         return k_n * whw, k_n * whw * (2.0 - self.poisson) / (2.0 * (1.0 - self.poisson))
 
+    def mesh_defect(self, gf: Any, verts: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """D's own normal and tangential error at its hat scale for each patch, ``e(w)`` [m/N], (s,) each
+        (:func:`hailstorm.runtime.contact.hat_defect.patch_defect`; zeros without :attr:`defect`)."""
+        if not self.defect:
+            s = np.asarray(verts).shape[0]
+            return np.zeros(s), np.zeros(s)
+        return patch_defect(hat_defect(gf, self.young, self.poisson, kernel_surface(gf)), verts, weights)
+
     def blocks(self, gf: Any, radius: np.ndarray, verts: np.ndarray, weights: np.ndarray, centres: np.ndarray,
                normals: np.ndarray, sticky: bool) -> np.ndarray:
-        """Per-contact correction ``c(a) - w^T H w`` in the constrained components, (s, p, p).
+        """Per-contact correction ``c(a) - w^T H w + e(w)`` in the constrained components, (s, p, p).
 
         ``p = 3`` (sticky: ``dn n n^T + dt (I - n n^T)``) or 1 (frictionless:
         ``dn``); zero for point contacts (``a = 0``).
@@ -153,7 +170,8 @@ class NearField:
             cn, ct = self.compliance(a[on])
             mn, mt = self.mesh_compliance(gf, np.asarray(verts)[on], np.asarray(weights)[on],
                                           np.asarray(centres)[on], np.asarray(normals)[on])
-            dn[on], dt[on] = cn - mn, ct - mt
+            en, et = self.mesh_defect(gf, np.asarray(verts)[on], np.asarray(weights)[on])
+            dn[on], dt[on] = cn - mn + en, ct - mt + et
         if not sticky:
             return dn.reshape(s, 1, 1)
         n = np.asarray(normals, dtype=np.float64).reshape(s, 3)

@@ -53,6 +53,7 @@ import numpy as np
 from hailstorm.runtime.compiled import SampleGrid
 from hailstorm.runtime.compiled.patches import disc_patch as one_patch_kernel
 from hailstorm.runtime.bundle.compliance import ComplianceSource, unique_inverse
+from hailstorm.runtime.bundle.read import vertex_normals
 
 __all__ = [
     "PATCH_DROP",
@@ -72,6 +73,7 @@ __all__ = [
     "pad",
     "patch_matrix",
     "patch_weights",
+    "smooth_normals",
     "sphere_mean_offset",
     "triangle_index",
     "triangle_normals",
@@ -90,6 +92,41 @@ PATCH_DROP: float = 1e-12
 # --------------------------------------------------------------------------
 # small helpers
 # --------------------------------------------------------------------------
+def smooth_normals(vertices: np.ndarray, triangles: np.ndarray, tris: np.ndarray, barycentric: np.ndarray) -> np.ndarray:
+    """The surface's smooth outward unit normal at points on it: the vertex normals (area-weighted,
+    :func:`hailstorm.runtime.bundle.read.vertex_normals`) interpolated by the barycentric coordinates.
+
+    Unlike a triangle's own normal it does not jump from one facet to the next, so a
+    contact pressed along it sees the smooth surface the mesh approximates, wherever on the mesh
+    it lands.
+
+    Parameters
+    ----------
+    vertices : (n, 3) float ndarray
+    triangles : (m, 3) int ndarray
+        The oriented surface triangles.
+    tris : (k,) int ndarray
+        The triangle each point lies on.
+    barycentric : (k, 3) float ndarray
+        Its barycentric coordinates there.
+
+    Returns
+    -------
+    (k, 3) float ndarray
+        Unit normals (the triangle's own where the interpolated one vanishes).
+    """
+    T = np.asarray(triangles)
+    t = np.asarray(tris, dtype=np.intp).reshape(-1)
+    N = vertex_normals(np.asarray(vertices, dtype=np.float64), T)
+    n = np.einsum("kc,kcd->kd", np.asarray(barycentric, dtype=np.float64).reshape(-1, 3), N[T[t]])
+    ln = np.linalg.norm(n, axis=1, keepdims=True)
+    flat = ln[:, 0] <= 1e-12
+    if flat.any():
+        n[flat] = triangle_normals(vertices, T[t[flat]])
+        ln[flat] = 1.0
+    return n / ln
+
+
 def triangle_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """Outward unit normals of oriented (counter-clockwise from outside) triangles.
 

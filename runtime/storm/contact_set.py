@@ -176,3 +176,4 @@ class ContactSets:
         from_weights(self.gf, t1, third, self.normals[t1], self.contact.mode, verts, third).K
         if self.near is not None:
             self.near.mesh_compliance(self.gf, verts, third, third @ self.X[verts[0]], self.normals[t1])
+            self.near.mesh_defect(self.gf, verts, third)  # measures the bundle's hat-scale defect once

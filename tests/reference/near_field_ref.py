@@ -109,3 +109,81 @@ def hat_halfspace_block_ref(vertices: np.ndarray, triangles: np.ndarray, areas: 
         m = hit[:, c]
         np.add.at(H.T, col[m, c], I[:, m, c].T)
     return H / np.asarray(areas, dtype=np.float64)[v][None, :]
+
+
+def hat_defect_ref(gf, young: float, poisson: float, reach: float = 2.2, min_neighbours: int = 6):
+    """The plain statement of :func:`hailstorm.runtime.contact.hat_defect.hat_defect`: per contactable
+    vertex, loops over its neighbours (every vertex tested by distance), D's 3 x 3 blocks one pair at
+    a time, ``H`` from :func:`hat_halfspace_block_ref`, and ``numpy.linalg.lstsq`` for the fit.
+
+    Returns the normal and tangential defects, (n,) each."""
+    X = np.asarray(gf.vertices, dtype=np.float64)
+    T = np.asarray(gf.triangles)
+    n = X.shape[0]
+    ptr = np.zeros(n + 1, dtype=np.int64)
+    owner = [[] for _ in range(n)]
+    for k, t in enumerate(T):
+        for v in t:
+            owner[v].append(k)
+    ptr[1:] = np.cumsum([len(o) for o in owner])
+    fan = (ptr, np.array([k for o in owner for k in o], dtype=np.int64))
+    edges = {tuple(sorted((int(t[a]), int(t[b])))) for t in T for a, b in ((0, 1), (1, 2), (2, 0))}
+    lengths = [[] for _ in range(n)]
+    for i, j in edges:
+        L = float(np.linalg.norm(X[i] - X[j]))
+        lengths[i].append(L)
+        lengths[j].append(L)
+    # area-weighted vertex normals
+    N = np.zeros((n, 3))
+    for t in T:
+        N[t] += np.cross(X[t[1]] - X[t[0]], X[t[2]] - X[t[0]])
+    N /= np.maximum(np.linalg.norm(N, axis=1, keepdims=True), 1e-300)
+    k_n = (1.0 - poisson**2) / (np.pi * young)
+    k_t = k_n * (2.0 - poisson) / (2.0 * (1.0 - poisson))
+    soft = np.flatnonzero(gf.contactable)
+    normal, tangential = np.zeros(n), np.zeros(n)
+
+    def parts(B, nv):
+        bn = nv @ B @ nv
+        return bn, 0.5 * (np.trace(B) - bn)
+
+    for i in soft:
+        nv = N[i]
+        js = [j for j in soft if j != i and np.linalg.norm(X[j] - X[i]) <= reach * np.mean(lengths[i])]
+        if len(js) < min_neighbours:
+            continue
+        dn_ii, dt_ii = parts(gf.compliance([i], [i]), nv)
+        h_ii = hat_halfspace_block_ref(X, T, gf.areas, fan, np.array([i]), X[i], nv)[0, 0]
+        rows = []
+        for j in js:
+            B = 0.5 * (gf.compliance([i], [j]) + gf.compliance([j], [i]).T)
+            v = np.array(sorted((i, j)))
+            H = hat_halfspace_block_ref(X, T, gf.areas, fan, v, X[i], nv)
+            h_ij = 0.5 * (H[0, 1] + H[1, 0])
+            dn, dt = parts(B, nv)
+            rows.append((float(np.sum((X[j] - X[i]) ** 2)), dn - k_n * h_ij, dt - k_t * h_ij))
+        r2, gn, gt = map(np.array, zip(*rows))
+        A = np.column_stack([np.ones_like(r2), r2])
+        normal[i] = np.linalg.lstsq(A, gn, rcond=None)[0][0] - (dn_ii - k_n * h_ii)
+        tangential[i] = np.linalg.lstsq(A, gt, rcond=None)[0][0] - (dt_ii - k_t * h_ii)
+    return normal, tangential
+
+
+def patch_defect_ref(normal: np.ndarray, tangential: np.ndarray, triangles: np.ndarray, verts: np.ndarray,
+                     weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The plain statement of :func:`hailstorm.runtime.contact.hat_defect.patch_defect`: per patch,
+    ``sum_i Delta_i w_i (w_i - wbar_i)``, ``wbar_i`` the mean of the patch's weights over the edge
+    neighbours of ``i`` (a vertex outside the patch weighs 0)."""
+    nbrs: dict[int, set[int]] = {}
+    for t in np.asarray(triangles):
+        for a, b in ((0, 1), (1, 2), (2, 0)):
+            nbrs.setdefault(int(t[a]), set()).add(int(t[b]))
+            nbrs.setdefault(int(t[b]), set()).add(int(t[a]))
+    en, et = np.zeros(len(verts)), np.zeros(len(verts))
+    for k, (vk, wk) in enumerate(zip(verts, weights)):
+        w = {int(v): float(x) for v, x in zip(vk, wk) if x > 0}
+        for i, wi in w.items():
+            wbar = sum(w.get(j, 0.0) for j in nbrs[i]) / len(nbrs[i])
+            en[k] += normal[i] * wi * (wi - wbar)
+            et[k] += tangential[i] * wi * (wi - wbar)
+    return en, et

@@ -178,25 +178,30 @@ def _sites(gf):
 
 
 def test_press_spheres_below_the_mesh_is_hertz_wherever_it_lands(hat_block):
-    """Rigid spheres with Hertz radii 0.4-3 mm on 4 mm elements: with the near field within 5 % of
-    Hertz on a vertex, an edge and a centroid, the three within 4 % of each other; the discrete
-    model of the same patches is off by more than 50 % (so the test can fail). Tolerances: the
-    block's own finite-element stiffness under a resolved patch is ~3 % (W / w^T H w = 0.97 on the
-    6 mm block), and on a vertex D's hat column is under-resolved at its own peak (the vertex site
-    is the stiffest, by up to ~3 % on this coarser, faster block; 2.3 % on the 6 mm one)."""
+    """Rigid spheres with Hertz radii 0.4-3 mm on 4 mm elements: with the near field within 2.5 % of
+    Hertz on a vertex, an edge and a centroid, the three within 1 % of each other (measured: 1.8 %
+    and 0.6 %). Without D's hat-scale defect (:mod:`hailstorm.runtime.contact.hat_defect`) the
+    vertex is the stiffest site, by more than 1.5 % at 1 mm (measured 3.2 %); the discrete model of
+    the same patches is off by more than 50 % (so the test can fail). The 2.5 %: the block's own
+    finite-element stiffness under a resolved patch (W / w^T H w = 0.97 on the 6 mm block)."""
     sites = _sites(hat_block)
+    without = NearField("halfspace", E, NU, defect=False)
     for a in (0.4e-3, 1e-3, 3e-3):
         R = a / 0.2
         delta = a * a / R
         F_hertz = hertz_force(delta, R, E, NU)
-        near, plain = [], []
+        near, bare, plain = [], [], []
         for t, b in sites.values():
             near.append(press_spheres(hat_block, [t], [b], [delta], R, rows=None).normal_force[0] / F_hertz)
+            bare.append(press_spheres(hat_block, [t], [b], [delta], R, rows=None,
+                                      near_field=without).normal_force[0] / F_hertz)
             plain.append(press_spheres(hat_block, [t], [b], [delta], R, rows=None,
                                        near_field="none").normal_force[0] / F_hertz)
-        near, plain = np.array(near), np.array(plain)
-        assert np.all(np.abs(near - 1) < 0.05), (a, near)
-        assert near.max() - near.min() < 0.04, (a, near)
+        near, bare, plain = np.array(near), np.array(bare), np.array(plain)
+        assert np.all(np.abs(near - 1) < 0.025), (a, near)
+        assert near.max() - near.min() < 0.01, (a, near)
+        if a == 1e-3:
+            assert bare[0] - bare[1:].max() > 0.015, bare  # sites: vertex, edge, centroid
         if a < 2e-3:
             assert np.all(plain > 1.5), (a, plain)
 
