@@ -62,12 +62,17 @@ class HatDefect:
         ``Delta_i`` per surface vertex [m/N] (0 off the contactable surface).
     neighbours : (ptr, nbr) int64 ndarrays
         The surface's edge neighbours (CSR: ``nbr[ptr[v]:ptr[v + 1]]``, sorted).
+    edges : (2 e,) int64 ndarray
+        The same as sorted keys ``v * n + u`` (both directions), for lookups in bulk.
     """
 
     def __init__(self, normal: np.ndarray, tangential: np.ndarray, neighbours: tuple[np.ndarray, np.ndarray]):
         self.normal = normal
         self.tangential = tangential
         self.neighbours = neighbours
+        ptr, nbr = neighbours
+        self.edges = np.repeat(np.arange(ptr.size - 1, dtype=np.int64), np.diff(ptr)) * (ptr.size - 1) + nbr
+        self.degree = np.diff(ptr)
 
 
 def vertex_neighbours(triangles: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
@@ -200,26 +205,13 @@ def patch_defect(defect: HatDefect, verts: np.ndarray, weights: np.ndarray) -> t
     w = np.where(np.asarray(weights, dtype=np.float64) > 0.0, weights, 0.0)
     if v.size == 0:
         return np.zeros(v.shape[0]), np.zeros(v.shape[0])
-    ptr, nbr = defect.neighbours
     vv = np.where(w > 0.0, v, 0)
-    # adjacent[k, p, q]: verts[k, q] is an edge neighbour of verts[k, p]
-    lo, hi = ptr[vv], ptr[vv + 1]
-    adjacent = np.zeros(v.shape + (v.shape[1],), dtype=bool)
-    for q in range(v.shape[1]):
-        target = vv[:, q][:, None]
-        pos = np.minimum(lo + _search(nbr, lo, hi, target), nbr.size - 1)
-        adjacent[:, :, q] = (pos < hi) & (nbr[pos] == target)
-    wbar = np.einsum("kpq,kq->kp", adjacent, w) / np.maximum(hi - lo, 1)
+    n = defect.normal.size
+    # adjacent[k, p, q]: verts[k, q] is an edge neighbour of verts[k, p] (one lookup in the sorted keys)
+    keys = vv[:, :, None] * n + vv[:, None, :]
+    pos = np.minimum(np.searchsorted(defect.edges, keys), defect.edges.size - 1)
+    adjacent = defect.edges[pos] == keys
+    wbar = np.einsum("kpq,kq->kp", adjacent, w) / np.maximum(defect.degree[vv], 1)
     share = w * (w - wbar)
     return (np.einsum("kp,kp->k", defect.normal[vv], share),
             np.einsum("kp,kp->k", defect.tangential[vv], share))
-
-
-def _search(nbr: np.ndarray, lo: np.ndarray, hi: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """Per (k, p): the offset in ``nbr[lo:hi]`` (sorted) at which ``target`` would sit."""
-    span = int((hi - lo).max()) if hi.size else 0
-    if span == 0:
-        return np.zeros(lo.shape, dtype=np.int64)
-    idx = lo[..., None] + np.arange(span)
-    seg = np.where(idx < hi[..., None], nbr[np.minimum(idx, nbr.size - 1)], np.iinfo(np.int64).max)
-    return np.sum(seg < target[..., None], axis=-1)
