@@ -100,12 +100,48 @@ def test_press_spheres_zero_depth_carries_no_force(coarse_block):
     (dict(depths=[-1e-4]), "depths"),
     (dict(sphere_radii=0.0), "radii"),
     (dict(depths=[1e-4, 1e-4]), "shape"),
+    (dict(barycentric=[[0.5, 0.5]]), "barycentric must have shape"),
 ])
 def test_press_spheres_bad_input(coarse_block, bad, match):
     t, b = origin_contact(coarse_block)
-    kw = dict(depths=[1e-4], sphere_radii=R) | bad
+    kw = dict(barycentric=[b], depths=[1e-4], sphere_radii=R) | bad
     with pytest.raises(ValueError, match=match):
-        press_spheres(coarse_block, [t], [b], **kw)
+        press_spheres(coarse_block, [t], **kw)
+
+
+def test_smooth_normals_are_continuous_and_press_spheres_presses_along_them(seat_bundle):
+    """On the 15 mm seat (facets up to ~10 degrees apart): a point on an edge shared by two triangles
+    gets one normal from either (the facet normals differ there); at a vertex it is the area-weighted
+    vertex normal; on every triangle it is a unit vector within 45 degrees of the facet's; and
+    ``press_spheres`` without normals presses along it."""
+    from hailstorm.runtime.bundle.read import vertex_normals
+    from hailstorm.runtime.contact.weights import smooth_normals, triangle_normals
+
+    gf = hailstorm.runtime.load(seat_bundle)
+    V, T = np.asarray(gf.vertices), np.asarray(gf.triangles)
+    ok = np.flatnonzero(gf.contactable[T].all(axis=1))
+    # an interior edge: two triangles sharing vertices (u, v)
+    owner: dict[tuple[int, int], list[int]] = {}
+    for t in ok:
+        for a, b in ((0, 1), (1, 2), (2, 0)):
+            owner.setdefault(tuple(sorted((int(T[t, a]), int(T[t, b])))), []).append(int(t))
+    shared = [(e, ts) for e, ts in owner.items() if len(ts) == 2]
+    fn = triangle_normals(V, T)
+    (u, v), (t1, t2) = max(shared, key=lambda item: np.linalg.norm(fn[item[1][0]] - fn[item[1][1]]))
+    assert np.degrees(np.arccos(np.clip(fn[t1] @ fn[t2], -1, 1))) > 3.0  # the facets do differ there
+    bary = [np.where(T[t] == u, 0.3, 0.0) + np.where(T[t] == v, 0.7, 0.0) for t in (t1, t2)]
+    n1, n2 = smooth_normals(V, T, np.array([t1, t2]), np.array(bary))
+    np.testing.assert_allclose(n1, n2, rtol=0, atol=1e-14)
+    corner = smooth_normals(V, T, np.array([t1]), (T[t1] == u).astype(float)[None])[0]
+    np.testing.assert_allclose(corner, vertex_normals(V, T)[u], rtol=0, atol=1e-14)
+    rng = np.random.default_rng(1)
+    b = rng.dirichlet(np.ones(3), ok.size)
+    n = smooth_normals(V, T, ok, b)
+    np.testing.assert_allclose(np.linalg.norm(n, axis=1), 1.0, rtol=1e-14)
+    assert np.all(np.einsum("kd,kd->k", n, fn[ok]) > np.cos(np.radians(45)))
+    default = press_spheres(gf, [t1], [bary[0]], [1e-3], 5e-3, rows=None)
+    along = press_spheres(gf, [t1], [bary[0]], [1e-3], 5e-3, rows=None, normals=n1[None])
+    assert default.normal_force[0] == along.normal_force[0]
 
 
 @pytest.mark.slow
