@@ -34,7 +34,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-__all__ = ["BLOCK_DEPTH", "BLOCK_HALF_WIDTH", "SITES", "block_bundle", "block_disc", "block_table", "impact_table", "locate", "main", "seat_bundle", "seat_sites", "seat_table",
+__all__ = ["BLOCK_DEPTH", "BLOCK_HALF_WIDTH", "SITES", "block_bundle", "block_disc", "block_sites", "block_table", "depth_at_force", "impact_table", "locate", "main", "seat_bundle", "seat_sites", "seat_table",
            "stone_depths"]
 
 #: where on a triangle a contact lands
@@ -77,7 +77,9 @@ def block_bundle(out: Any = None, mesh_size: float | None = None, order: int = 2
                                                load="hat"))
 
 
-def _block_sites(gf: Any) -> dict[str, tuple[int, np.ndarray]]:
+def block_sites(gf: Any) -> dict[str, tuple[int, np.ndarray]]:
+    """The vertex, edge midpoint and centroid of the top triangle nearest the block's top centre:
+    ``{site: (triangle, barycentric)}``."""
     V, T = np.asarray(gf.vertices), np.asarray(gf.triangles)
     top = np.flatnonzero((np.abs(V[T][:, :, 2]).max(axis=1) < 1e-9) & gf.contactable[T].all(axis=1))
     tc = int(top[np.argmin(np.linalg.norm(V[T[top]].mean(axis=1)[:, :2], axis=1))])
@@ -135,7 +137,7 @@ def block_table(gf: Any, radii: Sequence[float] = (0.5e-3, 1e-3, 2e-3, 4e-3, 8e-
             row["block"] = F_block / F - 1.0
             row["block_sphere"] = press_disc(disc, R, d).force / F - 1.0
         for nf in MODELS:
-            for site, (t, b) in _block_sites(gf).items():
+            for site, (t, b) in block_sites(gf).items():
                 res = press_spheres(gf, [t], [b], [d], R, rows=None, near_field=model(nf, gf))
                 row[f"{nf}:{site}"] = float(res.normal_force[0] / F - 1.0)
                 if F_block is not None:
@@ -209,8 +211,34 @@ def stone_depths(young: float, poisson: float, radii: Sequence[float] = (2.5e-3,
     return out
 
 
-def seat_table(gf: Any, ref: Any, near_field: str = "halfspace") -> list[dict[str, Any]]:
-    """Force at Hertz's depth on ``gf`` against ``ref`` (a finer seat), per stone, place and site."""
+def depth_at_force(gf: Any, tri: int, bary: np.ndarray, force: float, radius: float, start: float,
+                   near_field: Any = "halfspace", tol: float = 1e-5, max_iter: int = 40) -> float:
+    """The depth [m] at which a rigid sphere of ``radius`` pressed on ``gf`` at (``tri``, ``bary``)
+    carries ``force`` [N]: from ``start``, steps ``d <- d (force / F(d))^(2/3)`` (Hertz's ``F ~ d^1.5``)
+    to a relative change below ``tol``.
+
+    Raises
+    ------
+    RuntimeError
+        If the steps do not settle within ``max_iter`` (a force the patch's jumps skip over).
+    """
+    from hailstorm.runtime.contact.hertz import press_spheres
+
+    d = float(start)
+    for _ in range(max_iter):
+        f = press_spheres(gf, [tri], [bary], [d], radius, rows=None, near_field=model(near_field, gf)).normal_force[0]
+        new = d * (force / f) ** (2.0 / 3.0)
+        if abs(new - d) <= tol * d:
+            return new
+        d = new
+    raise RuntimeError(f"depth_at_force: no depth within {tol:g} carries {force:g} N after {max_iter} steps")
+
+
+def seat_table(gf: Any, ref: Any, near_field: str = "halfspace", dent: bool = False) -> list[dict[str, Any]]:
+    """Force at Hertz's depth on ``gf`` against ``ref`` (a finer seat), per stone, place and site
+    (``near_field``: a :data:`MODELS` name). With ``dent``, also ``"<site>_dent"``: the depth at
+    which ``gf`` carries the reference's force (:func:`depth_at_force`) over Hertz's depth, minus 1
+    (the dent the seat shows under the reference's force)."""
     from hailstorm.runtime.contact.hertz import press_spheres
 
     rows = []
@@ -226,6 +254,9 @@ def seat_table(gf: Any, ref: Any, near_field: str = "halfspace") -> list[dict[st
                                                 near_field=model(near_field, body)).normal_force[0])
                 row[site] = float(forces[0] / forces[1] - 1.0)
                 row[f"{site}_N"] = float(forces[1])
+                if dent:
+                    t, b = locate(gf, p)
+                    row[f"{site}_dent"] = depth_at_force(gf, t, b, forces[1], st.radius, st.depth, near_field) / st.depth - 1.0
             rows.append(row)
     return rows
 
