@@ -247,14 +247,19 @@ class CompressedGreensFunctions(GreensFunctions):
 
 
 def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """Area-weighted unit vertex normals of an oriented triangle surface, (n, 3)."""
-    p = vertices[triangles]
-    fn = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])  # 2 * area * unit normal
-    vn = np.zeros_like(vertices, dtype=np.float64)
-    for k in range(3):
-        np.add.at(vn, triangles[:, k], fn)
-    norm = np.linalg.norm(vn, axis=1, keepdims=True)
-    return vn / np.where(norm > 0, norm, 1.0)
+    """Unit vertex normals: the area-weighted mean of the incident triangles' normals, (n, 3).
+
+    The triangles' orientation sets the side (outward triangles give outward
+    normals); a vertex of no triangle gets a zero vector.
+    """
+    X = np.asarray(vertices, dtype=np.float64)
+    T = np.asarray(triangles, dtype=np.int64)
+    cross = np.cross(X[T[:, 1]] - X[T[:, 0]], X[T[:, 2]] - X[T[:, 0]])  # 2 x area x unit normal
+    n = np.zeros_like(X)
+    for j in range(3):
+        np.add.at(n, T[:, j], cross)
+    norm = np.linalg.norm(n, axis=1)
+    return np.divide(n, norm[:, None], out=np.zeros_like(n), where=norm[:, None] > 0)
 
 
 def stranded_copies(path: str | os.PathLike) -> list[Path]:

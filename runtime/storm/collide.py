@@ -29,7 +29,7 @@ from hailstorm.runtime.compiled import SampleGrid, flight, free_phase, near_set,
 from hailstorm.runtime.compiled.grid import surface_arrays
 from hailstorm.runtime.contact import policy
 from hailstorm.runtime.storm.hail import GRAVITY
-from hailstorm.runtime.storm.limits import vertex_normals
+from hailstorm.runtime.bundle.read import vertex_normals
 from hailstorm.runtime.storm.recording import StormStats
 
 if TYPE_CHECKING:  # annotations only
@@ -59,7 +59,7 @@ def corner_normals(vertices: np.ndarray, triangles: np.ndarray, crease: float = 
     the normal interpolated over the triangles (:func:`hailstorm.runtime.compiled.narrow.contact_normal`)
     is continuous across their edges; a triangle on a sharp edge keeps its side's. Memory O(m):
     a vertex whose triangles all lie within ``crease / 2`` of their mean normal
-    (:func:`hailstorm.runtime.storm.limits.vertex_normals`) takes that mean at every corner (any
+    (:func:`hailstorm.runtime.bundle.read.vertex_normals`) takes that mean at every corner (any
     two of them are within ``crease``); only the others are summed corner by corner.
 
     Parameters

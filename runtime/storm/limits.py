@@ -71,6 +71,7 @@ from typing import Any
 
 import numpy as np
 
+from hailstorm.runtime.bundle.read import vertex_normals
 from hailstorm.runtime.contact.weights import hertz_radius
 
 __all__ = [
@@ -87,7 +88,6 @@ __all__ = [
     "summarise",
     "surface_thickness",
     "validity_warning",
-    "vertex_normals",
 ]
 
 
@@ -136,22 +136,6 @@ def boundary_faces(tets: np.ndarray) -> np.ndarray:
     faces = np.concatenate([tets[:, [1, 2, 3]], tets[:, [0, 3, 2]], tets[:, [0, 1, 3]], tets[:, [0, 2, 1]]])
     _, inv, counts = np.unique(np.sort(faces, axis=1), axis=0, return_inverse=True, return_counts=True)
     return faces[counts[inv.ravel()] == 1]
-
-
-def vertex_normals(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
-    """Unit vertex normals: the area-weighted mean of the incident triangles' normals, (n, 3).
-
-    The triangles' orientation sets the side (outward triangles give outward
-    normals); a vertex of no triangle gets a zero vector.
-    """
-    X = np.asarray(vertices, dtype=np.float64)
-    T = np.asarray(triangles, dtype=np.int64)
-    cross = np.cross(X[T[:, 1]] - X[T[:, 0]], X[T[:, 2]] - X[T[:, 0]])  # 2 x area x unit normal
-    n = np.zeros_like(X)
-    for j in range(3):
-        np.add.at(n, T[:, j], cross)
-    norm = np.linalg.norm(n, axis=1)
-    return np.divide(n, norm[:, None], out=np.zeros_like(n), where=norm[:, None] > 0)
 
 
 class RayCaster:
@@ -270,7 +254,7 @@ class PadThickness:
     """The local pad thickness under the surface vertices of a bundle, cast on first request.
 
     The thickness under a vertex is the distance from it along its inward normal
-    (:func:`vertex_normals` of the outward surface triangles, reversed) to the
+    (:func:`hailstorm.runtime.bundle.read.vertex_normals` of the outward surface triangles, reversed) to the
     first boundary face of the body it meets: the clamped underside (the rigid
     shell) or the opposite surface. The boundary is the bundle's surface, which
     is the boundary of its volume mesh (the contract: the surface and the volume
