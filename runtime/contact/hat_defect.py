@@ -30,9 +30,10 @@ spread (``w_i - wbar_i``, ``wbar_i`` the mean of ``w`` over the vertex's edge
 neighbours): ``e(w) = sum_i Delta_i w_i (w_i - wbar_i)``. A load on one
 vertex (``w = e_i``) gets all of ``Delta_i``; a load spread smoothly over
 many vertices gets next to nothing, as the finite elements converge for it.
-(Measured: the diagonal alone, ``sum_i Delta_i w_i^2``, also corrects
-wide patches, and moves a 12.5 mm stone's force on the 6 mm seat 4.8 % away
-from the 3 mm seat's instead of 2.3 %.)
+(Measured: the diagonal alone, ``sum_i Delta_i w_i^2``, also corrects wide
+patches, and put a 12.5 mm stone 10.6 mm deep into the 6 mm seat at -6.2 %
+of the 3 mm seat's force, against -3.9 % with the share above and -3.2 %
+without any.)
 """
 
 from __future__ import annotations
@@ -64,6 +65,8 @@ class HatDefect:
         The surface's edge neighbours (CSR: ``nbr[ptr[v]:ptr[v + 1]]``, sorted).
     edges : (2 e,) int64 ndarray
         The same as sorted keys ``v * n + u`` (both directions), for lookups in bulk.
+    degree : (n,) int64 ndarray
+        Each vertex's number of edge neighbours.
     """
 
     def __init__(self, normal: np.ndarray, tangential: np.ndarray, neighbours: tuple[np.ndarray, np.ndarray]):

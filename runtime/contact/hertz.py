@@ -237,7 +237,7 @@ def press_spheres(
         bary = np.asarray(barycentric, dtype=np.float64)
         if bary.shape != (s, 3):
             raise ValueError(f"barycentric must have shape ({s}, 3), got {bary.shape}")
-        n = smooth_normals(np.asarray(gf.vertices), np.asarray(gf.triangles), t, barycentric)
+        n = smooth_normals(np.asarray(gf.vertices), np.asarray(gf.triangles), t, bary)
     else:
         n = np.asarray(normals, dtype=np.float64).reshape(s, 3)
     E, nu = float(gf.young), float(gf.poisson)
