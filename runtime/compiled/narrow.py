@@ -87,7 +87,7 @@ def contact_normal(p, t, bary, X, T, tri_normals, corner, sharp_edge, sharp_vert
     centred at ``p``, into ``out`` (``bt``: scratch).
 
     The faceted surface read as a smooth one: the normals at the triangle's corners
-    interpolated at ``bary`` (``corner``, (m, 3, 3), :func:`hailstorm.runtime.storm.collide.corner_normals`),
+    interpolated at ``bary`` (``corner``, (m, 3, 3), :func:`hailstorm.runtime.contact.weights.corner_normals`),
     continuous across an edge. But where ``p`` lies over a sharp edge or corner of ``t``
     (``sharp_edge`` (m, 3): edge ``k`` from corner ``k`` to ``k + 1``; ``sharp_vertex`` (n,):
     :func:`hailstorm.runtime.storm.collide.sharp_features`), the closest point of ``t`` on it,

@@ -135,7 +135,7 @@ time integration.
 
 Facets: the seat's surface is a triangle mesh, read as the facets of a smooth
 surface but at its sharp edges (more than ``CREASE_ANGLE``, 30 degrees, between
-two triangles' normals: :func:`hailstorm.runtime.storm.collide.corner_normals`,
+two triangles' normals: :func:`hailstorm.runtime.contact.weights.corner_normals`,
 :func:`~hailstorm.runtime.storm.collide.sharp_features`). A contact's normal
 (``Stones.cnormal``, :func:`hailstorm.runtime.compiled.narrow.contact_normal`)
 is the smooth surface's at its contact point, the normals at its triangle's
