@@ -614,9 +614,10 @@ def plot_agreement(rows: Sequence[Row], path: str, tol: float = AGREE, density: 
     suffix says); returns ``path``.
     """
     import os
-    import tempfile
 
     import matplotlib
+
+    from hailstorm.studies import record
 
     if "MPLBACKEND" not in os.environ:
         matplotlib.use("Agg")
@@ -670,18 +671,7 @@ def plot_agreement(rows: Sequence[Row], path: str, tol: float = AGREE, density: 
                 Line2D([], [], ls="", marker="s", ms=9, mfc="#4daf4a", mec="k", label=f"within {tol:.0%}"),
                 Line2D([], [], ls="", marker="s", ms=9, mfc="#e41a1c", mec="k", label=f"beyond {tol:.0%}")]
     fig.legend(handles=handles, fontsize=7.5, loc="outside lower center", ncol=2, frameon=False)
-    folder = os.path.dirname(os.path.abspath(path))
-    os.makedirs(folder, exist_ok=True)
-    suffix = os.path.splitext(path)[1] or ".png"
-    fd, tmp = tempfile.mkstemp(dir=folder, suffix=suffix)
-    os.close(fd)
-    try:
-        fig.savefig(tmp, dpi=150)
-        os.replace(tmp, path)
-    finally:
-        plt.close(fig)
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    record.save_figure(fig, path)
     return path
 
 

@@ -18,7 +18,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
-from hailstorm.runtime.bundle.atomic import write_text_atomic
+from hailstorm.runtime.bundle.atomic import replacing, write_text_atomic
 
 __all__ = ["Tee", "command", "commit", "load_average", "min_median_max", "stamp", "whole_output", "without_out", "write",
            "write_run"]
@@ -65,6 +65,21 @@ def write(path: str | os.PathLike, lines: list[str]) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     return write_text_atomic(path, "\n".join(lines).rstrip("\n") + "\n")
+
+
+def save_figure(fig: Any, path: str | os.PathLike, dpi: int = 150) -> Path:
+    """Save a matplotlib figure to ``path`` (its folder created; PNG or what the suffix says),
+    atomically, and close it; returns the path."""
+    import matplotlib.pyplot as plt
+
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        with replacing(path) as tmp:
+            fig.savefig(tmp, dpi=dpi)
+    finally:
+        plt.close(fig)
+    return path
 
 
 def write_run(path: str | os.PathLike, command: str, stamp_before: str, lines: list[str]) -> Path:

@@ -15,7 +15,8 @@ the size), one row per storage (dense, and compressed with ``--tol``):
   (the default scene over ``--duration``, min/median/max of ``--repeat`` runs; higher is faster).
 
 Bundles are built (or read from the cache) as the default seat is: ``--sizes`` in mm, the last the
-reference. Run ``python -m hailstorm.studies.routes_study [--sizes 6,4,3] [--tol 1e-2] [--out FILE]``.
+reference. Run ``python -m hailstorm.studies.routes_study [--sizes 6,4,3] [--tol 1e-2] [--out FILE]
+[--plot PNG]`` (:func:`plot_frontier` draws the table as a chart).
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ import numpy as np
 
 from hailstorm.studies import record
 
-__all__ = ["main", "route_rows", "solve_times", "storm_rtf"]
+__all__ = ["format_rows", "main", "plot_frontier", "route_rows", "solve_times", "storm_rtf"]
 
 
 def solve_times(gf: Any, contacts: int = 100, repeat: int = 20, seed: int = 0) -> list[float]:
@@ -124,6 +125,57 @@ def format_rows(rows: Sequence[dict[str, Any]]) -> list[str]:
     return out
 
 
+def plot_frontier(rows: Sequence[dict[str, Any]], path: str | Path) -> Path:
+    """The frontier chart of :func:`route_rows`: the largest force error against the finest size
+    (and, hollow, the median) over what each route costs -- precompute seconds (with the
+    compression), stored MiB of D and a fresh 100-contact solve (median ms) -- one marker per size
+    and storage (the reference, without an error, left out). Written to ``path``; returns it."""
+    import os
+
+    import matplotlib
+
+    if "MPLBACKEND" not in os.environ:
+        matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    shown = [r for r in rows if r["err"] is not None]
+    if not shown:
+        raise ValueError("plot_frontier needs a row with an error (a size other than the reference)")
+    costs = (("precompute + compression [s]", lambda r: r["precompute_s"] + r["compress_s"]),
+             ("D stored [MiB]", lambda r: r["stored_MiB"]),
+             ("fresh solve, 100 contacts + surface [ms, median]", lambda r: float(np.median(r["solve_ms"]))))
+    fig, axes = plt.subplots(1, 3, figsize=(11.0, 3.8), sharey=True, layout="constrained")
+    for ax, (label, cost) in zip(axes, costs):
+        for r in shown:
+            dense = r["storage"] == "dense"
+            colour = "#377eb8" if dense else "#e41a1c"
+            x = cost(r)
+            ax.scatter([x], [100 * r["err"]["max"]], marker="o" if dense else "s", s=45, color=colour, zorder=3)
+            ax.scatter([x], [100 * r["err"]["median"]], marker="o" if dense else "s", s=45, facecolors="none",
+                       edgecolors=colour, zorder=3)
+            ax.annotate(f"{r['size_mm']:g} mm", (x, 100 * r["err"]["max"]), textcoords="offset points",
+                        xytext=(5, 4), fontsize=7.5)
+        ax.set_xscale("log")
+        ax.set_xlabel(label)
+        ax.grid(True, which="both", lw=0.3, alpha=0.5)
+    axes[0].axhline(2.0, color="0.4", lw=0.8, ls="--")
+    axes[0].axhline(5.0, color="0.4", lw=0.8, ls=":")
+    for ax in axes[1:]:
+        ax.axhline(2.0, color="0.4", lw=0.8, ls="--")
+        ax.axhline(5.0, color="0.4", lw=0.8, ls=":")
+    axes[0].set_ylabel("force error against the finest size [%]")
+    axes[0].set_ylim(0.0, max(6.0, 1.15 * 100 * max(r["err"]["max"] for r in shown)))
+    handles = [plt.Line2D([], [], ls="", marker="o", color="#377eb8", label="dense D"),
+               plt.Line2D([], [], ls="", marker="s", color="#e41a1c", label="compressed D (--tol)"),
+               plt.Line2D([], [], ls="", marker="o", mfc="none", mec="0.3", label="hollow: median over the 54 cases"),
+               plt.Line2D([], [], color="0.4", lw=0.8, ls="--", label="2 % target"),
+               plt.Line2D([], [], color="0.4", lw=0.8, ls=":", label="5 % must")]
+    fig.legend(handles=handles, fontsize=7.5, loc="outside lower center", ncol=5, frameon=False)
+    fig.suptitle("The default seat's frontier: stone force at a given depth (54 cases, near field on) "
+                 "against what each route costs", fontsize=9)
+    return record.save_figure(fig, path)
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m hailstorm.studies.routes_study", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -133,6 +185,7 @@ def main(argv: list[str] | None = None) -> int:
                     "the default storm's)")
     ap.add_argument("--repeat", type=int, default=3, help="storms per row (default 3)")
     ap.add_argument("--out", type=Path, default=None, help="also write the table there (with its header)")
+    ap.add_argument("--plot", type=Path, default=None, help="also draw the frontier chart there (plot_frontier)")
     args = ap.parse_args(argv)
     stamp = record.stamp()
     sizes = [float(x) * 1e-3 for x in args.sizes.split(",")]
@@ -145,6 +198,8 @@ def main(argv: list[str] | None = None) -> int:
     print("\n".join(lines))
     if args.out:
         record.write_run(args.out, record.command("python -m hailstorm.studies.routes_study", argv), stamp, lines)
+    if args.plot:
+        print(f"chart: {plot_frontier(rows, args.plot)}")
     return 0
 
 

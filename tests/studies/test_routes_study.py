@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from hailstorm.studies import routes_study
 
@@ -25,3 +26,20 @@ def test_route_rows_on_coarse_seats(tmp_path, monkeypatch):
         assert len(r["solve_ms"]) == 20 and all(np.isfinite(r["solve_ms"])) and len(r["rtf"]) == 1
     table = routes_study.format_rows(rows)
     assert len(table) == 2 + len(rows) and "| 15 | dense | " in table[4] and "reference" in table[4]
+
+
+def test_plot_frontier_draws_the_rows(tmp_path):
+    """The chart from rows shaped as route_rows gives them (the reference left out); a table with
+    no error to draw is refused."""
+    def row(size, storage, err, pre, comp, mib):
+        return {"size_mm": size, "storage": storage, "err": err, "precompute_s": pre, "compress_s": comp,
+                "stored_MiB": mib, "solve_ms": [4.0, 5.0, 6.0], "rtf": [0.4]}
+
+    e = {"max": 0.039, "median": 0.004, "small": 0.029}
+    rows = [row(6, "dense", e, 9.0, 0.0, 107.8), row(6, "H 0.01", e, 9.0, 3.4, 22.9),
+            row(3, "dense", None, 69.7, 0.0, 1089.2)]
+    out = routes_study.plot_frontier(rows, tmp_path / "sub" / "frontier.png")
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and out.stat().st_size > 10_000
+    assert list(out.parent.iterdir()) == [out]  # written in place of a temporary, nothing left over
+    with pytest.raises(ValueError, match="needs a row"):
+        routes_study.plot_frontier(rows[2:], tmp_path / "none.png")
