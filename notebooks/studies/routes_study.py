@@ -137,6 +137,7 @@ def plot_frontier(rows: Sequence[dict[str, Any]], path: str | Path) -> Path:
     if "MPLBACKEND" not in os.environ:
         matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.ticker import LogLocator, NullFormatter, StrMethodFormatter
 
     shown = [r for r in rows if r["err"] is not None]
     if not shown:
@@ -154,8 +155,11 @@ def plot_frontier(rows: Sequence[dict[str, Any]], path: str | Path) -> Path:
             ax.scatter([x], [100 * r["err"]["median"]], marker="o" if dense else "s", s=45, facecolors="none",
                        edgecolors=colour, zorder=3)
             ax.annotate(f"{r['size_mm']:g} mm", (x, 100 * r["err"]["max"]), textcoords="offset points",
-                        xytext=(5, 4), fontsize=7.5)
+                        xytext=(5, 5) if dense or r["err"]["max"] < 0.005 else (5, -11), fontsize=7.5, color=colour)
         ax.set_xscale("log")
+        ax.xaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
+        ax.xaxis.set_major_formatter(StrMethodFormatter("{x:g}"))
+        ax.xaxis.set_minor_formatter(NullFormatter())
         ax.set_xlabel(label)
         ax.grid(True, which="both", lw=0.3, alpha=0.5)
     axes[0].axhline(2.0, color="0.4", lw=0.8, ls="--")
@@ -164,7 +168,7 @@ def plot_frontier(rows: Sequence[dict[str, Any]], path: str | Path) -> Path:
         ax.axhline(2.0, color="0.4", lw=0.8, ls="--")
         ax.axhline(5.0, color="0.4", lw=0.8, ls=":")
     axes[0].set_ylabel("force error against the finest size [%]")
-    axes[0].set_ylim(0.0, max(6.0, 1.15 * 100 * max(r["err"]["max"] for r in shown)))
+    axes[0].set_ylim(-0.3, max(6.0, 1.15 * 100 * max(r["err"]["max"] for r in shown)))
     handles = [plt.Line2D([], [], ls="", marker="o", color="#377eb8", label="dense D"),
                plt.Line2D([], [], ls="", marker="s", color="#e41a1c", label="compressed D (--tol)"),
                plt.Line2D([], [], ls="", marker="o", mfc="none", mec="0.3", label="hollow: median over the 54 cases"),
