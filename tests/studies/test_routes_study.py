@@ -43,3 +43,16 @@ def test_plot_frontier_draws_the_rows(tmp_path):
     assert list(out.parent.iterdir()) == [out]  # written in place of a temporary, nothing left over
     with pytest.raises(ValueError, match="needs a row"):
         routes_study.plot_frontier(rows[2:], tmp_path / "none.png")
+
+
+def test_notebook_executes_on_small_settings(run_notebook):
+    """``notebooks/routes_frontier.ipynb`` on coarse seats: it prints the table and draws the chart,
+    and leaves the committed chart alone."""
+    from pathlib import Path
+
+    png = Path(__file__).resolve().parents[2] / "notebooks" / "figures" / "routes_frontier.png"
+    before = png.stat().st_mtime_ns if png.exists() else None
+    text = run_notebook("routes_frontier.ipynb")
+    assert "SMALL = True" in text and "| 20 | dense |" in text and "| 15 | dense |" in text
+    assert "chart: routes_frontier_small.png" in text
+    assert (png.stat().st_mtime_ns if png.exists() else None) == before
