@@ -247,15 +247,16 @@ def seat_table(gf: Any, ref: Any, near_field: str = "halfspace", dent: bool = Fa
             row: dict[str, Any] = {"place": place, "R_mm": st.radius * 1e3, "state": st.state,
                                    "depth_mm": st.depth * 1e3}
             for site, p in pts.items():
-                forces = []
+                forces, where = [], []
                 for body in (gf, ref):
                     t, b = locate(body, p)
+                    where.append((t, b))
                     forces.append(press_spheres(body, [t], [b], [st.depth], st.radius, rows=None,
                                                 near_field=model(near_field, body)).normal_force[0])
                 row[site] = float(forces[0] / forces[1] - 1.0)
                 row[f"{site}_N"] = float(forces[1])
                 if dent:
-                    t, b = locate(gf, p)
+                    t, b = where[0]
                     row[f"{site}_dent"] = depth_at_force(gf, t, b, forces[1], st.radius, st.depth, near_field) / st.depth - 1.0
             rows.append(row)
     return rows
