@@ -10,6 +10,10 @@ Two measurements of :mod:`hailstorm.runtime.contact.near_field`:
   top area and depth): Hertz's half-space is not the block, whose clamp 400 mm
   down stiffens a wide contact (about +1.5 % at a = 8 mm), and a sphere is not
   Hertz's paraboloid (-1.6 % at a/R = 0.4 on a half-space, Segedin);
+* :func:`pad_table` -- the same spheres pressed into the seat's pad itself, 15 mm of the
+  foam on its rigid base (a 120 mm block at the default seat's settings), against the pad's
+  own converged contact (the pad as an axisymmetric disc, node by node): where the layer
+  kernel of the near field earns its place (:mod:`hailstorm.runtime.contact.layer_kernel`);
 * :func:`impact_table` -- stones of 2.5, 5 and 12.5 mm dropped in a storm on the
   same block's top at 1, 5 and 15 m/s (exact integrator, restitution 1, no drag,
   dt 1/400 of Hertz's contact time) against Hertz's quasi-static impact
@@ -34,7 +38,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-__all__ = ["BLOCK_DEPTH", "BLOCK_HALF_WIDTH", "SITES", "block_bundle", "block_disc", "block_sites", "block_table", "depth_at_force", "impact_table", "locate", "main", "seat_bundle", "seat_sites", "seat_table",
+__all__ = ["BLOCK_DEPTH", "BLOCK_HALF_WIDTH", "DEFAULT_MODEL", "MODELS", "SITES", "block_bundle", "block_disc", "block_sites", "block_table", "depth_at_force", "impact_table", "locate", "main", "PAD_CASES", "pad_table", "seat_bundle", "seat_sites", "seat_table",
            "stone_depths"]
 
 #: where on a triangle a contact lands
@@ -78,17 +82,23 @@ def block_bundle(out: Any = None, mesh_size: float | None = None, order: int = 2
 
 
 def block_sites(gf: Any) -> dict[str, tuple[int, np.ndarray]]:
-    """The vertex, edge midpoint and centroid of the top triangle nearest the block's top centre:
+    """The vertex, edge midpoint and centroid of the top triangle nearest the centre of a block's
+    flat top (its highest face, :func:`block_bundle`'s or :func:`pad_table`'s pad):
     ``{site: (triangle, barycentric)}``."""
     V, T = np.asarray(gf.vertices), np.asarray(gf.triangles)
-    top = np.flatnonzero((np.abs(V[T][:, :, 2]).max(axis=1) < 1e-9) & gf.contactable[T].all(axis=1))
-    tc = int(top[np.argmin(np.linalg.norm(V[T[top]].mean(axis=1)[:, :2], axis=1))])
+    z = V[:, 2].max()
+    top = np.flatnonzero((np.abs(V[T][:, :, 2] - z).max(axis=1) < 1e-9) & gf.contactable[T].all(axis=1))
+    centre = 0.5 * (V[:, :2].max(axis=0) + V[:, :2].min(axis=0))
+    tc = int(top[np.argmin(np.linalg.norm(V[T[top]].mean(axis=1)[:, :2] - centre, axis=1))])
     return {s: (tc, _BARY[s]) for s in SITES}
 
 
-#: the near-field models the tables compare: the model, the model without D's hat-scale defect
-#: (:mod:`hailstorm.runtime.contact.hat_defect`), the discrete model
-MODELS = ("halfspace", "nodefect", "none")
+#: the near-field models the tables compare: the model (the layer kernel, the default's), the
+#: half-space's kernel alone (the model before the layer), the layer without D's hat-scale
+#: defect (:mod:`hailstorm.runtime.contact.hat_defect`), the discrete model
+MODELS = ("layer", "halfspace", "nodefect", "none")
+#: the model the storm and ``press_spheres`` use by default (``near_field="auto"`` on a hat-load bundle)
+DEFAULT_MODEL = MODELS[0]
 
 
 def model(name: str, gf: Any) -> Any:
@@ -96,7 +106,7 @@ def model(name: str, gf: Any) -> Any:
     from hailstorm.runtime.contact.near_field import NearField
 
     if name == "nodefect":
-        return NearField("halfspace", float(gf.young), float(gf.poisson), defect=False)
+        return NearField("layer", float(gf.young), float(gf.poisson), defect=False)
     return name
 
 
@@ -142,6 +152,34 @@ def block_table(gf: Any, radii: Sequence[float] = (0.5e-3, 1e-3, 2e-3, 4e-3, 8e-
                 row[f"{nf}:{site}"] = float(res.normal_force[0] / F - 1.0)
                 if F_block is not None:
                     row[f"{nf}:{site}:block"] = float(res.normal_force[0] / F_block - 1.0)
+        rows.append(row)
+    return rows
+
+
+#: spheres pressed into the pad (:func:`pad_table`): radius and depth [m] -- a 2.5 and a 5 mm stone at
+#: the peak of an impact at terminal speed, a 12.5 mm stone 4 and 6 mm deep, a wide shallow contact
+PAD_CASES = ((2.5e-3, 1.07e-3), (5e-3, 2.7e-3), (7.5e-3, 4.5e-3), (12.5e-3, 4e-3), (60e-3, 0.6e-3), (12.5e-3, 6e-3))
+
+
+def pad_table(gf: Any, pad: Any, cases: Sequence[tuple[float, float]] = PAD_CASES) -> list[dict[str, Any]]:
+    """Rigid paraboloids pressed into a pad on its rigid base, per site and model, against the pad's own
+    converged contact (:func:`hailstorm.studies.axisymmetric.press_disc` on the same pad as a disc of
+    ``pad.radius``, node by node; ``gf`` the pad as a block, :func:`hailstorm.studies.dynamic_study.pad_bundle`).
+
+    Keys: ``a_mm`` (the converged contact radius), ``R_mm``, ``depth_mm``, ``a_over_h``, ``F_N`` (the
+    converged force) and ``"<near_field>:<site>"``: ``F / F_pad - 1``."""
+    from hailstorm.runtime.contact.hertz import press_spheres
+    from hailstorm.studies.axisymmetric import press_disc
+
+    rows = []
+    for R, d in cases:
+        ref = press_disc(pad, R, d, profile="paraboloid")
+        row: dict[str, Any] = {"a_mm": ref.contact_radius * 1e3, "R_mm": R * 1e3, "depth_mm": d * 1e3,
+                               "a_over_h": ref.contact_radius / pad.thickness, "F_N": ref.force}
+        for nf in MODELS:
+            for site, (t, b) in block_sites(gf).items():
+                res = press_spheres(gf, [t], [b], [d], R, rows=None, near_field=model(nf, gf))
+                row[f"{nf}:{site}"] = float(res.normal_force[0] / ref.force - 1.0)
         rows.append(row)
     return rows
 
@@ -212,7 +250,7 @@ def stone_depths(young: float, poisson: float, radii: Sequence[float] = (2.5e-3,
 
 
 def depth_at_force(gf: Any, tri: int, bary: np.ndarray, force: float, radius: float, start: float,
-                   near_field: Any = "halfspace", tol: float = 1e-5, max_iter: int = 40) -> float:
+                   near_field: Any = DEFAULT_MODEL, tol: float = 1e-5, max_iter: int = 40) -> float:
     """The depth [m] at which a rigid sphere of ``radius`` pressed on ``gf`` at (``tri``, ``bary``)
     carries ``force`` [N]: from ``start``, steps ``d <- d (force / F(d))^(2/3)`` (Hertz's ``F ~ d^1.5``)
     to a relative change below ``tol``.
@@ -234,7 +272,7 @@ def depth_at_force(gf: Any, tri: int, bary: np.ndarray, force: float, radius: fl
     raise RuntimeError(f"depth_at_force: no depth within {tol:g} carries {force:g} N after {max_iter} steps")
 
 
-def seat_table(gf: Any, ref: Any, near_field: str = "halfspace", dent: bool = False) -> list[dict[str, Any]]:
+def seat_table(gf: Any, ref: Any, near_field: str = DEFAULT_MODEL, dent: bool = False) -> list[dict[str, Any]]:
     """Force at Hertz's depth on ``gf`` against ``ref`` (a finer seat), per stone, place and site
     (``near_field``: a :data:`MODELS` name). With ``dent``, also ``"<site>_dent"``: the depth at
     which ``gf`` carries the reference's force (:func:`depth_at_force`) over Hertz's depth, minus 1
@@ -332,6 +370,7 @@ def main(argv: list[str] | None = None) -> None:
                     "the default seat's)")
     ap.add_argument("--reference-size", type=float, default=0.003, help="the finer seat's [m] (default 0.003)")
     ap.add_argument("--skip-block", action="store_true")
+    ap.add_argument("--skip-pad", action="store_true")
     ap.add_argument("--skip-seat", action="store_true")
     ap.add_argument("--skip-impacts", action="store_true")
     ap.add_argument("--out", default=None, metavar="FILE", help="also write the output there (with its header)")
@@ -354,11 +393,27 @@ def main(argv: list[str] | None = None) -> None:
             rows = block_table(gf, a_over_R=a_over_R)
             keys = (["a_mm", "R_mm", "block", "block_sphere"]
                     + [f"{nf}:{s}" for nf in MODELS for s in SITES]
-                    + [f"halfspace:{s}:block" for s in SITES])
+                    + [f"{DEFAULT_MODEL}:{s}:block" for s in SITES])
             for r in rows:
                 for k in keys[2:]:
                     r[k] = 100 * r[k]
             say(*_table(rows, keys, {k: "+.1f" for k in keys[2:]} | {"a_mm": ".1f", "R_mm": ".1f"}))
+    if not args.skip_pad:
+        from hailstorm.studies.dynamic_study import default_pad, pad_bundle
+
+        pad = default_pad()
+        gf = pad_bundle(pad, mesh_size=args.mesh_size)
+        say("", f"## The pad on its rigid base ({pad.thickness * 1e3:g} mm of the default foam, a 120 mm block, P2, hat "
+                f"loads, {args.mesh_size * 1e3:g} mm): Hertz's paraboloid pressed to a depth, F / F_pad - 1 [%], "
+                "F_pad the pad's own converged force (press_disc on the pad as a disc, node by node); a the "
+                "converged contact radius", "")
+        rows = pad_table(gf, pad)
+        keys = ["R_mm", "depth_mm", "a_mm", "a_over_h", "F_N"] + [f"{nf}:{s}" for nf in MODELS for s in SITES]
+        for r in rows:
+            for k in keys[5:]:
+                r[k] = 100 * r[k]
+        say(*_table(rows, keys, {k: "+.1f" for k in keys[5:]} | {"R_mm": ".1f", "depth_mm": ".2f", "a_mm": ".2f",
+                                                                 "a_over_h": ".2f", "F_N": ".4g"}))
     if not args.skip_impacts:
         gf = block_bundle(mesh_size=args.mesh_size)
         say("", f"## Thick block (P2, hat loads, {args.mesh_size * 1e3:g} mm on top): a stone dropped in the storm "

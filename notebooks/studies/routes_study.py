@@ -71,9 +71,9 @@ def storm_rtf(gf: Any, duration: float, repeat: int) -> list[float]:
 
 
 def _errors(gf: Any, ref: Any) -> dict[str, float]:
-    from hailstorm.studies.resolution_study import SITES, seat_table
+    from hailstorm.studies.resolution_study import DEFAULT_MODEL, SITES, seat_table
 
-    rows = seat_table(gf, ref, near_field="halfspace")
+    rows = seat_table(gf, ref, near_field=DEFAULT_MODEL)
     err = np.array([[abs(r[s]) for s in SITES] for r in rows])
     small = np.array([r["R_mm"] < 6 for r in rows])
     return {"max": float(err.max()), "median": float(np.median(err)), "small": float(err[small].max())}

@@ -96,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
     import hailstorm.runtime
     from hailstorm.precompute.hmatrix import compress_bundle
     from hailstorm.runtime.storm.scene import SeatSettings
-    from hailstorm.studies.resolution_study import SITES, block_bundle, block_table, seat_bundle, seat_table
+    from hailstorm.studies.resolution_study import DEFAULT_MODEL, SITES, block_bundle, block_table, seat_bundle, seat_table
     from hailstorm.studies.routes_study import solve_times
 
     stamp = record.stamp()
@@ -114,7 +114,7 @@ def main(argv: list[str] | None = None) -> int:
     seat = SeatSettings.default()
 
     gf, ref = seat_bundle(seat.mesh_size), seat_bundle(args.reference_size)
-    rows = seat_table(gf, ref, "halfspace", dent=True)
+    rows = seat_table(gf, ref, DEFAULT_MODEL, dent=True)
     ref_mm = f"{args.reference_size * 1e3:g} mm"
     spreads = []
     for key, what in (("", "stone force at a given indentation"), ("_dent", "dent depth under the reference's force")):
@@ -130,8 +130,8 @@ def main(argv: list[str] | None = None) -> int:
         "vertex/edge/centroid", spread <= 0.02)
     block = block_bundle(mesh_size=seat.mesh_size)
     brows = block_table(block, a_over_R=0.2) + block_table(block, a_over_R=0.4)
-    berr = np.array([[r[f"halfspace:{s}"] for s in SITES] for r in brows])
-    bown = np.array([[r[f"halfspace:{s}:block"] for s in SITES] for r in brows])
+    berr = np.array([[r[f"{DEFAULT_MODEL}:{s}"] for s in SITES] for r in brows])
+    bown = np.array([[r[f"{DEFAULT_MODEL}:{s}:block"] for s in SITES] for r in brows])
     floor = max(brows, key=lambda r: abs(r["block"]))
     bworst, bown_worst = float(np.abs(berr).max()), float(np.abs(bown).max())
     say("press_spheres on a thick block within 2 % of Hertz (a 0.5-8 mm, a/R 0.2 and 0.4)",

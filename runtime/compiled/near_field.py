@@ -18,7 +18,7 @@ import numpy as np
 
 from hailstorm.runtime.compiled.jit import kernel
 
-__all__ = ["edge_term", "hat_compliance", "hat_potential"]
+__all__ = ["edge_term", "hat_compliance", "hat_potential", "layer_sum"]
 
 
 @kernel
@@ -159,4 +159,51 @@ def hat_compliance(verts, weights, centres, normals, X, T, areas, fan_ptr, fan_t
         out[k] = total
         for p in range(P):
             wpos[verts[k, p]] = 0.0
+    return out
+
+
+@kernel
+def layer_sum(verts, weights, X, hat_ptr, hat_pts, hat_w, inv_h, table, step):  # pragma: no cover (compiled)
+    """``sum_ij w_i w_j int phi_j/a_j g(|x_i - y| / h)`` of each patch contact, (s,).
+
+    The smooth part ``g`` of a kernel (:mod:`hailstorm.runtime.contact.layer_kernel`)
+    on the hat loads of each patch, as D's columns answer them: at patch vertex
+    ``i``, the hat traction of vertex ``j`` (quadrature points ``hat_pts`` and
+    weights ``hat_w`` of vertex ``j``'s fan, CSR by ``hat_ptr``). ``g`` is tabulated
+    on ``rho = k step`` (``table``), linear between, and decays as ``1/rho`` past its end.
+    Padded (s, P) vertex lists and weights (weight 0: padding), ``inv_h`` (s,) the
+    contacts' ``1/h``.
+    """
+    s, P = verts.shape
+    out = np.zeros(s)
+    n = table.shape[0]
+    end = (n - 1) * step
+    for k in range(s):
+        acc = 0.0
+        for a in range(P):
+            wa = weights[k, a]
+            if wa <= 0.0:
+                continue
+            i = verts[k, a]
+            for b in range(P):
+                wb = weights[k, b]
+                if wb <= 0.0:
+                    continue
+                j = verts[k, b]
+                part = 0.0
+                for q in range(hat_ptr[j], hat_ptr[j + 1]):
+                    d0 = X[i, 0] - hat_pts[q, 0]
+                    d1 = X[i, 1] - hat_pts[q, 1]
+                    d2 = X[i, 2] - hat_pts[q, 2]
+                    rho = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2) * inv_h[k]
+                    if rho >= end:
+                        g = table[n - 1] * end / rho
+                    else:
+                        x = rho / step
+                        m = int(x)
+                        t = x - m
+                        g = table[m] * (1.0 - t) + table[m + 1] * t
+                    part += hat_w[q] * g
+                acc += wa * wb * part
+        out[k] = acc
     return out

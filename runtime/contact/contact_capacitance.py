@@ -1001,7 +1001,7 @@ def capacitance(
         uses by default.
     patch_profile : {"hertz", "uniform"}
         Pressure profile over a patch.
-    near_field : {"auto", "halfspace", "none"}, NearField or None
+    near_field : {"auto", "layer", "halfspace", "none"}, NearField or None
         Resolve patches smaller than the surface elements with the half-space
         near field (:mod:`hailstorm.runtime.contact.near_field`): each patch's
         compliance is D's, minus the kernel's of the same hat loads, plus the
@@ -1038,14 +1038,15 @@ def _contact_weights(gf: ComplianceSource, t: np.ndarray, b: np.ndarray, n: np.n
 def resolve_near_field(gf: ComplianceSource, near: str | NearField | None) -> NearField | None:
     """A near-field choice as its object, with the bundle's material (None: the mesh alone).
 
-    ``"auto"``: the half-space kernel if the bundle's columns answer hat loads
-    (``options.load == "hat"``, the loads the kernel's subtraction needs), else none.
+    ``"auto"``: the layer kernel (the half-space's plus the regular part of the pad on its
+    rigid base, :mod:`hailstorm.runtime.contact.layer_kernel`) if the bundle's columns answer
+    hat loads (``options.load == "hat"``, the loads the kernel's subtraction needs), else none.
     """
     if near is None or isinstance(near, NearField):
         return near
     if near == "auto":
         options = (getattr(gf, "manifest", None) or {}).get("options", {})
-        near = "halfspace" if options.get("load") == "hat" else "none"
+        near = "layer" if options.get("load") == "hat" else "none"
     return near_field(near, float(gf.young), float(gf.poisson))
 
 

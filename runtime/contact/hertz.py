@@ -200,14 +200,14 @@ def press_spheres(
         ``a = hertz_radius(F(a))``; an update that overshoots is damped).
     max_iter : int
         Bound on the iterations.
-    near_field : {"auto", "halfspace", "none"} or None
+    near_field : {"auto", "layer", "halfspace", "none"} or None
         Resolve contacts smaller than the surface elements at their own scale
         (:mod:`hailstorm.runtime.contact.near_field`): each sphere's Hertz disc
-        gets its own half-space compliance in place of the mesh's near field,
-        and the sphere's profile is followed over its own disc (offset
-        ``a^2 / (5 R)``). "auto" (default): on a bundle of hat-load columns
-        (the default seat's); "none": the discrete model (the patch as the
-        mesh resolves it).
+        gets its own compliance in place of the mesh's near field, and the
+        sphere's profile is followed over its own disc (offset ``a^2 / (5 R)``).
+        "auto" (default): the layer kernel on a bundle of hat-load columns (the
+        default seat's); "halfspace": the half-space's kernel alone; "none": the
+        discrete model (the patch as the mesh resolves it).
 
     Returns
     -------

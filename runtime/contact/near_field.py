@@ -24,7 +24,10 @@ The resolved model keeps what the mesh knows and replaces what it cannot::
   the mesh;
 * ``e(w)``: D's own error at the scale of one hat load, measured on the
   bundle (:mod:`hailstorm.runtime.contact.hat_defect`; ``NearField(defect=False)``
-  leaves it out).
+  leaves it out);
+* with the ``"layer"`` kernel (the default's, ``"auto"``), ``+ T(w)``: the pad on its
+  rigid base, whose regular part the mesh's hats sample coarsely when the contact is
+  as wide as the pad is thick (:mod:`hailstorm.runtime.contact.layer_kernel`).
 
 ``D - H`` is the body's response minus the half-space's: smooth at the
 contact (for a body thicker than the contact and a kernel of its material),
@@ -62,6 +65,7 @@ import numpy as np
 
 from hailstorm.runtime.compiled.near_field import hat_compliance
 from hailstorm.runtime.contact.hat_defect import hat_defect, patch_defect
+from hailstorm.runtime.contact.layer_kernel import layer_correction, layer_kernel, layer_surface
 
 __all__ = [
     "NEAR_FIELDS",
@@ -72,9 +76,11 @@ __all__ = [
     "vertex_triangles",
 ]
 
-#: the near-field choices ("none": the mesh alone, the discrete model; "auto": the half-space
-#: kernel on a bundle whose columns answer hat loads, else none)
-NEAR_FIELDS = ("auto", "halfspace", "none")
+#: the near-field choices ("none": the mesh alone, the discrete model; "halfspace": the
+#: half-space kernel; "layer": the half-space's plus the regular part of a pad on its rigid
+#: base, :mod:`hailstorm.runtime.contact.layer_kernel`; "auto": the layer kernel on a bundle
+#: whose columns answer hat loads, else none)
+NEAR_FIELDS = ("auto", "halfspace", "layer", "none")
 
 
 def halfspace_patch_compliance(radius: Any, young: float, poisson: float) -> tuple[np.ndarray, np.ndarray]:
@@ -116,8 +122,10 @@ class NearField:
 
     Attributes
     ----------
-    kernel : {"halfspace"}
-        The near-field kernel.
+    kernel : {"halfspace", "layer"}
+        The near-field kernel: the half-space's, or the half-space's plus the regular part of
+        the pad on its rigid base at the local thickness (the normal compliance's;
+        :mod:`hailstorm.runtime.contact.layer_kernel`).
     young, poisson : float
         The material of the kernel (the bundle's under the contactable surface).
     defect : bool
@@ -153,11 +161,13 @@ class NearField:
         if not self.defect:
             s = np.asarray(verts).shape[0]
             return np.zeros(s), np.zeros(s)
-        return patch_defect(hat_defect(gf, self.young, self.poisson, kernel_surface(gf)), verts, weights)
+        return patch_defect(hat_defect(gf, self.young, self.poisson, kernel_surface(gf), self.kernel == "layer"),
+                            verts, weights)
 
     def blocks(self, gf: Any, radius: np.ndarray, verts: np.ndarray, weights: np.ndarray, centres: np.ndarray,
                normals: np.ndarray, sticky: bool) -> np.ndarray:
-        """Per-contact correction ``c(a) - w^T H w + e(w)`` in the constrained components, (s, p, p).
+        """Per-contact correction ``c(a) - w^T H w + e(w)`` (``+ T(w)``, the layer's, on the
+        normal with the ``"layer"`` kernel) in the constrained components, (s, p, p).
 
         ``p = 3`` (sticky: ``dn n n^T + dt (I - n n^T)``) or 1 (frictionless:
         ``dn``); zero for point contacts (``a = 0``).
@@ -172,6 +182,9 @@ class NearField:
                                           np.asarray(centres)[on], np.asarray(normals)[on])
             en, et = self.mesh_defect(gf, np.asarray(verts)[on], np.asarray(weights)[on])
             dn[on], dt[on] = cn - mn + en, ct - mt + et
+            if self.kernel == "layer":
+                dn[on] += layer_correction(layer_kernel(self.poisson), layer_surface(gf), self.young, a[on],
+                                           np.asarray(verts)[on], np.asarray(weights)[on])
         if not sticky:
             return dn.reshape(s, 1, 1)
         n = np.asarray(normals, dtype=np.float64).reshape(s, 3)
@@ -184,7 +197,7 @@ def near_field(kind: str | None, young: float, poisson: float) -> NearField | No
 
     Parameters
     ----------
-    kind : {"halfspace", "none"} or None
+    kind : {"halfspace", "layer", "none"} or None
         The kernel (``"auto"`` is resolved against a bundle by
         :func:`hailstorm.runtime.contact.contact_capacitance.resolve_near_field`); ``"none"``/None keeps the discrete model (the patch's
         compliance is the mesh's, whatever its size).

@@ -144,7 +144,7 @@ def solve_contacts(
         prescribes.
     patch_profile : {"hertz", "uniform"}
         Pressure profile over a patch.
-    near_field : {"halfspace", "none"} or None
+    near_field : {"auto", "layer", "halfspace", "none"} or None
         Resolve patches smaller than the surface elements at their own scale
         (:mod:`hailstorm.runtime.contact.near_field`); ``contact_displacement``
         then includes the near field. Default: the discrete model.

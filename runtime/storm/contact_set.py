@@ -175,5 +175,6 @@ class ContactSets:
         verts = self.triangles[t1].astype(np.int64)
         from_weights(self.gf, t1, third, self.normals[t1], self.contact.mode, verts, third).K
         if self.near is not None:
-            self.near.mesh_compliance(self.gf, verts, third, third @ self.X[verts[0]], self.normals[t1])
-            self.near.mesh_defect(self.gf, verts, third)  # measures the bundle's hat-scale defect once
+            # the whole block once: measures the bundle's hat-scale defect and, with the layer kernel,
+            # computes the layer's curve and casts the thickness under these vertices
+            self.near.blocks(self.gf, np.array([1e-3]), verts, third, third @ self.X[verts[0]], self.normals[t1], False)

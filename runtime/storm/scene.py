@@ -389,11 +389,13 @@ class ContactSettings(_Section):
         (default 0.2: 20%). Within it the contact keeps its weights and the
         capacitance is not rebuilt (a 20% radius error changes the patch's
         stiffness by ~20% but the radius itself only as ``F^(1/3)``).
-    near_field : {"auto", "halfspace", "none"}
+    near_field : {"auto", "layer", "halfspace", "none"}
         Patches smaller than the surface elements resolved at their own scale
-        (:mod:`hailstorm.runtime.contact.near_field`): ``"auto"`` (default) on a
-        bundle whose columns answer hat loads (the default seat's), ``"none"``
-        the patch as the mesh carries it.
+        (:mod:`hailstorm.runtime.contact.near_field`): ``"auto"`` (default) the
+        layer kernel (the half-space's plus the pad on its rigid base) on a
+        bundle whose columns answer hat loads (the default seat's),
+        ``"halfspace"`` the half-space's alone, ``"none"`` the patch as the mesh
+        carries it.
     """
 
     SECTION: ClassVar[str] = "contact"

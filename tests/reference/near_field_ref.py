@@ -111,12 +111,75 @@ def hat_halfspace_block_ref(vertices: np.ndarray, triangles: np.ndarray, areas: 
     return H / np.asarray(areas, dtype=np.float64)[v][None, :]
 
 
-def hat_defect_ref(gf, young: float, poisson: float, reach: float = 2.2, min_neighbours: int = 6):
+def hat_points_ref(X: np.ndarray, T: np.ndarray, v: int, k: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """Vertex ``v``'s hat traction ``phi_v / a_v`` as a point cloud: each fan triangle cut into
+    ``k^2`` similar subtriangles, a point at each one's centroid carrying ``phi_v`` there times its area,
+    normalised to 1 (the midpoint rule; plain loops)."""
+    pts, mass = [], []
+    for t in T:
+        if v not in t:
+            continue
+        c = list(t).index(v)
+        P = X[t]
+        area = 0.5 * np.linalg.norm(np.cross(P[1] - P[0], P[2] - P[0])) / k**2
+        for a in range(k):
+            for b in range(k - a):
+                for lam in (((a + 1 / 3) / k, (b + 1 / 3) / k), ((a + 2 / 3) / k, (b + 2 / 3) / k)):
+                    if lam[0] + lam[1] > 1.0:
+                        continue
+                    bary = np.array([1.0 - lam[0] - lam[1], lam[0], lam[1]])
+                    pts.append(bary @ P)
+                    mass.append(bary[c] * area)
+    mass = np.array(mass)
+    return np.array(pts), mass / mass.sum()
+
+
+def layer_sum_ref(kernel, X: np.ndarray, T: np.ndarray, verts: np.ndarray, weights: np.ndarray,
+                  thickness: np.ndarray, k: int = 8) -> np.ndarray:
+    """The plain statement of :func:`hailstorm.runtime.compiled.near_field.layer_sum`: per patch,
+    ``sum_ab w_a w_b int phi_b / a_b g(|x_a - y| / h)`` over :func:`hat_points_ref` clouds, ``g`` the
+    kernel's own numpy rule (``LayerKernel.__call__``)."""
+    out = np.zeros(len(verts))
+    for s, (vs, ws, h) in enumerate(zip(verts, weights, thickness)):
+        for va, wa in zip(vs, ws):
+            for vb, wb in zip(vs, ws):
+                if wa <= 0 or wb <= 0:
+                    continue
+                out[s] += wa * wb * _pair_ref(kernel, X, T, int(va), int(vb), h, k)
+    return out
+
+
+def disc_ref(kernel, alpha: float, n: int = 120) -> float:
+    """``<p, g p>`` of a unit Hertz disc of radius ``alpha`` thicknesses on a plain square grid of
+    ``n x n`` cells over the unit disc (the midpoint rule)."""
+    x = (np.arange(n) + 0.5) / n * 2.0 - 1.0
+    P = np.stack(np.meshgrid(x, x), -1).reshape(-1, 2)
+    r2 = (P**2).sum(1)
+    inside = r2 < 1.0
+    P, p = P[inside], np.sqrt(1.0 - r2[inside])
+    p = p / p.sum()
+    total = 0.0
+    for i in range(P.shape[0]):
+        total += p[i] * float(p @ kernel(alpha * np.linalg.norm(P - P[i], axis=1)))
+    return total
+
+
+def _pair_ref(kernel, X: np.ndarray, T: np.ndarray, a: int, b: int, h: float, k: int = 8) -> float:
+    """``int phi_b / a_b g(|x_a - y| / h)``: one pair of :func:`layer_sum_ref`."""
+    y, m = hat_points_ref(X, T, b, k)
+    return float(m @ kernel(np.linalg.norm(X[a] - y, axis=1) / h))
+
+
+def hat_defect_ref(gf, young: float, poisson: float, reach: float = 3.0, min_neighbours: int = 6,
+                   layer=None) -> dict[tuple[int, int], tuple[float, float]]:
     """The plain statement of :func:`hailstorm.runtime.contact.hat_defect.hat_defect`: per contactable
     vertex, loops over its neighbours (every vertex tested by distance), D's 3 x 3 blocks one pair at
-    a time, ``H`` from :func:`hat_halfspace_block_ref`, and ``numpy.linalg.lstsq`` for the fit.
+    a time, ``H`` from :func:`hat_halfspace_block_ref`, ``numpy.linalg.lstsq`` for the fit over the
+    pairs beyond the first ring. With ``layer`` (a ``(kernel, thickness)`` pair: the layer kernel and
+    the thickness under each vertex), the layer's regular part (:func:`_pair_ref` at the vertex's
+    thickness) comes off the normal pairs and diagonal too.
 
-    Returns the normal and tangential defects, (n,) each."""
+    Returns ``{(i, j): (delta_n, delta_t)}`` for the near pairs (``j = i`` and the edge neighbours)."""
     X = np.asarray(gf.vertices, dtype=np.float64)
     T = np.asarray(gf.triangles)
     n = X.shape[0]
@@ -141,7 +204,7 @@ def hat_defect_ref(gf, young: float, poisson: float, reach: float = 2.2, min_nei
     k_n = (1.0 - poisson**2) / (np.pi * young)
     k_t = k_n * (2.0 - poisson) / (2.0 * (1.0 - poisson))
     soft = np.flatnonzero(gf.contactable)
-    normal, tangential = np.zeros(n), np.zeros(n)
+    out: dict[tuple[int, int], tuple[float, float]] = {}
 
     def parts(B, nv):
         bn = nv @ B @ nv
@@ -149,41 +212,49 @@ def hat_defect_ref(gf, young: float, poisson: float, reach: float = 2.2, min_nei
 
     for i in soft:
         nv = N[i]
-        js = [j for j in soft if j != i and np.linalg.norm(X[j] - X[i]) <= reach * np.mean(lengths[i])]
-        if len(js) < min_neighbours:
-            continue
-        dn_ii, dt_ii = parts(gf.compliance([i], [i]), nv)
-        h_ii = hat_halfspace_block_ref(X, T, gf.areas, fan, np.array([i]), X[i], nv)[0, 0]
-        rows = []
-        for j in js:
+
+        def reg(a: int, b: int) -> float:  # the layer's regular part, R_ab, at i's thickness [m/N]
+            if layer is None or not np.isfinite(layer[1][i]):
+                return 0.0
+            h = layer[1][i]
+            return _pair_ref(layer[0], X, T, a, b, h) / (young * h)
+
+        def g(j: int) -> tuple[float, float]:  # D - K for the pair (i, j), normal and tangential
             B = 0.5 * (gf.compliance([i], [j]) + gf.compliance([j], [i]).T)
-            v = np.array(sorted((i, j)))
+            v = np.array(sorted({i, j}))
             H = hat_halfspace_block_ref(X, T, gf.areas, fan, v, X[i], nv)
-            h_ij = 0.5 * (H[0, 1] + H[1, 0])
+            h_ij = H[0, 0] if j == i else 0.5 * (H[0, 1] + H[1, 0])
             dn, dt = parts(B, nv)
-            rows.append((float(np.sum((X[j] - X[i]) ** 2)), dn - k_n * h_ij, dt - k_t * h_ij))
-        r2, gn, gt = map(np.array, zip(*rows))
+            return dn - k_n * h_ij - 0.5 * (reg(i, j) + reg(j, i)), dt - k_t * h_ij
+
+        ring = [j for j in soft if tuple(sorted((int(i), int(j)))) in edges]
+        far = [j for j in soft if j != i and j not in ring
+               and np.linalg.norm(X[j] - X[i]) <= reach * np.mean(lengths[i])]
+        if len(far) < min_neighbours:
+            continue
+        r2 = np.array([float(np.sum((X[j] - X[i]) ** 2)) for j in far])
+        gf_far = np.array([g(j) for j in far])
         A = np.column_stack([np.ones_like(r2), r2])
-        normal[i] = np.linalg.lstsq(A, gn, rcond=None)[0][0] - (dn_ii - k_n * h_ii)
-        tangential[i] = np.linalg.lstsq(A, gt, rcond=None)[0][0] - (dt_ii - k_t * h_ii)
-    return normal, tangential
+        cn = np.linalg.lstsq(A, gf_far[:, 0], rcond=None)[0]
+        ct = np.linalg.lstsq(A, gf_far[:, 1], rcond=None)[0]
+        for j in [i, *ring]:
+            rr = float(np.sum((X[j] - X[i]) ** 2))
+            gn, gt = g(j)
+            out[(int(i), int(j))] = (gn - cn[0] - cn[1] * rr, gt - ct[0] - ct[1] * rr)
+    return out
 
 
-def patch_defect_ref(normal: np.ndarray, tangential: np.ndarray, triangles: np.ndarray, verts: np.ndarray,
+def patch_defect_ref(near: dict[tuple[int, int], tuple[float, float]], verts: np.ndarray,
                      weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The plain statement of :func:`hailstorm.runtime.contact.hat_defect.patch_defect`: per patch,
-    ``sum_i Delta_i w_i (w_i - wbar_i)``, ``wbar_i`` the mean of the patch's weights over the edge
-    neighbours of ``i`` (a vertex outside the patch weighs 0)."""
-    nbrs: dict[int, set[int]] = {}
-    for t in np.asarray(triangles):
-        for a, b in ((0, 1), (1, 2), (2, 0)):
-            nbrs.setdefault(int(t[a]), set()).add(int(t[b]))
-            nbrs.setdefault(int(t[b]), set()).add(int(t[a]))
+    ``-sum w_i w_j delta_ij`` over its ordered vertex pairs that are near pairs (``near`` as
+    :func:`hat_defect_ref` returns it)."""
     en, et = np.zeros(len(verts)), np.zeros(len(verts))
     for k, (vk, wk) in enumerate(zip(verts, weights)):
         w = {int(v): float(x) for v, x in zip(vk, wk) if x > 0}
         for i, wi in w.items():
-            wbar = sum(w.get(j, 0.0) for j in nbrs[i]) / len(nbrs[i])
-            en[k] += normal[i] * wi * (wi - wbar)
-            et[k] += tangential[i] * wi * (wi - wbar)
+            for j, wj in w.items():
+                if (i, j) in near:
+                    en[k] -= wi * wj * near[(i, j)][0]
+                    et[k] -= wi * wj * near[(i, j)][1]
     return en, et

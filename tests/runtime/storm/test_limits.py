@@ -13,16 +13,14 @@ from hailstorm.runtime.contact.hertz import hertz_impact
 from hailstorm.runtime.contact.weights import hertz_radius
 from hailstorm.runtime.storm.scene import Scene
 from hailstorm.runtime.storm.driver import Storm
+from hailstorm.runtime.bundle.thickness import PadThickness, RayCaster, surface_thickness
 from hailstorm.runtime.storm.limits import (
     PAD_DENSITY,
     ImpactLimits,
-    PadThickness,
-    RayCaster,
     ValidityLimits,
     boundary_faces,
     contact_time_ratio,
     peak_strain,
-    surface_thickness,
     validity_warning,
 )
 from hailstorm.runtime.storm.recording import StormStats

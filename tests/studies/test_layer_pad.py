@@ -1,0 +1,67 @@
+"""The near field on a pad on its rigid base, against the pad's own converged contact.
+
+A 15 mm pad of the default foam clamped underneath (:func:`hailstorm.studies.dynamic_study.pad_bundle`,
+120 mm square, the default seat's settings: 6 mm, P2, hat loads) and the same pad as an axisymmetric
+disc solved to convergence with the indenter's profile node by node
+(:func:`hailstorm.studies.axisymmetric.press_disc`, Hertz's paraboloid: the near field's contacts are
+Hertz's). The default near field (``"layer"``: :mod:`hailstorm.runtime.contact.layer_kernel`) carries
+the converged force at every site; the half-space kernel alone does not (so the test can fail).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hailstorm.runtime.contact.hat_defect import hat_defect
+from hailstorm.runtime.contact.near_field import kernel_surface
+from hailstorm.studies.dynamic_study import default_pad, pad_bundle
+from hailstorm.studies.resolution_study import PAD_CASES, SITES, pad_table
+
+
+@pytest.fixture(scope="module")
+def pad():
+    return default_pad()
+
+
+@pytest.fixture(scope="module")
+def pad_gf(pad):
+    return pad_bundle(pad, mesh_size=0.006)
+
+
+@pytest.fixture(scope="module")
+def rows(pad, pad_gf):
+    return pad_table(pad_gf, pad, PAD_CASES[:4])
+
+
+def test_press_spheres_carries_the_pads_converged_force(rows):
+    """Contact radii 1.6-7.0 mm (a stone of 2.5 and 5 mm at the peak of its impact at terminal speed, a
+    7.5 mm one 4.5 mm deep, a 12.5 mm one 4 mm deep): the default (``"layer"``) within 1.5 % of the
+    converged force and within 0.3 % of each other at every site (measured -0.2 .. +1.2 %); the
+    half-space kernel alone 1.6-5.8 % too soft, so the test can fail."""
+    for row in rows:
+        model = np.array([row[f"layer:{s}"] for s in SITES])
+        half = np.array([row[f"halfspace:{s}"] for s in SITES])
+        assert np.abs(model).max() < 0.015, row
+        assert np.ptp(model) < 0.003, row
+        assert half.max() < -0.015, row
+
+
+def test_the_pads_defect_is_on_the_diagonal_and_first_ring(pad_gf):
+    """Against the exact layer on the same hat loads, the finite elements give each top vertex too
+    small a displacement under its own hat and its edge neighbours too large a one, by about as
+    much in all (measured: -5 % and +4-6 %); what the near-pair form takes off."""
+    d = hat_defect(pad_gf, float(pad_gf.young), float(pad_gf.poisson), kernel_surface(pad_gf), layer=True)
+    n = d.normal.size
+    i_, j_ = d.keys // n, d.keys % n
+    V = np.asarray(pad_gf.vertices)
+    top = np.abs(V[:, 2] - V[:, 2].max()) < 1e-9
+    inner = top & (np.abs(V[:, 0] - 0.06) < 0.04) & (np.abs(V[:, 1] - 0.06) < 0.04)
+    diag = (i_ == j_) & inner[i_]
+    assert np.all(d.near_normal[diag] < 0)
+    ring = np.bincount(i_[(i_ != j_) & inner[i_]], d.near_normal[(i_ != j_) & inner[i_]], minlength=n)
+    own = np.zeros(n)
+    own[i_[diag]] = d.near_normal[diag]
+    sel = i_[diag]
+    assert np.all(ring[sel] > 0)
+    assert np.median(np.abs(own[sel] + ring[sel]) / np.abs(own[sel])) < 0.5
