@@ -120,9 +120,11 @@ def test_layer_point_response_refuses_a_bad_poisson_ratio():
         layer_point_response(0.5)
 
 
-@pytest.mark.parametrize("alpha", [0.1, 1.5])
+@pytest.mark.parametrize("alpha", [0.1, 1.5, 4.5])
 def test_disc_is_its_reference(kernel, alpha):
-    assert kernel.disc(alpha) == pytest.approx(disc_ref(kernel, alpha), rel=2e-3)
+    """The table (to 4 thicknesses) and the quadrature beyond it against a plain grid."""
+    assert kernel.disc(np.array([alpha]))[0] == pytest.approx(disc_ref(kernel, alpha), rel=2e-3)
+    assert kernel.disc(np.array([alpha]))[0] == pytest.approx(kernel.disc_quadrature(alpha), rel=1e-5)
 
 
 def test_hat_quadrature_is_each_hat_traction(hat_box):
