@@ -18,7 +18,7 @@ import numpy as np
 
 from hailstorm.runtime.compiled.jit import kernel
 
-__all__ = ["edge_term", "hat_compliance", "hat_potential", "layer_sum"]
+__all__ = ["edge_term", "hat_compliance", "hat_pair_sum", "hat_potential", "layer_sum", "layer_term"]
 
 
 @kernel
@@ -163,6 +163,41 @@ def hat_compliance(verts, weights, centres, normals, X, T, areas, fan_ptr, fan_t
 
 
 @kernel
+def hat_pair_sum(verts, weights, k, X, hat_ptr, hat_pts, hat_w, inv_h, table, step):  # pragma: no cover (compiled)
+    """``sum_ij w_i w_j int phi_j/a_j g(|x_i - y| inv_h)`` of patch ``k`` (:func:`layer_sum`'s body)."""
+    P = verts.shape[1]
+    n = table.shape[0]
+    end = (n - 1) * step
+    acc = 0.0
+    for a in range(P):
+        wa = weights[k, a]
+        if wa <= 0.0:
+            continue
+        i = verts[k, a]
+        for b in range(P):
+            wb = weights[k, b]
+            if wb <= 0.0:
+                continue
+            j = verts[k, b]
+            part = 0.0
+            for q in range(hat_ptr[j], hat_ptr[j + 1]):
+                d0 = X[i, 0] - hat_pts[q, 0]
+                d1 = X[i, 1] - hat_pts[q, 1]
+                d2 = X[i, 2] - hat_pts[q, 2]
+                rho = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2) * inv_h
+                if rho >= end:
+                    g = table[n - 1] * end / rho
+                else:
+                    x = rho / step
+                    m = min(int(x), n - 2)
+                    f = x - m
+                    g = table[m] * (1.0 - f) + table[m + 1] * f
+                part += hat_w[q] * g
+            acc += wa * wb * part
+    return acc
+
+
+@kernel
 def layer_sum(verts, weights, X, hat_ptr, hat_pts, hat_w, inv_h, table, step):  # pragma: no cover (compiled)
     """``sum_ij w_i w_j int phi_j/a_j g(|x_i - y| / h)`` of each patch contact, (s,).
 
@@ -174,36 +209,46 @@ def layer_sum(verts, weights, X, hat_ptr, hat_pts, hat_w, inv_h, table, step):  
     Padded (s, P) vertex lists and weights (weight 0: padding), ``inv_h`` (s,) the
     contacts' ``1/h``.
     """
-    s, P = verts.shape
+    s = verts.shape[0]
     out = np.zeros(s)
-    n = table.shape[0]
-    end = (n - 1) * step
     for k in range(s):
-        acc = 0.0
-        for a in range(P):
-            wa = weights[k, a]
-            if wa <= 0.0:
-                continue
-            i = verts[k, a]
-            for b in range(P):
-                wb = weights[k, b]
-                if wb <= 0.0:
-                    continue
-                j = verts[k, b]
-                part = 0.0
-                for q in range(hat_ptr[j], hat_ptr[j + 1]):
-                    d0 = X[i, 0] - hat_pts[q, 0]
-                    d1 = X[i, 1] - hat_pts[q, 1]
-                    d2 = X[i, 2] - hat_pts[q, 2]
-                    rho = math.sqrt(d0 * d0 + d1 * d1 + d2 * d2) * inv_h[k]
-                    if rho >= end:
-                        g = table[n - 1] * end / rho
-                    else:
-                        x = rho / step
-                        m = int(x)
-                        t = x - m
-                        g = table[m] * (1.0 - t) + table[m + 1] * t
-                    part += hat_w[q] * g
-                acc += wa * wb * part
-        out[k] = acc
+        out[k] = hat_pair_sum(verts, weights, k, X, hat_ptr, hat_pts, hat_w, inv_h[k], table, step)
+    return out
+
+
+@kernel
+def layer_term(verts, weights, radius, thick, X, hat_ptr, hat_pts, hat_w, table, step, disc_table, disc_step,
+               young):  # pragma: no cover (compiled)
+    """The layer's term ``T(w)`` of each patch contact [m/N], (s,)
+    (:func:`hailstorm.runtime.contact.layer_kernel.layer_correction`, which states it).
+
+    ``h`` the weights' mean of ``thick`` (the thickness under each surface vertex); 0 where it
+    is not finite and positive; NaN where ``radius / h`` lies past the disc's table
+    (``disc_table`` on ``alpha = k disc_step``), for the caller to integrate.
+    """
+    s = verts.shape[0]
+    out = np.zeros(s)
+    nd = disc_table.shape[0]
+    for k in range(s):
+        wsum = 0.0
+        hsum = 0.0
+        for p in range(verts.shape[1]):
+            w = weights[k, p]
+            if w > 0.0:
+                wsum += w
+                hsum += w * thick[verts[k, p]]
+        if not wsum > 0.0:
+            continue
+        h = hsum / wsum
+        if not (h > 0.0 and h < np.inf):
+            continue
+        x = radius[k] / h / disc_step
+        if x > nd - 1:
+            out[k] = np.nan
+            continue
+        m = min(int(x), nd - 2)
+        f = x - m
+        phi = disc_table[m] * (1.0 - f) + disc_table[m + 1] * f
+        S = hat_pair_sum(verts, weights, k, X, hat_ptr, hat_pts, hat_w, 1.0 / h, table, step)
+        out[k] = (phi * wsum * wsum - S) / (young * h)
     return out

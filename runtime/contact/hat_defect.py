@@ -119,7 +119,7 @@ def _layer_pairs(gf: Any, young: float, poisson: float, C: np.ndarray, I: np.nda
     """The layer kernel's regular part on hat loads (:mod:`hailstorm.runtime.contact.layer_kernel`), at the
     thickness under the first vertex: ``R_ii`` of each of ``C`` and the symmetric ``R_ij`` of each pair (m/N)."""
     kern, surf = layer_kernel(poisson), layer_surface(gf)
-    h = surf.thickness(C)
+    h = surf.thick[C]
     inv = np.where(np.isfinite(h) & (h > 0), 1.0 / np.where(h > 0, h, 1.0), 0.0)
     scale = inv / young
 

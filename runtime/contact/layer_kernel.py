@@ -14,7 +14,7 @@ the layer kernel adds it back,
 
 the regular part's compliance of the contact's own Hertz disc ``p`` (:meth:`LayerKernel.disc`)
 minus the same part on the patch's hat loads as D answers them (nodal value at ``x_i``
-of vertex ``j``'s hat traction; :func:`hailstorm.runtime.compiled.near_field.layer_sum`).
+of vertex ``j``'s hat traction; :func:`hailstorm.runtime.compiled.near_field.layer_term`).
 With it the model is ``W = w^T D w - w^T H w + c(a) + e(w) + T(w)``: the layer's own
 kernel, ``H + G_reg``, is subtracted on the hat loads and added at the contact's scale.
 
@@ -35,15 +35,21 @@ kernel, ``H + G_reg``, is subtracted on the hat loads and added at the contact's
 from __future__ import annotations
 
 import functools
+import hashlib
+import json
+import logging
 import math
 import weakref
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from hailstorm.runtime.bundle.thickness import PadThickness
-from hailstorm.runtime.compiled.near_field import layer_sum
+from hailstorm.runtime.compiled.near_field import layer_term
+
+_log = logging.getLogger(__name__)
 
 __all__ = ["DISC_MAX", "DISC_STEP", "LayerKernel", "LayerSurface", "graded", "hat_quadrature", "layer_correction", "layer_kernel",
            "layer_point_response", "layer_surface"]
@@ -229,16 +235,68 @@ def layer_point_response(poisson: float, *, cell: float = 0.004, extent: float =
     return r, -u[2 * top + 1]
 
 
+#: what the cached curves depend on (a change of any of them is a new file name)
+_SOLVE = {"cell": 0.004, "extent": 0.15, "growth": 1.04, "radius": 12.0, "fit": FIT_RANGE, "step": TABLE_STEP,
+          "disc": (DISC_STEP, DISC_MAX), "version": 1}
+
+
+def _cache_path(poisson: float) -> Path:
+    """The kernel's file in hailstorm's cache directory (``layer_kernel/<key>.npz``)."""
+    from hailstorm.runtime.bundle.stamps import default_cache_dir
+
+    key = hashlib.sha256(json.dumps({"poisson": repr(float(poisson)), **_SOLVE}, sort_keys=True).encode()).hexdigest()
+    return default_cache_dir() / "layer_kernel" / f"{key[:16]}.npz"
+
+
+def _read_cached(path: Path, poisson: float) -> LayerKernel | None:
+    try:
+        with np.load(path) as f:
+            table, discs, nu = np.array(f["table"], dtype=np.float64), np.array(f["disc"], dtype=np.float64), float(f["poisson"])
+    except (OSError, KeyError, ValueError):
+        return None
+    n_disc = int(round(DISC_MAX / DISC_STEP)) + 1
+    if nu != float(poisson) or discs.shape != (n_disc,) or table.ndim != 1 or table.size < 2 \
+            or not (np.all(np.isfinite(table)) and np.all(np.isfinite(discs))):
+        return None
+    table.flags.writeable = False
+    discs.flags.writeable = False
+    return LayerKernel(poisson=float(poisson), step=TABLE_STEP, table=table, disc_table=discs)
+
+
 @functools.lru_cache(maxsize=4)
 def layer_kernel(poisson: float) -> LayerKernel:
-    """The layer kernel of a Poisson ratio, computed once (about a second; module notes).
+    """The layer kernel of a Poisson ratio: solved once per machine (about 2 s; module notes), then
+    read from hailstorm's cache directory (``layer_kernel/``, written atomically; a cache that cannot
+    be read or written is passed by) and kept per process.
 
     Raises
     ------
     ValueError
         ``poisson`` outside (-1, 0.5).
     """
-    r, uz = layer_point_response(float(poisson))
+    if not (-1.0 < poisson < 0.5):
+        raise ValueError(f"layer_kernel needs -1 < poisson < 0.5, got {poisson!r}")
+    path = _cache_path(poisson)
+    cached = _read_cached(path, poisson)
+    if cached is not None:
+        return cached
+    kern = _solve_kernel(float(poisson))
+    try:
+        from hailstorm.runtime.bundle.atomic import replacing
+
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with replacing(path) as tmp:
+            with open(tmp, "wb") as f:
+                np.savez(f, table=kern.table, disc=kern.disc_table, poisson=np.float64(poisson))
+    except OSError as exc:
+        _log.debug("could not cache the layer kernel (%s)", exc)
+    return kern
+
+
+def _solve_kernel(poisson: float) -> LayerKernel:
+    """:func:`layer_kernel`'s solve."""
+    r, uz = layer_point_response(float(poisson), cell=_SOLVE["cell"], extent=_SOLVE["extent"],
+                                 growth=_SOLVE["growth"], radius=_SOLVE["radius"])
     g = uz - (1.0 - poisson**2) / (np.pi * np.where(r > 0, r, np.inf))
     fit = (r >= FIT_RANGE[0]) & (r <= FIT_RANGE[1])
     even = np.polyfit(r[fit] ** 2, g[fit], 2)
@@ -298,6 +356,8 @@ class LayerSurface:
         :func:`hat_quadrature`.
     thickness : PadThickness
         The local thickness, cast per vertex on first request.
+    thick : (n,) float64
+        The same under every contactable vertex, cast once (NaN elsewhere): what the patches read.
     """
 
     X: np.ndarray
@@ -305,6 +365,7 @@ class LayerSurface:
     hat_pts: np.ndarray
     hat_w: np.ndarray
     thickness: PadThickness
+    thick: np.ndarray
 
 
 _SURFACES: "weakref.WeakKeyDictionary[Any, LayerSurface]" = weakref.WeakKeyDictionary()
@@ -317,7 +378,11 @@ def layer_surface(gf: Any) -> LayerSurface:
     except (KeyError, TypeError):
         pass
     X = np.ascontiguousarray(gf.vertices, dtype=np.float64)
-    out = LayerSurface(X, *hat_quadrature(X, np.asarray(gf.triangles)), thickness=PadThickness(gf))
+    pad = PadThickness(gf)
+    thick = np.full(X.shape[0], np.nan)
+    soft = np.flatnonzero(np.asarray(gf.contactable))
+    thick[soft] = pad(soft)
+    out = LayerSurface(X, *hat_quadrature(X, np.asarray(gf.triangles)), thickness=pad, thick=thick)
     try:
         _SURFACES[gf] = out
     except TypeError:  # pragma: no cover - not weak-referenceable
@@ -342,14 +407,15 @@ def layer_correction(kernel: LayerKernel, surface: LayerSurface, young: float, r
     """
     verts = np.ascontiguousarray(verts, dtype=np.int64)
     weights = np.ascontiguousarray(weights, dtype=np.float64)
-    wsum = weights.sum(axis=1)
-    h = (weights * surface.thickness(verts)).sum(axis=1) / np.where(wsum > 0, wsum, 1.0)
-    ok = np.isfinite(h) & (h > 0) & (wsum > 0)
-    out = np.zeros(verts.shape[0])
-    if not ok.any():
-        return out
-    hk = h[ok]
-    S = layer_sum(verts[ok], weights[ok], surface.X, surface.hat_ptr, surface.hat_pts, surface.hat_w, 1.0 / hk,
-                  kernel.table, kernel.step)
-    out[ok] = (kernel.disc(np.asarray(radius, dtype=np.float64)[ok] / hk) * wsum[ok] ** 2 - S) / (young * hk)
+    radius = np.ascontiguousarray(radius, dtype=np.float64)
+    out = layer_term(verts, weights, radius, surface.thick, surface.X, surface.hat_ptr, surface.hat_pts,
+                     surface.hat_w, kernel.table, kernel.step, kernel.disc_table, DISC_STEP, float(young))
+    wide = np.flatnonzero(np.isnan(out))
+    for k in wide:  # a disc wider than the table: integrated
+        w = weights[k]
+        h = float((w * surface.thick[verts[k]]).sum() / w.sum())
+        out[k] = layer_term(verts[k:k + 1], weights[k:k + 1], np.zeros(1), surface.thick, surface.X,
+                            surface.hat_ptr, surface.hat_pts, surface.hat_w, kernel.table, kernel.step,
+                            kernel.disc_table, DISC_STEP, float(young))[0] \
+            + (float(kernel.disc_quadrature(radius[k] / h)) - kernel.disc_table[0]) * w.sum() ** 2 / (young * h)
     return out

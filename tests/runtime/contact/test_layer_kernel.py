@@ -180,6 +180,8 @@ def test_the_layer_term_stiffens_a_wide_patch_and_leaves_an_open_surface_alone(h
     expect = (kernel.disc(0.01 / h) * w[0].sum() ** 2 - S) / (E * h)
     assert got[0] == pytest.approx(expect, rel=3e-3)
     assert got[0] < 0
+    wide = layer_correction(kernel, surf, E, np.array([0.25]), v, w)[0]  # a / h = 5: past the disc's table
+    assert wide == pytest.approx((kernel.disc_quadrature(0.25 / h) * w[0].sum() ** 2 - S) / (E * h), rel=3e-3)
     plate = plate_gf(7)
     pv, pw = np.array([[24, 25]]), np.array([[0.5, 0.5]])
     assert layer_correction(kernel, layer_surface(plate), 2e6, np.array([0.01]), pv, pw)[0] == 0.0
@@ -218,3 +220,28 @@ def test_the_layer_defect_is_its_reference(hat_box):
     for key, (dn, dt) in want.items():  # the layer's part by the 6-point rule against the fine cloud
         assert have[key][0] == pytest.approx(dn, abs=3e-3 * scale_n)
         assert have[key][1] == pytest.approx(dt, abs=1e-9 * scale_t)
+
+
+def test_the_kernel_is_solved_once_per_machine_and_a_bad_cache_is_passed_by(tmp_path, monkeypatch):
+    """Written atomically into the cache directory, read back equal; a damaged file is solved again
+    (and rewritten), never read as a kernel."""
+    from hailstorm.runtime.contact import layer_kernel as lk
+
+    monkeypatch.setenv("HAILSTORM_CACHE", str(tmp_path))
+    lk.layer_kernel.cache_clear()
+    try:
+        first = lk.layer_kernel(0.3)
+        files = list((tmp_path / "layer_kernel").glob("*.npz"))
+        assert len(files) == 1 and not list((tmp_path / "layer_kernel").glob(".*"))
+        lk.layer_kernel.cache_clear()
+        again = lk.layer_kernel(0.3)
+        np.testing.assert_array_equal(again.table, first.table)
+        np.testing.assert_array_equal(again.disc_table, first.disc_table)
+        files[0].write_bytes(b"not a kernel")
+        lk.layer_kernel.cache_clear()
+        fresh = lk.layer_kernel(0.3)
+        np.testing.assert_array_equal(fresh.table, first.table)
+        assert lk._read_cached(files[0], 0.3) is not None  # rewritten
+        assert lk._read_cached(files[0], 0.31) is None  # another material's is not this one's
+    finally:
+        lk.layer_kernel.cache_clear()
