@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from hailstorm.runtime.contact.layer_solve import graded
 from hailstorm.runtime.storm.limits import PAD_DENSITY
 
 __all__ = ["FOAM_DENSITY", "DiscPress", "Pad", "PadMesh", "axisymmetric_matrices", "contact_lcp", "pad_mesh",
@@ -100,22 +101,6 @@ class PadMesh:
     cell: float
 
 
-def _graded(length: float, fine: float, extent: float, growth: float) -> np.ndarray:
-    """Points 0 .. length: cells of ``fine`` up to ``extent``, then growing by ``growth``."""
-    extent = min(extent, length)
-    n = max(1, int(math.ceil(extent / fine)))
-    pts = list(np.linspace(0.0, n * fine, n + 1))
-    h = fine
-    while pts[-1] < length:
-        h *= growth
-        pts.append(pts[-1] + h)
-    pts = np.array(pts)
-    if pts.size > 2 and length - pts[-2] < 0.5 * (pts[-2] - pts[-3]):
-        pts = np.delete(pts, -2)  # no sliver at the end
-    pts[-1] = length
-    return pts[pts <= length]
-
-
 def axisymmetric_matrices(mesh: Any, young: float, poisson: float, density: float) -> tuple[Any, Any, Any]:
     """Stiffness and mass of axisymmetric linear elasticity on an (r, z) triangle mesh.
 
@@ -174,8 +159,8 @@ def pad_mesh(pad: Pad, cell: float, extent: float, growth: float = 1.15) -> PadM
 
     if not (cell > 0 and extent > 0 and growth > 1):
         raise ValueError(f"pad_mesh needs cell > 0, extent > 0, growth > 1, got {cell!r}, {extent!r}, {growth!r}")
-    r = _graded(pad.radius, cell, extent, growth)
-    depth = _graded(pad.thickness, cell, extent, growth)
+    r = graded(pad.radius, cell, extent, growth)
+    depth = graded(pad.thickness, cell, extent, growth)
     z = np.sort(pad.thickness - depth)
     z[0] = 0.0
     mesh = MeshTri.init_tensor(r, z)

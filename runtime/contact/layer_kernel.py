@@ -19,12 +19,12 @@ With it the model is ``W = w^T D w - w^T H w + c(a) + e(w) + T(w)``: the layer's
 kernel, ``H + G_reg``, is subtracted on the hat loads and added at the contact's scale.
 
 * ``g`` is one curve per Poisson ratio (dimensional analysis: a point force ``P`` on a layer
-  of thickness ``h`` bonded to a rigid base gives ``u_z = P / (E h) f(r / h)``), computed once
-  per process by an axisymmetric finite-element solve (:func:`layer_point_response`: P1 on a
-  graded (r, z) grid, numpy and scipy alone, as the runtime stage is; about a second; tested
-  against scikit-fem's assembly of the same problem) minus the half-space's
+  of thickness ``h`` bonded to a rigid base gives ``u_z = P / (E h) f(r / h)``): the axisymmetric
+  solve of :mod:`hailstorm.runtime.contact.layer_solve` minus the half-space's
   ``(1 - nu^2) / (pi rho)``; smooth at 0, where the finite elements cannot carry the point
-  force, it is continued by an even quartic in ``rho``.
+  force, it is continued by an even quartic in ``rho``. Solved once per machine (about 2 s,
+  then read from hailstorm's cache directory, :func:`layer_kernel`), with the disc's share
+  tabulated against ``a / h``.
 * ``h`` is the local thickness under the patch (:class:`hailstorm.runtime.bundle.thickness.PadThickness`,
   a ray cast along the inward normal; the weights' mean over the patch). Where the ray
   meets nothing (an open surface) the term is 0, the half-space's model.
@@ -48,24 +48,18 @@ import numpy as np
 
 from hailstorm.runtime.bundle.thickness import PadThickness
 from hailstorm.runtime.compiled.near_field import layer_term
+from hailstorm.runtime.contact.layer_solve import DUNAVANT6, DUNAVANT6_W, layer_point_response
 
 _log = logging.getLogger(__name__)
 
-__all__ = ["DISC_MAX", "DISC_STEP", "LayerKernel", "LayerSurface", "graded", "hat_quadrature", "layer_correction", "layer_kernel",
-           "layer_point_response", "layer_surface"]
+__all__ = ["DISC_MAX", "DISC_STEP", "LayerKernel", "LayerSurface", "hat_quadrature", "layer_correction", "layer_kernel",
+           "layer_surface"]
 
 #: the table's spacing in thicknesses, and where the finite elements' ``g`` is read from
 #: (closer to the point force, within about 25 cells, the mesh's own error shows; the even
 #: quartic ``c0 + c2 rho^2 + c4 rho^4`` fitted over this range continues it to 0, within 6e-5)
 TABLE_STEP = 0.002
 FIT_RANGE = (0.2, 0.6)
-
-#: Dunavant's 6-point rule on a triangle, exact for degree 4 (barycentric, weights sum to 1)
-_A, _B = 0.445948490915965, 0.091576213509771
-_RULE = np.array([[_A, _A, 1 - 2 * _A], [_A, 1 - 2 * _A, _A], [1 - 2 * _A, _A, _A],
-                  [_B, _B, 1 - 2 * _B], [_B, 1 - 2 * _B, _B], [1 - 2 * _B, _B, _B]])
-_RULE_W = np.array([0.223381589678011] * 3 + [0.109951743655322] * 3)
-
 
 #: the disc's table: ``alpha = a / h`` from 0 to DISC_MAX in steps of DISC_STEP (wider discs are
 #: integrated when asked for)
@@ -137,102 +131,6 @@ class LayerKernel:
             out = np.where(wide, 0.0, out)
             out[wide] = self.disc_quadrature(alpha[wide])
         return out
-
-
-def graded(length: float, fine: float, extent: float, growth: float) -> np.ndarray:
-    """Grid lines ``0 .. length``: cells of ``fine`` up to ``extent``, then growing by ``growth``."""
-    extent = min(extent, length)
-    n = max(1, int(math.ceil(extent / fine)))
-    pts = list(np.linspace(0.0, n * fine, n + 1))
-    h = fine
-    while pts[-1] < length:
-        h *= growth
-        pts.append(pts[-1] + h)
-    out = np.array(pts)
-    if out.size > 2 and length - out[-2] < 0.5 * (out[-2] - out[-3]):
-        out = np.delete(out, -2)  # no sliver at the end
-    out[-1] = length
-    return out[out <= length]
-
-
-def _axisymmetric_stiffness(r: np.ndarray, z: np.ndarray, poisson: float) -> tuple[Any, np.ndarray]:
-    """P1 stiffness of axisymmetric elasticity (``E = 1``) on the tensor grid ``r x z`` cut into
-    triangles, dofs ``(u_r, u_z)`` per node (node ``k = i_z * len(r) + i_r``), integrated with
-    Dunavant's 6-point rule over ``2 pi r dA`` (never on the axis). Returns the matrix and the
-    nodes (N, 2)."""
-    import scipy.sparse as sp
-
-    nr = r.size
-    R, Z = np.meshgrid(r, z)
-    nodes = np.column_stack([R.ravel(), Z.ravel()])
-    k = (np.arange(z.size - 1)[:, None] * nr + np.arange(nr - 1)[None, :]).ravel()
-    tri = np.concatenate([np.column_stack([k, k + 1, k + nr + 1]), np.column_stack([k, k + nr + 1, k + nr])])
-    P = nodes[tri]  # (m, 3, 2)
-    J = np.stack([P[:, 1] - P[:, 0], P[:, 2] - P[:, 0]], axis=2)  # columns: edges (m, 2, 2)
-    det = J[:, 0, 0] * J[:, 1, 1] - J[:, 0, 1] * J[:, 1, 0]
-    inv = np.stack([np.stack([J[:, 1, 1], -J[:, 0, 1]], 1), np.stack([-J[:, 1, 0], J[:, 0, 0]], 1)], 1) / det[:, None, None]
-    dref = np.array([[-1.0, -1.0], [1.0, 0.0], [0.0, 1.0]])  # d lambda_c / d(xi, eta)
-    grad = np.einsum("cx,mxy->mcy", dref, inv)  # (m, 3, [d/dr, d/dz])
-    lam = _RULE  # (q, 3) barycentric of the quadrature points
-    rq = np.einsum("qc,mc->mq", lam, P[:, :, 0])
-    B = np.zeros((tri.shape[0], lam.shape[0], 4, 6))  # strains e_rr, e_zz, e_tt, g_rz per dof (u_r, u_z) x 3
-    B[:, :, 0, 0::2] = grad[:, None, :, 0]
-    B[:, :, 1, 1::2] = grad[:, None, :, 1]
-    B[:, :, 2, 0::2] = lam[None, :, :] / rq[:, :, None]
-    B[:, :, 3, 0::2] = grad[:, None, :, 1]
-    B[:, :, 3, 1::2] = grad[:, None, :, 0]
-    lame, mu = poisson / ((1 + poisson) * (1 - 2 * poisson)), 1.0 / (2 * (1 + poisson))
-    C = np.diag([2 * mu, 2 * mu, 2 * mu, mu])
-    C[:3, :3] += lame
-    w = _RULE_W[None, :] * 0.5 * np.abs(det)[:, None] * 2.0 * np.pi * rq  # (m, q)
-    Ke = np.einsum("mq,mqsi,st,mqtj->mij", w, B, C, B)
-    dofs = np.stack([2 * tri, 2 * tri + 1], axis=2).reshape(-1, 6)
-    rows = np.repeat(dofs, 6, axis=1).ravel()
-    cols = np.tile(dofs, (1, 6)).ravel()
-    K = sp.csc_matrix((Ke.ravel(), (rows, cols)), shape=(2 * nodes.shape[0],) * 2)
-    return K, nodes
-
-
-def layer_point_response(poisson: float, *, cell: float = 0.004, extent: float = 0.15, growth: float = 1.04,
-                         radius: float = 12.0) -> tuple[np.ndarray, np.ndarray]:
-    """The top surface's ``u_z`` under a unit point force on the axis of a unit layer.
-
-    A layer of thickness 1 and Young's modulus 1 (``u`` scales as ``P / (E h)``), Poisson
-    ratio ``poisson``, clamped underneath (its rigid base), free on top and at its rim
-    ``radius`` thicknesses out (the response has decayed there: a layer on a rigid base
-    carries a point force within a few thicknesses); P1 triangles of ``cell`` within
-    ``extent`` of the load, growing by ``growth`` beyond. The defaults give about 31 000
-    dofs, a second's work. The finite elements cannot carry the point force's own ``1/r``
-    singularity within a few dozen cells of it (:func:`layer_kernel` reads the response beyond).
-
-    Returns
-    -------
-    r, uz : ndarray
-        The top nodes' radii (ascending, in thicknesses) and their ``u_z`` (positive into the
-        layer, ``E h u_z / P``).
-
-    Raises
-    ------
-    ValueError
-        ``poisson`` outside (-1, 0.5).
-    """
-    from scipy.sparse.linalg import splu
-
-    if not (-1.0 < poisson < 0.5):
-        raise ValueError(f"layer_point_response needs -1 < poisson < 0.5, got {poisson!r}")
-    r = graded(radius, cell, extent, growth)
-    z = np.sort(1.0 - graded(1.0, cell, extent, growth))
-    z[0] = 0.0
-    K, nodes = _axisymmetric_stiffness(r, z, float(poisson))
-    nr = r.size
-    fixed = np.concatenate([np.arange(2 * nr), 2 * np.flatnonzero(nodes[:, 0] == 0.0)])  # the base, u_r on the axis
-    free = np.setdiff1d(np.arange(K.shape[0]), fixed)
-    top = (z.size - 1) * nr + np.arange(nr)  # ascending r
-    f = np.zeros(K.shape[0])
-    f[2 * top[0] + 1] = -1.0  # a unit force pressing down (-z) on the axis
-    u = np.zeros(K.shape[0])
-    u[free] = splu(K[free][:, free].tocsc()).solve(f[free])
-    return r, -u[2 * top + 1]
 
 
 #: what the cached curves depend on (a change of any of them is a new file name)
@@ -326,10 +224,10 @@ def hat_quadrature(X: np.ndarray, T: np.ndarray) -> tuple[np.ndarray, np.ndarray
     X = np.asarray(X, dtype=np.float64)
     T = np.asarray(T, dtype=np.int64)
     area = 0.5 * np.linalg.norm(np.cross(X[T[:, 1]] - X[T[:, 0]], X[T[:, 2]] - X[T[:, 0]]), axis=1)
-    pts = np.einsum("qc,tcd->tqd", _RULE, X[T])  # (m, 6, 3)
+    pts = np.einsum("qc,tcd->tqd", DUNAVANT6, X[T])  # (m, 6, 3)
     # corner c of triangle t owns its 6 points with weight rule_w * area * lambda_c
     own = np.concatenate([T[:, c] for c in range(3)])
-    pw = np.concatenate([(_RULE_W * _RULE[:, c])[None, :] * area[:, None] for c in range(3)])  # (3m, 6)
+    pw = np.concatenate([(DUNAVANT6_W * DUNAVANT6[:, c])[None, :] * area[:, None] for c in range(3)])  # (3m, 6)
     pp = np.concatenate([pts] * 3)
     order = np.argsort(own, kind="stable")
     n = X.shape[0]

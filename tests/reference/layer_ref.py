@@ -13,7 +13,7 @@ def layer_point_response_ref(poisson: float, *, cell: float = 0.004, extent: flo
     from scipy.sparse.linalg import splu
     from skfem import MeshTri
 
-    from hailstorm.runtime.contact.layer_kernel import graded
+    from hailstorm.runtime.contact.layer_solve import graded
     from hailstorm.studies.axisymmetric import axisymmetric_matrices
 
     r = graded(radius, cell, extent, growth)
