@@ -140,7 +140,8 @@ class NearField:
     defect: bool = True
 
     def compliance(self, radius: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The kernel's normal and tangential self-compliance of a Hertz disc of ``radius`` [m/N]."""
+        """The half-space's normal and tangential self-compliance of a Hertz disc of ``radius`` [m/N],
+        ``c(a) = c(1) / a`` (with the ``"layer"`` kernel the layer's share is in :meth:`blocks`)."""
         return halfspace_patch_compliance(radius, self.young, self.poisson)
 
     def mesh_compliance(self, gf: Any, verts: np.ndarray, weights: np.ndarray, centres: np.ndarray,

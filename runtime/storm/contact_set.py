@@ -176,5 +176,5 @@ class ContactSets:
         from_weights(self.gf, t1, third, self.normals[t1], self.contact.mode, verts, third).K
         if self.near is not None:
             # the whole block once: measures the bundle's hat-scale defect and, with the layer kernel,
-            # computes the layer's curve and casts the thickness under these vertices
+            # reads (or solves) the layer's curve and casts the thickness under every contactable vertex
             self.near.blocks(self.gf, np.array([1e-3]), verts, third, third @ self.X[verts[0]], self.normals[t1], False)
