@@ -47,8 +47,8 @@ from typing import Any
 import numpy as np
 
 from hailstorm.runtime.bundle.thickness import PadThickness
-from hailstorm.runtime.compiled.near_field import layer_term
-from hailstorm.runtime.contact.layer_solve import DUNAVANT6, DUNAVANT6_W, layer_point_response
+from hailstorm.runtime.compiled.near_field import layer_sum, layer_term
+from hailstorm.runtime.contact.layer_solve import DUNAVANT6, DUNAVANT6_W, LAYER_MESH, layer_point_response
 
 _log = logging.getLogger(__name__)
 
@@ -134,7 +134,7 @@ class LayerKernel:
 
 
 #: what the cached curves depend on (a change of any of them is a new file name)
-_SOLVE = {"cell": 0.004, "extent": 0.15, "growth": 1.04, "radius": 12.0, "fit": FIT_RANGE, "step": TABLE_STEP,
+_SOLVE = {**LAYER_MESH, "fit": FIT_RANGE, "step": TABLE_STEP,
           "disc": (DISC_STEP, DISC_MAX), "version": 1}
 
 
@@ -193,8 +193,7 @@ def layer_kernel(poisson: float) -> LayerKernel:
 
 def _solve_kernel(poisson: float) -> LayerKernel:
     """:func:`layer_kernel`'s solve."""
-    r, uz = layer_point_response(float(poisson), cell=_SOLVE["cell"], extent=_SOLVE["extent"],
-                                 growth=_SOLVE["growth"], radius=_SOLVE["radius"])
+    r, uz = layer_point_response(float(poisson))
     g = uz - (1.0 - poisson**2) / (np.pi * np.where(r > 0, r, np.inf))
     fit = (r >= FIT_RANGE[0]) & (r <= FIT_RANGE[1])
     even = np.polyfit(r[fit] ** 2, g[fit], 2)
@@ -252,17 +251,15 @@ class LayerSurface:
         Vertices.
     hat_ptr, hat_pts, hat_w : ndarray
         :func:`hat_quadrature`.
-    thickness : PadThickness
-        The local thickness, cast per vertex on first request.
     thick : (n,) float64
-        The same under every contactable vertex, cast once (NaN elsewhere): what the patches read.
+        The local thickness under every contactable vertex (:class:`~hailstorm.runtime.bundle.thickness.PadThickness`),
+        cast once (NaN elsewhere): what the patches read.
     """
 
     X: np.ndarray
     hat_ptr: np.ndarray
     hat_pts: np.ndarray
     hat_w: np.ndarray
-    thickness: PadThickness
     thick: np.ndarray
 
 
@@ -276,11 +273,10 @@ def layer_surface(gf: Any) -> LayerSurface:
     except (KeyError, TypeError):
         pass
     X = np.ascontiguousarray(gf.vertices, dtype=np.float64)
-    pad = PadThickness(gf)
     thick = np.full(X.shape[0], np.nan)
     soft = np.flatnonzero(np.asarray(gf.contactable))
-    thick[soft] = pad(soft)
-    out = LayerSurface(X, *hat_quadrature(X, np.asarray(gf.triangles)), thickness=pad, thick=thick)
+    thick[soft] = PadThickness(gf)(soft)
+    out = LayerSurface(X, *hat_quadrature(X, np.asarray(gf.triangles)), thick=thick)
     try:
         _SURFACES[gf] = out
     except TypeError:  # pragma: no cover - not weak-referenceable
@@ -312,8 +308,7 @@ def layer_correction(kernel: LayerKernel, surface: LayerSurface, young: float, r
     for k in wide:  # a disc wider than the table: integrated
         w = weights[k]
         h = float((w * surface.thick[verts[k]]).sum() / w.sum())
-        out[k] = layer_term(verts[k:k + 1], weights[k:k + 1], np.zeros(1), surface.thick, surface.X,
-                            surface.hat_ptr, surface.hat_pts, surface.hat_w, kernel.table, kernel.step,
-                            kernel.disc_table, DISC_STEP, float(young))[0] \
-            + (float(kernel.disc_quadrature(radius[k] / h)) - kernel.disc_table[0]) * w.sum() ** 2 / (young * h)
+        S = layer_sum(verts[k:k + 1], weights[k:k + 1], surface.X, surface.hat_ptr, surface.hat_pts, surface.hat_w,
+                      np.array([1.0 / h]), kernel.table, kernel.step)[0]
+        out[k] = (float(kernel.disc(np.array([radius[k] / h]))[0]) * w.sum() ** 2 - S) / (young * h)
     return out

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["DUNAVANT6", "DUNAVANT6_W", "graded", "layer_point_response"]
+__all__ = ["DUNAVANT6", "DUNAVANT6_W", "LAYER_MESH", "graded", "layer_point_response"]
 
 #: Dunavant's 6-point rule on a triangle, exact for degree 4 (barycentric, weights sum to 1)
 _A, _B = 0.445948490915965, 0.091576213509771
@@ -79,8 +79,13 @@ def _axisymmetric_stiffness(r: np.ndarray, z: np.ndarray, poisson: float) -> tup
     return K, nodes
 
 
-def layer_point_response(poisson: float, *, cell: float = 0.004, extent: float = 0.15, growth: float = 1.04,
-                         radius: float = 12.0) -> tuple[np.ndarray, np.ndarray]:
+#: the default mesh of :func:`layer_point_response` (in thicknesses)
+LAYER_MESH = {"cell": 0.004, "extent": 0.15, "growth": 1.04, "radius": 12.0}
+
+
+def layer_point_response(poisson: float, *, cell: float = LAYER_MESH["cell"], extent: float = LAYER_MESH["extent"],
+                         growth: float = LAYER_MESH["growth"], radius: float = LAYER_MESH["radius"]
+                         ) -> tuple[np.ndarray, np.ndarray]:
     """The top surface's ``u_z`` under a unit point force on the axis of a unit layer.
 
     A layer of thickness 1 and Young's modulus 1 (``u`` scales as ``P / (E h)``), Poisson
