@@ -5,10 +5,10 @@ Imports numpy, scipy and numba only (no gmsh, no scikit-fem): a bundle written b
 contact work in compiled kernels (:mod:`hailstorm.runtime.compiled`).
 
 * :func:`load` -> :class:`GreensFunctions` (D, surface, ``compliance(rows, cols)``);
-* :func:`barycentric_matrix` (B), :func:`patch_weights`, :func:`hertz_radius`;
+* :func:`barycentric_matrix` (B), :func:`patch_weights`, :func:`hertz_radius`, :func:`sphere_radius`;
 * :func:`capacitance` -> :class:`Capacitance` (W = Bᵀ D B, K = W⁻¹, low-rank updates);
 * :func:`solve_contacts` -> :class:`ContactSolution`;
-* :func:`press_spheres` -> :class:`SphereContacts` (rigid spheres, Hertz-consistent patches);
+* :func:`press_spheres` -> :class:`SphereContacts` (rigid spheres, patches consistent with the sphere);
   :func:`hertz_impact` -> :class:`HertzImpact` (Hertz's quasi-static impact, the reference);
 * :class:`Scene` (its sections :class:`StormSettings`, :class:`HailSettings`,
   :class:`ContactSettings`, :class:`TimeSettings`, :class:`OutputSettings`, :class:`ValiditySettings`; the default seat's
@@ -25,8 +25,10 @@ from hailstorm.runtime.contact import (
     hertz_radius,
     patch_weights,
     solve_contacts,
+    sphere_radius,
 )
-from hailstorm.runtime.contact.hertz import HertzImpact, SphereContacts, hertz_force, hertz_impact, press_spheres
+from hailstorm.runtime.contact.hertz import (HertzImpact, SphereContacts, hertz_force, hertz_impact, press_spheres,
+                                             sphere_force)
 from hailstorm.runtime.storm.scene import (
     ContactSettings,
     HailSettings,
@@ -66,6 +68,8 @@ __all__ = [
     "load",
     "patch_weights",
     "press_spheres",
+    "sphere_force",
+    "sphere_radius",
     "run_storm",
     "solve_contacts",
 ]

@@ -128,8 +128,8 @@ def block_table(gf: Any, radii: Sequence[float] = (0.5e-3, 1e-3, 2e-3, 4e-3, 8e-
     (:func:`block_disc`, :func:`hailstorm.studies.axisymmetric.press_disc`) over Hertz's, minus 1:
     ``"block"`` for Hertz's paraboloid (what Hertz solves, on this block instead of a half-space: the
     floor of a comparison with Hertz) and ``"block_sphere"`` for the sphere; and
-    ``"<near_field>:<site>:block"``: the model's force over the block's paraboloid force, minus 1 (the
-    model's own error; its contacts are Hertz's paraboloid, :mod:`hailstorm.runtime.contact.near_field`).
+    ``"<near_field>:<site>:block"``: the model's force over the block's sphere force, minus 1 (the
+    model's own error; its contacts follow the sphere's law, :mod:`hailstorm.runtime.contact.hertz`).
     """
     from hailstorm.runtime.contact.hertz import hertz_force, press_spheres
     from hailstorm.studies.axisymmetric import press_disc
@@ -143,9 +143,9 @@ def block_table(gf: Any, radii: Sequence[float] = (0.5e-3, 1e-3, 2e-3, 4e-3, 8e-
         row: dict[str, Any] = {"a_mm": a * 1e3, "R_mm": R * 1e3}
         F_block = None
         if disc is not None:
-            F_block = press_disc(disc, R, d, profile="paraboloid").force
-            row["block"] = F_block / F - 1.0
-            row["block_sphere"] = press_disc(disc, R, d).force / F - 1.0
+            row["block"] = press_disc(disc, R, d, profile="paraboloid").force / F - 1.0
+            F_block = press_disc(disc, R, d).force
+            row["block_sphere"] = F_block / F - 1.0
         for nf in MODELS:
             for site, (t, b) in block_sites(gf).items():
                 res = press_spheres(gf, [t], [b], [d], R, rows=None, near_field=model(nf, gf))
@@ -162,7 +162,7 @@ PAD_CASES = ((2.5e-3, 1.07e-3), (5e-3, 2.7e-3), (7.5e-3, 4.5e-3), (12.5e-3, 4e-3
 
 
 def pad_table(gf: Any, pad: Any, cases: Sequence[tuple[float, float]] = PAD_CASES) -> list[dict[str, Any]]:
-    """Rigid paraboloids pressed into a pad on its rigid base, per site and model, against the pad's own
+    """Rigid spheres pressed into a pad on its rigid base, per site and model, against the pad's own
     converged contact (:func:`hailstorm.studies.axisymmetric.press_disc` on the same pad as a disc of
     ``pad.radius``, node by node; ``gf`` the pad as a block, :func:`hailstorm.studies.dynamic_study.pad_bundle`).
 
@@ -173,7 +173,7 @@ def pad_table(gf: Any, pad: Any, cases: Sequence[tuple[float, float]] = PAD_CASE
 
     rows = []
     for R, d in cases:
-        ref = press_disc(pad, R, d, profile="paraboloid")
+        ref = press_disc(pad, R, d, profile="sphere")
         row: dict[str, Any] = {"a_mm": ref.contact_radius * 1e3, "R_mm": R * 1e3, "depth_mm": d * 1e3,
                                "a_over_h": ref.contact_radius / pad.thickness, "F_N": ref.force}
         for nf in MODELS:
@@ -389,7 +389,7 @@ def main(argv: list[str] | None = None) -> None:
             say("", f"## Thick block (P2, hat loads, {args.mesh_size * 1e3:g} mm on top), a/R = {a_over_R:g}: "
                     "F / F_Hertz - 1 [%]; block / block_sphere: the block's own converged force for Hertz's "
                     "paraboloid / the sphere (block_disc); ':block': the model's force over the block's "
-                    "paraboloid force, - 1 [%]", "")
+                    "sphere force, - 1 [%] (the model follows the sphere)", "")
             rows = block_table(gf, a_over_R=a_over_R)
             keys = (["a_mm", "R_mm", "block", "block_sphere"]
                     + [f"{nf}:{s}" for nf in MODELS for s in SITES]
@@ -404,7 +404,7 @@ def main(argv: list[str] | None = None) -> None:
         pad = default_pad()
         gf = pad_bundle(pad, mesh_size=args.mesh_size)
         say("", f"## The pad on its rigid base ({pad.thickness * 1e3:g} mm of the default foam, a 120 mm block, P2, hat "
-                f"loads, {args.mesh_size * 1e3:g} mm): Hertz's paraboloid pressed to a depth, F / F_pad - 1 [%], "
+                f"loads, {args.mesh_size * 1e3:g} mm): a sphere pressed to a depth, F / F_pad - 1 [%], "
                 "F_pad the pad's own converged force (press_disc on the pad as a disc, node by node); a the "
                 "converged contact radius", "")
         rows = pad_table(gf, pad)

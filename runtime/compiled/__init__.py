@@ -19,7 +19,8 @@ Modules, in the order of a storm step:
   (:func:`free_phase`: closest points, time of impact, contacts that open,
   hard walls) and the penetration statistics;
 * :mod:`~hailstorm.runtime.compiled.patches` — patch weights, a patch's compliance and
-  the patch sizing of the storm's contacts;
+  the patch sizing of the storm's contacts (with :mod:`~hailstorm.runtime.compiled.sphere`,
+  the rigid sphere's contact law at any contact radius);
 * :mod:`~hailstorm.runtime.compiled.blocks` — blocks of D (D_VV, D_VV G, W, D[:, V] g)
   and one-call point-contact solves: the contact API's kernels
   (:func:`hailstorm.runtime.contact.solve_contacts`), also used by the storm;

@@ -14,6 +14,7 @@ import numpy as np
 from hailstorm.runtime.compiled.jit import kernel
 from hailstorm.runtime.compiled.flight import drag_dot
 from hailstorm.runtime.compiled.grid import cell_range, sorted_ints
+from hailstorm.runtime.compiled.sphere import sphere_radius_of
 
 #: A resting contact (oscillation amplitude below ``rest_speed``) is re-sized to the Hertz
 #: radius of its force once it is this far off (relative): the static dent follows the weight,
@@ -230,12 +231,13 @@ def patch_compliance(verts, w, normal, D, column_of):  # pragma: no cover (compi
 
 
 @kernel
-def _hertz_target(kk, f, f_eq, m, vn, R, e_star, a_min):  # pragma: no cover (compiled)
+def _sphere_target(kk, f, f_eq, m, vn, R, e_star, a_min):  # pragma: no cover (compiled)
     """Patch radius for the expected peak force ``f_eq + sqrt((f - f_eq)^2 + k m vn^2)``:
-    the Hertz radius, clipped to ``[a_min, R]``, then at least ``a_min``."""
+    the sphere's contact radius (:func:`hailstorm.runtime.compiled.sphere.sphere_radius_of`),
+    clipped to ``[a_min, R]``, then at least ``a_min``."""
     kk = max(kk, 0.0)
     fp = f_eq + math.sqrt((f - f_eq) ** 2 + kk * m * vn * vn)
-    a = np.cbrt(3.0 * abs(fp) * R / (4.0 * e_star))
+    a = sphere_radius_of(fp, R, e_star)
     a = min(max(a, a_min), R)
     return max(a, a_min)
 
@@ -299,13 +301,13 @@ def patch_radii(stones, tris, mass, radius, vel, cbary, crad, cnormal, g, wind, 
             else:
                 k = Kdiag[ik]
                 f = abs(lam[ik])
-            target = _hertz_target(k, f, f_eq, m, vn, R, e_star, a_min)
+            target = _sphere_target(k, f, f_eq, m, vn, R, e_star, a_min)
             off[i + 1] = off[i]
         else:
-            a0 = _hertz_target(k_tri[t], 0.0, f_eq, m, vn, R, e_star, a_min)
+            a0 = _sphere_target(k_tri[t], 0.0, f_eq, m, vn, R, e_star, a_min)
             V, w = patch_one(t, cbary[j], a0, n, 3.0, rule_off, rule_x, rule_y, rule_w, facing, drop, pidx, X)
             c = patch_compliance(V, w, n, D, column_of)
-            a1 = _hertz_target(1.0 / c if c > 0.0 else 0.0, 0.0, f_eq, m, vn, R, e_star, a_min)
+            a1 = _sphere_target(1.0 / c if c > 0.0 else 0.0, 0.0, f_eq, m, vn, R, e_star, a_min)
             target = a1 if (a1 > a0 * t1 or a1 * t1 < a0) else a0
             a0s[i] = a0
             wv, ww = _append(wv, ww, V, w)

@@ -38,7 +38,10 @@ Patch contacts (James & Pai's pressure masks)
 
 :func:`hertz_radius` gives the Hertz contact radius
 ``a = (3 F R / (4 E*))^(1/3)``, ``E* = E / (1 - nu^2)``, of a rigid sphere of
-radius ``R`` pressed with force ``F`` on the seat.
+radius ``R`` pressed with force ``F`` on the seat (the paraboloid's, ``a << R``);
+:func:`sphere_radius` the sphere's own at any ``a / R``, which patch contacts are
+sized by, and :func:`sphere_offset` the matching offset of the patch's mean
+displacement below the sphere's lowest point.
 """
 
 from __future__ import annotations
@@ -52,6 +55,7 @@ import numpy as np
 
 from hailstorm.runtime.compiled import SampleGrid
 from hailstorm.runtime.compiled.patches import disc_patch as one_patch_kernel
+from hailstorm.runtime.compiled.sphere import X_MAX, sphere_q, sphere_radii
 from hailstorm.runtime.bundle.compliance import ComplianceSource, unique_inverse
 from hailstorm.runtime.bundle.read import vertex_normals
 
@@ -68,7 +72,6 @@ __all__ = [
     "dense_Bs",
     "disc_rule",
     "disc_table",
-    "hertz_mean_offset",
     "hertz_radius",
     "interpolate",
     "locate",
@@ -77,6 +80,8 @@ __all__ = [
     "patch_weights",
     "smooth_normals",
     "sphere_mean_offset",
+    "sphere_offset",
+    "sphere_radius",
     "triangle_index",
     "triangle_normals",
     "vertex_forces",
@@ -263,32 +268,63 @@ def hertz_radius(force: Any, stone_radius: Any, young: float, poisson: float, *,
     return a
 
 
-def hertz_mean_offset(patch_radius: Any, sphere_radius: Any) -> np.ndarray:
-    """``a^2 / (5 R)``: how far the Hertz-weighted mean surface displacement of a
-    disc of radius ``a`` under a sphere of radius ``R`` lies short of the
-    sphere's lowest point [m] (0 for a point contact, ``a = 0``).
+def sphere_radius(force: Any, stone_radius: Any, young: float, poisson: float, *,
+                  a_min: float = 0.0, a_max: float | None = None) -> np.ndarray:
+    """Contact radius of a rigid sphere pressed on the (elastic) seat, at any ``a / R``.
 
-    Under a sphere the surface follows ``delta - r^2 / (2 R)``; its mean under
-    the weights ``sqrt(1 - r^2/a^2)`` is ``delta - <r^2> / (2 R)`` with
-    ``<r^2> = 2 a^2 / 5``.
+    The inverse of the sphere's own law ``F = E* R^2 ((1 + x^2) atanh(x) - x)``,
+    ``x = a / R`` (Sneddon 1965; :mod:`hailstorm.runtime.compiled.sphere`), which is
+    :func:`hertz_radius` for ``a << R`` and stays below ``R`` at every force (Hertz's
+    paraboloid reaches ``R`` at ``F = (4/3) E* R^2``). Clipped to ``[a_min, a_max]``.
+    Parameters and result as :func:`hertz_radius`'s.
+    """
+    F = np.abs(np.asarray(force, dtype=np.float64))
+    R = np.asarray(stone_radius, dtype=np.float64)
+    if np.any(R < 0) or not (young > 0 and -1.0 < poisson < 0.5):
+        raise ValueError("sphere_radius needs R >= 0, E > 0 and -1 < nu < 0.5")
+    F, R = np.broadcast_arrays(F, R)
+    e_star = young / (1.0 - poisson**2)
+    a = sphere_radii(np.ascontiguousarray(F.ravel()), np.ascontiguousarray(R.ravel()), e_star).reshape(F.shape)
+    a = np.maximum(a, a_min)
+    if a_max is not None:
+        a = np.minimum(a, a_max)
+    return a
+
+
+def sphere_offset(patch_radius: Any, sphere_radius: Any) -> np.ndarray:
+    """How far a patch's mean surface displacement lies short of the sphere's lowest point [m]
+    (0 for a point contact, ``a = 0``): the offset that makes a patch of radius ``a``, whose
+    compliance is Hertz's disc's ``3 / (5 a E*)``, carry the sphere's own force at its depth.
+
+    ``R (x atanh(x) - (3/5) q(x) / x)`` with ``x = a / R`` and ``q`` the sphere's force
+    (:mod:`hailstorm.runtime.compiled.sphere`): ``delta(a) - 3 F(a) / (5 a E*)``. For
+    ``a << R`` it is ``a^2 / (5 R) (1 + x^2 / 15 + ...)``, the Hertz-weighted mean of the
+    paraboloid ``r^2 / (2 R)`` (``<r^2> = 2 a^2 / 5``), so a patch is consistent with
+    Hertz where Hertz holds and with the sphere beyond (on a half-space exactly). It falls
+    to 0 at ``a/R`` = 0.993 (a force of ``5 E* R^2``) and is floored there: a patch is never
+    anchored above the sphere's lowest point.
     """
     a = np.asarray(patch_radius, dtype=np.float64)
     R = np.asarray(sphere_radius, dtype=np.float64)
-    return np.where(R > 0, a * a / (5.0 * np.where(R > 0, R, 1.0)), 0.0)
+    a, R = np.broadcast_arrays(a, R)
+    x = np.where(R > 0, np.minimum(a / np.where(R > 0, R, 1.0), X_MAX), 0.0)
+    q = np.array([sphere_q(v) for v in x.ravel().tolist()]).reshape(x.shape)
+    off = R * (x * np.arctanh(x) - 0.6 * q / np.where(x > 0, x, 1.0))
+    return np.where(x > 0, np.maximum(off, 0.0), 0.0)
 
 
 def sphere_mean_offset(points: np.ndarray, verts: np.ndarray, weights: np.ndarray, centres: np.ndarray,
                        normals: np.ndarray, patch_radius: Any, sphere_radius: Any) -> np.ndarray:
     """The patch-mean offset of a sphere's profile as the surface mesh can follow it [m], (s,).
 
-    :func:`hertz_mean_offset` assumes a surface that follows the sphere over
+    :func:`sphere_offset` assumes a surface that follows the sphere over
     the whole disc. A piecewise-linear surface can only do so where its
     triangles are small against the disc: a disc inside one triangle sees a
     plane, whose weighted mean is its value at the contact point, offset 0.
     The weights' tangential second moment about the contact point,
     ``m2 = sum_p w_p |rho_p|^2``, measures this: it is ``2 a^2 / 5`` plus an
     ``O(h^2)`` smear of the hat functions. The offset is
-    ``a^2 / (5 R) * min(1, (2 a^2 / 5) / m2)``: Hertz's on a resolved patch,
+    ``sphere_offset(a, R) * min(1, (2 a^2 / 5) / m2)``: the sphere's on a resolved patch,
     vanishing as the patch shrinks inside a triangle.
 
     Parameters
@@ -309,7 +345,7 @@ def sphere_mean_offset(points: np.ndarray, verts: np.ndarray, weights: np.ndarra
     m2 = np.einsum("kp,kpd,kpd->k", weights, rho, rho)
     m2_disc = 0.4 * a * a
     resolved = np.where(m2 > m2_disc, m2_disc / np.where(m2 > 0, m2, 1.0), 1.0)
-    return hertz_mean_offset(a, sphere_radius) * resolved
+    return sphere_offset(a, sphere_radius) * resolved
 
 
 # --------------------------------------------------------------------------

@@ -9,10 +9,10 @@ sphere's offset over a patch) and the integrators' cached damping and modes. It 
 built by :meth:`ContactSets.build` from the patch weights the storm caches per
 stone, and kept while the set is unchanged.
 
-A patch contact carries Hertz's law through the point of its patch radius,
+A patch contact carries the sphere's law through the point of its patch radius,
 the affine law of :func:`hailstorm.runtime.contact.hertz.press_spheres`: the disc's
 pressure-weighted mean displacement lies ``o`` short of the stone's lowest point
-(:func:`hailstorm.runtime.contact.weights.hertz_mean_offset`, or
+(:func:`hailstorm.runtime.contact.weights.sphere_offset`, or
 :func:`~hailstorm.runtime.contact.weights.sphere_mean_offset` as far as the mesh follows
 the sphere without the near field), so the contact's anchor lies ``o`` deeper
 than the stone's radius (:attr:`ContactSet.rest` ``= R - o``) and its force is
@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from hailstorm.runtime.contact.contact_capacitance import from_weights, resolve_near_field
-from hailstorm.runtime.contact.weights import contact_points, hertz_mean_offset, sphere_mean_offset
+from hailstorm.runtime.contact.weights import contact_points, sphere_mean_offset, sphere_offset
 
 if TYPE_CHECKING:  # annotations only
     from hailstorm.runtime.contact.contact_capacitance import Capacitance
@@ -158,13 +158,14 @@ class ContactSets:
 
     def offsets(self, verts: np.ndarray, w: np.ndarray, X: np.ndarray, normals: np.ndarray, radius: np.ndarray,
                 stone_radius: np.ndarray) -> np.ndarray:
-        """The sphere's offset over each patch (module docstring), (s,) [m]: Hertz's
-        ``a^2 / (5 R)`` with the near field (the sphere over its own disc), else as far as
+        """The sphere's offset over each patch (module docstring), (s,) [m]: the sphere's own
+        (:func:`sphere_offset`, ``a^2 / (5 R)`` for ``a << R``) with the near field (the sphere
+        over its own disc), else as far as
         the mesh follows it; 0 for point contacts (``radius`` 0)."""
         if not np.any(radius > 0):
             return np.zeros(radius.size)
         if self.near is not None:
-            return hertz_mean_offset(radius, stone_radius)
+            return sphere_offset(radius, stone_radius)
         return sphere_mean_offset(self.X, verts, w, X, normals, radius, stone_radius)
 
     def warm_up(self, t: int) -> None:

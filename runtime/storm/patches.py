@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING, cast
 import numpy as np
 
 from hailstorm.runtime.compiled import patch_compliance, patch_one, patch_radii
+from hailstorm.runtime.compiled.sphere import sphere_radius_of
 from hailstorm.runtime.storm.hail import GRAVITY
 from hailstorm.runtime.storm.recording import StormStats
 from hailstorm.runtime.contact.weights import (PATCH_DROP, PATCH_FACING, contact_points, disc_table,
@@ -310,7 +311,8 @@ def peak_radius(body: np.ndarray, disc: float, start: np.ndarray, f_eq: np.ndarr
     (``b`` the body's compliance beyond the kernel's, ``d / a`` the kernel's compliance of the
     Hertz disc, ``3 / (5 a E*)`` for the half-space,
     :func:`hailstorm.runtime.contact.near_field.halfspace_patch_compliance`),
-    and ``a_Hertz(F) = (3 F R / (4 E*))^(1/3)`` (:func:`hailstorm.runtime.contact.weights.hertz_radius`).
+    and ``a_Hertz(F)`` the sphere's contact radius (:func:`hailstorm.runtime.contact.weights.sphere_radius`;
+    Hertz's ``(3 F R / (4 E*))^(1/3)`` for ``a << R``).
     The map contracts by about 1/6 per step (``a ~ F^(1/3)``, ``F ~ k^(1/2)``, ``k ~ a``), so
     plain iteration from ``start`` converges in a few steps. Scalar work per stone (an impact
     opens one or two contacts at a time): plain floats.
@@ -345,7 +347,7 @@ def peak_radius(body: np.ndarray, disc: float, start: np.ndarray, f_eq: np.ndarr
         for _ in range(max_iter):
             k = 1.0 / max(b + disc / a, 1e-300)
             F = fe + math.sqrt(fe * fe + k * mv)
-            a_new = max(min(math.cbrt(3.0 * F * R / (4.0 * e_star)), R), a_min)
+            a_new = max(min(sphere_radius_of(F, R, e_star), R), a_min)
             done = abs(a_new - a) <= rtol * a
             a = a_new
             if done or not a > 0.0:

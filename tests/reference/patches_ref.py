@@ -1,6 +1,6 @@
 """The storm's patch sizing, the plain way: the oracle of :func:`hailstorm.runtime.compiled.patch_radii`.
 
-A soft contact's patch radius is the Hertz radius of its *peak* force, estimated
+A soft contact's patch radius is the sphere's contact radius of its *peak* force, estimated
 from its state as a linear oscillator about its static equilibrium:
 ``F_peak = F_eq + sqrt((F - F_eq)^2 + k m v_n^2)``. A known contact (in the previous
 set) takes ``k`` from the set's capacitance and ``F`` from its force; a new one
@@ -16,7 +16,7 @@ from typing import Callable
 
 import numpy as np
 
-from hailstorm.runtime.contact.weights import hertz_radius
+from hailstorm.runtime.contact.weights import sphere_radius
 from hailstorm.runtime.compiled.patches import REST_TOLERANCE
 
 
@@ -54,7 +54,7 @@ def patch_radii_ref(ids: np.ndarray, tris: np.ndarray, mass: np.ndarray, radius:
     def radius_for(kk: np.ndarray, sel: np.ndarray) -> np.ndarray:
         kk = np.clip(kk, 0.0, None)
         fp = f_eq[sel] + np.sqrt((f[sel] - f_eq[sel]) ** 2 + kk * m[sel] * vn[sel] ** 2)
-        a_t = hertz_radius(fp, R[sel], young, poisson, a_min=min_radius, a_max=R[sel])
+        a_t = sphere_radius(fp, R[sel], young, poisson, a_min=min_radius, a_max=R[sel])
         return np.maximum(a_t, min_radius)
 
     target = np.zeros(ids.size)

@@ -3,8 +3,8 @@
 A 15 mm pad of the default foam clamped underneath (:func:`hailstorm.studies.dynamic_study.pad_bundle`,
 120 mm square, the default seat's settings: 6 mm, P2, hat loads) and the same pad as an axisymmetric
 disc solved to convergence with the indenter's profile node by node
-(:func:`hailstorm.studies.axisymmetric.press_disc`, Hertz's paraboloid: the near field's contacts are
-Hertz's). The default near field (``"layer"``: :mod:`hailstorm.runtime.contact.layer_kernel`) carries
+(:func:`hailstorm.studies.axisymmetric.press_disc` with the sphere's profile: the contacts follow the
+sphere's law, :mod:`hailstorm.runtime.contact.hertz`). The default near field (``"layer"``: :mod:`hailstorm.runtime.contact.layer_kernel`) carries
 the converged force at every site; the half-space kernel alone does not (so the test can fail).
 """
 
@@ -37,14 +37,14 @@ def rows(pad, pad_gf):
 def test_press_spheres_carries_the_pads_converged_force(rows):
     """Contact radii 1.6-7.0 mm (a stone of 2.5 and 5 mm at the peak of its impact at terminal speed, a
     7.5 mm one 4.5 mm deep, a 12.5 mm one 4 mm deep): the default (``"layer"``) within 1.5 % of the
-    converged force and within 0.3 % of each other at every site (measured -0.2 .. +1.2 %); the
-    half-space kernel alone 1.6-5.8 % too soft, so the test can fail."""
+    converged force and within 0.3 % of each other at every site (measured -0.2 .. +1.0 % against the
+    converged sphere); the half-space kernel alone 1.5-5.6 % too soft, so the test can fail."""
     for row in rows:
         model = np.array([row[f"layer:{s}"] for s in SITES])
         half = np.array([row[f"halfspace:{s}"] for s in SITES])
         assert np.abs(model).max() < 0.015, row
         assert np.ptp(model) < 0.003, row
-        assert half.max() < -0.015, row
+        assert half.max() < -0.012, row
 
 
 def test_the_pads_defect_is_on_the_diagonal_and_first_ring(pad_gf):

@@ -164,10 +164,14 @@ def test_W_changes_with_the_set(gf, dense_D):
 # patch contacts: the sphere's offset
 # ----------------------------------------------------------------------------------------------
 def sphere_offset(gf, verts, w, X, normals, a, R, resolved):
-    """The sphere's offset over a patch by hand (the module's statement): ``a^2 / 5R`` on a disc the
+    """The sphere's offset over a patch by hand (the module's statement): the sphere's own,
+    ``R (x atanh x - (3/5) q(x) / x)``, ``q = (1 + x^2) atanh x - x``, ``x = a / R``, on a disc the
     near field resolves; as the mesh follows it, times ``min(1, (2 a^2 / 5) / m2)``, ``m2`` the
     weights' tangential second moment about the contact point; 0 for a point contact."""
-    o = a * a / (5.0 * R)
+    x = a / R
+    with np.errstate(invalid="ignore", divide="ignore"):
+        q = (1 + x * x) * np.arctanh(x) - x
+        o = np.where(x > 0, R * (x * np.arctanh(x) - 0.6 * q / x), 0.0)
     if not resolved:
         m2 = np.empty(a.size)
         for k in range(a.size):
@@ -185,21 +189,22 @@ def test_patch_set_is_the_capacitance_with_the_sphere_offset(gf, dense_D, near):
     per-contact diagonal correction ``c(a) - w^T H w``), unscaled; K W = I; the offsets
     (:meth:`ContactSets.offsets`) are the sphere's worked out by hand, and a set built with them
     anchors each contact that far below its stone's radius (``rest = R - o``): on a resolved
-    half-space patch its law ``F = (delta - o) / W_kk`` carries Hertz's force at Hertz's depth."""
+    half-space patch its law ``F = (delta - o) / W_kk`` carries the sphere's force at its depth."""
     a = np.array([0.0025, 0.004, 0.006])
+    radii = np.array([0.004, 0.006, 0.009])  # a/R 0.62-0.67: where the sphere's offset is not Hertz's
     sets, patches, contact = make_sets(gf, patch="hertz", near_field=near)
     normals = np.tile(UP, (3, 1))
     stats = StormStats()
     X = np.einsum("kj,kjd->kd", BARY, gf.vertices[gf.triangles[TRIS]])
     verts, w = patches.weights(STONES, TRIS, BARY, a, normals, stats)
-    o = sets.offsets(verts.astype(np.int64), w, X, normals, a, RADII)
-    np.testing.assert_allclose(o, sphere_offset(gf, verts, w, X, normals, a, RADII, near == "halfspace"),
+    o = sets.offsets(verts.astype(np.int64), w, X, normals, a, radii)
+    np.testing.assert_allclose(o, sphere_offset(gf, verts, w, X, normals, a, radii, near == "halfspace"),
                                rtol=1e-12)
-    assert np.all(o > 0) and np.all(o <= a * a / (5 * RADII) * (1 + 1e-12))
-    cc = sets.build(STONES, TRIS, BARY, UP3, (1,), RADII, stats, a, o)
+    assert np.all(o > 0) and np.all(o <= sphere_offset(gf, verts, w, X, normals, a, radii, True) * (1 + 1e-12))
+    cc = sets.build(STONES, TRIS, BARY, UP3, (1,), radii, stats, a, o)
     np.testing.assert_array_equal(cc.patch_radius, a)
     np.testing.assert_array_equal(cc.offset, o)
-    np.testing.assert_allclose(cc.rest, RADII - o, rtol=1e-15)
+    np.testing.assert_allclose(cc.rest, radii - o, rtol=1e-15)
     # the weights are the contact API's (padding aside)
     want_v, want_w = patch_weights(gf, TRIS, BARY, a, normals)
     n = gf.vertices.shape[0]
@@ -226,28 +231,29 @@ def test_patch_set_is_the_capacitance_with_the_sphere_offset(gf, dense_D, near):
     np.testing.assert_array_equal(cc.Kdiag, np.diag(cc.K))
     assert stats.capacitance_rebuilds == 1
     # without an offset (a set built before any engagement) the anchors are the stones' radii
-    plain = sets.build(STONES, TRIS, BARY, UP3, (2,), RADII, stats, a)
-    np.testing.assert_array_equal(plain.rest, RADII)
+    plain = sets.build(STONES, TRIS, BARY, UP3, (2,), radii, stats, a)
+    np.testing.assert_array_equal(plain.rest, radii)
 
 
 def test_a_point_contact_in_a_patch_set_has_no_offset(gf, dense_D):
     """Radius 0 in a set of patches: a point contact (its barycentric weights), offset 0 (no
     sphere profile over a point), its W the capacitance's."""
     a = np.array([0.004, 0.0, 0.006])
+    radii = np.array([0.008, 0.006, 0.009])  # patches within their stones (a < R)
     sets, patches, _ = make_sets(gf, patch="hertz", near_field="none")
     normals = np.tile(UP, (3, 1))
     stats = StormStats()
     verts, w = patches.weights(STONES, TRIS, BARY, a, normals, stats)
     X = np.einsum("kj,kjd->kd", BARY, gf.vertices[gf.triangles[TRIS]])
-    o = sets.offsets(verts.astype(np.int64), w, X, normals, a, RADII)
+    o = sets.offsets(verts.astype(np.int64), w, X, normals, a, radii)
     assert o[1] == 0.0 and np.all(o[[0, 2]] > 0)
-    cc = sets.build(STONES, TRIS, BARY, UP3, (1,), RADII, stats, a, o)
+    cc = sets.build(STONES, TRIS, BARY, UP3, (1,), radii, stats, a, o)
     w1 = np.zeros(gf.vertices.shape[0])
     np.add.at(w1, cc.verts[1], cc.weights[1])
     np.testing.assert_allclose(w1[gf.triangles[TRIS[1]]], BARY[1], rtol=1e-15)
     assert np.isclose(w1.sum(), 1.0, rtol=1e-15)
     np.testing.assert_array_equal(cc.W, cc.capacitance.W)
-    assert cc.rest[1] == RADII[1]
+    assert cc.rest[1] == radii[1]
 
 
 # ----------------------------------------------------------------------------------------------

@@ -10,7 +10,7 @@ import pytest
 
 from hailstorm.precompute.geometry import box_mesh, boundary_triangles
 from hailstorm.runtime.contact.hertz import hertz_impact
-from hailstorm.runtime.contact.weights import hertz_radius
+from hailstorm.runtime.contact.weights import sphere_radius
 from hailstorm.runtime.storm.scene import Scene
 from hailstorm.runtime.storm.driver import Storm
 from hailstorm.runtime.bundle.thickness import PadThickness, RayCaster, surface_thickness
@@ -173,11 +173,11 @@ def test_impact_records_follow_the_storms_impact_rule():
     assert lim.indentation[0] == 3e-3 and lim.force[0] == 2.0 and lim._thickness.size == 0  # cast when read
     dh, aR, eps = lim.ratios()
     assert lim.thickness[0] == pytest.approx(H, rel=1e-12)
-    assert dh[0] == pytest.approx(3e-3 / H) and aR[0] == pytest.approx(hertz_radius(2.0, 0.005, 1e6, 0.3) / 0.005)
+    assert dh[0] == pytest.approx(3e-3 / H) and aR[0] == pytest.approx(sphere_radius(2.0, 0.005, 1e6, 0.3) / 0.005)
     st = lim.summary()
     assert st["max_indentation_thickness_ratio"] == pytest.approx(0.15)
     assert st["impacts_beyond_indentation_limit"] == 1 and st["min_impact_thickness_m"] == pytest.approx(H)
-    assert st["impacts_beyond_radius_limit"] == int(aR[0] > 0.3) and st["impacts_beyond_strain_limit"] == 1
+    assert st["impacts_beyond_radius_limit"] == int(aR[0] > 0.8) and st["impacts_beyond_strain_limit"] == 1
     assert lim.speed == [3.0] and lim.mass == [M5]  # at the onset
     tr = lim.time_ratios()
     assert tr[0] == pytest.approx(_time_ratio(M5, 0.005, 3.0, H, 1e6, 0.3, PAD_DENSITY), rel=1e-12)
@@ -190,13 +190,13 @@ def test_impact_records_follow_the_storms_impact_rule():
 def test_counts_against_the_stated_limits():
     lim, st = _limits(), StormStats()
     assert (st["limit_indentation_thickness_ratio"], st["limit_contact_radius_ratio"], st["limit_strain_ratio"]) == (
-        ValidityLimits.indentation_thickness, ValidityLimits.contact_radius, ValidityLimits.strain) == (0.1, 0.3, 0.05)
+        ValidityLimits.indentation_thickness, ValidityLimits.contact_radius, ValidityLimits.strain) == (0.1, 0.8, 0.05)
     lim.radius, lim._thickness = [0.005] * 3, np.full(3, H)  # thicknesses known: nothing to cast
     lim.mass, lim.speed = [M5] * 3, [0.06, 5.0, 30.0]
-    # a/R from the force: a = (3 F R / (4 E*))^(1/3), so F = 4 E* a^3 / (3 R)
+    # a/R from the force: the sphere's F = E* R^2 ((1 + x^2) atanh(x) - x) at x = a/R (Sneddon)
     Es = 1e6 / (1 - 0.3**2)
-    aR = np.array([0.05, 0.2, 0.5])
-    lim.force = list(4 * Es * (aR * 0.005) ** 3 / (3 * 0.005))
+    aR = np.array([0.05, 0.5, 0.9])
+    lim.force = list(Es * 0.005**2 * ((1 + aR**2) * np.arctanh(aR) - aR))
     lim.indentation = list(np.array([0.001, 0.0019, 0.0021]) * H / 0.02)  # delta/h 0.05, 0.095, 0.105
     st.validity = lim  # the statistics read the records
     assert st["impacts_beyond_indentation_limit"] == 1 and st["impacts_beyond_radius_limit"] == 1
@@ -207,9 +207,9 @@ def test_counts_against_the_stated_limits():
     assert st["limit_contact_time_ratio"] == ValidityLimits.contact_time == 1.6
     assert st["impacts_beyond_contact_time_limit"] == int((tr < 1.6).sum()) and 0 < int((tr < 1.6).sum()) < 3
     assert st["min_contact_time_ratio"] == pytest.approx(tr.min(), rel=1e-12)
-    assert st["impacts_beyond_any_limit"] == int(((np.array(lim.indentation) / H > 0.1) | (aR > 0.3) | (eps > 0.05)
+    assert st["impacts_beyond_any_limit"] == int(((np.array(lim.indentation) / H > 0.1) | (aR > 0.8) | (eps > 0.05)
                                                   | (tr < 1.6)).sum())
-    assert st["max_contact_radius_ratio"] == pytest.approx(0.5, rel=1e-12)
+    assert st["max_contact_radius_ratio"] == pytest.approx(0.9, rel=1e-9)
     assert dict(st)["max_contact_radius_ratio"] == st["max_contact_radius_ratio"] and "validity" not in dict(st)
 
 
@@ -217,7 +217,7 @@ def test_counts_against_the_stated_limits():
                                                      ("exact", "sticky", "hertz"), ("exact", "frictionless", "none")])
 def test_a_drop_on_the_box_records_its_impact(box_gf, integrator, mode, patch):
     """One stone dropped on the middle of the box: one record per counted impact, its peak
-    indentation the storm's ``max_indentation_m``, its thickness the box's, a/R Hertz's of
+    indentation the storm's ``max_indentation_m``, its thickness the box's, a/R the sphere's of
     the storm's peak force."""
     sc = Scene.from_flat(duration=0.03, stones=0, drag=False, dt=2e-4, integrator=integrator, restitution=0.5,
                          mode=mode, patch=patch)
@@ -231,7 +231,7 @@ def test_a_drop_on_the_box_records_its_impact(box_gf, integrator, mode, patch):
     assert max(lim.indentation) == S["max_indentation_m"]
     np.testing.assert_allclose(lim.thickness, H, rtol=1e-12)
     assert S["max_indentation_thickness_ratio"] == pytest.approx(S["max_indentation_m"] / H, rel=1e-12)
-    a = hertz_radius(S["max_contact_force"], R, 1e6, 0.3)
+    a = sphere_radius(S["max_contact_force"], R, 1e6, 0.3)
     assert S["max_contact_radius_ratio"] == pytest.approx(a / R, rel=1e-12)
     assert S["max_strain_ratio"] == pytest.approx(float(peak_strain(a / R, S["max_indentation_m"] / H, 0.3)), rel=1e-12)
     assert S["min_impact_thickness_m"] == pytest.approx(H, rel=1e-12)
@@ -249,12 +249,12 @@ def test_validity_warning_names_the_numbers():
     st = dict(StormStats())
     assert validity_warning(st) is None
     st.update(impacts=22, impacts_beyond_any_limit=22, impacts_beyond_indentation_limit=6,
-              max_indentation_thickness_ratio=0.1725, impacts_beyond_radius_limit=22, max_contact_radius_ratio=0.648,
+              max_indentation_thickness_ratio=0.1725, impacts_beyond_radius_limit=22, max_contact_radius_ratio=0.848,
               impacts_beyond_strain_limit=22, max_strain_ratio=0.19)
     msg = validity_warning(st)
     assert msg.startswith("22 of 22 impacts are beyond the model's validity limits")
     assert "indentation/thickness up to 0.172 (limit 0.1, 6 impacts beyond)" in msg
-    assert "contact radius/stone radius up to 0.648 (limit 0.3, 22 impacts beyond)" in msg
+    assert "contact radius/stone radius up to 0.848 (limit 0.8, 22 impacts beyond)" in msg
     assert "contact time/pad wave period down to 0 (limit 1.6 at 70 kg/m^3, 0 impacts beyond)" in msg
     older = {k: v for k, v in st.items() if "contact_time" not in k and k != "pad_density"}
     assert "contact time" not in validity_warning(older)  # a summary.json of an older version: no such keys
@@ -284,7 +284,7 @@ def test_cli_storm_warns_once_and_the_summary_carries_the_limits(box_gf, tmp_pat
               "min_contact_time_ratio"):
         assert k in s
     assert (s["limit_indentation_thickness_ratio"], s["limit_contact_radius_ratio"], s["limit_strain_ratio"],
-            s["limit_contact_time_ratio"], s["pad_density"]) == (0.1, 0.3, 0.05, 1.6, 70.0)
+            s["limit_contact_time_ratio"], s["pad_density"]) == (0.1, 0.8, 0.05, 1.6, 70.0)
     warned = [r.getMessage() for r in caplog.records if "validity limits" in r.getMessage()]
     if stones:
         assert s["impacts"] > 0 and s["impacts_beyond_any_limit"] > 0  # 1 MPa foam: every stone is beyond
