@@ -28,7 +28,7 @@ from hailstorm.runtime.contact import (
     sphere_radius,
 )
 from hailstorm.runtime.contact.hertz import (HertzImpact, SphereContacts, hertz_force, hertz_impact, press_spheres,
-                                             sphere_force)
+                                             sphere_force, sphere_impact)
 from hailstorm.runtime.storm.scene import (
     ContactSettings,
     HailSettings,
@@ -69,6 +69,7 @@ __all__ = [
     "patch_weights",
     "press_spheres",
     "sphere_force",
+    "sphere_impact",
     "sphere_radius",
     "run_storm",
     "solve_contacts",

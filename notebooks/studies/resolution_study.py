@@ -302,19 +302,22 @@ def seat_table(gf: Any, ref: Any, near_field: str = DEFAULT_MODEL, dent: bool = 
 
 def impact_table(gf: Any, radii: Sequence[float] = (2.5e-3, 5e-3, 12.5e-3),
                  speeds: Sequence[float] = (1.0, 5.0, 15.0), steps: int = 400) -> list[dict[str, Any]]:
-    """Stones dropped on the middle of the block's top in a storm against Hertz's impact (module notes).
+    """Stones dropped on the middle of the block's top in a storm against Hertz's impact and the sphere's
+    own (module notes).
 
     Each stone starts ``0.015 R`` above the top, straight down (gravity counted by Hertz's side);
     the storm runs ``steps`` steps per Hertz contact time until the stone is above the top again
     and moving up. Per row: ``a_over_R`` (Hertz's), relative differences ``force``, ``dent``
     (the storm's ``max_indentation_m``, the stone's lowest point), ``contact`` (time with the
     sphere's lowest point below the top) and ``pulse`` (time with a contact force), and the
-    storm's ``patch_mm``.
+    storm's ``patch_mm``; ``force_sphere``, ``dent_sphere``, ``contact_sphere``: the same against the
+    sphere's own impact (:func:`hailstorm.runtime.contact.hertz.sphere_impact`, Sneddon's law), which the
+    storm's contacts follow.
     """
     import math
 
     from hailstorm.runtime import Scene, Storm
-    from hailstorm.runtime.contact.hertz import hertz_impact
+    from hailstorm.runtime.contact.hertz import hertz_impact, sphere_impact
     from hailstorm.runtime.storm.hail import GRAVITY, RHO_ICE, stone_mass
 
     X = np.asarray(gf.vertices)
@@ -341,10 +344,14 @@ def impact_table(gf: Any, radii: Sequence[float] = (2.5e-3, 5e-3, 12.5e-3),
                 if below and z > 0 and st.stones.vel[0, 2] > 0:
                     break
             S = st.stats
+            sph = sphere_impact(m, v0, R, float(gf.young), float(gf.poisson), gravity=GRAVITY)
             rows.append({"R_mm": R * 1e3, "v": v, "a_over_R": math.sqrt(ref.max_depth / R),
                          "force": S["max_contact_force"] / ref.max_force - 1,
                          "dent": S["max_indentation_m"] / ref.max_depth - 1,
                          "contact": below * dt / ref.duration - 1, "pulse": pulse * dt / ref.duration - 1,
+                         "force_sphere": S["max_contact_force"] / sph.max_force - 1,
+                         "dent_sphere": S["max_indentation_m"] / sph.max_depth - 1,
+                         "contact_sphere": below * dt / sph.duration - 1,
                          "patch_mm": S["max_patch_radius_m"] * 1e3})
     return rows
 
@@ -418,15 +425,17 @@ def main(argv: list[str] | None = None) -> None:
         gf = block_bundle(mesh_size=args.mesh_size)
         say("", f"## Thick block (P2, hat loads, {args.mesh_size * 1e3:g} mm on top): a stone dropped in the storm "
                 "(exact, restitution 1) against Hertz's impact, relative difference [%]: peak force, deepest "
-                "indentation, time below the top (contact) and with a force (pulse); Hertz's a/R; the storm's "
+                "indentation, time below the top (contact) and with a force (pulse); *_sphere: the same against "
+                "the sphere's own impact (sphere_impact), whose law the storm follows; Hertz's a/R; the storm's "
                 "patch radius", "")
         rows = impact_table(gf)
-        keys = ["R_mm", "v", "a_over_R", "force", "dent", "contact", "pulse", "patch_mm"]
+        keys = ["R_mm", "v", "a_over_R", "force", "dent", "contact", "pulse", "force_sphere", "dent_sphere",
+                "contact_sphere", "patch_mm"]
         for r in rows:
-            for k in keys[3:7]:
+            for k in keys[3:10]:
                 r[k] = 100 * r[k]
-        say(*_table(rows, keys, {k: "+.1f" for k in keys[3:7]} | {"R_mm": ".1f", "v": "g", "a_over_R": ".2f",
-                                                                   "patch_mm": ".2f"}))
+        say(*_table(rows, keys, {k: "+.1f" for k in keys[3:10]} | {"R_mm": ".1f", "v": "g", "a_over_R": ".2f",
+                                                                    "patch_mm": ".2f"}))
     if not args.skip_seat:
         gf, ref = seat_bundle(args.mesh_size, progress=True), seat_bundle(args.reference_size, progress=True)
         for nf in MODELS:

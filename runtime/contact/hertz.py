@@ -55,7 +55,8 @@ from hailstorm.runtime.contact.weights import (
     sphere_radius,
 )
 
-__all__ = ["HertzImpact", "SphereContacts", "hertz_force", "hertz_impact", "press_spheres", "sphere_force"]
+__all__ = ["HertzImpact", "SphereContacts", "hertz_force", "hertz_impact", "press_spheres", "sphere_force",
+           "sphere_impact"]
 
 
 def hertz_force(depth: Any, sphere_radius: Any, young: float, poisson: float) -> np.ndarray:
@@ -91,14 +92,15 @@ def sphere_force(depth: Any, sphere_radius: Any, young: float, poisson: float) -
 
 @dataclass(frozen=True)
 class HertzImpact:
-    """Hertz's quasi-static impact of a sphere on a half-space (:func:`hertz_impact`).
+    """A quasi-static impact of a sphere on a half-space: Hertz's (:func:`hertz_impact`) or the
+    sphere's own (:func:`sphere_impact`).
 
     Attributes
     ----------
     max_depth : float
         Maximum indentation ``delta_max`` [m].
     max_force : float
-        Peak force ``(4/3) E* sqrt(R) delta_max^(3/2)`` [N].
+        Peak force (Hertz's ``(4/3) E* sqrt(R) delta_max^(3/2)``) [N].
     duration : float
         Contact duration [s] (first touch to release).
     """
@@ -169,6 +171,47 @@ def hertz_impact(mass: float, speed: float, sphere_radius: float, young: float, 
                    2.0 * dm / np.sqrt(dm * (0.8 * K / m * 2.5 * dm**1.5 - 2.0 * g)), 0.0, 1.0,
                    epsabs=0.0, epsrel=1e-10, limit=200)
     return HertzImpact(max_depth=float(dm), max_force=float(K * dm**1.5), duration=float(2.0 * half))
+
+
+def sphere_impact(mass: float, speed: float, sphere_radius: float, young: float, poisson: float,
+                  gravity: float = 0.0) -> HertzImpact:
+    """The rigid sphere's own quasi-static impact on an elastic half-space, at any ``a / R``.
+
+    :func:`hertz_impact` with the sphere's force law (:func:`sphere_force`, Sneddon) in place of
+    Hertz's ``K delta^(3/2)``: ``delta_max`` from the energy balance
+    ``m v^2 / 2 + m g delta = W(delta)``, ``W`` the work of the sphere's force (by quadrature in
+    ``x = a / R``, where ``delta = R x atanh(x)`` and ``F = E* R^2 ((1 + x^2) atanh(x) - x)``), the
+    duration ``2 * integral_0^delta_max d delta / sqrt(v^2 + 2 g delta - 2 W(delta) / m)`` (by
+    quadrature). Tends to :func:`hertz_impact` as ``delta_max / R -> 0``; parameters, result and
+    errors as its.
+    """
+    m, v, R, g = float(mass), float(speed), float(sphere_radius), float(gravity)
+    if not (m > 0 and v > 0 and R > 0 and g >= 0 and np.isfinite([m, v, R, g]).all()):
+        raise ValueError("sphere_impact needs mass, speed and radius > 0 and gravity >= 0")
+    if not (young > 0 and -1.0 < poisson < 0.5):
+        raise ValueError("sphere_impact needs E > 0 and -1 < nu < 0.5")
+    from scipy.integrate import quad
+    from scipy.optimize import brentq
+
+    e_star = young / (1.0 - poisson**2)
+
+    def work(x: float) -> float:  # integral of F d delta from 0 to x, d delta / dx = R (atanh x + x / (1 - x^2))
+        w, _ = quad(lambda t: sphere_q(t) * (math.atanh(t) + t / (1.0 - t * t)), 0.0, x, epsabs=0.0, epsrel=1e-12)
+        return e_star * R**3 * w
+
+    def x_of(d: float) -> float:
+        return brentq(lambda x: R * x * math.atanh(x) - d, 0.0, X_MAX, xtol=1e-16, rtol=1e-15) if d > 0 else 0.0
+
+    def speed2(x: float) -> float:
+        return v * v + 2.0 * g * R * x * math.atanh(x) - 2.0 * work(x) / m
+
+    xm = brentq(speed2, 0.0, 0.999, xtol=1e-16, rtol=1e-14)
+    dm = R * xm * math.atanh(xm)
+    fm = e_star * R * R * sphere_q(xm)
+    # delta = dm (1 - s^2): the integrand 2 dm s / sqrt(speed2) is finite at s = 0
+    half, _ = quad(lambda s: 2.0 * dm * s / math.sqrt(max(speed2(x_of(dm * (1.0 - s * s))), 1e-300)) if s > 0 else
+                   2.0 * dm / math.sqrt(dm * (2.0 * fm / m - 2.0 * g)), 0.0, 1.0, epsabs=0.0, epsrel=1e-9, limit=200)
+    return HertzImpact(max_depth=float(dm), max_force=float(fm), duration=float(2.0 * half))
 
 
 @dataclass

@@ -422,4 +422,4 @@ def validity_warning(stats: Any) -> str | None:
                      f"{float(stats['limit_contact_time_ratio']):.3g} at {float(stats['pad_density']):g} kg/m^3, "
                      f"{int(stats['impacts_beyond_contact_time_limit'])} impacts beyond)")
     return (f"{n} of {int(stats['impacts'])} impacts are beyond the model's validity limits: " + "; ".join(parts)
-            + " (quasi-static linear elasticity and Hertz no longer vouch for these impacts; see docs/validity.md)")
+            + " (quasi-static linear elasticity and its contact law no longer vouch for these impacts; see docs/validity.md)")
