@@ -33,6 +33,11 @@ def _unit(x, out):  # pragma: no cover (compiled)
 DEAD_ZONE_REACH = 0.1
 
 
+#: how far (beyond its offset, in contact-surface radii) a stone receding in its engagement may lie
+#: inside its contact surface and be put back on it instead of opening a contact (:func:`free_phase`)
+RELEASE_OVERLAP = 0.1
+
+
 @kernel
 def _opening(toi_tol, radius, offset):  # pragma: no cover (compiled)
     """The gap within which a stone's contact opens: ``toi_tol`` of its contact radius, or of
@@ -277,6 +282,18 @@ def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, offset, shift, ctr
             _unit(dvec, nrm)
             vn = vel[i, 0] * nrm[0] + vel[i, 1] * nrm[1] + vel[i, 2] * nrm[2]
             if not (vn < 0.0 or gp[j] < -eps):
+                continue
+            if vn >= 0.0 and offset[i] > 0.0 and gp[j] >= -(offset[i] + RELEASE_OVERLAP * (radius[i] - offset[i])):
+                # receding in its engagement, inside its contact surface by little: a contact released
+                # on the tangent plane it kept while the stone slid (a frictionless contact keeps its
+                # point and normal) meets the surface's own curvature, or a ridge, under the slide.
+                # The stone is leaving: it is put back on its contact surface, its velocity kept.
+                # Opening a contact here cost it the dashpot's damping for one sub-step at a fine dt
+                # and nothing at a coarse one (measured: 1 % of the rebound speed across a ridge at
+                # dt 0.02 ms, not at 0.5 ms)
+                for e in range(3):
+                    pos[i, e] -= gp[j] * nrm[e]
+                gap[i] = 0.0
                 continue
         elif not dist[j] < radius[i] - offset[i]:
             continue

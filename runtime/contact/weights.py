@@ -55,12 +55,13 @@ import numpy as np
 
 from hailstorm.runtime.compiled import SampleGrid
 from hailstorm.runtime.compiled.patches import disc_patch as one_patch_kernel
-from hailstorm.runtime.compiled.sphere import X_MAX, sphere_q, sphere_radii
+from hailstorm.runtime.compiled.sphere import sphere_q, sphere_radii
 from hailstorm.runtime.bundle.compliance import ComplianceSource, unique_inverse
 from hailstorm.runtime.bundle.read import vertex_normals
 
 __all__ = [
     "CREASE_ANGLE",
+    "OFFSET_PEAK",
     "PATCH_DROP",
     "PATCH_FACING",
     "PATCH_PROFILES",
@@ -268,6 +269,10 @@ def hertz_radius(force: Any, stone_radius: Any, young: float, poisson: float, *,
     return a
 
 
+#: the ``a / R`` at which :func:`sphere_offset` peaks (0.149 R); held there beyond
+OFFSET_PEAK = 0.9099577964991118
+
+
 def sphere_radius(force: Any, stone_radius: Any, young: float, poisson: float, *,
                   a_min: float = 0.0, a_max: float | None = None) -> np.ndarray:
     """Contact radius of a rigid sphere pressed on the (elastic) seat, at any ``a / R``.
@@ -300,17 +305,19 @@ def sphere_offset(patch_radius: Any, sphere_radius: Any) -> np.ndarray:
     (:mod:`hailstorm.runtime.compiled.sphere`): ``delta(a) - 3 F(a) / (5 a E*)``. For
     ``a << R`` it is ``a^2 / (5 R) (1 + x^2 / 15 + ...)``, the Hertz-weighted mean of the
     paraboloid ``r^2 / (2 R)`` (``<r^2> = 2 a^2 / 5``), so a patch is consistent with
-    Hertz where Hertz holds and with the sphere beyond (on a half-space exactly). It falls
-    to 0 at ``a/R`` = 0.993 (a force of ``5 E* R^2``) and is floored there: a patch is never
-    anchored above the sphere's lowest point.
+    Hertz where Hertz holds and with the sphere beyond (on a half-space exactly) up to
+    ``a/R`` = :data:`OFFSET_PEAK` (0.910), where it peaks at 0.149 R; it is held at that peak
+    beyond (where it would fall to 0 at 0.993), so that a wider patch never has a smaller
+    offset: contacts that wide are far outside the model's limits
+    (:mod:`hailstorm.runtime.storm.limits`).
     """
     a = np.asarray(patch_radius, dtype=np.float64)
     R = np.asarray(sphere_radius, dtype=np.float64)
     a, R = np.broadcast_arrays(a, R)
-    x = np.where(R > 0, np.minimum(a / np.where(R > 0, R, 1.0), X_MAX), 0.0)
+    x = np.where(R > 0, np.minimum(a / np.where(R > 0, R, 1.0), OFFSET_PEAK), 0.0)
     q = np.array([sphere_q(v) for v in x.ravel().tolist()]).reshape(x.shape)
     off = R * (x * np.arctanh(x) - 0.6 * q / np.where(x > 0, x, 1.0))
-    return np.where(x > 0, np.maximum(off, 0.0), 0.0)
+    return np.where(x > 0, off, 0.0)
 
 
 def sphere_mean_offset(points: np.ndarray, verts: np.ndarray, weights: np.ndarray, centres: np.ndarray,

@@ -77,6 +77,12 @@ def test_sphere_offset_is_the_hertz_weighted_mean_of_the_paraboloid_for_small_co
     assert sphere_offset(0.0, Rs) == 0.0
     x = np.array([0.1, 0.3])  # the series a^2 / (5 R) (1 + x^2 / 15 + ...)
     np.testing.assert_allclose(sphere_offset(x * Rs, Rs), x * x * Rs / 5 * (1 + x * x / 15), rtol=2e-3)
+    # it grows with the patch up to its peak (0.149 R at a/R 0.910) and is held there beyond, where the
+    # exact form would fall to 0 at 0.993 (a wider patch never has a smaller offset)
+    x = np.linspace(0.01, 0.999, 400)
+    o = sphere_offset(x * Rs, Rs)
+    assert np.all(np.diff(o) >= 0.0)
+    assert o.max() == pytest.approx(0.14886 * Rs, rel=1e-4) and o[-1] == o.max()
 
 
 def test_the_sphere_law_against_sneddon_and_hertz():

@@ -268,16 +268,22 @@ def test_a_landing_across_a_sharp_ridge_turns_over_the_edge():
     assert angle[7] == pytest.approx(-angle[3], rel=0.01)
 
 
-@pytest.mark.parametrize(("x0", "vx"), [(0.0595, 0.0), (0.0515, 2.0)])
+@pytest.mark.parametrize(("x0", "vx"), [(0.0595, 0.0), (0.0515, 2.0), (0.0505, 2.0)])
 def test_a_landing_on_a_ridge_is_the_same_at_any_dt(x0, vx):
     """A stone that touches the ridge (its centre in the wedge: falling straight, or at 2 m/s
-    across it) bounces the same at dt 0.5 ms as at 0.02 ms (peak force, indentation, rebound
-    speed and direction within 0.5 %; measured within 0.01 %), on the smooth and on the sharp
-    ridge. Measured on a 0.3 rad ridge before the anchor's shift: +55 % and +59 % in force, and
-    42 % and 27 % more rebound speed than beside the ridge, from a spring that opened compressed
-    by the plane's tilt."""
+    across it, landing in the wedge or at its edge) bounces the same at dt 0.5 ms as at 0.02 ms:
+    peak force, indentation and rebound speed within 0.5 % (measured within 0.03 %), the rebound's
+    direction within 3 mrad (measured: 2 mrad across the sharp ridge, 1 % of its 0.18 rad; within
+    0.01 mrad on the smooth one), on the smooth and on the sharp ridge. A stone sliding across the
+    ridge leaves its contact a little inside its contact surface (the contact kept its tangent plane
+    while the stone slid): it is put back on it, not given a new contact (which at dt 0.02 ms cost
+    the 0.0505 and 0.0515 landings 1 % of their rebound speed, and nothing at 0.5 ms). Measured on
+    a 0.3 rad ridge before the anchor's shift: +55 % and +59 % in force, and 42 % and 27 % more
+    rebound speed than beside the ridge, from a spring that opened compressed by the plane's tilt."""
     for fold in (FOLD, 0.6):
         gf = plate_gf(fold=fold)
         on = _drop(gf, 5e-4, x0, vx)
-        np.testing.assert_allclose(_drop(gf, 2e-5, x0, vx), on, rtol=5e-3)
+        fine = _drop(gf, 2e-5, x0, vx)
+        np.testing.assert_allclose(fine[:3], on[:3], rtol=5e-3)
+        assert fine[3] == pytest.approx(on[3], abs=3e-3)
         assert on[2] < np.hypot(vx, 8.0)
