@@ -78,11 +78,13 @@ def main(argv: list[str] | None = None) -> int:
     cap.remove(0)
     print(f"capacitance: {tri.size} contacts, force sum {f[:, 2].sum():.3f} N; after add/remove {cap.s} contacts")
 
-    # 5. rigid spheres pressed in, with Hertz-consistent patches
+    # 5. rigid spheres pressed in, with patches consistent with the sphere (Hertz for a << R)
     spheres = runtime.press_spheres(gf, tri[:1], bary[:1], [2e-4], 0.005)
+    a_sphere = runtime.sphere_radius(spheres.normal_force, 0.005, gf.young, gf.poisson)
     a_hertz = runtime.hertz_radius(spheres.normal_force, 0.005, gf.young, gf.poisson)
     print(f"press_spheres: 0.2 mm with R = 5 mm -> {spheres.normal_force[0]:.3f} N, patch radius "
-          f"{spheres.patch_radius[0] * 1e3:.2f} mm (Hertz radius of that force {a_hertz[0] * 1e3:.2f} mm)")
+          f"{spheres.patch_radius[0] * 1e3:.2f} mm (the sphere's contact radius of that force "
+          f"{a_sphere[0] * 1e3:.2f} mm, Hertz's {a_hertz[0] * 1e3:.2f} mm)")
 
     # 6. a short storm, its frames kept in memory, and its video
     scene = runtime.Scene.from_flat(duration=0.04 if args.small else 0.2, stones=6 if args.small else 40)

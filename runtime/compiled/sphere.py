@@ -25,7 +25,7 @@ import numpy as np
 
 from hailstorm.runtime.compiled.jit import kernel
 
-__all__ = ["SERIES_BELOW", "X_MAX", "sphere_force_of", "sphere_q", "sphere_radii", "sphere_radius_of"]
+__all__ = ["SERIES_BELOW", "X_MAX", "sphere_q", "sphere_qs", "sphere_radii", "sphere_radius_of"]
 
 #: below this ``x = a/R``, ``q(x)`` is summed as its series (the closed form loses
 #: ``eps / x^2`` to cancellation); the series' first omitted term is ``< 1e-17`` of ``q`` there
@@ -50,15 +50,18 @@ def sphere_q(x):  # pragma: no cover (compiled)
 
 
 @kernel
-def sphere_force_of(a, R, e_star):  # pragma: no cover (compiled)
-    """The sphere's force ``E* R^2 q(a / R)`` at contact radius ``a`` [N]."""
-    return e_star * R * R * sphere_q(min(a / R, X_MAX))
+def sphere_qs(x):  # pragma: no cover (compiled)
+    """:func:`sphere_q` over a 1-d array."""
+    out = np.empty(x.size)
+    for i in range(x.size):
+        out[i] = sphere_q(x[i])
+    return out
 
 
 @kernel
 def sphere_radius_of(F, R, e_star):  # pragma: no cover (compiled)
     """The contact radius ``a`` [m] of a rigid sphere of radius ``R`` pressed with force ``|F|``
-    into a half-space of ``E*`` (the inverse of :func:`sphere_force_of`; 0 for ``F = 0`` or ``R = 0``)."""
+    into a half-space of ``E*`` (the inverse of ``F = E* R^2 q(a / R)``; 0 for ``F = 0`` or ``R = 0``)."""
     if not R > 0.0:
         return 0.0
     f = abs(F) / (e_star * R * R)

@@ -44,7 +44,7 @@ import numpy as np
 
 from hailstorm.runtime.contact import ContactSolution, solve_contacts
 from hailstorm.runtime.bundle.compliance import ElasticSource
-from hailstorm.runtime.compiled.sphere import X_MAX, sphere_q
+from hailstorm.runtime.compiled.sphere import X_MAX, sphere_q, sphere_qs
 from hailstorm.runtime.contact.contact_capacitance import resolve_near_field
 from hailstorm.runtime.contact.weights import (
     contact_points,
@@ -86,7 +86,7 @@ def sphere_force(depth: Any, sphere_radius: Any, young: float, poisson: float) -
         lo, hi = np.where(deeper, mid, lo), np.where(deeper, hi, mid)
     x = 0.5 * (lo + hi)
     e_star = young / (1.0 - poisson**2)
-    q = np.array([sphere_q(v) for v in x.ravel().tolist()]).reshape(x.shape)
+    q = sphere_qs(np.ascontiguousarray(x, dtype=np.float64).ravel()).reshape(x.shape)
     return e_star * R * R * q
 
 
@@ -205,6 +205,8 @@ def sphere_impact(mass: float, speed: float, sphere_radius: float, young: float,
     def speed2(x: float) -> float:
         return v * v + 2.0 * g * R * x * math.atanh(x) - 2.0 * work(x) / m
 
+    if speed2(0.999) > 0.0:
+        raise ValueError(f"sphere_impact: a {R:g} m sphere at {v:g} m/s would press deeper than a/R 0.999")
     xm = brentq(speed2, 0.0, 0.999, xtol=1e-16, rtol=1e-14)
     dm = R * xm * math.atanh(xm)
     fm = e_star * R * R * sphere_q(xm)

@@ -55,7 +55,7 @@ import numpy as np
 
 from hailstorm.runtime.compiled import SampleGrid
 from hailstorm.runtime.compiled.patches import disc_patch as one_patch_kernel
-from hailstorm.runtime.compiled.sphere import sphere_q, sphere_radii
+from hailstorm.runtime.compiled.sphere import sphere_qs, sphere_radii
 from hailstorm.runtime.bundle.compliance import ComplianceSource, unique_inverse
 from hailstorm.runtime.bundle.read import vertex_normals
 
@@ -315,7 +315,7 @@ def sphere_offset(patch_radius: Any, sphere_radius: Any) -> np.ndarray:
     R = np.asarray(sphere_radius, dtype=np.float64)
     a, R = np.broadcast_arrays(a, R)
     x = np.where(R > 0, np.minimum(a / np.where(R > 0, R, 1.0), OFFSET_PEAK), 0.0)
-    q = np.array([sphere_q(v) for v in x.ravel().tolist()]).reshape(x.shape)
+    q = sphere_qs(np.ascontiguousarray(x, dtype=np.float64).ravel()).reshape(x.shape)
     off = R * (x * np.arctanh(x) - 0.6 * q / np.where(x > 0, x, 1.0))
     return np.where(x > 0, off, 0.0)
 

@@ -396,6 +396,8 @@ def test_sphere_impact_matches_the_equation_of_motion():
             assert ref.max_force < 0.96 * h.max_force  # a/R ~ 0.8: the paraboloid is too stiff
     with pytest.raises(ValueError, match="speed"):
         sphere_impact(1e-3, 0.0, 0.005, E, NU)
+    with pytest.raises(ValueError, match="deeper than a/R 0.999"):
+        sphere_impact(1.0, 1e4, 0.005, E, NU)
 
 
 def test_storm_drop_against_hertz_impact(coarse_block):

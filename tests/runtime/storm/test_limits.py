@@ -240,7 +240,7 @@ def test_a_drop_on_the_box_records_its_impact(box_gf, integrator, mode, patch):
     m = 917.0 * 4 / 3 * np.pi * R**3
     assert lim.speed[0] == pytest.approx(v, rel=1e-3)
     assert lim.time_ratios()[0] == pytest.approx(_time_ratio(m, R, v, H, 1e6, 0.3, PAD_DENSITY), rel=1e-3)
-    beyond = [S["max_indentation_thickness_ratio"] > 0.1, S["max_contact_radius_ratio"] > 0.3, S["max_strain_ratio"] > 0.05,
+    beyond = [S["max_indentation_thickness_ratio"] > 0.1, S["max_contact_radius_ratio"] > 0.8, S["max_strain_ratio"] > 0.05,
               S["min_contact_time_ratio"] < 1.6]
     assert (S["impacts_beyond_any_limit"] > 0) == any(beyond)
 
