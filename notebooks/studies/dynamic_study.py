@@ -96,6 +96,7 @@ __all__ = [
     "plot_agreement",
     "StormImpact",
     "pad_bundle",
+    "radiation_dashpot",
     "run_grid",
     "scalar_corrections",
     "storm_impact",
@@ -576,9 +577,53 @@ def scalar_corrections(rows: Sequence[Row]) -> list[dict[str, float]]:
     return out
 
 
-def format_corrections(rows: Sequence[Row]) -> str:
-    """:func:`scalar_corrections` as a table: the peer's ratios, each model's, and its worst miss."""
+def radiation_dashpot(pad: Pad, radius: float, speed: float, ice_density: float = ICE_DENSITY) -> dict[str, float]:
+    """What a radiation dashpot predicts, as ratios (with / without it) of peak force, contact time,
+    largest dent and rebound speed: the rigid sphere's own law on a half-space of the pad's material
+    (:func:`hailstorm.runtime.contact.hertz.sphere_force`) with, in parallel, the dashpot of a rigid
+    disc of the current contact radius ``a`` vibrating on an elastic half-space,
+    ``C = 3.4 a^2 sqrt(rho G) / (1 - nu)`` (Lysmer's analog; Lysmer & Richart, *J. Soil Mech. Found.
+    Div.* 92 (1966) 65), the total force floored at 0. No fitted parameter: the pad's density,
+    modulus and Poisson ratio only. Integrated (``solve_ivp``, release when the dent returns to 0).
+    """
+    from scipy.integrate import solve_ivp
+    from scipy.optimize import brentq
+
+    R, E, nu = float(radius), pad.young, pad.poisson
+    e_star = E / (1.0 - nu**2)
+    m = ice_density * 4.0 / 3.0 * math.pi * R**3
+    c0 = 3.4 * math.sqrt(pad.density * E / (2.0 * (1.0 + nu))) / (1.0 - nu)
+
+    def law(d: float) -> tuple[float, float]:  # (force, contact radius) of the sphere at depth d
+        if d <= 0.0:
+            return 0.0, 0.0
+        x = brentq(lambda t: t * math.atanh(t) - d / R, 0.0, 1.0 - 1e-12, xtol=1e-15)
+        return e_star * R * R * ((1.0 + x * x) * math.atanh(x) - x), x * R
+
+    def run(damped: bool) -> tuple[float, float, float, float]:
+        def force(y):
+            f, a = law(y[0])
+            return max(f + (c0 * a * a * y[1] if damped else 0.0), 0.0)
+
+        def released(t, y):
+            return y[0] + 1e-15 * (t == 0.0)
+        released.terminal, released.direction = True, -1
+        t_h = hertz_impact(m, speed, R, E, nu).duration
+        sol = solve_ivp(lambda t, y: [y[1], -force(y) / m], (0.0, 10 * t_h), [0.0, speed], events=released,
+                        rtol=1e-9, atol=1e-14, max_step=t_h / 400)
+        peak = float(max(force(y) for y in sol.y.T))
+        return peak, float(sol.t_events[0][0]), float(sol.y[0].max()), float(-sol.y_events[0][0][1])
+
+    bare, damped = run(False), run(True)
+    return {"f": damped[0] / bare[0], "t": damped[1] / bare[1], "dent": damped[2] / bare[2],
+            "e": damped[3] / bare[3]}
+
+
+def format_corrections(rows: Sequence[Row], pad: Pad | None = None) -> str:
+    """:func:`scalar_corrections` as a table: the peer's ratios, each model's, and its worst miss; with
+    ``pad``, also :func:`radiation_dashpot`'s ratios (``dash``) and their worst miss of the peer's."""
     c = scalar_corrections(rows)
+    dash = [radiation_dashpot(pad, r.radius, r.speed) for r in rows] if pad is not None else None
     lines = [" R mm v m/s |  F d/q | t d/q  stiff   mass | dent d/q  stiff   mass | e d/q  stiff   mass",
              "-" * 92]
     for x in c:
@@ -589,6 +634,15 @@ def format_corrections(rows: Sequence[Row]) -> str:
         miss = {k: max(abs(x[f"{name}_{k}"] / x[k] - 1) for x in c) for k in ("t", "dent", "e")}
         label = "pad stiffness factor" if name == "stiff" else "added pad mass"
         lines.append(f"{label}, matched to the peak force: worst miss of the peer's contact time "
+                     f"{100 * miss['t']:.1f} %, dent {100 * miss['dent']:.1f} %, restitution {100 * miss['e']:.1f} %")
+    if dash is not None:
+        lines.append("radiation dashpot (Lysmer's, half-space; no fitted parameter), its ratios with / without it:")
+        lines.append(" R mm v m/s |  F d/q   dash | t d/q   dash | dent d/q   dash | e d/q   dash")
+        for x, y in zip(c, dash):
+            lines.append(f"{x['R_mm']:5.1f} {x['v']:5.1f} | {x['f']:6.3f} {y['f']:6.3f} | {x['t']:5.3f} {y['t']:6.3f} | "
+                         f"{x['dent']:8.3f} {y['dent']:6.3f} | {x['e']:5.3f} {y['e']:6.3f}")
+        miss = {k: max(abs(y[k] / x[k] - 1) for x, y in zip(c, dash)) for k in ("f", "t", "dent", "e")}
+        lines.append(f"radiation dashpot: worst miss of the peer's peak force {100 * miss['f']:.1f} %, contact time "
                      f"{100 * miss['t']:.1f} %, dent {100 * miss['dent']:.1f} %, restitution {100 * miss['e']:.1f} %")
     return "\n".join(lines)
 
@@ -724,7 +778,7 @@ def main(argv: list[str] | None = None) -> int:
         ap.error(str(exc))
     print(format_table(rows))
     if args.corrections:
-        print(format_corrections(rows))
+        print(format_corrections(rows, pad))
     if args.storm:
         print(format_storm(rows, pad_bundle(pad)))
     ok = [r for r in rows if r.agrees()]

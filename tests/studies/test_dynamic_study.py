@@ -165,6 +165,24 @@ def test_scalar_corrections_follow_hertz_scalings_and_miss_the_peer():
     assert "worst miss" in format_corrections([row])
 
 
+def test_a_radiation_dashpot_damps_what_the_pad_does_not():
+    """Lysmer's half-space dashpot in parallel with the sphere's law: nothing at a vanishing density
+    (the bare law, to the integration's tolerance); at 200 kg/m^3 the right sign for the peak force but
+    a rebound of 0.72 for the 12.5 mm stone at its terminal 20.4 m/s, where the peer's pad on its
+    rigid base returns 0.99 (below its cutoff c_s / 4h it radiates nothing): no frequency-independent
+    dashpot stands for the pad's inertia."""
+    from hailstorm.studies.dynamic_study import format_corrections, radiation_dashpot
+
+    light = radiation_dashpot(default_pad(1e-9), 0.0025, 9.1)
+    assert all(v == pytest.approx(1.0, abs=1e-4) for v in light.values())
+    pad = default_pad(200.0)
+    row = compare(pad, 0.0125, 20.4)
+    dash = radiation_dashpot(pad, 0.0125, 20.4)
+    assert dash["f"] < 1.0 and dash["e"] < 0.8
+    assert row.dynamic.restitution > 0.97
+    assert "radiation dashpot" in format_corrections([row], pad)
+
+
 def test_density_must_be_positive():
     with pytest.raises(ValueError, match="density must be a positive number, got 0"):
         Pad(density=0.0)
