@@ -107,7 +107,7 @@ def halfspace_patch_bundle(gf, t, bary, a):
 
 
 @pytest.mark.parametrize("a, R", [(1e-3, 2e-3), (1.5e-3, 4e-3), (2e-3, 3e-3)])
-def test_patch_force_is_hertz_at_the_patch_depth(gf, a, R, monkeypatch):
+def test_patch_force_is_the_spheres_at_the_patch_depth(gf, a, R, monkeypatch):
     """A stone of radius R at rest in a patch contact of radius a (the floor patch_min_radius: above
     the Hertz radius of the stone's expected force, so a is known) engaged with the sphere's offset
     o = sphere_offset(a, R), on a bundle whose patch compliance is the half-space's (near field
