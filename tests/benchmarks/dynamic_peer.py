@@ -7,6 +7,7 @@ Usage::
     python tests/benchmarks/dynamic_peer.py --terminal      # each radius at its terminal speed (the default storm)
     python tests/benchmarks/dynamic_peer.py --limit --no-storm   # the grid at 70 and 200 kg/m^3 by the storm's t_c/T
     python tests/benchmarks/dynamic_peer.py --terminal --storm-block   # and the same impacts in the storm
+    python tests/benchmarks/dynamic_peer.py --full --speeds 30 --storm-block --no-storm   # 30 m/s, every radius
     python tests/benchmarks/dynamic_peer.py --no-storm      # the table only
     python tests/benchmarks/dynamic_peer.py --density 50    # another foam density [kg/m^3]
     python tests/benchmarks/dynamic_peer.py --no-table      # the default storm's validity counts only
@@ -106,6 +107,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--limit", action="store_true",
                     help="the whole grid at 70 and 200 kg/m^3 sorted by the storm's contact-time measure t_c/T")
     ap.add_argument("--density", type=float, default=None, help="foam density [kg/m^3] (default 70)")
+    ap.add_argument("--speeds", type=float, nargs="+", default=None, help="impact speeds [m/s] (instead of the grid's)")
     ap.add_argument("--storm-block", action="store_true",
                     help="the same impacts in the storm, on a block bundle of the pad (6 mm, P2)")
     ap.add_argument("--no-storm", action="store_true", help="skip the default storm's validity counts")
@@ -133,6 +135,7 @@ def _run(args: argparse.Namespace) -> int:
               + (["--limit"] if args.limit else [])
               + (["--terminal", "--radii", "0.0025", "0.005", "0.0075", "0.01", "0.0125"] if args.terminal else [])
               + ([] if args.density is None else ["--density", str(args.density)])
+              + ([] if args.speeds is None else ["--speeds", *map(str, args.speeds)])
               + ([] if args.plot is None else ["--plot", args.plot])
               + (["--corrections"] if args.corrections else []))
     if not args.no_storm:
