@@ -587,7 +587,8 @@ def radiation_dashpot(pad: Pad, radius: float, speed: float, ice_density: float 
     modulus and Poisson ratio only. Integrated (``solve_ivp``, release when the dent returns to 0).
     """
     from scipy.integrate import solve_ivp
-    from scipy.optimize import brentq
+
+    from hailstorm.runtime.compiled.sphere import sphere_q, sphere_x_of_depth
 
     R, E, nu = float(radius), pad.young, pad.poisson
     e_star = E / (1.0 - nu**2)
@@ -595,10 +596,8 @@ def radiation_dashpot(pad: Pad, radius: float, speed: float, ice_density: float 
     c0 = 3.4 * math.sqrt(pad.density * E / (2.0 * (1.0 + nu))) / (1.0 - nu)
 
     def law(d: float) -> tuple[float, float]:  # (force, contact radius) of the sphere at depth d
-        if d <= 0.0:
-            return 0.0, 0.0
-        x = brentq(lambda t: t * math.atanh(t) - d / R, 0.0, 1.0 - 1e-12, xtol=1e-15)
-        return e_star * R * R * ((1.0 + x * x) * math.atanh(x) - x), x * R
+        x = sphere_x_of_depth(d / R)
+        return e_star * R * R * sphere_q(x), x * R
 
     def run(damped: bool) -> tuple[float, float, float, float]:
         def force(y):

@@ -25,7 +25,8 @@ import numpy as np
 
 from hailstorm.runtime.compiled.jit import kernel
 
-__all__ = ["SERIES_BELOW", "X_MAX", "sphere_q", "sphere_qs", "sphere_radii", "sphere_radius_of"]
+__all__ = ["SERIES_BELOW", "X_MAX", "sphere_q", "sphere_qs", "sphere_radii", "sphere_radius_of", "sphere_x_of_depth",
+           "sphere_xs_of_depth"]
 
 #: below this ``x = a/R``, ``q(x)`` is summed as its series (the closed form loses
 #: ``eps / x^2`` to cancellation); the series' first omitted term is ``< 1e-17`` of ``q`` there
@@ -78,6 +79,34 @@ def sphere_radius_of(F, R, e_star):  # pragma: no cover (compiled)
         if step <= 1e-15 * x:
             break
     return x * R
+
+
+@kernel
+def sphere_x_of_depth(t):  # pragma: no cover (compiled)
+    """``x = a / R`` of the sphere pressed to depth ``t R``: the root of ``x atanh(x) = t`` (Newton from
+    Hertz's ``sqrt(t)``, which lies above it: ``x atanh(x) >= x^2``, convex, so the iterates fall
+    monotonically); 0 for ``t <= 0``, :data:`X_MAX` past it."""
+    if not t > 0.0:
+        return 0.0
+    x = min(math.sqrt(t), X_MAX)
+    if x * math.atanh(x) <= t:
+        return x
+    for _ in range(60):
+        at = math.atanh(x)
+        step = (x * at - t) / (at + x / (1.0 - x * x))
+        x -= step
+        if step <= 1e-15 * x:
+            break
+    return x
+
+
+@kernel
+def sphere_xs_of_depth(t):  # pragma: no cover (compiled)
+    """:func:`sphere_x_of_depth` over a 1-d array."""
+    out = np.empty(t.size)
+    for i in range(t.size):
+        out[i] = sphere_x_of_depth(t[i])
+    return out
 
 
 @kernel

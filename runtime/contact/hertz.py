@@ -44,7 +44,7 @@ import numpy as np
 
 from hailstorm.runtime.contact import ContactSolution, solve_contacts
 from hailstorm.runtime.bundle.compliance import ElasticSource
-from hailstorm.runtime.compiled.sphere import X_MAX, sphere_q, sphere_qs
+from hailstorm.runtime.compiled.sphere import sphere_q, sphere_qs, sphere_x_of_depth, sphere_xs_of_depth
 from hailstorm.runtime.contact.contact_capacitance import resolve_near_field
 from hailstorm.runtime.contact.weights import (
     contact_points,
@@ -71,23 +71,16 @@ def sphere_force(depth: Any, sphere_radius: Any, young: float, poisson: float) -
 
     Sneddon's ``F = E* R^2 ((1 + x^2) atanh(x) - x)`` at the ``x = a / R`` of
     ``delta = R x atanh(x)`` (:mod:`hailstorm.runtime.compiled.sphere`); :func:`hertz_force`
-    for ``delta << R``. ``x`` by bisection (``delta`` is increasing in ``x``), to rounding.
+    for ``delta << R``.
     """
     d = np.asarray(depth, dtype=np.float64)
     R = np.asarray(sphere_radius, dtype=np.float64)
     d, R = np.broadcast_arrays(d, R)
     if np.any(R <= 0) or not (young > 0 and -1.0 < poisson < 0.5):
         raise ValueError("sphere_force needs R > 0, E > 0 and -1 < nu < 0.5")
-    target = np.clip(d / R, 0.0, None)
-    lo, hi = np.zeros(d.shape), np.full(d.shape, X_MAX)
-    for _ in range(60):  # x atanh(x) is 0 at 0 and infinite at 1
-        mid = 0.5 * (lo + hi)
-        deeper = mid * np.arctanh(mid) < target
-        lo, hi = np.where(deeper, mid, lo), np.where(deeper, hi, mid)
-    x = 0.5 * (lo + hi)
+    x = sphere_xs_of_depth(np.ascontiguousarray(d / R, dtype=np.float64).ravel())
     e_star = young / (1.0 - poisson**2)
-    q = sphere_qs(np.ascontiguousarray(x, dtype=np.float64).ravel()).reshape(x.shape)
-    return e_star * R * R * q
+    return e_star * R * R * sphere_qs(x).reshape(d.shape)
 
 
 @dataclass(frozen=True)
@@ -199,9 +192,6 @@ def sphere_impact(mass: float, speed: float, sphere_radius: float, young: float,
         w, _ = quad(lambda t: sphere_q(t) * (math.atanh(t) + t / (1.0 - t * t)), 0.0, x, epsabs=0.0, epsrel=1e-12)
         return e_star * R**3 * w
 
-    def x_of(d: float) -> float:
-        return brentq(lambda x: R * x * math.atanh(x) - d, 0.0, X_MAX, xtol=1e-16, rtol=1e-15) if d > 0 else 0.0
-
     def speed2(x: float) -> float:
         return v * v + 2.0 * g * R * x * math.atanh(x) - 2.0 * work(x) / m
 
@@ -211,7 +201,7 @@ def sphere_impact(mass: float, speed: float, sphere_radius: float, young: float,
     dm = R * xm * math.atanh(xm)
     fm = e_star * R * R * sphere_q(xm)
     # delta = dm (1 - s^2): the integrand 2 dm s / sqrt(speed2) is finite at s = 0
-    half, _ = quad(lambda s: 2.0 * dm * s / math.sqrt(max(speed2(x_of(dm * (1.0 - s * s))), 1e-300)) if s > 0 else
+    half, _ = quad(lambda s: 2.0 * dm * s / math.sqrt(max(speed2(sphere_x_of_depth((1.0 - s * s) * dm / R)), 1e-300)) if s > 0 else
                    2.0 * dm / math.sqrt(dm * (2.0 * fm / m - 2.0 * g)), 0.0, 1.0, epsabs=0.0, epsrel=1e-9, limit=200)
     return HertzImpact(max_depth=float(dm), max_force=float(fm), duration=float(2.0 * half))
 
