@@ -5,7 +5,8 @@ Imports numpy, scipy and numba only (no gmsh, no scikit-fem): a bundle written b
 contact work in compiled kernels (:mod:`hailstorm.runtime.compiled`).
 
 * :func:`load` -> :class:`GreensFunctions` (D, surface, ``compliance(rows, cols)``);
-* :func:`barycentric_matrix` (B), :func:`patch_weights`, :func:`hertz_radius`, :func:`sphere_radius`;
+* :func:`barycentric_matrix` (B), :func:`patch_weights`, :func:`hertz_radius`, :func:`sphere_radius`,
+  :func:`impact_radius`;
 * :func:`capacitance` -> :class:`Capacitance` (W = Bᵀ D B, K = W⁻¹, low-rank updates);
 * :func:`solve_contacts` -> :class:`ContactSolution`;
 * :func:`press_spheres` -> :class:`SphereContacts` (rigid spheres, patches consistent with the sphere);
@@ -23,6 +24,7 @@ from hailstorm.runtime.contact import (
     barycentric_matrix,
     capacitance,
     hertz_radius,
+    impact_radius,
     patch_weights,
     solve_contacts,
     sphere_radius,
@@ -65,6 +67,7 @@ __all__ = [
     "hertz_force",
     "hertz_impact",
     "hertz_radius",
+    "impact_radius",
     "load",
     "patch_weights",
     "press_spheres",

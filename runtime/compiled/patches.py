@@ -14,7 +14,7 @@ import numpy as np
 from hailstorm.runtime.compiled.jit import kernel
 from hailstorm.runtime.compiled.flight import drag_dot
 from hailstorm.runtime.compiled.grid import cell_range, sorted_ints
-from hailstorm.runtime.compiled.sphere import sphere_radius_of
+from hailstorm.runtime.compiled.sphere import impact_radius_of
 
 #: A resting contact (oscillation amplitude below ``rest_speed``) is re-sized to the Hertz
 #: radius of its force once it is this far off (relative): the static dent follows the weight,
@@ -233,11 +233,11 @@ def patch_compliance(verts, w, normal, D, column_of):  # pragma: no cover (compi
 @kernel
 def _sphere_target(kk, f, f_eq, m, vn, R, e_star, a_min):  # pragma: no cover (compiled)
     """Patch radius for the expected peak force ``f_eq + sqrt((f - f_eq)^2 + k m vn^2)``:
-    the sphere's contact radius (:func:`hailstorm.runtime.compiled.sphere.sphere_radius_of`),
+    the sphere's impact patch (:func:`hailstorm.runtime.compiled.sphere.impact_radius_of`),
     clipped to ``[a_min, R]``, then at least ``a_min``."""
     kk = max(kk, 0.0)
     fp = f_eq + math.sqrt((f - f_eq) ** 2 + kk * m * vn * vn)
-    a = sphere_radius_of(fp, R, e_star)
+    a = impact_radius_of(fp, R, e_star)
     a = min(max(a, a_min), R)
     return max(a, a_min)
 

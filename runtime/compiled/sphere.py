@@ -15,6 +15,16 @@ depth is 2.8 % stiffer than the sphere, at 0.8 9.7 %.
 above the sphere's: ``q(x) >= 4 x^3 / 3``, and ``q`` is convex, so the iterates
 fall monotonically); :func:`sphere_radii` is the same over arrays. The contact
 API's numpy face is :func:`hailstorm.runtime.contact.weights.sphere_radius`.
+
+An impact needs the law's work as well: ``W = E* R^3 w(x)``, ``w(x) = int_0^x q dt``
+with ``t = delta / R`` (:func:`sphere_w`; no elementary closed form, so Gauss-Legendre
+in ``u = atanh(x)``, where the integrand ``q(tanh u) ((1 - tanh^2 u) u + tanh u)`` is
+analytic). A contact whose force is linear in the depth, ``F = (delta - o) / c``, meets
+the sphere's peak ``(delta, F)`` of an impact of energy ``W`` when ``c = 2 W / F^2`` and
+``o = delta - 2 W / F``: with Hertz's disc compliance ``c = 3 / (5 a_i E*)`` that is a
+patch of radius ``a_i = R i(x)``, ``i(x) = 3 q^2 / (10 w)`` (:func:`impact_patch_x`; ``x`` for
+Hertz, 4.0 % above the sphere's radius at ``x`` = 0.8), and the offset
+``R (x atanh(x) - 2 w / q)`` (:func:`impact_offset_of_patch`, from the patch's ``a_i / R``).
 """
 
 from __future__ import annotations
@@ -25,8 +35,9 @@ import numpy as np
 
 from hailstorm.runtime.compiled.jit import kernel
 
-__all__ = ["SERIES_BELOW", "X_MAX", "sphere_q", "sphere_qs", "sphere_radii", "sphere_radius_of", "sphere_x_of_depth",
-           "sphere_xs_of_depth"]
+__all__ = ["IMPACT_SERIES_BELOW", "SERIES_BELOW", "X_MAX", "impact_offset_of_patch", "impact_offsets_of_patch", "impact_patch_x",
+           "impact_radii", "impact_radius_of", "sphere_q", "sphere_qs", "sphere_radii", "sphere_radius_of", "sphere_w",
+           "sphere_x_of_depth", "sphere_xs_of_depth"]
 
 #: below this ``x = a/R``, ``q(x)`` is summed as its series (the closed form loses
 #: ``eps / x^2`` to cancellation); the series' first omitted term is ``< 1e-17`` of ``q`` there
@@ -34,6 +45,15 @@ SERIES_BELOW = 0.05
 
 #: the largest ``a / R`` returned (``q`` reaches 27.6 there: forces of ``27.6 E* R^2``)
 X_MAX = 1.0 - 1e-12
+
+#: Gauss-Legendre rule of :func:`sphere_w` on [-1, 1]: the integrand in ``u = atanh(x)`` is analytic
+#: with its nearest poles at ``+-i pi / 2``, so 24 nodes are exact to rounding up to ``x = 1 - 1e-6``
+#: (tested against adaptive quadrature)
+_GL_U, _GL_W = np.polynomial.legendre.leggauss(24)
+
+#: below this ``x`` the impact patch is the contact (``i(x) = x (1 + O(x^2))``, the ratio's
+#: correction under 1e-16)
+IMPACT_SERIES_BELOW = 1e-8
 
 
 @kernel
@@ -115,4 +135,96 @@ def sphere_radii(F, R, e_star):  # pragma: no cover (compiled)
     out = np.empty(F.size)
     for i in range(F.size):
         out[i] = sphere_radius_of(F[i], R[i], e_star)
+    return out
+
+
+@kernel
+def sphere_w(x):  # pragma: no cover (compiled)
+    """``w(x) = W / (E* R^3)``: the work of pressing the sphere to ``x = a / R`` in ``[0, 1)``,
+    ``int_0^x q(t) d(t atanh t)`` (Hertz's ``8 x^5 / 15`` for small ``x``)."""
+    if not x > 0.0:
+        return 0.0
+    half = 0.5 * math.atanh(min(x, X_MAX))
+    s = 0.0
+    for k in range(_GL_U.size):
+        u = half * (1.0 + _GL_U[k])
+        t = math.tanh(u)
+        s += _GL_W[k] * sphere_q(t) * ((1.0 - t * t) * u + t)
+    return half * s
+
+
+@kernel
+def impact_patch_x(x):  # pragma: no cover (compiled)
+    """``a_i / R = 3 q(x)^2 / (10 w(x))``: the patch (Hertz's disc) whose linear law meets the
+    sphere's impact peak at contact ratio ``x`` (module docstring); ``x`` below
+    :data:`IMPACT_SERIES_BELOW`."""
+    if x < IMPACT_SERIES_BELOW:
+        return x
+    q = sphere_q(x)
+    return 0.3 * q * q / sphere_w(x)
+
+
+@kernel
+def impact_radius_of(F, R, e_star):  # pragma: no cover (compiled)
+    """The impact patch's radius [m] for a peak force ``|F|``: ``R`` :func:`impact_patch_x` of
+    the sphere's own ratio (:func:`sphere_radius_of`)."""
+    if not R > 0.0:
+        return 0.0
+    return R * impact_patch_x(sphere_radius_of(F, R, e_star) / R)
+
+
+@kernel
+def impact_radii(F, R, e_star):  # pragma: no cover (compiled)
+    """:func:`impact_radius_of` over arrays ``F``, ``R`` of one shape (1-d)."""
+    out = np.empty(F.size)
+    for i in range(F.size):
+        out[i] = impact_radius_of(F[i], R[i], e_star)
+    return out
+
+
+@kernel
+def impact_offset_of_patch(p):  # pragma: no cover (compiled)
+    """``o / R`` of an impact patch of ratio ``p = a_i / R``: ``x atanh(x) - 2 w(x) / q(x)`` at the
+    ``x`` with :func:`impact_patch_x` ``(x) = p`` (``x^2 / 5`` for small ``x``). ``i`` grows with ``x``
+    from ``i(x) >= x``, so Newton from ``x = p`` (above the root) with a bisection guard."""
+    if not p > 0.0:
+        return 0.0
+    if p < IMPACT_SERIES_BELOW:
+        return 0.2 * p * p
+    hi = min(p, X_MAX)
+    if impact_patch_x(hi) <= p:  # past the table's end (p near 1 and above): the widest
+        x = hi
+    else:
+        lo = 0.0
+        x = hi
+        for _ in range(100):
+            g = impact_patch_x(x) - p
+            if g > 0.0:
+                hi = x
+            else:
+                lo = x
+            q = sphere_q(x)
+            w = sphere_w(x)
+            at = math.atanh(x)
+            dq = 2.0 * x * at + 2.0 * x * x / (1.0 - x * x)
+            dw = q * (at + x / (1.0 - x * x))
+            dg = 0.3 * (2.0 * q * dq * w - q * q * dw) / (w * w)
+            nx = x - g / dg if dg > 0.0 else 0.5 * (lo + hi)
+            if not lo < nx < hi:
+                nx = 0.5 * (lo + hi)
+            if abs(nx - x) <= 1e-15 * x:
+                x = nx
+                break
+            x = nx
+    if x < IMPACT_SERIES_BELOW:
+        return 0.2 * x * x
+    return x * math.atanh(x) - 2.0 * sphere_w(x) / sphere_q(x)
+
+
+@kernel
+def impact_offsets_of_patch(p):  # pragma: no cover (compiled)
+    """:func:`impact_offset_of_patch` over a 1-d array."""
+    out = np.empty(p.size)
+    for i in range(p.size):
+        out[i] = impact_offset_of_patch(p[i])
     return out

@@ -7,7 +7,7 @@ Modules, one seam each:
   indices, blocks of D and products with its columns (compiled kernels of
   :mod:`hailstorm.runtime.compiled.blocks`);
 * :mod:`~hailstorm.runtime.contact.weights` -- the force-distribution weights
-  B of point and patch contacts, :func:`hertz_radius`, :func:`sphere_radius`;
+  B of point and patch contacts, :func:`hertz_radius`, :func:`sphere_radius`, :func:`impact_radius`;
 * :mod:`~hailstorm.runtime.contact.policy` -- the numerical policy: the
   constants (condition limit, pseudo-inverse cut-off, rigid threshold,
   fast-path size), named once, and the one SPD factorisation
@@ -94,6 +94,7 @@ from hailstorm.runtime.contact.weights import (
     barycentric_matrix,
     contact_points,
     hertz_radius,
+    impact_radius,
     patch_matrix,
     patch_weights,
     sphere_radius,
@@ -114,6 +115,7 @@ __all__ = [
     "capacitance",
     "contact_points",
     "hertz_radius",
+    "impact_radius",
     "sphere_radius",
     "near_field",
     "patch_matrix",

@@ -9,21 +9,22 @@ sphere's offset over a patch) and the integrators' cached damping and modes. It 
 built by :meth:`ContactSets.build` from the patch weights the storm caches per
 stone, and kept while the set is unchanged.
 
-A patch contact carries the sphere's law through the point of its patch radius,
-the affine law of :func:`hailstorm.runtime.contact.hertz.press_spheres`: the disc's
+A patch contact carries the sphere's law through the point of its impact, an affine
+law like that of :func:`hailstorm.runtime.contact.hertz.press_spheres`: the disc's
 pressure-weighted mean displacement lies ``o`` short of the stone's lowest point
-(:func:`hailstorm.runtime.contact.weights.sphere_offset`, or
-:func:`~hailstorm.runtime.contact.weights.sphere_mean_offset` as far as the mesh follows
-the sphere without the near field), so the contact's anchor lies ``o`` deeper
+(:func:`hailstorm.runtime.contact.weights.impact_offset` of the impact's patch,
+:func:`~hailstorm.runtime.contact.weights.impact_radius`; times
+:func:`~hailstorm.runtime.contact.weights.resolved_fraction`, as far as the mesh follows
+the sphere, without the near field), so the contact's anchor lies ``o`` deeper
 than the stone's radius (:attr:`ContactSet.rest` ``= R - o``) and its force is
 ``k (delta - o)``, K and W the capacitance's own. The stone reaches that
 depth with no force (the narrow phase measures its gap with the radius
 ``R - o``: :meth:`hailstorm.runtime.storm.stones.Stones.contact_radius`; the
 engagement is :meth:`hailstorm.runtime.storm.soft_contacts.SoftContacts.engage`). On a
-half-space an impact then has Hertz's peak force and deepest indentation and
-0.990 of its duration (``hailstorm.studies.hertz_study.affine_oscillator``; the
-linear law through the origin it replaces, Hertz's secant stiffness, had
-0.875, 0.915 and 0.977).
+half-space an impact then has the sphere's peak force and deepest indentation
+(Hertz's for ``a << R``) and 0.990 of Hertz's duration
+(``hailstorm.studies.hertz_study.affine_oscillator``; the linear law through the
+origin it replaces, Hertz's secant stiffness, had 0.875, 0.915 and 0.977).
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from hailstorm.runtime.contact.contact_capacitance import from_weights, resolve_near_field
-from hailstorm.runtime.contact.weights import contact_points, sphere_mean_offset, sphere_offset
+from hailstorm.runtime.contact.weights import contact_points, impact_offset, resolved_fraction
 
 if TYPE_CHECKING:  # annotations only
     from hailstorm.runtime.contact.contact_capacitance import Capacitance
@@ -158,15 +159,16 @@ class ContactSets:
 
     def offsets(self, verts: np.ndarray, w: np.ndarray, X: np.ndarray, normals: np.ndarray, radius: np.ndarray,
                 stone_radius: np.ndarray) -> np.ndarray:
-        """The sphere's offset over each patch (module docstring), (s,) [m]: the sphere's own
-        (:func:`sphere_offset`, ``a^2 / (5 R)`` for ``a << R``) with the near field (the sphere
-        over its own disc), else as far as
-        the mesh follows it; 0 for point contacts (``radius`` 0)."""
+        """The sphere's offset over each impact patch (module docstring), (s,) [m]: the sphere's own
+        (:func:`impact_offset`, ``a^2 / (5 R)`` for ``a << R``) with the near field (the sphere
+        over its own disc), else as far as the mesh follows it (:func:`resolved_fraction`); 0 for
+        point contacts (``radius`` 0)."""
         if not np.any(radius > 0):
             return np.zeros(radius.size)
+        offset = impact_offset(radius, stone_radius)
         if self.near is not None:
-            return sphere_offset(radius, stone_radius)
-        return sphere_mean_offset(self.X, verts, w, X, normals, radius, stone_radius)
+            return offset
+        return offset * resolved_fraction(self.X, verts, w, X, normals, radius)
 
     def warm_up(self, t: int) -> None:
         """Load (or compile) the kernels of :meth:`build` with the storm loop's argument types (one

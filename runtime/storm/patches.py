@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, cast
 import numpy as np
 
 from hailstorm.runtime.compiled import patch_compliance, patch_one, patch_radii
-from hailstorm.runtime.compiled.sphere import sphere_radius_of
+from hailstorm.runtime.compiled.sphere import impact_radius_of
 from hailstorm.runtime.storm.hail import GRAVITY
 from hailstorm.runtime.storm.recording import StormStats
 from hailstorm.runtime.contact.weights import (PATCH_DROP, PATCH_FACING, contact_points, disc_table,
@@ -167,7 +167,7 @@ class Patches:
         kernel's compliance of the contact's own disc, ``b = w^T D w - w^T H w`` the body's
         part (:meth:`NearField.blocks`), evaluated once, at ``a0``: the body's part is smooth
         at the contact and barely changes with the radius. The radius is the fixed point
-        of ``a = a_Hertz(F_eq + sqrt(F_eq^2 + k(a) m v_n^2))`` (:func:`peak_radius`), the
+        of ``a = a_i(F_eq + sqrt(F_eq^2 + k(a) m v_n^2))`` (:func:`peak_radius`), the
         expected peak force of a contact that just opened (``F_eq`` the weight along the
         normal), so that the radius and the sphere's offset of the impact follow from the
         stiffness its peak force sees.
@@ -304,15 +304,17 @@ class Patches:
 def peak_radius(body: np.ndarray, disc: float, start: np.ndarray, f_eq: np.ndarray, mv2: np.ndarray, stone_radius: np.ndarray,
                 e_star: float, a_min: float, rtol: float = 1e-12, max_iter: int = 100) -> np.ndarray:
     """The patch radius of an impact's expected peak force, with the near field: the fixed point of
-    ``a = clip(a_Hertz(F(a)), a_min, R)``.
+    ``a = clip(a_i(F(a)), a_min, R)``.
 
     ``F(a) = F_eq + sqrt(F_eq^2 + k(a) m v_n^2)`` is the peak force of a linear oscillator of
     stiffness ``k(a) = 1 / (b + d / a)`` that meets the surface at the normal speed ``v_n``
     (``b`` the body's compliance beyond the kernel's, ``d / a`` the kernel's compliance of the
     Hertz disc, ``3 / (5 a E*)`` for the half-space,
     :func:`hailstorm.runtime.contact.near_field.halfspace_patch_compliance`),
-    and ``a_Hertz(F)`` the sphere's contact radius (:func:`hailstorm.runtime.contact.weights.sphere_radius`;
-    Hertz's ``(3 F R / (4 E*))^(1/3)`` for ``a << R``).
+    and ``a_i(F)`` the sphere's impact patch (:func:`hailstorm.runtime.contact.weights.impact_radius`:
+    the disc whose linear law meets the sphere's peak force with the sphere's work; Hertz's
+    ``(3 F R / (4 E*))^(1/3)`` for ``a << R``), so the fixed point's linear oscillator has the
+    sphere's own peak force and depth on a half-space.
     The map contracts by about 1/6 per step (``a ~ F^(1/3)``, ``F ~ k^(1/2)``, ``k ~ a``), so
     plain iteration from ``start`` converges in a few steps. Scalar work per stone (an impact
     opens one or two contacts at a time): plain floats.
@@ -347,7 +349,7 @@ def peak_radius(body: np.ndarray, disc: float, start: np.ndarray, f_eq: np.ndarr
         for _ in range(max_iter):
             k = 1.0 / max(b + disc / a, 1e-300)
             F = fe + math.sqrt(fe * fe + k * mv)
-            a_new = max(min(sphere_radius_of(F, R, e_star), R), a_min)
+            a_new = max(min(impact_radius_of(F, R, e_star), R), a_min)
             done = abs(a_new - a) <= rtol * a
             a = a_new
             if done or not a > 0.0:

@@ -1,6 +1,7 @@
 """The storm's patch sizing, the plain way: the oracle of :func:`hailstorm.runtime.compiled.patch_radii`.
 
-A soft contact's patch radius is the sphere's contact radius of its *peak* force, estimated
+A soft contact's patch radius is the sphere's impact patch of its *peak* force (the sphere's
+contact radius times the patch's ratio, :func:`reference.sphere_ref.impact_patch_ref`), estimated
 from its state as a linear oscillator about its static equilibrium:
 ``F_peak = F_eq + sqrt((F - F_eq)^2 + k m v_n^2)``. A known contact (in the previous
 set) takes ``k`` from the set's capacitance and ``F`` from its force; a new one
@@ -17,6 +18,7 @@ from typing import Callable
 import numpy as np
 
 from hailstorm.runtime.contact.weights import sphere_radius
+from reference.sphere_ref import impact_patch_ref
 from hailstorm.runtime.compiled.patches import REST_TOLERANCE
 
 
@@ -54,8 +56,9 @@ def patch_radii_ref(ids: np.ndarray, tris: np.ndarray, mass: np.ndarray, radius:
     def radius_for(kk: np.ndarray, sel: np.ndarray) -> np.ndarray:
         kk = np.clip(kk, 0.0, None)
         fp = f_eq[sel] + np.sqrt((f[sel] - f_eq[sel]) ** 2 + kk * m[sel] * vn[sel] ** 2)
-        a_t = sphere_radius(fp, R[sel], young, poisson, a_min=min_radius, a_max=R[sel])
-        return np.maximum(a_t, min_radius)
+        x = sphere_radius(fp, R[sel], young, poisson) / np.where(R[sel] > 0, R[sel], 1.0)
+        a_t = R[sel] * np.array([impact_patch_ref(v) if v > 0 else 0.0 for v in x.tolist()])
+        return np.maximum(np.clip(a_t, min_radius, R[sel]), min_radius)
 
     target = np.zeros(ids.size)
     if known.any():
