@@ -335,8 +335,9 @@ def impact_radius(force: Any, stone_radius: Any, young: float, poisson: float, *
     ``R i(x)``, ``i(x) = 3 q(x)^2 / (10 w(x))`` at the sphere's own ``x = a / R``
     (:func:`sphere_radius`; :func:`hailstorm.runtime.compiled.sphere.impact_patch_x`):
     the sphere's radius for ``a << R`` (Hertz's law is its own linearisation's energy),
-    1.1 % above it at ``a/R`` 0.5, 4.0 % at 0.8. Sized by the sphere's radius instead,
-    the patch's impact is 0.6 / 1.3 / 1.9 % soft in peak force at ``a/R`` 0.5 / 0.7 / 0.8.
+    1.1 % above it at ``a/R`` 0.5, 4.0 % at 0.8. Sized by the sphere's radius instead
+    (with :func:`sphere_offset`), an impact on a half-space is 1.1 / 2.2 % soft in peak
+    force at ``a/R`` 0.62 / 0.80.
     Clipped to ``[a_min, a_max]``; parameters and result as :func:`hertz_radius`'s.
     """
     F = np.abs(np.asarray(force, dtype=np.float64))

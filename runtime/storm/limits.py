@@ -32,15 +32,17 @@ The limits (:class:`ValidityLimits`, each with its source):
 * ``a / R <= 0.8``: measured. The patch law is the sphere's own (Sneddon 1965,
   :mod:`hailstorm.runtime.compiled.sphere`), not Hertz's paraboloid (which
   assumes ``a << R``, Johnson, *Contact Mechanics*, 1985, section 4.2, and is
-  2.8 % too stiff at ``a/R`` 0.5, 9.7 % at 0.8); what stays approximate is the
-  pressure's shape (Hertz's, in the weights) and the affine impact law. Against
-  the dynamic peer's quasi-static column (the sphere pressed node by node into the
-  converged 15 mm pad; ``python tests/benchmarks/dynamic_peer.py --terminal
-  --storm-block``) the storm's impacts of ``a/R`` 0.58-0.80 are within 3.2 % in peak
-  force, 2.3 % in contact time and 2.8 % in dent; on an ideal half-space the impact
-  law is 2.2 % soft at 0.79 and 3.0 % at 0.87. Past it, at 0.88-0.93 (30 m/s; ``dynamic_peer.py
-  --full --speeds 30 --storm-block``), the storm is within 4.2 % in peak force and 4.8 % in dent:
-  the error grows past 0.8.
+  2.8 % too stiff at ``a/R`` 0.5, 9.7 % at 0.8), and an impact's patch meets the
+  sphere's own impact on a half-space at every ``a/R``
+  (:func:`hailstorm.runtime.contact.weights.impact_radius`); what stays approximate is
+  the pressure's shape (Hertz's, in the weights, where the sphere's is not at large
+  ``a/R``) and the half-space sizing on a finite pad. Against the dynamic peer's
+  quasi-static column (the sphere pressed node by node into the converged 15 mm pad;
+  ``python tests/benchmarks/dynamic_peer.py --terminal --storm-block``) the storm's impacts
+  of ``a/R`` 0.58-0.80 are within 2.6 % in peak force, 1.2 % in contact time and 1.3 % in
+  dent. Past it, at 0.88-0.93 (30 m/s; ``dynamic_peer.py --full --speeds 30
+  --storm-block``), the storm is within 3.5 % in peak force and 1.2 % in dent: the error
+  grows past 0.8 (there with the pad's thickness, ``delta/h`` 0.4-0.75).
 * peak strain ``<= 0.05``: flexible (elastomeric) foams are linear elastic in
   compression up to about 5 % strain; beyond it the cell walls buckle and the
   stress-strain curve flattens into the plateau (Gibson & Ashby, *Cellular
