@@ -69,9 +69,10 @@ contact point, with the Hertz pressure profile (consistent P1 nodal loads,
 pressure-weighted mean normal displacement of the surface under the disc
 (measured from the tangent plane at the contact point), which lies the
 sphere's offset ``o`` (:meth:`~hailstorm.runtime.storm.contact_set.ContactSets.offsets`:
-``a^2 / (5 R)`` on a resolved disc) short of the stone's lowest point: the
-affine law ``F = k (delta - o)`` of :func:`hailstorm.runtime.contact.hertz.press_spheres`,
-Hertz's through the patch's radius. ``patch = "none"`` gives the point
+the impact patch's, :func:`hailstorm.runtime.contact.weights.impact_offset`, ``a^2 / (5 R)``
+on a resolved disc for ``a << R``) short of the stone's lowest point: an affine law
+``F = k (delta - o)`` like :func:`hailstorm.runtime.contact.hertz.press_spheres`', through the
+sphere's peak with the sphere's work (on a half-space). ``patch = "none"`` gives the point
 contacts of the course hint (barycentric weights on one triangle).
 
 * Engagement: when a stone first touches the seat
@@ -85,7 +86,7 @@ contacts of the course hint (barycentric weights on one triangle).
   carries the offset along and the stone with it, keeping the spring's
   compression.
 
-* Radius: ``a = hertz_radius(F_peak, R, E, nu)`` clipped to
+* Radius: ``a = impact_radius(F_peak, R, E, nu)`` (Hertz's radius for ``a << R``) clipped to
   ``[patch_min_radius, R]``, with ``F_peak`` the peak force of the contact's
   current oscillation about its static equilibrium,
   ``F_eq + sqrt((F - F_eq)^2 + k m v_n^2)`` (``F`` the previous sub-step's

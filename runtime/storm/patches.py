@@ -103,7 +103,8 @@ class Patches:
               cc_kdiag: np.ndarray | None, lam: np.ndarray, stats: StormStats) -> np.ndarray:
         """Patch radius of each soft contact ``ids`` on triangles ``tris`` (updated in ``stones.crad``).
 
-        The radius is the Hertz radius of the contact's *peak* force, estimated
+        The radius is the sphere's impact patch (:func:`hailstorm.runtime.contact.weights.impact_radius`;
+        Hertz's radius for ``a << R``) of the contact's *peak* force, estimated
         from its current state as a linear oscillator about its static
         equilibrium: ``F_peak = F_eq + sqrt((F - F_eq)^2 + k m v_n^2)``
         (``F``: the previous sub-step's force on that contact, ``lam``, ``F_eq``: the
