@@ -16,7 +16,7 @@ from hailstorm.runtime.compiled.flight import drag_dot
 from hailstorm.runtime.compiled.grid import cell_range, sorted_ints
 from hailstorm.runtime.compiled.sphere import impact_radius_of
 
-#: A resting contact (oscillation amplitude below ``rest_speed``) is re-sized to the Hertz
+#: A resting contact (oscillation amplitude below ``rest_speed``) is re-sized to the patch
 #: radius of its force once it is this far off (relative): the static dent follows the weight,
 #: not the impact that brought the stone (the ``patch_tolerance`` band alone left resting
 #: patches up to 20 % too large, hence too stiff).

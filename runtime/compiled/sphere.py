@@ -156,7 +156,7 @@ def sphere_w(x):  # pragma: no cover (compiled)
 @kernel
 def impact_patch_x(x):  # pragma: no cover (compiled)
     """``a_i / R = 3 q(x)^2 / (10 w(x))``: the patch (Hertz's disc) whose linear law meets the
-    sphere's impact peak at contact ratio ``x`` (module docstring); ``x`` below
+    sphere's impact peak at contact ratio ``x`` (module docstring); ``x`` itself below
     :data:`IMPACT_SERIES_BELOW`."""
     if x < IMPACT_SERIES_BELOW:
         return x
@@ -192,7 +192,7 @@ def impact_offset_of_patch(p):  # pragma: no cover (compiled)
     if p < IMPACT_SERIES_BELOW:
         return 0.2 * p * p
     hi = min(p, X_MAX)
-    if impact_patch_x(hi) <= p:  # past the table's end (p near 1 and above): the widest
+    if impact_patch_x(hi) <= p:  # p beyond i(X_MAX) (about 1.19): the widest contact's x
         x = hi
     else:
         lo = 0.0

@@ -83,8 +83,8 @@ __all__ = [
     "locate",
     "pad",
     "patch_matrix",
-    "resolved_fraction",
     "patch_weights",
+    "resolved_fraction",
     "smooth_normals",
     "sphere_mean_offset",
     "sphere_offset",
@@ -289,17 +289,7 @@ def sphere_radius(force: Any, stone_radius: Any, young: float, poisson: float, *
     paraboloid reaches ``R`` at ``F = (4/3) E* R^2``). Clipped to ``[a_min, a_max]``.
     Parameters and result as :func:`hertz_radius`'s.
     """
-    F = np.abs(np.asarray(force, dtype=np.float64))
-    R = np.asarray(stone_radius, dtype=np.float64)
-    if np.any(R < 0) or not (young > 0 and -1.0 < poisson < 0.5):
-        raise ValueError("sphere_radius needs R >= 0, E > 0 and -1 < nu < 0.5")
-    F, R = np.broadcast_arrays(F, R)
-    e_star = young / (1.0 - poisson**2)
-    a = sphere_radii(np.ascontiguousarray(F.ravel()), np.ascontiguousarray(R.ravel()), e_star).reshape(F.shape)
-    a = np.maximum(a, a_min)
-    if a_max is not None:
-        a = np.minimum(a, a_max)
-    return a
+    return _radius_of_force(sphere_radii, "sphere_radius", force, stone_radius, young, poisson, a_min, a_max)
 
 
 def sphere_offset(patch_radius: Any, sphere_radius: Any) -> np.ndarray:
@@ -340,13 +330,19 @@ def impact_radius(force: Any, stone_radius: Any, young: float, poisson: float, *
     force at ``a/R`` 0.62 / 0.80.
     Clipped to ``[a_min, a_max]``; parameters and result as :func:`hertz_radius`'s.
     """
+    return _radius_of_force(impact_radii, "impact_radius", force, stone_radius, young, poisson, a_min, a_max)
+
+
+def _radius_of_force(radii: Any, name: str, force: Any, stone_radius: Any, young: float, poisson: float,
+                     a_min: float, a_max: float | None) -> np.ndarray:
+    """The numpy face of a compiled ``radii(F, R, e_star)`` over 1-d arrays: checked, broadcast, clipped."""
     F = np.abs(np.asarray(force, dtype=np.float64))
     R = np.asarray(stone_radius, dtype=np.float64)
     if np.any(R < 0) or not (young > 0 and -1.0 < poisson < 0.5):
-        raise ValueError("impact_radius needs R >= 0, E > 0 and -1 < nu < 0.5")
+        raise ValueError(f"{name} needs R >= 0, E > 0 and -1 < nu < 0.5")
     F, R = np.broadcast_arrays(F, R)
     e_star = young / (1.0 - poisson**2)
-    a = impact_radii(np.ascontiguousarray(F.ravel()), np.ascontiguousarray(R.ravel()), e_star).reshape(F.shape)
+    a = radii(np.ascontiguousarray(F.ravel()), np.ascontiguousarray(R.ravel()), e_star).reshape(F.shape)
     a = np.maximum(a, a_min)
     if a_max is not None:
         a = np.minimum(a, a_max)

@@ -254,8 +254,8 @@ def test_peak_radius_on_a_half_space_is_the_spheres_impact():
     quadrature, tests/reference/sphere_ref.py) gets the patch ``R 3 q(x)^2 / (10 w(x))``, whose
     oscillator then peaks at the sphere's own force ``E* R^2 q(x)`` and, with
     :func:`impact_offset`, depth ``R x atanh x`` (Hertz's ``a^(5/2) = (3 R / (4 E*)) sqrt(m v^2 / d)``
-    for small ``x``; sized by the sphere's radius instead it would be 0.6 / 1.9 % soft at ``x`` 0.5 /
-    0.8). With a weight and a body term the result is a fixed point of its own map (to the
+    for small ``x``; a patch of the sphere's own radius ``x R`` would peak 0.6 / 1.9 % low at that
+    energy, ``x`` 0.5 / 0.8). With a weight and a body term the result is a fixed point of its own map (to the
     iteration's 1e-12); the floor, the approach to the ceiling and a point contact (start 0) are
     kept."""
     from reference.sphere_ref import impact_patch_ref, q_ref, w_ref
