@@ -94,6 +94,9 @@ def _parser() -> argparse.ArgumentParser:
                      help="store D compressed (an H-matrix, format 3) with every column within relative error T "
                      "of the exact one (1e-12 to 0.1; measured on 200 exact columns, shown by `hailstorm info`); "
                      "default: D dense")
+    pre.add_argument("--stream", action="store_true",
+                     help="with --tol: compress D as its columns are solved, never holding it whole (for surfaces "
+                     "whose dense D would not fit; no resume)")
     pre.add_argument("--load", choices=("point", "hat"), default=seat.load,
                      help="a column of D responds to a unit nodal force (point, the default) or to one newton "
                      "spread over the vertex's hat function (hat: the consistent choice for --order 2)")
@@ -161,7 +164,7 @@ def _run_precompute(args: argparse.Namespace) -> int:
             args.out, geometry=args.geometry, mesh_size=args.mesh_size, order=args.order,
             volume_size=args.volume_size,
             young=args.young, poisson=args.poisson, materials=materials or None,
-            solver=args.solver, tol=args.amg_tol, load=args.load, compress_tol=args.tol,
+            solver=args.solver, tol=args.amg_tol, load=args.load, compress_tol=args.tol, stream=args.stream,
             reuse=not args.force, progress=not args.quiet, allow_large=args.allow_large,
             workers=args.workers, scheduler=args.scheduler, dtype=args.dtype,
         )

@@ -52,6 +52,7 @@ __all__ = [
     "Compressed",
     "check_tol",
     "cluster_tree",
+    "compliance_record",
     "column_errors",
     "compress",
     "compress_bundle",
@@ -534,6 +535,20 @@ def compress_compliance(gf: GreensFunctions, tol: float, *, eta: float = DEFAULT
     return Compressed(H, tol, block_tol, error, time.perf_counter() - t0)
 
 
+def compliance_record(c: Compressed, **extra: Any) -> dict[str, Any]:
+    """The manifest's ``compliance`` entry of a compressed D (what ``hailstorm info`` prints): the
+    storage, the target and per-block tolerances, the partition's parameters, the ranks, the
+    stored and the dense bytes, the measured error and the seconds, plus ``extra``."""
+    H = c.H
+    return {
+        "storage": "hmatrix", "shape": list(H.shape), "tol": c.tol, "block_tol": c.block_tol,
+        "eta": DEFAULT_ETA, "leaf": DEFAULT_LEAF, "far_blocks": int(H.ranks.size),
+        "blocks": int(len(H.blocks)), "max_rank": int(H.ranks.max(initial=0)),
+        "stored_bytes": int(H.data.nbytes), "dense_bytes": int(H.shape[0] * H.shape[1] * 8),
+        "error": c.error, **extra, "seconds": round(c.seconds, 3),
+    }
+
+
 def compressed_key(key: str, tol: float) -> str:
     """The cache key of the compressed copy, at ``tol``, of the dense bundle of key ``key``."""
     return hashlib.sha256(f"{key}\0hmatrix tol {float(tol)!r}".encode()).hexdigest()
@@ -586,13 +601,7 @@ def compress_bundle(src: str | os.PathLike, out: str | os.PathLike, tol: float, 
              *gf.D.shape, 100 * c.H.stored / gf.D.size, c.error["max"], c.error["columns"], c.seconds)
     manifest = {k: v for k, v in gf.manifest.items() if k not in ("format", "format_version", "arrays", MANIFEST_HASH)}
     manifest["key"] = key or compressed_key(gf.manifest["key"], tol)
-    manifest["compliance"] = {
-        "storage": "hmatrix", "shape": list(gf.D.shape), "tol": tol, "block_tol": c.block_tol,
-        "eta": DEFAULT_ETA, "leaf": DEFAULT_LEAF, "far_blocks": int(c.H.ranks.size),
-        "blocks": int(len(c.H.blocks)), "max_rank": int(c.H.ranks.max(initial=0)),
-        "stored_bytes": int(c.H.data.nbytes), "dense_bytes": int(gf.D.size * 8),
-        "error": c.error, "source_key": gf.manifest["key"], "seconds": round(c.seconds, 3),
-    }
+    manifest["compliance"] = compliance_record(c, source_key=gf.manifest["key"])
     arrays: dict[str, Any] = {k: getattr(gf, k) for k in ARRAY_SPECS if k != "compliance"}
     arrays.update(c.H.to_arrays())
     return write_bundle(out, arrays, manifest)

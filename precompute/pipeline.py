@@ -39,7 +39,19 @@ from hailstorm.precompute.geometry import (
     load_seat,
 )
 from hailstorm.precompute.blocks import BlockStore, remove_work_dir, work_dir
-from hailstorm.precompute.hmatrix import check_tol, compress_bundle, compressed_key
+from hailstorm.precompute.hmatrix import (
+    DEFAULT_ETA,
+    DEFAULT_LEAF,
+    ERROR_COLUMNS,
+    Compressed,
+    admissible_blocks,
+    check_tol,
+    cluster_tree,
+    compliance_record,
+    compress_bundle,
+    compressed_key,
+)
+from hailstorm.precompute.hstream import StreamedH, streamed_key, tree_order
 from hailstorm.precompute.cluster import SolveStats, check_scheduler, cluster_client, require_distributed, solve_blocks
 from hailstorm.precompute.greens import (
     DEFAULT_STORE_BYTES,
@@ -175,6 +187,7 @@ def build_bundle(
     block_bytes: int = DEFAULT_STORE_BYTES,
     dtype: str = "float64",
     compress_tol: float | None = None,
+    stream: bool = False,
 ) -> Path:
     """Compute the Green's functions of a seat and write them as a bundle.
 
@@ -259,6 +272,13 @@ def build_bundle(
         manifest's ``compliance``; format 3). The dense bundle is computed
         first (and reused if ``out`` holds it), then replaced by its compressed
         copy. ``None`` (default): D dense. Needs ``dtype="float64"``.
+    stream
+        With ``compress_tol``: build the H-matrix from D's column blocks as they are
+        solved (:class:`hailstorm.precompute.hstream.StreamedH`), so D is never on
+        disk or in memory whole (a compressed bundle of a surface whose dense D would
+        not fit). Its measured column error is within ``compress_tol`` or the run
+        fails naming it; it does not resume (an interrupted run starts again); its
+        cache key is its own (:func:`hailstorm.precompute.hstream.streamed_key`).
 
     D is streamed to ``.NAME.work/`` beside ``out`` block by block, each
     block durable and tagged with the cache key when it is written; a run
@@ -290,6 +310,10 @@ def build_bundle(
         compress_tol = check_tol(compress_tol)
         if dtype != "float64":
             raise ValueError(f"a compressed D is stored in float64: --tol and --dtype {dtype} do not go together")
+    if not isinstance(stream, bool):
+        raise ValueError(f"stream must be True or False, got {stream!r}")
+    if stream and compress_tol is None:
+        raise ValueError("streaming builds a compressed D: --stream needs --tol")
     # the output first: an occupied or unwritable place is refused before any work
     if out is not None:
         out = Path(out).absolute()
@@ -333,7 +357,10 @@ def build_bundle(
     if volume_size is not None:  # the mesh's hash already differs; recorded for the reader (old keys unchanged)
         options["volume_size"] = float(volume_size)
     key = cache_key(mesh, options)
-    final_key = key if compress_tol is None else compressed_key(key, compress_tol)
+    if compress_tol is None:
+        final_key = key
+    else:
+        final_key = streamed_key(key, compress_tol) if stream else compressed_key(key, compress_tol)
     if out is None:
         out = (default_cache_dir() / final_key[:16]).absolute()
     before = _key_at(out)
@@ -360,6 +387,12 @@ def build_bundle(
             if not dense_ready:
                 log.info("bundle %s was built for other inputs; recomputing", out)
         check_replaceable(out)
+        if stream:
+            try:
+                return _compute(out, mesh, surface, options, key, geometry, mesh_size, tol, t0, t_mesh, progress,
+                                run, mats, stream_tol=compress_tol, final_key=final_key)
+            except OSError as exc:
+                raise BundleError(f"cannot write bundle {out}: {exc.strerror or exc} ({exc.filename or out})") from exc
         if not dense_ready:
             try:
                 _compute(out, mesh, surface, options, key, geometry, mesh_size, tol, t0, t_mesh, progress, run, mats)
@@ -394,8 +427,9 @@ class _RunSettings:
 
 def _compute(out: Path, mesh: TetMesh, surface: Surface, options: dict, key: str, geometry, mesh_size: float,
              tol: float, t0: float, t_mesh: float, progress: bool, run: _RunSettings,
-             mats: MaterialMap) -> Path:
-    """Assemble, solve for D and write the bundle (``build_bundle``'s work once its checks passed)."""
+             mats: MaterialMap, stream_tol: float | None = None, final_key: str | None = None) -> Path:
+    """Assemble, solve for D and write the bundle (``build_bundle``'s work once its checks passed);
+    with ``stream_tol``, D compressed as it is solved (:func:`_stream_hmatrix`), under ``final_key``."""
     order, young, poisson = options["order"], options["young"], options["poisson"]
     solver, load = options["solver"], options["load"]
     t1 = time.perf_counter()
@@ -416,7 +450,12 @@ def _compute(out: Path, mesh: TetMesh, surface: Surface, options: dict, key: str
     problem = column_problem(K, fixed, load_dofs, read, solver=solver, near_null=near_null, tol=tol, loads=loads)
     n_dofs = int(K.shape[0])
     del basis, K  # the solve needs only the problem: the FE basis is most of the assembly's memory
-    D, stats, (scale, err) = _stream_compliance(out, problem, key, progress, run, f"P{order}, {solver}")
+    if stream_tol is not None:
+        comp, stats = _stream_hmatrix(problem, mesh.points[surface.nodes], np.flatnonzero(surface.contactable),
+                                      stream_tol, key, progress, run, f"P{order}, {solver}, compressed")
+        D = None
+    else:
+        D, stats, (scale, err) = _stream_compliance(out, problem, key, progress, run, f"P{order}, {solver}")
     t_solve = time.perf_counter() - t2
     cast = None
     if run.dtype != "float64":  # what the rounding of each block to D's storage type cost, as convert_bundle records
@@ -424,7 +463,7 @@ def _compute(out: Path, mesh: TetMesh, surface: Surface, options: dict, key: str
         cast = dtype_cast_record(cache_key(mesh, float64_options), "float64", err, scale)
 
     manifest = {
-        "key": key,
+        "key": key if final_key is None else final_key,
         "code_version": _code_version(),
         "created": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         "options": {**options, "mesh_size": float(mesh_size), "geometry": None if geometry is None else str(geometry)},
@@ -453,8 +492,17 @@ def _compute(out: Path, mesh: TetMesh, surface: Surface, options: dict, key: str
         "volume_points": mesh.points,
         "volume_tets": mesh.tets.astype(np.int64),
         "surface_nodes": surface.nodes.astype(np.int64),
-        "compliance": D,
     }
+    if D is None:  # streamed: the H-matrix is the compliance
+        arrays.update(comp.H.to_arrays())
+        manifest["compliance"] = compliance_record(comp, construction="stream", source_key=key)
+        path = write_bundle(out, arrays, manifest)
+        log.info("wrote bundle %s (%d x %d compliance as an H-matrix, %.1f %% of its numbers; max column error "
+                 "%.2g over %d exact columns) in %.1f s", path, *comp.H.shape,
+                 100 * comp.H.stored / (comp.H.shape[0] * comp.H.shape[1]), comp.error["max"],
+                 comp.error["columns"], time.perf_counter() - t0)
+        return path
+    arrays["compliance"] = D
     path = write_bundle(out, arrays, manifest)
     # D's hash was computed from its bytes on disk (BlockStore.finish) and the file moved, unchanged:
     # record that, so that loading it does not read all of D again (hailstorm.runtime.bundle.stamps)
@@ -546,6 +594,54 @@ def _stream_compliance(out: Path, problem: ColumnProblem, key: str, progress: bo
                  "(%.0f %% of 4 nnz(L) per column), %.2f GFLOP/s", stats.blocks, stats.columns, stats.solve_s,
                  stats.workers, f"{nnz_l:,}", done_flops / 1e9, 100 * done_flops / full, done_flops / seconds / 1e9)
     return store.finish(), info, store.rounding
+
+
+def _stream_hmatrix(problem: ColumnProblem, vertices: np.ndarray, contact_vertices: np.ndarray, tol: float,
+                    key: str, progress: bool, run: _RunSettings, what: str) -> tuple[Compressed, dict]:
+    """Solve D's columns in the column tree's order and compress them as they come
+    (:class:`hailstorm.precompute.hstream.StreamedH`, far blocks to ``tol / 2`` each); measure the
+    result on :data:`hailstorm.precompute.hmatrix.ERROR_COLUMNS` exact columns drawn at random (seed 0)
+    before the solve. Raises ValueError naming the error reached if it exceeds ``tol``."""
+    t0 = time.perf_counter()
+    V = np.asarray(vertices, dtype=np.float64)
+    rows, cols = cluster_tree(V, leaf=DEFAULT_LEAF), cluster_tree(V[contact_vertices], leaf=DEFAULT_LEAF)
+    part = admissible_blocks(rows, cols, DEFAULT_ETA)
+    n_rows, ncols = problem.shape
+    blocks = column_blocks(n_rows, ncols, run.block_bytes, problem.batch)
+    picked = np.sort(np.random.default_rng(0).choice(ncols, size=min(ERROR_COLUMNS, ncols), replace=False))
+    streamed = StreamedH(rows, cols, part, tol / 2, blocks, keep=picked)
+    log.info("D: %d x %d, compressed as it is solved (%d blocks of %d columns; the dense D would be %s)",
+             n_rows, ncols, len(blocks), blocks[0][1] - blocks[0][0], gib(8 * n_rows * ncols))
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=len(blocks), desc=f"Green's functions ({what})", unit="block")
+
+    def on_block(i: int, values: np.ndarray | RoundedBlock) -> None:
+        streamed.add(blocks[i][0], values)
+        if bar is not None:
+            bar.update(1)
+
+    try:
+        with cluster_client(workers=run.workers, scheduler=run.scheduler) as client, _logging_beside(bar):
+            # its own solve key: the workers cache the problem by key, and these columns are in another order
+            stats = solve_blocks(tree_order(problem, cols), blocks, range(len(blocks)), on_block, client=client,
+                                 key=f"{key}:tree", dtype="float64")
+    finally:
+        if bar is not None:
+            bar.close()
+    H = streamed.finish()
+    _, err = streamed.errors(H)
+    worst = float(err.max(initial=0.0))
+    if worst > tol:
+        raise ValueError(f"the compression tolerance {tol:g} is unreachable while streaming: the H-matrix "
+                         f"(per-block truncation {tol / 2:g}) has columns off by up to {worst:.3g}")
+    error = {"columns": int(err.size), "max": worst, "median": float(np.median(err)) if err.size else 0.0, "seed": 0}
+    info = {"blocks": len(blocks), "blocks_solved": stats.blocks, "blocks_resumed": 0, "columns_solved": stats.columns,
+            "workers": stats.workers, "factorizations": stats.factorizations, "factor_s": stats.factor_s,
+            "solve_s": stats.solve_s, "solver": problem.solver, "batch": problem.batch}
+    return Compressed(H, tol, tol / 2, error, time.perf_counter() - t0), info
 
 
 def _logging_beside(bar):

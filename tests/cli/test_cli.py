@@ -168,3 +168,10 @@ def test_precompute_tol_out_of_range_is_one_line_exit_3(tmp_path, tol):
     assert run.returncode == 3, run.stderr
     assert run.stderr.count("\n") == 1 and "compression tolerance" in run.stderr and "[1e-12, 0.1]" in run.stderr
     assert not (tmp_path / "b").exists()
+
+
+def test_precompute_stream_without_tol_is_one_line_exit_3(tmp_path):
+    run = run_cli("precompute", "--mesh-size", 0.015, "--order", 1, "--stream", "--out", tmp_path / "b", check=False)
+    assert run.returncode == 3, run.stderr
+    assert run.stderr.count("\n") == 1 and "--stream needs --tol" in run.stderr
+    assert not (tmp_path / "b").exists()

@@ -1,0 +1,232 @@
+"""Compressing D while it is solved: the H-matrix from column blocks as they come, D never held whole.
+
+:func:`hailstorm.precompute.hmatrix.compress` reads a finished D one column cluster at a
+time, so the dense D must first exist (on disk: 15 GiB for the 13 000 contactable
+vertices of the seat at 1.2 mm, P1). :class:`StreamedH` takes the same partition and
+is fed D's column blocks instead, in any order, each block once:
+
+* the columns are solved in the column tree's order (:func:`tree_order`), so a
+  block touches few column clusters, each over a contiguous range;
+* a near block keeps its columns as they come (dense, exact);
+* a far block ``B`` keeps a truncated SVD ``U diag(s) V^T`` of the columns seen so
+  far and adds each new set ``C`` by Brand's update (Linear Algebra Appl. 415 (2006)
+  20): ``[U Q] [[diag(s), U^T C], [0, R]] [V E]^T`` with ``Q R`` the part of ``C``
+  outside ``U``, re-factored and truncated. Each update drops at most ``tol_b / u``
+  of the block's norm so far (``u`` the updates the block will get, known from the
+  block layout), so the sum stays within ``tol_b ||B||_F``; the end truncates once
+  more within what is left of that budget;
+* a few exact columns, drawn at random before the solve, are kept to measure the
+  result's column error (:func:`hailstorm.precompute.hmatrix.column_errors`).
+
+Memory: the H-matrix's own numbers, the factors of the blocks being updated and one
+block of D. The truncation is the same per-block Frobenius rule as ``compress``'s,
+reached by another path, so the two H-matrices differ within the tolerance.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+from typing import Any
+
+import numpy as np
+
+from hailstorm.precompute.hmatrix import ClusterTree, Partition, block_slices, dofs, low_rank, svd
+from hailstorm.runtime.bundle.format import RoundedBlock
+from hailstorm.runtime.bundle.hmatrix import HMatrix
+
+__all__ = ["StreamedH", "streamed_key", "tree_order"]
+
+
+def streamed_key(key: str, tol: float) -> str:
+    """The cache key of the streamed H-matrix, at ``tol``, of the dense bundle of key ``key`` (its own:
+    the same target as :func:`hailstorm.precompute.hmatrix.compressed_key`'s, other numbers)."""
+    return hashlib.sha256(f"{key}\0hmatrix stream tol {float(tol)!r}".encode()).hexdigest()
+
+
+def tree_order(problem: Any, cols: ClusterTree) -> Any:
+    """``problem`` (a :class:`hailstorm.precompute.greens.ColumnProblem`) with its columns in the
+    order of the column tree ``cols`` (its dofs, :func:`~hailstorm.precompute.hmatrix.dofs`): column
+    ``j`` of the result is column ``dofs(cols.perm)[j]`` of D."""
+    cd = dofs(cols.perm)
+    if problem.loads is not None:
+        return dataclasses.replace(problem, loads=problem.loads[:, cd].tocsc())
+    return dataclasses.replace(problem, load_pos=np.asarray(problem.load_pos)[cd])
+
+
+def _truncate(s: np.ndarray, budget: float) -> int:
+    """Smallest rank whose dropped tail ``||s[k:]||`` is at most ``budget`` (>= 0)."""
+    tail = np.sqrt(np.concatenate([np.cumsum((s * s)[::-1])[::-1], [0.0]]))
+    return int(np.argmax(tail <= budget))
+
+
+@dataclasses.dataclass
+class _Far:
+    """A far block's state: ``U diag(s) V^T`` of the columns seen, the updates left, what was dropped."""
+
+    U: np.ndarray
+    s: np.ndarray
+    V: np.ndarray
+    updates: int
+    norm2: float = 0.0
+    dropped: float = 0.0
+
+
+class StreamedH:
+    """The H-matrix of D on a block partition, built from D's column blocks in any order.
+
+    Parameters
+    ----------
+    rows, cols : ClusterTree
+        Rows over every surface vertex, columns over the contactable ones (D's vertex-major dofs).
+    part : Partition
+        :func:`hailstorm.precompute.hmatrix.admissible_blocks` of ``rows``, ``cols``.
+    tol : float
+        Each far block ``B`` ends within ``tol ||B||_F`` of itself (as ``compress``'s).
+    blocks : sequence of (int, int)
+        The column ranges (tree order) the solve will deliver, each once.
+    keep : (k,) int array_like
+        Columns of D (its own order) to keep exactly, for :attr:`kept`.
+
+    Attributes
+    ----------
+    kept : dict of int to ndarray
+        D's column ``j`` (all rows) for each ``j`` of ``keep`` delivered so far.
+    """
+
+    def __init__(self, rows: ClusterTree, cols: ClusterTree, part: Partition, tol: float,
+                 blocks: Any, keep: Any = ()) -> None:
+        if not tol >= 0:
+            raise ValueError(f"tol must be >= 0, got {tol}")
+        self.tol = float(tol)
+        self.rd, self.cd = dofs(rows.perm), dofs(cols.perm)
+        self.shape = (self.rd.size, self.cd.size)
+        far = [block_slices(rows, cols, i, j) for i, j, _ in part.far]
+        near = [block_slices(rows, cols, i, j) for i, j, _ in part.near]
+        self.ranges = np.array([(r.start, r.stop, c.start, c.stop) for r, c in far + near], dtype=np.int64)
+        self.n_far = len(far)
+        starts = np.array([b[0] for b in blocks], dtype=np.int64)
+        stops = np.array([b[1] for b in blocks], dtype=np.int64)
+        self._far: dict[int, _Far] = {}
+        for b in range(self.n_far):
+            r0, r1, c0, c1 = self.ranges[b]
+            u = int(np.count_nonzero((starts < c1) & (stops > c0)))
+            self._far[b] = _Far(np.zeros((r1 - r0, 0)), np.zeros(0), np.zeros((c1 - c0, 0)), max(u, 1))
+        self._near: dict[int, np.ndarray] = {}
+        pos = np.empty(self.shape[1], dtype=np.int64)
+        pos[self.cd] = np.arange(self.shape[1])
+        self._keep = {int(pos[j]): int(j) for j in np.asarray(keep, dtype=np.int64).ravel()}
+        self.kept: dict[int, np.ndarray] = {}
+        self.columns_seen = 0
+        self._rng = np.random.default_rng(0)
+
+    def add(self, start: int, values: np.ndarray | RoundedBlock) -> None:
+        """Columns ``start:start + k`` (tree order) of D, ``values`` (n_rows, k) in D's row order."""
+        if isinstance(values, RoundedBlock):
+            values = values.values
+        values = np.asarray(values, dtype=np.float64)
+        if values.ndim != 2 or values.shape[0] != self.shape[0]:
+            raise ValueError(f"a block of D has {self.shape[0]} rows, got shape {values.shape}")
+        stop = start + values.shape[1]
+        for p in range(start, stop):
+            if p in self._keep:
+                self.kept[self._keep[p]] = values[:, p - start].copy()
+        T = values[self.rd]  # rows in tree order: each block's rows are a contiguous range
+        hit = np.flatnonzero((self.ranges[:, 2] < stop) & (self.ranges[:, 3] > start))
+        for b in hit.tolist():
+            r0, r1, c0, c1 = (int(x) for x in self.ranges[b])
+            a0, a1 = max(c0, start), min(c1, stop)
+            C = T[r0:r1, a0 - start:a1 - start]
+            if b < self.n_far:
+                self._update(self._far[b], C, np.arange(a0 - c0, a1 - c0))
+            else:
+                dense = self._near.get(b)
+                if dense is None:
+                    dense = self._near[b] = np.zeros((r1 - r0, c1 - c0), order="F")
+                dense[:, a0 - c0:a1 - c0] = C
+        self.columns_seen += stop - start
+
+    def _update(self, f: _Far, C: np.ndarray, idx: np.ndarray) -> None:
+        """Brand's update of ``f`` with the columns ``C`` at its local positions ``idx``.
+
+        ``C`` is first factored as ``X Vc^T`` (:func:`~hailstorm.precompute.hmatrix.low_rank`, half
+        this update's budget), so a wide block costs ``m q k``, not ``m q^2``; with ``V`` zero on the
+        new positions ``[V, E Vc]`` is orthonormal and the core is ``[[diag(s), U^T X], [0, R]]``,
+        ``Q R = X - U U^T X``."""
+        cc = float(np.einsum("ij,ij->", C, C))
+        f.norm2 += cc
+        budget = self.tol / f.updates * np.sqrt(f.norm2)
+        X, Vc = low_rank(C, 0.5 * budget / np.sqrt(cc), self._rng) if cc > 0 else (C[:, :0], C[:0].T)
+        f.dropped += 0.5 * budget
+        r, kc = f.s.size, X.shape[1]
+        P = f.U.T @ X
+        Rm = X - f.U @ P
+        Rm -= f.U @ (f.U.T @ Rm)  # once more: keeps [U Q] orthonormal to rounding
+        Q, Rq = np.linalg.qr(Rm)
+        K = np.zeros((r + Q.shape[1], r + kc))
+        K[:r, :r] = np.diag(f.s)
+        K[:r, r:] = P
+        K[r:, r:] = Rq
+        Uk, sk, Vkt = svd(K)
+        k = _truncate(sk, 0.5 * budget)
+        f.dropped += float(np.sqrt(np.sum(sk[k:] ** 2)))
+        Vk = Vkt[:k].T
+        V = f.V @ Vk[:r]
+        V[idx] += Vc @ Vk[r:]
+        f.U = np.hstack([f.U, Q]) @ Uk[:, :k]
+        f.s = sk[:k]
+        f.V = V
+
+    def errors(self, H: HMatrix) -> tuple[np.ndarray, np.ndarray]:
+        """The kept columns (D's order, sorted) and ``||H e_j - D e_j|| / ||D e_j||`` for each."""
+        cols = np.array(sorted(self.kept), dtype=np.int64)
+        if cols.size == 0:
+            return cols, np.zeros(0)
+        exact = np.column_stack([self.kept[j] for j in cols.tolist()])
+        diff = np.linalg.norm(H.columns(cols) - exact, axis=0)
+        norm = np.linalg.norm(exact, axis=0)
+        return cols, np.where(norm > 0, diff / np.where(norm > 0, norm, 1.0), 0.0)
+
+    def finish(self) -> HMatrix:
+        """The H-matrix (far blocks factored as ``X V^T``, ``X = U s``; a far block whose factors would
+        hold more numbers than itself dense; near blocks dense), in ``compress``'s layout.
+
+        Raises
+        ------
+        ValueError
+            Not every column was delivered.
+        """
+        if self.columns_seen != self.shape[1]:
+            raise ValueError(f"{self.columns_seen} of D's {self.shape[1]} columns were delivered")
+        table: list[tuple[int, ...]] = []
+        chunks: list[np.ndarray] = []
+        offset = 0
+
+        def put(b: int, k: int, *arrays: np.ndarray) -> None:
+            nonlocal offset
+            r0, r1, c0, c1 = (int(x) for x in self.ranges[b])
+            table.append((r0, r1, c0, c1, k, offset))
+            for x in arrays:
+                chunks.append(np.asarray(x, dtype=np.float64).ravel(order="F"))
+                offset += x.size
+
+        dense_far: dict[int, np.ndarray] = {}
+        for b in range(self.n_far):  # factored far blocks first, as compress() stores them
+            f = self._far[b]
+            left = max(self.tol * np.sqrt(f.norm2) - f.dropped, 0.0)
+            k = _truncate(f.s, left)
+            m, n = f.U.shape[0], f.V.shape[0]
+            X = f.U[:, :k] * f.s[:k]
+            if k * (m + n) < m * n:
+                put(b, k, X, f.V[:, :k])
+            else:
+                dense_far[b] = X @ f.V[:, :k].T
+            self._far[b] = _Far(np.zeros((0, 0)), np.zeros(0), np.zeros((0, 0)), 1)  # free as we go
+        for b in range(len(self.ranges)):  # then the dense ones, far before near
+            if b >= self.n_far:
+                put(b, -1, self._near.pop(b))
+            elif b in dense_far:
+                put(b, -1, dense_far.pop(b))
+        data = np.concatenate(chunks) if chunks else np.zeros(0)
+        return HMatrix(self.shape, self.rd.astype(np.int64), self.cd.astype(np.int64),
+                       np.asarray(table, dtype=np.int64).reshape(-1, 6), data)
