@@ -54,6 +54,33 @@ def tree_order(problem: Any, cols: ClusterTree) -> Any:
     return dataclasses.replace(problem, load_pos=np.asarray(problem.load_pos)[cd])
 
 
+def _factor(C: np.ndarray, budget: float, cc: float, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """``X, Vc`` (``Vc`` orthonormal) with ``||C - X Vc^T||_F <= budget``; ``cc = ||C||_F^2``.
+
+    A tall ``C`` (the far blocks' new columns: rows of a whole cluster, a block's few columns)
+    by a randomized range finder whose sample doubles until it misses at most half the
+    budget, then the SVD of ``Q^T C`` within the rest (cost ``m q k``, not the ``m q^2`` of
+    an SVD of ``C``); a wide or small one by :func:`~hailstorm.precompute.hmatrix.low_rank`."""
+    m, q = C.shape
+    if not cc > 0:
+        return C[:, :0], np.zeros((q, 0))
+    if m < 4 * q or q < 16:
+        return low_rank(C, budget / np.sqrt(cc), rng)
+    ell = 16
+    while True:
+        Q, _ = np.linalg.qr(C @ rng.standard_normal((q, ell)))
+        B = Q.T @ C
+        missed = max(cc - float(np.einsum("ij,ij->", B, B)), 0.0)
+        if missed <= 0.25 * budget * budget or 2 * ell >= q:
+            break
+        ell *= 2
+    if missed > 0.25 * budget * budget:  # the sample reached the width: the exact SVD
+        return low_rank(C, budget / np.sqrt(cc), rng)
+    Ub, sb, Vbt = svd(B)
+    k = _truncate(sb, np.sqrt(max(budget * budget - missed, 0.0)))
+    return Q @ (Ub[:, :k] * sb[:k]), Vbt[:k].T
+
+
 def _truncate(s: np.ndarray, budget: float) -> int:
     """Smallest rank whose dropped tail ``||s[k:]||`` is at most ``budget`` (>= 0)."""
     tail = np.sqrt(np.concatenate([np.cumsum((s * s)[::-1])[::-1], [0.0]]))
@@ -156,7 +183,7 @@ class StreamedH:
         cc = float(np.einsum("ij,ij->", C, C))
         f.norm2 += cc
         budget = self.tol / f.updates * np.sqrt(f.norm2)
-        X, Vc = low_rank(C, 0.5 * budget / np.sqrt(cc), self._rng) if cc > 0 else (C[:, :0], C[:0].T)
+        X, Vc = _factor(C, 0.5 * budget, cc, self._rng)
         f.dropped += 0.5 * budget
         r, kc = f.s.size, X.shape[1]
         P = f.U.T @ X

@@ -1,0 +1,121 @@
+"""Benchmark: a compressed bundle built by streaming (``--stream``) against the dense build then its compression.
+
+Usage::
+
+    python tests/benchmarks/bench_stream.py                     # the default seat (6 mm, P2, hat loads), tol 1e-2
+    python tests/benchmarks/bench_stream.py --mesh-size 0.0012 --order 1 --load point --routes stream
+    python tests/benchmarks/bench_stream.py --out docs/_generated/stream_default_seat.txt
+
+Each route is ``hailstorm precompute --tol T`` (``dense``: the dense D on disk, then its
+compressed copy; ``stream``: ``--stream``) in a fresh process, into a fresh folder with an
+empty cache, one after the other. Printed per route: the wall time, the process's peak
+resident memory (its own ``rusage``), the largest disk the bundle's folder and its work
+directory held (sampled every 0.2 s), and from the bundle's manifest the stored bytes, the
+dense D's bytes, the measured column error (200 exact columns) and the solve's seconds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+
+from hailstorm.studies import record
+
+ROUTES = ("dense", "stream")
+
+
+def _disk(folder: Path) -> int:
+    """Bytes allocated under ``folder`` (sparse files count what they hold)."""
+    total = 0
+    for root, _, files in os.walk(folder):
+        for f in files:
+            try:
+                total += os.stat(os.path.join(root, f)).st_blocks * 512
+            except OSError:
+                pass
+    return total
+
+
+def run_route(route: str, mesh_size: float, order: int, load: str, tol: float) -> dict:
+    """One ``hailstorm precompute`` of ``route`` in a fresh process and folder: its measures."""
+    with tempfile.TemporaryDirectory(prefix="hailstorm-bench-stream-") as tmp:
+        out = Path(tmp) / "bundle"
+        cmd = [sys.executable, "-m", "hailstorm", "precompute", "--mesh-size", str(mesh_size), "--order", str(order),
+               "--load", load, "--tol", str(tol), "--out", str(out), "--quiet"]
+        if route == "stream":
+            cmd.append("--stream")
+        env = dict(os.environ, HAILSTORM_CACHE=str(Path(tmp) / "cache"))
+        peak_disk = 0
+        done = threading.Event()
+
+        def watch() -> None:
+            nonlocal peak_disk
+            while not done.wait(0.2):
+                peak_disk = max(peak_disk, _disk(Path(tmp)))
+
+        watcher = threading.Thread(target=watch, daemon=True)
+        t0 = time.perf_counter()
+        proc = subprocess.Popen(cmd, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        watcher.start()
+        _, status, usage = os.wait4(proc.pid, 0)
+        wall = time.perf_counter() - t0
+        done.set()
+        watcher.join()
+        err = proc.stderr.read() if proc.stderr else ""
+        if os.waitstatus_to_exitcode(status) != 0:
+            raise SystemExit(f"{route}: hailstorm precompute failed: {err.strip()[-400:]}")
+        peak_disk = max(peak_disk, _disk(Path(tmp)))
+        manifest = json.loads((out / "manifest.json").read_text())
+        shutil.rmtree(out, ignore_errors=True)
+    comp = manifest["compliance"]
+    return {"wall": wall, "rss": usage.ru_maxrss * 1024, "disk": peak_disk, "stored": comp["stored_bytes"],
+            "dense": comp["dense_bytes"], "err_max": comp["error"]["max"], "err_median": comp["error"]["median"],
+            "solve": manifest["timings_s"]["solve"], "shape": comp["shape"], "max_rank": comp["max_rank"],
+            "n_dofs": manifest["mesh"]["n_dofs"]}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--mesh-size", type=float, default=0.006)
+    ap.add_argument("--order", type=int, default=2)
+    ap.add_argument("--load", choices=("point", "hat"), default="hat")
+    ap.add_argument("--tol", type=float, default=1e-2)
+    ap.add_argument("--routes", default=",".join(ROUTES), help=f"comma-separated, of {', '.join(ROUTES)}")
+    ap.add_argument("--out", type=Path, default=None, help="also write the output there (with its header)")
+    args = ap.parse_args(argv)
+    routes = [r for r in args.routes.split(",") if r]
+    if not routes or any(r not in ROUTES for r in routes):
+        ap.error(f"--routes takes {', '.join(ROUTES)}, got {args.routes!r}")
+    stamp = record.stamp()
+    lines: list[str] = []
+
+    def emit(text: str = "") -> None:
+        print(text, flush=True)
+        lines.append(text)
+
+    emit(f"hailstorm precompute --mesh-size {args.mesh_size} --order {args.order} --load {args.load} "
+         f"--tol {args.tol:g} [--stream], each in a fresh process and folder")
+    emit()
+    emit("| route | D rows x columns | dofs | wall s | solve s | peak memory GiB | peak disk GiB | stored MiB | "
+         "dense GiB | max rank | column error max (200 cols) | median |")
+    emit("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for route in routes:
+        m = run_route(route, args.mesh_size, args.order, args.load, args.tol)
+        emit(f"| {route} | {m['shape'][0]} x {m['shape'][1]} | {m['n_dofs']:,} | {m['wall']:.1f} | {m['solve']:.1f} | "
+             f"{m['rss'] / 2**30:.2f} | {m['disk'] / 2**30:.2f} | {m['stored'] / 2**20:.1f} | "
+             f"{m['dense'] / 2**30:.2f} | {m['max_rank']} | {m['err_max']:.2e} | {m['err_median']:.2e} |")
+    if args.out is not None:
+        record.write_run(args.out, record.command("python tests/benchmarks/bench_stream.py", argv), stamp, lines)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
