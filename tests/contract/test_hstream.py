@@ -107,3 +107,29 @@ def test_tree_order_permutes_the_columns(box_system):
     hat = dataclasses.replace(problem, loads=loads, load_pos=None)
     np.testing.assert_allclose(tree_order(hat, cols).solve(f, 0, 12), hat.solve(f, 0, hat.shape[1])[:, cd[:12]],
                                rtol=1e-12, atol=1e-18)
+
+
+def test_bench_stream_prints_both_routes_with_a_header(tmp_path, capsys):
+    """tests/benchmarks/bench_stream.py on the 15 mm seat (P1): one table row per route, the streamed
+    one writing less disk than the dense one, both within the tolerance; ``--out`` writes the
+    command and the stamp above what it printed."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_stream.py"
+    spec = importlib.util.spec_from_file_location("bench_stream_script", path)
+    script = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(script)
+    out = tmp_path / "stream.txt"
+    argv = ["--mesh-size", "0.015", "--order", "1", "--load", "point", "--tol", "1e-3", "--out", str(out)]
+    assert script.main(argv) == 0
+    printed = capsys.readouterr().out
+    rows = {line.split("|")[1].strip(): [c.strip() for c in line.split("|")[2:-1]]
+            for line in printed.splitlines() if line.startswith("| dense") or line.startswith("| stream")}
+    assert set(rows) == {"dense", "stream"}
+    disk = {k: float(v[5]) for k, v in rows.items()}
+    assert disk["stream"] < disk["dense"]
+    assert all(float(v[9]) <= 1e-3 for v in rows.values())
+    text = out.read_text().splitlines()
+    assert text[0] == "$ python tests/benchmarks/bench_stream.py " + " ".join(argv) and text[1].startswith("# ")
+    assert printed.splitlines()[0] in text
