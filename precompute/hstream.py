@@ -11,12 +11,13 @@ is fed D's column blocks instead, in any order, each block once:
 * a far block ``B`` keeps a truncated SVD ``U diag(s) V^T`` of the columns seen so
   far and adds each new set ``C`` by Brand's update (Linear Algebra Appl. 415 (2006)
   20): ``[U Q] [[diag(s), U^T C], [0, R]] [V E]^T`` with ``Q R`` the part of ``C``
-  outside ``U``, re-factored and truncated. Each update drops at most ``tol_b / u``
+  outside ``U``, re-factored and truncated (``C`` itself factored first, by a randomized
+  range finder when it is tall: :func:`_factor`). Each update drops at most ``tol_b / u``
   of the block's norm so far (``u`` the updates the block will get, known from the
   block layout), so the sum stays within ``tol_b ||B||_F``; the end truncates once
   more within what is left of that budget;
 * a few exact columns, drawn at random before the solve, are kept to measure the
-  result's column error (:func:`hailstorm.precompute.hmatrix.column_errors`).
+  result's column error (:meth:`StreamedH.errors`).
 
 Memory: the H-matrix's own numbers, the factors of the blocks being updated and one
 block of D. The truncation is the same per-block Frobenius rule as ``compress``'s,
@@ -176,8 +177,8 @@ class StreamedH:
     def _update(self, f: _Far, C: np.ndarray, idx: np.ndarray) -> None:
         """Brand's update of ``f`` with the columns ``C`` at its local positions ``idx``.
 
-        ``C`` is first factored as ``X Vc^T`` (:func:`~hailstorm.precompute.hmatrix.low_rank`, half
-        this update's budget), so a wide block costs ``m q k``, not ``m q^2``; with ``V`` zero on the
+        ``C`` is first factored as ``X Vc^T`` (:func:`_factor`, half this update's budget), so a
+        tall block costs ``m q k``, not ``m q^2``; with ``V`` zero on the
         new positions ``[V, E Vc]`` is orthonormal and the core is ``[[diag(s), U^T X], [0, R]]``,
         ``Q R = X - U U^T X``."""
         cc = float(np.einsum("ij,ij->", C, C))
@@ -188,7 +189,9 @@ class StreamedH:
         r, kc = f.s.size, X.shape[1]
         P = f.U.T @ X
         Rm = X - f.U @ P
-        Rm -= f.U @ (f.U.T @ Rm)  # once more: keeps [U Q] orthonormal to rounding
+        P2 = f.U.T @ Rm  # once more (and into P): keeps [U Q] orthonormal to rounding, X = U P + Rm exact
+        Rm -= f.U @ P2
+        P += P2
         Q, Rq = np.linalg.qr(Rm)
         K = np.zeros((r + Q.shape[1], r + kc))
         K[:r, :r] = np.diag(f.s)
