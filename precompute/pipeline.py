@@ -578,9 +578,7 @@ def _stream_compliance(out: Path, problem: ColumnProblem, key: str, progress: bo
     finally:
         if bar is not None:
             bar.close()
-    info: dict = {"blocks": len(blocks), "blocks_solved": stats.blocks, "blocks_resumed": done,
-                  "columns_solved": stats.columns, "workers": stats.workers, "factorizations": stats.factorizations,
-                  "factor_s": stats.factor_s, "solve_s": stats.solve_s, "solver": problem.solver, "batch": problem.batch}
+    info = _solve_record(stats, problem, len(blocks), done)
     if np.isfinite(stats.first_block_s):
         info["first_block_s"] = stats.first_block_s
     nnz_l = stats.nnz_L if stats.nnz_L is not None else nnz_l
@@ -638,10 +636,14 @@ def _stream_hmatrix(problem: ColumnProblem, vertices: np.ndarray, contact_vertic
         raise ValueError(f"the compression tolerance {tol:g} is unreachable while streaming: the H-matrix "
                          f"(per-block truncation {tol / 2:g}) has columns off by up to {worst:.3g}")
     error = {"columns": int(err.size), "max": worst, "median": float(np.median(err)) if err.size else 0.0, "seed": 0}
-    info = {"blocks": len(blocks), "blocks_solved": stats.blocks, "blocks_resumed": 0, "columns_solved": stats.columns,
-            "workers": stats.workers, "factorizations": stats.factorizations, "factor_s": stats.factor_s,
-            "solve_s": stats.solve_s, "solver": problem.solver, "batch": problem.batch}
-    return Compressed(H, tol, tol / 2, error, time.perf_counter() - t0), info
+    return Compressed(H, tol, tol / 2, error, time.perf_counter() - t0), _solve_record(stats, problem, len(blocks), 0)
+
+
+def _solve_record(stats: SolveStats, problem: ColumnProblem, blocks: int, resumed: int) -> dict:
+    """The manifest's ``solve_stats`` of a block loop: blocks, columns, workers, seconds, solver."""
+    return {"blocks": blocks, "blocks_solved": stats.blocks, "blocks_resumed": resumed,
+            "columns_solved": stats.columns, "workers": stats.workers, "factorizations": stats.factorizations,
+            "factor_s": stats.factor_s, "solve_s": stats.solve_s, "solver": problem.solver, "batch": problem.batch}
 
 
 def _logging_beside(bar):
