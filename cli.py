@@ -96,7 +96,7 @@ def _parser() -> argparse.ArgumentParser:
                      "default: D dense")
     pre.add_argument("--stream", action="store_true",
                      help="with --tol: compress D as its columns are solved, never holding it whole (for surfaces "
-                     "whose dense D would not fit; no resume)")
+                     "whose dense D would not fit; an interrupted run resumes from its checkpoint)")
     pre.add_argument("--load", choices=("point", "hat"), default=seat.load,
                      help="a column of D responds to a unit nodal force (point, the default) or to one newton "
                      "spread over the vertex's hat function (hat: the consistent choice for --order 2)")

@@ -58,6 +58,8 @@ __all__ = ["BlockStore", "remove_work_dir", "work_dir"]
 DATA = "compliance.npy"
 META = "work.json"
 RECORDS = "blocks"
+#: the streamed H-matrix's checkpoint (:meth:`hailstorm.precompute.hstream.StreamedH.save`)
+CHECKPOINT = "stream.npz"
 #: bytes read at a time by :meth:`BlockStore.finish`
 READ_CHUNK = 64 * 2**20
 
@@ -287,7 +289,7 @@ def remove_work_dir(path: str | os.PathLike) -> None:
             (path / RECORDS).rmdir()
         except OSError:
             pass
-    for name in (DATA, META):
+    for name in (DATA, META, CHECKPOINT):
         (path / name).unlink(missing_ok=True)
     try:
         path.rmdir()

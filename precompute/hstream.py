@@ -17,7 +17,10 @@ is fed D's column blocks instead, in any order, each block once:
   block layout), so the sum stays within ``tol_b ||B||_F``; the end truncates once
   more within what is left of that budget;
 * a few exact columns, drawn at random before the solve, are kept to measure the
-  result's column error (:meth:`StreamedH.errors`).
+  result's column error (:meth:`StreamedH.errors`);
+* its whole state can be written to a checkpoint file and read back
+  (:meth:`StreamedH.save`, :meth:`StreamedH.resume`), so an interrupted solve goes on
+  from the blocks it had, and ends with the numbers an uninterrupted one gives.
 
 Memory: the H-matrix's own numbers, the factors of the blocks being updated and one
 block of D. The truncation is the same per-block Frobenius rule as ``compress``'s,
@@ -28,15 +31,23 @@ from __future__ import annotations
 
 import dataclasses
 import hashlib
+import json
+import os
+import zipfile
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from hailstorm.precompute.hmatrix import ClusterTree, Partition, block_slices, dofs, low_rank, svd
+from hailstorm.runtime.bundle.atomic import replacing
 from hailstorm.runtime.bundle.format import RoundedBlock
 from hailstorm.runtime.bundle.hmatrix import HMatrix
 
-__all__ = ["StreamedH", "streamed_key", "tree_order"]
+__all__ = ["CHECKPOINT_VERSION", "StreamedH", "streamed_key", "tree_order"]
+
+#: the layout of :meth:`StreamedH.save`'s file (a checkpoint of another layout is not resumed)
+CHECKPOINT_VERSION = 1
 
 
 def streamed_key(key: str, tol: float) -> str:
@@ -147,6 +158,9 @@ class StreamedH:
         self.kept: dict[int, np.ndarray] = {}
         self.columns_seen = 0
         self._rng = np.random.default_rng(0)
+        #: the starts of the column ranges added so far (what a checkpoint holds)
+        self.starts: list[int] = []
+        self._busy = False  # within add(): the state is mid-update (not saved)
 
     def add(self, start: int, values: np.ndarray | RoundedBlock) -> None:
         """Columns ``start:start + k`` (tree order) of D, ``values`` (n_rows, k) in D's row order."""
@@ -155,6 +169,12 @@ class StreamedH:
         values = np.asarray(values, dtype=np.float64)
         if values.ndim != 2 or values.shape[0] != self.shape[0]:
             raise ValueError(f"a block of D has {self.shape[0]} rows, got shape {values.shape}")
+        self._busy = True
+        self._add(start, values)
+        self.starts.append(int(start))
+        self._busy = False
+
+    def _add(self, start: int, values: np.ndarray) -> None:
         stop = start + values.shape[1]
         for p in range(start, stop):
             if p in self._keep:
@@ -206,6 +226,94 @@ class StreamedH:
         f.U = np.hstack([f.U, Q]) @ Uk[:, :k]
         f.s = sk[:k]
         f.V = V
+
+    def save(self, path: str | os.PathLike, tag: dict) -> bool:
+        """Write the state to ``path`` (one ``.npz``, replaced atomically and synced to disk).
+
+        ``tag`` (JSON: the solve's key, tolerance, blocks, ...) is stored with it; :meth:`resume`
+        reads the state back only under an equal tag. Returns False, writing nothing, while an
+        :meth:`add` is under way (an interruption inside it: the state is half-updated).
+        """
+        if self._busy:
+            return False
+        far = [self._far[b] for b in range(self.n_far)]
+        near = sorted(self._near)
+        kept = sorted(self.kept)
+        arrays = {
+            "meta": np.array(json.dumps({"version": CHECKPOINT_VERSION, "tag": tag, "shape": list(self.shape),
+                                         "tol": self.tol, "columns_seen": self.columns_seen,
+                                         "rng": self._rng.bit_generator.state})),
+            "starts": np.asarray(self.starts, dtype=np.int64),
+            "far_rank": np.array([f.s.size for f in far], dtype=np.int64),
+            "far_updates": np.array([f.updates for f in far], dtype=np.int64),
+            "far_norms": np.array([(f.norm2, f.dropped) for f in far], dtype=np.float64).reshape(-1, 2),
+            "far_data": np.concatenate([np.zeros(0)] + [np.concatenate([f.U.ravel("F"), f.s, f.V.ravel("F")])
+                                                         for f in far]),
+            "near_ids": np.asarray(near, dtype=np.int64),
+            "near_data": np.concatenate([np.zeros(0)] + [self._near[b].ravel("F") for b in near]),
+            "kept_ids": np.asarray(kept, dtype=np.int64),
+            "kept_data": np.array([self.kept[j] for j in kept], dtype=np.float64).reshape(len(kept), self.shape[0]),
+        }
+        path = Path(path)
+        with replacing(path) as tmp, open(tmp, "wb") as fh:
+            np.savez(fh, **arrays)
+            fh.flush()
+            os.fsync(fh.fileno())
+        return True
+
+    def resume(self, path: str | os.PathLike, tag: dict) -> bool:
+        """Take the state :meth:`save` wrote to ``path`` under an equal ``tag``; True if it did.
+
+        Nothing changes (False) when there is no such file, or it is unreadable, of another
+        layout, or for other inputs (``tag``, shape, tolerance or block partition differ);
+        the caller then starts afresh. Must be called before any :meth:`add`.
+        """
+        if self.starts:
+            raise RuntimeError("resume() before any add()")
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                a = {k: z[k] for k in z.files}
+            meta = json.loads(str(a["meta"]))
+        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
+            return False
+        try:
+            return self._restore(a, meta, tag)
+        except (KeyError, ValueError, IndexError, TypeError):  # a damaged file: nothing taken
+            return False
+
+    def _restore(self, a: dict[str, np.ndarray], meta: dict, tag: dict) -> bool:
+        """:meth:`resume`'s work on the file's arrays ``a`` and its ``meta``."""
+        if (meta.get("version") != CHECKPOINT_VERSION or meta.get("tag") != json.loads(json.dumps(tag))
+                or meta.get("shape") != list(self.shape) or meta.get("tol") != self.tol
+                or a["far_rank"].size != self.n_far or a["far_updates"].tolist() != [self._far[b].updates
+                                                                                   for b in range(self.n_far)]):
+            return False
+        far: dict[int, _Far] = {}
+        data, o = a["far_data"], 0
+        for b in range(self.n_far):
+            r0, r1, c0, c1 = (int(x) for x in self.ranges[b])
+            m, n, k = r1 - r0, c1 - c0, int(a["far_rank"][b])
+            U = data[o:o + m * k].reshape(m, k, order="F")
+            s = data[o + m * k:o + m * k + k]
+            V = data[o + m * k + k:o + (m + n + 1) * k].reshape(n, k, order="F")
+            o += (m + n + 1) * k
+            far[b] = _Far(U.copy(), s.copy(), V.copy(), int(a["far_updates"][b]), *map(float, a["far_norms"][b]))
+        if o != data.size:
+            return False
+        near: dict[int, np.ndarray] = {}
+        data, o = a["near_data"], 0
+        for b in a["near_ids"].tolist():
+            r0, r1, c0, c1 = (int(x) for x in self.ranges[b])
+            near[b] = data[o:o + (r1 - r0) * (c1 - c0)].reshape(r1 - r0, c1 - c0, order="F").copy()
+            o += (r1 - r0) * (c1 - c0)
+        if o != data.size:
+            return False
+        self._far, self._near = far, near
+        self.kept = {int(j): a["kept_data"][i].copy() for i, j in enumerate(a["kept_ids"].tolist())}
+        self.starts = [int(x) for x in a["starts"]]
+        self.columns_seen = int(meta["columns_seen"])
+        self._rng.bit_generator.state = meta["rng"]
+        return True
 
     def errors(self, H: HMatrix) -> tuple[np.ndarray, np.ndarray]:
         """The kept columns (D's order, sorted) and ``||H e_j - D e_j|| / ||D e_j||`` for each."""

@@ -38,7 +38,7 @@ from hailstorm.precompute.geometry import (
     check_volume_size,
     load_seat,
 )
-from hailstorm.precompute.blocks import BlockStore, remove_work_dir, work_dir
+from hailstorm.precompute.blocks import CHECKPOINT, BlockStore, remove_work_dir, work_dir
 from hailstorm.precompute.hmatrix import (
     DEFAULT_ETA,
     DEFAULT_LEAF,
@@ -102,7 +102,7 @@ from hailstorm.runtime.bundle.stamps import default_cache_dir, stamp
 
 log = logging.getLogger(__name__)
 
-__all__ = ["DEFAULT_MESH_SIZE", "LOADS", "Surface", "build_bundle", "cache_key", "default_cache_dir", "extract_surface"]
+__all__ = ["CHECKPOINT_SECONDS", "DEFAULT_MESH_SIZE", "LOADS", "Surface", "build_bundle", "cache_key", "default_cache_dir", "extract_surface"]
 
 LOADS = ("point", "hat")
 
@@ -277,8 +277,11 @@ def build_bundle(
         solved (:class:`hailstorm.precompute.hstream.StreamedH`), so D is never on
         disk or in memory whole (a compressed bundle of a surface whose dense D would
         not fit). Its measured column error is within ``compress_tol`` or the run
-        fails naming it; it does not resume (an interrupted run starts again); its
-        cache key is its own (:func:`hailstorm.precompute.hstream.streamed_key`).
+        fails naming it; its cache key is its own
+        (:func:`hailstorm.precompute.hstream.streamed_key`). Its state is
+        checkpointed to ``.NAME.work/stream.npz`` every
+        :data:`CHECKPOINT_SECONDS` and when the run is interrupted, and the same
+        call resumes from it (to the numbers an uninterrupted run gives).
 
     D is streamed to ``.NAME.work/`` beside ``out`` block by block, each
     block durable and tagged with the cache key when it is written; a run
@@ -414,6 +417,10 @@ def _key_at(out: Path) -> str | None:
         return None
 
 
+#: how often (seconds of solving) a streamed compression checkpoints its state
+CHECKPOINT_SECONDS = 120.0
+
+
 @dataclass(frozen=True)
 class _RunSettings:
     """How D is computed (none of it changes D): where, in which blocks, with which checks."""
@@ -451,7 +458,7 @@ def _compute(out: Path, mesh: TetMesh, surface: Surface, options: dict, key: str
     n_dofs = int(K.shape[0])
     del basis, K  # the solve needs only the problem: the FE basis is most of the assembly's memory
     if stream_tol is not None:
-        comp, stats = _stream_hmatrix(problem, mesh.points[surface.nodes], np.flatnonzero(surface.contactable),
+        comp, stats = _stream_hmatrix(out, problem, mesh.points[surface.nodes], np.flatnonzero(surface.contactable),
                                       stream_tol, key, progress, run, f"P{order}, {solver}, compressed")
         D = None
     else:
@@ -594,12 +601,16 @@ def _stream_compliance(out: Path, problem: ColumnProblem, key: str, progress: bo
     return store.finish(), info, store.rounding
 
 
-def _stream_hmatrix(problem: ColumnProblem, vertices: np.ndarray, contact_vertices: np.ndarray, tol: float,
-                    key: str, progress: bool, run: _RunSettings, what: str) -> tuple[Compressed, dict]:
+def _stream_hmatrix(out: Path, problem: ColumnProblem, vertices: np.ndarray, contact_vertices: np.ndarray,
+                    tol: float, key: str, progress: bool, run: _RunSettings, what: str) -> tuple[Compressed, dict]:
     """Solve D's columns in the column tree's order and compress them as they come
     (:class:`hailstorm.precompute.hstream.StreamedH`, far blocks to ``tol / 2`` each); measure the
     result on :data:`hailstorm.precompute.hmatrix.ERROR_COLUMNS` exact columns drawn at random (seed 0)
-    before the solve. Raises ValueError naming the error reached if it exceeds ``tol``."""
+    before the solve. Raises ValueError naming the error reached if it exceeds ``tol``.
+
+    The state is checkpointed beside ``out`` (``.NAME.work/stream.npz``) every
+    :data:`CHECKPOINT_SECONDS` of solving and when the solve stops on an error or an
+    interruption; a run with the same key, tolerance and blocks resumes from it."""
     t0 = time.perf_counter()
     V = np.asarray(vertices, dtype=np.float64)
     rows, cols = cluster_tree(V, leaf=DEFAULT_LEAF), cluster_tree(V[contact_vertices], leaf=DEFAULT_LEAF)
@@ -608,35 +619,79 @@ def _stream_hmatrix(problem: ColumnProblem, vertices: np.ndarray, contact_vertic
     blocks = column_blocks(n_rows, ncols, run.block_bytes, problem.batch)
     picked = np.sort(np.random.default_rng(0).choice(ncols, size=min(ERROR_COLUMNS, ncols), replace=False))
     streamed = StreamedH(rows, cols, part, tol / 2, blocks, keep=picked)
-    log.info("D: %d x %d, compressed as it is solved (%d blocks of %d columns; the dense D would be %s)",
-             n_rows, ncols, len(blocks), blocks[0][1] - blocks[0][0], gib(8 * n_rows * ncols))
+    wd = work_dir(out)
+    checkpoint = wd / CHECKPOINT
+    tag = {"key": key, "tol": tol, "blocks": [list(b) for b in blocks], "error_columns": picked.tolist()}
+    if checkpoint.is_file() and not streamed.resume(checkpoint, tag):
+        log.info("checkpoint %s was for other inputs (or unreadable); starting afresh", checkpoint)
+    have = set(streamed.starts)
+    todo = [i for i, (start, _) in enumerate(blocks) if start not in have]
+    done = len(blocks) - len(todo)
+    if done:
+        log.info("resuming: %d of %d blocks done (checkpoint %s)", done, len(blocks), checkpoint)
+    log.info("D: %d x %d, compressed as it is solved (%d blocks of %d columns, %d to compute; the dense D "
+             "would be %s)", n_rows, ncols, len(blocks), blocks[0][1] - blocks[0][0], len(todo),
+             gib(8 * n_rows * ncols))
     bar = None
     if progress:
         from tqdm.auto import tqdm
 
-        bar = tqdm(total=len(blocks), desc=f"Green's functions ({what})", unit="block")
+        bar = tqdm(total=len(blocks), initial=done, desc=f"Green's functions ({what})", unit="block")
+    saving = {"last": time.monotonic(), "ok": True}
+
+    def save() -> bool:
+        """Checkpoint the state; a failed write warns once and the run goes on without."""
+        if not saving["ok"] or not streamed.starts:
+            return False
+        t = time.perf_counter()
+        try:
+            wd.mkdir(exist_ok=True)
+            saved = streamed.save(checkpoint, tag)
+        except OSError as exc:
+            saving["ok"] = False
+            log.warning("cannot checkpoint the streamed compression to %s (%s); going on without: an "
+                        "interruption will start the solve afresh", checkpoint, exc.strerror or exc)
+            return False
+        saving["last"] = time.monotonic()
+        if saved:
+            log.info("checkpoint: %d of %d blocks, %s in %.1f s", len(streamed.starts), len(blocks),
+                     gib(checkpoint.stat().st_size), time.perf_counter() - t)
+        return saved
 
     def on_block(i: int, values: np.ndarray | RoundedBlock) -> None:
         streamed.add(blocks[i][0], values)
+        if time.monotonic() - saving["last"] >= CHECKPOINT_SECONDS:
+            save()
         if bar is not None:
             bar.update(1)
 
     try:
-        with cluster_client(workers=run.workers, scheduler=run.scheduler) as client, _logging_beside(bar):
+        with cluster_client(workers=run.workers, scheduler=run.scheduler) if todo else nullcontext() as client, \
+                _logging_beside(bar):
             # its own solve key: the workers cache the problem by key, and these columns are in another order
-            stats = solve_blocks(tree_order(problem, cols), blocks, range(len(blocks)), on_block, client=client,
+            stats = solve_blocks(tree_order(problem, cols), blocks, todo, on_block, client=client,
                                  key=f"{key}:tree", dtype="float64")
+    except BaseException:
+        if save():
+            log.warning("stopped: %d of %d blocks of D are compressed in %s; run the same command again to resume",
+                        len(streamed.starts), len(blocks), checkpoint)
+        raise
     finally:
         if bar is not None:
             bar.close()
     H = streamed.finish()
     _, err = streamed.errors(H)
+    checkpoint.unlink(missing_ok=True)  # what is left is deterministic: a resumed run would end the same
+    try:
+        wd.rmdir()  # only if empty: an interrupted dense build of the same bundle keeps its blocks
+    except OSError:
+        pass
     worst = float(err.max(initial=0.0))
     if worst > tol:
         raise ValueError(f"the compression tolerance {tol:g} is unreachable while streaming: the H-matrix "
                          f"(per-block truncation {tol / 2:g}) has columns off by up to {worst:.3g}")
     error = {"columns": int(err.size), "max": worst, "median": float(np.median(err)) if err.size else 0.0, "seed": 0}
-    return Compressed(H, tol, tol / 2, error, time.perf_counter() - t0), _solve_record(stats, problem, len(blocks), 0)
+    return Compressed(H, tol, tol / 2, error, time.perf_counter() - t0), _solve_record(stats, problem, len(blocks), done)
 
 
 def _solve_record(stats: SolveStats, problem: ColumnProblem, blocks: int, resumed: int) -> dict:
