@@ -1,20 +1,27 @@
 """Access to the compliance D of a bundle: the :class:`ComplianceSource` protocol, dof indices, blocks of D.
 
 Everything here is about reading blocks of the (possibly memory-mapped)
-compliance ``D`` fast; nothing knows about contacts. The products with whole
-columns of D and the ``D_VV`` block are the compiled kernels of
-:mod:`hailstorm.runtime.compiled.blocks`; they read ``D.T`` as a C-contiguous
-array (:func:`kernel_columns`), which is free for the column-major D that
-bundles hold.
+compliance ``D`` fast; nothing knows about contacts. How a source is read is
+decided once (:func:`reader`): a dense D by :class:`DenseReader`, whose products
+with whole columns of D and ``D_VV`` block are the compiled kernels of
+:mod:`hailstorm.runtime.compiled.blocks` (they read ``D.T`` as a C-contiguous
+array, :func:`kernel_columns`, which is free for the column-major D that bundles
+hold); a compressed bundle loaded not to expand its D by
+:class:`~hailstorm.runtime.bundle.hreader.HMatrixReader`, from the H-matrix's blocks.
 
 * :class:`ComplianceSource` -- what the contact core reads of a bundle;
 * :class:`ElasticSource` -- that and the contact surface's material (Hertz-sized patches, the storm);
 * :func:`dof3` -- vertex-major x, y, z dof indices of vertices;
 * :func:`column_dofs` -- column dofs of D for surface vertices (-1 at clamped ones);
+* :func:`unique_inverse` -- ``np.unique(..., return_inverse=True)`` for short index lists
+  (these three from :mod:`hailstorm.runtime.bundle.dofs`);
+* :func:`reader` -- the source's reader (:class:`DenseReader` or ``HMatrixReader``);
 * :func:`gather` -- ``D[rows, cols]`` with zero clamped columns;
-* :func:`vertex_block` -- ``D_VV``, the block of the vertices V (compiled);
-* :func:`apply_columns` -- ``D[rows, cols] @ g`` (all rows: compiled);
-* :func:`unique_inverse` -- ``np.unique(..., return_inverse=True)`` for short index lists.
+* :func:`vertex_block` -- ``D_VV``, the block of the vertices V;
+* :func:`apply_columns` -- ``D[rows, cols] @ g``;
+* :func:`constraint_rows` -- ``(D_VV G)^T``, the vertices' response per contact multiplier;
+* :func:`response_columns` -- ``D[:, U] B``, the full-surface response of contacts;
+* :func:`pair_blocks` -- 3 x 3 blocks ``D[rows[k], cols[k]]``.
 """
 
 from __future__ import annotations
@@ -24,17 +31,24 @@ from typing import Protocol
 
 import numpy as np
 
+from hailstorm.runtime.bundle.dofs import column_dofs, dof3, unique_inverse
+from hailstorm.runtime.bundle.hreader import HMatrixReader
 from hailstorm.runtime.compiled import blocks as kernels
 
 __all__ = [
     "GATHER_BLOCK",
     "ComplianceSource",
+    "DenseReader",
     "ElasticSource",
     "apply_columns",
     "column_dofs",
+    "constraint_rows",
     "dof3",
     "gather",
     "kernel_columns",
+    "pair_blocks",
+    "reader",
+    "response_columns",
     "unique_inverse",
     "vertex_block",
 ]
@@ -105,53 +119,6 @@ class ElasticSource(ComplianceSource, Protocol):
     def poisson(self) -> float: ...
 
 
-def dof3(idx: np.ndarray) -> np.ndarray:
-    """Vertex-major x, y, z dof indices of vertex (or block) indices, (3k,)."""
-    idx = np.asarray(idx, dtype=np.intp)
-    return (3 * idx[:, None] + np.arange(3)).ravel()
-
-
-def unique_inverse(idx: np.ndarray, n: int | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """``np.unique(idx, return_inverse=True)`` for non-negative integers below ``n``.
-
-    Through a mark array (default size ``idx.max() + 1``): the same (sorted)
-    result at a fraction of the cost for the short index lists of the contact
-    loop.
-
-    Parameters
-    ----------
-    idx : int array_like
-    n : int, optional
-        An upper bound of ``idx`` (exclusive).
-
-    Returns
-    -------
-    V : (u,) intp ndarray
-        The sorted distinct values.
-    inv : intp ndarray of ``idx``'s shape
-        ``V[inv] == idx``.
-    """
-    idx = np.asarray(idx, dtype=np.intp)
-    if idx.size == 0 or idx.min() < 0:
-        V, inv = np.unique(idx, return_inverse=True)
-        return V.astype(np.intp), inv.reshape(idx.shape).astype(np.intp)
-    n = int(idx.max()) + 1 if n is None else n
-    mark = np.zeros(n, dtype=bool)
-    mark[idx] = True
-    V = np.flatnonzero(mark)
-    pos = np.empty(n, dtype=np.intp)
-    pos[V] = np.arange(V.size)
-    return V, pos[idx]
-
-
-def column_dofs(gf: ComplianceSource, V: np.ndarray) -> np.ndarray:
-    """Column dofs of D for the vertices V (vertex-major), -1 at clamped vertices, (3|V|,)."""
-    cb = gf.column_of[V]
-    cols = dof3(np.maximum(cb, 0))
-    cols[np.repeat(cb < 0, 3)] = -1
-    return cols
-
-
 _COLUMNS: "weakref.WeakKeyDictionary[object, np.ndarray]" = weakref.WeakKeyDictionary()
 
 
@@ -209,24 +176,88 @@ def _gather_vertex_rows(D: np.ndarray, V: np.ndarray, cols: np.ndarray) -> np.nd
     return Mt.reshape(cols.size, 3 * V.size).T
 
 
-def gather(gf: ComplianceSource, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-    """``D[rows, cols]`` with zero columns where ``cols == -1`` (clamped vertices).
+def reader(gf: ComplianceSource) -> "DenseReader | HMatrixReader":
+    """How the contact core reads blocks of ``gf``'s D, decided once per source.
+
+    An :class:`~hailstorm.runtime.bundle.hreader.HMatrixReader` for a compressed bundle loaded
+    not to expand its D (``reads_hmatrix``: :func:`hailstorm.runtime.bundle.read.load`'s
+    ``expand``), kept while the source lives; else a :class:`DenseReader` of ``gf.D``.
+    """
+    if not getattr(gf, "reads_hmatrix", False):
+        return DenseReader(gf)
+    try:
+        cached = _READERS.get(gf)
+    except TypeError:  # pragma: no cover - a source that cannot be weakly referenced
+        cached = None
+    if cached is None:
+        cached = HMatrixReader(gf.hmatrix, gf.column_of)  # type: ignore[attr-defined]
+        try:
+            _READERS[gf] = cached
+        except TypeError:  # pragma: no cover
+            pass
+    return cached
+
+
+_READERS: "weakref.WeakKeyDictionary[object, HMatrixReader]" = weakref.WeakKeyDictionary()
+
+
+class DenseReader:
+    """Blocks of a dense D (``gf.D``, any layout; column-major is the fast one), the compiled
+    kernels' way. :class:`~hailstorm.runtime.bundle.hreader.HMatrixReader` has the same methods.
 
     Parameters
     ----------
     gf : ComplianceSource
-    rows : (r,) int ndarray
-        Row dofs of D (surface dofs, vertex-major).
-    cols : (c,) int ndarray
-        Column dofs of D (:func:`column_dofs`), -1 for a zero column.
-
-    Returns
-    -------
-    (r, c) float64 ndarray
-        F-ordered for a column-major D (its transpose is C-contiguous); a float32
-        D's block is gathered in float32 and cast (the block, never D).
     """
-    D = gf.D
+
+    def __init__(self, gf: ComplianceSource) -> None:
+        self.gf = gf
+
+    @property
+    def kernel_D(self) -> np.ndarray:
+        """``D.T`` as the fused compiled paths read it (:func:`kernel_columns`)."""
+        return kernel_columns(self.gf)
+
+    def gather(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """``D[rows, cols]`` with zero columns where ``cols == -1``: see :func:`gather`."""
+        return _dense_gather(self.gf.D, rows, cols)
+
+    def vertex_block(self, V: np.ndarray) -> np.ndarray:
+        """``D_VV``: see :func:`vertex_block`."""
+        return kernels.vertex_block(np.asarray(V, dtype=np.intp), kernel_columns(self.gf), self.gf.column_of).T
+
+    def apply(self, cols: np.ndarray, g: np.ndarray, rows: np.ndarray | None) -> np.ndarray:
+        """``D[rows, cols] @ g``: see :func:`apply_columns` (``rows`` checked)."""
+        if rows is None:
+            return kernels.columns_times(kernel_columns(self.gf), np.asarray(cols, dtype=np.intp),
+                                         np.ascontiguousarray(g, dtype=np.float64)).reshape(-1, 3)
+        live = cols >= 0
+        c, gl = cols[live], g[live]
+        if c.size == 0 or rows.size == 0:
+            return np.zeros((rows.size, 3))
+        return (self.gather(dof3(rows), c) @ gl).reshape(-1, 3)
+
+    def constraint_rows(self, V: np.ndarray, loc: np.ndarray, w: np.ndarray, normals: np.ndarray,
+                        sticky: bool) -> np.ndarray:
+        """``Y = (D_VV G)^T`` from the columns of D (a fresh solve never forms ``D_VV`` itself)."""
+        return kernels.constraint_rows(kernel_columns(self.gf), self.gf.column_of, V, loc, w, normals, sticky)
+
+    def response_columns(self, cols: np.ndarray, loc: np.ndarray, weights: np.ndarray) -> np.ndarray:
+        """Full-surface response ``D[:, U] B``: see :func:`response_columns`."""
+        blocks = np.where(cols[::3] >= 0, cols[::3] // 3, -1)
+        zeros = np.zeros((loc.shape[0], 3))
+        return kernels.weighted_rows(kernel_columns(self.gf), blocks, np.ascontiguousarray(loc, dtype=np.intp),
+                                     np.ascontiguousarray(weights, dtype=np.float64), zeros, True).T
+
+    def pair_blocks(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """The 3 x 3 blocks ``D[rows[k], cols[k]]``: see :func:`pair_blocks`."""
+        r = 3 * np.asarray(rows)[:, None, None] + np.arange(3)[None, :, None]
+        c = 3 * np.asarray(self.gf.column_of)[cols][:, None, None] + np.arange(3)[None, None, :]
+        return np.asarray(self.gf.D[r, c], dtype=np.float64)
+
+
+def _dense_gather(D: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """:func:`gather` from a dense ``D`` (a float32 D's block gathered in float32, then cast)."""
     dead = cols < 0
     cc = np.where(dead, 0, cols)
     if rows.size == 0 or cols.size == 0:
@@ -244,23 +275,43 @@ def gather(gf: ComplianceSource, rows: np.ndarray, cols: np.ndarray) -> np.ndarr
     return out
 
 
+def gather(gf: ComplianceSource, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """``D[rows, cols]`` with zero columns where ``cols == -1`` (clamped vertices).
+
+    Parameters
+    ----------
+    gf : ComplianceSource
+    rows : (r,) int ndarray
+        Row dofs of D (surface dofs, vertex-major).
+    cols : (c,) int ndarray
+        Column dofs of D (:func:`column_dofs`), -1 for a zero column.
+
+    Returns
+    -------
+    (r, c) float64 ndarray
+        F-ordered (its transpose is C-contiguous) for a column-major or compressed D; a
+        float32 D's block is gathered in float32 and cast (the block, never D).
+    """
+    return reader(gf).gather(np.asarray(rows, dtype=np.intp), np.asarray(cols, dtype=np.intp))
+
+
 def vertex_block(gf: ComplianceSource, V: np.ndarray) -> np.ndarray:
     """The compliance block ``D_VV = D[dof3(V), column_dofs(V)]`` (zero columns at clamped vertices).
 
-    Through the compiled :func:`hailstorm.runtime.compiled.blocks.vertex_block`.
+    A dense D through the compiled :func:`hailstorm.runtime.compiled.blocks.vertex_block`.
 
     Returns
     -------
     (3|V|, 3|V|) float ndarray
         F-ordered (its transpose, the kernel's output, is C-contiguous).
     """
-    return kernels.vertex_block(np.asarray(V, dtype=np.intp), kernel_columns(gf), gf.column_of).T
+    return reader(gf).vertex_block(V)
 
 
 def apply_columns(gf: ComplianceSource, cols: np.ndarray, g: np.ndarray, rows: np.ndarray | None) -> np.ndarray:
     """``D[rows, cols] @ g`` as (r, 3) (all rows if ``rows`` is None), skipping clamped columns.
 
-    All rows: one pass over the columns in the compiled
+    A dense D, all rows: one pass over the columns in the compiled
     :func:`hailstorm.runtime.compiled.blocks.columns_times`; some rows: a
     gather of ``D[rows, cols]`` and a product.
 
@@ -270,16 +321,36 @@ def apply_columns(gf: ComplianceSource, cols: np.ndarray, g: np.ndarray, rows: n
         ``rows`` not a 1-D integer array of surface vertices.
     """
     n = gf.vertices.shape[0]
-    if rows is None:
-        return kernels.columns_times(kernel_columns(gf), np.asarray(cols, dtype=np.intp),
-                                     np.ascontiguousarray(g, dtype=np.float64)).reshape(-1, 3)
-    rows = np.asarray(rows)
-    if rows.ndim != 1 or (rows.size and not np.issubdtype(rows.dtype, np.integer)):
-        raise ValueError(f"rows must be a 1-D array of vertex indices, got shape {rows.shape} dtype {rows.dtype}")
-    if rows.size and (rows.min() < 0 or rows.max() >= n):
-        raise IndexError(f"rows hold vertex indices outside 0..{n - 1}")
-    live = cols >= 0
-    c, gl = cols[live], g[live]
-    if c.size == 0 or rows.size == 0:
-        return np.zeros((rows.size, 3))
-    return (gather(gf, dof3(rows), c) @ gl).reshape(-1, 3)
+    cols = np.asarray(cols, dtype=np.intp)
+    if rows is not None:
+        rows = np.asarray(rows)
+        if rows.ndim != 1 or (rows.size and not np.issubdtype(rows.dtype, np.integer)):
+            raise ValueError(f"rows must be a 1-D array of vertex indices, got shape {rows.shape} dtype {rows.dtype}")
+        if rows.size and (rows.min() < 0 or rows.max() >= n):
+            raise IndexError(f"rows hold vertex indices outside 0..{n - 1}")
+    return reader(gf).apply(cols, g, rows)
+
+
+def constraint_rows(gf: ComplianceSource, V: np.ndarray, loc: np.ndarray, w: np.ndarray, normals: np.ndarray,
+                    sticky: bool) -> np.ndarray:
+    """``Y = (D_VV G)^T``: the displacement of the vertices V per unit contact multiplier, (m, 3|V|).
+
+    ``G`` is the constraint matrix of :mod:`hailstorm.runtime.contact` (``B`` for sticky
+    contacts, ``m = 3s``; ``B N`` for frictionless ones, ``m = s``); ``loc``, ``w`` (s, P) the
+    position in V and the weight of each contact's vertices, ``normals`` (s, 3).
+    """
+    return reader(gf).constraint_rows(np.asarray(V, dtype=np.intp), loc, w, normals, sticky)
+
+
+def response_columns(gf: ComplianceSource, cols: np.ndarray, loc: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """Full-surface response ``D[:, U] B`` of contacts on the vertex list U, (3n, 3k), F-ordered.
+
+    ``cols``: column dofs of U (``-1`` at clamped vertices); ``loc`` (k, P):
+    positions in U of each contact's vertices, ``weights`` (k, P) theirs.
+    """
+    return reader(gf).response_columns(np.asarray(cols, dtype=np.intp), loc, weights)
+
+
+def pair_blocks(gf: ComplianceSource, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """The 3 x 3 blocks ``D[rows[k], cols[k]]`` (surface vertex rows, contactable vertex columns), (k, 3, 3)."""
+    return reader(gf).pair_blocks(rows, cols)

@@ -32,6 +32,7 @@ touches.
 
 from __future__ import annotations
 
+import functools
 import logging
 import os
 import shutil
@@ -144,6 +145,59 @@ class HMatrix:
         out[self.row_dofs] = out_p
         return out
 
+    def entries(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """``H[np.ix_(rows, cols)]``, dense: only the blocks the rows and columns meet are read,
+        and of a far block only its factors' rows ``U[rows]`` and ``V[cols]``.
+
+        Parameters
+        ----------
+        rows, cols : (r,), (p,) int array_like
+            Rows and columns of the matrix (original order; repeats allowed).
+
+        Returns
+        -------
+        (r, p) float64 ndarray, column-major
+        """
+        rows = np.asarray(rows, dtype=np.intp).ravel()
+        cols = np.asarray(cols, dtype=np.intp).ravel()
+        out = np.zeros((rows.size, cols.size), order="F")
+        if rows.size == 0 or cols.size == 0:
+            return out
+        rpos, cpos = self._row_position[rows], self._col_position[cols]
+        ro, co = np.argsort(rpos, kind="stable"), np.argsort(cpos, kind="stable")
+        rs, cs = rpos[ro], cpos[co]
+        B = self.blocks
+        rlo, rhi = np.searchsorted(rs, B[:, 0]), np.searchsorted(rs, B[:, 1])
+        clo, chi = np.searchsorted(cs, B[:, 2]), np.searchsorted(cs, B[:, 3])
+        for b in np.flatnonzero((rhi > rlo) & (chi > clo)).tolist():
+            r0, _, c0 = (int(x) for x in B[b, :3])
+            ri, ci = rs[rlo[b]:rhi[b]] - r0, cs[clo[b]:chi[b]] - c0
+            X, V = self.factors(b)
+            out[np.ix_(ro[rlo[b]:rhi[b]], co[clo[b]:chi[b]])] = X[np.ix_(ri, ci)] if V is None else X[ri] @ V[ci].T
+        return out
+
+    def pairs(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """The entries ``H[rows[k], cols[k]]``, (k,) float64: each from its own block."""
+        rows = np.asarray(rows, dtype=np.intp).ravel()
+        cols = np.asarray(cols, dtype=np.intp).ravel()
+        if rows.shape != cols.shape:
+            raise ValueError(f"rows and cols differ in length: {rows.size} and {cols.size}")
+        out = np.zeros(rows.size)
+        if rows.size == 0:
+            return out
+        rpos, cpos = self._row_position[rows], self._col_position[cols]
+        grid, ra, ca = self._block_grid
+        blk = grid[np.searchsorted(ra, rpos, side="right") - 1, np.searchsorted(ca, cpos, side="right") - 1]
+        order = np.argsort(blk, kind="stable")
+        bounds = np.flatnonzero(np.diff(blk[order])) + 1
+        for grp in np.split(order, bounds):
+            b = int(blk[grp[0]])
+            r0, _, c0 = (int(x) for x in self.blocks[b, :3])
+            ri, ci = rpos[grp] - r0, cpos[grp] - c0
+            X, V = self.factors(b)
+            out[grp] = X[ri, ci] if V is None else np.einsum("kr,kr->k", X[ri], V[ci])
+        return out
+
     def matvec(self, x: np.ndarray) -> np.ndarray:
         """``H @ x`` for ``x`` of shape (n,) or (n, p) in the original column order."""
         x = np.asarray(x, dtype=float)
@@ -163,11 +217,30 @@ class HMatrix:
         dense = self.columns(np.arange(self.shape[1]))
         return dense if np.dtype(dtype) == np.float64 else dense.astype(dtype, order="F")
 
-    @property
+    @functools.cached_property
     def _col_position(self) -> np.ndarray:
         inv = np.empty(self.shape[1], dtype=np.intp)
         inv[self.col_dofs] = np.arange(self.shape[1])
         return inv
+
+    @functools.cached_property
+    def _row_position(self) -> np.ndarray:
+        inv = np.empty(self.shape[0], dtype=np.intp)
+        inv[self.row_dofs] = np.arange(self.shape[0])
+        return inv
+
+    @functools.cached_property
+    def _block_grid(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(grid, row_cuts, col_cuts)``: the block holding each cell of the grid the blocks' edges
+        cut the matrix into (tree positions ``row_cuts[i]..`` x ``col_cuts[j]..``)."""
+        B = self.blocks
+        ra, ca = np.unique(B[:, 0]), np.unique(B[:, 2])
+        grid = np.full((ra.size, ca.size), -1, dtype=np.int64)
+        i0, i1 = np.searchsorted(ra, B[:, 0]), np.searchsorted(ra, B[:, 1])
+        j0, j1 = np.searchsorted(ca, B[:, 2]), np.searchsorted(ca, B[:, 3])
+        for b in range(len(B)):
+            grid[i0[b]:i1[b], j0[b]:j1[b]] = b
+        return grid, ra, ca
 
     # ---------------------------------------------------------------- storage
     def to_arrays(self) -> dict[str, np.ndarray]:

@@ -11,6 +11,7 @@ alone (no gmsh, no scikit-fem).
 
 from __future__ import annotations
 
+import copy
 import functools
 import hashlib
 import os
@@ -29,7 +30,8 @@ from hailstorm.runtime.bundle.format import (
 from hailstorm.runtime.bundle.hmatrix import HMatrix, expanded, expansion_dtype
 from hailstorm.runtime.bundle.compliance import apply_columns, column_dofs, dof3, gather
 
-__all__ = ["CompressedGreensFunctions", "GreensFunctions", "load", "stranded_copies", "vertex_normals"]
+__all__ = ["EXPAND_UP_TO", "CompressedGreensFunctions", "GreensFunctions", "as_dense", "load", "stranded_copies",
+           "vertex_normals"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -205,20 +207,29 @@ class GreensFunctions:
 class CompressedGreensFunctions(GreensFunctions):
     """A compressed bundle's Green's functions: :attr:`D` is expanded from :attr:`hmatrix` on first use.
 
-    Loading reads and checks the H-matrix only; what reads :attr:`D` (the contact
-    core, the storm) triggers the expansion, once (:func:`load`'s ``mmap``: into the
-    cache and memory-mapped, else in memory). What needs only the bundle's metadata
-    (``hailstorm info``) never expands it. :attr:`expanded` says whether it happened.
+    Loading reads and checks the H-matrix only; what reads :attr:`D` (the storm; the
+    contact core unless :attr:`reads_hmatrix`) triggers the expansion, once (:func:`load`'s
+    ``mmap``: into the cache and memory-mapped, else in memory). What needs only the
+    bundle's metadata (``hailstorm info``) never expands it. :attr:`expanded` says
+    whether it happened.
     """
 
     @classmethod
-    def lazy(cls, expand: Callable[[], np.ndarray], dtype: np.dtype, **fields: Any) -> "CompressedGreensFunctions":
+    def lazy(cls, expand: Callable[[], np.ndarray], dtype: np.dtype, *, reads_hmatrix: bool = False,
+             **fields: Any) -> "CompressedGreensFunctions":
         """The bundle with ``fields`` (every :class:`GreensFunctions` field but D) and ``expand()`` making D
-        in ``dtype``."""
+        in ``dtype``; ``reads_hmatrix``: the contact core reads the H-matrix, not the expansion."""
         gf = cls(D=None, **fields)  # type: ignore[arg-type]
         gf.__dict__["_expand"] = expand
         gf.__dict__["_dtype"] = np.dtype(dtype)
+        gf.__dict__["_reads_hmatrix"] = bool(reads_hmatrix)
         return gf
+
+    @property
+    def reads_hmatrix(self) -> bool:
+        """True: the contact core reads D from :attr:`hmatrix`'s blocks, never expanding it
+        (:func:`load`'s ``expand``; :func:`hailstorm.runtime.bundle.compliance.reader`)."""
+        return bool(self.__dict__.get("_reads_hmatrix", False))
 
     @property  # type: ignore[override]
     def D(self) -> np.ndarray:
@@ -276,7 +287,13 @@ def stranded_copies(path: str | os.PathLike) -> list[Path]:
     return sorted(found, key=lambda p: p.stat().st_mtime, reverse=True)
 
 
-def load(path: str | os.PathLike, *, verify: bool = True, mmap: bool = True, rehash: bool = False) -> GreensFunctions:
+#: a compressed bundle whose dense D would take more bytes than this (in its expansion's type) is read
+#: from its H-matrix by the contact core unless ``load(..., expand=True)``
+EXPAND_UP_TO = 1 << 30
+
+
+def load(path: str | os.PathLike, *, verify: bool = True, mmap: bool = True, rehash: bool = False,
+         expand: bool | None = None) -> GreensFunctions:
     """Load a Green's-function bundle written by ``hailstorm precompute``.
 
     Parameters
@@ -299,6 +316,14 @@ def load(path: str | os.PathLike, *, verify: bool = True, mmap: bool = True, reh
     rehash
         With ``verify``: hash every file even if it was verified unchanged
         before (``hailstorm info`` does).
+    expand
+        A compressed bundle only: how the contact core (:func:`~hailstorm.runtime.contact.solve_contacts`,
+        ``press_spheres``, :meth:`GreensFunctions.compliance`, ...) reads D. True: from the dense
+        expansion, made once on first use (fastest per solve once made; its memory is the dense
+        D's). False: from the H-matrix's blocks, never expanding D
+        (:class:`~hailstorm.runtime.bundle.hreader.HMatrixReader`; the memory is the H-matrix's).
+        None (default): False when the expansion would exceed :data:`EXPAND_UP_TO`, else True.
+        The storm always reads the expansion (:func:`as_dense`).
 
     Returns
     -------
@@ -355,6 +380,19 @@ def load(path: str | os.PathLike, *, verify: bool = True, mmap: bool = True, reh
     # checked: expanded on first use (once, into the cache) for the compiled kernels
     tag = hashlib.sha256(f"{manifest['key']}\0{manifest['arrays']['hmatrix_data']['sha256']}".encode()).hexdigest()
     dtype = expansion_dtype(float(manifest["compliance"]["tol"]))
-    expand = (functools.partial(expanded, hmatrix, tag, dtype=dtype, rebuild=rehash) if mmap
-              else functools.partial(hmatrix.to_dense, dtype))
-    return CompressedGreensFunctions.lazy(expand, dtype, **fields)
+    make = (functools.partial(expanded, hmatrix, tag, dtype=dtype, rebuild=rehash) if mmap
+            else functools.partial(hmatrix.to_dense, dtype))
+    if expand is None:
+        expand = shape[0] * shape[1] * dtype.itemsize <= EXPAND_UP_TO
+    return CompressedGreensFunctions.lazy(make, dtype, reads_hmatrix=not expand, **fields)
+
+
+def as_dense(gf: Any) -> Any:
+    """``gf`` with its D read densely: a compressed bundle read from its H-matrix
+    (``reads_hmatrix``) as a copy whose every read goes to its dense expansion (made on
+    first use), any other source itself. For what needs D whole (the storm's kernels)."""
+    if not getattr(gf, "reads_hmatrix", False):
+        return gf
+    view = copy.copy(gf)
+    view.__dict__["_reads_hmatrix"] = False
+    return view

@@ -18,9 +18,10 @@ from hailstorm.runtime.bundle.compliance import (
     ComplianceSource,
     apply_columns,
     column_dofs,
+    constraint_rows,
     dof3,
     gather,
-    kernel_columns,
+    response_columns,
     vertex_block,
 )
 from hailstorm.runtime.contact.policy import COND_LIMIT, EMBED_BLOCKS_FROM, SUBSET_REUSE_FROM, SPDFactor, is_rigid
@@ -220,18 +221,6 @@ def contact_compliance(D_VV: np.ndarray, loc: np.ndarray, w: np.ndarray, normals
     return kernels.contact_compliance(Y, np.ascontiguousarray(loc, dtype=np.intp),
                                       np.ascontiguousarray(w, dtype=np.float64),
                                       np.ascontiguousarray(normals, dtype=np.float64), mode == "sticky")
-
-
-def _response_columns(gf: ComplianceSource, cols: np.ndarray, loc: np.ndarray, weights: np.ndarray) -> np.ndarray:
-    """Full-surface response ``D[:, U] B`` of contacts on the vertex list U, (3n, 3k), F-ordered.
-
-    ``cols``: column dofs of U (``-1`` at clamped vertices); ``loc`` (k, P):
-    positions in U of each contact's vertices, ``weights`` (k, P) theirs.
-    """
-    blocks = np.where(cols[::3] >= 0, cols[::3] // 3, -1)
-    zeros = np.zeros((loc.shape[0], 3))
-    return kernels.weighted_rows(kernel_columns(gf), blocks, np.ascontiguousarray(loc, dtype=np.intp),
-                                 np.ascontiguousarray(weights, dtype=np.float64), zeros, True).T
 
 
 def _runs(idx: np.ndarray) -> list[tuple[int, int, int]]:
@@ -733,7 +722,7 @@ class Capacitance:
             do not modify it).
         """
         if self._R is None:
-            self._R = _response_columns(self.gf, self.column_dofs, self.loc, self.weights)
+            self._R = response_columns(self.gf, self.column_dofs, self.loc, self.weights)
         return self._R
 
     def surface_response(self, rows: np.ndarray | None = None) -> np.ndarray:
@@ -862,7 +851,7 @@ class Capacitance:
         self._Y = None
         self.rigid = np.append(self.rigid, rigid_new)
         if self._R is not None:
-            Rn = _response_columns(gf, column_dofs(gf, tv), np.arange(tv.size)[None, :], pw)
+            Rn = response_columns(gf, column_dofs(gf, tv), np.arange(tv.size)[None, :], pw)
             self._R = np.asfortranarray(np.hstack([self._R, Rn]))
         if rigid_new:
             return old_s
@@ -1118,8 +1107,7 @@ def from_weights(gf: ComplianceSource, t: np.ndarray, b: np.ndarray, n: np.ndarr
     cols = column_dofs(gf, V)
     w = np.ascontiguousarray(w, dtype=np.float64)
     n = np.ascontiguousarray(n, dtype=np.float64)
-    # Y = (D_VV G)^T from the columns of D: a fresh solve never forms D_VV itself
-    Y = kernels.constraint_rows(kernel_columns(gf), gf.column_of, V, loc, w, n, mode == "sticky")
+    Y = constraint_rows(gf, V, loc, w, n, mode == "sticky")  # (D_VV G)^T
     W = kernels.contact_compliance(Y, loc, w, n, mode == "sticky")
     rigid = is_rigid(gf.fixed, pv, w)
     p = 3 if mode == "sticky" else 1

@@ -49,6 +49,7 @@ from typing import Any
 
 import numpy as np
 
+from hailstorm.runtime.bundle.compliance import pair_blocks
 from hailstorm.runtime.bundle.read import vertex_normals
 from hailstorm.runtime.compiled.near_field import hat_compliance, layer_sum
 from hailstorm.runtime.contact.layer_kernel import layer_kernel, layer_surface
@@ -98,14 +99,6 @@ def vertex_neighbours(triangles: np.ndarray, n: int) -> tuple[np.ndarray, np.nda
     ptr = np.zeros(n + 1, dtype=np.int64)
     np.add.at(ptr, src + 1, 1)
     return np.cumsum(ptr), dst.astype(np.int64)
-
-
-def _pair_blocks(gf: Any, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-    """The 3 x 3 blocks ``D[rows[k], cols[k]]`` (surface vertex rows, contactable vertex columns), (k, 3, 3)."""
-    D = gf.D
-    r = 3 * rows[:, None, None] + np.arange(3)[None, :, None]
-    c = 3 * np.asarray(gf.column_of)[cols][:, None, None] + np.arange(3)[None, None, :]
-    return np.asarray(D[r, c], dtype=np.float64)
 
 
 def _normal_tangential(B: np.ndarray, n: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -158,8 +151,8 @@ def _measure(gf: Any, young: float, poisson: float, surface: tuple[np.ndarray, .
     ring = np.isin(I * nv + J, owner * nv + nbr)  # the first ring: edge neighbours
 
     # D: the vertex's own block and the pairs' symmetric part, along the vertex's normal and tangent plane
-    dn_ii, dt_ii = _normal_tangential(_pair_blocks(gf, C, C), N[C])
-    sym = 0.5 * (_pair_blocks(gf, I, J) + np.swapaxes(_pair_blocks(gf, J, I), 1, 2))
+    dn_ii, dt_ii = _normal_tangential(pair_blocks(gf, C, C), N[C])
+    sym = 0.5 * (pair_blocks(gf, I, J) + np.swapaxes(pair_blocks(gf, J, I), 1, 2))
     dn_ij, dt_ij = _normal_tangential(sym, N[I])
 
     # the kernel on the same hat loads: H on the tangent plane at the vertex (the pair's symmetric part)

@@ -14,7 +14,7 @@ from hailstorm.runtime.compiled import blocks as kernels
 from hailstorm.runtime.contact import policy
 from hailstorm.runtime.contact.contact_capacitance import build, resolve_near_field
 from hailstorm.runtime.contact.near_field import NearField
-from hailstorm.runtime.bundle.compliance import ComplianceSource, apply_columns, kernel_columns
+from hailstorm.runtime.bundle.compliance import ComplianceSource, apply_columns, reader
 from hailstorm.runtime.contact.validate import Mode, check_contacts, check_mode, check_patch
 from hailstorm.runtime.contact.weights import PATCH_PROFILES, interpolate, vertex_forces
 
@@ -67,7 +67,8 @@ def _point_contacts(gf: ComplianceSource, triangles: Any, barycentric: Any, disp
     factorisation policy and products fused), or None where the general path must
     decide: malformed input (it raises the error), rigid contacts, coincident
     contacts (pseudo-inverse), no contacts, more than
-    :data:`~hailstorm.runtime.contact.policy.POINT_FAST_MAX` contacts."""
+    :data:`~hailstorm.runtime.contact.policy.POINT_FAST_MAX` contacts, a D read from its
+    H-matrix (no dense D to fuse over)."""
     t = np.asarray(triangles)
     if t.ndim != 1 or not 0 < t.size <= policy.POINT_FAST_MAX or t.dtype.kind not in "iu":
         return None
@@ -77,9 +78,12 @@ def _point_contacts(gf: ComplianceSource, triangles: Any, barycentric: Any, disp
     s = t.size
     if b.shape != (s, 3) or u.shape != (s, 3):
         return None
+    Dt = reader(gf).kernel_D
+    if Dt is None:  # a D read from its H-matrix: the general path
+        return None
     t = np.ascontiguousarray(t, dtype=np.int64)
     code, f, cd, V, g, uall = kernels.point_contacts(
-        kernel_columns(gf), gf.column_of, gf.contactable, gf.fixed, gf.triangles, gf.vertices, t, b, u,
+        Dt, gf.column_of, gf.contactable, gf.fixed, gf.triangles, gf.vertices, t, b, u,
         mode == "sticky", want_u, policy.BARY_SUM_TOL, policy.BARY_NEG_TOL, policy.COND_LIMIT,
         policy.RIGID_WEIGHT)
     if code:

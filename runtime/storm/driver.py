@@ -197,6 +197,7 @@ import numpy as np
 from hailstorm.runtime.storm.collide import Collision, SurfaceIndex
 from hailstorm.runtime.compiled import KERNELS, closest_points
 from hailstorm.runtime.bundle.compliance import ElasticSource
+from hailstorm.runtime.bundle.read import as_dense
 from hailstorm.runtime.storm.contact_set import ContactSet, ContactSets
 from hailstorm.runtime.storm.hail import GRAVITY, Air
 from hailstorm.runtime.storm.integrators import ContactIntegrator
@@ -242,6 +243,7 @@ class Storm:
     """
 
     def __init__(self, gf: ElasticSource, scene: Scene, *, spawn: bool = True, warm: bool = True) -> None:
+        gf = as_dense(gf)  # the storm's kernels index D whole: a compressed bundle's expansion
         self.gf = gf
         self.scene = scene
         hail, contact = scene.hail, scene.contact

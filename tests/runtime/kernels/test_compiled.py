@@ -202,8 +202,8 @@ def test_contact_blocks_match_dense_algebra(gf, s, patch):
     D_VV G from weighted_rows / contact_compliance equal the dense products with G (B, or
     B N) to rounding, both modes; constraint_rows is weighted_rows of vertex_block exactly; weighted_rows over D.T is the full-surface response
     D[:, V] B; columns_times is D[:, cols] g."""
-    from hailstorm.runtime.bundle.compliance import column_dofs, dof3, vertex_block
-    from hailstorm.runtime.contact.contact_capacitance import _response_columns, contact_compliance
+    from hailstorm.runtime.bundle.compliance import column_dofs, dof3, response_columns, vertex_block
+    from hailstorm.runtime.contact.contact_capacitance import contact_compliance
     from hailstorm.runtime.contact.weights import dense_B
 
     gf = dataclasses.replace(gf, D=np.asfortranarray(gf.D))
@@ -228,7 +228,7 @@ def test_contact_blocks_match_dense_algebra(gf, s, patch):
         np.testing.assert_array_equal(W, W.T)
         np.testing.assert_array_equal(contact_compliance(D_VV, loc, w, n, mode), W)
         np.testing.assert_allclose(Y.T, D_VV @ G, rtol=0, atol=1e-13 * np.abs(D_VV).max())
-    R = _response_columns(gf, cols, loc, w)
+    R = response_columns(gf, cols, loc, w)
     R_ref = _dense_block(gf, np.arange(gf.D.shape[0]), cols) @ B
     np.testing.assert_allclose(R, R_ref, rtol=0, atol=1e-13 * np.abs(R_ref).max())
     g = rng.normal(size=cols.size)

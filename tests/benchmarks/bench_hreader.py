@@ -1,0 +1,140 @@
+"""Benchmark: the contact API on a compressed bundle read from its H-matrix against its dense expansion.
+
+Usage::
+
+    python tests/benchmarks/bench_hreader.py --gf DIR [--repeat 5] [--out FILE]
+
+``DIR`` is a compressed bundle (``hailstorm precompute --tol T [--stream]``). Each reader runs in
+a fresh process with an empty expansion cache (``load(DIR, expand=False)``: the H-matrix's
+blocks; ``expand=True``: D expanded once into the cache on first use and memory-mapped), after
+one warm-up process (numba's compiled kernels are then loaded from its cache by both).
+Printed per reader: the first call's seconds (load, and for ``expand`` the expansion, plus
+one solve), then per workload the min / median / max seconds of ``--repeat`` calls, and the
+process's peak resident memory; and the largest relative difference of the forces between
+the readers. Workloads, at contactable triangles drawn at random (seed 0):
+
+* ``points s=20`` / ``points s=100``: ``solve_contacts``, sticky point contacts, with the
+  full-surface displacement;
+* ``spheres s=5``: ``press_spheres`` of 5 mm stones pressed 1.5 mm (Hertz patches, near field).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from hailstorm.studies import record
+
+READERS = ("hmatrix", "expand")
+WORKLOADS = ("points s=20", "points s=100", "spheres s=5")
+
+
+def _workload(gf, name: str) -> np.ndarray:
+    """One call of workload ``name`` on ``gf``: its contact forces."""
+    from hailstorm.runtime import solve_contacts
+    from hailstorm.runtime.contact.hertz import press_spheres
+
+    s = int(name.split("=")[1])
+    rng = np.random.default_rng(0)
+    ok = np.flatnonzero(gf.contactable[gf.triangles].all(axis=1))
+    tri = rng.choice(ok, size=s, replace=False)
+    bary = rng.dirichlet(np.ones(3), size=s)
+    if name.startswith("points"):
+        disp = np.tile([0.0, 0.0, -1e-3], (s, 1))
+        return solve_contacts(gf, tri, bary, disp).forces
+    return press_spheres(gf, tri, bary, np.full(s, 1.5e-3), 5e-3).normal_force
+
+
+def child(gf_dir: str, reader: str, repeat: int) -> dict:
+    """The measurements of one reader in this (fresh) process."""
+    from hailstorm.runtime import load
+
+    t0 = time.perf_counter()
+    gf = load(gf_dir, expand=reader == "expand")
+    forces = {WORKLOADS[0]: _workload(gf, WORKLOADS[0])}
+    first = time.perf_counter() - t0
+    times: dict[str, list[float]] = {}
+    for name in WORKLOADS:
+        times[name] = []
+        for _ in range(repeat):
+            t = time.perf_counter()
+            forces[name] = _workload(gf, name)
+            times[name].append(time.perf_counter() - t)
+    return {"first": first, "times": times, "forces": {k: v.tolist() for k, v in forces.items()},
+            "rss": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
+            "expanded": bool(getattr(gf, "expanded", True))}
+
+
+def _run(gf_dir: Path, reader: str, repeat: int) -> dict:
+    with tempfile.TemporaryDirectory(prefix="hailstorm-bench-hreader-") as cache:
+        env = dict(os.environ, HAILSTORM_CACHE=cache)
+        out = subprocess.run([sys.executable, __file__, "--child", reader, "--gf", str(gf_dir), "--repeat", str(repeat)],
+                             env=env, capture_output=True, text=True)
+    if out.returncode != 0:
+        raise SystemExit(f"{reader}: {out.stderr.strip()[-600:]}")
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--gf", type=Path, required=True, help="a compressed bundle")
+    ap.add_argument("--repeat", type=int, default=5)
+    ap.add_argument("--out", type=Path, default=None, help="also write the output there (with its header)")
+    ap.add_argument("--child", choices=READERS, default=None, help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.child is not None:
+        print(json.dumps(child(str(args.gf), args.child, args.repeat)))
+        return 0
+    from hailstorm.runtime import load
+
+    manifest = load(args.gf, verify=False).manifest
+    if manifest.get("format_version") != 3:
+        ap.error(f"{args.gf} is not a compressed bundle (format 3)")
+    stamp = record.stamp()
+    lines: list[str] = []
+
+    def emit(text: str = "") -> None:
+        print(text, flush=True)
+        lines.append(text)
+
+    comp = manifest["compliance"]
+    emit(f"bundle: D {comp['shape'][0]} x {comp['shape'][1]}, tol {comp['tol']:g}, H-matrix "
+         f"{comp['stored_bytes'] / 2**20:.1f} MiB of a {comp['dense_bytes'] / 2**30:.2f} GiB dense D "
+         f"({manifest['mesh']['n_contactable']} contactable vertices)")
+    emit(f"each reader in a fresh process with an empty cache, after a warm-up process; {args.repeat} calls per "
+         "workload: min / median / max s")
+    emit()
+    _run(args.gf, "hmatrix", 1)  # warm-up: numba's cache
+    res = {r: _run(args.gf, r, args.repeat) for r in READERS}
+    emit("| reader | first call s | " + " | ".join(WORKLOADS) + " | peak memory GiB | D expanded |")
+    emit("|---|---|" + "---|" * len(WORKLOADS) + "---|---|")
+    for r in READERS:
+        m = res[r]
+        cells = [f"{min(t):.3f} / {statistics.median(t):.3f} / {max(t):.3f}" for t in m["times"].values()]
+        emit(f"| {r} | {m['first']:.2f} | " + " | ".join(cells) + f" | {m['rss'] / 2**30:.2f} | {m['expanded']} |")
+    emit()
+    diffs = []
+    for name in WORKLOADS:
+        a, b = (np.asarray(res[r]["forces"][name]) for r in READERS)
+        diffs.append(f"{name} {np.abs(a - b).max() / np.abs(b).max():.1e}")
+    emit("forces, largest difference between the readers (relative to the largest force): " + ", ".join(diffs))
+    ratio = [statistics.median(res["expand"]["times"][w]) / statistics.median(res["hmatrix"]["times"][w])
+             for w in WORKLOADS]
+    emit("median call, expand / hmatrix: " + ", ".join(f"{w} {q:.2f}" for w, q in zip(WORKLOADS, ratio)))
+    if args.out is not None:
+        record.write_run(args.out, record.command("python tests/benchmarks/bench_hreader.py", argv), stamp, lines)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
