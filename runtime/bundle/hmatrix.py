@@ -44,6 +44,7 @@ from typing import Mapping
 import numpy as np
 
 from hailstorm.runtime.bundle.stamps import default_cache_dir, forget, is_stamped, stamp, stamped_hash
+from hailstorm.runtime.compiled.hblocks import hmatrix_entries, hmatrix_matvec
 
 __all__ = ["EXPAND_COLUMNS", "EXPANDED_BUDGET", "FLOAT32_TOL", "HMATRIX_ARRAYS", "HMatrix", "expanded",
            "expansion_dtype", "prune_expansions"]
@@ -147,7 +148,8 @@ class HMatrix:
 
     def entries(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """``H[np.ix_(rows, cols)]``, dense: only the blocks the rows and columns meet are read,
-        and of a far block only its factors' rows ``U[rows]`` and ``V[cols]``.
+        and of a far block only its factors' rows ``U[rows]`` and ``V[cols]`` (compiled:
+        :func:`hailstorm.runtime.compiled.hblocks.hmatrix_entries`; :meth:`entries_ref` in numpy).
 
         Parameters
         ----------
@@ -158,14 +160,16 @@ class HMatrix:
         -------
         (r, p) float64 ndarray, column-major
         """
-        rows = np.asarray(rows, dtype=np.intp).ravel()
-        cols = np.asarray(cols, dtype=np.intp).ravel()
-        out = np.zeros((rows.size, cols.size), order="F")
-        if rows.size == 0 or cols.size == 0:
+        rs, ro, cs, co, out = self._sorted_positions(rows, cols)
+        if out.size:
+            hmatrix_entries(self.blocks, self.data, rs, ro, cs, co, out)
+        return out
+
+    def entries_ref(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """:meth:`entries` in numpy, block by block (the reference the compiled kernel is held to)."""
+        rs, ro, cs, co, out = self._sorted_positions(rows, cols)
+        if out.size == 0:
             return out
-        rpos, cpos = self._row_position[rows], self._col_position[cols]
-        ro, co = np.argsort(rpos, kind="stable"), np.argsort(cpos, kind="stable")
-        rs, cs = rpos[ro], cpos[co]
         B = self.blocks
         rlo, rhi = np.searchsorted(rs, B[:, 0]), np.searchsorted(rs, B[:, 1])
         clo, chi = np.searchsorted(cs, B[:, 2]), np.searchsorted(cs, B[:, 3])
@@ -198,8 +202,29 @@ class HMatrix:
             out[grp] = X[ri, ci] if V is None else np.einsum("kr,kr->k", X[ri], V[ci])
         return out
 
+    def _sorted_positions(self, rows: np.ndarray, cols: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Tree positions of ``rows``, ``cols`` sorted (``rs``, ``cs``), where each goes in the
+        result (``ro``, ``co``), and the zero (r, p) F-ordered result."""
+        rows = np.asarray(rows, dtype=np.intp).ravel()
+        cols = np.asarray(cols, dtype=np.intp).ravel()
+        rpos, cpos = self._row_position[rows], self._col_position[cols]
+        ro, co = np.argsort(rpos, kind="stable"), np.argsort(cpos, kind="stable")
+        return rpos[ro], ro, cpos[co], co, np.zeros((rows.size, cols.size), order="F")
+
     def matvec(self, x: np.ndarray) -> np.ndarray:
-        """``H @ x`` for ``x`` of shape (n,) or (n, p) in the original column order."""
+        """``H @ x`` for ``x`` of shape (n,) or (n, p) in the original column order (a vector
+        compiled: :func:`hailstorm.runtime.compiled.hblocks.hmatrix_matvec`; :meth:`matvec_ref`
+        in numpy)."""
+        x = np.asarray(x, dtype=float)
+        if x.ndim != 1:
+            return self.matvec_ref(x)
+        yp = hmatrix_matvec(self.blocks, self.data, np.ascontiguousarray(x[self.col_dofs]), self.shape[0])
+        y = np.empty_like(yp)
+        y[self.row_dofs] = yp
+        return y
+
+    def matvec_ref(self, x: np.ndarray) -> np.ndarray:
+        """:meth:`matvec` in numpy, block by block (the reference the compiled kernel is held to)."""
         x = np.asarray(x, dtype=float)
         xp = x[self.col_dofs]
         yp = np.zeros((self.shape[0],) + x.shape[1:])

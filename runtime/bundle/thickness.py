@@ -17,7 +17,11 @@ import numpy as np
 
 from hailstorm.runtime.bundle.read import vertex_normals
 
-__all__ = ["PadThickness", "RayCaster", "ray_thickness", "surface_thickness"]
+__all__ = ["PAIRS_PER_PASS", "PadThickness", "RayCaster", "ray_thickness", "surface_thickness"]
+
+#: (ray, triangle) pairs tested at a time (about 500 bytes of temporaries each): bounds the
+#: caster's memory whatever the number of rays (the ray chunks adapt to the pairs per ray)
+PAIRS_PER_PASS = 1 << 18
 
 
 class RayCaster:
@@ -83,20 +87,29 @@ class RayCaster:
             return out
         r = 4.0 * self.size if start_radius is None else float(start_radius)
         todo = np.arange(O.shape[0])
+        best = np.full(O.shape[0], np.inf)
+        step = 256
         while todo.size:
             last = r >= self.diag
-            if last:
-                ray, face = np.repeat(todo, k), np.tile(np.arange(k), todo.size)
-            else:
-                if self._tree is None:
-                    from scipy.spatial import cKDTree
+            best[todo] = np.inf
+            # rays per chunk: from the last chunk's pairs per ray, a ball of twice the radius holding ~4x
+            step = max(1, PAIRS_PER_PASS // k) if last else max(1, step // 4)
+            i = 0
+            while i < todo.size:  # rays in chunks: at most about PAIRS_PER_PASS (ray, face) pairs at a time
+                rays = todo[i:i + step]
+                i += rays.size
+                if last:
+                    ray, face = np.repeat(rays, k), np.tile(np.arange(k), rays.size)
+                else:
+                    if self._tree is None:
+                        from scipy.spatial import cKDTree
 
-                    self._tree = cKDTree(self.centre)
-                near = self._tree.query_ball_point(O[todo], r + self.reach)
-                ray = np.repeat(todo, [len(c) for c in near])
-                face = np.fromiter(itertools.chain.from_iterable(near), dtype=np.int64, count=ray.size)
-            best = np.full(O.shape[0], np.inf)
-            np.minimum.at(best, ray, self._hits(O, Dn, sk, ray, face))
+                        self._tree = cKDTree(self.centre)
+                    near = self._tree.query_ball_point(O[rays], r + self.reach)
+                    ray = np.repeat(rays, [len(c) for c in near])
+                    face = np.fromiter(itertools.chain.from_iterable(near), dtype=np.int64, count=ray.size)
+                    step = int(np.clip(PAIRS_PER_PASS * rays.size // max(ray.size, 1), 1, 1 << 14))
+                np.minimum.at(best, ray, self._hits(O, Dn, sk, ray, face))
             done = last | (best[todo] <= r)
             out[todo[done]] = best[todo[done]]
             todo = todo[~done]

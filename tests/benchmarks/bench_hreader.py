@@ -5,9 +5,10 @@ Usage::
     python tests/benchmarks/bench_hreader.py --gf DIR [--repeat 5] [--out FILE]
 
 ``DIR`` is a compressed bundle (``hailstorm precompute --tol T [--stream]``). Each reader runs in
-a fresh process with an empty expansion cache (``load(DIR, expand=False)``: the H-matrix's
-blocks; ``expand=True``: D expanded once into the cache on first use and memory-mapped), after
-one warm-up process (numba's compiled kernels are then loaded from its cache by both).
+a fresh process (``load(DIR, expand=False)``: the H-matrix's blocks; ``expand=True``: D
+expanded once into the cache on first use and memory-mapped), the H-matrix reader first, in a
+fresh cache that one warm-up process filled with what both read (numba's compiled kernels, the
+layer kernel), never with the expansion.
 Printed per reader: the first call's seconds (load, and for ``expand`` the expansion, plus
 one solve), then per workload the min / median / max seconds of ``--repeat`` calls, and the
 process's peak resident memory; and the largest relative difference of the forces between
@@ -75,11 +76,10 @@ def child(gf_dir: str, reader: str, repeat: int) -> dict:
             "expanded": bool(getattr(gf, "expanded", True))}
 
 
-def _run(gf_dir: Path, reader: str, repeat: int) -> dict:
-    with tempfile.TemporaryDirectory(prefix="hailstorm-bench-hreader-") as cache:
-        env = dict(os.environ, HAILSTORM_CACHE=cache)
-        out = subprocess.run([sys.executable, __file__, "--child", reader, "--gf", str(gf_dir), "--repeat", str(repeat)],
-                             env=env, capture_output=True, text=True)
+def _run(gf_dir: Path, reader: str, repeat: int, cache: str) -> dict:
+    env = dict(os.environ, HAILSTORM_CACHE=cache)
+    out = subprocess.run([sys.executable, __file__, "--child", reader, "--gf", str(gf_dir), "--repeat", str(repeat)],
+                         env=env, capture_output=True, text=True)
     if out.returncode != 0:
         raise SystemExit(f"{reader}: {out.stderr.strip()[-600:]}")
     return json.loads(out.stdout.strip().splitlines()[-1])
@@ -111,11 +111,12 @@ def main(argv: list[str] | None = None) -> int:
     emit(f"bundle: D {comp['shape'][0]} x {comp['shape'][1]}, tol {comp['tol']:g}, H-matrix "
          f"{comp['stored_bytes'] / 2**20:.1f} MiB of a {comp['dense_bytes'] / 2**30:.2f} GiB dense D "
          f"({manifest['mesh']['n_contactable']} contactable vertices)")
-    emit(f"each reader in a fresh process with an empty cache, after a warm-up process; {args.repeat} calls per "
-         "workload: min / median / max s")
+    emit(f"each reader in a fresh process, its cache holding no expansion of D, after a warm-up process; "
+         f"{args.repeat} calls per workload: min / median / max s")
     emit()
-    _run(args.gf, "hmatrix", 1)  # warm-up: numba's cache
-    res = {r: _run(args.gf, r, args.repeat) for r in READERS}
+    with tempfile.TemporaryDirectory(prefix="hailstorm-bench-hreader-") as cache:
+        _run(args.gf, "hmatrix", 1, cache)  # warm-up: numba's cache, the layer kernel in this cache
+        res = {r: _run(args.gf, r, args.repeat, cache) for r in READERS}  # hmatrix first: no expansion yet
     emit("| reader | first call s | " + " | ".join(WORKLOADS) + " | peak memory GiB | D expanded |")
     emit("|---|---|" + "---|" * len(WORKLOADS) + "---|---|")
     for r in READERS:

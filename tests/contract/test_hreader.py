@@ -42,14 +42,20 @@ def close(a, b, rtol):
 
 
 def test_entries_and_pairs_are_the_expanded_matrix(pair):
-    """HMatrix.entries / pairs: unsorted and repeated rows and columns, empty selections."""
+    """HMatrix.entries / pairs / matvec against the expansion (and the compiled kernels against their
+    numpy references): unsorted and repeated rows and columns, empty selections."""
     native, dense = pair
     H, D = native.hmatrix, np.asarray(dense.D)
     rng = np.random.default_rng(2)
     rows = np.concatenate([rng.choice(D.shape[0], 40), [0, 0, D.shape[0] - 1]])
     cols = np.concatenate([rng.choice(D.shape[1], 30), [7, 7, D.shape[1] - 1]])
     close(H.entries(rows, cols), D[np.ix_(rows, cols)], ENTRY_RTOL)
+    close(H.entries(rows, cols), H.entries_ref(rows, cols), ENTRY_RTOL)  # the compiled kernel and its reference
     assert H.entries(rows, cols).flags.f_contiguous
+    x = rng.standard_normal(D.shape[1])
+    x[rng.random(D.shape[1]) < 0.5] = 0.0  # zeros are skipped
+    close(H.matvec(x), D @ x, ENTRY_RTOL * 10)
+    close(H.matvec(x), H.matvec_ref(x), ENTRY_RTOL)
     assert H.entries(rows[:0], cols).shape == (0, cols.size) and H.entries(rows, cols[:0]).shape == (rows.size, 0)
     r, c = rng.choice(D.shape[0], 500), rng.choice(D.shape[1], 500)
     close(H.pairs(r, c), D[r, c], ENTRY_RTOL)

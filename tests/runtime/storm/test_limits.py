@@ -93,6 +93,23 @@ def test_ray_caster_against_the_analytic_box_and_brute_force(rng):
     np.testing.assert_array_equal(t, rc.cast(o, d, start_radius=np.inf))
 
 
+def test_ray_caster_in_small_chunks_is_the_same(rng, monkeypatch):
+    """A few (ray, face) pairs per pass (the chunking that bounds the caster's memory on a large
+    surface): the same distances, for the pruned search and the brute-force pass."""
+    from hailstorm.runtime.bundle import thickness
+
+    m = box_mesh((L, W, H), 0.01)
+    faces = boundary_faces(m.tets)
+    o = rng.uniform([0.01, 0.01, 0.002], [L - 0.01, W - 0.01, H - 0.002], size=(60, 3))
+    d = rng.normal(size=(60, 3))
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    whole = RayCaster(m.points, faces).cast(o, d), RayCaster(m.points, faces).cast(o, d, start_radius=np.inf)
+    monkeypatch.setattr(thickness, "PAIRS_PER_PASS", 50)
+    rc = RayCaster(m.points, faces)
+    np.testing.assert_array_equal(rc.cast(o, d), whole[0])
+    np.testing.assert_array_equal(rc.cast(o, d, start_radius=np.inf), whole[1])
+
+
 def test_pad_thickness_casts_each_vertex_once():
     gf = _box_source()
     pad = PadThickness(gf)
