@@ -265,6 +265,7 @@ def _gmsh_session():
     if gmsh.isInitialized():
         gmsh.finalize()
     gmsh.initialize(interruptible=False)
+    _keep_python_handlers()
     gmsh.option.setNumber("General.Terminal", 0)
     gmsh.option.setNumber("General.Verbosity", 2)
     # determinism: one thread, fixed seed, a sequential 3D algorithm
@@ -275,6 +276,22 @@ def _gmsh_session():
     gmsh.option.setNumber("Mesh.RandomSeed", 1)
     gmsh.option.setNumber("Mesh.Algorithm3D", 1)
     return gmsh
+
+
+#: signals whose Python handlers gmsh's initialisation replaces with its own (which end the process at
+#: once: a SIGTERM during a precompute would skip its cleanup and its checkpoint)
+_GMSH_TAKES = tuple(getattr(signal, name) for name in ("SIGTERM", "SIGHUP") if hasattr(signal, name))
+
+
+def _keep_python_handlers() -> None:
+    """Put Python's handlers of :data:`_GMSH_TAKES` back after ``gmsh.initialize`` (in the main thread:
+    re-registering a handler re-installs Python's own at the C level)."""
+    if threading.current_thread() is not threading.main_thread():
+        return
+    for signum in _GMSH_TAKES:
+        handler = signal.getsignal(signum)
+        if handler is not None:
+            signal.signal(signum, handler)
 
 
 @contextlib.contextmanager

@@ -119,3 +119,27 @@ def test_boundary_triangles_point_outward(small_box):
     # divergence theorem: the closed surface encloses the box volume
     vol = np.einsum("ij,ij->i", p[:, 0], n).sum() / 6
     assert vol == pytest.approx(0.1 * 0.1 * 0.05, rel=1e-12)
+
+
+def test_meshing_keeps_pythons_termination_handlers():
+    """gmsh's initialisation replaces the SIGTERM and SIGHUP handlers with its own, which end the
+    process at once; meshing puts Python's back, so ``kill`` during a precompute still reaches the
+    CLI's handler (its cleanup and the streamed checkpoint). In a fresh process: the signal
+    after meshing the default seat runs the handler and the process goes on."""
+    import subprocess
+    import sys
+
+    code = (
+        "import os, signal\n"
+        "got = []\n"
+        "signal.signal(signal.SIGTERM, lambda s, f: got.append(s))\n"
+        "signal.signal(signal.SIGHUP, lambda s, f: got.append(s))\n"
+        "from hailstorm.precompute import mesh_default_seat\n"
+        "mesh_default_seat(0.02)\n"
+        "os.kill(os.getpid(), signal.SIGTERM)\n"
+        "os.kill(os.getpid(), signal.SIGHUP)\n"
+        "print(sorted(got))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr[-500:]
+    assert out.stdout.strip().splitlines()[-1] == "[1, 15]"
