@@ -323,7 +323,8 @@ def load(path: str | os.PathLike, *, verify: bool = True, mmap: bool = True, reh
         D's). False: from the H-matrix's blocks, never expanding D
         (:class:`~hailstorm.runtime.bundle.hreader.HMatrixReader`; the memory is the H-matrix's).
         None (default): False when the expansion would exceed :data:`EXPAND_UP_TO`, else True.
-        The storm always reads the expansion (:func:`as_dense`).
+        The storm always reads the expansion (:func:`as_dense`). A dense bundle has no other
+        way to be read (it is memory-mapped with ``mmap``).
 
     Returns
     -------
@@ -334,7 +335,11 @@ def load(path: str | os.PathLike, *, verify: bool = True, mmap: bool = True, reh
     BundleError
         With a message naming the problem if the bundle is missing, truncated,
         corrupted, of another format version or internally inconsistent.
+    ValueError
+        ``expand`` not True, False or None.
     """
+    if expand not in (None, True, False):
+        raise ValueError(f"expand must be True, False or None (decided by the size), got {expand!r}")
     path = Path(path)
     if not path.exists():
         stranded = stranded_copies(path)

@@ -159,6 +159,10 @@ def test_precompute_tol_stores_d_compressed_and_info_prints_its_error(tmp_path):
     assert "as an H-matrix" in info
     assert f"tol 0.001: measured against {err['columns']} exact columns" in info
     assert f"max {err['max']:.2e}" in info
+    # small: the contact API reads its expansion (float32 from tol 1e-5 up: 4 bytes an entry)
+    assert gf.dtype == np.float32 and not gf.reads_hmatrix
+    mib = np.prod(gf.manifest["compliance"]["shape"]) * 4 / 2**20
+    assert f"reads it from D expanded once into the cache (the float32 expansion: {mib:.1f} MiB" in info
 
 
 @pytest.mark.parametrize("tol", ["0.5", "0", "-1e-3", "nan"])

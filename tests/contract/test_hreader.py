@@ -119,6 +119,8 @@ def test_load_reads_a_large_compressed_bundle_from_its_hmatrix(seat_h6, seat_bun
     assert gf.reads_hmatrix and not gf.expanded  # the source itself is unchanged
     dense = load(seat_bundle)
     assert as_dense(dense) is dense
+    with pytest.raises(ValueError, match="expand must be"):
+        load(seat_h6, expand="no")
 
 
 def test_a_storm_on_a_bundle_read_from_its_hmatrix_is_the_expanded_storm(pair, tmp_path):
