@@ -218,6 +218,15 @@ class DenseReader:
         """``D.T`` as the fused compiled paths read it (:func:`kernel_columns`)."""
         return kernel_columns(self.gf)
 
+    @property
+    def kernel_entries(self) -> np.ndarray:
+        """D itself, as the storm's kernels index it (:func:`hailstorm.runtime.compiled.hblocks.d_entry`)."""
+        return np.asarray(self.gf.D)
+
+    def entries_at(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """``D[rows, cols]`` elementwise for index arrays of one (broadcast) shape (in D's type)."""
+        return np.asarray(self.gf.D[rows, cols])
+
     def gather(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """``D[rows, cols]`` with zero columns where ``cols == -1``: see :func:`gather`."""
         return _dense_gather(self.gf.D, rows, cols)
@@ -253,7 +262,7 @@ class DenseReader:
         """The 3 x 3 blocks ``D[rows[k], cols[k]]``: see :func:`pair_blocks`."""
         r = 3 * np.asarray(rows)[:, None, None] + np.arange(3)[None, :, None]
         c = 3 * np.asarray(self.gf.column_of)[cols][:, None, None] + np.arange(3)[None, None, :]
-        return np.asarray(self.gf.D[r, c], dtype=np.float64)
+        return self.entries_at(r, c).astype(np.float64, copy=False)
 
 
 def _dense_gather(D: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:

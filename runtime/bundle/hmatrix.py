@@ -255,6 +255,19 @@ class HMatrix:
         return inv
 
     @functools.cached_property
+    def kernel_arrays(self) -> tuple[np.ndarray, ...]:
+        """What a compiled kernel reads an entry through
+        (:func:`hailstorm.runtime.compiled.hblocks.d_entry`): ``(rpos, rcell, cpos, ccell, grid,
+        blocks, data)``, the tree position and grid cell of each row and column, the block of
+        each grid cell (:attr:`_block_grid`), the block table and the numbers. Built once."""
+        grid, ra, ca = self._block_grid
+        rpos, cpos = self._row_position.astype(np.int64), self._col_position.astype(np.int64)
+        rcell = np.searchsorted(ra, rpos, side="right").astype(np.int64) - 1
+        ccell = np.searchsorted(ca, cpos, side="right").astype(np.int64) - 1
+        return (rpos, rcell, cpos, ccell, grid, np.ascontiguousarray(self.blocks, dtype=np.int64),
+                np.ascontiguousarray(self.data, dtype=np.float64))
+
+    @functools.cached_property
     def _block_grid(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(grid, row_cuts, col_cuts)``: the block holding each cell of the grid the blocks' edges
         cut the matrix into (tree positions ``row_cuts[i]..`` x ``col_cuts[j]..``)."""

@@ -37,6 +37,17 @@ class HMatrixReader:
     #: no dense ``D.T`` for the fused compiled paths (they step aside)
     kernel_D = None
 
+    @property
+    def kernel_entries(self) -> tuple[np.ndarray, ...]:
+        """What the storm's kernels read entries of D through
+        (:func:`hailstorm.runtime.compiled.hblocks.d_entry`): the H-matrix's kernel arrays."""
+        return self.H.kernel_arrays
+
+    def entries_at(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """``D[rows, cols]`` elementwise for index arrays of one (broadcast) shape."""
+        rows, cols = np.broadcast_arrays(np.asarray(rows, dtype=np.intp), np.asarray(cols, dtype=np.intp))
+        return self.H.pairs(rows.ravel(), cols.ravel()).reshape(rows.shape)
+
     def __init__(self, H: HMatrix, column_of: np.ndarray) -> None:
         self.H = H
         self.column_of = np.asarray(column_of)
@@ -92,5 +103,4 @@ class HMatrixReader:
         rows = np.asarray(rows, dtype=np.intp)
         r = 3 * rows[:, None, None] + np.arange(3)[None, :, None]
         c = 3 * self.column_of[np.asarray(cols, dtype=np.intp)][:, None, None] + np.arange(3)[None, None, :]
-        r, c = np.broadcast_arrays(r, c)
-        return self.H.pairs(r.ravel(), c.ravel()).reshape(rows.size, 3, 3)
+        return self.entries_at(r, c)

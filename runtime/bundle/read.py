@@ -11,7 +11,6 @@ alone (no gmsh, no scikit-fem).
 
 from __future__ import annotations
 
-import copy
 import functools
 import hashlib
 import os
@@ -30,8 +29,7 @@ from hailstorm.runtime.bundle.format import (
 from hailstorm.runtime.bundle.hmatrix import HMatrix, expanded, expansion_dtype
 from hailstorm.runtime.bundle.compliance import apply_columns, column_dofs, dof3, gather
 
-__all__ = ["EXPAND_UP_TO", "CompressedGreensFunctions", "GreensFunctions", "as_dense", "load", "stranded_copies",
-           "vertex_normals"]
+__all__ = ["EXPAND_UP_TO", "CompressedGreensFunctions", "GreensFunctions", "load", "stranded_copies", "vertex_normals"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -207,8 +205,8 @@ class GreensFunctions:
 class CompressedGreensFunctions(GreensFunctions):
     """A compressed bundle's Green's functions: :attr:`D` is expanded from :attr:`hmatrix` on first use.
 
-    Loading reads and checks the H-matrix only; what reads :attr:`D` (the storm; the
-    contact core unless :attr:`reads_hmatrix`) triggers the expansion, once (:func:`load`'s
+    Loading reads and checks the H-matrix only; what reads :attr:`D` (the storm and the
+    contact core, unless :attr:`reads_hmatrix`) triggers the expansion, once (:func:`load`'s
     ``mmap``: into the cache and memory-mapped, else in memory). What needs only the
     bundle's metadata (``hailstorm info``) never expands it. :attr:`expanded` says
     whether it happened.
@@ -227,7 +225,7 @@ class CompressedGreensFunctions(GreensFunctions):
 
     @property
     def reads_hmatrix(self) -> bool:
-        """True: the contact core reads D from :attr:`hmatrix`'s blocks, never expanding it
+        """True: the runtime reads D from :attr:`hmatrix`'s blocks, never expanding it
         (:func:`load`'s ``expand``; :func:`hailstorm.runtime.bundle.compliance.reader`)."""
         return bool(self.__dict__.get("_reads_hmatrix", False))
 
@@ -317,14 +315,14 @@ def load(path: str | os.PathLike, *, verify: bool = True, mmap: bool = True, reh
         With ``verify``: hash every file even if it was verified unchanged
         before (``hailstorm info`` does).
     expand
-        A compressed bundle only: how the contact core (:func:`~hailstorm.runtime.contact.solve_contacts`,
+        A compressed bundle only: how the runtime (the storm, :func:`~hailstorm.runtime.contact.solve_contacts`,
         ``press_spheres``, :meth:`GreensFunctions.compliance`, ...) reads D. True: from the dense
         expansion, made once on first use (fastest per solve once made; its memory is the dense
         D's). False: from the H-matrix's blocks, never expanding D
         (:class:`~hailstorm.runtime.bundle.hreader.HMatrixReader`; the memory is the H-matrix's).
         None (default): False when the expansion would exceed :data:`EXPAND_UP_TO`, else True.
-        The storm always reads the expansion (:func:`as_dense`). A dense bundle has no other
-        way to be read (it is memory-mapped with ``mmap``).
+        The storm reads D the same way. A dense bundle has no other way to be read (it is
+        memory-mapped with ``mmap``).
 
     Returns
     -------
@@ -391,13 +389,3 @@ def load(path: str | os.PathLike, *, verify: bool = True, mmap: bool = True, reh
         expand = shape[0] * shape[1] * dtype.itemsize <= EXPAND_UP_TO
     return CompressedGreensFunctions.lazy(make, dtype, reads_hmatrix=not expand, **fields)
 
-
-def as_dense(gf: Any) -> Any:
-    """``gf`` with its D read densely: a compressed bundle read from its H-matrix
-    (``reads_hmatrix``) as a copy whose every read goes to its dense expansion (made on
-    first use), any other source itself. For what needs D whole (the storm's kernels)."""
-    if not getattr(gf, "reads_hmatrix", False):
-        return gf
-    view = copy.copy(gf)
-    view.__dict__["_reads_hmatrix"] = False
-    return view

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hailstorm.runtime.compiled.jit import kernel
+from hailstorm.runtime.compiled.hblocks import d_entry
 
 __all__ = ["SampleGrid", "closest_one", "closest_points", "sorted_ints", "surface_arrays", "triangle_distance"]
 
@@ -250,9 +251,9 @@ def closest_one(p, r, md, use_u, surf, D, fcols, fv, done, Y, bary_out, point_ou
                                 u0 = 0.0; u1 = 0.0; u2 = 0.0
                                 for j in range(ncol):
                                     col = fcols[j]
-                                    u0 += D[3 * v, col] * fv[j]
-                                    u1 += D[3 * v + 1, col] * fv[j]
-                                    u2 += D[3 * v + 2, col] * fv[j]
+                                    u0 += d_entry(D, 3 * v, col) * fv[j]
+                                    u1 += d_entry(D, 3 * v + 1, col) * fv[j]
+                                    u2 += d_entry(D, 3 * v + 2, col) * fv[j]
                                 Y[v, 0] = X[v, 0] + u0; Y[v, 1] = X[v, 1] + u1; Y[v, 2] = X[v, 2] + u2
                                 done[v] = True
                             for e in range(3):
@@ -342,8 +343,10 @@ def closest_points(
     points : (k, 3) ndarray
     reach : (k,) ndarray
         Search radius per point [m].
-    D : (3n, c) ndarray, optional
-        Compliance columns (vertex-major rows) and ``cols``, ``forces``: the
+    D : (3n, c) ndarray or tuple, optional
+        Compliance columns (vertex-major rows), or a compressed D's
+        :attr:`~hailstorm.runtime.bundle.hmatrix.HMatrix.kernel_arrays` (read through
+        :func:`~hailstorm.runtime.compiled.hblocks.d_entry`), and ``cols``, ``forces``: the
         loaded columns and their forces.
     max_displacement : float
         Upper bound of ``|u|`` over the surface [m].

@@ -12,6 +12,7 @@ import math
 import numpy as np
 
 from hailstorm.runtime.compiled.jit import kernel
+from hailstorm.runtime.compiled.hblocks import d_entry
 from hailstorm.runtime.compiled.flight import drag_dot
 from hailstorm.runtime.compiled.grid import cell_range, sorted_ints
 from hailstorm.runtime.compiled.sphere import impact_radius_of
@@ -225,7 +226,8 @@ def patch_compliance(verts, w, normal, D, column_of):  # pragma: no cover (compi
                 if w[i] == 0.0:
                     continue
                 r = 3 * verts[i]
-                acc += w[i] * (D[r, col] * normal[0] + D[r + 1, col] * normal[1] + D[r + 2, col] * normal[2])
+                acc += w[i] * (d_entry(D, r, col) * normal[0] + d_entry(D, r + 1, col) * normal[1]
+                               + d_entry(D, r + 2, col) * normal[2])
             c += gj * acc
     return c
 

@@ -196,8 +196,7 @@ import numpy as np
 
 from hailstorm.runtime.storm.collide import Collision, SurfaceIndex
 from hailstorm.runtime.compiled import KERNELS, closest_points
-from hailstorm.runtime.bundle.compliance import ElasticSource
-from hailstorm.runtime.bundle.read import as_dense
+from hailstorm.runtime.bundle.compliance import ElasticSource, reader
 from hailstorm.runtime.storm.contact_set import ContactSet, ContactSets
 from hailstorm.runtime.storm.hail import GRAVITY, Air
 from hailstorm.runtime.storm.integrators import ContactIntegrator
@@ -243,7 +242,6 @@ class Storm:
     """
 
     def __init__(self, gf: ElasticSource, scene: Scene, *, spawn: bool = True, warm: bool = True) -> None:
-        gf = as_dense(gf)  # the storm's kernels index D whole: a compressed bundle's expansion
         self.gf = gf
         self.scene = scene
         hail, contact = scene.hail, scene.contact
@@ -532,13 +530,13 @@ for _name in ("pos", "vel", "radius", "mass", "alive", "ctri", "cbary", "gap", "
 
 
 def _array_kinds(gf: Any) -> list[tuple]:
-    """What the kernels' argument types depend on in a bundle's arrays (dtype, layout, writeable, class)."""
-    out = []
-    for name in ("D", "vertices", "triangles", "fixed", "contactable", "areas", "column_of"):
-        a = getattr(gf, name)
-        out.append((name, a.dtype.str, a.ndim, bool(a.flags.c_contiguous), bool(a.flags.f_contiguous),
-                    bool(a.flags.writeable), type(a).__name__))
-    return out
+    """What the kernels' argument types depend on in a bundle's arrays (dtype, layout, writeable, class):
+    D's (or, read from its H-matrix, the H-matrix's kernel arrays') and the surface's."""
+    arrays = [("D", a) for a in reader(gf).kernel_entries] if getattr(gf, "reads_hmatrix", False) else [("D", gf.D)]
+    arrays += [(name, getattr(gf, name)) for name in ("vertices", "triangles", "fixed", "contactable", "areas",
+                                                      "column_of")]
+    return [(name, a.dtype.str, a.ndim, bool(a.flags.c_contiguous), bool(a.flags.f_contiguous),
+             bool(a.flags.writeable), type(a).__name__) for name, a in arrays]
 
 
 def _helper_spec(gf: Any, scene: Scene) -> HelperSpec | None:
@@ -553,8 +551,10 @@ def _helper_spec(gf: Any, scene: Scene) -> HelperSpec | None:
         kinds = _array_kinds(gf)
     except AttributeError:
         return None
+    native = bool(getattr(gf, "reads_hmatrix", False))
     return HelperSpec("hailstorm.runtime.storm.driver:warm_up_worker",
-                      {"bundle": str(path), "mmap": isinstance(gf.D, np.memmap), "kinds": kinds,
+                      {"bundle": str(path), "mmap": native or isinstance(gf.D, np.memmap), "kinds": kinds,
+                       "expand": None if getattr(gf, "hmatrix", None) is None else not native,
                        "scene": scene.to_dict()})
 
 
@@ -571,7 +571,7 @@ def warm_up_worker(payload: dict[str, Any], names: list[str]) -> None:
     """
     from hailstorm.runtime.bundle.read import load
 
-    gf = load(payload["bundle"], verify=False, mmap=bool(payload["mmap"]))
+    gf = load(payload["bundle"], verify=False, mmap=bool(payload["mmap"]), expand=payload.get("expand"))
     if [list(k) for k in _array_kinds(gf)] != [list(k) for k in payload["kinds"]]:
         raise RuntimeError("the bundle's arrays differ from the caller's")
     Storm(gf, Scene.from_dict(payload["scene"]), spawn=False, warm=False).warm_up(names)

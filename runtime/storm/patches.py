@@ -293,7 +293,7 @@ class Patches:
             rows = (3 * V[:, :, None] + np.arange(3)).reshape(-1, 9)
             cols = (3 * np.maximum(cb, 0)[:, :, None] + np.arange(3)).reshape(-1, 9)
             # (T, 9, 9) blocks, each column-major like gf.compliance's (same gemv sums)
-            blk = np.ascontiguousarray(self.seat.D[rows[:, None, :], cols[:, :, None]])  # (T, col, row)
+            blk = np.ascontiguousarray(self.seat.entries_at(rows[:, None, :], cols[:, :, None]))  # (T, col, row)
             blk[np.repeat(cb < 0, 3, axis=1)] = 0.0  # clamped columns
             blk = blk.transpose(0, 2, 1)
             Bn = (third[None, :, None] * self.normals[t][:, None, :]).reshape(-1, 9)  # kron(1/3, n)

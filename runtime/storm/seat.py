@@ -15,6 +15,8 @@ from typing import Protocol, TYPE_CHECKING
 
 import numpy as np
 
+from hailstorm.runtime.bundle.compliance import DenseReader, reader
+
 if TYPE_CHECKING:  # annotations only
     from hailstorm.runtime.bundle.compliance import ComplianceSource
 
@@ -38,18 +40,27 @@ class SeatState:
     gf : ComplianceSource
         The bundle: ``D`` (a column-major copy is held when D is a row-major
         memmap of at most 1 GiB: column gathers from a row-major file read all of
-        it), ``column_of``, the vertex count.
+        it; a compressed bundle read from its H-matrix is never expanded), ``column_of``,
+        the vertex count.
     """
 
     def __init__(self, gf: ComplianceSource) -> None:
-        D = gf.D
-        if isinstance(D, np.memmap) and not D.flags.f_contiguous and D.nbytes <= (1 << 30):
-            # column gathers D[:, cols] from a row-major memmap read the whole file each time:
-            # hold a column-major copy (a no-op once bundles store D column-major)
-            D = np.asfortranarray(D)
-        #: D as a plain ndarray view of a memmap (no copy): numpy.memmap's per-index
-        #: overhead (subclass wrapping) dominates the small gathers of the loop
-        self.D = np.asarray(D)
+        #: how D is read (:func:`hailstorm.runtime.bundle.compliance.reader`): a dense D, or a
+        #: compressed bundle's H-matrix (its displacements through the reader's products)
+        self.reader = reader(gf)
+        self._dense = isinstance(self.reader, DenseReader)
+        if self._dense:
+            D = gf.D
+            if isinstance(D, np.memmap) and not D.flags.f_contiguous and D.nbytes <= (1 << 30):
+                # column gathers D[:, cols] from a row-major memmap read the whole file each time:
+                # hold a column-major copy (a no-op once bundles store D column-major)
+                D = np.asfortranarray(D)
+            #: what the kernels read D's entries through (``d_entry``): a plain ndarray view of a
+            #: memmap (no copy: numpy.memmap's per-index overhead dominates the loop's small
+            #: gathers), or the H-matrix's kernel arrays
+            self.D = np.asarray(D)
+        else:
+            self.D = self.reader.kernel_entries
         #: the column of D of each vertex (-1: clamped), as the kernels take it
         self.column_of = np.ascontiguousarray(gf.column_of, dtype=np.int64)
         self.n = int(np.asarray(gf.vertices).shape[0])
@@ -141,7 +152,7 @@ class SeatState:
         peaks, self._peaks = self._peaks, {}
         if not peaks:
             return u
-        fields = [u] + [(self.D[:, cols] @ fv).reshape(self.n, 3) for _, cols, fv in peaks.values()]
+        fields = [u] + [self._field(cols, fv) for _, cols, fv in peaks.values()]
         F = np.stack(fields)  # (m + 1, n, 3)
         pick = np.argmax(np.einsum("mnd,mnd->mn", F, F), axis=0)
         return F[pick, np.arange(self.n)]
@@ -151,8 +162,20 @@ class SeatState:
         if self.forces is None or verts.size == 0:
             return np.zeros((verts.size, 3))
         assert self.cols is not None
+        if not self._dense:
+            return self.reader.apply(self.cols, self.forces, verts)
         rows = (3 * verts[:, None] + np.arange(3)).ravel()
         return (self.D[np.ix_(rows, self.cols)] @ self.forces).reshape(-1, 3)
+
+    def entries_at(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+        """``D[rows, cols]`` elementwise (index arrays of one broadcast shape)."""
+        return self.D[rows, cols] if self._dense else self.reader.entries_at(rows, cols)
+
+    def _field(self, cols: np.ndarray, fv: np.ndarray) -> np.ndarray:
+        """``D[:, cols] @ fv`` as (n, 3)."""
+        if not self._dense:
+            return self.reader.apply(cols, fv, None)
+        return (self.D[:, cols] @ fv).reshape(self.n, 3)
 
     @property
     def u(self) -> np.ndarray:
@@ -161,6 +184,6 @@ class SeatState:
             if self.forces is None:
                 u = np.zeros((self.n, 3))
             else:
-                u = (self.D[:, self.cols] @ self.forces).reshape(self.n, 3)
+                u = self._field(self.cols, self.forces)
             self._u_cache = (self._version, u)
         return self._u_cache[1]
