@@ -17,6 +17,11 @@ the readers. Workloads, at contactable triangles drawn at random (seed 0):
 * ``points s=20`` / ``points s=100``: ``solve_contacts``, sticky point contacts, with the
   full-surface displacement;
 * ``spheres s=5``: ``press_spheres`` of 5 mm stones pressed 1.5 mm (Hertz patches, near field).
+
+``--storm`` then runs the default scene's storm (``run_storm(gf, Scene.default())``) with each
+reader in a fresh process, after a warm-up storm with each (the kernels compiled for both kinds
+of D), in a cache holding no expansion: the wall time (load, the expansion for ``expand``, the storm), the
+peak resident memory, and what the storm reports (impacts, largest force, largest dent).
 """
 
 from __future__ import annotations
@@ -76,10 +81,23 @@ def child(gf_dir: str, reader: str, repeat: int) -> dict:
             "expanded": bool(getattr(gf, "expanded", True))}
 
 
-def _run(gf_dir: Path, reader: str, repeat: int, cache: str) -> dict:
+def storm_child(gf_dir: str, reader: str) -> dict:
+    """The default storm with one reader in this (fresh) process."""
+    from hailstorm.runtime import load, run_storm
+    from hailstorm.runtime.storm.scene import Scene
+
+    t0 = time.perf_counter()
+    gf = load(gf_dir, expand=reader == "expand")
+    st = run_storm(gf, Scene.default(), progress=False).stats
+    return {"wall": time.perf_counter() - t0, "rss": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
+            "impacts": st.impacts, "force": st.max_contact_force, "dent": st.max_indentation_m,
+            "expanded": bool(getattr(gf, "expanded", True))}
+
+
+def _run(gf_dir: Path, reader: str, repeat: int, cache: str, storm: bool = False) -> dict:
     env = dict(os.environ, HAILSTORM_CACHE=cache)
-    out = subprocess.run([sys.executable, __file__, "--child", reader, "--gf", str(gf_dir), "--repeat", str(repeat)],
-                         env=env, capture_output=True, text=True)
+    cmd = [sys.executable, __file__, "--child", reader, "--gf", str(gf_dir), "--repeat", str(repeat)]
+    out = subprocess.run(cmd + (["--storm"] if storm else []), env=env, capture_output=True, text=True)
     if out.returncode != 0:
         raise SystemExit(f"{reader}: {out.stderr.strip()[-600:]}")
     return json.loads(out.stdout.strip().splitlines()[-1])
@@ -90,10 +108,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--gf", type=Path, required=True, help="a compressed bundle")
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--out", type=Path, default=None, help="also write the output there (with its header)")
+    ap.add_argument("--storm", action="store_true", help="also the default storm with each reader")
     ap.add_argument("--child", choices=READERS, default=None, help=argparse.SUPPRESS)
     args = ap.parse_args(argv)
     if args.child is not None:
-        print(json.dumps(child(str(args.gf), args.child, args.repeat)))
+        work = storm_child if args.storm else lambda gf, r: child(gf, r, args.repeat)
+        print(json.dumps(work(str(args.gf), args.child)))
         return 0
     from hailstorm.runtime import load
 
@@ -117,6 +137,13 @@ def main(argv: list[str] | None = None) -> int:
     with tempfile.TemporaryDirectory(prefix="hailstorm-bench-hreader-") as cache:
         _run(args.gf, "hmatrix", 1, cache)  # warm-up: numba's cache, the layer kernel in this cache
         res = {r: _run(args.gf, r, args.repeat, cache) for r in READERS}  # hmatrix first: no expansion yet
+        if args.storm:
+            for r in READERS:  # warm-up: the storm's kernels compiled for both kinds of D (numba's cache)
+                with tempfile.TemporaryDirectory(prefix="hailstorm-bench-hreader-warm-") as warm:
+                    _run(args.gf, r, 1, warm, storm=True)
+            cache2 = Path(cache) / "storm"  # a cache with no expansion again
+            cache2.mkdir()
+            storms = {r: _run(args.gf, r, 1, str(cache2), storm=True) for r in READERS}
     emit("| reader | first call s | " + " | ".join(WORKLOADS) + " | peak memory GiB | D expanded |")
     emit("|---|---|" + "---|" * len(WORKLOADS) + "---|---|")
     for r in READERS:
@@ -132,6 +159,18 @@ def main(argv: list[str] | None = None) -> int:
     ratio = [statistics.median(res["expand"]["times"][w]) / statistics.median(res["hmatrix"]["times"][w])
              for w in WORKLOADS]
     emit("median call, expand / hmatrix: " + ", ".join(f"{w} {q:.2f}" for w, q in zip(WORKLOADS, ratio)))
+    if args.storm:
+        emit()
+        emit("The default scene's storm (run_storm(gf, Scene.default())), each reader in a fresh process after a "
+             "warm-up storm with each, in a cache holding no expansion:")
+        emit()
+        emit("| reader | wall s (load + storm) | peak memory GiB | impacts | largest force N | largest dent mm | "
+             "D expanded |")
+        emit("|---|---|---|---|---|---|---|")
+        for r in READERS:
+            m = storms[r]
+            emit(f"| {r} | {m['wall']:.1f} | {m['rss'] / 2**30:.2f} | {m['impacts']} | {m['force']:.2f} | "
+                 f"{1e3 * m['dent']:.3f} | {m['expanded']} |")
     if args.out is not None:
         record.write_run(args.out, record.command("python tests/benchmarks/bench_hreader.py", argv), stamp, lines)
     return 0
