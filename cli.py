@@ -217,8 +217,8 @@ def _print_bundle(path: Path, rehash: bool = True) -> None:
               f"max {err['max']:.2e}, median {err['median']:.2e} (relative, per column)")
         expansion = gf.hmatrix.shape[0] * gf.hmatrix.shape[1] * gf.dtype.itemsize
         how = "from the H-matrix, never expanding D" if gf.reads_hmatrix else "from D expanded once into the cache"
-        print(f"runtime  the contact API reads it {how} (the {gf.dtype} expansion: {expansion / 2**20:.1f} MiB; "
-              "load(..., expand=) chooses); the storm expands it")
+        print(f"runtime  the storm and the contact API read it {how} (the {gf.dtype} expansion: "
+              f"{expansion / 2**20:.1f} MiB; load(..., expand=) chooses)")
     t = m.get("timings_s", {})
     if t:
         print("timings  " + ", ".join(f"{k} {v:.2f} s" for k, v in t.items()))

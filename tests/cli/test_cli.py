@@ -162,7 +162,7 @@ def test_precompute_tol_stores_d_compressed_and_info_prints_its_error(tmp_path):
     # small: the contact API reads its expansion (float32 from tol 1e-5 up: 4 bytes an entry)
     assert gf.dtype == np.float32 and not gf.reads_hmatrix
     mib = np.prod(gf.manifest["compliance"]["shape"]) * 4 / 2**20
-    assert f"reads it from D expanded once into the cache (the float32 expansion: {mib:.1f} MiB" in info
+    assert f"read it from D expanded once into the cache (the float32 expansion: {mib:.1f} MiB" in info
 
 
 @pytest.mark.parametrize("tol", ["0.5", "0", "-1e-3", "nan"])
