@@ -135,6 +135,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--load", choices=("point", "hat"), default="hat")
     ap.add_argument("--tol", type=float, default=1e-2)
     ap.add_argument("--routes", default=",".join(ROUTES), help=f"comma-separated, of {', '.join(ROUTES)}")
+    ap.add_argument("--keep", type=Path, default=None,
+                    help="move the streamed bundle there (a new path) instead of deleting it")
     ap.add_argument("--resume", action="store_true",
                     help="also stop a streamed run with SIGTERM halfway and rerun it (needs the stream route)")
     ap.add_argument("--out", type=Path, default=None, help="also write the output there (with its header)")
@@ -142,8 +144,10 @@ def main(argv: list[str] | None = None) -> int:
     routes = [r for r in args.routes.split(",") if r]
     if not routes or any(r not in ROUTES for r in routes):
         ap.error(f"--routes takes {', '.join(ROUTES)}, got {args.routes!r}")
-    if args.resume and "stream" not in routes:
-        ap.error("--resume needs the stream route")
+    if (args.resume or args.keep is not None) and "stream" not in routes:
+        ap.error("--resume and --keep need the stream route")
+    if args.keep is not None and args.keep.exists():
+        ap.error(f"--keep {args.keep}: exists (a new path is needed)")
     stamp = record.stamp()
     lines: list[str] = []
 
@@ -161,7 +165,7 @@ def main(argv: list[str] | None = None) -> int:
         reference = Path(kept) / "stream"
         for route in routes:
             m = run_route(route, args.mesh_size, args.order, args.load, args.tol,
-                          keep=reference if route == "stream" and args.resume else None)
+                          keep=reference if route == "stream" and (args.resume or args.keep) else None)
             emit(f"| {route} | {m['shape'][0]} x {m['shape'][1]} | {m['n_dofs']:,} | {m['wall']:.1f} | "
                  f"{m['solve']:.1f} | {m['rss'] / 2**30:.2f} | {m['disk'] / 2**30:.2f} | {m['stored'] / 2**20:.1f} | "
                  f"{m['dense'] / 2**30:.2f} | {m['max_rank']} | {m['err_max']:.2e} | {m['err_median']:.2e} |")
@@ -177,6 +181,8 @@ def main(argv: list[str] | None = None) -> int:
             emit("|---|---|---|---|---|---|")
             emit(f"| {r['stopped_at']:.1f} | {r['first_rc']} | {r['resumed']} of {r['blocks']} | {r['rerun']:.1f} | "
                  f"{(r['stopped_at'] + r['rerun']) / wall:.2f} | {r['diff']:.1e} |")
+        if args.keep is not None:
+            shutil.move(str(reference), str(args.keep))
     if args.out is not None:
         record.write_run(args.out, record.command("python tests/benchmarks/bench_stream.py", argv), stamp, lines)
     return 0
