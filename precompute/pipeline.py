@@ -102,7 +102,8 @@ from hailstorm.runtime.bundle.stamps import default_cache_dir, stamp
 
 log = logging.getLogger(__name__)
 
-__all__ = ["CHECKPOINT_SECONDS", "DEFAULT_MESH_SIZE", "LOADS", "Surface", "build_bundle", "cache_key", "default_cache_dir", "extract_surface"]
+__all__ = ["CHECKPOINT_SECONDS", "DEFAULT_MESH_SIZE", "LOADS", "Surface", "build_bundle", "cache_key",
+           "default_cache_dir", "extract_surface"]
 
 LOADS = ("point", "hat")
 

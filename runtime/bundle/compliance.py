@@ -177,7 +177,7 @@ def _gather_vertex_rows(D: np.ndarray, V: np.ndarray, cols: np.ndarray) -> np.nd
 
 
 def reader(gf: ComplianceSource) -> "DenseReader | HMatrixReader":
-    """How the contact core reads blocks of ``gf``'s D, decided once per source.
+    """How the runtime (the contact core, the storm) reads blocks of ``gf``'s D, decided once per source.
 
     An :class:`~hailstorm.runtime.bundle.hreader.HMatrixReader` for a compressed bundle loaded
     not to expand its D (``reads_hmatrix``: :func:`hailstorm.runtime.bundle.read.load`'s

@@ -1,9 +1,10 @@
-"""The contact core's reads of D from a compressed bundle's H-matrix, D never expanded.
+"""The runtime's reads of D from a compressed bundle's H-matrix, D never expanded.
 
 :func:`hailstorm.runtime.bundle.compliance.reader` gives a compressed bundle loaded with
 ``expand=False`` (or too large to expand, :func:`hailstorm.runtime.bundle.read.load`) an
-:class:`HMatrixReader`: every block of D the contact API reads (``D_VV``, ``D[rows, V]``,
-``D[:, V] g``, ...) is evaluated from the H-matrix's own blocks
+:class:`HMatrixReader`: every block of D the contact API and the storm read (``D_VV``,
+``D[rows, V]``, ``D[:, V] g``, the storm kernels' single entries, ...) is evaluated from the
+H-matrix's own blocks
 (:meth:`~hailstorm.runtime.bundle.hmatrix.HMatrix.entries`,
 :meth:`~hailstorm.runtime.bundle.hmatrix.HMatrix.columns`), so a solve costs the blocks it
 touches, not a dense D of the whole surface (7.5 GiB in float32 for the 13 000 contactable
@@ -34,6 +35,10 @@ class HMatrixReader:
         D's column block of each surface vertex, -1 where not contactable.
     """
 
+    def __init__(self, H: HMatrix, column_of: np.ndarray) -> None:
+        self.H = H
+        self.column_of = np.asarray(column_of)
+
     #: no dense ``D.T`` for the fused compiled paths (they step aside)
     kernel_D = None
 
@@ -47,10 +52,6 @@ class HMatrixReader:
         """``D[rows, cols]`` elementwise for index arrays of one (broadcast) shape."""
         rows, cols = np.broadcast_arrays(np.asarray(rows, dtype=np.intp), np.asarray(cols, dtype=np.intp))
         return self.H.pairs(rows.ravel(), cols.ravel()).reshape(rows.shape)
-
-    def __init__(self, H: HMatrix, column_of: np.ndarray) -> None:
-        self.H = H
-        self.column_of = np.asarray(column_of)
 
     def gather(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """``D[rows, cols]``, zero columns where ``cols == -1``, (r, c) float64."""
@@ -92,8 +93,8 @@ class HMatrixReader:
         """Full-surface response ``D[:, U] B`` (3n, 3k), F-ordered, of contacts on the vertices
         whose column dofs are ``cols`` (-1 clamped)."""
         cols = np.asarray(cols, dtype=np.intp)
-        Mt = np.ascontiguousarray(self.H.columns(np.maximum(cols, 0)).T)  # (3|U|, 3n); clamped rows skipped:
-        blocks = np.where(cols[::3] >= 0, np.arange(cols.size // 3), -1)
+        Mt = np.ascontiguousarray(self.H.columns(np.maximum(cols, 0)).T)  # (3|U|, 3n)
+        blocks = np.where(cols[::3] >= 0, np.arange(cols.size // 3), -1)  # clamped vertices' rows skipped
         return kernels.weighted_rows(Mt, blocks, np.ascontiguousarray(loc, dtype=np.intp),
                                      np.ascontiguousarray(weights, dtype=np.float64),
                                      np.zeros((loc.shape[0], 3)), True).T

@@ -29,7 +29,8 @@ from hailstorm.runtime.bundle.format import (
 from hailstorm.runtime.bundle.hmatrix import HMatrix, expanded, expansion_dtype
 from hailstorm.runtime.bundle.compliance import apply_columns, column_dofs, dof3, gather
 
-__all__ = ["EXPAND_UP_TO", "CompressedGreensFunctions", "GreensFunctions", "load", "stranded_copies", "vertex_normals"]
+__all__ = ["EXPAND_UP_TO", "CompressedGreensFunctions", "GreensFunctions", "load", "stranded_copies",
+           "vertex_normals"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -216,7 +217,7 @@ class CompressedGreensFunctions(GreensFunctions):
     def lazy(cls, expand: Callable[[], np.ndarray], dtype: np.dtype, *, reads_hmatrix: bool = False,
              **fields: Any) -> "CompressedGreensFunctions":
         """The bundle with ``fields`` (every :class:`GreensFunctions` field but D) and ``expand()`` making D
-        in ``dtype``; ``reads_hmatrix``: the contact core reads the H-matrix, not the expansion."""
+        in ``dtype``; ``reads_hmatrix``: the runtime reads the H-matrix, not the expansion."""
         gf = cls(D=None, **fields)  # type: ignore[arg-type]
         gf.__dict__["_expand"] = expand
         gf.__dict__["_dtype"] = np.dtype(dtype)
@@ -286,7 +287,7 @@ def stranded_copies(path: str | os.PathLike) -> list[Path]:
 
 
 #: a compressed bundle whose dense D would take more bytes than this (in its expansion's type) is read
-#: from its H-matrix by the contact core unless ``load(..., expand=True)``
+#: from its H-matrix by the runtime unless ``load(..., expand=True)``
 EXPAND_UP_TO = 1 << 30
 
 
@@ -315,8 +316,9 @@ def load(path: str | os.PathLike, *, verify: bool = True, mmap: bool = True, reh
         With ``verify``: hash every file even if it was verified unchanged
         before (``hailstorm info`` does).
     expand
-        A compressed bundle only: how the runtime (the storm, :func:`~hailstorm.runtime.contact.solve_contacts`,
-        ``press_spheres``, :meth:`GreensFunctions.compliance`, ...) reads D. True: from the dense
+        A compressed bundle only: how the runtime (the storm,
+        :func:`~hailstorm.runtime.contact.solve_contacts`, ``press_spheres``,
+        :meth:`GreensFunctions.compliance`, ...) reads D. True: from the dense
         expansion, made once on first use (fastest per solve once made; its memory is the dense
         D's). False: from the H-matrix's blocks, never expanding D
         (:class:`~hailstorm.runtime.bundle.hreader.HMatrixReader`; the memory is the H-matrix's).

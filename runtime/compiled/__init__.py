@@ -25,7 +25,8 @@ Modules, in the order of a storm step:
   and one-call point-contact solves: the contact API's kernels
   (:func:`hailstorm.runtime.contact.solve_contacts`), also used by the storm;
 * :mod:`~hailstorm.runtime.compiled.hblocks` — a compressed D's H-matrix: its product with
-  a vector and its entries (the contact API on a compressed bundle read without expanding D);
+  a vector, its entries, and ``d_entry``, through which the storm's kernels read an entry of
+  a dense D or of an H-matrix (a compressed bundle read without expanding D);
 * :mod:`~hailstorm.runtime.compiled.contacts` — the SPD policy inside the compiled steps
   and the constrained coordinates around a contact step;
 * :mod:`~hailstorm.runtime.compiled.integrators` — the exact, implicit and symplectic
