@@ -54,9 +54,13 @@ def _disk(folder: Path) -> int:
     return total
 
 
+#: extra options of every ``hailstorm precompute`` run (``--allow-large``: past the size estimate's refusal)
+EXTRA: list[str] = []
+
+
 def _command(route: str, mesh_size: float, order: int, load: str, tol: float, out: Path) -> list[str]:
     cmd = [sys.executable, "-m", "hailstorm", "precompute", "--mesh-size", str(mesh_size), "--order", str(order),
-           "--load", load, "--tol", str(tol), "--out", str(out), "--quiet"]
+           "--load", load, "--tol", str(tol), "--out", str(out), "--quiet", *EXTRA]
     return cmd + (["--stream"] if route == "stream" else [])
 
 
@@ -135,6 +139,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--load", choices=("point", "hat"), default="hat")
     ap.add_argument("--tol", type=float, default=1e-2)
     ap.add_argument("--routes", default=",".join(ROUTES), help=f"comma-separated, of {', '.join(ROUTES)}")
+    ap.add_argument("--allow-large", action="store_true",
+                    help="pass --allow-large (the size estimate assumes the surface refines as h^-2; this seat's "
+                    "contactable surface refines as about h^-1.3)")
     ap.add_argument("--keep", type=Path, default=None,
                     help="move the streamed bundle there (a new path) instead of deleting it")
     ap.add_argument("--resume", action="store_true",
@@ -148,6 +155,7 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--resume and --keep need the stream route")
     if args.keep is not None and args.keep.exists():
         ap.error(f"--keep {args.keep}: exists (a new path is needed)")
+    EXTRA[:] = ["--allow-large"] if args.allow_large else []
     stamp = record.stamp()
     lines: list[str] = []
 
