@@ -220,8 +220,14 @@ class DenseReader:
 
     @property
     def kernel_entries(self) -> np.ndarray:
-        """D itself, as the storm's kernels index it (:func:`hailstorm.runtime.compiled.hblocks.d_entry`)."""
-        return np.asarray(self.gf.D)
+        """D itself, as the storm's kernels index it (:func:`hailstorm.runtime.compiled.hblocks.d_entry`):
+        a plain ndarray view of a memmap (no copy: numpy.memmap's per-index overhead dominates the
+        storm loop's small gathers), column-major (a row-major memmap of at most 1 GiB is copied:
+        column gathers from a row-major file read all of it)."""
+        D = self.gf.D
+        if isinstance(D, np.memmap) and not D.flags.f_contiguous and D.nbytes <= (1 << 30):
+            D = np.asfortranarray(D)
+        return np.asarray(D)
 
     def entries_at(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """``D[rows, cols]`` elementwise for index arrays of one (broadcast) shape (in D's type)."""
@@ -235,16 +241,11 @@ class DenseReader:
         """``D_VV``: see :func:`vertex_block`."""
         return kernels.vertex_block(np.asarray(V, dtype=np.intp), kernel_columns(self.gf), self.gf.column_of).T
 
-    def apply(self, cols: np.ndarray, g: np.ndarray, rows: np.ndarray | None) -> np.ndarray:
-        """``D[rows, cols] @ g``: see :func:`apply_columns` (``rows`` checked)."""
-        if rows is None:
-            return kernels.columns_times(kernel_columns(self.gf), np.asarray(cols, dtype=np.intp),
-                                         np.ascontiguousarray(g, dtype=np.float64)).reshape(-1, 3)
-        live = cols >= 0
-        c, gl = cols[live], g[live]
-        if c.size == 0 or rows.size == 0:
-            return np.zeros((rows.size, 3))
-        return (self.gather(dof3(rows), c) @ gl).reshape(-1, 3)
+    def apply_all(self, cols: np.ndarray, g: np.ndarray) -> np.ndarray:
+        """``D[:, cols] @ g`` as (n, 3), clamped columns skipped: one pass over the columns in the
+        compiled :func:`hailstorm.runtime.compiled.blocks.columns_times`."""
+        return kernels.columns_times(kernel_columns(self.gf), np.asarray(cols, dtype=np.intp),
+                                     np.ascontiguousarray(g, dtype=np.float64)).reshape(-1, 3)
 
     def constraint_rows(self, V: np.ndarray, loc: np.ndarray, w: np.ndarray, normals: np.ndarray,
                         sticky: bool) -> np.ndarray:
@@ -320,8 +321,8 @@ def vertex_block(gf: ComplianceSource, V: np.ndarray) -> np.ndarray:
 def apply_columns(gf: ComplianceSource, cols: np.ndarray, g: np.ndarray, rows: np.ndarray | None) -> np.ndarray:
     """``D[rows, cols] @ g`` as (r, 3) (all rows if ``rows`` is None), skipping clamped columns.
 
-    A dense D, all rows: one pass over the columns in the compiled
-    :func:`hailstorm.runtime.compiled.blocks.columns_times`; some rows: a
+    All rows: the reader's ``apply_all`` (a dense D: one pass over the columns in the
+    compiled :func:`hailstorm.runtime.compiled.blocks.columns_times`); some rows: a
     gather of ``D[rows, cols]`` and a product.
 
     Raises
@@ -331,13 +332,18 @@ def apply_columns(gf: ComplianceSource, cols: np.ndarray, g: np.ndarray, rows: n
     """
     n = gf.vertices.shape[0]
     cols = np.asarray(cols, dtype=np.intp)
-    if rows is not None:
-        rows = np.asarray(rows)
-        if rows.ndim != 1 or (rows.size and not np.issubdtype(rows.dtype, np.integer)):
-            raise ValueError(f"rows must be a 1-D array of vertex indices, got shape {rows.shape} dtype {rows.dtype}")
-        if rows.size and (rows.min() < 0 or rows.max() >= n):
-            raise IndexError(f"rows hold vertex indices outside 0..{n - 1}")
-    return reader(gf).apply(cols, g, rows)
+    if rows is None:
+        return reader(gf).apply_all(cols, g)
+    rows = np.asarray(rows)
+    if rows.ndim != 1 or (rows.size and not np.issubdtype(rows.dtype, np.integer)):
+        raise ValueError(f"rows must be a 1-D array of vertex indices, got shape {rows.shape} dtype {rows.dtype}")
+    if rows.size and (rows.min() < 0 or rows.max() >= n):
+        raise IndexError(f"rows hold vertex indices outside 0..{n - 1}")
+    live = cols >= 0
+    c, gl = cols[live], np.asarray(g)[live]
+    if c.size == 0 or rows.size == 0:
+        return np.zeros((rows.size, 3))
+    return (reader(gf).gather(dof3(rows), c) @ gl).reshape(-1, 3)
 
 
 def constraint_rows(gf: ComplianceSource, V: np.ndarray, loc: np.ndarray, w: np.ndarray, normals: np.ndarray,

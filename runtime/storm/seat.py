@@ -49,18 +49,9 @@ class SeatState:
         #: compressed bundle's H-matrix (its displacements through the reader's products)
         self.reader = reader(gf)
         self._dense = isinstance(self.reader, DenseReader)
-        if self._dense:
-            D = gf.D
-            if isinstance(D, np.memmap) and not D.flags.f_contiguous and D.nbytes <= (1 << 30):
-                # column gathers D[:, cols] from a row-major memmap read the whole file each time:
-                # hold a column-major copy (a no-op once bundles store D column-major)
-                D = np.asfortranarray(D)
-            #: what the kernels read D's entries through (``d_entry``): a plain ndarray view of a
-            #: memmap (no copy: numpy.memmap's per-index overhead dominates the loop's small
-            #: gathers), or the H-matrix's kernel arrays
-            self.D = np.asarray(D)
-        else:
-            self.D = self.reader.kernel_entries
+        #: what the kernels read D's entries through (``d_entry``): D (column-major, a plain
+        #: ndarray), or the H-matrix's kernel arrays
+        self.D = self.reader.kernel_entries
         #: the column of D of each vertex (-1: clamped), as the kernels take it
         self.column_of = np.ascontiguousarray(gf.column_of, dtype=np.int64)
         self.n = int(np.asarray(gf.vertices).shape[0])
@@ -162,19 +153,18 @@ class SeatState:
         if self.forces is None or verts.size == 0:
             return np.zeros((verts.size, 3))
         assert self.cols is not None
-        if not self._dense:
-            return self.reader.apply(self.cols, self.forces, verts)
         rows = (3 * verts[:, None] + np.arange(3)).ravel()
-        return (self.D[np.ix_(rows, self.cols)] @ self.forces).reshape(-1, 3)
+        block = self.D[np.ix_(rows, self.cols)] if self._dense else self.reader.gather(rows, self.cols)
+        return (block @ self.forces).reshape(-1, 3)
 
     def entries_at(self, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
         """``D[rows, cols]`` elementwise (index arrays of one broadcast shape)."""
-        return self.D[rows, cols] if self._dense else self.reader.entries_at(rows, cols)
+        return self.reader.entries_at(rows, cols)
 
     def _field(self, cols: np.ndarray, fv: np.ndarray) -> np.ndarray:
-        """``D[:, cols] @ fv`` as (n, 3)."""
+        """``D[:, cols] @ fv`` as (n, 3) (a dense D: numpy's product, as the frames always had it)."""
         if not self._dense:
-            return self.reader.apply(cols, fv, None)
+            return self.reader.apply_all(cols, fv)
         return (self.D[:, cols] @ fv).reshape(self.n, 3)
 
     @property
