@@ -53,6 +53,7 @@ def _float(text: str) -> float:
 
 def _parser() -> argparse.ArgumentParser:
     from hailstorm.precompute.fem import DEFAULT_POISSON, DEFAULT_YOUNG  # noqa: PLC0415 (cheap module)
+    from hailstorm.precompute.geometry import DEFAULT_COARSENING  # noqa: PLC0415
     from hailstorm.precompute.greens import SOLVER_SPECS
 
     p = argparse.ArgumentParser(
@@ -76,6 +77,10 @@ def _parser() -> argparse.ArgumentParser:
     pre.add_argument("--volume-size", type=_positive_float, default=None, metavar="H",
                      help="volume grading of a meshed geometry: tetrahedra inside the body at most H metres "
                      "(at most --mesh-size) under the same surface mesh; D and the runtime's cost stay the same")
+    pre.add_argument("--coarsening", type=_float, default=DEFAULT_COARSENING, metavar="C",
+                     help="elements of a meshed geometry grow to C times --mesh-size away from the hail-facing "
+                     f"surface (default {DEFAULT_COARSENING:g}; at least 1); a larger C leaves the surface and "
+                     "cuts the volume's vertices, the factor and the precompute's time on a thin pad")
     pre.add_argument("--young", type=_float, default=None,
                      help=f"Young's modulus in Pa of a one-material body (default {DEFAULT_YOUNG:g})")
     pre.add_argument("--poisson", type=_float, default=None,
@@ -162,7 +167,7 @@ def _run_precompute(args: argparse.Namespace) -> int:
     try:
         path = build_bundle(
             args.out, geometry=args.geometry, mesh_size=args.mesh_size, order=args.order,
-            volume_size=args.volume_size,
+            volume_size=args.volume_size, coarsening=args.coarsening,
             young=args.young, poisson=args.poisson, materials=materials or None,
             solver=args.solver, tol=args.amg_tol, load=args.load, compress_tol=args.tol, stream=args.stream,
             reuse=not args.force, progress=not args.quiet, allow_large=args.allow_large,

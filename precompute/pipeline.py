@@ -30,10 +30,12 @@ from hailstorm.precompute.fem import (
     vertex_dofs,
 )
 from hailstorm.precompute.geometry import (
+    DEFAULT_COARSENING,
     DEFAULT_MESH_SIZE,
     MeshError,
     TetMesh,
     boundary_triangles,
+    check_coarsening,
     check_mesh,
     check_volume_size,
     load_seat,
@@ -173,6 +175,7 @@ def build_bundle(
     mesh_size: float = DEFAULT_MESH_SIZE,
     order: int = 1,
     volume_size: float | None = None,
+    coarsening: float = DEFAULT_COARSENING,
     young: float | None = None,
     poisson: float | None = None,
     materials: Mapping[str, tuple[float, float]] | None = None,
@@ -216,6 +219,11 @@ def build_bundle(
         the same shape and the runtime the same cost
         (:func:`hailstorm.precompute.geometry.mesh_geometry`). ``None``: none.
         Refused with a ready ``mesh`` or a mesh file (they are used as they are).
+    coarsening
+        Elements of a meshed geometry grow to ``coarsening * mesh_size`` away
+        from the contact surface (at least 1; default
+        :data:`hailstorm.precompute.geometry.DEFAULT_COARSENING`). Refused with
+        a ready mesh like ``volume_size``.
     young, poisson
         One material for the whole body [Pa], [-] (default
         :data:`hailstorm.precompute.fem.DEFAULT_YOUNG`, ``DEFAULT_POISSON``).
@@ -308,6 +316,9 @@ def build_bundle(
     check_volume_size(volume_size, mesh_size)
     if volume_size is not None and mesh is not None:
         raise ValueError("volume_size grades a geometry as it is meshed; a ready mesh is used as it is")
+    coarsening = check_coarsening(coarsening)
+    if coarsening != DEFAULT_COARSENING and mesh is not None:
+        raise ValueError("coarsening grades a geometry as it is meshed; a ready mesh is used as it is")
     if not isinstance(dtype, str) or dtype not in COMPLIANCE_DTYPES:
         raise ValueError(f"D's storage type must be one of {' or '.join(COMPLIANCE_DTYPES)}, got {dtype!r}")
     if compress_tol is not None:
@@ -334,7 +345,8 @@ def build_bundle(
     run = _RunSettings(scheduler, workers, int(block_bytes), allow_large, dtype)
     t0 = time.perf_counter()
     if mesh is None:
-        mesh = load_seat(geometry, mesh_size, allow_large=allow_large, order=order, volume_size=volume_size)
+        mesh = load_seat(geometry, mesh_size, allow_large=allow_large, order=order, volume_size=volume_size,
+                         coarsening=coarsening)
     else:
         check_mesh(mesh)
     mats = resolve_materials(mesh, materials, young=young, poisson=poisson)
@@ -360,6 +372,8 @@ def build_bundle(
         options["dtype"] = dtype
     if volume_size is not None:  # the mesh's hash already differs; recorded for the reader (old keys unchanged)
         options["volume_size"] = float(volume_size)
+    if coarsening != DEFAULT_COARSENING:  # likewise
+        options["coarsening"] = coarsening
     key = cache_key(mesh, options)
     if compress_tol is None:
         final_key = key

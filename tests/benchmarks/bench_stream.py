@@ -139,6 +139,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--load", choices=("point", "hat"), default="hat")
     ap.add_argument("--tol", type=float, default=1e-2)
     ap.add_argument("--routes", default=",".join(ROUTES), help=f"comma-separated, of {', '.join(ROUTES)}")
+    ap.add_argument("--coarsening", type=float, default=None,
+                    help="pass --coarsening C (the volume's elements grow to C mesh sizes away from the top)")
     ap.add_argument("--allow-large", action="store_true",
                     help="pass --allow-large (the size estimate assumes the surface refines as h^-2; this seat's "
                     "contactable surface refines as about h^-1.3)")
@@ -155,7 +157,8 @@ def main(argv: list[str] | None = None) -> int:
         ap.error("--resume and --keep need the stream route")
     if args.keep is not None and args.keep.exists():
         ap.error(f"--keep {args.keep}: exists (a new path is needed)")
-    EXTRA[:] = ["--allow-large"] if args.allow_large else []
+    EXTRA[:] = (["--allow-large"] if args.allow_large else []) + \
+        ([] if args.coarsening is None else ["--coarsening", str(args.coarsening)])
     stamp = record.stamp()
     lines: list[str] = []
 
@@ -164,7 +167,7 @@ def main(argv: list[str] | None = None) -> int:
         lines.append(text)
 
     emit(f"hailstorm precompute --mesh-size {args.mesh_size} --order {args.order} --load {args.load} "
-         f"--tol {args.tol:g} [--stream], each in a fresh process and folder")
+         f"--tol {args.tol:g} {' '.join(EXTRA)} [--stream], each in a fresh process and folder".replace("  ", " "))
     emit()
     emit("| route | D rows x columns | dofs | wall s | solve s | peak memory GiB | peak disk GiB | stored MiB | "
          "dense GiB | max rank | column error max (200 cols) | median |")
