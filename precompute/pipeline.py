@@ -74,6 +74,7 @@ from hailstorm.precompute.resources import (
     estimate_memory,
     estimate_mesh,
     gib,
+    peak_memory_bytes,
 )
 from hailstorm.precompute.materials import (
     MaterialMap,
@@ -502,6 +503,8 @@ def _compute(out: Path, mesh: TetMesh, surface: Surface, options: dict, key: str
         },
         "timings_s": {"mesh": t_mesh, "assemble": t_assemble, "solve": t_solve},
         "solve_stats": stats,
+        # the building process's peak resident memory so far (it counts whatever ran before in the process)
+        "process_peak_memory_bytes": peak_memory_bytes(),
     }
     if cast is not None:
         manifest["dtype_cast"] = cast

@@ -138,6 +138,13 @@ def available_memory() -> int:
     return 2**63 - 1 if avail is None else avail
 
 
+def peak_memory_bytes() -> int:
+    """This process's peak resident memory so far [bytes] (``getrusage``; Linux reports KiB)."""
+    import resource
+
+    return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss) * 1024
+
+
 def gib(n: float) -> str:
     """A byte count for people: '3.2 GiB', '150 MiB'."""
     if n >= 2**30:

@@ -142,8 +142,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--coarsening", type=float, default=None,
                     help="pass --coarsening C (the volume's elements grow to C mesh sizes away from the top)")
     ap.add_argument("--allow-large", action="store_true",
-                    help="pass --allow-large (the size estimate assumes the surface refines as h^-2; this seat's "
-                    "contactable surface refines as about h^-1.3)")
+                    help="pass --allow-large (past the size estimate's refusal)")
     ap.add_argument("--keep", type=Path, default=None,
                     help="move the streamed bundle there (a new path) instead of deleting it")
     ap.add_argument("--resume", action="store_true",
