@@ -344,7 +344,6 @@ SAMPLE_SPACING = 0.5
 #: by about this fraction from one layer to the next
 GRADING_SLOPE = 0.6
 
-
 #: default of ``coarsening`` (elements grow to this many mesh sizes away from ``top``)
 DEFAULT_COARSENING = 2.5
 
@@ -386,9 +385,10 @@ def mesh_geometry(path: str | os.PathLike, mesh_size: float, *, coarsening: floa
     coarsening
         Elements grow to ``coarsening * mesh_size`` away from ``top``, by about
         :data:`GRADING_SLOPE` of their size per layer (at least 1; 1: the whole
-        body at ``mesh_size``). A thin pad's interior holds most of the volume's
-        vertices at fine sizes: 10 instead of 2.5 kept the top surface of the
-        default seat at 0.9 mm and cut the factor's entries 1.5x (measured).
+        body at ``mesh_size``). At fine sizes a thin pad's interior holds many
+        of the volume's vertices: a larger value keeps the top mesh and cuts
+        the factor (``python -m hailstorm.studies.coarsening_study`` measures
+        both and what it costs in accuracy).
     volume_size
         Volume grading: tetrahedra inside the body are at most this size [m]
         (``<= mesh_size``) while the surfaces keep their sizes, so the surface
@@ -481,7 +481,7 @@ def mesh_geometry(path: str | os.PathLike, mesh_size: float, *, coarsening: floa
         except Exception as exc:
             raise MeshError(f"gmsh failed to mesh {path} at mesh size {mesh_size}: {exc}") from exc
         tag = f"{path.name}@h={mesh_size:g}" + ("" if volume_size is None else f",volume={volume_size:g}") + \
-        ("" if coarsening == DEFAULT_COARSENING else f",coarsening={coarsening:g}") + \
+            ("" if coarsening == DEFAULT_COARSENING else f",coarsening={coarsening:g}") + \
             "".join(f",refine=({r.x:g},{r.y:g},{r.size:g},{r.growth:g})" for r in refine)
         return _mesh_from_gmsh(gmsh, names, source=tag)
     finally:
