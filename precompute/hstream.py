@@ -99,6 +99,16 @@ def _truncate(s: np.ndarray, budget: float) -> int:
     return int(np.argmax(tail <= budget))
 
 
+def _write_concatenated(f, parts: list[np.ndarray]) -> None:
+    """Write to the open file ``f`` an ``.npy`` float64 vector that is the concatenation of ``parts``,
+    each flattened in Fortran order, without building it (one part's copy at most)."""
+    total = sum(int(x.size) for x in parts)
+    np.lib.format.write_array_header_2_0(f, {"descr": np.lib.format.dtype_to_descr(np.dtype(np.float64)),
+                                             "fortran_order": False, "shape": (total,)})
+    for x in parts:
+        f.write(np.asarray(x, dtype=np.float64).ravel(order="F").data)
+
+
 @dataclasses.dataclass
 class _Far:
     """A far block's state: ``U diag(s) V^T`` of the columns seen, the updates left, what was dropped."""
@@ -239,6 +249,11 @@ class StreamedH:
         far = [self._far[b] for b in range(self.n_far)]
         near = sorted(self._near)
         kept = sorted(self.kept)
+        # the blocks' numbers go to disk piece by piece: a concatenation would hold a second H at once
+        pieces = {
+            "far_data": [x for f in far for x in (f.U, f.s, f.V)],
+            "near_data": [self._near[b] for b in near],
+        }
         arrays = {
             "meta": np.array(json.dumps({"version": CHECKPOINT_VERSION, "tag": tag, "shape": list(self.shape),
                                          "tol": self.tol, "columns_seen": self.columns_seen,
@@ -247,16 +262,19 @@ class StreamedH:
             "far_rank": np.array([f.s.size for f in far], dtype=np.int64),
             "far_updates": np.array([f.updates for f in far], dtype=np.int64),
             "far_norms": np.array([(f.norm2, f.dropped) for f in far], dtype=np.float64).reshape(-1, 2),
-            "far_data": np.concatenate([np.zeros(0)] + [np.concatenate([f.U.ravel("F"), f.s, f.V.ravel("F")])
-                                                         for f in far]),
             "near_ids": np.asarray(near, dtype=np.int64),
-            "near_data": np.concatenate([np.zeros(0)] + [self._near[b].ravel("F") for b in near]),
             "kept_ids": np.asarray(kept, dtype=np.int64),
             "kept_data": np.array([self.kept[j] for j in kept], dtype=np.float64).reshape(len(kept), self.shape[0]),
         }
         path = Path(path)
         with replacing(path) as tmp, open(tmp, "wb") as fh:
-            np.savez(fh, **arrays)
+            with zipfile.ZipFile(fh, "w", zipfile.ZIP_STORED, allowZip64=True) as z:  # np.savez's layout
+                for name, x in arrays.items():
+                    with z.open(f"{name}.npy", "w", force_zip64=True) as f:
+                        np.lib.format.write_array(f, np.asanyarray(x), allow_pickle=False)
+                for name, parts in pieces.items():
+                    with z.open(f"{name}.npy", "w", force_zip64=True) as f:
+                        _write_concatenated(f, parts)
             fh.flush()
             os.fsync(fh.fileno())
         return True
@@ -336,35 +354,41 @@ class StreamedH:
         """
         if self.columns_seen != self.shape[1]:
             raise ValueError(f"{self.columns_seen} of D's {self.shape[1]} columns were delivered")
-        table: list[tuple[int, ...]] = []
-        chunks: list[np.ndarray] = []
-        offset = 0
-
-        def put(b: int, k: int, *arrays: np.ndarray) -> None:
-            nonlocal offset
-            r0, r1, c0, c1 = (int(x) for x in self.ranges[b])
-            table.append((r0, r1, c0, c1, k, offset))
-            for x in arrays:
-                chunks.append(np.asarray(x, dtype=np.float64).ravel(order="F"))
-                offset += x.size
-
-        dense_far: dict[int, np.ndarray] = {}
-        for b in range(self.n_far):  # factored far blocks first, as compress() stores them
+        # the layout first (factored far blocks, then the dense ones: far before near), then the numbers
+        # into one array block by block, each block's state freed as it is copied: H is held once
+        plan: list[tuple[int, int]] = []  # (block, rank k; -1: dense)
+        dense: list[int] = []
+        for b in range(self.n_far):
             f = self._far[b]
-            left = max(self.tol * np.sqrt(f.norm2) - f.dropped, 0.0)
-            k = _truncate(f.s, left)
+            k = _truncate(f.s, max(self.tol * np.sqrt(f.norm2) - f.dropped, 0.0))
             m, n = f.U.shape[0], f.V.shape[0]
-            X = f.U[:, :k] * f.s[:k]
             if k * (m + n) < m * n:
-                put(b, k, X, f.V[:, :k])
+                plan.append((b, k))
             else:
-                dense_far[b] = X @ f.V[:, :k].T
-            self._far[b] = _Far(np.zeros((0, 0)), np.zeros(0), np.zeros((0, 0)), 1)  # free as we go
-        for b in range(len(self.ranges)):  # then the dense ones, far before near
+                dense.append(b)
+                self._far[b] = dataclasses.replace(f, U=f.U[:, :k], s=f.s[:k], V=f.V[:, :k])
+        plan += [(b, -1) for b in dense] + [(b, -1) for b in range(self.n_far, len(self.ranges))]
+        sizes = []
+        for b, k in plan:
+            r0, r1, c0, c1 = (int(x) for x in self.ranges[b])
+            sizes.append(k * (r1 - r0 + c1 - c0) if k >= 0 else (r1 - r0) * (c1 - c0))
+        starts = np.concatenate([[0], np.cumsum(sizes, dtype=np.int64)])
+        data = np.empty(int(starts[-1]))
+        table = []
+        for (b, k), o in zip(plan, starts[:-1].tolist()):
+            r0, r1, c0, c1 = (int(x) for x in self.ranges[b])
+            m, n = r1 - r0, c1 - c0
+            table.append((r0, r1, c0, c1, k, o))
             if b >= self.n_far:
-                put(b, -1, self._near.pop(b))
-            elif b in dense_far:
-                put(b, -1, dense_far.pop(b))
-        data = np.concatenate(chunks) if chunks else np.zeros(0)
+                data[o:o + m * n] = self._near.pop(b).ravel(order="F")
+                continue
+            f = self._far[b]
+            X = f.U[:, :f.s.size if k < 0 else k] * (f.s if k < 0 else f.s[:k])
+            if k >= 0:
+                data[o:o + m * k] = X.ravel(order="F")
+                data[o + m * k:o + k * (m + n)] = f.V[:, :k].ravel(order="F")
+            else:
+                data[o:o + m * n].reshape((m, n), order="F")[...] = X @ f.V.T
+            self._far[b] = _Far(np.zeros((0, 0)), np.zeros(0), np.zeros((0, 0)), 1)  # free as we go
         return HMatrix(self.shape, self.rd.astype(np.int64), self.cd.astype(np.int64),
                        np.asarray(table, dtype=np.int64).reshape(-1, 6), data)
