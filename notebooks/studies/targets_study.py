@@ -60,7 +60,8 @@ from hailstorm.runtime.storm.scene import Scene
 t0 = time.perf_counter()
 gf = load(sys.argv[1])
 st = run_storm(gf, Scene.default(), progress=False, keep_frames=False).stats
-print(json.dumps({"wall_s": time.perf_counter() - t0, "peak_bytes": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
+print(json.dumps({"wall_s": time.perf_counter() - t0,
+                  "peak_bytes": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss * 1024,
                   "impacts": int(st.impacts), "force_N": float(st.max_contact_force),
                   "dent_mm": 1e3 * float(st.max_indentation_m), "reads_hmatrix": bool(gf.reads_hmatrix)}))
 """
@@ -163,8 +164,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rounds", type=int, default=4, help="storm rounds per bundle (default 4)")
     ap.add_argument("--large", type=Path, default=None,
                     help="a compressed bundle of 50 000 or more contactable vertices (built with --stream)")
+    ap.add_argument("--rows", choices=("all", "default", "large"), default="all",
+                    help="the default seat's rows (1-5 and Dask), the large surface's (6), or all (default)")
     ap.add_argument("--out", type=Path, default=None, help="also write the lines there (with their header)")
     args = ap.parse_args(argv)
+    if args.rows == "large" and args.large is None:
+        ap.error("--rows large needs --large DIR")
     if args.large is not None and not (args.large / "manifest.json").is_file():
         ap.error(f"--large {args.large}: not a bundle (no manifest.json)")
     import hailstorm.runtime
@@ -184,66 +189,72 @@ def main(argv: list[str] | None = None) -> int:
 
     print("| target | measured | |\n|---|---|---|", flush=True)
     lines += ["| target | measured | |", "|---|---|---|"]
-    cost = precompute_cost(args.tol)  # first: the only child process, so its peak RSS is its own
-    seat = SeatSettings.default()
+    if args.rows in ("all", "default"):
+        cost = precompute_cost(args.tol)  # first: the only child process, so its peak RSS is its own
+        seat = SeatSettings.default()
 
-    gf, ref = seat_bundle(seat.mesh_size), seat_bundle(args.reference_size)
-    rows = seat_table(gf, ref, DEFAULT_MODEL, dent=True)
-    ref_mm = f"{args.reference_size * 1e3:g} mm"
-    spreads = []
-    for key, what in (("", "stone force at a given indentation"), ("_dent", "dent depth under the reference's force")):
-        err = np.array([[r[s + key] for s in SITES] for r in rows])
-        worst = float(np.abs(err).max())
-        spreads.append(float((err.max(axis=1) - err.min(axis=1)).max()))
-        say(f"{what} within 2 % (must 5 %) of the reference ({ref_mm}; 54 cases)",
-            f"{100 * worst:.1f} % worst, {100 * float(np.median(np.abs(err))):.1f} % median",
-            True if worst <= 0.02 else "must met, 2 % NOT MET" if worst <= 0.05 else False)
-    spread = max(spreads)
-    say("independent of where on the mesh the stone lands, within 2 %",
-        f"{100 * spreads[0]:.1f} % (force) and {100 * spreads[1]:.1f} % (dent) largest spread over "
-        "vertex/edge/centroid", spread <= 0.02)
-    block = block_bundle(mesh_size=seat.mesh_size)
-    brows = block_table(block, a_over_R=0.2) + block_table(block, a_over_R=0.4)
-    berr = np.array([[r[f"{DEFAULT_MODEL}:{s}"] for s in SITES] for r in brows])
-    bown = np.array([[r[f"{DEFAULT_MODEL}:{s}:block"] for s in SITES] for r in brows])
-    floor = max(brows, key=lambda r: abs(r["block_sphere"]))
-    bworst, bown_worst = float(np.abs(berr).max()), float(np.abs(bown).max())
-    say("press_spheres on a thick block within 2 % of Hertz (a 0.5-8 mm, a/R 0.2 and 0.4)",
-        f"{100 * bworst:.1f} % worst against Hertz; {100 * bown_worst:.1f} % worst against the block's own "
-        f"converged force for the sphere, which is itself {100 * floor['block_sphere']:+.1f} % off Hertz at "
-        f"a = {floor['a_mm']:g} mm, R = {floor['R_mm']:g} mm (the sphere's profile; the block's clamp 400 mm down)",
-        True if bworst <= 0.02 else "met against the block, NOT MET against Hertz" if bown_worst <= 0.02 else False)
-    say(f"default precompute from an empty cache <= 60 s wall (with --tol {args.tol:g})",
-        f"{cost['wall_s']:.1f} s", cost["wall_s"] <= 60)
-    say("peak memory <= 2 GiB", f"{cost['peak_GiB']:.2f} GiB (the precompute's process)", cost["peak_GiB"] <= 2)
-    say("stored compliance <= 1 GiB", f"{cost['stored_MiB']:.1f} MiB (dense {cost['dense_MiB']:.1f} MiB)",
-        cost["stored_MiB"] <= 1024)
-    with tempfile.TemporaryDirectory(dir=Path(gf.path).parent) as tmp:
-        hgf = hailstorm.runtime.load(compress_bundle(gf.path, Path(tmp) / "h", args.tol))
-        dense_t, comp_t = [], []
-        for seed in range(5):  # interleaved rounds: the machine is shared
-            dense_t += solve_times(gf, seed=seed)
-            comp_t += solve_times(hgf, seed=seed)
-        dm, cm = 1e3 * float(np.median(dense_t)), 1e3 * float(np.median(comp_t))
-        say("fresh s = 100 solve + full-surface displacement below the dense floor (1.3-1.8 ms in the issue)",
-            f"compressed ({hgf.dtype} expansion) {record.min_median_max(1e3 * np.array(comp_t), '.2f')} ms vs dense "
-            f"{record.min_median_max(1e3 * np.array(dense_t), '.2f')} ms side by side (min/median/max; point "
-            f"contacts)", True if cm < 1.3 else "met against the dense D side by side, not the issue's 1.3 ms"
-            if cm < dm else False)
-        rtf = storm_side_by_side(gf, hgf, args.rounds)
-        del hgf
-    pairs = np.array(rtf["compressed"]) / np.array(rtf["dense"])  # round by round: the machine drifts
-    say("storm 2 000 stones / 2 s / dt 0.5 ms at least as fast as the dense D, side by side",
-        f"RTF compressed {record.min_median_max(rtf['compressed'], '.2f')} vs dense "
-        f"{record.min_median_max(rtf['dense'], '.2f')} (min/median/max); compressed / dense round by round "
-        f"{record.min_median_max(pairs, '.2f')}", float(np.median(pairs)) >= 0.95)
-    same = dask_same_answer(args.tol)
-    say("the (streamed) precompute on a Dask cluster with the same answer",
-        f"default seat, --tol {args.tol:g} --stream, here and on a local cluster of {same['workers']:.0f} workers: "
-        f"largest difference {same['difference']:.1e} of the largest entry (recorded errors {same['error_serial']:.1e}"
-        f" and {same['error_dask']:.1e})", same["difference"] <= args.tol)
+        gf, ref = seat_bundle(seat.mesh_size), seat_bundle(args.reference_size)
+        rows = seat_table(gf, ref, DEFAULT_MODEL, dent=True)
+        ref_mm = f"{args.reference_size * 1e3:g} mm"
+        spreads = []
+        for key, what in (("", "stone force at a given indentation"),
+                          ("_dent", "dent depth under the reference's force")):
+            err = np.array([[r[s + key] for s in SITES] for r in rows])
+            worst = float(np.abs(err).max())
+            spreads.append(float((err.max(axis=1) - err.min(axis=1)).max()))
+            say(f"{what} within 2 % (must 5 %) of the reference ({ref_mm}; 54 cases)",
+                f"{100 * worst:.1f} % worst, {100 * float(np.median(np.abs(err))):.1f} % median",
+                True if worst <= 0.02 else "must met, 2 % NOT MET" if worst <= 0.05 else False)
+        spread = max(spreads)
+        say("independent of where on the mesh the stone lands, within 2 %",
+            f"{100 * spreads[0]:.1f} % (force) and {100 * spreads[1]:.1f} % (dent) largest spread over "
+            "vertex/edge/centroid", spread <= 0.02)
+        block = block_bundle(mesh_size=seat.mesh_size)
+        brows = block_table(block, a_over_R=0.2) + block_table(block, a_over_R=0.4)
+        berr = np.array([[r[f"{DEFAULT_MODEL}:{s}"] for s in SITES] for r in brows])
+        bown = np.array([[r[f"{DEFAULT_MODEL}:{s}:block"] for s in SITES] for r in brows])
+        floor = max(brows, key=lambda r: abs(r["block_sphere"]))
+        bworst, bown_worst = float(np.abs(berr).max()), float(np.abs(bown).max())
+        say("press_spheres on a thick block within 2 % of Hertz (a 0.5-8 mm, a/R 0.2 and 0.4)",
+            f"{100 * bworst:.1f} % worst against Hertz; {100 * bown_worst:.1f} % worst against the block's own "
+            f"converged force for the sphere, which is itself {100 * floor['block_sphere']:+.1f} % off Hertz at "
+            f"a = {floor['a_mm']:g} mm, R = {floor['R_mm']:g} mm (the sphere's profile; the block's clamp 400 mm down)",
+            True if bworst <= 0.02 else "met against the block, NOT MET against Hertz" if bown_worst <= 0.02 else False)
+        say(f"default precompute from an empty cache <= 60 s wall (with --tol {args.tol:g})",
+            f"{cost['wall_s']:.1f} s", cost["wall_s"] <= 60)
+        say("peak memory <= 2 GiB", f"{cost['peak_GiB']:.2f} GiB (the precompute's process)", cost["peak_GiB"] <= 2)
+        say("stored compliance <= 1 GiB", f"{cost['stored_MiB']:.1f} MiB (dense {cost['dense_MiB']:.1f} MiB)",
+            cost["stored_MiB"] <= 1024)
+        with tempfile.TemporaryDirectory(dir=Path(gf.path).parent) as tmp:
+            hgf = hailstorm.runtime.load(compress_bundle(gf.path, Path(tmp) / "h", args.tol))
+            dense_t, comp_t = [], []
+            for seed in range(5):  # interleaved rounds: the machine is shared
+                dense_t += solve_times(gf, seed=seed)
+                comp_t += solve_times(hgf, seed=seed)
+            dm, cm = 1e3 * float(np.median(dense_t)), 1e3 * float(np.median(comp_t))
+            say("fresh s = 100 solve + full-surface displacement below the dense floor (1.3-1.8 ms in the issue)",
+                f"compressed ({hgf.dtype} expansion) {record.min_median_max(1e3 * np.array(comp_t), '.2f')} ms "
+                f"vs dense "
+                f"{record.min_median_max(1e3 * np.array(dense_t), '.2f')} ms side by side (min/median/max; point "
+                f"contacts)", True if cm < 1.3 else "met against the dense D side by side, not the issue's 1.3 ms"
+                if cm < dm else False)
+            rtf = storm_side_by_side(gf, hgf, args.rounds)
+            del hgf
+        pairs = np.array(rtf["compressed"]) / np.array(rtf["dense"])  # round by round: the machine drifts
+        say("storm 2 000 stones / 2 s / dt 0.5 ms at least as fast as the dense D, side by side",
+            f"RTF compressed {record.min_median_max(rtf['compressed'], '.2f')} vs dense "
+            f"{record.min_median_max(rtf['dense'], '.2f')} (min/median/max); compressed / dense round by round "
+            f"{record.min_median_max(pairs, '.2f')}", float(np.median(pairs)) >= 0.95)
+        same = dask_same_answer(args.tol)
+        say("the (streamed) precompute on a Dask cluster with the same answer",
+            f"default seat, --tol {args.tol:g} --stream, here and on a local cluster of {same['workers']:.0f} workers: "
+            f"largest difference {same['difference']:.1e} of the largest entry (recorded errors "
+            f"{same['error_serial']:.1e}"
+            f" and {same['error_dask']:.1e})", same["difference"] <= args.tol)
     target = f"a {LARGE_VERTICES:,}-vertex surface precomputed and stormed within {LARGE_BUDGET_GIB:g} GiB"
-    if args.large is None:
+    if args.rows == "default":
+        pass
+    elif args.large is None:
         say(target, "not measured here (--large DIR: a bundle built with --stream; docs/scale.md)", None)
     else:
         big = large_surface(args.large)

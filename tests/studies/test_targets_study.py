@@ -50,3 +50,9 @@ def test_large_surface_reads_the_manifest_and_storms_in_a_child(tmp_path, monkey
     assert 0 < big["storm"]["peak_bytes"] / 2**30 < 24
     with pytest.raises(ValueError, match="not a compressed bundle"):
         targets_study.large_surface(seat_bundle)
+
+
+def test_rows_large_needs_a_bundle(capsys):
+    with pytest.raises(SystemExit) as exc:
+        targets_study.main(["--rows", "large"])
+    assert exc.value.code == 2 and "--rows large needs --large DIR" in capsys.readouterr().err
