@@ -184,6 +184,15 @@ def test_bad_coarsening_is_refused(bad, tmp_path):
     assert not (tmp_path / "b").exists()
 
 
+def test_cli_refuses_a_bad_coarsening_in_one_line(tmp_path, capsys):
+    from hailstorm.cli import main
+
+    assert main(["precompute", "--coarsening", "0.5", "--out", str(tmp_path / "b")]) == 3
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "coarsening must be a number of mesh sizes of at least 1, got 0.5" in err[0]
+    assert not (tmp_path / "b").exists()
+
+
 def test_coarsening_is_refused_with_a_ready_mesh(tmp_path, small_box):
     with pytest.raises(ValueError, match="ready mesh"):
         build_bundle(tmp_path / "b", mesh=small_box, coarsening=5)
