@@ -383,12 +383,11 @@ class StreamedH:
                 data[o:o + m * n] = self._near.pop(b).ravel(order="F")
                 continue
             f = self._far[b]
-            X = f.U[:, :f.s.size if k < 0 else k] * (f.s if k < 0 else f.s[:k])
-            if k >= 0:
-                data[o:o + m * k] = X.ravel(order="F")
+            if k >= 0:  # factored: X = U s, then V
+                data[o:o + m * k] = (f.U[:, :k] * f.s[:k]).ravel(order="F")
                 data[o + m * k:o + k * (m + n)] = f.V[:, :k].ravel(order="F")
-            else:
-                data[o:o + m * n].reshape((m, n), order="F")[...] = X @ f.V.T
+            else:  # a far block stored dense (its factors truncated above)
+                data[o:o + m * n].reshape((m, n), order="F")[...] = (f.U * f.s) @ f.V.T
             self._far[b] = _Far(np.zeros((0, 0)), np.zeros(0), np.zeros((0, 0)), 1)  # free as we go
         return HMatrix(self.shape, self.rd.astype(np.int64), self.cd.astype(np.int64),
                        np.asarray(table, dtype=np.int64).reshape(-1, 6), data)

@@ -165,8 +165,9 @@ def main(argv: list[str] | None = None) -> int:
         print(text, flush=True)
         lines.append(text)
 
-    emit(f"hailstorm precompute --mesh-size {args.mesh_size} --order {args.order} --load {args.load} "
-         f"--tol {args.tol:g} {' '.join(EXTRA)} [--stream], each in a fresh process and folder".replace("  ", " "))
+    options = " ".join([f"--mesh-size {args.mesh_size} --order {args.order} --load {args.load} --tol {args.tol:g}",
+                        *EXTRA, "[--stream]"])
+    emit(f"hailstorm precompute {options}, each in a fresh process and folder")
     emit()
     emit("| route | D rows x columns | dofs | wall s | solve s | peak memory GiB | peak disk GiB | stored MiB | "
          "dense GiB | max rank | column error max (200 cols) | median |")
