@@ -156,6 +156,27 @@ def storm_side_by_side(dense: Any, compressed: Any, rounds: int = 2, scene: Any 
     return out
 
 
+def _large_row(large: Path | None, say: Any) -> None:
+    """The 50 000-vertex target's row from the bundle at ``large`` (``None``: not measured)."""
+    target = f"a {LARGE_VERTICES:,}-vertex surface precomputed and stormed within {LARGE_BUDGET_GIB:g} GiB"
+    if large is None:
+        say(target, "not measured here (--large DIR: a bundle built with --stream; docs/scale.md)", None)
+    else:
+        big = large_surface(large)
+        st = big["storm"]
+        build_peak = "not recorded in its manifest (see the build's own record)" if big["build_peak_GiB"] is None \
+            else f"at {big['build_peak_GiB']:.2f} GiB"
+        peaks = [st["peak_bytes"] / 2**30] + ([] if big["build_peak_GiB"] is None else [big["build_peak_GiB"]])
+        fits = all(p <= LARGE_BUDGET_GIB for p in peaks) and big["contactable"] >= LARGE_VERTICES
+        say(target, f"{big['contactable']:,} contactable vertices ({big['source']}; {big['n_dofs']:,} dofs; D "
+            f"{big['shape'][0]:,} x {big['shape'][1]:,}, {big['dense_GiB']:.0f} GiB dense): solved in "
+            f"{big['solve_s']:.0f} s {build_peak}, stored {big['stored_MiB']:.0f} MiB (error {big['error_max']:.1e}"
+            f" at --tol {big['tol']:g}); default storm {st['wall_s']:.1f} s at {st['peak_bytes'] / 2**30:.2f} GiB "
+            f"({st['impacts']} impacts, {st['force_N']:.1f} N, {st['dent_mm']:.2f} mm; D read "
+            f"{'compressed' if st['reads_hmatrix'] else 'expanded'})",
+            fits if big["build_peak_GiB"] is not None or not fits else "storm met; build peak not recorded")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(prog="python -m hailstorm.studies.targets_study", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -251,25 +272,8 @@ def main(argv: list[str] | None = None) -> int:
             f"largest difference {same['difference']:.1e} of the largest entry (recorded errors "
             f"{same['error_serial']:.1e}"
             f" and {same['error_dask']:.1e})", same["difference"] <= args.tol)
-    target = f"a {LARGE_VERTICES:,}-vertex surface precomputed and stormed within {LARGE_BUDGET_GIB:g} GiB"
-    if args.rows == "default":
-        pass
-    elif args.large is None:
-        say(target, "not measured here (--large DIR: a bundle built with --stream; docs/scale.md)", None)
-    else:
-        big = large_surface(args.large)
-        st = big["storm"]
-        build_peak = "not recorded in its manifest (see the build's own record)" if big["build_peak_GiB"] is None \
-            else f"at {big['build_peak_GiB']:.2f} GiB"
-        peaks = [st["peak_bytes"] / 2**30] + ([] if big["build_peak_GiB"] is None else [big["build_peak_GiB"]])
-        fits = all(p <= LARGE_BUDGET_GIB for p in peaks) and big["contactable"] >= LARGE_VERTICES
-        say(target, f"{big['contactable']:,} contactable vertices ({big['source']}; {big['n_dofs']:,} dofs; D "
-            f"{big['shape'][0]:,} x {big['shape'][1]:,}, {big['dense_GiB']:.0f} GiB dense): solved in "
-            f"{big['solve_s']:.0f} s {build_peak}, stored {big['stored_MiB']:.0f} MiB (error {big['error_max']:.1e}"
-            f" at --tol {big['tol']:g}); default storm {st['wall_s']:.1f} s at {st['peak_bytes'] / 2**30:.2f} GiB "
-            f"({st['impacts']} impacts, {st['force_N']:.1f} N, {st['dent_mm']:.2f} mm; D read "
-            f"{'compressed' if st['reads_hmatrix'] else 'expanded'})",
-            fits if big["build_peak_GiB"] is not None or not fits else "storm met; build peak not recorded")
+    if args.rows != "default":
+        _large_row(args.large, say)
     if args.out:
         record.write_run(args.out, record.command("python -m hailstorm.studies.targets_study", argv), stamp, lines)
     return 0
