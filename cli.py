@@ -53,7 +53,6 @@ def _float(text: str) -> float:
 
 def _parser() -> argparse.ArgumentParser:
     from hailstorm.precompute.fem import DEFAULT_POISSON, DEFAULT_YOUNG  # noqa: PLC0415 (cheap module)
-    from hailstorm.precompute.geometry import DEFAULT_COARSENING  # noqa: PLC0415
     from hailstorm.precompute.greens import SOLVER_SPECS
 
     p = argparse.ArgumentParser(
@@ -77,9 +76,9 @@ def _parser() -> argparse.ArgumentParser:
     pre.add_argument("--volume-size", type=_positive_float, default=None, metavar="H",
                      help="volume grading of a meshed geometry: tetrahedra inside the body at most H metres "
                      "(at most --mesh-size) under the same surface mesh; D and the runtime's cost stay the same")
-    pre.add_argument("--coarsening", type=_float, default=DEFAULT_COARSENING, metavar="C",
+    pre.add_argument("--coarsening", type=_float, default=seat.coarsening, metavar="C",
                      help="elements of a meshed geometry grow to C times --mesh-size away from the hail-facing "
-                     f"surface (default {DEFAULT_COARSENING:g}; at least 1); a larger C keeps the surface mesh and "
+                     f"surface (default {seat.coarsening:g}: the default seat's; at least 1); a larger C keeps the surface mesh and "
                      "cuts the volume's vertices, the factor and the precompute's time on a thin pad")
     pre.add_argument("--young", type=_float, default=None,
                      help=f"Young's modulus in Pa of a one-material body (default {DEFAULT_YOUNG:g})")
@@ -266,8 +265,8 @@ def _run_storm(args: argparse.Namespace) -> int:
         if not args.quiet:
             print(f"default seat: building or reusing the cached bundle (mesh size {seat.mesh_size} m)...")
         gf_path = build_bundle(None, mesh_size=seat.mesh_size, order=seat.order, load=seat.load,
-                               volume_size=seat.volume_size, young=seat.young, poisson=seat.poisson,
-                               progress=not args.quiet)
+                               volume_size=seat.volume_size, coarsening=seat.coarsening, young=seat.young,
+                               poisson=seat.poisson, progress=not args.quiet)
     gf = load(gf_path)
     if args.gf is not None:
         _warn_seat_ignored(args, seat, gf)
@@ -305,12 +304,15 @@ def _warn_seat_ignored(args: argparse.Namespace, seat: Any, gf: Any) -> None:
     """With --gf the bundle is the seat: say so if the scene file asked for another one."""
     import tomllib
 
+    from hailstorm.precompute.geometry import DEFAULT_COARSENING
+
     if args.scene is None or not isinstance(tomllib.loads(args.scene.read_text()).get("seat"), dict):
         return
     m = gf.manifest
     opts = m.get("options", {})
     have = {"mesh_size": opts.get("mesh_size"), "order": gf.order, "load": opts.get("load", "point"),
-            "volume_size": opts.get("volume_size"), "young": gf.young, "poisson": gf.poisson}
+            "volume_size": opts.get("volume_size"), "coarsening": opts.get("coarsening", DEFAULT_COARSENING),
+            "young": gf.young, "poisson": gf.poisson}
     differ = [f"{k} = {getattr(seat, k)!r} (bundle: {v!r})" for k, v in have.items() if v != getattr(seat, k)]
     if differ:
         logging.getLogger("hailstorm").warning(

@@ -538,6 +538,9 @@ class SeatSettings(_Section):
         Volume grading [m]: tetrahedra inside the pad at most this size under
         the same surface mesh (``hailstorm precompute --volume-size``; at most
         ``mesh_size``). None (the key left out): no grading.
+    coarsening : float
+        How far the volume's elements grow away from the top, in mesh sizes
+        (``hailstorm precompute --coarsening``; at least 1, default 2.5).
     young, poisson : float
         Material [Pa], [-].
     """
@@ -548,6 +551,7 @@ class SeatSettings(_Section):
     order: int = 2
     load: str = "hat"
     volume_size: float | None = None
+    coarsening: float = 2.5
     young: float = 2.0e6
     poisson: float = 0.35
 
@@ -563,6 +567,8 @@ class SeatSettings(_Section):
             if self.volume_size > self.mesh_size:
                 raise SceneError(f"volume_size ({self.volume_size!r} m) must not exceed mesh_size "
                                  f"({self.mesh_size!r} m): it refines the volume under the same surface")
+        if not self.coarsening >= 1 or not math.isfinite(self.coarsening):
+            raise SceneError(f"coarsening must be a number of mesh sizes of at least 1, got {self.coarsening!r}")
         if isinstance(self.poisson, bool) or not isinstance(self.poisson, (int, float)) or not -1.0 < self.poisson < 0.5:
             raise SceneError(f"poisson must satisfy -1 < poisson < 0.5, got {self.poisson!r}")
 

@@ -179,3 +179,38 @@ def test_precompute_stream_without_tol_is_one_line_exit_3(tmp_path):
     assert run.returncode == 3, run.stderr
     assert run.stderr.count("\n") == 1 and "--stream needs --tol" in run.stderr
     assert not (tmp_path / "b").exists()
+
+
+def test_scene_seat_coarsening_reaches_the_default_seat_build(tmp_path, monkeypatch):
+    """`[seat] coarsening` is the default seat's precompute setting: passed to build_bundle as read."""
+    from hailstorm import cli
+    from hailstorm.precompute import pipeline
+
+    seen = {}
+
+    class Stop(Exception):
+        pass
+
+    def fake_build(*args, **kw):
+        seen.update(kw)
+        raise Stop
+
+    monkeypatch.setattr(pipeline, "build_bundle", fake_build)
+    scene = tmp_path / "scene.toml"
+    scene.write_text("[seat]\ncoarsening = 5.0\n")
+    with pytest.raises(Stop):
+        cli.main(["-q", "storm", "--scene", str(scene), "--out", str(tmp_path / "o"), "--no-video"])
+    assert seen["coarsening"] == 5.0 and seen["mesh_size"] == 0.006
+    scene.write_text("[seat]\nmesh_size = 0.004\n")  # left out: the packaged default
+    with pytest.raises(Stop):
+        cli.main(["-q", "storm", "--scene", str(scene), "--out", str(tmp_path / "o"), "--no-video"])
+    assert seen["coarsening"] == 2.5 and seen["mesh_size"] == 0.004
+
+
+@pytest.mark.parametrize("value", ["0.5", "'wide'", "nan"])
+def test_scene_seat_bad_coarsening_is_one_line_exit_3(tmp_path, value):
+    scene = tmp_path / "scene.toml"
+    scene.write_text(f"[seat]\ncoarsening = {value}\n")
+    run = run_cli("storm", "--scene", scene, "--out", tmp_path / "o", check=False)
+    assert run.returncode == 3 and "coarsening" in run.stderr and "Traceback" not in run.stderr
+    assert len(run.stderr.strip().splitlines()) == 1 and not (tmp_path / "o").exists()

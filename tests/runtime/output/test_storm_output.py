@@ -157,12 +157,13 @@ def test_disk_estimate_bounds_the_written_output(seat_bundle, tmp_path):
 def test_summary_records_the_seat_the_bundle_was_computed_for(seat_bundle, tmp_path, caplog):
     """With --gf the scene's [seat] is not used: the summary says what was, and a warning says so."""
     scene = tmp_path / "scene.toml"
-    scene.write_text("[seat]\nmesh_size = 0.004\norder = 2\n")
+    scene.write_text("[seat]\nmesh_size = 0.004\norder = 2\ncoarsening = 5.0\n")
     out = tmp_path / "run"
     assert main(["storm", "--gf", str(seat_bundle), "--scene", str(scene), "--duration", "0.01", "--stones", "1",
                  "--out", str(out), "--no-video"]) == 0
     err = " ".join(r.getMessage() for r in caplog.records if r.levelno == logging.WARNING)
     assert "[seat] settings are ignored with --gf" in err and "mesh_size = 0.004" in err
+    assert "coarsening = 5.0 (bundle: 2.5)" in err
     s = json.loads((out / "summary.json").read_text())
     manifest = json.loads((Path(seat_bundle) / "manifest.json").read_text())
     assert s["scene"]["seat"] == {"mesh_size": 0.015, "order": 1, "young": manifest["material"]["young"],
