@@ -78,8 +78,8 @@ def _parser() -> argparse.ArgumentParser:
                      "(at most --mesh-size) under the same surface mesh; D and the runtime's cost stay the same")
     pre.add_argument("--coarsening", type=_float, default=seat.coarsening, metavar="C",
                      help="elements of a meshed geometry grow to C times --mesh-size away from the hail-facing "
-                     f"surface (default {seat.coarsening:g}: the default seat's; at least 1); a larger C keeps the surface mesh and "
-                     "cuts the volume's vertices, the factor and the precompute's time on a thin pad")
+                     f"surface (default {seat.coarsening:g}: the default seat's; at least 1); a larger C keeps the "
+                     "surface mesh and cuts the volume's vertices, the factor and the precompute's time on a thin pad")
     pre.add_argument("--young", type=_float, default=None,
                      help=f"Young's modulus in Pa of a one-material body (default {DEFAULT_YOUNG:g})")
     pre.add_argument("--poisson", type=_float, default=None,

@@ -568,7 +568,8 @@ class SeatSettings(_Section):
                 raise SceneError(f"volume_size ({self.volume_size!r} m) must not exceed mesh_size "
                                  f"({self.mesh_size!r} m): it refines the volume under the same surface")
         if not self.coarsening >= 1 or not math.isfinite(self.coarsening):
-            raise SceneError(f"coarsening must be a number of mesh sizes of at least 1, got {self.coarsening!r}")
+            raise SceneError(f"coarsening must be a number of mesh sizes of at least 1, "
+                             f"got {self.coarsening!r}")
         if isinstance(self.poisson, bool) or not isinstance(self.poisson, (int, float)) or not -1.0 < self.poisson < 0.5:
             raise SceneError(f"poisson must satisfy -1 < poisson < 0.5, got {self.poisson!r}")
 
