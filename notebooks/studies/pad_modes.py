@@ -284,15 +284,11 @@ def one_force_impact(mesh: PadMesh, radius: float, speed: float, patch_radius: f
 
 
 @dataclass(frozen=True)
-class OneForceRow:
-    """One stone: the peer's :class:`~hailstorm.studies.dynamic_study.Row`, the patch's radius [m] and,
-    per mode count, the one-force model's inertia ratios against the peer's, minus 1, per measure."""
+class OneForceRow(ModalRow):
+    """A :class:`ModalRow` of the one-force model: its ``errors`` are its inertia ratios against the
+    peer's, minus 1, per measure; ``patch_radius`` the Hertz pressure's radius [m]."""
 
-    row: Row
     patch_radius: float
-    counts: tuple[int, ...]
-    frequencies: tuple[float, ...]
-    errors: tuple[dict[str, float], ...]
 
 
 def one_force_rows(pad: Any, radii: Sequence[float], counts: Sequence[int] = COUNTS, *,
@@ -320,8 +316,8 @@ def one_force_rows(pad: Any, radii: Sequence[float], counts: Sequence[int] = COU
             own = impact_errors(one_force_impact(mesh, R, v, a, cut, **kw), qs)
             errs.append({k: (1.0 + own[k]) / (1.0 + peer[k]) - 1.0 for k in own})
             freqs.append(cut.max_frequency)
-        out.append(OneForceRow(row=row, patch_radius=a, counts=tuple(counts), frequencies=tuple(freqs),
-                               errors=tuple(errs)))
+        out.append(OneForceRow(row=row, counts=tuple(counts), frequencies=tuple(freqs), errors=tuple(errs),
+                               patch_radius=a))
     return out
 
 
