@@ -95,9 +95,9 @@ def _parser() -> argparse.ArgumentParser:
                      "CHOLMOD's general solve, SuperLU, or AMG-preconditioned CG for huge meshes")
     pre.add_argument("--amg-tol", type=_positive_float, default=1e-10, help="relative residual of the AMG solver")
     pre.add_argument("--tol", type=_float, default=None, metavar="T",
-                     help="store D compressed (an H-matrix, format 3) with every column within relative error T "
-                     "of the exact one (1e-12 to 0.1; measured on 200 exact columns, shown by `hailstorm info`); "
-                     "default: D dense")
+                     help="store D compressed (an H-matrix, format 3) whose columns are within relative error T "
+                     "of the exact ones on 200 exact columns drawn at random (1e-12 to 0.1; the error is shown by "
+                     "`hailstorm info`); default: D dense")
     pre.add_argument("--stream", action="store_true",
                      help="with --tol: compress D as its columns are solved, never holding it whole (for surfaces "
                      "whose dense D would not fit; an interrupted run resumes from its checkpoint)")

@@ -67,8 +67,8 @@ __all__ = [
 
 log = logging.getLogger("hailstorm.precompute")
 
-#: admissibility of the stored H-matrix: 4.5-11x fewer numbers than D on the seat at 6-3 mm,
-#: every column within 1 % (docs/_generated/compression_*.txt)
+#: admissibility of the stored H-matrix: 4.9-14.5x fewer numbers than D on the seat at 6-3 mm
+#: at tol 1e-2, columns within 0.3-1.0 % (docs/_generated/compression_*.txt)
 DEFAULT_ETA = 2.0
 #: vertices per leaf cluster (96 dofs): the near blocks stay small, the tree shallow
 DEFAULT_LEAF = 32
@@ -495,7 +495,7 @@ class Compressed:
 
 def compress_compliance(gf: GreensFunctions, tol: float, *, eta: float = DEFAULT_ETA, leaf: int = DEFAULT_LEAF,
                         columns: int = ERROR_COLUMNS, seed: int = 0, progress: bool = False) -> Compressed:
-    """The H-matrix of a bundle's D whose columns are within ``tol`` of D's.
+    """The H-matrix of a bundle's D whose columns sampled are within ``tol`` of D's.
 
     Rows are clustered over every surface vertex, columns over the contactable
     ones (:func:`cluster_tree`, :func:`admissible_blocks`); the far blocks are
@@ -572,7 +572,7 @@ def compress_bundle(src: str | os.PathLike, out: str | os.PathLike, tol: float, 
     out
         Where to write (may be ``src``: replaced atomically once the copy is complete).
     tol
-        Target relative error of every column of D (:data:`TOL_RANGE`).
+        Target relative error of D's columns, met on the columns sampled (:data:`TOL_RANGE`).
     key
         The copy's cache key (default: the SHA-256 of the source's key and ``tol``).
     seed

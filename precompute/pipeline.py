@@ -276,9 +276,9 @@ def build_bundle(
         key (float64 adds nothing to it: the keys of float64 bundles stay as
         they were).
     compress_tol
-        Store D compressed, as an H-matrix whose every column is within this
-        relative error of the exact one (:func:`hailstorm.precompute.hmatrix.compress_bundle`:
-        measured on 200 exact columns drawn at random, recorded in the
+        Store D compressed, as an H-matrix whose columns are within this
+        relative error of the exact ones on 200 exact columns drawn at random
+        (:func:`hailstorm.precompute.hmatrix.compress_bundle`; the error is recorded in the
         manifest's ``compliance``; format 3). The dense bundle is computed
         first (and reused if ``out`` holds it), then replaced by its compressed
         copy. ``None`` (default): D dense. Needs ``dtype="float64"``.
