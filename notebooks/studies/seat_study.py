@@ -168,7 +168,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     ap.add_argument("--shell", action="store_true", help="also measure the elastic shell's effect")
     ap.add_argument("--shell-young", type=float, default=SHELL_MATERIAL[0],
                     help=f"shell Young's modulus [Pa] (default {SHELL_MATERIAL[0]:g}, nylon 6; carbon-fibre laminate ~5e10)")
+    ap.add_argument("--out", default=None, metavar="FILE", help="also write the output there (with its header)")
     args = ap.parse_args(argv)
+    if args.out is None:
+        _run(args)
+    else:
+        from hailstorm.studies import record
+
+        record.whole_output(args.out, "python -m hailstorm.studies.seat_study", sys.argv[1:] if argv is None
+                            else list(argv), lambda: _run(args))
+    return 0
+
+
+def _run(args: argparse.Namespace) -> None:
     t0 = time.perf_counter()
     pad = mesh_default_seat(args.mesh_size)
     rigid = measure(pad, args.order, DEFAULT_YOUNG, DEFAULT_POISSON)
@@ -190,7 +202,6 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"{r.name:<8} {1 - r.mean_disc / e.mean_disc:>28.2%} {1 - r.mean_hertz / e.mean_hertz:>18.2%}"
                   f"   {e.ratio:>10.3f}")
     print(f"({time.perf_counter() - t0:.1f} s)")
-    return 0
 
 
 if __name__ == "__main__":
