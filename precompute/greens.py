@@ -6,7 +6,7 @@ K_ff u = e_(j,d), read at the output dofs. Four solvers share one interface
 (:func:`compliance_matrix`):
 
 ``"supernodal"`` (default)
-    Sparse Cholesky of K_ff (SciPy's SuperLU in symmetric mode, METIS's nested dissection)
+    Sparse Cholesky of K_ff (SciPy's SuperLU in symmetric mode, minimum degree)
     arranged in supernodes, and triangular solves pruned for what a column of D
     is: a unit force (the forward solve follows only the elimination-tree paths
     of a batch's loads) read at the surface (the backward solve skips the
@@ -39,7 +39,7 @@ import scipy.sparse as sp
 
 from hailstorm.precompute.fem import free_dofs
 from hailstorm.precompute.resources import DEFAULT_STORE_BYTES
-from hailstorm.precompute.supernodal import DEFAULT_BATCH, SupernodalSolver
+from hailstorm.precompute.supernodal import DEFAULT_BATCH, PatternError, SupernodalSolver
 
 _log = logging.getLogger(__name__)
 
@@ -158,6 +158,9 @@ def factorize(A: sp.spmatrix, solver: str = "supernodal", *, near_null: np.ndarr
     try:
         return spec.build(A, near_null=near_null, tol=tol, threads=threads,
                           batch=spec.batch if batch is None else int(batch))
+    except PatternError as exc:  # the supernodal factor's pattern check (e.g. a 1e18 stiffness contrast)
+        _log.info("supernodal solver: %s; using CHOLMOD (cholespy) instead", exc)
+        return factorize(A, "cholmod", near_null=near_null, tol=tol, threads=threads)
     except np.linalg.LinAlgError as exc:
         # a Cholesky factor that meets a non-positive pivot on an SPD matrix: rounding at an extreme
         # stiffness contrast (materials and clamps are checked before the solve); LU pivots its way

@@ -15,12 +15,9 @@ have in common:
   solves on a batch are matrix products (BLAS ``dgemm``, the diagonal blocks'
   triangular solves as products with their inverses).
 
-The factor is SciPy's SuperLU in symmetric mode on K in METIS's nested-dissection
-order (:func:`nested_dissection`, through pymetis; no pivoting: ``P K Pᵀ = L diag(d)
-Lᵀ`` with a unit-diagonal L, here scaled to ``L diag(√d)``), so nnz(L) is the
-factor's own count, not a proxy. Nested dissection leaves a smaller factor than
-SuperLU's minimum degree on A + Aᵀ as the mesh grows (on the default seat's P2
-stiffness 4 % fewer entries at 6 mm, 20 % at 3 mm). Its
+The factor is SciPy's SuperLU in symmetric mode (minimum degree on A + Aᵀ, no
+pivoting: ``P K Pᵀ = L diag(d) Lᵀ`` with a unit-diagonal L, here scaled to
+``L diag(√d)``), so nnz(L) is the factor's own count, not a proxy. Its
 columns are renumbered in a postorder of the elimination tree (the same
 factor, chains of columns made consecutive) and cut into relaxed supernodes
 (:data:`RELAX`, as CHOLMOD's supernodal analysis does: a narrow supernode
@@ -101,6 +98,12 @@ class SupernodalFactor:
         return int(np.sum(nc * nc + 2 * nc * mb))
 
 
+class PatternError(np.linalg.LinAlgError):
+    """The factor's sparsity pattern cannot be recovered (entries cancelled to exact
+    zeros and the generic-valued refactorisation ordered differently, e.g. a 1e18
+    stiffness contrast); :func:`hailstorm.precompute.greens.factorize` then uses CHOLMOD."""
+
+
 def supernodal_factor(A: sp.spmatrix) -> SupernodalFactor:
     """Factorize the SPD ``A`` (SuperLU, symmetric mode) and arrange L in supernodes.
 
@@ -108,15 +111,22 @@ def supernodal_factor(A: sp.spmatrix) -> SupernodalFactor:
     ------
     numpy.linalg.LinAlgError
         ``A`` is not positive definite (a pivot is not positive).
+    PatternError
+        The factor's pattern cannot be recovered (see :class:`PatternError`).
     """
     from hailstorm.precompute.supernodal_kernels import gather_panels, pattern_is_closed  # compiled
 
     A = sp.csc_matrix(A)
     n = A.shape[0]
-    perm = np.argsort(nested_dissection(A)).astype(np.int64)  # the position in L of each dof
-    L, d = _superlu(A, perm)
+    lu = _superlu(A)
+    if not np.array_equal(lu.perm_r, lu.perm_c):  # pragma: no cover (SPD input never pivots)
+        raise np.linalg.LinAlgError("the factorization pivoted: the matrix is not positive definite")
+    d = lu.U.diagonal()
     if not np.all(d > 0):
         raise np.linalg.LinAlgError("the matrix is not positive definite (a non-positive pivot)")
+    L = lu.L.tocsc()
+    perm = lu.perm_c.astype(np.int64)
+    del lu
     L.sort_indices()
     if not pattern_is_closed(L.indptr.astype(np.int64), L.indices.astype(np.int64), np.full(n, -1)):
         L = _with_symbolic_pattern(L, A, perm)  # exact zeros were left out (e.g. Poisson's ratio 0)
@@ -165,61 +175,27 @@ def supernodal_factor(A: sp.spmatrix) -> SupernodalFactor:
     return SupernodalFactor(perm, start, parent.astype(np.int64), rows, roff, below, boff, dinv, doff, col_sn, nnz)
 
 
-def nested_dissection(A: sp.spmatrix) -> np.ndarray:
-    """A fill-reducing ordering of the symmetric ``A``: METIS's nested dissection of its graph.
-
-    The graph is ``A``'s pattern (both triangles, without the diagonal), not its values, so
-    two matrices of one pattern get one ordering.
-
-    Parameters
-    ----------
-    A : (n, n) sparse matrix
-
-    Returns
-    -------
-    (n,) int64 ndarray
-        ``order``: ``A[order][:, order]`` is ``A`` reordered (``order[k]`` the row of ``A`` that
-        comes k-th).
-    """
-    import pymetis
-
-    S = sp.csr_matrix(A)
-    n = S.shape[0]
-    G = sp.csr_matrix((np.ones(S.indices.size), S.indices, S.indptr), shape=S.shape)
-    G = (G + G.T).tocsr()
-    G.setdiag(0)
-    G.eliminate_zeros()
-    if n < 3 or G.nnz == 0:  # nothing to dissect
-        return np.arange(n, dtype=np.int64)
-    G.sort_indices()
-    order, _ = pymetis.nested_dissection(adjacency=pymetis.CSRAdjacency(G.indptr, G.indices))
-    return np.asarray(order, dtype=np.int64)
-
-
-def _superlu(A: sp.csc_matrix, perm: np.ndarray) -> tuple[sp.csc_matrix, np.ndarray]:
-    """SuperLU in symmetric mode on ``A`` with row and column ``i`` at position ``perm[i]``, diagonal
-    pivots: ``(L, d)``, a Cholesky factor as ``L diag(d) Lᵀ`` for an SPD ``A``."""
+def _superlu(A: sp.csc_matrix):
+    """SuperLU in symmetric mode: minimum degree on A + Aᵀ, diagonal pivots (a Cholesky factor
+    as L diag(d) Lᵀ for an SPD ``A``)."""
     from scipy.sparse.linalg import splu
 
-    order = np.empty_like(perm)
-    order[perm] = np.arange(perm.size)
-    lu = splu(sp.csc_matrix(A[order][:, order]), permc_spec="NATURAL", diag_pivot_thresh=0.0,
-              options={"SymmetricMode": True})
-    if not (np.array_equal(lu.perm_c, np.arange(perm.size)) and np.array_equal(lu.perm_r, lu.perm_c)):
-        # pragma: no cover (NATURAL keeps the order, and SPD input never pivots)
-        raise np.linalg.LinAlgError("the factorization pivoted: the matrix is not positive definite")
-    return lu.L.tocsc(), lu.U.diagonal()
+    return splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True})
 
 
 def _with_symbolic_pattern(L: sp.csc_matrix, A: sp.csc_matrix, perm: np.ndarray) -> sp.csc_matrix:
     """``L`` on the full Cholesky pattern of its ordering, the entries it left out (exact zeros)
     stored as zeros: the pattern is that of the factor of a matrix with A's pattern and generic
-    values (symmetric, diagonally dominant: no cancellation) in the same order."""
+    values (symmetric, diagonally dominant: no cancellation), which SuperLU orders the same way."""
     G = sp.csc_matrix(A, copy=True)
     G.data = np.random.default_rng(0).uniform(0.5, 1.0, G.data.size)
     G = (G + G.T).tocsc()
     G.setdiag(np.asarray(abs(G).sum(axis=1)).ravel() + 1.0)
-    full, _ = _superlu(G, perm)  # the same ordering: the pattern of A's Cholesky factor, nothing cancelled
+    lu = _superlu(G)
+    if not np.array_equal(lu.perm_c, perm):  # pragma: no cover (the ordering depends on the pattern only)
+        raise PatternError("cannot recover the factor's pattern: the ordering changed")
+    full = lu.L.tocsc()
+    del lu
     full.sort_indices()
     n = L.shape[0]
     key = lambda M: np.repeat(np.arange(n, dtype=np.int64), np.diff(M.indptr)) * n + M.indices  # noqa: E731

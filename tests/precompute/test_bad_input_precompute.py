@@ -605,6 +605,30 @@ def _contrast_box(contrast: float):
     return mesh, {"soft": (1e6, 0.3), "hard": (1e6 * contrast, 0.3)}
 
 
+def test_supernodal_falls_back_to_cholmod_when_the_pattern_cannot_be_recovered(tmp_path, monkeypatch, caplog):
+    """A 1e18 stiffness contrast can cancel factor entries to exact zeros whose pattern the
+    supernodal solver cannot recover ("the ordering changed"; forced here, the failure
+    depends on the rounding): the bundle is built with CHOLMOD instead, with a one-line
+    note, and its D is splu's (to the conditioning's rounding: relative 1e-6 of max |D|
+    at this contrast)."""
+    import hailstorm.precompute.supernodal as supernodal
+    from hailstorm.precompute.supernodal import PatternError
+
+    def refuse(A):
+        raise PatternError("cannot recover the factor's pattern: the ordering changed")
+
+    mesh, mats = _contrast_box(1e18)
+    ref = load(build_bundle(tmp_path / "splu", mesh=mesh, materials=mats, solver="splu"))
+    monkeypatch.setattr(supernodal, "supernodal_factor", refuse)
+    with caplog.at_level(logging.INFO, logger="hailstorm.precompute.greens"):
+        gf = load(build_bundle(tmp_path / "sn", mesh=mesh, materials=mats, solver="supernodal"))
+    notes = [r.getMessage() for r in caplog.records if "using CHOLMOD" in r.getMessage()]
+    assert len(notes) == 1 and "cannot recover the factor's pattern" in notes[0], caplog.text
+    D, R = np.asarray(gf.D), np.asarray(ref.D)
+    assert np.abs(D - R).max() <= 1e-6 * np.abs(R).max()
+
+
+
 @pytest.mark.parametrize("where", ["supernodal", "cholmod"])
 def test_a_non_positive_pivot_falls_back_to_lu(tmp_path, monkeypatch, caplog, where):
     """At a 1e18 stiffness contrast a Cholesky factor can meet a non-positive pivot on an SPD

@@ -79,12 +79,11 @@ def test_cluster_gives_the_serial_D(tmp_path, small_box, cluster, serial, monkey
     assert stats["workers"] == 2 and sorted(written) == list(range(stats["blocks"]))
     # K_ff factorized once per worker, not once per block
     assert stats["blocks"] == 10 and stats["factorizations"] <= 2
-    # the workers' factor reports its nnz(L) and their sweeps their operations, pruned as the serial
-    # run's (one thread each, so batched differently from the serial run's two: the pruned counts
-    # differ a little, +10 % measured on this box)
+    # the workers' factor reports its nnz(L) and their sweeps their operations (one thread each, so
+    # batched differently from the serial run's two: the pruned counts differ a little)
     here = serial.manifest["solve_stats"]
     assert stats["nnz_L"] == here["nnz_L"] and stats["full_solve_flops"] == here["full_solve_flops"]
-    assert 0.8 * here["solve_flops"] <= stats["solve_flops"] <= 1.2 * here["solve_flops"]
+    assert 0.9 * here["solve_flops"] <= stats["solve_flops"] <= 1.1 * here["solve_flops"]
 
 
 def test_float32_blocks_are_rounded_on_the_workers(tmp_path, small_box, cluster, serial, monkeypatch):

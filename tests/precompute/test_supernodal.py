@@ -186,7 +186,7 @@ def test_entries_cancelled_to_zero_do_not_break_the_pruning():
     """Poisson's ratio 0 decouples the directions: SuperLU's L then leaves out entries that cancel
     exactly, so its pattern is no Cholesky pattern (a column's rows are not all in its parent's) and
     parent pointers would miss rows a solve reaches. The factor restores the full pattern."""
-    from hailstorm.precompute.supernodal import _superlu, nested_dissection
+    from hailstorm.precompute.supernodal import _superlu
     from hailstorm.precompute.supernodal_kernels import pattern_is_closed
 
     mesh = box_mesh((0.1, 0.02, 0.02), 0.01, clamp="x0")
@@ -196,7 +196,7 @@ def test_entries_cancelled_to_zero_do_not_break_the_pruning():
                              vertex_dofs(basis, surf.nodes[surf.contactable]).ravel(),
                              vertex_dofs(basis, surf.nodes).ravel())
     K = problem.Kff.tocsc()
-    raw, _ = _superlu(K, np.argsort(nested_dissection(K)))
+    raw = _superlu(K).L.tocsc()
     raw.sort_indices()
     assert not pattern_is_closed(raw.indptr.astype(np.int64), raw.indices.astype(np.int64), np.full(K.shape[0], -1))
     load = problem.load_pos
@@ -205,26 +205,3 @@ def test_entries_cancelled_to_zero_do_not_break_the_pruning():
     X = spsolve(K, B.toarray())
     expected = np.where(problem.read_pos[:, None] >= 0, X[np.maximum(problem.read_pos, 0)], 0.0)
     assert np.abs(got - expected).max() <= 1e-12 * np.abs(expected).max()
-
-
-def test_nested_dissection_orders_by_the_pattern_and_shrinks_the_factor():
-    """METIS's ordering is a permutation of the graph (the pattern, not the values: a matrix of one
-    pattern gets one order), and on a 3-D grid (the 7-point Laplacian on 16^3) it leaves fewer
-    entries in L than SuperLU's minimum degree (measured 0.72 of them), which the solver's factor
-    reports as its nnz(L)."""
-    from scipy.sparse.linalg import splu
-
-    from hailstorm.precompute.supernodal import nested_dissection
-
-    m = 16
-    I = sp.identity(m)
-    T = sp.diags([-1.0, 2.1, -1.0], [-1, 0, 1], shape=(m, m))
-    A = (sp.kron(sp.kron(T, I), I) + sp.kron(sp.kron(I, T), I) + sp.kron(sp.kron(I, I), T)).tocsc()
-    order = nested_dissection(A)
-    assert order.dtype == np.int64 and np.array_equal(np.sort(order), np.arange(m**3))
-    B = A.copy()
-    B.data = np.random.default_rng(1).uniform(1.0, 2.0, B.data.size)  # other values, one pattern
-    assert np.array_equal(nested_dissection(B), order)
-    mmd = splu(A, permc_spec="MMD_AT_PLUS_A", diag_pivot_thresh=0.0, options={"SymmetricMode": True}).L.nnz
-    assert supernodal_factor(A).nnz_L < 0.8 * mmd
-    assert np.array_equal(nested_dissection(sp.identity(5, format="csc")), np.arange(5))  # nothing to dissect
