@@ -67,7 +67,7 @@ from hailstorm.studies.dynamic_study import (
 )
 
 __all__ = ["ModalRow", "OneForceRow", "PadModes", "format_modal", "format_one_force", "hertz_load", "main",
-           "modal_rows", "one_force_impact", "one_force_rows", "pad_modes"]
+           "modal_rows", "one_force_impact", "one_force_rows", "pad_modes", "patch_compliance"]
 
 #: the mode counts of the printed table
 COUNTS = (10, 30, 100, 200)
@@ -209,9 +209,17 @@ def hertz_load(mesh: PadMesh, radius: float, points: int = 8) -> np.ndarray:
     return g
 
 
+def patch_compliance(mesh: PadMesh, patch_radius: float) -> float:
+    """The static compliance ``g^T K^-1 g`` [m/N] of the pad under :func:`hertz_load`'s disc."""
+    from scipy.sparse.linalg import splu
+
+    g = hertz_load(mesh, patch_radius)
+    return float(g @ splu(mesh.K.tocsc()).solve(g))
+
+
 def one_force_impact(mesh: PadMesh, radius: float, speed: float, patch_radius: float,
                      modes: PadModes | None = None, *, steps_per_contact: int = 200,
-                     ice_density: float = ICE_DENSITY) -> ImpactResult:
+                     ice_density: float = ICE_DENSITY, compliance: float | None = None) -> ImpactResult:
     """A rigid ice sphere on the pad as one force with a fixed Hertz pressure (the module's notes).
 
     The stone's penetration ``x`` (from first touch) meets the load's weighted mean displacement,
@@ -232,6 +240,9 @@ def one_force_impact(mesh: PadMesh, radius: float, speed: float, patch_radius: f
         The retained modes (of the pad with the nodes under the patch massless); None: quasi-static.
     steps_per_contact : int
     ice_density : float
+    compliance : float, optional
+        The patch's static compliance ``g^T K^-1 g`` [m/N] (:func:`patch_compliance`), when the
+        caller has it; computed otherwise.
 
     Returns
     -------
@@ -240,8 +251,6 @@ def one_force_impact(mesh: PadMesh, radius: float, speed: float, patch_radius: f
         ``max_contact_radius`` the patch's radius; ``history`` as the peer's, its dent column the
         penetration.
     """
-    from scipy.sparse.linalg import splu
-
     if not (radius > 0 and speed > 0 and ice_density > 0):
         raise ValueError(f"one_force_impact needs radius, speed, ice_density > 0, got {radius!r}, {speed!r}, "
                          f"{ice_density!r}")
@@ -249,7 +258,7 @@ def one_force_impact(mesh: PadMesh, radius: float, speed: float, patch_radius: f
     duration_ref = hertz_estimate(mesh.pad, radius, speed, ice_density).duration
     dt = duration_ref / steps_per_contact
     g = hertz_load(mesh, patch_radius)
-    c = float(g @ splu(mesh.K.tocsc()).solve(g))
+    c = patch_compliance(mesh, patch_radius) if compliance is None else float(compliance)
     beta, gamma = 0.25, 0.5
     if modes is None:
         p, w2 = np.zeros(0), np.zeros(0)
@@ -302,11 +311,11 @@ def one_force_rows(pad: Any, radii: Sequence[float], counts: Sequence[int] = COU
     quasi-static) - 1``: what the model gets of the pad's inertia, the patch law's own error apart."""
     out = []
     speeds = [terminal_speed(R) for R in radii] if speeds is None else list(speeds)
-    kw = dict(steps_per_contact=steps_per_contact)
     for R, v in zip(radii, speeds):
         row = compare(pad, R, v, cells_per_radius=cells_per_radius, steps_per_contact=steps_per_contact)
         mesh = impact_mesh(pad, R, v, cells_per_radius)
         a = row.quasi_static.max_contact_radius
+        kw = dict(steps_per_contact=steps_per_contact, compliance=patch_compliance(mesh, a))  # one factor per stone
         every = pad_modes(mesh, max(counts), massless=mesh.top_uz[mesh.top_r <= a])
         qs = one_force_impact(mesh, R, v, a, **kw)
         peer = impact_errors(row.dynamic, row.quasi_static)
