@@ -1,12 +1,12 @@
-"""The foam pad as an axisymmetric finite-element problem: its mesh, matrices and a sphere pressed into it.
+"""The foam pad as an axisymmetric finite-element problem: references on scikit-fem, and a sphere pressed into it.
 
 The pad of :mod:`hailstorm.studies.dynamic_study` (a disc of foam on a rigid base, the
-impact on its axis) and the references built on it:
+impact on its axis; :class:`hailstorm.runtime.inertia.pad.Pad`, its mesh
+:func:`hailstorm.runtime.inertia.pad.pad_mesh`) and the references built on it:
 
 * :func:`axisymmetric_matrices` -- stiffness and mass of axisymmetric linear elasticity
-  (scikit-fem, the weak forms weighted by ``2 pi r``);
-* :func:`pad_mesh` -- the disc's graded (r, z) mesh, clamped underneath, and its matrices;
-* :func:`contact_lcp` -- the unilateral contact of a rigid sphere with the top nodes;
+  on scikit-fem's forms (the weak forms weighted by ``2 pi r``): the independent assembly
+  the runtime's numpy one (:func:`hailstorm.runtime.contact.layer_solve.axisymmetric_p1`) is held to;
 * :func:`press_disc` -- a rigid sphere (or Hertz's paraboloid) pressed to a depth into a
   disc, statically: the converged force of a block's own geometry (its depth, its clamp),
   against which Hertz's half-space and the Green's-function contacts are measured
@@ -23,82 +23,14 @@ from typing import Any
 
 import numpy as np
 
-from hailstorm.runtime.contact.layer_solve import graded
+from hailstorm.runtime.inertia.pad import Pad, contact_lcp, pad_mesh
 from hailstorm.runtime.storm.limits import PAD_DENSITY
 
-__all__ = ["FOAM_DENSITY", "DiscPress", "Pad", "PadMesh", "axisymmetric_matrices", "contact_lcp", "pad_mesh",
-           "press_disc", "without_contact_mass"]
+__all__ = ["FOAM_DENSITY", "DiscPress", "axisymmetric_matrices", "press_disc"]
 
 #: foam density [kg/m^3]: flexible polyurethane foams ~20-100 (Gibson & Ashby, Cellular Solids, 2nd ed.);
 #: the scene's default ``[validity] pad_density``
 FOAM_DENSITY = PAD_DENSITY
-
-
-@dataclass(frozen=True)
-class Pad:
-    """A disc-shaped foam pad on a rigid base.
-
-    Attributes
-    ----------
-    young, poisson : float
-        The foam [Pa], [-].
-    density : float
-        [kg/m^3] (> 0).
-    thickness, radius : float
-        The disc [m].
-    """
-
-    young: float = 2.0e6
-    poisson: float = 0.35
-    density: float = FOAM_DENSITY
-    thickness: float = 0.015
-    radius: float = 0.06
-
-    def __post_init__(self) -> None:
-        for name in ("young", "density", "thickness", "radius"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise ValueError(f"pad {name} must be a positive number, got {v!r}")
-        if not (-1.0 < self.poisson < 0.5):
-            raise ValueError(f"pad poisson must be in (-1, 0.5), got {self.poisson!r}")
-
-    @property
-    def wave_speeds(self) -> tuple[float, float]:
-        """Dilatational and shear wave speeds [m/s]."""
-        E, nu, rho = self.young, self.poisson, self.density
-        return (math.sqrt(E * (1 - nu) / ((1 + nu) * (1 - 2 * nu) * rho)), math.sqrt(E / (2 * (1 + nu) * rho)))
-
-
-@dataclass
-class PadMesh:
-    """The pad's (r, z) mesh and its matrices (:func:`pad_mesh`).
-
-    Attributes
-    ----------
-    pad : Pad
-    r, z : (nr,), (nz,) ndarray
-        Grid lines [m] (z = 0 the clamped base, z = thickness the top).
-    K, M : scipy.sparse matrix
-        Stiffness and mass on the free dofs (``2 pi r``-weighted) [N/m], [kg].
-    free : (f,) int ndarray
-        Free dofs of the vector P1 basis.
-    top_r : (t,) ndarray
-        Radii of the top nodes [m], ascending.
-    top_uz : (t,) int ndarray
-        Their u_z dofs, as indices into ``free``.
-    cell : float
-        Cell size at the axis under the contact [m].
-    """
-
-    pad: Pad
-    r: np.ndarray
-    z: np.ndarray
-    K: Any
-    M: Any
-    free: np.ndarray
-    top_r: np.ndarray
-    top_uz: np.ndarray
-    cell: float
 
 
 def axisymmetric_matrices(mesh: Any, young: float, poisson: float, density: float) -> tuple[Any, Any, Any]:
@@ -139,89 +71,6 @@ def axisymmetric_matrices(mesh: Any, young: float, poisson: float, density: floa
         return 2 * np.pi * w.x[0] * density * dot(u, v)
 
     return asm(stiffness, basis).tocsr(), asm(mass, basis).tocsr(), basis
-
-
-def pad_mesh(pad: Pad, cell: float, extent: float, growth: float = 1.15) -> PadMesh:
-    """The pad's graded (r, z) mesh and matrices: cells of ``cell`` within ``extent`` of the
-    contact (radially from the axis, downwards from the top), growing by ``growth`` beyond.
-
-    Parameters
-    ----------
-    pad : Pad
-    cell : float
-        Cell size under the contact [m] (> 0).
-    extent : float
-        Reach of the fine cells [m].
-    growth : float
-        Ratio of neighbouring cells beyond it (> 1).
-    """
-    from skfem import MeshTri
-
-    if not (cell > 0 and extent > 0 and growth > 1):
-        raise ValueError(f"pad_mesh needs cell > 0, extent > 0, growth > 1, got {cell!r}, {extent!r}, {growth!r}")
-    r = graded(pad.radius, cell, extent, growth)
-    depth = graded(pad.thickness, cell, extent, growth)
-    z = np.sort(pad.thickness - depth)
-    z[0] = 0.0
-    mesh = MeshTri.init_tensor(r, z)
-    K, M, basis = axisymmetric_matrices(mesh, pad.young, pad.poisson, pad.density)
-    x = mesh.p
-    nd = basis.nodal_dofs  # (2, nodes): u_r, u_z dofs
-    tol = 1e-12 * pad.thickness
-    fixed = np.concatenate([nd[:, x[1] < tol].ravel(), nd[0, x[0] < tol]])
-    free = np.setdiff1d(np.arange(basis.N), fixed)
-    top = np.flatnonzero(x[1] > pad.thickness - tol)
-    top = top[np.argsort(x[0, top])]
-    pos = np.full(basis.N, -1)
-    pos[free] = np.arange(free.size)
-    return PadMesh(pad=pad, r=r, z=z, K=K[free][:, free].tocsc(), M=M[free][:, free].tocsc(), free=free,
-                   top_r=x[0, top], top_uz=pos[nd[1, top]], cell=float(r[1] - r[0]))
-
-
-def contact_lcp(S: np.ndarray, q: np.ndarray, active: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``lam >= 0``, ``w = S lam + q >= 0``, ``lam . w = 0`` for SPD ``S`` (active set from
-    ``active``; an exact non-negative least squares if it cycles). Returns lam and the active set."""
-    p = q.size
-    tol = 1e-12 * max(float(np.abs(q).max(initial=0.0)), 1e-300)
-    A = active.copy()
-    for _ in range(4 * p + 10):
-        lam = np.zeros(p)
-        if A.any():
-            lam[A] = np.linalg.solve(S[np.ix_(A, A)], -q[A])
-        neg = A & (lam < -tol)
-        if neg.any():
-            A &= ~neg
-            continue
-        w = S @ lam + q
-        viol = ~A & (w < -tol)
-        if not viol.any():
-            return np.clip(lam, 0.0, None), A
-        A |= viol
-    from scipy.linalg import cholesky, solve_triangular
-    from scipy.optimize import nnls
-
-    L = cholesky(S, lower=True)
-    lam, _ = nnls(L.T, -solve_triangular(L, q, lower=True))
-    return lam, lam > 0
-
-
-def without_contact_mass(M: Any, dofs: np.ndarray) -> Any:
-    """The mass matrix with the rows and columns of the contact dofs removed (zeroed).
-
-    Khenous, Laborde & Renard, Mass redistribution method for finite element contact
-    problems in elastodynamics, Eur. J. Mech. A/Solids 27 (2008) 918-932: without
-    inertia on the contact nodes' normal dofs the semi-discrete problem is well posed
-    and the Newmark average-acceleration scheme no longer creates energy at the
-    contact's onset and release (measured here: restitution 1.15 at 30 m/s with the
-    consistent mass, <= 1 without it). The mass removed is that of the top layer of
-    cells under the sphere, ~``rho pi R^2 cell / 2``: below 0.1 % of the stone's.
-    """
-    from scipy.sparse import diags
-
-    keep = np.ones(M.shape[0])
-    keep[dofs] = 0.0
-    P = diags(keep)
-    return (P @ M @ P).tocsc()
 
 
 @dataclass(frozen=True)

@@ -44,7 +44,7 @@ step solves the linear complementarity problem of the candidate nodes'
 multipliers exactly (active set on the Schur complement of the step's
 effective stiffness, the sphere's own Newmark equation included). The contact
 nodes' normal dofs carry no mass (Khenous, Laborde & Renard's mass
-redistribution, :func:`~hailstorm.studies.axisymmetric.without_contact_mass`: with it Newmark creates no
+redistribution, :func:`~hailstorm.runtime.inertia.pad.without_contact_mass`: with it Newmark creates no
 energy at contact and release). Gravity is
 left out of both models (the comparison is of the pad's inertia alone).
 
@@ -59,21 +59,24 @@ from __future__ import annotations
 
 import argparse
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from typing import Any, Sequence
 
 import numpy as np
 
 from hailstorm.runtime.contact.hertz import HertzImpact, hertz_impact
-from hailstorm.runtime.storm.limits import ValidityLimits, contact_time_ratio
-from hailstorm.studies.axisymmetric import (
-    FOAM_DENSITY,
-    Pad,
-    PadMesh,
-    contact_lcp,
-    pad_mesh,
-    without_contact_mass,
+from hailstorm.runtime.inertia.impact import (
+    ICE_DENSITY,
+    ImpactResult,
+    PeerResolutionError,
+    check_density,
+    hertz_estimate,
+    impact_mesh,
+    simulate_impact,
 )
+from hailstorm.runtime.inertia.pad import Pad
+from hailstorm.runtime.storm.limits import ValidityLimits, contact_time_ratio
+from hailstorm.studies.axisymmetric import FOAM_DENSITY
 
 __all__ = [
     "ICE_DENSITY",
@@ -105,21 +108,13 @@ __all__ = [
     "time_ratio",
 ]
 
-#: ice density [kg/m^3] (the default scene's ``[hail] density``)
-ICE_DENSITY = 917.0
 #: the grid of the short run and of ``--full`` (speeds [m/s], radii [m])
 SMALL_SPEEDS, SMALL_RADII = (1.0, 5.0, 30.0), (0.0025, 0.0125)
 FULL_SPEEDS, FULL_RADII = (1.0, 2.0, 5.0, 10.0, 20.0, 30.0), (0.0025, 0.005, 0.0075, 0.01, 0.0125)
-#: the least steps per contact duration and cells per contact radius a run accepts
-MIN_STEPS_PER_CONTACT, MIN_CELLS_PER_RADIUS = 20, 4.0
 #: agreement the table marks [-]
 AGREE = 0.05
 #: the foam densities of ``--limit`` [kg/m^3]: the default and the low end of what E = 2 MPa implies
 LIMIT_DENSITIES = (FOAM_DENSITY, 200.0)
-
-
-class PeerResolutionError(ValueError):
-    """A peer run asked on a mesh or a time step too coarse for its impact (the message has the numbers)."""
 
 
 def default_pad(density: float = FOAM_DENSITY, **changes: float) -> Pad:
@@ -130,210 +125,9 @@ def default_pad(density: float = FOAM_DENSITY, **changes: float) -> Pad:
     return replace(Pad(young=float(seat.young), poisson=float(seat.poisson), density=float(density)), **changes)
 
 
-def _check_density(name: str, value: float) -> float:
-    v = float(value)
-    if not (math.isfinite(v) and v > 0):
-        raise ValueError(f"{name} density must be positive, got {value!r} kg/m^3")
-    return v
-
-
-def hertz_estimate(pad: Pad, radius: float, speed: float, ice_density: float = ICE_DENSITY) -> HertzImpact:
-    """Hertz's quasi-static impact of the stone on a half-space of the pad's material (no gravity)."""
-    m = _check_density("ice", ice_density) * 4.0 / 3.0 * math.pi * radius**3
-    return hertz_impact(m, speed, radius, pad.young, pad.poisson)
-
-
 # ---------------------------------------------------------------------------------------------
 # one impact
 # ---------------------------------------------------------------------------------------------
-@dataclass
-class ImpactResult:
-    """One impact of the peer (:func:`simulate_impact`).
-
-    Attributes
-    ----------
-    dynamic : bool
-        The pad had its mass (False: quasi-static).
-    speed : float
-        Impact speed [m/s].
-    peak_force : float
-        [N]
-    duration : float
-        First touch (t = 0) to the last release [s].
-    rebound_speed : float
-        The sphere's speed away from the pad after the contact [m/s].
-    max_dent : float
-        Largest downward displacement of the pad's top at the impact point [m].
-    max_contact_radius : float
-        Largest radius of the touching nodes [m].
-    dt : float
-    steps : int
-    history : (k, 4) ndarray
-        Per step: time [s], contact force [N], sphere penetration x [m], dent at the axis [m].
-    modes : int or None
-        The pad's dynamics cut to this many modes (:mod:`hailstorm.studies.pad_modes`); None: all.
-    """
-
-    dynamic: bool
-    speed: float
-    peak_force: float
-    duration: float
-    rebound_speed: float
-    max_dent: float
-    max_contact_radius: float
-    dt: float
-    steps: int
-    history: np.ndarray = field(repr=False)
-    modes: int | None = None
-
-    @property
-    def restitution(self) -> float:
-        """Rebound over impact speed."""
-        return self.rebound_speed / self.speed
-
-
-def _check_resolution(cell: float, a: float, dt: float, duration: float, what: str) -> None:
-    if cell > a / MIN_CELLS_PER_RADIUS:
-        raise PeerResolutionError(
-            f"the peer's mesh is too coarse for this impact ({what}): cells of {cell * 1e3:.3g} mm under a contact "
-            f"radius of {a * 1e3:.3g} mm ({a / cell:.3g} cells per radius; at least {MIN_CELLS_PER_RADIUS:g}, "
-            f"cells <= {a / MIN_CELLS_PER_RADIUS * 1e3:.3g} mm)")
-    if dt > duration / MIN_STEPS_PER_CONTACT:
-        raise PeerResolutionError(
-            f"the peer's time step is too coarse for this impact ({what}): dt = {dt:.3g} s over a contact of "
-            f"{duration:.3g} s ({duration / dt:.3g} steps; at least {MIN_STEPS_PER_CONTACT}, dt <= "
-            f"{duration / MIN_STEPS_PER_CONTACT:.3g} s)")
-
-
-def simulate_impact(mesh: PadMesh, radius: float, speed: float, *, dynamic: bool = True, dt: float | None = None,
-                    steps_per_contact: int = 200, ice_density: float = ICE_DENSITY,
-                    beta: float = 0.25, gamma: float = 0.5, modes: Any = None) -> ImpactResult:
-    """A rigid ice sphere hitting the pad at ``speed`` along its axis (Newmark, unilateral contact).
-
-    Parameters
-    ----------
-    mesh : PadMesh
-    radius : float
-        Sphere radius R [m].
-    speed : float
-        Impact speed [m/s] (> 0).
-    dynamic : bool
-        With the pad's mass (False: the quasi-static pad, massless).
-    dt : float, optional
-        Time step [s] (default: Hertz's contact duration over ``steps_per_contact``).
-    steps_per_contact : int
-    ice_density : float
-        [kg/m^3] (> 0).
-    beta, gamma : float
-        Newmark's parameters (default: average acceleration).
-    modes : PadModes, optional
-        The pad's dynamics in these modes only, the rest quasi-static (the mode-acceleration
-        form, :mod:`hailstorm.studies.pad_modes`; the same Newmark rule per mode: with every
-        mode of the massless-contact pad it is the full peer). Needs ``dynamic``.
-
-    Returns
-    -------
-    ImpactResult
-
-    Raises
-    ------
-    ValueError
-        Non-positive density, radius or speed.
-    PeerResolutionError
-        Fewer than :data:`MIN_STEPS_PER_CONTACT` steps per contact duration or fewer
-        than :data:`MIN_CELLS_PER_RADIUS` cells per contact radius (Hertz's estimates
-        before the run, the measured ones after).
-    """
-    from scipy.sparse.linalg import splu
-
-    rho_ice = _check_density("ice", ice_density)
-    if not (radius > 0 and speed > 0):
-        raise ValueError(f"the sphere needs radius > 0 and speed > 0, got {radius!r}, {speed!r}")
-    pad = mesh.pad
-    m = rho_ice * 4.0 / 3.0 * math.pi * radius**3
-    ref = hertz_impact(m, speed, radius, pad.young, pad.poisson)
-    a_ref = math.sqrt(radius * ref.max_depth)
-    dt = ref.duration / steps_per_contact if dt is None else float(dt)
-    _check_resolution(mesh.cell, a_ref, dt, ref.duration, "Hertz's estimate")
-    cand = np.flatnonzero(mesh.top_r < 0.999 * radius)
-    r_c = mesh.top_r[cand]
-    phi = radius - np.sqrt(radius**2 - r_c**2)
-    C = mesh.top_uz[cand]  # u_z dofs of the candidate nodes (indices into the free dofs)
-    if modes is not None and not dynamic:
-        raise ValueError("simulate_impact: modes need dynamic=True")
-    modal = modes is not None
-    full = dynamic and not modal  # Newmark on every dof
-    M = without_contact_mass(mesh.M, C) if full else None
-    K_eff = mesh.K + M / (beta * dt * dt) if full else mesh.K
-    lu = splu(K_eff.tocsc())
-    n = K_eff.shape[0]
-    E = np.zeros((n, C.size))
-    E[C, np.arange(C.size)] = 1.0
-    G = lu.solve(E)  # K_eff^-1 C^T
-    c = beta * dt * dt / m
-    S_pad = G[C]  # C K_eff^-1 C^T
-    if modal:  # the retained modes' share of the static compliance, as far as a step lets them move
-        PC, w2 = modes.shapes[C], modes.omega2
-        lag = 1.0 / (1.0 + beta * dt * dt * w2)
-        S_pad = S_pad - (PC * (lag / w2)) @ PC.T
-        eta, eta_v, eta_a = np.zeros(w2.size), np.zeros(w2.size), np.zeros(w2.size)
-    S = S_pad + c  # ... + c 1 1^T: the sphere's own Newmark equation
-    u, v, acc = np.zeros(n), np.zeros(n), np.zeros(n)
-    x, xv, xa = 0.0, float(speed), 0.0
-    active = np.zeros(C.size, dtype=bool)
-    centre = mesh.top_uz[0]
-    hist, t, last_touch, max_r = [], 0.0, -1.0, 0.0
-    t_end = 4.0 * ref.duration
-    while t < t_end:
-        t += dt
-        x_hat = x + dt * xv + (0.5 - beta) * dt * dt * xa
-        if full:
-            u_hat = u + dt * v + (0.5 - beta) * dt * dt * acc
-            u_free = lu.solve(M @ u_hat) / (beta * dt * dt)
-            u_free_C = u_free[C]
-        elif modal:
-            eta_hat = eta + dt * eta_v + (0.5 - beta) * dt * dt * eta_a
-            u_free_C = PC @ (eta_hat * lag)
-        else:
-            u_free_C = np.zeros(C.size)
-        q = phi - x_hat - u_free_C
-        lam, active = contact_lcp(S, q, active)
-        F = float(lam.sum())
-        x_new = x_hat - c * F
-        xa_new = -F / m
-        if modal:  # the contact nodes alone: the dent at the axis is the first candidate's
-            f_m = -(PC.T @ lam)
-            eta_new = (eta_hat + beta * dt * dt * f_m) * lag
-            eta_a_new = f_m - w2 * eta_new
-            eta_v = eta_v + dt * ((1 - gamma) * eta_a + gamma * eta_a_new)
-            eta, eta_a = eta_new, eta_a_new
-            u[centre] = u_free_C[0] - S_pad[0] @ lam
-        else:
-            u_new = (u_free if full else 0.0) - G @ lam
-            if full:
-                acc_new = (u_new - u_hat) / (beta * dt * dt)
-                v = v + dt * ((1 - gamma) * acc + gamma * acc_new)
-                acc = acc_new
-            u = u_new
-        xv = xv + dt * ((1 - gamma) * xa + gamma * xa_new)
-        x, xa = x_new, xa_new
-        hist.append((t, F, x, -u[centre]))
-        if F > 0:
-            last_touch = t
-            max_r = max(max_r, float(r_c[lam > 0].max()))
-        elif last_touch > 0 and t > last_touch + 0.5 * ref.duration and xv < 0:
-            break  # released, moving away, and no touch for half a contact time
-        if t >= t_end and last_touch > t - 0.5 * ref.duration:
-            t_end += ref.duration  # still touching: go on
-    H = np.array(hist)
-    duration = last_touch + 0.5 * dt if last_touch > 0 else 0.0
-    res = ImpactResult(dynamic=dynamic, speed=float(speed), peak_force=float(H[:, 1].max()), duration=duration,
-                       rebound_speed=float(-xv), max_dent=float(H[:, 3].max()), max_contact_radius=max_r, dt=dt,
-                       steps=len(hist), history=H, modes=modes.count if modal else None)
-    _check_resolution(mesh.cell, max_r if max_r > 0 else a_ref, dt, max(duration, dt), "as measured")
-    return res
-
-
 # ---------------------------------------------------------------------------------------------
 # the comparison
 # ---------------------------------------------------------------------------------------------
@@ -366,14 +160,6 @@ def impact_errors(model: ImpactResult, reference: ImpactResult) -> dict[str, flo
             "rebound": m.rebound_speed / r.rebound_speed - 1, "dent": m.max_dent / r.max_dent - 1}
 
 
-def impact_mesh(pad: Pad, radius: float, speed: float, cells_per_radius: float = 8.0,
-                ice_density: float = ICE_DENSITY) -> PadMesh:
-    """The peer's mesh for one impact: fine cells of Hertz's contact radius over ``cells_per_radius``
-    within 1.5 contact radii of the impact (growing by 1.15 beyond)."""
-    a = math.sqrt(radius * hertz_estimate(pad, radius, speed, ice_density).max_depth)
-    return pad_mesh(pad, cell=a / cells_per_radius, extent=1.5 * a)
-
-
 def compare(pad: Pad, radius: float, speed: float, *, cells_per_radius: float = 8.0, steps_per_contact: int = 200,
             ice_density: float = ICE_DENSITY) -> Row:
     """The impact of one stone, dynamic and quasi-static on the same mesh (:func:`impact_mesh`), and Hertz's."""
@@ -402,12 +188,17 @@ class StormImpact:
         The stone's normal speed after the contact [m/s].
     max_dent : float
         The storm's ``max_indentation_m`` [m].
+    inertia : tuple of float
+        The storm's inertia factors of the impact (force, duration, restitution, dent:
+        :class:`hailstorm.runtime.inertia.factors.InertiaFactors`, on the pad under it at the
+        scene's ``pad_density``); NaN when the storm recorded no impact.
     """
 
     peak_force: float
     duration: float
     rebound_speed: float
     max_dent: float
+    inertia: tuple[float, float, float, float] = (math.nan,) * 4
 
 
 def pad_bundle(pad: Pad, mesh_size: float = 0.006, order: int = 2, width: float = 0.12, load: str | None = None) -> Any:
@@ -424,24 +215,26 @@ def pad_bundle(pad: Pad, mesh_size: float = 0.006, order: int = 2, width: float 
                                                poisson=pad.poisson, progress=False))
 
 
-def storm_impact(gf: Any, radius: float, speed: float, *, dt: float = 2e-6, ice_density: float = ICE_DENSITY) -> StormImpact:
+def storm_impact(gf: Any, radius: float, speed: float, *, dt: float = 2e-6, ice_density: float = ICE_DENSITY,
+                 pad_density: float = FOAM_DENSITY) -> StormImpact:
     """One stone dropped on the middle of a block's top in a storm (the quasi-static Green's
     functions, patch contacts, the ``exact`` integrator, restitution 1: no dashpot, drag off;
-    gravity stays, a 0.1-1 % change of the speed over the contact).
+    gravity stays, a 0.1-1 % change of the speed over the contact), and the storm's inertia
+    factors of it at ``pad_density`` (the scene's ``[validity] pad_density``).
 
     The stone starts ``0.015 R`` above the top at ``speed`` straight down (the storm
     opens a contact within 1 % of the radius).
     """
     from hailstorm.runtime import Scene, Storm
 
-    _check_density("ice", ice_density)
+    check_density("ice", ice_density)
     X = np.asarray(gf.vertices)
     top = X[:, 2].max()
     centre = np.array([0.5 * (X[:, 0].min() + X[:, 0].max()), 0.5 * (X[:, 1].min() + X[:, 1].max()), top])
     ref = hertz_impact(ice_density * 4 / 3 * math.pi * radius**3, speed, radius, float(gf.young), float(gf.poisson))
     duration = 6.0 * ref.duration
     sc = Scene.from_flat(duration=duration, stones=0, drag=False, dt=dt, integrator="exact", restitution=1.0,
-                         density=ice_density)
+                         density=ice_density, pad_density=pad_density)
     st = Storm(gf, sc, spawn=False)
     st.add_stones((centre + [0.0, 0.0, 1.015 * radius])[None, :], np.array([[0.0, 0.0, -float(speed)]]),
                   np.array([float(radius)]))
@@ -453,8 +246,11 @@ def storm_impact(gf: Any, radius: float, speed: float, *, dt: float = 2e-6, ice_
         elif below and st.vel[0, 2] > 0:
             break
     S = st.stats
+    factors = S.validity.inertia() if S.validity is not None else None
+    inertia = tuple(float(f[0]) for f in factors.astuple()) if factors is not None and factors.n else (math.nan,) * 4
     return StormImpact(peak_force=float(S["max_contact_force"]), duration=below * dt,
-                       rebound_speed=float(st.vel[0, 2]), max_dent=float(S["max_indentation_m"]))
+                       rebound_speed=float(st.vel[0, 2]), max_dent=float(S["max_indentation_m"]),
+                       inertia=inertia)
 
 
 def run_grid(pad: Pad, radii: Sequence[float], speeds: Sequence[float], **kw: Any) -> list[Row]:
@@ -526,10 +322,12 @@ def format_time_limit(grids: Sequence[tuple[Pad, Sequence[Row]]], limit: float =
     return "\n".join(lines)
 
 
-def format_storm(rows: Sequence[Row], gf: Any) -> str:
+def format_storm(rows: Sequence[Row], gf: Any, density: float = FOAM_DENSITY) -> str:
     """The same impacts in the storm (:func:`storm_impact` on ``gf``) against the dynamic peer
     (``vs dyn``) and against the peer's quasi-static column (``vs qs``: the storm's own
-    discretisation, the same model on a converged mesh)."""
+    discretisation, the same model on a converged mesh); then the storm's figures times its
+    inertia factors at the pad's ``density`` (what its summary's ``max_impact_force_dynamic_N``
+    is of the peak force) against the dynamic peer."""
     head = (f"storm on a {np.ptp(np.asarray(gf.vertices)[:, 0]) * 1e3:.0f} mm block bundle "
             f"({len(gf.vertices)} surface vertices, P{gf.order}, {gf.manifest.get('options', {}).get('load', 'point')} "
             f"loads), quasi-static Green's functions, restitution 1:\n"
@@ -540,13 +338,25 @@ def format_storm(rows: Sequence[Row], gf: Any) -> str:
     def rel(a: float, b: float) -> str:
         return f"{100 * (a / b - 1):+6.1f}%"
 
-    for row in rows:
-        st, d, q = storm_impact(gf, row.radius, row.speed), row.dynamic, row.quasi_static
+    impacts = [storm_impact(gf, row.radius, row.speed, pad_density=density) for row in rows]
+    for row, st in zip(rows, impacts):
+        d, q = row.dynamic, row.quasi_static
         e = st.rebound_speed / row.speed
         lines.append(f"{row.radius * 1e3:5.1f} {row.speed:5.1f} | {st.peak_force:9.3f} {rel(st.peak_force, d.peak_force)} "
                      f"{rel(st.peak_force, q.peak_force)} | {st.duration * 1e3:10.3f} {rel(st.duration, d.duration)} "
                      f"{rel(st.duration, q.duration)} | {e:7.3f} {rel(e, d.restitution)} | "
                      f"{st.max_dent * 1e3:13.3f} {rel(st.max_dent, d.max_dent)} {rel(st.max_dent, q.max_dent)}")
+    lines.append(f"the storm with the pad's inertia (its figures times its inertia factors at {density:g} kg/m^3, "
+                 "the pad under the impact run dynamic and quasi-static), against the dynamic peer:")
+    lines.append(f"{'R mm':>5} {'v m/s':>5} | {'F factor':>8} {'F dyn est N':>11} {'vs dyn':>7} | {'t est ms':>8} "
+                 f"{'vs dyn':>7} | {'e est':>6} {'vs dyn':>7} | {'dent est mm':>11} {'vs dyn':>7}")
+    for row, st in zip(rows, impacts):
+        d = row.dynamic
+        fF, ft, fe, fd = st.inertia
+        F, t, e, dent = st.peak_force * fF, st.duration * ft, st.rebound_speed / row.speed * fe, st.max_dent * fd
+        lines.append(f"{row.radius * 1e3:5.1f} {row.speed:5.1f} | {fF:8.3f} {F:11.3f} {rel(F, d.peak_force)} | "
+                     f"{t * 1e3:8.3f} {rel(t, d.duration)} | {e:6.3f} {rel(e, d.restitution)} | "
+                     f"{dent * 1e3:11.3f} {rel(dent, d.max_dent)}")
     return "\n".join(lines)
 
 
@@ -750,7 +560,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="also chart the rows: within/beyond 5%% on all four measures, over the terminal-speed curve")
     args = ap.parse_args(argv)
     try:
-        pad = default_pad(_check_density("foam", args.density))
+        pad = default_pad(check_density("foam", args.density))
     except ValueError as exc:
         ap.error(str(exc))  # one line, exit 2
     speeds = args.speeds or (FULL_SPEEDS if args.full or args.limit else SMALL_SPEEDS)
@@ -779,7 +589,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.corrections:
         print(format_corrections(rows, pad))
     if args.storm:
-        print(format_storm(rows, pad_bundle(pad)))
+        print(format_storm(rows, pad_bundle(pad), pad.density))
     ok = [r for r in rows if r.agrees()]
     print(f"quasi-static within {AGREE:.0%} of the dynamic peer on all four measures: "
           + (", ".join(f"R = {r.radius * 1e3:g} mm at {r.speed:.3g} m/s" for r in ok) if ok else "none"))

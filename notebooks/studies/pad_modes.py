@@ -23,7 +23,7 @@ above answer quasi-statically. The contact sees the compliance
 in a step ``h`` and a free displacement carried by the modes.
 
 The modes are those of the peer's pad with the contact nodes' normal mass removed
-(the peer's mass redistribution, :func:`~hailstorm.studies.axisymmetric.without_contact_mass`):
+(the peer's mass redistribution, :func:`~hailstorm.runtime.inertia.pad.without_contact_mass`):
 a massless dof has no finite mode and is quasi-static by construction.
 
 What it measures
@@ -52,7 +52,8 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from hailstorm.studies.axisymmetric import FOAM_DENSITY, PadMesh, without_contact_mass
+from hailstorm.runtime.inertia.pad import PadMesh, without_contact_mass
+from hailstorm.studies.axisymmetric import FOAM_DENSITY
 from hailstorm.studies.dynamic_study import (
     ICE_DENSITY,
     ImpactResult,

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["DUNAVANT6", "DUNAVANT6_W", "LAYER_MESH", "graded", "layer_point_response"]
+__all__ = ["DUNAVANT6", "DUNAVANT6_W", "LAYER_MESH", "axisymmetric_p1", "graded", "layer_point_response"]
 
 #: Dunavant's 6-point rule on a triangle, exact for degree 4 (barycentric, weights sum to 1)
 _A, _B = 0.445948490915965, 0.091576213509771
@@ -41,11 +41,33 @@ def graded(length: float, fine: float, extent: float, growth: float) -> np.ndarr
     return out[out <= length]
 
 
-def _axisymmetric_stiffness(r: np.ndarray, z: np.ndarray, poisson: float) -> tuple[Any, np.ndarray]:
-    """P1 stiffness of axisymmetric elasticity (``E = 1``) on the tensor grid ``r x z`` cut into
-    triangles, dofs ``(u_r, u_z)`` per node (node ``k = i_z * len(r) + i_r``), integrated with
-    Dunavant's 6-point rule over ``2 pi r dA`` (never on the axis). Returns the matrix and the
-    nodes (N, 2)."""
+def axisymmetric_p1(r: np.ndarray, z: np.ndarray, poisson: float,
+                    density: float | None = None) -> tuple[Any, Any, np.ndarray]:
+    """P1 stiffness (``E = 1``) and mass of axisymmetric elasticity on the tensor grid ``r x z``.
+
+    The grid's rectangles are cut into triangles along the diagonal of increasing ``r`` and
+    ``z``; dofs ``(u_r, u_z)`` per node (node ``k = i_z * len(r) + i_r``, dof ``2 k + c``);
+    integrated with Dunavant's 6-point rule over ``2 pi r dA`` (never on the axis; the mass's
+    integrand is a cubic, integrated exactly). The tests hold both to scikit-fem's assembly
+    (``tests/reference/layer_ref.py``).
+
+    Parameters
+    ----------
+    r, z : ndarray
+        Grid lines [m], ascending (``r[0] = 0``: the axis).
+    poisson : float
+    density : float, optional
+        [kg/m^3]; None: no mass matrix.
+
+    Returns
+    -------
+    K : scipy.sparse.csc_matrix
+        Stiffness for ``E = 1`` (scale by Young's modulus) [m].
+    M : scipy.sparse.csc_matrix or None
+        Consistent mass [kg].
+    nodes : (N, 2) ndarray
+        The nodes' (r, z).
+    """
     import scipy.sparse as sp
 
     nr = r.size
@@ -71,12 +93,22 @@ def _axisymmetric_stiffness(r: np.ndarray, z: np.ndarray, poisson: float) -> tup
     C = np.diag([2 * mu, 2 * mu, 2 * mu, mu])
     C[:3, :3] += lame
     w = DUNAVANT6_W[None, :] * 0.5 * np.abs(det)[:, None] * 2.0 * np.pi * rq  # (m, q)
-    Ke = np.einsum("mq,mqsi,st,mqtj->mij", w, B, C, B)
+    m, q = B.shape[:2]
+    CB = np.matmul(C, B)  # (m, q, 4, 6): the stresses of each dof's strains
+    BW = (B * w[:, :, None, None]).reshape(m, 4 * q, 6)
+    Ke = np.matmul(BW.transpose(0, 2, 1), CB.reshape(m, 4 * q, 6))  # sum over the points and the strains
     dofs = np.stack([2 * tri, 2 * tri + 1], axis=2).reshape(-1, 6)
     rows = np.repeat(dofs, 6, axis=1).ravel()
     cols = np.tile(dofs, (1, 6)).ravel()
-    K = sp.csc_matrix((Ke.ravel(), (rows, cols)), shape=(2 * nodes.shape[0],) * 2)
-    return K, nodes
+    shape = (2 * nodes.shape[0],) * 2
+    K = sp.csc_matrix((Ke.ravel(), (rows, cols)), shape=shape)
+    if density is None:
+        return K, None, nodes
+    NN = np.einsum("mq,qa,qb->mab", w * float(density), lam, lam)  # (m, 3, 3) per component
+    Me = np.zeros((tri.shape[0], 6, 6))
+    Me[:, 0::2, 0::2] = NN
+    Me[:, 1::2, 1::2] = NN
+    return K, sp.csc_matrix((Me.ravel(), (rows, cols)), shape=shape), nodes
 
 
 #: the default mesh of :func:`layer_point_response` (in thicknesses)
@@ -114,7 +146,7 @@ def layer_point_response(poisson: float, *, cell: float = LAYER_MESH["cell"], ex
     r = graded(radius, cell, extent, growth)
     z = np.sort(1.0 - graded(1.0, cell, extent, growth))
     z[0] = 0.0
-    K, nodes = _axisymmetric_stiffness(r, z, float(poisson))
+    K, _, nodes = axisymmetric_p1(r, z, float(poisson))
     nr = r.size
     fixed = np.concatenate([np.arange(2 * nr), 2 * np.flatnonzero(nodes[:, 0] == 0.0)])  # the base, u_r on the axis
     free = np.setdiff1d(np.arange(K.shape[0]), fixed)

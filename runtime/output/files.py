@@ -119,7 +119,7 @@ SUMMARY_UNITS: dict[str, str | None] = {
     "mean_penetration_contact_m": "m", "sim_time_s": "s", "wall_time_s": "s", "setup_time_s": "s",
     "compile_time_s": "s", "backend": None, "real_time_factor": "1", "seed": None, "dt": "s", "integrator": None,
     "mode": None, "restitution": "1", "n_vertices": "count", "n_triangles": "count", "resting_at_end": "count",
-    "frames": "count", "output_time_s": "s",
+    "frames": "count", "output_time_s": "s", "inertia_time_s": "s",
     # the validity limits (hailstorm.runtime.storm.limits)
     "impacts_beyond_indentation_limit": "count", "impacts_beyond_radius_limit": "count",
     "impacts_beyond_strain_limit": "count", "impacts_beyond_any_limit": "count",
@@ -127,6 +127,9 @@ SUMMARY_UNITS: dict[str, str | None] = {
     "min_impact_thickness_m": "m", "limit_indentation_thickness_ratio": "1", "limit_contact_radius_ratio": "1",
     "limit_strain_ratio": "1", "impacts_beyond_contact_time_limit": "count", "min_contact_time_ratio": "1",
     "limit_contact_time_ratio": "1", "pad_density": "kg/m^3",
+    # the pad's inertia per impact (hailstorm.runtime.inertia)
+    "impacts_beyond_inertia_limit": "count", "max_impact_force_N": "N", "max_impact_force_dynamic_N": "N",
+    "min_inertia_force_factor": "1", "min_inertia_restitution_factor": "1", "limit_inertia_change": "1",
 }
 
 
@@ -143,7 +146,7 @@ def summary(result: Any, gf: Any = None) -> dict[str, Any]:
     ``capacitance_rebuilds``, ``frames`` (recorded, = files in each series),
     ``sim_time_s``, ``wall_time_s`` (the stepping, recording the frames
     included, writing them not), ``output_time_s`` (writing the frames as they
-    were recorded),
+    were recorded), ``inertia_time_s`` (the impacts' inertia factors, after the storm),
     ``real_time_factor`` (simulated / wall-clock time; > 1 is faster than real
     time), ``setup_time_s`` (building the storm: spatial index, spawn plan,
     loading the compiled kernels), ``compile_time_s`` (the one-time compile of
@@ -160,7 +163,10 @@ def summary(result: Any, gf: Any = None) -> dict[str, Any]:
     ``max_strain_ratio`` (the worst values, [-]), ``min_impact_thickness_m``
     (the thinnest pad under an impact) and the limits
     ``limit_indentation_thickness_ratio``, ``limit_contact_radius_ratio``,
-    ``limit_strain_ratio`` [-].
+    ``limit_strain_ratio`` [-]; the contact-time limit's and the pad's inertia's keys
+    (:func:`hailstorm.runtime.storm.limits.summarise`: ``max_impact_force_N`` and
+    ``max_impact_force_dynamic_N``, the largest impact's peak force quasi-static and
+    with the pad's inertia).
 
     Parameters
     ----------

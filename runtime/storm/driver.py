@@ -255,7 +255,7 @@ class Storm:
         sets = ContactSets(gf, contact, normals, self.patches)
         self.integrator = ContactIntegrator(scene.time, contact)
         self.contacts = SoftContacts(contact, scene.time, sets, self.patches, self.integrator, self.seat, air,
-                                     scene.validity.pad_density)
+                                     scene.validity.pad_density, scene.validity.inertia)
         self.stats = StormStats(patch=contact.patch)
         self.t = 0.0
         #: stones retired below the seat inside its footprint without ever touching it
@@ -662,6 +662,10 @@ def run_storm(
         if bar is not None:
             bar.close()
     st, stones = storm.stats, storm.stones
+    inertia0 = time.perf_counter()
+    if st.validity is not None and scene.validity.inertia:  # the pad's inertia per impact (a local peer each)
+        st.validity.inertia(progress=progress is True)
+    st.inertia_time_s = time.perf_counter() - inertia0
     through = storm.passed_through_warning()
     if through is not None:
         _log.warning("warning: %s", through)

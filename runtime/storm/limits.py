@@ -115,12 +115,17 @@ class ValidityLimits:
     contact_time : float
         Smallest contact time over the pad's wave period, ``t_c / T`` [-]
         (:func:`contact_time_ratio`).
+    inertia : float
+        Largest change the pad's inertia makes to an impact's peak force, contact time,
+        rebound speed or largest dent, ``|factor - 1|`` [-]
+        (:class:`hailstorm.runtime.inertia.factors.InertiaFactors`).
     """
 
     indentation_thickness: float = 0.1
     contact_radius: float = 0.8
     strain: float = 0.05
     contact_time: float = 1.6
+    inertia: float = 0.05
 
 
 def boundary_faces(tets: np.ndarray) -> np.ndarray:
@@ -230,14 +235,18 @@ class ImpactLimits:
         The scene's ``time.rest_speed`` [m/s].
     limits : ValidityLimits, optional
     pad_density : float
-        The pad foam's density [kg/m^3] (the contact-time limit; the scene's
-        ``[validity] pad_density``).
+        The pad foam's density [kg/m^3] (the contact-time limit and the inertia factors; the
+        scene's ``[validity] pad_density``).
+    inertia : bool
+        Measure the pad's inertia in each impact (:meth:`inertia`; the scene's
+        ``[validity] inertia``).
     """
 
     def __init__(self, gf: Any, rest_speed: float, limits: ValidityLimits | None = None,
-                 pad_density: float = PAD_DENSITY) -> None:
+                 pad_density: float = PAD_DENSITY, inertia: bool = True) -> None:
         self.limits = ValidityLimits() if limits is None else limits
         self.pad_density = float(pad_density)
+        self.measure_inertia = bool(inertia)
         self.young, self.poisson = float(gf.young), float(gf.poisson)
         self.triangles = np.asarray(gf.triangles, dtype=np.int64)
         self.rest_speed = float(rest_speed)
@@ -254,6 +263,7 @@ class ImpactLimits:
         self.indentation: list[float] = []
         self.force: list[float] = []
         self._thickness = np.zeros(0)
+        self._inertia: Any = None  # InertiaFactors of the impacts so far, computed when first read
         self._changes = 0  # bumped by every change of a record (the summary's cache key)
         self._summary: tuple[int, dict[str, float | int]] | None = None
 
@@ -323,6 +333,26 @@ class ImpactLimits:
             self._thickness = np.concatenate([self._thickness, new])
         return self._thickness
 
+    def inertia(self, progress: Any = False) -> Any:
+        """The inertia factors of every impact so far (computed for the new ones: a dynamic and a
+        quasi-static impact each on the pad under it, :func:`hailstorm.runtime.inertia.factors.inertia_factors`;
+        ``progress`` as there).
+
+        Returns
+        -------
+        InertiaFactors
+        """
+        from hailstorm.runtime.inertia.factors import InertiaFactors, inertia_factors
+
+        done = InertiaFactors.empty() if self._inertia is None else self._inertia
+        if self.n > done.n:
+            k = done.n
+            new = inertia_factors(self.radius[k:], self.mass[k:], self.speed[k:], self.thickness[k:], self.young,
+                                  self.poisson, self.pad_density, progress=progress)
+            done = done + new
+        self._inertia = done
+        return done
+
     def ratios(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``delta / h``, ``a / R`` and the estimated peak strain of every impact so far, (n,) each."""
         R = np.array(self.radius, dtype=np.float64)
@@ -340,13 +370,16 @@ class ImpactLimits:
         impacts beyond each limit, the worst values and the limits."""
         if self._summary is None or self._summary[0] != self._changes:
             self._summary = (self._changes, summarise(*self.ratios(), self.thickness, self.limits,
-                                                      time_ratio=self.time_ratios(), pad_density=self.pad_density))
+                                                      time_ratio=self.time_ratios(), pad_density=self.pad_density,
+                                                      force=np.array(self.force, dtype=np.float64),
+                                                      inertia=self.inertia() if self.measure_inertia else None))
         return dict(self._summary[1])
 
 
 def summarise(dh: np.ndarray, aR: np.ndarray, eps: np.ndarray, thickness: np.ndarray,
               limits: ValidityLimits | None = None, *, time_ratio: np.ndarray | None = None,
-              pad_density: float = PAD_DENSITY) -> dict[str, float | int]:
+              pad_density: float = PAD_DENSITY, force: np.ndarray | None = None,
+              inertia: Any = None) -> dict[str, float | int]:
     """The validity keys of a storm's statistics from its impacts' measures.
 
     Parameters
@@ -359,38 +392,64 @@ def summarise(dh: np.ndarray, aR: np.ndarray, eps: np.ndarray, thickness: np.nda
         Per impact, ``t_c / T`` (:func:`contact_time_ratio`; default: none measured, inf).
     pad_density : float
         The pad's density the ratios assumed [kg/m^3] (recorded).
+    force : (n,) ndarray, optional
+        Per impact, the storm's (quasi-static) peak force [N] (default: none measured, 0).
+    inertia : InertiaFactors, optional
+        Per impact, the pad's inertia factors
+        (:class:`hailstorm.runtime.inertia.factors.InertiaFactors`; default: none measured, 1).
 
     Returns
     -------
     dict
         ``impacts_beyond_indentation_limit``, ``impacts_beyond_radius_limit``,
         ``impacts_beyond_strain_limit``, ``impacts_beyond_contact_time_limit``,
+        ``impacts_beyond_inertia_limit`` (the pad's inertia changes the impact's peak force,
+        contact time, rebound speed or dent by more than ``limits.inertia``),
         ``impacts_beyond_any_limit`` (counts),
         ``max_indentation_thickness_ratio``, ``max_contact_radius_ratio``,
         ``max_strain_ratio`` (the worst values, 0 without impacts),
         ``min_contact_time_ratio`` (the worst, the smallest; 0 without impacts or none measurable),
-        ``min_impact_thickness_m`` (0 without impacts), the limits
+        ``min_impact_thickness_m`` (0 without impacts),
+        ``max_impact_force_N`` (the largest impact peak force, quasi-static, the storm's),
+        ``max_impact_force_dynamic_N`` (the largest impact peak force times its inertia factor),
+        ``min_inertia_force_factor``, ``min_inertia_restitution_factor`` (the smallest factors,
+        1 without impacts; the three NaN, and the count 0, when there were impacts but no
+        ``inertia``), the limits
         ``limit_indentation_thickness_ratio``, ``limit_contact_radius_ratio``,
-        ``limit_strain_ratio``, ``limit_contact_time_ratio`` and ``pad_density``.
+        ``limit_strain_ratio``, ``limit_contact_time_ratio``, ``limit_inertia_change`` and ``pad_density``.
     """
     lim = ValidityLimits() if limits is None else limits
     tr = np.full(dh.shape, np.inf) if time_ratio is None else np.asarray(time_ratio, dtype=np.float64)
-    over = (dh > lim.indentation_thickness, aR > lim.contact_radius, eps > lim.strain, tr < lim.contact_time)
+    F = np.zeros(dh.shape) if force is None else np.asarray(force, dtype=np.float64)
+    ones = np.ones(dh.shape)
+    measured = inertia is not None or dh.size == 0  # (nothing to measure without impacts)
+    rF, re, change = (ones, ones, ones - 1.0) if inertia is None else (
+        np.where(np.isfinite(inertia.force), inertia.force, 1.0),
+        np.where(np.isfinite(inertia.restitution), inertia.restitution, 1.0),
+        np.nan_to_num(inertia.largest_change(), nan=0.0))
+    over = (dh > lim.indentation_thickness, aR > lim.contact_radius, eps > lim.strain, tr < lim.contact_time,
+            change > lim.inertia)
     return {
         "impacts_beyond_indentation_limit": int(over[0].sum()),
         "impacts_beyond_radius_limit": int(over[1].sum()),
         "impacts_beyond_strain_limit": int(over[2].sum()),
         "impacts_beyond_contact_time_limit": int(over[3].sum()),
-        "impacts_beyond_any_limit": int((over[0] | over[1] | over[2] | over[3]).sum()),
+        "impacts_beyond_inertia_limit": int(over[4].sum()),
+        "impacts_beyond_any_limit": int(np.logical_or.reduce(over).sum()) if dh.size else 0,
         "max_indentation_thickness_ratio": float(dh.max(initial=0.0)),
         "max_contact_radius_ratio": float(aR.max(initial=0.0)),
         "max_strain_ratio": float(eps.max(initial=0.0)),
         "min_contact_time_ratio": float(tr.min()) if tr.size and np.isfinite(tr.min()) else 0.0,
         "min_impact_thickness_m": float(thickness.min()) if thickness.size else 0.0,
+        "max_impact_force_N": float(F.max(initial=0.0)),
+        "max_impact_force_dynamic_N": float((F * rF).max(initial=0.0)) if measured else math.nan,
+        "min_inertia_force_factor": float(rF.min(initial=1.0)) if measured else math.nan,
+        "min_inertia_restitution_factor": float(re.min(initial=1.0)) if measured else math.nan,
         "limit_indentation_thickness_ratio": float(lim.indentation_thickness),
         "limit_contact_radius_ratio": float(lim.contact_radius),
         "limit_strain_ratio": float(lim.strain),
         "limit_contact_time_ratio": float(lim.contact_time),
+        "limit_inertia_change": float(lim.inertia),
         "pad_density": float(pad_density),
     }
 
@@ -425,5 +484,12 @@ def validity_warning(stats: Any) -> str | None:
         parts.append(f"contact time/pad wave period down to {float(stats['min_contact_time_ratio']):.3g} (limit "
                      f"{float(stats['limit_contact_time_ratio']):.3g} at {float(stats['pad_density']):g} kg/m^3, "
                      f"{int(stats['impacts_beyond_contact_time_limit'])} impacts beyond)")
+    dyn = stats.get("max_impact_force_dynamic_N")
+    if dyn is not None and math.isfinite(float(dyn)):  # (measured: not off, nor a summary of an older version)
+        parts.append(f"the pad's inertia changes {int(stats['impacts_beyond_inertia_limit'])} impacts by more than "
+                     f"{100 * float(stats['limit_inertia_change']):.3g} % (peak forces down to "
+                     f"x{float(stats['min_inertia_force_factor']):.3g}; the largest "
+                     f"{float(stats['max_impact_force_dynamic_N']):.4g} N dynamic against "
+                     f"{float(stats['max_impact_force_N']):.4g} N quasi-static)")
     return (f"{n} of {int(stats['impacts'])} impacts are beyond the model's validity limits: " + "; ".join(parts)
             + " (quasi-static linear elasticity and its contact law no longer vouch for these impacts; see docs/validity.md)")

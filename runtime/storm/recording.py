@@ -129,6 +129,8 @@ class StormStats(Mapping):
     resting_at_end: int = 0
     frames: int = 0
     output_time_s: float = 0.0
+    #: the wall time of the impacts' inertia factors [s] (after the storm, not in ``wall_time_s``)
+    inertia_time_s: float = 0.0
 
     @property
     def mean_penetration_contact_m(self) -> float:

@@ -507,12 +507,19 @@ class ValiditySettings(_Section):
     pad_density : float
         The pad foam's density [kg/m^3]. The quasi-static model has no mass in the
         seat; the density sets the pad's wave speeds, so how long an impact must last
-        for the pad to follow it quasi-statically (the contact-time limit).
+        for the pad to follow it quasi-statically (the contact-time limit), and the
+        pad's inertia in each impact (``inertia``).
+    inertia : bool
+        Measure the pad's inertia in each impact after the storm: a dynamic and a
+        quasi-static impact on the pad under it (:mod:`hailstorm.runtime.inertia`), whose
+        ratios correct the impact's peak force (``max_impact_force_dynamic_N``). About a
+        tenth of a second per impact; false leaves those keys empty.
     """
 
     SECTION: ClassVar[str] = "validity"
 
     pad_density: float = PAD_DENSITY
+    inertia: bool = True
 
     def __post_init__(self) -> None:
         _check_types(self)

@@ -52,11 +52,14 @@ class SoftContacts:
         Receives the contact forces.
     air : Air
     pad_density : float
-        The pad foam's density [kg/m^3], for the validity limits only (:class:`ImpactLimits`).
+        The pad foam's density [kg/m^3], for the validity limits and the inertia factors only
+        (:class:`ImpactLimits`).
+    inertia : bool
+        Measure the pad's inertia per impact (:meth:`ImpactLimits.inertia`).
     """
 
     def __init__(self, contact: ContactSettings, time: TimeSettings, sets: ContactSets, patches: Patches, integrator: ContactIntegrator,
-                 seat: SeatState, air: Air, pad_density: float = PAD_DENSITY) -> None:
+                 seat: SeatState, air: Air, pad_density: float = PAD_DENSITY, inertia: bool = True) -> None:
         self.sets = sets
         self.patches = patches
         self.integrator = integrator
@@ -66,7 +69,7 @@ class SoftContacts:
         self.time = time
         self.patch = contact.patch != "none"
         #: the impacts' validity measures (recorded, never fed back into the contact step)
-        self.limits = ImpactLimits(sets.gf, time.rest_speed, pad_density=pad_density)
+        self.limits = ImpactLimits(sets.gf, time.rest_speed, pad_density=pad_density, inertia=inertia)
         #: the current contact set (None: no soft contact) and its multipliers (the seat forces)
         self.current: ContactSet | None = None
         self.lam = np.zeros(0)

@@ -23,7 +23,8 @@ Green's-function assumption) and Hertz's half-space impact; the last column says
 the quasi-static model is within 5 % of the dynamic one on peak force, contact duration,
 rebound speed and largest dent. Then the default storm (``hailstorm storm``'s scene and
 cached seat bundle, or ``--gf DIR``), its validity keys (docs/validity.md) and their
-spread over its impacts.
+spread over its impacts, with the pad's inertia factors of its impacts (the scene's
+70 kg/m^3, and 200).
 
 ``--out FILE`` writes what the run prints to FILE as well (the measured output docs/
 includes from docs/_generated/): first the line ``$ <command>`` (this script's command
@@ -90,12 +91,36 @@ def impact_spread(stats) -> list[str]:
         lines.append(f"  {name:<24} {x.min():10.3g} {np.median(x):8.3g} {x.max():8.3g}")
     lines.append(f"  the strain is Hertz's term ((2/pi)(1-2nu)/(1-nu) a/R) in {int((hertz >= dh).sum())} of "
                  f"{rec.n} impacts, the layer's (delta/h) in the others")
+    fac = rec.inertia() if rec.measure_inertia else None
+    if fac is not None:
+        for name, x in (("inertia: peak force", fac.force), ("inertia: contact time", fac.duration),
+                        ("inertia: rebound speed", fac.restitution), ("inertia: dent", fac.dent)):
+            lines.append(f"  {name + ' x':<24} {np.nanmin(x):10.3g} {np.nanmedian(x):8.3g} {np.nanmax(x):8.3g}")
     limit = rec.limits.contact_time
     for rho in LIMIT_DENSITIES:
         t = contact_time_ratio(rec.mass, rec.radius, rec.speed, rec.thickness, rec.young, rec.poisson, rho)
         ok = np.array(rec.radius)[t >= limit]
         lines.append(f"  with the pad at {rho:g} kg/m^3: {int((t < limit).sum())} of {rec.n} impacts below t_c/T "
                      f"{limit:g}" + (f" (the smallest stone within it: R = {1e3 * ok.min():.1f} mm)" if ok.size else ""))
+    if fac is None:
+        return lines
+    from hailstorm.runtime.inertia import inertia_factors
+
+    F = np.array(rec.force)
+    for rho in LIMIT_DENSITIES:
+        f = fac if rho == rec.pad_density else inertia_factors(rec.radius, rec.mass, rec.speed, rec.thickness,
+                                                                rec.young, rec.poisson, rho)
+        change = f.largest_change()
+        beyond = change > rec.limits.inertia
+        within = np.array(rec.radius)[~beyond]
+        smallest = f"; the smallest stone within it: R = {1e3 * within.min():.1f} mm" if within.size else ""
+        lines.append(f"  the pad's inertia at {rho:g} kg/m^3: {int(beyond.sum())} of {rec.n} impacts changed by more "
+                     f"than {100 * rec.limits.inertia:g} % (the largest change {100 * np.nanmax(change):.1f} %"
+                     f"{smallest})")
+        lines.append(f"    peak force x{np.nanmin(f.force):.3f}-{np.nanmax(f.force):.3f}; the largest impact "
+                     f"{np.nanmax(F * np.where(np.isfinite(f.force), f.force, 1.0)):.1f} N dynamic against "
+                     f"{F.max():.1f} N quasi-static; rebound x{np.nanmin(f.restitution):.3f}-"
+                     f"{np.nanmax(f.restitution):.3f}")
     return lines
 
 

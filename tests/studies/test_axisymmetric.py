@@ -9,7 +9,8 @@ import pytest
 from scipy.optimize import brentq
 
 from hailstorm.runtime.contact.hertz import hertz_force
-from hailstorm.studies.axisymmetric import Pad, press_disc
+from hailstorm.runtime.inertia.pad import Pad
+from hailstorm.studies.axisymmetric import press_disc
 
 E, NU = 2.0e6, 0.35
 

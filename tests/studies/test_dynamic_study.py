@@ -9,7 +9,8 @@ import re
 import numpy as np
 import pytest
 
-from hailstorm.studies.axisymmetric import FOAM_DENSITY, Pad, axisymmetric_matrices, pad_mesh
+from hailstorm.runtime.inertia.pad import Pad, pad_mesh
+from hailstorm.studies.axisymmetric import FOAM_DENSITY, axisymmetric_matrices
 from hailstorm.studies.dynamic_study import (
     ICE_DENSITY,
     PeerResolutionError,

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from hailstorm.studies.axisymmetric import pad_mesh, without_contact_mass
+from hailstorm.runtime.inertia.pad import pad_mesh, without_contact_mass
 from hailstorm.studies.dynamic_study import default_pad, hertz_estimate, simulate_impact
 from hailstorm.studies.pad_modes import (
     hertz_load,

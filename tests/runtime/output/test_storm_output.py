@@ -113,12 +113,13 @@ def test_rerun_refuses_a_previous_output_the_user_added_to(gf, tmp_path):
 
 def test_streamed_storm_keeps_no_frames_and_memory_stays_flat(gf):
     """With an ``on_frame`` sink the frames are not kept: the traced peak memory of a
-    storm 10x as long stays within 1.3x (frames kept, it grows with the duration)."""
+    storm 10x as long stays within 1.3x (frames kept, it grows with the duration). (The
+    inertia factors, after the storm, are off: their local pads' peak would hide the frames'.)"""
     seen = []
 
     def peak(duration: float, keep: bool | None) -> float:
         seen.clear()
-        sc = _scene(duration=duration, stones=4, fps=250.0)
+        sc = _scene(duration=duration, stones=4, fps=250.0, inertia=False)
         run_storm(gf, sc, progress=False, on_frame=lambda f: None, keep_frames=keep)  # warm caches
         tracemalloc.start()
         res = run_storm(gf, sc, progress=False, on_frame=lambda f: seen.append(f.t), keep_frames=keep)

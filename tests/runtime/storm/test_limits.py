@@ -3,6 +3,7 @@ the per-impact measures, the statistics' keys and the warning."""
 
 from __future__ import annotations
 
+import math
 from types import SimpleNamespace
 
 import numpy as np
@@ -262,6 +263,39 @@ def test_a_drop_on_the_box_records_its_impact(box_gf, integrator, mode, patch):
     assert (S["impacts_beyond_any_limit"] > 0) == any(beyond)
 
 
+@pytest.mark.parametrize("inertia", [True, False])
+def test_the_summary_carries_each_impacts_inertia(box_gf, inertia):
+    """A stone dropped twice on the box: the inertia keys are the impacts' factors (each impact
+    run again on a pad of the box's thickness at its onset speed and the scene's pad density,
+    :func:`impact_inertia`) with their peak forces; with ``[validity] inertia = false`` they are
+    empty (NaN, ``null`` in summary.json) and the count 0."""
+    from hailstorm.runtime.inertia import impact_inertia
+
+    sc = Scene.from_flat(duration=0.02, stones=0, drag=False, dt=2e-4, restitution=0.5, pad_density=200.0,
+                         inertia=inertia)
+    st = Storm(box_gf, sc, spawn=False)
+    R = np.array([0.003, 0.005])
+    st.add_stones(np.array([[0.03, 0.037, H + R[0] + 1e-3], [0.065, 0.04, H + R[1] + 1e-3]]),
+                  np.array([[0.0, 0.0, -6.0], [0.0, 0.0, -3.0]]), R)
+    for _ in range(int(0.02 / 2e-4)):
+        st.step()
+    S, lim = st.stats, st.contacts.limits
+    assert lim.n >= 2
+    F = np.array(lim.force)
+    assert S["max_impact_force_N"] == pytest.approx(F.max(), rel=1e-12)
+    if not inertia:
+        assert math.isnan(S["max_impact_force_dynamic_N"]) and math.isnan(S["min_inertia_force_factor"])
+        assert S["impacts_beyond_inertia_limit"] == 0 and lim._inertia is None
+        return
+    f = np.array([impact_inertia(lim.radius[k], lim.mass[k], lim.speed[k], H, 1e6, 0.3, 200.0) for k in range(lim.n)])
+    np.testing.assert_allclose(np.column_stack(lim.inertia().astuple()), f, rtol=1e-12)
+    assert S["max_impact_force_dynamic_N"] == pytest.approx((F * f[:, 0]).max(), rel=1e-12)
+    assert S["min_inertia_force_factor"] == pytest.approx(f[:, 0].min(), rel=1e-12)
+    assert S["min_inertia_restitution_factor"] == pytest.approx(f[:, 2].min(), rel=1e-12)
+    assert S["impacts_beyond_inertia_limit"] == int((np.abs(f - 1).max(axis=1) > 0.05).sum())
+    assert f[:, 0].min() < 0.99  # a 1 MPa pad of 200 kg/m^3: the stones feel its inertia
+
+
 def test_validity_warning_names_the_numbers():
     st = dict(StormStats())
     assert validity_warning(st) is None
@@ -279,6 +313,13 @@ def test_validity_warning_names_the_numbers():
               pad_density=70.0)
     assert "contact time/pad wave period down to 0.613 (limit 1.6 at 70 kg/m^3, 9 impacts beyond)" in validity_warning(st)
     assert "docs/validity.md" in msg and "\n" not in msg
+    assert "the pad's inertia changes 0 impacts by more than 5 %" in msg  # (the statistics' neutral values)
+    st.update(impacts_beyond_inertia_limit=7, limit_inertia_change=0.05, min_inertia_force_factor=0.8964,
+              max_impact_force_N=150.396, max_impact_force_dynamic_N=147.463)
+    assert ("the pad's inertia changes 7 impacts by more than 5 % (peak forces down to x0.896; the largest "
+            "147.5 N dynamic against 150.4 N quasi-static)") in validity_warning(st)
+    st.update(max_impact_force_dynamic_N=None)  # measured off: nothing said
+    assert "inertia" not in validity_warning(st)
 
 
 @pytest.mark.parametrize("stones", [6, 0])
@@ -298,7 +339,8 @@ def test_cli_storm_warns_once_and_the_summary_carries_the_limits(box_gf, tmp_pat
     for k in ("impacts_beyond_indentation_limit", "impacts_beyond_radius_limit", "impacts_beyond_strain_limit",
               "impacts_beyond_any_limit", "max_indentation_thickness_ratio", "max_contact_radius_ratio",
               "max_strain_ratio", "min_impact_thickness_m", "impacts_beyond_contact_time_limit",
-              "min_contact_time_ratio"):
+              "min_contact_time_ratio", "impacts_beyond_inertia_limit", "max_impact_force_N",
+              "max_impact_force_dynamic_N", "min_inertia_force_factor", "min_inertia_restitution_factor"):
         assert k in s
     assert (s["limit_indentation_thickness_ratio"], s["limit_contact_radius_ratio"], s["limit_strain_ratio"],
             s["limit_contact_time_ratio"], s["pad_density"]) == (0.1, 0.8, 0.05, 1.6, 70.0)

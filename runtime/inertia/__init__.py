@@ -1,0 +1,18 @@
+"""The pad's inertia in an impact: what the quasi-static storm leaves out, measured per impact.
+
+* :mod:`~hailstorm.runtime.inertia.pad` -- the local pad (:class:`Pad`), a disc of the seat's
+  foam on a rigid base, axisymmetric about the impact: its mesh and matrices
+  (:func:`pad_mesh` -> :class:`PadMesh`, numpy and scipy alone);
+* :mod:`~hailstorm.runtime.inertia.impact` -- one stone's impact on it, with the pad's mass
+  and without (:func:`simulate_impact` -> :class:`ImpactResult`): the dynamic peer;
+* :mod:`~hailstorm.runtime.inertia.factors` -- per impact of a storm, the dynamic over the
+  quasi-static impact on the pad under it (:func:`inertia_factors` ->
+  :class:`InertiaFactors`).
+"""
+
+from hailstorm.runtime.inertia.factors import InertiaFactors, impact_inertia, inertia_factors
+from hailstorm.runtime.inertia.impact import ImpactResult, PeerResolutionError, simulate_impact
+from hailstorm.runtime.inertia.pad import Pad, PadMesh, pad_mesh
+
+__all__ = ["ImpactResult", "InertiaFactors", "Pad", "PadMesh", "PeerResolutionError", "impact_inertia",
+           "inertia_factors", "pad_mesh", "simulate_impact"]

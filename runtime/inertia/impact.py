@@ -1,0 +1,250 @@
+"""One stone's impact on the local pad, with the pad's mass and without: the dynamic peer.
+
+A rigid frictionless ice sphere hits a :class:`~hailstorm.runtime.inertia.pad.Pad` on its
+axis (:func:`simulate_impact`): Newmark's average acceleration (``beta = 1/4``,
+``gamma = 1/2``; unconditionally stable, no numerical damping) on the pad's P1 mesh,
+unilateral node-to-sphere contact solved exactly each step (the sphere's exact profile
+``phi(r) = R - sqrt(R^2 - r^2)`` at the nodes' undeformed radii; active set on the Schur
+complement of the step's effective stiffness, the sphere's own Newmark equation included),
+no mass on the contact nodes' normal dofs (:func:`~hailstorm.runtime.inertia.pad.without_contact_mass`).
+*Dynamic*: the pad with its mass, so elastic waves carry energy away from the contact;
+*quasi-static*: the same pad without mass (its static response: the Green's-function
+assumption). No gravity: the difference is the pad's inertia alone.
+
+:mod:`hailstorm.studies.dynamic_study` holds it to Hertz's impact and to the storm, and
+charts where the two agree; :mod:`hailstorm.runtime.inertia.factors` runs it for every
+impact of a storm.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from hailstorm.runtime.contact.hertz import HertzImpact, hertz_impact
+from hailstorm.runtime.inertia.pad import Pad, PadMesh, contact_lcp, pad_mesh, without_contact_mass
+
+__all__ = ["ICE_DENSITY", "MIN_CELLS_PER_RADIUS", "MIN_STEPS_PER_CONTACT", "ImpactResult", "PeerResolutionError",
+           "check_density", "hertz_estimate", "impact_mesh", "simulate_impact"]
+
+#: ice density [kg/m^3] (the default scene's ``[hail] density``)
+ICE_DENSITY = 917.0
+#: the least steps per contact duration and cells per contact radius a run accepts
+MIN_STEPS_PER_CONTACT, MIN_CELLS_PER_RADIUS = 20, 4.0
+
+
+class PeerResolutionError(ValueError):
+    """A peer run asked on a mesh or a time step too coarse for its impact (the message has the numbers)."""
+
+
+def check_density(name: str, value: float) -> float:
+    """``value`` as a float, or ValueError naming ``name`` unless it is finite and positive [kg/m^3]."""
+    v = float(value)
+    if not (math.isfinite(v) and v > 0):
+        raise ValueError(f"{name} density must be positive, got {value!r} kg/m^3")
+    return v
+
+
+def hertz_estimate(pad: Pad, radius: float, speed: float, ice_density: float = ICE_DENSITY) -> HertzImpact:
+    """Hertz's quasi-static impact of the stone on a half-space of the pad's material (no gravity)."""
+    m = check_density("ice", ice_density) * 4.0 / 3.0 * math.pi * radius**3
+    return hertz_impact(m, speed, radius, pad.young, pad.poisson)
+
+
+@dataclass
+class ImpactResult:
+    """One impact of the peer (:func:`simulate_impact`).
+
+    Attributes
+    ----------
+    dynamic : bool
+        The pad had its mass (False: quasi-static).
+    speed : float
+        Impact speed [m/s].
+    peak_force : float
+        [N]
+    duration : float
+        First touch (t = 0) to the last release [s].
+    rebound_speed : float
+        The sphere's speed away from the pad after the contact [m/s].
+    max_dent : float
+        Largest downward displacement of the pad's top at the impact point [m].
+    max_contact_radius : float
+        Largest radius of the touching nodes [m].
+    dt : float
+    steps : int
+    history : (k, 4) ndarray
+        Per step: time [s], contact force [N], sphere penetration x [m], dent at the axis [m].
+    modes : int or None
+        The pad's dynamics cut to this many modes (:mod:`hailstorm.studies.pad_modes`); None: all.
+    """
+
+    dynamic: bool
+    speed: float
+    peak_force: float
+    duration: float
+    rebound_speed: float
+    max_dent: float
+    max_contact_radius: float
+    dt: float
+    steps: int
+    history: np.ndarray = field(repr=False)
+    modes: int | None = None
+
+    @property
+    def restitution(self) -> float:
+        """Rebound over impact speed."""
+        return self.rebound_speed / self.speed
+
+
+def _check_resolution(cell: float, a: float, dt: float, duration: float, what: str) -> None:
+    if cell > a / MIN_CELLS_PER_RADIUS:
+        raise PeerResolutionError(
+            f"the peer's mesh is too coarse for this impact ({what}): cells of {cell * 1e3:.3g} mm under a contact "
+            f"radius of {a * 1e3:.3g} mm ({a / cell:.3g} cells per radius; at least {MIN_CELLS_PER_RADIUS:g}, "
+            f"cells <= {a / MIN_CELLS_PER_RADIUS * 1e3:.3g} mm)")
+    if dt > duration / MIN_STEPS_PER_CONTACT:
+        raise PeerResolutionError(
+            f"the peer's time step is too coarse for this impact ({what}): dt = {dt:.3g} s over a contact of "
+            f"{duration:.3g} s ({duration / dt:.3g} steps; at least {MIN_STEPS_PER_CONTACT}, dt <= "
+            f"{duration / MIN_STEPS_PER_CONTACT:.3g} s)")
+
+
+def simulate_impact(mesh: PadMesh, radius: float, speed: float, *, dynamic: bool = True, dt: float | None = None,
+                    steps_per_contact: int = 200, ice_density: float = ICE_DENSITY,
+                    beta: float = 0.25, gamma: float = 0.5, modes: Any = None) -> ImpactResult:
+    """A rigid ice sphere hitting the pad at ``speed`` along its axis (Newmark, unilateral contact).
+
+    Parameters
+    ----------
+    mesh : PadMesh
+    radius : float
+        Sphere radius R [m].
+    speed : float
+        Impact speed [m/s] (> 0).
+    dynamic : bool
+        With the pad's mass (False: the quasi-static pad, massless).
+    dt : float, optional
+        Time step [s] (default: Hertz's contact duration over ``steps_per_contact``).
+    steps_per_contact : int
+    ice_density : float
+        [kg/m^3] (> 0).
+    beta, gamma : float
+        Newmark's parameters (default: average acceleration).
+    modes : PadModes, optional
+        The pad's dynamics in these modes only, the rest quasi-static (the mode-acceleration
+        form, :mod:`hailstorm.studies.pad_modes`; the same Newmark rule per mode: with every
+        mode of the massless-contact pad it is the full peer). Needs ``dynamic``.
+
+    Returns
+    -------
+    ImpactResult
+
+    Raises
+    ------
+    ValueError
+        Non-positive density, radius or speed.
+    PeerResolutionError
+        Fewer than :data:`MIN_STEPS_PER_CONTACT` steps per contact duration or fewer
+        than :data:`MIN_CELLS_PER_RADIUS` cells per contact radius (Hertz's estimates
+        before the run, the measured ones after).
+    """
+    from scipy.sparse.linalg import splu
+
+    rho_ice = check_density("ice", ice_density)
+    if not (radius > 0 and speed > 0):
+        raise ValueError(f"the sphere needs radius > 0 and speed > 0, got {radius!r}, {speed!r}")
+    pad = mesh.pad
+    m = rho_ice * 4.0 / 3.0 * math.pi * radius**3
+    ref = hertz_impact(m, speed, radius, pad.young, pad.poisson)
+    a_ref = math.sqrt(radius * ref.max_depth)
+    dt = ref.duration / steps_per_contact if dt is None else float(dt)
+    _check_resolution(mesh.cell, a_ref, dt, ref.duration, "Hertz's estimate")
+    cand = np.flatnonzero(mesh.top_r < 0.999 * radius)
+    r_c = mesh.top_r[cand]
+    phi = radius - np.sqrt(radius**2 - r_c**2)
+    C = mesh.top_uz[cand]  # u_z dofs of the candidate nodes (indices into the free dofs)
+    if modes is not None and not dynamic:
+        raise ValueError("simulate_impact: modes need dynamic=True")
+    modal = modes is not None
+    full = dynamic and not modal  # Newmark on every dof
+    M = without_contact_mass(mesh.M, C) if full else None
+    K_eff = mesh.K + M / (beta * dt * dt) if full else mesh.K
+    lu = splu(K_eff.tocsc())
+    n = K_eff.shape[0]
+    E = np.zeros((n, C.size))
+    E[C, np.arange(C.size)] = 1.0
+    G = lu.solve(E)  # K_eff^-1 C^T
+    c = beta * dt * dt / m
+    S_pad = G[C]  # C K_eff^-1 C^T
+    if modal:  # the retained modes' share of the static compliance, as far as a step lets them move
+        PC, w2 = modes.shapes[C], modes.omega2
+        lag = 1.0 / (1.0 + beta * dt * dt * w2)
+        S_pad = S_pad - (PC * (lag / w2)) @ PC.T
+        eta, eta_v, eta_a = np.zeros(w2.size), np.zeros(w2.size), np.zeros(w2.size)
+    S = S_pad + c  # ... + c 1 1^T: the sphere's own Newmark equation
+    u, v, acc = np.zeros(n), np.zeros(n), np.zeros(n)
+    x, xv, xa = 0.0, float(speed), 0.0
+    active = np.zeros(C.size, dtype=bool)
+    centre = mesh.top_uz[0]
+    hist, t, last_touch, max_r = [], 0.0, -1.0, 0.0
+    t_end = 4.0 * ref.duration
+    while t < t_end:
+        t += dt
+        x_hat = x + dt * xv + (0.5 - beta) * dt * dt * xa
+        if full:
+            u_hat = u + dt * v + (0.5 - beta) * dt * dt * acc
+            u_free = lu.solve(M @ u_hat) / (beta * dt * dt)
+            u_free_C = u_free[C]
+        elif modal:
+            eta_hat = eta + dt * eta_v + (0.5 - beta) * dt * dt * eta_a
+            u_free_C = PC @ (eta_hat * lag)
+        else:
+            u_free_C = np.zeros(C.size)
+        q = phi - x_hat - u_free_C
+        lam, active = contact_lcp(S, q, active)
+        F = float(lam.sum())
+        x_new = x_hat - c * F
+        xa_new = -F / m
+        if modal:  # the contact nodes alone: the dent at the axis is the first candidate's
+            f_m = -(PC.T @ lam)
+            eta_new = (eta_hat + beta * dt * dt * f_m) * lag
+            eta_a_new = f_m - w2 * eta_new
+            eta_v = eta_v + dt * ((1 - gamma) * eta_a + gamma * eta_a_new)
+            eta, eta_a = eta_new, eta_a_new
+            u[centre] = u_free_C[0] - S_pad[0] @ lam
+        else:
+            u_new = (u_free if full else 0.0) - G @ lam
+            if full:
+                acc_new = (u_new - u_hat) / (beta * dt * dt)
+                v = v + dt * ((1 - gamma) * acc + gamma * acc_new)
+                acc = acc_new
+            u = u_new
+        xv = xv + dt * ((1 - gamma) * xa + gamma * xa_new)
+        x, xa = x_new, xa_new
+        hist.append((t, F, x, -u[centre]))
+        if F > 0:
+            last_touch = t
+            max_r = max(max_r, float(r_c[lam > 0].max()))
+        elif last_touch > 0 and t > last_touch + 0.5 * ref.duration and xv < 0:
+            break  # released, moving away, and no touch for half a contact time
+        if t >= t_end and last_touch > t - 0.5 * ref.duration:
+            t_end += ref.duration  # still touching: go on
+    H = np.array(hist)
+    duration = last_touch + 0.5 * dt if last_touch > 0 else 0.0
+    res = ImpactResult(dynamic=dynamic, speed=float(speed), peak_force=float(H[:, 1].max()), duration=duration,
+                       rebound_speed=float(-xv), max_dent=float(H[:, 3].max()), max_contact_radius=max_r, dt=dt,
+                       steps=len(hist), history=H, modes=modes.count if modal else None)
+    _check_resolution(mesh.cell, max_r if max_r > 0 else a_ref, dt, max(duration, dt), "as measured")
+    return res
+
+
+def impact_mesh(pad: Pad, radius: float, speed: float, cells_per_radius: float = 8.0,
+                ice_density: float = ICE_DENSITY) -> PadMesh:
+    """The peer's mesh for one impact: fine cells of Hertz's contact radius over ``cells_per_radius``
+    within 1.5 contact radii of the impact (growing by 1.15 beyond)."""
+    a = math.sqrt(radius * hertz_estimate(pad, radius, speed, ice_density).max_depth)
+    return pad_mesh(pad, cell=a / cells_per_radius, extent=1.5 * a)
