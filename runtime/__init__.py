@@ -14,7 +14,9 @@ contact work in compiled kernels (:mod:`hailstorm.runtime.compiled`).
 * :class:`Scene` (its sections :class:`StormSettings`, :class:`HailSettings`,
   :class:`ContactSettings`, :class:`TimeSettings`, :class:`OutputSettings`, :class:`ValiditySettings`; the default seat's
   precompute settings :class:`SeatSettings`), :func:`run_storm` -> :class:`StormResult` (the hail storm);
-  :class:`Storm`, the storm driver stepped by hand (studies, tests).
+  :class:`Storm`, the storm driver stepped by hand (studies, tests);
+* :mod:`hailstorm.runtime.inertia`: the pad's inertia in each impact (a storm's inertia factors,
+  its local dynamic peer).
 """
 
 from hailstorm.runtime.bundle import BundleError, GreensFunctions, load

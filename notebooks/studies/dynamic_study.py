@@ -247,7 +247,7 @@ def storm_impact(gf: Any, radius: float, speed: float, *, dt: float = 2e-6, ice_
             break
     S = st.stats
     factors = S.validity.inertia() if S.validity is not None else None
-    inertia = tuple(float(f[0]) for f in factors.astuple()) if factors is not None and factors.n else (math.nan,) * 4
+    inertia = tuple(float(f[0]) for f in factors.astuple()) if factors is not None and factors.impacts else (math.nan,) * 4
     return StormImpact(peak_force=float(S["max_contact_force"]), duration=below * dt,
                        rebound_speed=float(st.vel[0, 2]), max_dent=float(S["max_indentation_m"]),
                        inertia=inertia)

@@ -59,8 +59,8 @@ class InertiaFactors:
     dent: np.ndarray
 
     @property
-    def n(self) -> int:
-        """Impacts."""
+    def impacts(self) -> int:
+        """How many impacts."""
         return int(self.force.size)
 
     def largest_change(self) -> np.ndarray:

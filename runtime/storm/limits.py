@@ -345,8 +345,8 @@ class ImpactLimits:
         from hailstorm.runtime.inertia.factors import InertiaFactors, inertia_factors
 
         done = InertiaFactors.empty() if self._inertia is None else self._inertia
-        if self.n > done.n:
-            k = done.n
+        if self.n > done.impacts:
+            k = done.impacts
             new = inertia_factors(self.radius[k:], self.mass[k:], self.speed[k:], self.thickness[k:], self.young,
                                   self.poisson, self.pad_density, progress=progress)
             done = done + new

@@ -81,7 +81,7 @@ def test_module_table_matches_the_tree():
     for path in named:
         assert (ROOT / path).exists(), path
     short = set(re.findall(r"`(\w+\.py)`", table))
-    for folder in ("precompute", "runtime/bundle", "runtime/contact", "runtime/storm", "runtime/output"):
+    for folder in ("precompute", "runtime/bundle", "runtime/contact", "runtime/inertia", "runtime/storm", "runtime/output"):
         for module in (ROOT / folder).glob("*.py"):
             if module.name != "__init__.py":
                 rel = f"{folder}/{module.name}"
