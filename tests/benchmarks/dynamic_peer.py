@@ -61,7 +61,8 @@ def run_default_storm(gf_path: str | None = None):
 def _validity_keys(stats) -> dict:
     from hailstorm.runtime.storm.limits import VALIDITY_KEYS
 
-    return {k: stats[k] for k in ("hailstones", "impacts", "max_indentation_m", "max_patch_radius_m", *VALIDITY_KEYS)}
+    return {k: stats[k] for k in ("hailstones", "impacts", "max_indentation_m", "max_patch_radius_m", *VALIDITY_KEYS,
+                                  "wall_time_s", "inertia_time_s")}
 
 
 def storm_validity(gf_path: str | None = None) -> dict:
