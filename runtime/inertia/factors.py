@@ -144,7 +144,10 @@ def inertia_factors(radius: Any, mass: Any, speed: Any, thickness: Any, young: f
     ----------
     radius, mass, speed, thickness : (n,) array_like
         Per impact: the stone's radius [m] and mass [kg], its normal speed at onset [m/s],
-        the local pad's thickness [m] (not finite: no local pad, NaN factors).
+        the local pad's thickness [m] (not finite: no local pad, NaN factors; so too an
+        impact whose contact the local pad cannot resolve at 4 times the cells per radius,
+        :class:`~hailstorm.runtime.inertia.impact.PeerResolutionError`: a storm's statistics
+        count NaN factors as 1).
     young, poisson : float
         The pad's material [Pa], [-].
     density : float
@@ -173,7 +176,10 @@ def inertia_factors(radius: Any, mass: Any, speed: Any, thickness: Any, young: f
     try:
         for k in range(R.size):
             if np.isfinite(h[k]) and h[k] > 0:
-                out[:, k] = impact_inertia(R[k], m[k], v[k], h[k], young, poisson, density, **resolution)
+                try:
+                    out[:, k] = impact_inertia(R[k], m[k], v[k], h[k], young, poisson, density, **resolution)
+                except PeerResolutionError:  # a contact the local pad cannot resolve: not measured (NaN)
+                    pass
             if bar is not None:
                 bar.update(1)
             elif callable(progress):

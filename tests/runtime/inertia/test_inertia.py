@@ -102,9 +102,10 @@ def test_a_long_impact_sees_no_inertia():
     assert fast[0] < 0.98 and fast[1] > 1.01
 
 
-def test_inertia_factors_of_many_impacts():
-    """The batch is each impact's factors; no pad under an impact (inf) gives NaN, and the
-    largest change ignores it; progress is reported per impact; bad input is refused."""
+def test_inertia_factors_of_many_impacts(monkeypatch):
+    """The batch is each impact's factors; no pad under an impact (inf), or a contact its pad
+    cannot resolve, gives NaN, and the largest change ignores it; progress is reported per
+    impact; bad input is refused."""
     R, v, h = [0.0025, 0.004, 0.003], [9.0, 11.0, 5.0], [0.015, np.inf, 0.012]
     m = [_stone(x) for x in R]
     seen = []
@@ -118,6 +119,13 @@ def test_inertia_factors_of_many_impacts():
     assert change[0] == pytest.approx(max(abs(f[0] - 1) for f in got.astuple()))
     both = InertiaFactors.empty() + got
     np.testing.assert_array_equal(both.force, got.force)
+    from hailstorm.runtime.inertia import PeerResolutionError, factors
+
+    def unresolved(*a, **k):
+        raise PeerResolutionError("too coarse")
+
+    monkeypatch.setattr(factors, "impact_inertia", unresolved)  # a contact the local pad cannot resolve: NaN
+    assert np.isnan(inertia_factors(R[:1], m[:1], v[:1], h[:1], E, NU, 70.0).force).all()
     with pytest.raises(ValueError, match="differ in length"):
         inertia_factors(R[:2], m, v, h, E, NU, 70.0)
     with pytest.raises(ValueError, match="pad density must be positive"):
