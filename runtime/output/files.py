@@ -48,8 +48,10 @@ __all__ = [
     "StormOutput",
     "check_storm_out",
     "clean_stale_partials",
+    "impacts_csv",
     "summary",
     "write_animation",
+    "write_impacts",
     "write_paraview",
     "write_summary",
 ]
@@ -197,6 +199,33 @@ def write_summary(result: Any, path: str | os.PathLike, gf: Any = None) -> Path:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     return write_text_atomic(path, json.dumps(summary(result, gf), indent=2, sort_keys=True) + "\n")
+
+
+def impacts_csv(stats: Any) -> str:
+    """Every impact of a storm as CSV text (``impacts.csv``): a header of column names, then one
+    line per impact (:meth:`hailstorm.runtime.storm.limits.ImpactLimits.table`; a value not
+    measured is an empty field). A storm without impacts gives the header alone."""
+    from hailstorm.runtime.storm.limits import IMPACT_COLUMNS
+
+    rec = getattr(stats, "validity", None)
+    cols = rec.table() if rec is not None else {k: np.zeros(0) for k in IMPACT_COLUMNS}
+    names = list(cols)
+
+    def cell(v: Any) -> str:
+        if isinstance(v, (float, np.floating)):
+            return "" if math.isnan(float(v)) else f"{float(v):.9g}"  # (inf stays: "no measure", as in the summary)
+        return str(v)
+
+    n = len(cols[names[0]]) if names else 0
+    lines = [",".join(names)] + [",".join(cell(cols[k][i]) for k in names) for i in range(n)]
+    return "\n".join(lines) + "\n"
+
+
+def write_impacts(stats: Any, path: str | os.PathLike) -> Path:
+    """Write :func:`impacts_csv` to ``path`` atomically; returns the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    return write_text_atomic(path, impacts_csv(stats))
 
 
 def _pvd(entries: list[tuple[float, str]]) -> str:
@@ -445,7 +474,7 @@ class StormOutput:
     the free disk space, then creates a hidden temporary sibling of ``out``;
     :meth:`add` writes each frame there as the storm records it; :meth:`finish`
     writes the ``.pvd`` collections, ``summary.json``, the animation and the
-    manifest :data:`STORM_MANIFEST`, and renames the directory into place
+    manifest :data:`STORM_MANIFEST`, and ``impacts.csv`` (:func:`impacts_csv`), and renames the directory into place
     (replacing a previous storm output). Leaving the ``with`` block without
     :meth:`finish` (an error, Ctrl-C) removes the temporary directory and
     leaves ``out`` as it was.
@@ -530,7 +559,7 @@ class StormOutput:
         Returns
         -------
         dict
-            ``{"summary", "paraview", "stones", "video"}`` -> final paths (``video``
+            ``{"summary", "impacts", "paraview", "stones", "video"}`` -> final paths (``video``
             only when rendered; it may be the GIF fallback).
         """
         assert self.series is not None and self.staging is not None, "StormOutput.open() first"
@@ -541,7 +570,8 @@ class StormOutput:
         series.close()
         result.stats.frames = len(series)  # the summary counts the files it describes
         write_summary(result, staging / "summary.json", self.gf)
-        files = [*series.files(), "summary.json"]
+        write_impacts(result.stats, staging / "impacts.csv")
+        files = [*series.files(), "summary.json", "impacts.csv"]
         video = None
         if self.video:
             video = write_animation(series.frames(), self.gf, staging / "storm.mp4",
@@ -550,7 +580,8 @@ class StormOutput:
         manifest = {"format": _MANIFEST_FORMAT, "version": 1, "files": sorted(files)}
         (staging / STORM_MANIFEST).write_text(json.dumps(manifest, indent=1) + "\n")
         self._commit()
-        paths = {"summary": self.out / "summary.json", "paraview": self.out / f"{series.name}.pvd",
+        paths = {"summary": self.out / "summary.json", "impacts": self.out / "impacts.csv",
+                 "paraview": self.out / f"{series.name}.pvd",
                  "stones": self.out / f"{series.name}_stones.pvd"}
         if video is not None:
             paths["video"] = self.out / video.name

@@ -82,6 +82,7 @@ from hailstorm.runtime.bundle.thickness import PadThickness
 from hailstorm.runtime.contact.weights import sphere_radius
 
 __all__ = [
+    "IMPACT_COLUMNS",
     "ImpactLimits",
     "PAD_DENSITY",
     "ValidityLimits",
@@ -249,13 +250,15 @@ class ImpactLimits:
         self.measure_inertia = bool(inertia)
         self.young, self.poisson = float(gf.young), float(gf.poisson)
         self.triangles = np.asarray(gf.triangles, dtype=np.int64)
+        self.vertices = np.asarray(gf.vertices)
         self.rest_speed = float(rest_speed)
         #: local pad thickness under the surface vertices [m], cast when first read
         self.pad = PadThickness(gf)
         #: stone id -> its open impact record
         self.record_of: dict[int, int] = {}
-        #: per impact: stone radius [m], contact triangle and barycentric coordinates at onset,
+        #: per impact: the stone's id, its radius [m], contact triangle and barycentric coordinates at onset,
         #: stone mass [kg], normal speed at onset [m/s], peak indentation [m], peak force [N]
+        self.stone: list[int] = []
         self.radius: list[float] = []
         self.mass: list[float] = []
         self.speed: list[float] = []
@@ -307,6 +310,7 @@ class ImpactLimits:
                 rec_of.pop(j, None)  # a slow touch opens no record (and ends the stone's last one)
                 if vin is not None and vin[i] < -self.rest_speed:
                     rec_of[j] = self.n
+                    self.stone.append(int(j))
                     self.radius.append(float(radius[i]))
                     self.where.append((int(tris[i]), list(bary[i])))
                     self.mass.append(float(mass[i]))
@@ -364,6 +368,45 @@ class ImpactLimits:
         """``t_c / T`` of every impact so far, (n,) (:func:`contact_time_ratio`)."""
         return contact_time_ratio(self.mass, self.radius, self.speed, self.thickness, self.young, self.poisson,
                                   self.pad_density)
+
+    def table(self) -> dict[str, np.ndarray]:
+        """Every impact so far, one entry per column, (n,) each (``impacts.csv``).
+
+        Columns: ``stone`` (its id), ``x_m``, ``y_m``, ``z_m`` (the contact point at onset, on
+        the undeformed surface), ``radius_m``, ``mass_kg``, ``speed_m_s`` (normal, at onset),
+        ``thickness_m`` (the pad under it), ``peak_force_N`` (the storm's), ``peak_force_dynamic_N``
+        (times the inertia factor; NaN where not measured), ``indentation_m``, ``indentation_thickness_ratio``,
+        ``contact_radius_ratio``, ``strain_ratio``, ``contact_time_ratio`` and the inertia factors
+        ``inertia_force``, ``inertia_duration``, ``inertia_restitution``, ``inertia_dent``
+        (NaN where not measured); ``beyond`` (the limits it is beyond, ``;``-separated:
+        ``indentation``, ``radius``, ``strain``, ``contact_time``, ``inertia``).
+        """
+        n = self.n
+        tri = np.array([w[0] for w in self.where], dtype=np.int64)
+        bary = np.array([w[1] for w in self.where], dtype=np.float64).reshape(n, 3)
+        X = np.einsum("kj,kjd->kd", bary, self.vertices[self.triangles[tri]]) if n else np.zeros((0, 3))
+        dh, aR, eps = self.ratios()
+        tr = self.time_ratios()
+        f = self.inertia() if self.measure_inertia else None
+        nan = np.full(n, np.nan)
+        fac = f.astuple() if f is not None else (nan, nan, nan, nan)
+        F = np.array(self.force, dtype=np.float64)
+        lim = self.limits
+        with np.errstate(invalid="ignore"):
+            over = {"indentation": dh > lim.indentation_thickness, "radius": aR > lim.contact_radius,
+                    "strain": eps > lim.strain, "contact_time": tr < lim.contact_time,
+                    "inertia": f.largest_change() > lim.inertia if f is not None else np.zeros(n, dtype=bool)}
+        beyond = np.array([";".join(k for k, v in over.items() if v[i]) for i in range(n)], dtype=object)
+        table = {"stone": np.array(self.stone, dtype=np.int64), "x_m": X[:, 0], "y_m": X[:, 1], "z_m": X[:, 2],
+                 "radius_m": np.array(self.radius, dtype=np.float64), "mass_kg": np.array(self.mass, dtype=np.float64),
+                 "speed_m_s": np.array(self.speed, dtype=np.float64), "thickness_m": self.thickness.copy(),
+                 "peak_force_N": F, "peak_force_dynamic_N": F * fac[0],
+                 "indentation_m": np.array(self.indentation, dtype=np.float64), "indentation_thickness_ratio": dh,
+                 "contact_radius_ratio": aR, "strain_ratio": eps, "contact_time_ratio": tr,
+                 "inertia_force": fac[0], "inertia_duration": fac[1], "inertia_restitution": fac[2],
+                 "inertia_dent": fac[3], "beyond": beyond}
+        assert tuple(table) == IMPACT_COLUMNS
+        return table
 
     def summary(self) -> dict[str, float | int]:
         """The statistics' validity keys (see :class:`~hailstorm.runtime.storm.recording.StormStats`):
@@ -453,6 +496,12 @@ def summarise(dh: np.ndarray, aR: np.ndarray, eps: np.ndarray, thickness: np.nda
         "pad_density": float(pad_density),
     }
 
+
+#: the columns of :meth:`ImpactLimits.table` (``impacts.csv``), in their order
+IMPACT_COLUMNS = ("stone", "x_m", "y_m", "z_m", "radius_m", "mass_kg", "speed_m_s", "thickness_m", "peak_force_N",
+                  "peak_force_dynamic_N", "indentation_m", "indentation_thickness_ratio", "contact_radius_ratio",
+                  "strain_ratio", "contact_time_ratio", "inertia_force", "inertia_duration", "inertia_restitution",
+                  "inertia_dent", "beyond")
 
 #: the validity keys of a storm's statistics, in their order (:func:`summarise`)
 VALIDITY_KEYS = tuple(summarise(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0)))

@@ -60,7 +60,9 @@ def test_every_file_a_pvd_lists_reads_back_with_meshio(seat_bundle, tmp_path, ca
     manifest = json.loads((out / STORM_MANIFEST).read_text())
     assert set(manifest["files"]) | {STORM_MANIFEST} == _all_files(out)
     assert sorted(f.name for f in (out / "frames").iterdir()) == sorted(f.name for f in files)
-    assert {"storm.pvd", "storm_stones.pvd", "summary.json"} <= set(manifest["files"])
+    assert {"storm.pvd", "storm_stones.pvd", "summary.json", "impacts.csv"} <= set(manifest["files"])
+    lines = (out / "impacts.csv").read_text().splitlines()  # a header, then one line per impact
+    assert lines[0].startswith("stone,x_m,y_m,z_m,radius_m") and len(lines) == 1 + summary["impacts"]
     assert any(f.startswith("storm.") and f.endswith((".mp4", ".gif")) for f in manifest["files"])
     # no temporary directory left beside it
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]

@@ -283,9 +283,17 @@ def test_the_summary_carries_each_impacts_inertia(box_gf, inertia):
     assert lim.n >= 2
     F = np.array(lim.force)
     assert S["max_impact_force_N"] == pytest.approx(F.max(), rel=1e-12)
+    table = _read_impacts_csv(S)
+    assert table["stone"].tolist() == lim.stone and set(table["stone"]) == {0, 1}
+    np.testing.assert_allclose(table["peak_force_N"], F, rtol=1e-8)
+    np.testing.assert_allclose(table["speed_m_s"], lim.speed, rtol=1e-8)
+    np.testing.assert_allclose(table["z_m"], H, rtol=1e-8)  # on the box's top
+    np.testing.assert_allclose(table["thickness_m"], H, rtol=1e-8)
+    np.testing.assert_allclose(table["contact_time_ratio"], lim.time_ratios(), rtol=1e-8)
     if not inertia:
         assert math.isnan(S["max_impact_force_dynamic_N"]) and math.isnan(S["min_inertia_force_factor"])
         assert S["impacts_beyond_inertia_limit"] == 0 and lim._inertia is None
+        assert np.isnan(table["peak_force_dynamic_N"]).all() and np.isnan(table["inertia_force"]).all()
         return
     f = np.array([impact_inertia(lim.radius[k], lim.mass[k], lim.speed[k], H, 1e6, 0.3, 200.0) for k in range(lim.n)])
     np.testing.assert_allclose(np.column_stack(lim.inertia().astuple()), f, rtol=1e-12)
@@ -294,6 +302,25 @@ def test_the_summary_carries_each_impacts_inertia(box_gf, inertia):
     assert S["min_inertia_restitution_factor"] == pytest.approx(f[:, 2].min(), rel=1e-12)
     assert S["impacts_beyond_inertia_limit"] == int((np.abs(f - 1).max(axis=1) > 0.05).sum())
     assert f[:, 0].min() < 0.99  # a 1 MPa pad of 200 kg/m^3: the stones feel its inertia
+    np.testing.assert_allclose(table["inertia_force"], f[:, 0], rtol=1e-8)
+    assert np.nanmax(table["peak_force_dynamic_N"]) == pytest.approx(S["max_impact_force_dynamic_N"], rel=1e-8)
+    beyond = [set(b.split(";")) - {""} for b in table["beyond"]]
+    assert sum("inertia" in b for b in beyond) == S["impacts_beyond_inertia_limit"]
+    assert sum(bool(b) for b in beyond) == S["impacts_beyond_any_limit"]
+
+
+def _read_impacts_csv(stats) -> dict:
+    """``impacts.csv``'s text for ``stats`` read back: numbers as float arrays (an empty field NaN), ``beyond`` as text."""
+    import csv
+    import io
+
+    from hailstorm.runtime.output.files import impacts_csv
+    from hailstorm.runtime.storm.limits import IMPACT_COLUMNS
+
+    rows = list(csv.DictReader(io.StringIO(impacts_csv(stats))))
+    assert rows and tuple(rows[0]) == IMPACT_COLUMNS
+    return {k: (np.array([r[k] for r in rows], dtype=object) if k == "beyond" else
+                np.array([float(r[k]) if r[k] else np.nan for r in rows])) for k in IMPACT_COLUMNS}
 
 
 def test_validity_warning_names_the_numbers():
