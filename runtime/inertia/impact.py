@@ -134,10 +134,12 @@ def simulate_impact(mesh: PadMesh, radius: float, speed: float, *, dynamic: bool
         [kg/m^3] (> 0).
     beta, gamma : float
         Newmark's parameters (default: average acceleration).
-    modes : PadModes, optional
+    modes : object, optional
         The pad's dynamics in these modes only, the rest quasi-static (the mode-acceleration
-        form, :mod:`hailstorm.studies.pad_modes`; the same Newmark rule per mode: with every
-        mode of the massless-contact pad it is the full peer). Needs ``dynamic``.
+        form; the same Newmark rule per mode: with every mode of the massless-contact pad it
+        is the full peer). Needs ``dynamic``. Any object with ``shapes`` (free dofs x k,
+        mass-normalised), ``omega2`` (k,) [1/s^2] and ``count``, such as
+        :class:`hailstorm.studies.pad_modes.PadModes`.
 
     Returns
     -------
