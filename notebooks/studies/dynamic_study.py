@@ -13,7 +13,9 @@ foam pad computed twice on the same finite-element pad:
   sphere moves under that force with the same Newmark rule;
 
 and Hertz's half-space impact (:func:`hailstorm.runtime.contact.hertz.hertz_impact`)
-beside them. It compares peak force, contact duration, rebound speed (the
+beside them. The peer itself, the pad and one impact on it, is the runtime's
+(:mod:`hailstorm.runtime.inertia`: every storm runs it again for each of its impacts);
+this study holds it to Hertz and to the storm, and charts where the two models agree. It compares peak force, contact duration, rebound speed (the
 coefficient of restitution the elastic body itself gives) and the largest dent,
 and marks where the quasi-static model is within 5 % of the dynamic peer.
 
@@ -125,9 +127,6 @@ def default_pad(density: float = FOAM_DENSITY, **changes: float) -> Pad:
     return replace(Pad(young=float(seat.young), poisson=float(seat.poisson), density=float(density)), **changes)
 
 
-# ---------------------------------------------------------------------------------------------
-# one impact
-# ---------------------------------------------------------------------------------------------
 # ---------------------------------------------------------------------------------------------
 # the comparison
 # ---------------------------------------------------------------------------------------------
