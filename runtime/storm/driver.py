@@ -663,7 +663,7 @@ def run_storm(
             bar.close()
     st, stones = storm.stats, storm.stones
     inertia0 = time.perf_counter()
-    if st.validity is not None and scene.validity.inertia:  # the pad's inertia per impact (a local peer each)
+    if st.validity is not None and st.validity.measure_inertia:  # the pad's inertia per impact (a local peer each)
         st.validity.inertia(progress=progress is True)
     st.inertia_time_s = time.perf_counter() - inertia0
     through = storm.passed_through_warning()
