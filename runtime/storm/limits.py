@@ -74,12 +74,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from hailstorm.runtime.bundle.thickness import PadThickness
 from hailstorm.runtime.contact.weights import sphere_radius
+
+if TYPE_CHECKING:  # (imported when first measured: the local pad's assembly is not needed to start a storm)
+    from hailstorm.runtime.inertia.factors import InertiaFactors
 
 __all__ = [
     "IMPACT_COLUMNS",
@@ -266,7 +269,7 @@ class ImpactLimits:
         self.indentation: list[float] = []
         self.force: list[float] = []
         self._thickness = np.zeros(0)
-        self._inertia: Any = None  # InertiaFactors of the impacts so far, computed when first read
+        self._inertia: InertiaFactors | None = None  # of the impacts so far, computed when first read
         self._changes = 0  # bumped by every change of a record (the summary's cache key)
         self._summary: tuple[int, dict[str, float | int]] | None = None
 
@@ -337,7 +340,7 @@ class ImpactLimits:
             self._thickness = np.concatenate([self._thickness, new])
         return self._thickness
 
-    def inertia(self, progress: Any = False) -> Any:
+    def inertia(self, progress: Any = False) -> InertiaFactors:
         """The inertia factors of every impact so far (computed for the new ones: a dynamic and a
         quasi-static impact each on the pad under it, :func:`hailstorm.runtime.inertia.factors.inertia_factors`;
         ``progress`` as there).
@@ -422,7 +425,7 @@ class ImpactLimits:
 def summarise(dh: np.ndarray, aR: np.ndarray, eps: np.ndarray, thickness: np.ndarray,
               limits: ValidityLimits | None = None, *, time_ratio: np.ndarray | None = None,
               pad_density: float = PAD_DENSITY, force: np.ndarray | None = None,
-              inertia: Any = None) -> dict[str, float | int]:
+              inertia: InertiaFactors | None = None) -> dict[str, float | int]:
     """The validity keys of a storm's statistics from its impacts' measures.
 
     Parameters
