@@ -17,7 +17,11 @@ import numpy as np
 
 from hailstorm.runtime.contact.layer_solve import axisymmetric_p1, graded
 
-__all__ = ["Pad", "PadMesh", "contact_lcp", "pad_mesh", "without_contact_mass"]
+__all__ = ["PAD_DENSITY", "Pad", "PadMesh", "contact_lcp", "pad_mesh", "without_contact_mass"]
+
+#: the default pad foam's density [kg/m^3]: flexible polyurethane foams span about 20-100
+#: (Gibson & Ashby, *Cellular Solids*, 2nd ed. 1997); the scene's ``[validity] pad_density``
+PAD_DENSITY = 70.0
 
 
 @dataclass(frozen=True)
@@ -36,7 +40,7 @@ class Pad:
 
     young: float = 2.0e6
     poisson: float = 0.35
-    density: float = 70.0
+    density: float = PAD_DENSITY
     thickness: float = 0.015
     radius: float = 0.06
 

@@ -80,6 +80,7 @@ import numpy as np
 
 from hailstorm.runtime.bundle.thickness import PadThickness
 from hailstorm.runtime.contact.weights import sphere_radius
+from hailstorm.runtime.inertia.pad import PAD_DENSITY
 
 if TYPE_CHECKING:  # (imported when first measured: the local pad's assembly is not needed to start a storm)
     from hailstorm.runtime.inertia.factors import InertiaFactors
@@ -98,9 +99,6 @@ __all__ = [
 ]
 
 
-#: the default pad foam's density [kg/m^3]: flexible polyurethane foams span about 20-100
-#: (Gibson & Ashby, *Cellular Solids*, 2nd ed. 1997); the scene's ``[validity] pad_density``
-PAD_DENSITY = 70.0
 
 
 @dataclass(frozen=True)
@@ -481,7 +479,7 @@ def summarise(dh: np.ndarray, aR: np.ndarray, eps: np.ndarray, thickness: np.nda
         "impacts_beyond_strain_limit": int(over[2].sum()),
         "impacts_beyond_contact_time_limit": int(over[3].sum()),
         "impacts_beyond_inertia_limit": int(over[4].sum()),
-        "impacts_beyond_any_limit": int(np.logical_or.reduce(over).sum()) if dh.size else 0,
+        "impacts_beyond_any_limit": int(np.logical_or.reduce(over).sum()),
         "max_indentation_thickness_ratio": float(dh.max(initial=0.0)),
         "max_contact_radius_ratio": float(aR.max(initial=0.0)),
         "max_strain_ratio": float(eps.max(initial=0.0)),
