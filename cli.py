@@ -236,6 +236,7 @@ def _run_storm(args: argparse.Namespace) -> int:
     from hailstorm.runtime.output.files import StormOutput, check_storm_out
     from hailstorm.runtime.storm.scene import Scene, SeatSettings
     from hailstorm.runtime.storm.driver import run_storm
+    from hailstorm.runtime.storm.estimate import hit_fraction
 
     overrides: dict[str, dict[str, Any]] = {}
     for section, options in (("storm", ("duration", "stones", "seed")), ("time", ("integrator", "dt"))):
@@ -270,10 +271,12 @@ def _run_storm(args: argparse.Namespace) -> int:
     gf = load(gf_path)
     if args.gf is not None:
         _warn_seat_ignored(args, seat, gf)
-    estimate = scene.estimate(gf.n_vertices)  # run_storm logs it
+    estimate = scene.estimate(gf.n_vertices, hit_fraction=hit_fraction(gf.vertices, gf.triangles, scene.storm.margin),
+                              video=not args.no_video, startup=True)  # run_storm checks and logs it
     with StormOutput(out, gf, video=not args.no_video, disk_bytes=estimate.disk_bytes,
                      progress=not args.quiet) as sink:
-        result = run_storm(gf, scene, progress=not args.quiet, on_frame=sink.add, allow_large=args.allow_large)
+        result = run_storm(gf, scene, progress=not args.quiet, on_frame=sink.add, allow_large=args.allow_large,
+                           estimate=estimate)
         paths = sink.finish(result)
     _warn_validity(result.stats)
     if not args.quiet:

@@ -199,6 +199,7 @@ from hailstorm.runtime.compiled import KERNELS, closest_points
 from hailstorm.runtime.bundle.compliance import ElasticSource, reader
 from hailstorm.runtime.storm.contact_set import ContactSet, ContactSets
 from hailstorm.runtime.storm.hail import GRAVITY, Air
+from hailstorm.runtime.storm.estimate import StormEstimate, hit_fraction
 from hailstorm.runtime.storm.integrators import ContactIntegrator
 from hailstorm.runtime.storm.patches import Patches
 from hailstorm.runtime.storm.recording import Frame, Recorder, StormResult, StormStats
@@ -585,6 +586,7 @@ def run_storm(
     on_frame: Callable[[Frame], None] | None = None,
     keep_frames: bool | None = None,
     allow_large: bool = False,
+    estimate: StormEstimate | None = None,
 ) -> StormResult:
     """Run a hail storm on the seat.
 
@@ -608,6 +610,10 @@ def run_storm(
     allow_large : bool
         Run even a storm whose estimate (:meth:`Scene.estimate`) exceeds the
         machine; otherwise it is refused before anything runs.
+    estimate : StormEstimate, optional
+        The estimate to check and announce (the command line's counts its video
+        and start-up); default: the scene's on this bundle
+        (:meth:`Scene.estimate` with the seat's share of the footprint).
 
     Returns
     -------
@@ -622,7 +628,9 @@ def run_storm(
     """
     scene = Scene.default() if scene is None else scene
     keep = on_frame is None if keep_frames is None else bool(keep_frames)
-    estimate = scene.estimate(int(np.asarray(gf.vertices).shape[0]), keep_frames=keep)
+    if estimate is None:
+        estimate = scene.estimate(int(np.asarray(gf.vertices).shape[0]), keep_frames=keep,
+                                  hit_fraction=hit_fraction(gf.vertices, gf.triangles, scene.storm.margin))
     estimate.check(allow_large=allow_large)
     _log.info("storm: %s", estimate.describe())
     for warning in scene.physical_warnings(gf.vertices):

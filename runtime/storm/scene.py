@@ -30,155 +30,14 @@ import numpy as np
 from hailstorm.runtime.bundle.atomic import write_text_atomic
 from hailstorm.runtime.contact.near_field import NEAR_FIELDS
 from hailstorm.runtime.contact.validate import Mode
-from hailstorm.runtime.resources import available_memory
+from hailstorm.runtime.resources import available_memory  # noqa: F401 (re-exported by the old hailstorm.runtime.scene)
+from hailstorm.runtime.storm.errors import SceneError, StormTooLarge
+from hailstorm.runtime.storm.estimate import BYTES_PER_STEP, BYTES_PER_STONE, DISK_BYTES_PER_VERTEX, StormEstimate
 from hailstorm.runtime.storm.hail import GRAVITY, Integrator, SizeDistribution, terminal_velocity
 from hailstorm.runtime.storm.limits import PAD_DENSITY
 
 __all__ = ["ContactSettings", "HailSettings", "OutputSettings", "Scene", "SceneError", "SeatSettings", "StormEstimate",
            "StormSettings", "StormTooLarge", "TimeSettings", "ValiditySettings"]
-
-
-class SceneError(ValueError):
-    """A scene file or value is invalid."""
-
-
-class StormTooLarge(SceneError):
-    """A storm would exceed the machine (memory, or a step count of hours); the
-    message names the estimate and the override."""
-
-
-#: above this many steps a storm is refused without ``allow_large`` (hours of stepping)
-MAX_STEPS = 10_000_000
-#: measured stepping rate [stone-steps per second of wall time] of the time estimate
-#: (work ~ stones x steps): on the default seat (1476 vertices, one core of this
-#: project's 2-core test machine), the default storm over 1 s ran 1.5e5 stone-steps/s
-#: (200 stones, 5000 steps, 6.5 s), 400 000 stones in free flight 0.9e7-1.2e7, 300 stones
-#: landing at once 7e3: contacts dominate, so the storm's figure, rounded up, is used
-STONE_STEPS_PER_SECOND = 2e5
-#: the rate of a burst (more than :data:`BURST_STONES_PER_STEP` stones spawned per step: they
-#: land together and their contact sets, not their flight, set the cost): the 300 stones landing
-#: at once above, 7e3; 20 000 stones in 0.05 s took ~160 s on a loaded machine (1.6e4)
-BURST_STONE_STEPS_PER_SECOND = 7e3
-#: above this many stones spawned per step a storm is a burst (the default storm spawns 0.2)
-BURST_STONES_PER_STEP = 1.0
-#: above this estimated stepping time [s] a storm is refused without ``allow_large``
-MAX_SECONDS = 3600.0
-#: a storm may hold at most this fraction of the available memory without ``allow_large``
-MEMORY_FRACTION = 0.8
-#: memory per stone over the run [bytes]: the spawn plan (64) and the per-stone state
-#: (~160), which grows by doubling (x2), rounded up
-BYTES_PER_STONE = 512
-#: memory per step [bytes]: the contact-force history (time, force, contacts)
-BYTES_PER_STEP = 24
-#: disk per frame and surface vertex [bytes]: the seat's VTU (measured ~60 on the
-#: default seat, zlib-compressed float64 fields and the triangles), rounded up
-DISK_BYTES_PER_VERTEX = 80
-
-
-def _size(n: float) -> str:
-    for unit, k in (("TiB", 2**40), ("GiB", 2**30), ("MiB", 2**20)):
-        if n >= k:
-            return f"{n / k:.3g} {unit}"
-    return f"{n / 2**10:.3g} KiB"
-
-
-def _count(n: float) -> str:
-    """A count for a message: ``12,345`` up to a trillion, else ``1.23e+300``."""
-    return f"{int(n):,}" if n < 1e12 else f"{float(n):.3g}"
-
-
-def _duration(seconds: float) -> str:
-    """``seconds`` in the largest fitting unit: "3.5 h", "12 min", "40 s"."""
-    for unit, k in (("days", 86400.0), ("h", 3600.0), ("min", 60.0)):
-        if seconds >= k:
-            return f"{seconds / k:.3g} {unit}"
-    return f"{seconds:.3g} s"
-
-
-@dataclass(frozen=True)
-class StormEstimate:
-    """What a storm will cost, before it runs (:meth:`Scene.estimate`).
-
-    Attributes
-    ----------
-    steps : int
-        Time steps (``duration / dt``; sub-steps come on top).
-    stones : int
-        Hailstones (the exact count, or the mean of the Poisson rate).
-    frames : int
-        Recorded frames.
-    memory_bytes : int
-        Memory the run holds beyond the bundle (stones, the per-step history,
-        frames if kept in memory).
-    disk_bytes : int or None
-        Size of the written outputs (None: the surface size was not given).
-
-    Notes
-    -----
-    The stepping time is estimated as ``stones * steps / 2 /``
-    :data:`STONE_STEPS_PER_SECOND`: the stones are spawned uniformly over the
-    storm and each is counted from its spawn to the end (an upper bound: some
-    leave the seat; measured on the default storm over 1 s, a third of the
-    stones spawned were still present at its end, so resting stones do make a
-    long storm's cost grow with the square of its duration). A burst, more than
-    :data:`BURST_STONES_PER_STEP` stones spawned per step, lands together: its
-    contact sets set the cost, at :data:`BURST_STONE_STEPS_PER_SECOND`.
-    """
-
-    steps: int
-    stones: int
-    frames: int
-    memory_bytes: int
-    disk_bytes: int | None = None
-
-    @property
-    def rate(self) -> float:
-        """Stone-steps per second of the estimate: :data:`STONE_STEPS_PER_SECOND`, or
-        :data:`BURST_STONE_STEPS_PER_SECOND` for a burst (see the class notes)."""
-        burst = float(self.stones) > BURST_STONES_PER_STEP * max(float(self.steps), 1.0)
-        return BURST_STONE_STEPS_PER_SECOND if burst else STONE_STEPS_PER_SECOND
-
-    @property
-    def seconds(self) -> float:
-        """Estimated stepping time [s] (see the class notes)."""
-        return 0.5 * float(self.stones) * float(self.steps) / self.rate
-
-    def describe(self) -> str:
-        """One line: steps, stones, frames, memory (and disk)."""
-        text = (f"{_count(self.steps)} steps, {_count(self.stones)} stones, {_count(self.frames)} frames, "
-                f"~{_size(self.memory_bytes)} of memory")
-        return text + (f", ~{_size(self.disk_bytes)} on disk" if self.disk_bytes is not None else "")
-
-    def check(self, *, allow_large: bool = False) -> None:
-        """Refuse a storm that exceeds the machine.
-
-        Raises
-        ------
-        StormTooLarge
-            More than :data:`MAX_STEPS` steps, or more memory than
-            :data:`MEMORY_FRACTION` of the available memory; not raised with
-            ``allow_large`` (the CLI's ``--allow-large``).
-        """
-        if allow_large:
-            return
-        avail = available_memory()
-        if avail is not None and self.memory_bytes > MEMORY_FRACTION * avail:
-            raise StormTooLarge(f"the storm needs an estimated {_size(self.memory_bytes)} of memory "
-                                f"({self.describe()}); a storm may use at most {MEMORY_FRACTION:.0%} of the "
-                                f"memory available ({_size(avail)} available now, so at most "
-                                f"{_size(MEMORY_FRACTION * avail)}); lower the duration, the rate or the frame "
-                                "rate, or pass --allow-large (allow_large=True)")
-        if self.steps > MAX_STEPS:
-            raise StormTooLarge(f"the storm has {_count(self.steps)} steps ({self.describe()}), more than "
-                                f"{MAX_STEPS:,} (hours of computing); raise dt or lower the duration, "
-                                "or pass --allow-large (allow_large=True)")
-        if self.seconds > MAX_SECONDS:
-            burst = " (a burst: more than one stone per step)" if self.rate != STONE_STEPS_PER_SECOND else ""
-            raise StormTooLarge(f"the storm would take an estimated {_duration(self.seconds)} "
-                                f"({_count(self.stones)} stones spawned over {_count(self.steps)} steps, each "
-                                f"present from its spawn on, at {self.rate:.3g} stone-steps/s{burst}), more than "
-                                f"{_duration(MAX_SECONDS)}; lower the stones, the rate or the duration, "
-                                "or pass --allow-large (allow_large=True)")
 
 
 #: Python types a scene value may have, per field annotation
@@ -718,16 +577,25 @@ class Scene:
         """Time steps of the storm (as :func:`hailstorm.runtime.storm.driver.run_storm` takes them)."""
         return max(1, int(round(self.storm.duration / self.time.dt)))
 
-    def estimate(self, n_vertices: int | None = None, *, keep_frames: bool = False) -> StormEstimate:
-        """Steps, stones, frames, memory and disk of this storm, before it runs.
+    def estimate(self, n_vertices: int | None = None, *, keep_frames: bool = False,
+                 hit_fraction: float | None = None, video: bool = False, startup: bool = False) -> StormEstimate:
+        """Steps, stones, frames, memory, disk and wall time of this storm, before it runs.
 
         Parameters
         ----------
         n_vertices : int, optional
-            Surface vertices of the bundle (for the frames' memory and disk).
+            Surface vertices of the bundle (for the frames' memory, disk and time).
         keep_frames : bool
             Frames held in memory (the Python API's default) rather than
             streamed to disk.
+        hit_fraction : float, optional
+            The share of the stones that hit the seat
+            (:func:`hailstorm.runtime.storm.estimate.hit_fraction`); default 1, an
+            upper bound.
+        video : bool
+            The frames are rendered into a video after the storm (the command line's default).
+        startup : bool
+            Count a warm start of the process (the command line's estimate).
         """
         sc = self.storm
         steps = self.n_steps()
@@ -739,8 +607,11 @@ class Scene:
         if keep_frames and n_vertices is not None:
             memory += frames * (24 * n_vertices + 64)  # two float32 fields per vertex
         disk = None if n_vertices is None else frames * (DISK_BYTES_PER_VERTEX * n_vertices + 4096)
+        extra = {} if hit_fraction is None else {"hit_fraction": float(hit_fraction)}
         return StormEstimate(steps=steps, stones=int(stones), frames=frames, memory_bytes=int(memory),
-                             disk_bytes=disk)
+                             disk_bytes=disk, duration=float(sc.duration), dt=float(self.time.dt),
+                             n_vertices=n_vertices, inertia=bool(self.validity.inertia), video=bool(video),
+                             startup=bool(startup), **extra)
 
     def physical_warnings(self, vertices: Any) -> list[str]:
         """Settings that are valid but make the storm physically meaningless on this seat.

@@ -43,10 +43,10 @@ def test_compile_time_is_apart_from_the_setup(gf, monkeypatch):
 
 def test_the_memory_refusal_states_its_rule(monkeypatch):
     """The refusal names the fraction of the available memory a storm may use and that limit."""
-    import hailstorm.runtime.storm.scene as scene
+    import hailstorm.runtime.storm.estimate as estimate
     from hailstorm.runtime.storm.scene import StormEstimate, StormTooLarge
 
-    monkeypatch.setattr(scene, "available_memory", lambda: 10 * 2**30)
+    monkeypatch.setattr(estimate, "available_memory", lambda: 10 * 2**30)
     est = StormEstimate(steps=10, stones=1, frames=1, memory_bytes=9 * 2**30)
     with pytest.raises(StormTooLarge, match=r"at most 80% of the memory available \(10 GiB available now, "
                                             r"so at most 8 GiB\)"):

@@ -1,0 +1,14 @@
+"""The storm settings' errors: a bad scene value, and a storm too large for the machine."""
+
+from __future__ import annotations
+
+__all__ = ["SceneError", "StormTooLarge"]
+
+
+class SceneError(ValueError):
+    """A scene file or value is invalid."""
+
+
+class StormTooLarge(SceneError):
+    """A storm would exceed the machine (memory, steps, or an estimated hour of
+    wall time); the message names the estimate and the override."""
