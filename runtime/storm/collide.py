@@ -160,7 +160,7 @@ class Collision:
     gf : ComplianceSource
         The bundle's surface (vertices, triangles, ``contactable``, ``fixed``).
     scene : Scene
-        ``time.adaptive`` (time of impact), ``time.dt`` / ``time.max_substeps``
+        ``time.adaptive`` (time of impact), ``time.min_substep``
         (the shortest sub-step), ``contact.restitution`` (hard walls),
         ``storm.margin`` (retirement).
     air : Air
@@ -183,7 +183,7 @@ class Collision:
         self.lo, self.hi = self.index.bbox
         self.air = air
         self.toi = bool(scene.time.adaptive)
-        self.hmin = scene.time.dt / scene.time.max_substeps
+        self.hmin = scene.time.min_substep
         self.restitution = float(scene.contact.restitution)
         self.margin = float(scene.storm.margin)
         #: the surface as the compiled kernels take it

@@ -51,7 +51,7 @@ class ContactIntegrator:
         self.exact = time.integrator == "exact"
         self.time = time
         self.contact = contact
-        self.hmin = time.dt / time.max_substeps
+        self.hmin = time.min_substep
         #: the sub-steps are sized (adaptive implicit / symplectic), by the triangles' stiffness among others
         self.sizes_substeps = time.adaptive and not self.exact
         #: the sub-steps' omega h target: symplectic Euler's explicit dashpot makes its peak force

@@ -336,6 +336,11 @@ class TimeSettings(_Section):
         if self.integrator not in ("implicit", "symplectic", "exact"):
             raise SceneError(f"integrator must be 'implicit', 'symplectic' or 'exact', got {self.integrator!r}")
 
+    @property
+    def min_substep(self) -> float:
+        """The shortest sub-step [s]: ``dt / max_substeps`` (the one place it is computed)."""
+        return self.dt / self.max_substeps
+
 
 @dataclass(frozen=True)
 class OutputSettings(_Section):

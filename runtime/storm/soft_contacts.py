@@ -201,7 +201,7 @@ class SoftContacts:
             t = np.where(den > 0.0, 2.0 * o[later] / np.where(den > 0.0, den, 1.0), np.inf)
             speed = np.maximum(np.linalg.norm(stones.vel[ids], axis=1), 1e-12)
             t = np.minimum(t, DEAD_ZONE_REACH * stones.radius[ids] / speed)  # (as the narrow phase's)
-            h = min(h, max(float(t.min()), self.time.dt / self.time.max_substeps))
+            h = min(h, max(float(t.min()), self.time.min_substep))
         return h
 
     def _observe_limits(self, cc: ContactSet, soft: np.ndarray, radius: np.ndarray, mass: np.ndarray,

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 #: statistics that are wall-clock or environment, not the storm's result
-_VOLATILE = {"wall_time_s", "setup_time_s", "compile_time_s", "real_time_factor", "output_time_s", "backend"}
+_VOLATILE = {"wall_time_s", "setup_time_s", "compile_time_s", "real_time_factor", "output_time_s", "inertia_time_s", "backend"}
 
 #: the fingerprint's reference storms: the default scene as it was when the baseline was first
 #: recorded (the packaged default's rate has since risen to 1000 stones/s, for the video)
