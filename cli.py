@@ -130,6 +130,7 @@ def _parser() -> argparse.ArgumentParser:
 
 def _storm_args(p: argparse.ArgumentParser) -> None:
     from hailstorm.runtime.storm.scene import Scene  # noqa: PLC0415 (the packaged default scene, for the help texts)
+    from hailstorm.runtime.storm.hail import INTEGRATORS
 
     d = Scene.default()
     p.add_argument("--duration", type=_positive_float, default=None,
@@ -138,7 +139,7 @@ def _storm_args(p: argparse.ArgumentParser) -> None:
                    help=f"number of hailstones (default: the scene's rate, {d.storm.rate:g} per second, over the duration)")
     p.add_argument("--seed", type=int, default=None,
                    help=f"random seed; runs are reproducible from it (default: the scene's, {d.storm.seed})")
-    p.add_argument("--integrator", choices=("implicit", "symplectic", "exact"), default=None,
+    p.add_argument("--integrator", choices=INTEGRATORS, default=None,
                    help=f"time integrator of the contacts (default: the scene's, {d.time.integrator})")
     p.add_argument("--dt", type=_positive_float, default=None, help=f"time step in seconds (default: the scene's, {d.time.dt:g})")
     p.add_argument("--gf", type=Path, default=None, help="bundle directory (default: build/cache the default seat)")

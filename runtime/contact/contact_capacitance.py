@@ -25,7 +25,7 @@ from hailstorm.runtime.bundle.compliance import (
     vertex_block,
 )
 from hailstorm.runtime.contact.policy import COND_LIMIT, EMBED_BLOCKS_FROM, SUBSET_REUSE_FROM, SPDFactor, is_rigid
-from hailstorm.runtime.contact.validate import Mode, check_contacts, check_mode, check_patch
+from hailstorm.runtime.contact.validate import ContactMode, Mode, check_contacts, check_mode, check_patch
 from hailstorm.runtime.contact.near_field import NearField, near_field
 from hailstorm.runtime.contact.weights import (
     contact_points,
@@ -189,15 +189,15 @@ def nonnegative_qp(W: np.ndarray, q: np.ndarray, x0: np.ndarray | None = None, *
     raise RuntimeError(f"nonnegative_qp did not converge in {max_iter} iterations")
 
 
-def _constraint_rows(M: np.ndarray, loc: np.ndarray, w: np.ndarray, normals: np.ndarray, mode: str) -> np.ndarray:
+def _constraint_rows(M: np.ndarray, loc: np.ndarray, w: np.ndarray, normals: np.ndarray, mode: Mode) -> np.ndarray:
     """``G^T M`` for a C-contiguous M with rows indexed by V-dofs (3|V|, q): (m, q)."""
     return kernels.weighted_rows(M, np.arange(M.shape[0] // 3), np.ascontiguousarray(loc, dtype=np.intp),
                                  np.ascontiguousarray(w, dtype=np.float64),
-                                 np.ascontiguousarray(normals, dtype=np.float64), mode == "sticky")
+                                 np.ascontiguousarray(normals, dtype=np.float64), ContactMode(mode).sticky)
 
 
 def contact_compliance(D_VV: np.ndarray, loc: np.ndarray, w: np.ndarray, normals: np.ndarray,
-                       mode: str) -> np.ndarray:
+                       mode: Mode) -> np.ndarray:
     """The contact compliance ``W = G^T D_VV G`` (symmetrised) of a gathered block ``D_VV``.
 
     Parameters
@@ -220,7 +220,7 @@ def contact_compliance(D_VV: np.ndarray, loc: np.ndarray, w: np.ndarray, normals
     Y = _constraint_rows(M, loc, w, normals, mode)
     return kernels.contact_compliance(Y, np.ascontiguousarray(loc, dtype=np.intp),
                                       np.ascontiguousarray(w, dtype=np.float64),
-                                      np.ascontiguousarray(normals, dtype=np.float64), mode == "sticky")
+                                      np.ascontiguousarray(normals, dtype=np.float64), ContactMode(mode).sticky)
 
 
 def _runs(idx: np.ndarray) -> list[tuple[int, int, int]]:
@@ -319,7 +319,7 @@ class Capacitance:
     """
 
     gf: ComplianceSource
-    mode: Mode
+    mode: ContactMode
     tri_idx: np.ndarray
     bary: np.ndarray
     normals: np.ndarray
@@ -344,6 +344,7 @@ class Capacitance:
     near: NearField | None = None
 
     def __post_init__(self) -> None:
+        self.mode = ContactMode(self.mode)
         if self.local is None:
             self.local = np.zeros((self.s, self.per_contact, self.per_contact))
 
@@ -356,7 +357,7 @@ class Capacitance:
     @property
     def per_contact(self) -> int:
         """Constrained components per contact: 3 (sticky) or 1 (frictionless)."""
-        return 3 if self.mode == "sticky" else 1
+        return self.mode.dofs
 
     @property
     def D_VV(self) -> np.ndarray:
@@ -381,7 +382,7 @@ class Capacitance:
     def G(self) -> np.ndarray:
         """Constraint matrix ``B`` (sticky) or ``B N`` (frictionless), (3|V|, m)."""
         B = self.B
-        if self.mode == "sticky":
+        if self.mode.sticky:
             return B
         return np.einsum("rkj,kj->rk", B.reshape(B.shape[0], self.s, 3), self.normals)
 
@@ -432,13 +433,13 @@ class Capacitance:
     # -- solves ------------------------------------------------------------
     def _reduce(self, ubar: np.ndarray) -> np.ndarray:
         """Prescribed displacements as constrained components (m,)."""
-        if self.mode == "sticky":
+        if self.mode.sticky:
             return ubar.reshape(-1)
         return np.einsum("ki,ki->k", ubar, self.normals)
 
     def _expand(self, lam: np.ndarray) -> np.ndarray:
         """Constraint multipliers (m,) -> contact forces (s, 3)."""
-        if self.mode == "sticky":
+        if self.mode.sticky:
             return lam.reshape(-1, 3)
         return lam[:, None] * self.normals
 
@@ -673,7 +674,7 @@ class Capacitance:
         f = np.asarray(forces, dtype=np.float64).reshape(-1, 3)
         if self.local is None or not self.local.any():
             return np.zeros_like(f)
-        if self.mode == "sticky":
+        if self.mode.sticky:
             return np.einsum("kij,kj->ki", self.local, f)
         return (self.local[:, 0, 0] * np.einsum("ki,ki->k", f, self.normals))[:, None] * self.normals
 
@@ -814,7 +815,7 @@ class Capacitance:
         # new blocks of W: c = G_old^T D_VV G_new, d = G_new^T D_VV G_new
         # D_VV B_new, (3|V|, 3): columns (vertex b, component y) weighted by w_b
         DGn = np.einsum("rby,b->ry", D_VV[:, dof3(loc_new[0])].reshape(D_VV.shape[0], -1, 3), pw[0])
-        if self.mode != "sticky":
+        if not self.mode.sticky:
             DGn = DGn @ n[0][:, None]
         DGn = np.ascontiguousarray(DGn)
         c = _constraint_rows(DGn, loc_old, self.weights, self.normals, self.mode)  # (m_old, p)
@@ -823,7 +824,7 @@ class Capacitance:
         # W is symmetrised (contact_compliance): its new column is the mean of G_old^T D G_new and
         # (G_new^T D G_old)^T, which differ where D is not symmetric (a hat-load bundle)
         GnD = np.einsum("byr,b->ry", D_VV[dof3(loc_new[0]), :].reshape(-1, 3, D_VV.shape[1]), pw[0])  # D_VV^T G_new
-        if self.mode != "sticky":
+        if not self.mode.sticky:
             GnD = GnD @ n[0][:, None]
         c = 0.5 * (c + _constraint_rows(np.ascontiguousarray(GnD), loc_old, self.weights, self.normals, self.mode))
         if not rigid_new:
@@ -1045,7 +1046,7 @@ def _near_blocks(gf: ComplianceSource, near: NearField | None, t: np.ndarray, b:
     if a is None or near is None or n is None or not np.any(a > 0):
         return None
     X = contact_points(np.asarray(gf.vertices), np.asarray(gf.triangles), t, b)
-    return near.blocks(gf, a, pv, w, X, n, mode == "sticky")
+    return near.blocks(gf, a, pv, w, X, n, ContactMode(mode).sticky)
 
 
 def build(gf: ComplianceSource, t: np.ndarray, b: np.ndarray, n: np.ndarray | None, mode: Mode,
@@ -1057,7 +1058,7 @@ def build(gf: ComplianceSource, t: np.ndarray, b: np.ndarray, n: np.ndarray | No
     refuses unilateral contact).
     """
     if n is None:
-        if mode != "sticky" or a is not None:
+        if not ContactMode(mode).sticky or a is not None:
             raise ValueError("normals are needed for frictionless and patch contacts")  # pragma: no cover
         n = np.zeros((t.size, 3))
     pv, w = _contact_weights(gf, t, b, n, a, profile)
@@ -1107,10 +1108,11 @@ def from_weights(gf: ComplianceSource, t: np.ndarray, b: np.ndarray, n: np.ndarr
     cols = column_dofs(gf, V)
     w = np.ascontiguousarray(w, dtype=np.float64)
     n = np.ascontiguousarray(n, dtype=np.float64)
-    Y = constraint_rows(gf, V, loc, w, n, mode == "sticky")  # (D_VV G)^T
-    W = kernels.contact_compliance(Y, loc, w, n, mode == "sticky")
+    mode = ContactMode(mode)
+    Y = constraint_rows(gf, V, loc, w, n, mode.sticky)  # (D_VV G)^T
+    W = kernels.contact_compliance(Y, loc, w, n, mode.sticky)
     rigid = is_rigid(gf.fixed, pv, w)
-    p = 3 if mode == "sticky" else 1
+    p = mode.dofs
     if local is not None:
         local = np.where(rigid[:, None, None], 0.0, np.asarray(local, dtype=np.float64))
         for k in range(t.size):

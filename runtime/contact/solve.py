@@ -15,7 +15,7 @@ from hailstorm.runtime.contact import policy
 from hailstorm.runtime.contact.contact_capacitance import build, resolve_near_field
 from hailstorm.runtime.contact.near_field import NearField
 from hailstorm.runtime.bundle.compliance import ComplianceSource, apply_columns, reader
-from hailstorm.runtime.contact.validate import Mode, check_contacts, check_mode, check_patch
+from hailstorm.runtime.contact.validate import ContactMode, Mode, check_contacts, check_mode, check_patch
 from hailstorm.runtime.contact.weights import PATCH_PROFILES, interpolate, vertex_forces
 
 __all__ = ["ContactSolution", "solve_contacts"]
@@ -84,7 +84,7 @@ def _point_contacts(gf: ComplianceSource, triangles: Any, barycentric: Any, disp
     t = np.ascontiguousarray(t, dtype=np.int64)
     code, f, cd, V, g, uall = kernels.point_contacts(
         Dt, gf.column_of, gf.contactable, gf.fixed, gf.triangles, gf.vertices, t, b, u,
-        mode == "sticky", want_u, policy.BARY_SUM_TOL, policy.BARY_NEG_TOL, policy.COND_LIMIT,
+        ContactMode(mode).sticky, want_u, policy.BARY_SUM_TOL, policy.BARY_NEG_TOL, policy.COND_LIMIT,
         policy.RIGID_WEIGHT)
     if code:
         return None
@@ -187,7 +187,7 @@ def solve_contacts(
             return fast
     # sticky bilateral contacts never look at the normals
     t, b, n = check_contacts(gf, triangles, barycentric, normals,
-                             need_normals=unilateral or mode == "frictionless" or patch_radius is not None)
+                             need_normals=unilateral or not mode.sticky or patch_radius is not None)
     a = check_patch(patch_radius, t.size, patch_profile)
     s = t.size
     ubar = np.asarray(displacements, dtype=np.float64)

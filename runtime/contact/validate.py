@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from typing import Any, Literal, cast, overload
+from enum import StrEnum
+from typing import Any, Literal, overload
 
 import numpy as np
 
@@ -10,10 +11,40 @@ from hailstorm.runtime.bundle.compliance import ComplianceSource
 from hailstorm.runtime.contact.policy import BARY_NEG_TOL, BARY_SUM_TOL
 from hailstorm.runtime.contact.weights import PATCH_PROFILES, triangle_normals
 
-__all__ = ["Mode", "check_contacts", "check_mode", "check_patch"]
+__all__ = ["ContactMode", "Mode", "check_contacts", "check_mode", "check_patch"]
 
-#: Contact modes: all three components constrained, or the normal one only.
-Mode = Literal["sticky", "frictionless"]
+
+class ContactMode(StrEnum):
+    """A contact mode, resolved once from its name (``ContactMode("sticky")``).
+
+    A string enum: it compares equal to, prints as and serialises to its name, so a
+    mode given as ``"sticky"`` and one given as ``ContactMode.STICKY`` are the same
+    thing; what the mode means is read from its members, never from string tests.
+    """
+
+    #: all three components of each contact point constrained (no slip)
+    STICKY = "sticky"
+    #: the normal component only (free tangential motion)
+    FRICTIONLESS = "frictionless"
+
+    @property
+    def sticky(self) -> bool:
+        """All three force components are unknowns (the tangential ones stuck)."""
+        return self is ContactMode.STICKY
+
+    @property
+    def dofs(self) -> int:
+        """Unknowns per contact in ``W`` and ``K``: 3 (sticky) or 1 (the normal force)."""
+        return 3 if self is ContactMode.STICKY else 1
+
+    @property
+    def tangential(self) -> str:
+        """The tangential rule: ``"stuck"`` or ``"free"``."""
+        return "stuck" if self is ContactMode.STICKY else "free"
+
+
+#: what a mode argument may be: a :class:`ContactMode` or its name
+Mode = ContactMode | str
 
 
 @overload
@@ -89,11 +120,12 @@ def check_contacts(
     return t, b, n
 
 
-def check_mode(mode: str) -> Mode:
-    """``mode`` as a :data:`Mode`; ValueError unless "sticky" or "frictionless"."""
-    if mode not in ("sticky", "frictionless"):
-        raise ValueError(f"mode must be 'sticky' or 'frictionless', got {mode!r}")
-    return cast(Mode, mode)
+def check_mode(mode: Mode) -> ContactMode:
+    """``mode`` as a :class:`ContactMode`; ValueError unless "sticky" or "frictionless"."""
+    try:
+        return ContactMode(mode)
+    except ValueError:
+        raise ValueError(f"mode must be 'sticky' or 'frictionless', got {mode!r}") from None
 
 
 def check_patch(patch_radius: Any, s: int, profile: str) -> np.ndarray | None:

@@ -59,6 +59,7 @@ would pull it towards the seat is released and the step is re-solved
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import StrEnum
 from typing import Literal
 
 import numpy as np
@@ -92,8 +93,45 @@ RHO_AIR: float = 1.2
 #: Gravitational acceleration [m/s^2] (along -z).
 GRAVITY: float = 9.81
 
-Integrator = Literal["implicit", "symplectic", "exact"]
-INTEGRATORS: tuple[str, ...] = ("implicit", "symplectic", "exact")
+class Integrator(StrEnum):
+    """The contacts' time integrator, resolved once from its name (``Integrator("exact")``).
+
+    A string enum (it compares equal to, prints as and serialises to its name): what
+    the choice means is read from its members, never from string tests.
+    """
+
+    #: backward Euler: unconditionally stable, its numerical damping compensated; peak forces
+    #: first order in omega dt
+    IMPLICIT = "implicit"
+    #: symplectic Euler with an explicit dashpot: the modes a step can carry
+    SYMPLECTIC = "symplectic"
+    #: the closed form over the step (matrix exponential): the model's own peak force
+    EXACT = "exact"
+
+    @property
+    def closed_form(self) -> bool:
+        """The step is the linear system's closed form (no omega dt sub-steps, no stability limit)."""
+        return self is Integrator.EXACT
+
+    @property
+    def backward_euler(self) -> bool:
+        """Backward Euler, whose numerical damping the dashpot compensates."""
+        return self is Integrator.IMPLICIT
+
+    @property
+    def explicit(self) -> bool:
+        """Explicit (symplectic Euler): only the modes with omega dt below its limit are carried."""
+        return self is Integrator.SYMPLECTIC
+
+    @property
+    def omega_dt_factor(self) -> float:
+        """The share of the scene's omega dt target its sub-steps take (symplectic: half, its
+        explicit dashpot's peak-force error being first order in omega dt)."""
+        return 0.5 if self is Integrator.SYMPLECTIC else 1.0
+
+
+#: the integrators' names
+INTEGRATORS: tuple[str, ...] = tuple(Integrator)
 
 
 def stone_mass(radius: np.ndarray | float, density: float = RHO_ICE) -> np.ndarray:
@@ -262,7 +300,7 @@ def damping_coefficients(
     omega = np.sqrt(k / m)
     e = np.full_like(omega, float(restitution))
     zn = np.zeros_like(omega)
-    if integrator == "implicit" and dt is not None:
+    if Integrator(integrator).backward_euler and dt is not None:
         zn = 0.5 * omega * dt
         e = np.minimum(e / np.exp(-zn * np.pi / 2.0), 1.0)  # restitution phase loses exp(-zn pi/2)
     z = np.clip(damping_ratio_for_restitution(e) - zn, 0.0, None)
@@ -362,10 +400,11 @@ def modal_damping(
         Symmetric positive semi-definite dashpot [N s/m] (:func:`contact_step`'s ``damping``).
     """
     om2, Phi, sqm = contact_modes(K, mass)
-    if integrator == "symplectic" and dt is not None:
+    kind = Integrator(integrator)
+    if kind.explicit and dt is not None:
         om2 = _explicit_modes(om2, float(dt))
     return _modal_damping(om2, Phi, sqm, float(restitution), 0.0 if dt is None else float(dt),
-                          integrator == "implicit" and dt is not None, _X_GRID, _Z_GRID)
+                          kind.backward_euler and dt is not None, _X_GRID, _Z_GRID)
 
 
 def contact_step(
@@ -469,13 +508,14 @@ def contact_step(
     grp = np.arange(n, dtype=np.int64) if group is None else np.ascontiguousarray(group, dtype=np.int64)
     wts = np.ones(n) if normal_of is None else np.ascontiguousarray(normal_of, dtype=np.float64)
     lim, rcond = float(policy.COND_LIMIT), float(policy.PINV_RCOND)
-    if integrator == "exact":
+    kind = Integrator(integrator)
+    if kind.closed_form:
         always = np.zeros(n, dtype=bool) if always_damped is None else np.ascontiguousarray(always_damped, dtype=bool)
         qn, vn, act, force, seat, peak, pub = exact_step(q, v, a, m, g, float(dt), K, W, C, bool(unilateral), grp,
                                                          wts, always, lim, rcond)
         return ContactStep(q=qn, v=vn, active=act, force=force, seat_force=seat, peak_seat_force=peak,
                            peak_ubar=pub)
-    qn, vn, act, force, seat = substep_contacts(q, v, a, m, g, float(dt), K, W, C, integrator == "implicit",
+    qn, vn, act, force, seat = substep_contacts(q, v, a, m, g, float(dt), K, W, C, kind.backward_euler,
                                                 bool(unilateral), grp, wts, lim, rcond)
     return ContactStep(q=qn, v=vn, active=act, force=force, seat_force=seat, peak_seat_force=seat.copy(),
                        peak_ubar=qn - a)

@@ -24,7 +24,7 @@ from hailstorm.runtime.compiled import (
     substep_damping,
     substep_size,
 )
-from hailstorm.runtime.storm.hail import X_GRID, Z_GRID, ContactStep, contact_modes
+from hailstorm.runtime.storm.hail import X_GRID, Z_GRID, ContactStep, Integrator, contact_modes
 
 if TYPE_CHECKING:  # annotations only
     from hailstorm.runtime.storm.contact_set import ContactSet
@@ -47,8 +47,9 @@ class ContactIntegrator:
     """
 
     def __init__(self, time: TimeSettings, contact: ContactSettings) -> None:
-        self.name = time.integrator
-        self.exact = time.integrator == "exact"
+        self.kind = Integrator(time.integrator)
+        self.name = str(self.kind)
+        self.exact = self.kind.closed_form
         self.time = time
         self.contact = contact
         self.hmin = time.min_substep
@@ -58,7 +59,7 @@ class ContactIntegrator:
         #: first order in omega h (-21 % at 0.2, -5 % at 0.05 on one impact), so it takes half the
         #: scene's (measured, default scene: max force 68.8 / 72.9 N at dt 0.05 / 0.5 ms with the
         #: full target, 71.93 / 71.89 N with half, for 30 % more sub-steps)
-        self.omega_dt = float(time.omega_dt) * (0.5 if time.integrator == "symplectic" else 1.0)
+        self.omega_dt = float(time.omega_dt) * self.kind.omega_dt_factor
         self._none = np.zeros(0, dtype=np.int64)
         self._no_forces = np.zeros(0)
         self._no_e3 = np.zeros((0, 3))
@@ -75,7 +76,7 @@ class ContactIntegrator:
             return ContactStep(q=qn, v=vn, active=act, force=force, seat_force=seat, peak_seat_force=peak,
                                peak_ubar=pub)
         K, W, C = self.contact_matrices(cc, mq, h)
-        qn, vn, act, force, seat = substep_contacts(q, vq, a, mq, gq, h, K, W, C, self.name == "implicit",
+        qn, vn, act, force, seat = substep_contacts(q, vq, a, mq, gq, h, K, W, C, self.kind.backward_euler,
                                                     self.contact.unilateral, group, wts, lim, rcond)
         return ContactStep(q=qn, v=vn, active=act, force=force, seat_force=seat, peak_seat_force=seat,
                            peak_ubar=qn - a)
@@ -109,10 +110,10 @@ class ContactIntegrator:
         """
         om2, Phi, sqm = self._modes(cc, mq)
         K, W = cc.K, cc.W
-        if self.name == "symplectic":
+        if self.kind.explicit:
             om2 = explicit_modes(om2, float(h))
             K, W = modal_stiffness(om2, Phi, sqm)
-        C = substep_damping(om2, Phi, sqm, self.contact.restitution, float(h), self.name == "implicit", X_GRID, Z_GRID)
+        C = substep_damping(om2, Phi, sqm, self.contact.restitution, float(h), self.kind.backward_euler, X_GRID, Z_GRID)
         return K, W, C
 
     def substep_size(self, stones: Stones, near: np.ndarray, h_left: float, cc: ContactSet | None,
@@ -130,7 +131,7 @@ class ContactIntegrator:
         return float(substep_size(near, float(h_left), float(self.hmin), stones.vel, stones.radius, stones.mass,
                                   stones.pos, stones.gap, stones.near_tri, stones.ctri, k_tri,
                                   self.time.approach_fraction, self.time.rest_speed, self.omega_dt,
-                                  self.name == "symplectic", cs, kd, self.contact.sticky, cn, cx, cr, g))
+                                  self.kind.explicit, cs, kd, self.contact.sticky, cn, cx, cr, g))
 
     def warm_up(self, stones: Stones, k_tri: np.ndarray | None, g: np.ndarray, dt: float) -> None:
         """Load (or compile) the integrator's kernels with the storm loop's argument types."""

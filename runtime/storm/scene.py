@@ -29,11 +29,11 @@ import numpy as np
 
 from hailstorm.runtime.bundle.atomic import write_text_atomic
 from hailstorm.runtime.contact.near_field import NEAR_FIELDS
-from hailstorm.runtime.contact.validate import Mode
+from hailstorm.runtime.contact.validate import ContactMode, Mode
 from hailstorm.runtime.resources import available_memory  # noqa: F401 (re-exported by the old hailstorm.runtime.scene)
 from hailstorm.runtime.storm.errors import SceneError, StormTooLarge
 from hailstorm.runtime.storm.estimate import BYTES_PER_STEP, BYTES_PER_STONE, DISK_BYTES_PER_VERTEX, StormEstimate
-from hailstorm.runtime.storm.hail import GRAVITY, Integrator, SizeDistribution, terminal_velocity
+from hailstorm.runtime.storm.hail import GRAVITY, INTEGRATORS, Integrator, SizeDistribution, terminal_velocity
 from hailstorm.runtime.storm.limits import PAD_DENSITY
 
 __all__ = ["ContactSettings", "HailSettings", "OutputSettings", "Scene", "SceneError", "SeatSettings", "StormEstimate",
@@ -271,7 +271,7 @@ class ContactSettings(_Section):
         _check_types(self)
         _positive(self, ("patch_min_radius", "patch_tolerance"), allow_zero=True)
         _bool(self, ("unilateral",))
-        if self.mode not in ("frictionless", "sticky"):
+        if self.mode not in tuple(ContactMode):
             raise SceneError(f"mode must be 'frictionless' or 'sticky', got {self.mode!r}")
         if self.patch not in ("hertz", "none"):
             raise SceneError(f"patch must be 'hertz' or 'none', got {self.patch!r}")
@@ -281,9 +281,14 @@ class ContactSettings(_Section):
             raise SceneError(f"restitution must lie in [0, 1], got {self.restitution!r}")
 
     @property
+    def contact_mode(self) -> ContactMode:
+        """The mode resolved (:class:`~hailstorm.runtime.contact.validate.ContactMode`)."""
+        return ContactMode(self.mode)
+
+    @property
     def sticky(self) -> bool:
-        """All three force components (``mode == "sticky"``)."""
-        return self.mode == "sticky"
+        """All three force components (:attr:`ContactMode.sticky`)."""
+        return self.contact_mode.sticky
 
 
 @dataclass(frozen=True)
@@ -333,7 +338,7 @@ class TimeSettings(_Section):
         _bool(self, ("adaptive",))
         if isinstance(self.max_substeps, bool) or not isinstance(self.max_substeps, int) or self.max_substeps < 1:
             raise SceneError(f"max_substeps must be a positive integer, got {self.max_substeps!r}")
-        if self.integrator not in ("implicit", "symplectic", "exact"):
+        if self.integrator not in INTEGRATORS:
             raise SceneError(f"integrator must be 'implicit', 'symplectic' or 'exact', got {self.integrator!r}")
 
     @property
