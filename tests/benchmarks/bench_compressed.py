@@ -29,8 +29,8 @@ from hailstorm.precompute.hmatrix import compress_bundle
 from hailstorm.runtime import load
 from hailstorm.runtime.contact.hertz import press_spheres
 from hailstorm.runtime.storm.scene import SeatSettings
-from hailstorm.studies import record
-from hailstorm.studies.resolution_study import seat_bundle
+from studies import record
+from studies.resolution_study import seat_bundle
 
 #: stone radii [m] and their Hertz impact depths at terminal speed on the default seat's foam
 #: (docs/_generated/resolution_seat.txt: 1.111, 2.931, 10.573 mm)

@@ -151,7 +151,7 @@ def main(argv=None) -> int:
                     help="also write the printed output to FILE, after a header (command, UTC date, commit, load)")
     args = ap.parse_args(argv)
     if args.out is not None:
-        from hailstorm.studies import record
+        from studies import record
 
         return record.whole_output(args.out, "python tests/benchmarks/bench_contacts.py",
                                    sys.argv[1:] if argv is None else list(argv), lambda: run(args))

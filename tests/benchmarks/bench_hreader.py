@@ -39,7 +39,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hailstorm.studies import record
+from studies import record
 
 READERS = ("hmatrix", "expand")
 WORKLOADS = ("points s=20", "points s=100", "spheres s=5")

@@ -109,7 +109,7 @@ def main(argv: list[str] | None = None) -> None:
     if args.out is None:
         run(args)
     else:
-        from hailstorm.studies import record
+        from studies import record
 
         record.whole_output(args.out, "python tests/benchmarks/bench_storm.py", argv, lambda: run(args))
 

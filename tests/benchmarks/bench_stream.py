@@ -37,7 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from hailstorm.runtime.bundle.read import load as load_bundle
-from hailstorm.studies import record
+from studies import record
 
 ROUTES = ("dense", "stream")
 

@@ -70,7 +70,7 @@ def main(argv: list[str] | None = None) -> None:
         print(s, flush=True)
         lines.append(s)
 
-    from hailstorm.studies import record
+    from studies import record
 
     stamp = record.stamp()  # date, commit, load before the runs
     rows = {True: [], False: []}

@@ -10,7 +10,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 #: import name -> folder (pyproject's package-dir mapping)
 PACKAGES = {"hailstorm.runtime": ROOT / "runtime", "hailstorm.precompute": ROOT / "precompute",
-            "hailstorm.studies": ROOT / "notebooks" / "studies"}
+            "studies": ROOT / "notebooks" / "studies"}
 
 
 def _modules() -> dict[str, Path]:
