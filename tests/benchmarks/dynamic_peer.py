@@ -37,6 +37,12 @@ folder, then ``os.replace``): a run that fails leaves an earlier file as it was.
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
+# the studies (notebooks/studies) are in the repository, not in the package
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "notebooks"))
+
 import argparse
 import sys
 
