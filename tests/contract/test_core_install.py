@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import subprocess
 import sys
 import sysconfig
@@ -54,11 +55,20 @@ def _env(tmp_path: Path) -> dict[str, str]:
 
 @pytest.fixture(scope="module")
 def core_venv(tmp_path_factory) -> Path:
-    """A fresh venv holding hailstorm's core install (``pip install <repo>``, no extras)."""
-    venv = tmp_path_factory.mktemp("core") / "venv"
+    """A fresh venv holding hailstorm's core install (``pip install <repo>``, no extras).
+
+    pip installs a copy of the repository (no ``.git``, no earlier ``build/``): a
+    non-editable install builds in the source tree, and a stale ``build/lib`` would
+    put modules deleted since into the wheel.
+    """
+    base = tmp_path_factory.mktemp("core")
+    src = base / "src"
+    shutil.copytree(ROOT, src, ignore=shutil.ignore_patterns(".git", "build", "*.egg-info", "__pycache__", "dist",
+                                                             ".pytest_cache", "_build"))
+    venv = base / "venv"
     subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
     python = venv / "bin" / "python"
-    done = subprocess.run([str(python), "-m", "pip", "install", "--quiet", "--disable-pip-version-check", str(ROOT)],
+    done = subprocess.run([str(python), "-m", "pip", "install", "--quiet", "--disable-pip-version-check", str(src)],
                           capture_output=True, text=True)
     assert done.returncode == 0, done.stderr[-3000:]
     return venv
