@@ -2,10 +2,10 @@
 
 Two stages, one package:
 
-* :mod:`hailstorm.precompute` (offline; gmsh, scikit-fem): mesh a solid, assemble
-  linear elasticity and write a Green's-function bundle
+* :mod:`hailstorm.precompute` (offline; gmsh, scikit-fem: ``pip install "hailstorm[precompute]"``):
+  mesh a solid, assemble linear elasticity and write a Green's-function bundle
   (:func:`hailstorm.precompute.build_bundle`);
-* :mod:`hailstorm.runtime` (numpy, scipy, numba; nothing of the offline stage):
+* :mod:`hailstorm.runtime` (numpy, scipy, numba: the core install; nothing of the offline stage):
   load a bundle (:func:`hailstorm.runtime.load`), resolve contacts with the
   capacitance K = (Bᵀ D B)⁻¹ (:func:`hailstorm.runtime.solve_contacts`) and run a
   hail storm (:func:`hailstorm.runtime.run_storm`).

@@ -152,6 +152,11 @@ def _storm_args(p: argparse.ArgumentParser) -> None:
 
 
 def _run_precompute(args: argparse.Namespace) -> int:
+    from hailstorm.runtime.resources import require_extras
+
+    require_extras("precompute", "hailstorm precompute")
+    if args.workers is not None or args.scheduler is not None:
+        require_extras("dask", "hailstorm precompute --workers/--scheduler")
     from hailstorm.precompute.pipeline import build_bundle
     from hailstorm.runtime.bundle.format import BundleError
 
@@ -235,6 +240,7 @@ def _print_bundle(path: Path, rehash: bool = True) -> None:
 def _run_storm(args: argparse.Namespace) -> int:
     from hailstorm.runtime.bundle.read import load
     from hailstorm.runtime.output.files import StormOutput, check_storm_out
+    from hailstorm.runtime.resources import missing_module, require_extras
     from hailstorm.runtime.storm.scene import Scene, SeatSettings
     from hailstorm.runtime.storm.driver import run_storm
     from hailstorm.runtime.storm.estimate import hit_fraction
@@ -257,6 +263,15 @@ def _run_storm(args: argparse.Namespace) -> int:
     # the default seat's precompute settings: the scene file's [seat], not part of the scene
     seat = SeatSettings.from_toml(args.scene) if args.scene is not None else SeatSettings.default()
     scene.estimate().check(allow_large=args.allow_large)
+    if args.gf is None:
+        require_extras("precompute", "the storm without --gf (it meshes the default seat to find its bundle)",
+                       hint="(or run a bundle you have: hailstorm storm --gf DIR)")
+    video = not args.no_video
+    if video and (missing := missing_module("video")) is not None:
+        video = False
+        if not args.quiet:
+            print(f"note: no animation ({missing} is not installed): pip install 'hailstorm[video]' for storm.mp4, "
+                  "or --no-video", file=sys.stderr)
     out = args.out
     check_storm_out(out)
     if args.gf is not None:
@@ -273,8 +288,8 @@ def _run_storm(args: argparse.Namespace) -> int:
     if args.gf is not None:
         _warn_seat_ignored(args, seat, gf)
     estimate = scene.estimate(gf.n_vertices, hit_fraction=hit_fraction(gf.vertices, gf.triangles, scene.storm.margin),
-                              video=not args.no_video, startup=True)  # run_storm checks and logs it
-    with StormOutput(out, gf, video=not args.no_video, disk_bytes=estimate.disk_bytes,
+                              video=video, startup=True)  # run_storm checks and logs it
+    with StormOutput(out, gf, video=video, disk_bytes=estimate.disk_bytes,
                      progress=not args.quiet) as sink:
         result = run_storm(gf, scene, progress=not args.quiet, on_frame=sink.add, allow_large=args.allow_large,
                            estimate=estimate)
@@ -371,11 +386,12 @@ def _user_error(exc: BaseException, out: Any) -> int | None:
     code; None for an error that is a defect (its traceback is wanted)."""
     from hailstorm.precompute.geometry import MeshError
     from hailstorm.runtime.bundle.format import BundleError
+    from hailstorm.runtime.resources import MissingExtra
 
     if isinstance(exc, BrokenPipeError):  # `hailstorm info X | head -2`: the reader left; exit quietly
         _silence_stdout()
         return 1
-    if isinstance(exc, (MeshError, BundleError, ValueError)):
+    if isinstance(exc, (MeshError, BundleError, ValueError, MissingExtra)):
         print(f"hailstorm: error: {_one_line(exc)}", file=sys.stderr)
         return EXIT_INPUT
     if isinstance(exc, OSError):  # files and directories the user named (missing, read-only, full disk...)

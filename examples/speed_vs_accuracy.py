@@ -15,7 +15,7 @@ finest P2 bundle of the run (so the finest P2 point itself is not plotted).
 Plots precompute seconds against that error, one line per order.
 
 The project's full study, on the seat with an independent reference, is
-``python -m hailstorm.studies.study`` (see the docs' "Choosing settings").
+``python -m studies.study`` (see the docs' "Choosing settings").
 """
 
 from __future__ import annotations

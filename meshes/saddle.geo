@@ -13,7 +13,7 @@
 // changes a stone's contact stiffness by less than 0.6 % (< 2 %: rigid base).
 // A 3 mm nylon shell (3 GPa) would change it by 6-8 % mid-span: model that one
 // as a second volume (docs "Choosing settings", "The default seat";
-// `python -m hailstorm.studies.seat_study --shell --order 2 [--shell-young 3e9]`).
+// `python -m studies.seat_study --shell --order 2 [--shell-young 3e9]`).
 //
 // Physical groups (the names the pipeline relies on):
 //   Volume  "pad"   - the foam

@@ -21,7 +21,7 @@ block to a callback (the block store writes it to disk). Where they run:
   blocks at a time, never all of D.
 
 ``distributed`` is the optional ``[dask]`` extra; asking for a cluster without
-it raises :class:`ClusterError` saying how to install it.
+it raises :class:`hailstorm.runtime.resources.MissingExtra` naming the extra to install.
 """
 
 from __future__ import annotations
@@ -39,6 +39,7 @@ from typing import Any, Callable, Iterable, Iterator, Protocol, Sequence
 import numpy as np
 
 from hailstorm.runtime.bundle.format import RoundedBlock, round_block
+from hailstorm.runtime.resources import require_extra
 
 
 
@@ -112,13 +113,8 @@ class SolveStats:
 
 
 def require_distributed():
-    """The ``distributed`` module, or :class:`ClusterError` saying how to install it."""
-    try:
-        import distributed
-    except ImportError:
-        raise ClusterError("--workers and --scheduler need Dask's 'distributed' package: "
-                           "pip install 'hailstorm[dask]' (or pip install distributed)") from None
-    return distributed
+    """The ``distributed`` module, or :class:`hailstorm.runtime.resources.MissingExtra` naming the dask extra."""
+    return require_extra("distributed", "dask", "--workers and --scheduler (Dask's distributed)")
 
 
 @contextmanager

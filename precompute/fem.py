@@ -15,6 +15,8 @@ Small plain functions in the scikit-fem style:
 from __future__ import annotations
 
 import numpy as np
+
+from hailstorm.runtime.resources import require_extra
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
@@ -62,6 +64,7 @@ def lame_parameters(young: float, poisson: float) -> tuple[float, float]:
 
 def skfem_mesh(mesh: TetMesh):
     """The scikit-fem ``MeshTet`` of a :class:`TetMesh` (same node numbering)."""
+    require_extra("skfem", "precompute", "assembling elasticity (scikit-fem)")
     from skfem import MeshTet
 
     return MeshTet(np.ascontiguousarray(mesh.points.T), np.ascontiguousarray(mesh.tets.T))

@@ -29,6 +29,8 @@ from pathlib import Path
 
 import numpy as np
 
+from hailstorm.runtime.resources import require_extra
+
 REQUIRED_GROUPS = ("clamp",)
 #: Element size on the hail-facing surface [m], one default for every entry point
 #: (``hailstorm precompute``, :func:`build_bundle`, the default scene's seat).
@@ -260,7 +262,7 @@ def default_seat_path() -> Path:
 
 
 def _gmsh_session():
-    import gmsh
+    gmsh = require_extra("gmsh", "precompute", "meshing (gmsh)")
 
     if gmsh.isInitialized():
         gmsh.finalize()
@@ -387,7 +389,7 @@ def mesh_geometry(path: str | os.PathLike, mesh_size: float, *, coarsening: floa
         :data:`GRADING_SLOPE` of their size per layer (at least 1; 1: the whole
         body at ``mesh_size``). At fine sizes a thin pad's interior holds many
         of the volume's vertices: a larger value keeps the top mesh and cuts
-        the factor (``python -m hailstorm.studies.coarsening_study`` measures
+        the factor (``python -m studies.coarsening_study`` measures
         both and what it costs in accuracy).
     volume_size
         Volume grading: tetrahedra inside the body are at most this size [m]
@@ -574,7 +576,7 @@ def read_mesh(path: str | os.PathLike) -> TetMesh:
     or from meshio ``cell_sets`` of triangles; volume groups (for materials) from
     gmsh physical volumes or ``cell_sets`` of tetrahedra.
     """
-    import meshio
+    meshio = require_extra("meshio", "precompute", "reading a mesh file (meshio)")
 
     path = Path(path)
     if path.is_dir():

@@ -35,6 +35,8 @@ from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
+
+from hailstorm.runtime.resources import require_extra
 import scipy.sparse as sp
 
 from hailstorm.precompute.fem import free_dofs
@@ -73,7 +75,7 @@ class _DenseColumns:
 
 class _Cholmod(_DenseColumns):
     def __init__(self, A: sp.csc_matrix):
-        import cholespy
+        cholespy = require_extra("cholespy", "precompute", "the cholmod solver (cholespy)")
 
         A = sp.tril(A, format="csc")  # CHOLMOD reads one triangle
         A.sort_indices()
@@ -108,7 +110,7 @@ class _SuperLU(_DenseColumns):
 
 class _AMG(_DenseColumns):
     def __init__(self, A: sp.csr_matrix, near_null: np.ndarray, tol: float):
-        import pyamg
+        pyamg = require_extra("pyamg", "precompute", "the amg solver (pyamg)")
 
         self.A = A.tocsr()
         self.tol = tol

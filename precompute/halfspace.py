@@ -31,6 +31,7 @@ import tempfile
 from pathlib import Path
 
 from hailstorm.precompute.geometry import MeshError, TetMesh, read_mesh
+from hailstorm.runtime.resources import require_extra
 
 __all__ = ["halfspace_block"]
 
@@ -85,7 +86,7 @@ def halfspace_block(
         raise MeshError("halfspace_block: top_half_width must be smaller than half_width")
     if not fine_size <= coarse_size:
         raise MeshError("halfspace_block: fine_size must not exceed coarse_size")
-    import gmsh
+    gmsh = require_extra("gmsh", "precompute", "meshing (gmsh)")
 
     if gmsh.isInitialized():
         gmsh.finalize()

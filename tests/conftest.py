@@ -52,6 +52,7 @@ def run_notebook(tmp_path, monkeypatch):
     Checks that the notebook is committed without outputs; runs it with
     ``HAILSTORM_NOTEBOOK_SMALL=1``, a private cache and the Agg backend.
     """
+    import os
     from pathlib import Path
 
     nbformat = pytest.importorskip("nbformat")
@@ -64,6 +65,10 @@ def run_notebook(tmp_path, monkeypatch):
         monkeypatch.setenv("HAILSTORM_NOTEBOOK_SMALL", "1")
         monkeypatch.setenv("HAILSTORM_CACHE", str(tmp_path / "cache"))
         monkeypatch.setenv("MPLBACKEND", "Agg")
+        # the kernel imports the studies (notebooks/studies, not in the package) as Jupyter does
+        # when it starts in notebooks/: with that folder on its path
+        monkeypatch.setenv("PYTHONPATH", os.pathsep.join(p for p in (str(path.parent), os.environ.get("PYTHONPATH"))
+                                                         if p))
         nbclient.NotebookClient(nb, timeout=600, kernel_name="python3",
                                 resources={"metadata": {"path": str(tmp_path)}}).execute()
         return "".join(o.get("text", "") for c in nb.cells if c.cell_type == "code" for o in c.get("outputs", []))

@@ -1,6 +1,6 @@
 """The foam pad as an axisymmetric finite-element problem: references on scikit-fem, and a sphere pressed into it.
 
-The pad of :mod:`hailstorm.studies.dynamic_study` (a disc of foam on a rigid base, the
+The pad of :mod:`studies.dynamic_study` (a disc of foam on a rigid base, the
 impact on its axis; :class:`hailstorm.runtime.inertia.pad.Pad`, its mesh
 :func:`hailstorm.runtime.inertia.pad.pad_mesh`) and the references built on it:
 
@@ -10,7 +10,7 @@ impact on its axis; :class:`hailstorm.runtime.inertia.pad.Pad`, its mesh
 * :func:`press_disc` -- a rigid sphere (or Hertz's paraboloid) pressed to a depth into a
   disc, statically: the converged force of a block's own geometry (its depth, its clamp),
   against which Hertz's half-space and the Green's-function contacts are measured
-  (:func:`hailstorm.studies.resolution_study.block_table`); checked against Segedin's
+  (:func:`studies.resolution_study.block_table`); checked against Segedin's
   sphere on a half-space (tests/studies/test_axisymmetric.py).
 """
 

@@ -9,7 +9,7 @@ to the plan, at the rear, middle and nose) as the load-weighted mean dent per ne
 solve; relative to the first coarsening in the list. The loads are smooth, so the top meshes of the
 different runs (gmsh meshes each anew) need not match vertex for vertex.
 
-``python -m hailstorm.studies.coarsening_study [--mesh-size 0.0015] [--order 1] [--coarsenings 2.5,5,10]``
+``python -m studies.coarsening_study [--mesh-size 0.0015] [--order 1] [--coarsenings 2.5,5,10]``
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hailstorm.studies import record
+from studies import record
 
 __all__ = ["LOAD_SIGMA", "PLAN_POINTS", "coarsening_row", "main"]
 
@@ -67,7 +67,7 @@ def coarsening_row(mesh_size: float, coarsening: float, order: int = 1, young: f
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m hailstorm.studies.coarsening_study", description=__doc__,
+    ap = argparse.ArgumentParser(prog="python -m studies.coarsening_study", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--mesh-size", type=float, default=0.0015, help="the top's mesh size [m] (default 0.0015)")
     ap.add_argument("--order", type=int, choices=(1, 2), default=1)
@@ -100,7 +100,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.out is None:
         run()
     else:
-        record.whole_output(args.out, "python -m hailstorm.studies.coarsening_study", sys.argv[1:] if argv is None
+        record.whole_output(args.out, "python -m studies.coarsening_study", sys.argv[1:] if argv is None
                             else argv, run)
     return 0
 

@@ -32,7 +32,7 @@ the bundle format or the runtime):
    beyond ``r`` (what a near-field-only model drops); :func:`coloured_forms`
    gives the contacts' ``G^T D~ G`` of that model.
 
-Run ``python -m hailstorm.studies.compression_study`` (``--help``): without
+Run ``python -m studies.compression_study`` (``--help``): without
 ``--gf`` it uses the default seat (``meshes/default_scene.toml`` ``[seat]``,
 built or read from the cache), ``--mesh-size`` builds it at another size.
 """
@@ -60,7 +60,7 @@ from hailstorm.precompute.hmatrix import (
     permuted,
     svd,
 )
-from hailstorm.studies import record
+from studies import record
 
 __all__ = ["Cluster", "ClusterTree", "Partition", "admissible", "admissible_blocks", "cluster_tree",
            "colour_lower_bound", "coloured_forms", "colouring", "compress", "contact_vectors", "dofs",
@@ -512,7 +512,7 @@ def _pct(x: float) -> str:
 
 
 def _header(argv: Sequence[str]) -> list[str]:
-    cmd = "python -m hailstorm.studies.compression_study " + " ".join(shlex.quote(a) for a in argv)
+    cmd = "python -m studies.compression_study " + " ".join(shlex.quote(a) for a in argv)
     return [f"$ {cmd.strip()}", record.stamp()]
 
 
@@ -535,7 +535,7 @@ def _floats(text: str) -> list[float]:
 
 def main(argv: list[str] | None = None) -> None:
     """Print the three measurements (see the module notes) for one bundle."""
-    ap = argparse.ArgumentParser(prog="python -m hailstorm.studies.compression_study", description=__doc__,
+    ap = argparse.ArgumentParser(prog="python -m studies.compression_study", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--gf", help="bundle directory (default: the default seat, built or read from the cache)")
     ap.add_argument("--mesh-size", type=float, default=None,

@@ -30,8 +30,8 @@ and the stability study (charted in ``notebooks/stability.ipynb``):
 
 The committed figures are regenerated with::
 
-    python -m hailstorm.studies.contact_study --out notebooks/figures/mesh_dependence.png
-    python -m hailstorm.studies.contact_study stability --out notebooks/figures/stability.png
+    python -m studies.contact_study --out notebooks/figures/mesh_dependence.png
+    python -m studies.contact_study stability --out notebooks/figures/stability.png
 
 (``--small`` for the coarse levels / a small grid only). Bundles are cached under
 ``<hailstorm cache>/contact_study`` (see :func:`hailstorm.precompute.default_cache_dir`),
@@ -932,15 +932,15 @@ def stability_study(*, small: bool = False, cache_dir: str | os.PathLike | None 
 # command line
 # --------------------------------------------------------------------------
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m hailstorm.studies.contact_study [--small] [--order 1 2] [--out PNG]``: table and chart."""
+    """``python -m studies.contact_study [--small] [--order 1 2] [--out PNG]``: table and chart."""
     import argparse
     import sys
 
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv[:1] == ["stability"]:
         return main_stability(argv[1:])
-    ap = argparse.ArgumentParser(prog="python -m hailstorm.studies.contact_study", description=main.__doc__,
-                                 epilog="python -m hailstorm.studies.contact_study stability --help: the stability study")
+    ap = argparse.ArgumentParser(prog="python -m studies.contact_study", description=main.__doc__,
+                                 epilog="python -m studies.contact_study stability --help: the stability study")
     ap.add_argument("--small", action="store_true", help="coarse levels only (seconds)")
     ap.add_argument("--order", type=int, nargs="+", default=[1, 2], help="element orders (default 1 2)")
     ap.add_argument("--out", type=Path, default=None, help="write the chart to this PNG")
@@ -957,11 +957,11 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def main_stability(argv: Sequence[str] | None = None) -> int:
-    """``python -m hailstorm.studies.contact_study stability [--small] [--restitution E] [--out PNG]``:
+    """``python -m studies.contact_study stability [--small] [--restitution E] [--out PNG]``:
     stability tables (three integrators), measured vs predicted limit, degenerate contacts, locking, chart."""
     import argparse
 
-    ap = argparse.ArgumentParser(prog="python -m hailstorm.studies.contact_study stability", description=main_stability.__doc__)
+    ap = argparse.ArgumentParser(prog="python -m studies.contact_study stability", description=main_stability.__doc__)
     ap.add_argument("--small", action="store_true", help="small grid (seconds)")
     ap.add_argument("--restitution", type=float, default=None,
                     help="use the storm's dashpot for this restitution (default: no damping)")

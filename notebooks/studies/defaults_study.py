@@ -1,7 +1,7 @@
 """The default discretization, chosen by measured accuracy (issue #14 item 5).
 
 Two quantities a storm on the padded saddle depends on, at three sites of the
-crown (rear, middle, nose: :data:`hailstorm.studies.seat_study.SITES`):
+crown (rear, middle, nose: :data:`studies.seat_study.SITES`):
 
 Dent
     The mean normal displacement of a 1 N load spread uniformly over a 5 mm
@@ -32,10 +32,10 @@ its convergence and observed rate.
 
 Run::
 
-    python -m hailstorm.studies.defaults_study               # reference levels, the table, 3 timed precomputes each
-    python -m hailstorm.studies.defaults_study --no-timing   # accuracy only (the reference ~6 min on 2 loaded cores)
-    python -m hailstorm.studies.defaults_study --quick       # coarse reference levels, one timed run each
-    python -m hailstorm.studies.defaults_study --frontier --reference-cache /tmp/ref.npz
+    python -m studies.defaults_study               # reference levels, the table, 3 timed precomputes each
+    python -m studies.defaults_study --no-timing   # accuracy only (the reference ~6 min on 2 loaded cores)
+    python -m studies.defaults_study --quick       # coarse reference levels, one timed run each
+    python -m studies.defaults_study --frontier --reference-cache /tmp/ref.npz
         # P2 point columns on 6 ... 3.5 mm surfaces and a few variants: errors, size of D, precompute
         # wall and CPU time (2 runs each, 1 beyond --budget s), the cheapest setting within 5 %
 """
@@ -80,8 +80,8 @@ from hailstorm.runtime.bundle.atomic import replacing
 from hailstorm.runtime.contact.weights import patch_weights, triangle_normals
 from hailstorm.runtime.storm.hail import stone_mass, terminal_velocity
 from hailstorm.runtime.contact.hertz import hertz_impact
-from hailstorm.studies.seat_study import SITES
-from hailstorm.studies.study import LoadCase, locate_probes, nodal_loads, trace_nodes, trace_shape
+from studies.seat_study import SITES
+from studies.study import LoadCase, locate_probes, nodal_loads, trace_nodes, trace_shape
 
 #: The dent load: 1 N uniform over a disc of this plan radius [m] (a 5 mm disc).
 DENT_RADIUS = 0.0025

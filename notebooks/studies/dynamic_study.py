@@ -1,6 +1,6 @@
 """A dynamic FEM peer for impacts: where the quasi-static Green's functions stop being true.
 
-``python -m hailstorm.studies.dynamic_study [--full | --terminal] [--plot PATH]`` (or
+``python -m studies.dynamic_study [--full | --terminal] [--plot PATH]`` (or
 ``python tests/benchmarks/dynamic_peer.py``) prints, for a grid of stone radii
 and impact speeds, the impact of one rigid ice sphere on the default seat's
 foam pad computed twice on the same finite-element pad:
@@ -31,7 +31,7 @@ the contact radius under the stone (scikit-fem, the weak forms weighted by
 ``2 pi r``). Side edge free, underside clamped, ``u_r = 0`` on the axis.
 
 Density: flexible polyurethane foams span roughly 20-100 kg/m^3 (Gibson & Ashby,
-*Cellular Solids*, 2nd ed. 1997); the default, :data:`~hailstorm.studies.axisymmetric.FOAM_DENSITY` = 70 kg/m^3, gives wave
+*Cellular Solids*, 2nd ed. 1997); the default, :data:`~studies.axisymmetric.FOAM_DENSITY` = 70 kg/m^3, gives wave
 speeds of 214 m/s (dilatational) and 103 m/s (shear) with E = 2 MPa. The
 inertia of the pad scales with the density: ``--density`` changes it.
 
@@ -78,7 +78,7 @@ from hailstorm.runtime.inertia.impact import (
 )
 from hailstorm.runtime.inertia.pad import Pad
 from hailstorm.runtime.storm.limits import ValidityLimits, contact_time_ratio
-from hailstorm.studies.axisymmetric import FOAM_DENSITY
+from studies.axisymmetric import FOAM_DENSITY
 
 __all__ = [
     "ICE_DENSITY",
@@ -479,7 +479,7 @@ def plot_agreement(rows: Sequence[Row], path: str, tol: float = AGREE, density: 
 
     import matplotlib
 
-    from hailstorm.studies import record
+    from studies import record
 
     if "MPLBACKEND" not in os.environ:
         matplotlib.use("Agg")

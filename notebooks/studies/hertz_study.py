@@ -1,6 +1,6 @@
 """Patch contacts against Hertz on a graded block that stands in for a half-space.
 
-``python -m hailstorm.studies.hertz_study [--fine 3.5e-4 2.5e-4 ...]`` builds
+``python -m studies.hertz_study [--fine 3.5e-4 2.5e-4 ...]`` builds
 the block of :func:`hailstorm.precompute.halfspace.halfspace_block` at each
 fine element size (cached in ``HAILSTORM_CACHE``) and prints, per block:
 

@@ -6,7 +6,7 @@ the model's own, the same at every ``dt``. ``implicit`` (backward Euler) and ``s
 hold ``omega dt`` at ``omega_dt`` in their sub-steps whatever ``dt``, so their peaks move with
 ``omega_dt`` instead, at first order (``docs/how-it-works.md``, "Integrators")::
 
-    python -m hailstorm.studies.integrator_study --out docs/_generated/integrator_study.txt
+    python -m studies.integrator_study --out docs/_generated/integrator_study.txt
 
 Each row is one storm (the default scene, its seed, on the default seat unless ``--gf``); the
 last columns are the peaks' differences from the first row's (``exact`` at the default ``dt``).
@@ -19,7 +19,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from hailstorm.studies import record
+from studies import record
 
 __all__ = ["ROWS", "main", "run_rows"]
 
@@ -78,14 +78,14 @@ def table(rows: list[dict[str, Any]]) -> list[str]:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m hailstorm.studies.integrator_study", description=__doc__,
+    ap = argparse.ArgumentParser(prog="python -m studies.integrator_study", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--gf", type=Path, default=None, help="a bundle (default: the default seat, built or cached)")
     ap.add_argument("--out", type=Path, default=None, help="also write the lines there (with their header)")
     args = ap.parse_args(argv)
     import hailstorm.runtime
     from hailstorm.runtime.storm.scene import Scene, SeatSettings
-    from hailstorm.studies.resolution_study import seat_bundle
+    from studies.resolution_study import seat_bundle
 
     stamp = record.stamp()
     gf = hailstorm.runtime.load(args.gf) if args.gf is not None else seat_bundle(SeatSettings.default().mesh_size)
@@ -97,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
     lines.append(f"# {time.perf_counter() - t0:.0f} s in all")
     print("\n".join(lines), flush=True)
     if args.out is not None:
-        record.write_run(args.out, record.command("python -m hailstorm.studies.integrator_study", argv), stamp, lines)
+        record.write_run(args.out, record.command("python -m studies.integrator_study", argv), stamp, lines)
     return 0
 
 

@@ -1,8 +1,8 @@
 """The pad's normal modes: how much of its dynamics an impact needs (issue #24, item 3).
 
-``python -m hailstorm.studies.pad_modes [--density RHO] [--counts 10 30 100 200] [--out FILE]``
+``python -m studies.pad_modes [--density RHO] [--counts 10 30 100 200] [--out FILE]``
 prints, for each stone at its terminal fall speed, how close the dynamic peer
-(:mod:`hailstorm.studies.dynamic_study`) comes out when the pad's dynamics is cut to
+(:mod:`studies.dynamic_study`) comes out when the pad's dynamics is cut to
 its ``n`` lowest modes and the rest is taken quasi-statically (the
 *mode-acceleration* form, below), and the quasi-static model's own error beside it.
 
@@ -53,8 +53,8 @@ from typing import Any, Sequence
 import numpy as np
 
 from hailstorm.runtime.inertia.pad import PadMesh, without_contact_mass
-from hailstorm.studies.axisymmetric import FOAM_DENSITY
-from hailstorm.studies.dynamic_study import (
+from studies.axisymmetric import FOAM_DENSITY
+from studies.dynamic_study import (
     ICE_DENSITY,
     ImpactResult,
     Row,
@@ -140,7 +140,7 @@ def pad_modes(mesh: PadMesh, count: int | None = None, massless: np.ndarray | No
 
 @dataclass(frozen=True)
 class ModalRow:
-    """One stone: the peer's :class:`~hailstorm.studies.dynamic_study.Row` and, per mode count,
+    """One stone: the peer's :class:`~studies.dynamic_study.Row` and, per mode count,
     the modal model's errors against the dynamic peer (:meth:`Row.errors`'s measures)."""
 
     row: Row
@@ -377,7 +377,7 @@ def main(argv: list[str] | None = None) -> int:
                     help="the contact as one force with a fixed Hertz pressure (the storm's patch) on the modes")
     ap.add_argument("--out", default=None, metavar="FILE", help="also write the output there (with its header)")
     args = ap.parse_args(argv)
-    from hailstorm.studies import record
+    from studies import record
 
     stamp = record.stamp()
     try:
@@ -401,7 +401,7 @@ def main(argv: list[str] | None = None) -> int:
              table]
     print("\n".join(lines))
     if args.out:
-        record.write_run(args.out, record.command("python -m hailstorm.studies.pad_modes", argv), stamp, lines)
+        record.write_run(args.out, record.command("python -m studies.pad_modes", argv), stamp, lines)
     return 0
 
 

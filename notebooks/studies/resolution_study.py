@@ -6,7 +6,7 @@ Two measurements of :mod:`hailstorm.runtime.contact.near_field`:
   pad's foam (``[seat]`` settings: P2, hat-load columns, the default element
   size on top), with and without the near field, on a vertex, an edge and a
   centroid: ``F / F_Hertz - 1``, and against the block's own converged solution
-  (:func:`hailstorm.studies.axisymmetric.press_disc` on the disc of the block's
+  (:func:`studies.axisymmetric.press_disc` on the disc of the block's
   top area and depth): Hertz's half-space is not the block, whose clamp 400 mm
   down stiffens a wide contact (about +1.5 % at a = 8 mm), and a sphere is not
   Hertz's paraboloid (-1.6 % at a/R = 0.4 on a half-space, Segedin);
@@ -26,7 +26,7 @@ Two measurements of :mod:`hailstorm.runtime.contact.near_field`:
   the default seat against the same on a finer seat (the reference), and
   the spread over the three sites.
 
-Run ``python -m hailstorm.studies.resolution_study`` (``--help``); it prints
+Run ``python -m studies.resolution_study`` (``--help``); it prints
 the tables (``--out FILE``: also into FILE, with the command, date, commit and load).
 """
 
@@ -125,14 +125,14 @@ def block_table(gf: Any, radii: Sequence[float] = (0.5e-3, 1e-3, 2e-3, 4e-3, 8e-
     """Rigid spheres at Hertz radius ``a`` (``R = a / a_over_R``, Hertz's depth ``a^2 / R``), per site and model.
 
     Keys ``"<near_field>:<site>"``: ``F / F_Hertz - 1``. With ``exact``, the block's own converged forces
-    (:func:`block_disc`, :func:`hailstorm.studies.axisymmetric.press_disc`) over Hertz's, minus 1:
+    (:func:`block_disc`, :func:`studies.axisymmetric.press_disc`) over Hertz's, minus 1:
     ``"block"`` for Hertz's paraboloid (what Hertz solves, on this block instead of a half-space: the
     floor of a comparison with Hertz) and ``"block_sphere"`` for the sphere; and
     ``"<near_field>:<site>:block"``: the model's force over the block's sphere force, minus 1 (the
     model's own error; its contacts follow the sphere's law, :mod:`hailstorm.runtime.contact.hertz`).
     """
     from hailstorm.runtime.contact.hertz import hertz_force, press_spheres
-    from hailstorm.studies.axisymmetric import press_disc
+    from studies.axisymmetric import press_disc
 
     rows = []
     disc = block_disc(float(gf.young), float(gf.poisson)) if exact else None
@@ -163,13 +163,13 @@ PAD_CASES = ((2.5e-3, 1.07e-3), (5e-3, 2.7e-3), (7.5e-3, 4.5e-3), (12.5e-3, 4e-3
 
 def pad_table(gf: Any, pad: Any, cases: Sequence[tuple[float, float]] = PAD_CASES) -> list[dict[str, Any]]:
     """Rigid spheres pressed into a pad on its rigid base, per site and model, against the pad's own
-    converged contact (:func:`hailstorm.studies.axisymmetric.press_disc` on the same pad as a disc of
-    ``pad.radius``, node by node; ``gf`` the pad as a block, :func:`hailstorm.studies.dynamic_study.pad_bundle`).
+    converged contact (:func:`studies.axisymmetric.press_disc` on the same pad as a disc of
+    ``pad.radius``, node by node; ``gf`` the pad as a block, :func:`studies.dynamic_study.pad_bundle`).
 
     Keys: ``a_mm`` (the converged contact radius), ``R_mm``, ``depth_mm``, ``a_over_h``, ``F_N`` (the
     converged force) and ``"<near_field>:<site>"``: ``F / F_pad - 1``."""
     from hailstorm.runtime.contact.hertz import press_spheres
-    from hailstorm.studies.axisymmetric import press_disc
+    from studies.axisymmetric import press_disc
 
     rows = []
     for R, d in cases:
@@ -366,9 +366,9 @@ def _table(rows: list[dict[str, Any]], keys: Sequence[str], fmt: dict[str, str])
 
 def main(argv: list[str] | None = None) -> None:
     """Print the block and seat tables (see the module notes); ``--out FILE``: also into FILE."""
-    from hailstorm.studies import record
+    from studies import record
 
-    ap = argparse.ArgumentParser(prog="python -m hailstorm.studies.resolution_study", description=__doc__,
+    ap = argparse.ArgumentParser(prog="python -m studies.resolution_study", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     from hailstorm.runtime.storm.scene import SeatSettings
 
@@ -406,7 +406,7 @@ def main(argv: list[str] | None = None) -> None:
                     r[k] = 100 * r[k]
             say(*_table(rows, keys, {k: "+.1f" for k in keys[2:]} | {"a_mm": ".1f", "R_mm": ".1f"}))
     if not args.skip_pad:
-        from hailstorm.studies.dynamic_study import default_pad, pad_bundle
+        from studies.dynamic_study import default_pad, pad_bundle
 
         pad = default_pad()
         gf = pad_bundle(pad, mesh_size=args.mesh_size)
@@ -448,7 +448,7 @@ def main(argv: list[str] | None = None) -> None:
             say(*_table(rows, ["place", "R_mm", "state", "depth_mm", *SITES, "centroid_N"],
                         {s: "+.1f" for s in SITES} | {"R_mm": ".1f", "depth_mm": ".3f", "centroid_N": ".3g"}))
     if args.out:
-        record.write_run(args.out, record.command("python -m hailstorm.studies.resolution_study", argv), stamp, lines)
+        record.write_run(args.out, record.command("python -m studies.resolution_study", argv), stamp, lines)
 
 
 if __name__ == "__main__":

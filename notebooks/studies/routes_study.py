@@ -5,7 +5,7 @@ the size), one row per storage (dense, and compressed with ``--tol``):
 
 * **error**: the force at Hertz's depth of stones of 2.5, 5 and 12.5 mm at rest and at the peak of an
   impact at terminal speed, at the rear, middle and nose, on a vertex, an edge and a centroid
-  (:func:`hailstorm.studies.resolution_study.seat_table`), against the finest size's dense bundle:
+  (:func:`studies.resolution_study.seat_table`), against the finest size's dense bundle:
   the largest and the median |error| over the 54 cases, and the largest over the stones a storm
   mostly has (2.5 and 5 mm);
 * **precompute**: the bundle's recorded mesh + assembly + solve seconds, and the compression's;
@@ -15,7 +15,7 @@ the size), one row per storage (dense, and compressed with ``--tol``):
   (the default scene over ``--duration``, min/median/max of ``--repeat`` runs; higher is faster).
 
 Bundles are built (or read from the cache) as the default seat is: ``--sizes`` in mm, the last the
-reference. Run ``python -m hailstorm.studies.routes_study [--sizes 6,4,3] [--tol 1e-2] [--out FILE]
+reference. Run ``python -m studies.routes_study [--sizes 6,4,3] [--tol 1e-2] [--out FILE]
 [--plot PNG]`` (:func:`plot_frontier` draws the table as a chart).
 """
 
@@ -30,7 +30,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
-from hailstorm.studies import record
+from studies import record
 
 __all__ = ["format_rows", "main", "plot_frontier", "route_rows", "solve_times", "storm_rtf"]
 
@@ -71,7 +71,7 @@ def storm_rtf(gf: Any, duration: float, repeat: int) -> list[float]:
 
 
 def _errors(gf: Any, ref: Any) -> dict[str, float]:
-    from hailstorm.studies.resolution_study import DEFAULT_MODEL, SITES, seat_table
+    from studies.resolution_study import DEFAULT_MODEL, SITES, seat_table
 
     rows = seat_table(gf, ref, near_field=DEFAULT_MODEL)
     err = np.array([[abs(r[s]) for s in SITES] for r in rows])
@@ -84,7 +84,7 @@ def route_rows(sizes: Sequence[float], tol: float, duration: float, repeat: int)
     from hailstorm.precompute.hmatrix import compress_bundle
     from hailstorm.runtime import load
 
-    from hailstorm.studies.resolution_study import seat_bundle
+    from studies.resolution_study import seat_bundle
 
     gfs = [seat_bundle(h, progress=True) for h in sizes]
     ref = gfs[-1]
@@ -181,7 +181,7 @@ def plot_frontier(rows: Sequence[dict[str, Any]], path: str | Path) -> Path:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m hailstorm.studies.routes_study", description=__doc__,
+    ap = argparse.ArgumentParser(prog="python -m studies.routes_study", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sizes", default="6,4,3", help="surface sizes in mm, the last the reference (default 6,4,3)")
     ap.add_argument("--tol", type=float, default=1e-2, help="the compressed rows' --tol (default 1e-2)")
@@ -201,7 +201,7 @@ def main(argv: list[str] | None = None) -> int:
               f"recorded; storm: the default scene over {args.duration:g} s"]
     print("\n".join(lines))
     if args.out:
-        record.write_run(args.out, record.command("python -m hailstorm.studies.routes_study", argv), stamp, lines)
+        record.write_run(args.out, record.command("python -m studies.routes_study", argv), stamp, lines)
     if args.plot:
         print(f"chart: {plot_frontier(rows, args.plot)}")
     return 0

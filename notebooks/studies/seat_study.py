@@ -21,8 +21,8 @@ Shell effect
 
 Run::
 
-    python -m hailstorm.studies.seat_study                 # locality, P1 at 6 mm (the default seat)
-    python -m hailstorm.studies.seat_study --order 2 --shell
+    python -m studies.seat_study                 # locality, P1 at 6 mm (the default seat)
+    python -m studies.seat_study --order 2 --shell
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ from hailstorm.precompute.fem import (
 )
 from hailstorm.precompute.geometry import DEFAULT_MESH_SIZE, TetMesh, boundary_triangles, check_mesh, mesh_default_seat, tet_volumes
 from hailstorm.precompute.greens import factorize
-from hailstorm.studies.study import LoadCase, locate_probes, nodal_loads, trace_nodes, trace_shape
+from studies.study import LoadCase, locate_probes, nodal_loads, trace_nodes, trace_shape
 
 #: Load sites on the crown (plan x, y) [m]: rear, middle, nose.
 SITES = {"rear": (0.235, 0.0), "middle": (0.150, 0.0), "nose": (0.035, 0.0)}
@@ -173,9 +173,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     if args.out is None:
         _run(args)
     else:
-        from hailstorm.studies import record
+        from studies import record
 
-        record.whole_output(args.out, "python -m hailstorm.studies.seat_study", sys.argv[1:] if argv is None
+        record.whole_output(args.out, "python -m studies.seat_study", sys.argv[1:] if argv is None
                             else list(argv), lambda: _run(args))
     return 0
 

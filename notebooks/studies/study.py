@@ -34,7 +34,7 @@ reference) as files in ``cache_dir``.
 
 Regenerate the figure::
 
-    python -m hailstorm.studies.study --out notebooks/figures/speed_vs_accuracy.png
+    python -m studies.study --out notebooks/figures/speed_vs_accuracy.png
 """
 
 from __future__ import annotations
@@ -1109,7 +1109,7 @@ def _json_default(o: Any) -> Any:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m hailstorm.studies.study [--small] [--recompute] [--out PNG] [--cache DIR]``."""
+    """``python -m studies.study [--small] [--recompute] [--out PNG] [--cache DIR]``."""
     import argparse
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])

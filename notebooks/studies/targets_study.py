@@ -6,13 +6,13 @@ One line per target, its figure measured here and whether it is met:
    seat, dense, ``--reference-size``; the converged reference of the defaults study costs ~4 300 s of
    CPU, so this one is itself off by its own discretisation), for stones of 2.5, 5 and 12.5 mm at
    rest and at the peak of an impact at terminal speed, at the rear, middle and nose, on a vertex, an
-   edge and a centroid (:func:`hailstorm.studies.resolution_study.seat_table`, the near field on):
+   edge and a centroid (:func:`studies.resolution_study.seat_table`, the near field on):
    the largest error, and the largest spread over where on the mesh the stone lands; and the same
    for the dent: the depth at which the default seat carries the reference's force
-   (:func:`~hailstorm.studies.resolution_study.depth_at_force`) against the reference's depth;
+   (:func:`~studies.resolution_study.depth_at_force`) against the reference's depth;
 2. ``press_spheres`` on a thick block of the foam with the default seat's settings against Hertz,
    Hertz radius 0.5-8 mm at a/R = 0.2 and 0.4, and against the block's own converged force for
-   the sphere, whose law the contacts follow (:func:`~hailstorm.studies.resolution_study.block_table`:
+   the sphere, whose law the contacts follow (:func:`~studies.resolution_study.block_table`:
    Hertz's half-space is not the block, nor Hertz's paraboloid the sphere);
 3. the default seat's precompute with ``--tol`` from an empty cache, in a child process: wall time,
    the child's peak resident memory, the compliance's stored bytes;
@@ -26,7 +26,7 @@ One line per target, its figure measured here and whether it is met:
    time, stored bytes, recorded error and peak memory from its manifest, and the default storm on
    it in a child process (wall time and the child's own peak memory). Without it: not measured.
 
-``python -m hailstorm.studies.targets_study [--reference-size 0.003] [--tol 1e-2] [--large DIR] [--out FILE]``
+``python -m studies.targets_study [--reference-size 0.003] [--tol 1e-2] [--large DIR] [--out FILE]``
 """
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ from typing import Any
 
 import numpy as np
 
-from hailstorm.studies import record
+from studies import record
 
 __all__ = ["LARGE_BUDGET_GIB", "LARGE_VERTICES", "dask_same_answer", "large_surface", "main", "precompute_cost",
            "storm_side_by_side"]
@@ -178,7 +178,7 @@ def _large_row(large: Path | None, say: Any) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    ap = argparse.ArgumentParser(prog="python -m hailstorm.studies.targets_study", description=__doc__,
+    ap = argparse.ArgumentParser(prog="python -m studies.targets_study", description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--reference-size", type=float, default=0.003, help="the reference seat's size [m]")
     ap.add_argument("--tol", type=float, default=1e-2, help="the compressed D's --tol (default 1e-2)")
@@ -196,8 +196,8 @@ def main(argv: list[str] | None = None) -> int:
     import hailstorm.runtime
     from hailstorm.precompute.hmatrix import compress_bundle
     from hailstorm.runtime.storm.scene import SeatSettings
-    from hailstorm.studies.resolution_study import DEFAULT_MODEL, SITES, block_bundle, block_table, seat_bundle, seat_table
-    from hailstorm.studies.routes_study import solve_times
+    from studies.resolution_study import DEFAULT_MODEL, SITES, block_bundle, block_table, seat_bundle, seat_table
+    from studies.routes_study import solve_times
 
     stamp = record.stamp()
     lines: list[str] = []
@@ -275,7 +275,7 @@ def main(argv: list[str] | None = None) -> int:
     if args.rows != "default":
         _large_row(args.large, say)
     if args.out:
-        record.write_run(args.out, record.command("python -m hailstorm.studies.targets_study", argv), stamp, lines)
+        record.write_run(args.out, record.command("python -m studies.targets_study", argv), stamp, lines)
     return 0
 
 

@@ -37,7 +37,7 @@ scale. The subtraction needs D's columns to answer hat loads (``load =
 a point-load column's near field is the mesh's singular point response,
 which no kernel reproduces.
 
-Measured (``python -m hailstorm.studies.resolution_study``, tables in
+Measured (``python -m studies.resolution_study``, tables in
 ``docs/_generated/resolution_*.txt``): rigid spheres of Hertz radius 0.5-8 mm
 pressed into a thick block of the pad's foam with the default seat's settings
 (6 mm, P2, hat loads) carry Hertz's force on a vertex, an edge and a centroid

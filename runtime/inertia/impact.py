@@ -11,7 +11,7 @@ no mass on the contact nodes' normal dofs (:func:`~hailstorm.runtime.inertia.pad
 *quasi-static*: the same pad without mass (its static response: the Green's-function
 assumption). No gravity: the difference is the pad's inertia alone.
 
-:mod:`hailstorm.studies.dynamic_study` holds it to Hertz's impact and to the storm, and
+:mod:`studies.dynamic_study` holds it to Hertz's impact and to the storm, and
 charts where the two agree; :mod:`hailstorm.runtime.inertia.factors` runs it for every
 impact of a storm.
 """
@@ -79,7 +79,7 @@ class ImpactResult:
     history : (k, 4) ndarray
         Per step: time [s], contact force [N], sphere penetration x [m], dent at the axis [m].
     modes : int or None
-        The pad's dynamics cut to this many modes (:mod:`hailstorm.studies.pad_modes`); None: all.
+        The pad's dynamics cut to this many modes (:mod:`studies.pad_modes`); None: all.
     """
 
     dynamic: bool
@@ -139,7 +139,7 @@ def simulate_impact(mesh: PadMesh, radius: float, speed: float, *, dynamic: bool
         form; the same Newmark rule per mode: with every mode of the massless-contact pad it
         is the full peer). Needs ``dynamic``. Any object with ``shapes`` (free dofs x k,
         mass-normalised), ``omega2`` (k,) [1/s^2] and ``count``, such as
-        :class:`hailstorm.studies.pad_modes.PadModes`.
+        :class:`studies.pad_modes.PadModes`.
 
     Returns
     -------

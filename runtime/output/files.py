@@ -16,8 +16,9 @@ Use::
         out.finish(result)                         # pvd, summary.json, storm.mp4: then in place
 
 The animation is :mod:`hailstorm.runtime.output.render`'s (:func:`write_animation`
-is re-exported here). matplotlib, imageio and meshio are imported inside the
-writers, so importing this module costs nothing.
+is re-exported here); it needs the ``video`` extra (matplotlib, imageio), imported
+inside the writers. The ParaView series is written with numpy alone
+(:mod:`hailstorm.runtime.output.vtu`): the core install writes everything but the animation.
 """
 
 from __future__ import annotations
@@ -38,6 +39,8 @@ import numpy as np
 from hailstorm.runtime.bundle.atomic import probe_writable, write_text_atomic
 from hailstorm.runtime.output.render import shown_displacement as _shown
 from hailstorm.runtime.output.render import write_animation
+from hailstorm.runtime.output.vtu import read_vtu, write_vtu
+from hailstorm.runtime.resources import require_extras
 
 __all__ = [
     "STORM_MANIFEST",
@@ -272,16 +275,13 @@ class ParaviewSeries:
 
     def add(self, frame: Any) -> None:
         """Write one :class:`hailstorm.runtime.storm.recording.Frame` (both files)."""
-        import meshio
-
         i = len(self.entries)
         u = np.asarray(frame.displacement, dtype=np.float64)
         peak = np.asarray(_shown(frame), dtype=np.float64)
         sname = f"frames/surface_{i:04d}.vtu"
-        meshio.write(self.outdir / sname, meshio.Mesh(
-            self._X, [("triangle", self._tri)],
-            point_data={"displacement": u, "|u|": np.linalg.norm(u, axis=1), "peak_displacement": peak,
-                        "|u| peak": np.linalg.norm(peak, axis=1)}))
+        write_vtu(self.outdir / sname, self._X, "triangle", self._tri,
+                  {"displacement": u, "|u|": np.linalg.norm(u, axis=1), "peak_displacement": peak,
+                   "|u| peak": np.linalg.norm(peak, axis=1)})
         pos = np.asarray(frame.positions, dtype=np.float64).reshape(-1, 3)
         radii = np.asarray(frame.radii, dtype=np.float64)
         ids = np.asarray(frame.ids, dtype=np.int64)
@@ -291,8 +291,8 @@ class ParaviewSeries:
             pos, radii, ids, forces = self._dummy, np.zeros(1), np.full(1, -1, dtype=np.int64), np.zeros((1, 3))
         k = pos.shape[0]
         stname = f"frames/stones_{i:04d}.vtu"
-        meshio.write(self.outdir / stname, meshio.Mesh(pos, [("vertex", np.arange(k, dtype=np.int64)[:, None])],
-                                                       point_data={"radius": radii, "id": ids, "force": forces}))
+        write_vtu(self.outdir / stname, pos, "vertex", np.arange(k, dtype=np.int64)[:, None],
+                  {"radius": radii, "id": ids, "force": forces})
         # (in float64, as the renderer takes the norms: its colour scale's top bounds every pixel)
         umax = float(np.linalg.norm(np.asarray(peak, dtype=np.float64), axis=1).max()) if len(peak) else 0.0
         self.entries.append((float(frame.t), sname, stname, int(frame.contacts), umax))
@@ -331,19 +331,17 @@ class FrameSeries(Sequence):
         return self._series.entries[i][4]
 
     def __getitem__(self, i: int) -> Any:  # type: ignore[override]
-        import meshio
-
         from hailstorm.runtime.storm.recording import Frame
 
         t, sname, stname, contacts, _ = self._series.entries[i]
-        s = meshio.read(self._series.outdir / sname)
-        st = meshio.read(self._series.outdir / stname)
-        ids = np.asarray(st.point_data["id"], dtype=np.int64)
+        _, s = read_vtu(self._series.outdir / sname)
+        st_points, st = read_vtu(self._series.outdir / stname)
+        ids = np.asarray(st["id"], dtype=np.int64)
         keep = ids >= 0
-        force = st.point_data.get("force")  # absent from the files of older versions
-        return Frame(t=t, displacement=s.point_data["displacement"], positions=st.points[keep],
-                     radii=np.asarray(st.point_data["radius"])[keep], ids=ids[keep], contacts=contacts,
-                     peak_displacement=s.point_data["peak_displacement"],
+        force = st.get("force")  # absent from the files of older versions
+        return Frame(t=t, displacement=s["displacement"], positions=st_points[keep],
+                     radii=np.asarray(st["radius"])[keep], ids=ids[keep], contacts=contacts,
+                     peak_displacement=s["peak_displacement"],
                      forces=None if force is None else np.asarray(force, dtype=np.float64)[keep])
 
 
@@ -523,7 +521,11 @@ class StormOutput:
         ------
         OutputError
             See :func:`check_storm_out`; or not enough free disk space.
+        MissingExtra
+            ``video`` without the video extra installed (before anything is written).
         """
+        if self.video:
+            require_extras("video", "the storm's animation", hint="(or skip it: video=False, --no-video)")
         check_storm_out(self.out)
         parent = self.out.absolute().parent
         try:

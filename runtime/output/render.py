@@ -30,8 +30,9 @@ up to a typical dent saturates the large ones and hides their shape. Two
 decades below the run's peak show every dent and its fall-off, each colour
 meaning the same depth in every frame.
 
-matplotlib and imageio are imported inside the functions, so importing this
-module costs nothing.
+matplotlib and imageio (the ``video`` extra) are imported inside the functions
+(:func:`hailstorm.runtime.resources.require_extra`), so importing this module costs
+nothing and needs neither.
 """
 
 from __future__ import annotations
@@ -42,6 +43,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from hailstorm.runtime.resources import require_extra
 
 __all__ = [
     "COLOUR_DECADES",
@@ -175,6 +178,7 @@ class StormRenderer:
 
     def __init__(self, gf: Any, *, peak: float, duration: float, history: np.ndarray | None = None,
                  peak_shown: bool = True, size: tuple[int, int] = FRAME_SIZE, dpi: float = 100.0) -> None:
+        require_extra("matplotlib", "video", "the animation (matplotlib)")
         from matplotlib import colormaps, colors
         from matplotlib.backends.backend_agg import FigureCanvasAgg
         from matplotlib.cm import ScalarMappable
@@ -531,14 +535,14 @@ class _VideoWriter:
         self._w: Any = None
 
     def _open_gif(self) -> None:
-        import imageio.v2 as imageio
+        imageio = require_extra("imageio.v2", "video", "the animation (imageio)")
 
         if self.path.suffix.lower() != ".gif":
             self.path = self.path.with_suffix(".gif")
         self._w = imageio.get_writer(self.path, mode="I", duration=1.0 / self.fps, loop=0)
 
     def append(self, image: np.ndarray) -> None:
-        import imageio.v2 as imageio
+        imageio = require_extra("imageio.v2", "video", "the animation (imageio)")
 
         if self._w is None:
             if self.path.suffix.lower() == ".gif":

@@ -23,7 +23,7 @@ depth with no force (the narrow phase measures its gap with the radius
 engagement is :meth:`hailstorm.runtime.storm.soft_contacts.SoftContacts.engage`). On a
 half-space an impact then has the sphere's peak force and deepest indentation
 (Hertz's for ``a << R``) and 0.990 of Hertz's duration
-(``hailstorm.studies.hertz_study.affine_oscillator``; the linear law through the
+(``studies.hertz_study.affine_oscillator``; the linear law through the
 origin it replaces, Hertz's secant stiffness, had 0.875, 0.915 and 0.977).
 """
 

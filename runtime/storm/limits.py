@@ -54,7 +54,7 @@ The limits (:class:`ValidityLimits`, each with its source):
   the patch weights hold for indentations small against the thickness.
 
 * ``t_c / T >= 1.6``: measured, by the dynamic peer of the pad
-  (:mod:`hailstorm.studies.dynamic_study`: a 15 mm pad of the default foam on a rigid
+  (:mod:`studies.dynamic_study`: a 15 mm pad of the default foam on a rigid
   base, with its mass; rigid ice spheres of 2.5-12.5 mm at 1-30 m/s, foam of 70 and
   200 kg/m^3; ``python tests/benchmarks/dynamic_peer.py --limit``). In every one of its
   impacts with ``t_c / T >= 1.6`` (26 of 60) the quasi-static model's peak force, contact

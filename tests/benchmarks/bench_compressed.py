@@ -15,6 +15,12 @@ once), dense against compressed.
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
+# the studies (notebooks/studies) are in the repository, not in the package
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "notebooks"))
+
 import argparse
 import os
 import shutil
@@ -29,8 +35,8 @@ from hailstorm.precompute.hmatrix import compress_bundle
 from hailstorm.runtime import load
 from hailstorm.runtime.contact.hertz import press_spheres
 from hailstorm.runtime.storm.scene import SeatSettings
-from hailstorm.studies import record
-from hailstorm.studies.resolution_study import seat_bundle
+from studies import record
+from studies.resolution_study import seat_bundle
 
 #: stone radii [m] and their Hertz impact depths at terminal speed on the default seat's foam
 #: (docs/_generated/resolution_seat.txt: 1.111, 2.931, 10.573 mm)

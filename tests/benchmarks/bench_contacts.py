@@ -26,6 +26,12 @@ run, and the float32 results' error against float64.
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
+# the studies (notebooks/studies) are in the repository, not in the package
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "notebooks"))
+
 import argparse
 import itertools
 import sys
@@ -151,7 +157,7 @@ def main(argv=None) -> int:
                     help="also write the printed output to FILE, after a header (command, UTC date, commit, load)")
     args = ap.parse_args(argv)
     if args.out is not None:
-        from hailstorm.studies import record
+        from studies import record
 
         return record.whole_output(args.out, "python tests/benchmarks/bench_contacts.py",
                                    sys.argv[1:] if argv is None else list(argv), lambda: run(args))

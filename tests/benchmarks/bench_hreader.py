@@ -26,6 +26,12 @@ peak resident memory, and what the storm reports (impacts, largest force, larges
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
+# the studies (notebooks/studies) are in the repository, not in the package
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "notebooks"))
+
 import argparse
 import json
 import os
@@ -39,7 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
-from hailstorm.studies import record
+from studies import record
 
 READERS = ("hmatrix", "expand")
 WORKLOADS = ("points s=20", "points s=100", "spheres s=5")

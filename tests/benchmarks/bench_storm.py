@@ -35,6 +35,12 @@ one-vertex spike whose triangles tilt into the sphere; a patch load spreads it.
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
+# the studies (notebooks/studies) are in the repository, not in the package
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "notebooks"))
+
 import argparse
 import os
 import statistics
@@ -109,7 +115,7 @@ def main(argv: list[str] | None = None) -> None:
     if args.out is None:
         run(args)
     else:
-        from hailstorm.studies import record
+        from studies import record
 
         record.whole_output(args.out, "python tests/benchmarks/bench_storm.py", argv, lambda: run(args))
 

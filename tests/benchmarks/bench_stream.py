@@ -22,6 +22,12 @@ largest difference of 400 columns (drawn at random) from the uninterrupted bundl
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
+# the studies (notebooks/studies) are in the repository, not in the package
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "notebooks"))
+
 import argparse
 import json
 import os
@@ -37,7 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from hailstorm.runtime.bundle.read import load as load_bundle
-from hailstorm.studies import record
+from studies import record
 
 ROUTES = ("dense", "stream")
 

@@ -17,6 +17,12 @@ the load, for the documentation.
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
+# the studies (notebooks/studies) are in the repository, not in the package
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "notebooks"))
+
 import argparse
 import os
 import resource
@@ -70,7 +76,7 @@ def main(argv: list[str] | None = None) -> None:
         print(s, flush=True)
         lines.append(s)
 
-    from hailstorm.studies import record
+    from studies import record
 
     stamp = record.stamp()  # date, commit, load before the runs
     rows = {True: [], False: []}

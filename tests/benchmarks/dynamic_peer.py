@@ -16,7 +16,7 @@ Usage::
     python tests/benchmarks/dynamic_peer.py --full --no-storm --out docs/_generated/dynamic_peer_full.txt
                                                             # and the printed output into a file, with a header
 
-The table is :func:`hailstorm.studies.dynamic_study.main`'s: one rigid ice sphere on the
+The table is :func:`studies.dynamic_study.main`'s: one rigid ice sphere on the
 default seat's foam pad (a 15 mm disc on a rigid base), dynamic (the pad's mass,
 Newmark average acceleration) against quasi-static (the same mesh without mass: the
 Green's-function assumption) and Hertz's half-space impact; the last column says where
@@ -37,10 +37,16 @@ folder, then ``os.replace``): a run that fails leaves an earlier file as it was.
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
+# the studies (notebooks/studies) are in the repository, not in the package
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "notebooks"))
+
 import argparse
 import sys
 
-from hailstorm.studies import record
+from studies import record
 
 
 def run_default_storm(gf_path: str | None = None):
@@ -76,7 +82,7 @@ def impact_spread(stats) -> list[str]:
     import numpy as np
 
     from hailstorm.runtime.storm.limits import contact_time_ratio, peak_strain
-    from hailstorm.studies.dynamic_study import LIMIT_DENSITIES
+    from studies.dynamic_study import LIMIT_DENSITIES
 
     rec = stats.validity
     if rec is None or rec.n == 0:
@@ -154,7 +160,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from hailstorm.studies.dynamic_study import main as table
+    from studies.dynamic_study import main as table
 
     if not args.no_table:
         table((["--storm"] if args.storm_block else []) + (["--full"] if args.full else [])

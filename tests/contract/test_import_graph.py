@@ -10,7 +10,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 #: import name -> folder (pyproject's package-dir mapping)
 PACKAGES = {"hailstorm.runtime": ROOT / "runtime", "hailstorm.precompute": ROOT / "precompute",
-            "hailstorm.studies": ROOT / "notebooks" / "studies"}
+            "studies": ROOT / "notebooks" / "studies"}
 
 
 def _modules() -> dict[str, Path]:
@@ -144,3 +144,41 @@ def test_the_old_scene_path_warns_and_still_imports():
     from hailstorm.runtime import Scene
 
     assert old.Scene is Scene
+
+
+def _module_level_imports(path: Path) -> set[str]:
+    """Top-level names of the packages a module imports when it is imported (function bodies aside)."""
+    out: set[str] = set()
+    todo: list[ast.AST] = list(ast.parse(path.read_text()).body)
+    while todo:
+        node = todo.pop()
+        if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.Lambda)):
+            continue
+        if isinstance(node, ast.If) and _is_type_checking(node):
+            todo.extend(node.orelse)
+            continue
+        if isinstance(node, ast.Import):
+            out.update(a.name.split(".")[0] for a in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            out.add(node.module.split(".")[0])
+        todo.extend(ast.iter_child_nodes(node))
+    return out
+
+
+def test_no_module_imports_an_optional_extra_when_it_is_imported():
+    """The core install imports every module (the CLI reads the offline stage's defaults): the
+    extras' packages are imported inside the functions that need them (require_extra)."""
+    from hailstorm.runtime.resources import EXTRAS
+
+    extras = {m for modules in EXTRAS.values() for m in modules}
+    found = {m: sorted(_module_level_imports(p) & extras) for m, p in _modules().items()
+             if m.startswith("hailstorm")}
+    assert not {m: d for m, d in found.items() if d}
+    assert _module_level_imports(ROOT / "tests" / "cli" / "test_cli.py") & extras  # the scan sees one
+
+
+def test_the_package_never_imports_the_studies():
+    """The studies are not in the wheel (they run from the repository, ``notebooks/studies``)."""
+    found = {m: sorted(d) for m, deps in _graph().items() if m.startswith("hailstorm")
+             and (d := {n for n in deps if n.split(".")[0] == "studies"})}
+    assert not found

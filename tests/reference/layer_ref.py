@@ -8,13 +8,13 @@ import numpy as np
 def layer_point_response_ref(poisson: float, *, cell: float = 0.004, extent: float = 0.15, growth: float = 1.04,
                              radius: float = 12.0) -> tuple[np.ndarray, np.ndarray]:
     """:func:`hailstorm.runtime.contact.layer_kernel.layer_point_response` with the studies' axisymmetric
-    matrices (:func:`hailstorm.studies.axisymmetric.axisymmetric_matrices`, scikit-fem's forms and
+    matrices (:func:`studies.axisymmetric.axisymmetric_matrices`, scikit-fem's forms and
     quadrature) on the same grid lines."""
     from scipy.sparse.linalg import splu
     from skfem import MeshTri
 
     from hailstorm.runtime.contact.layer_solve import graded
-    from hailstorm.studies.axisymmetric import axisymmetric_matrices
+    from studies.axisymmetric import axisymmetric_matrices
 
     r = graded(radius, cell, extent, growth)
     z = np.sort(1.0 - graded(1.0, cell, extent, growth))

@@ -1,4 +1,4 @@
-"""The axisymmetric pad (hailstorm.studies.axisymmetric): a sphere pressed into a disc against
+"""The axisymmetric pad (studies.axisymmetric): a sphere pressed into a disc against
 Segedin's and Hertz's half-space solutions, and a clamped layer's stiffening."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from scipy.optimize import brentq
 
 from hailstorm.runtime.contact.hertz import hertz_force
 from hailstorm.runtime.inertia.pad import Pad
-from hailstorm.studies.axisymmetric import press_disc
+from studies.axisymmetric import press_disc
 
 E, NU = 2.0e6, 0.35
 

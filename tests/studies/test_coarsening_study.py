@@ -1,10 +1,10 @@
-"""hailstorm.studies.coarsening_study on small settings."""
+"""studies.coarsening_study on small settings."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from hailstorm.studies import coarsening_study
+from studies import coarsening_study
 
 
 def test_coarsening_rows_count_the_factor_and_the_compliance():
@@ -26,4 +26,4 @@ def test_main_prints_a_row_per_coarsening(capsys, tmp_path):
     text = capsys.readouterr().out
     rows = [line for line in text.splitlines() if line.startswith("| 2.5 ") or line.startswith("| 4 ")]
     assert len(rows) == 2 and "+0.0 %" in rows[0]
-    assert out.read_text().startswith("$ python -m hailstorm.studies.coarsening_study --mesh-size 0.012")
+    assert out.read_text().startswith("$ python -m studies.coarsening_study --mesh-size 0.012")

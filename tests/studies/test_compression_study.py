@@ -1,4 +1,4 @@
-"""Tests of hailstorm.studies.compression_study on the small box bundle (fixture ``box_bundle``) and the plate."""
+"""Tests of studies.compression_study on the small box bundle (fixture ``box_bundle``) and the plate."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from hailstorm.runtime import load
-from hailstorm.studies.compression_study import (
+from studies.compression_study import (
     admissible,
     admissible_blocks,
     cluster_tree,
@@ -199,7 +199,7 @@ def test_main_prints_the_tables(box_bundle, tmp_path, capsys):
     text = out.read_text()
     assert text == capsys.readouterr().out
     first, second = text.splitlines()[:2]
-    assert first.startswith("$ python -m hailstorm.studies.compression_study --gf ")
+    assert first.startswith("$ python -m studies.compression_study --gf ")
     assert "UTC" in second and "git" in second and "load average" in second
     for head in ("## 1. H-matrix", "## 2. Solves", "## 3. Several", "## Run time"):
         assert head in text

@@ -1,4 +1,4 @@
-"""Fast tests of hailstorm.studies.contact_study on tiny box meshes, and the mesh-dependence notebook."""
+"""Fast tests of studies.contact_study on tiny box meshes, and the mesh-dependence notebook."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from hailstorm.precompute import box_mesh
-from hailstorm.studies.contact_study import (
+from studies.contact_study import (
     StiffnessStudy,
     contact_stiffness,
     contact_stiffness_vs_mesh,

@@ -1,4 +1,4 @@
-"""The study that chose the default discretization (hailstorm.studies.defaults_study)."""
+"""The study that chose the default discretization (studies.defaults_study)."""
 
 import math
 
@@ -11,8 +11,8 @@ from hailstorm.runtime import load
 from hailstorm.runtime.contact.weights import patch_weights, triangle_normals
 from hailstorm.runtime.storm.hail import stone_mass, terminal_velocity
 from hailstorm.runtime.storm.scene import SeatSettings
-from hailstorm.studies import defaults_study as ds
-from hailstorm.studies.study import LoadCase, locate_probes, nodal_loads
+from studies import defaults_study as ds
+from studies.study import LoadCase, locate_probes, nodal_loads
 
 E, NU = 2.0e6, 0.35
 E_STAR = E / (1 - NU**2)

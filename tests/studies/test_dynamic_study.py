@@ -1,4 +1,4 @@
-"""The dynamic FEM peer (hailstorm.studies.dynamic_study): its matrices, Hertz's slow impact,
+"""The dynamic FEM peer (studies.dynamic_study): its matrices, Hertz's slow impact,
 the quasi-static limit, and its refusals."""
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 
 from hailstorm.runtime.inertia.pad import Pad, pad_mesh
-from hailstorm.studies.axisymmetric import FOAM_DENSITY, axisymmetric_matrices
-from hailstorm.studies.dynamic_study import (
+from studies.axisymmetric import FOAM_DENSITY, axisymmetric_matrices
+from studies.dynamic_study import (
     ICE_DENSITY,
     PeerResolutionError,
     compare,
@@ -120,7 +120,7 @@ def test_the_contact_time_limit_separates_the_peers_impacts():
     default pad: a 2.5 mm stone at 30 m/s (t_c / T 0.48) is beyond it and off by more than 5 %, a 12.5 mm
     stone at 2 m/s (4.2) within it and within 3.5 % on all four measures; the table says so."""
     from hailstorm.runtime.storm.limits import ValidityLimits
-    from hailstorm.studies.dynamic_study import Row, format_time_limit, largest_error, limit_speed, time_ratio
+    from studies.dynamic_study import Row, format_time_limit, largest_error, limit_speed, time_ratio
 
     pad = default_pad()
     fast, slow = compare(pad, 0.0025, 30.0), compare(pad, 0.0125, 2.0)
@@ -144,7 +144,7 @@ def test_scalar_corrections_follow_hertz_scalings_and_miss_the_peer():
     neither reproduces the peer: the stiffness factor deepens the dent the peer keeps, the added mass
     loses more speed than the pad's waves take."""
     from hailstorm.runtime.contact.hertz import hertz_impact
-    from hailstorm.studies.dynamic_study import format_corrections, scalar_corrections
+    from studies.dynamic_study import format_corrections, scalar_corrections
 
     pad = default_pad()
     row = compare(pad, 0.0025, 30.0)
@@ -172,7 +172,7 @@ def test_a_radiation_dashpot_damps_what_the_pad_does_not():
     a rebound of 0.72 for the 12.5 mm stone at its terminal 20.4 m/s, where the peer's pad on its
     rigid base returns 0.99 (below its cutoff c_s / 4h it radiates nothing): no frequency-independent
     dashpot stands for the pad's inertia."""
-    from hailstorm.studies.dynamic_study import format_corrections, radiation_dashpot
+    from studies.dynamic_study import format_corrections, radiation_dashpot
 
     light = radiation_dashpot(default_pad(1e-9), 0.0025, 9.1)
     assert all(v == pytest.approx(1.0, abs=1e-4) for v in light.values())
@@ -220,7 +220,7 @@ def test_storm_impact_on_a_block_bundle(box_bundle):
     bounce (the exact integrator without dashpot gives the speed back to ~1 %, gravity over the
     contact aside), its peak force and dent the storm's statistics."""
     import hailstorm.runtime
-    from hailstorm.studies.dynamic_study import storm_impact
+    from studies.dynamic_study import storm_impact
 
     gf = hailstorm.runtime.load(box_bundle)  # 0.1 x 0.1 x 0.05 m, E = 1 MPa, P1
     res = storm_impact(gf, 0.006, 2.0, dt=1e-5)

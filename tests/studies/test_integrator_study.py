@@ -1,11 +1,11 @@
-"""hailstorm.studies.integrator_study on the synthetic plate and a short storm."""
+"""studies.integrator_study on the synthetic plate and a short storm."""
 
 from __future__ import annotations
 
 from helpers import plate_gf
 
 from hailstorm.runtime.storm.scene import Scene
-from hailstorm.studies import integrator_study
+from studies import integrator_study
 
 
 def test_rows_follow_the_settings_and_exact_peaks_do_not_move_with_dt():

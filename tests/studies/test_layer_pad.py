@@ -1,9 +1,9 @@
 """The near field on a pad on its rigid base, against the pad's own converged contact.
 
-A 15 mm pad of the default foam clamped underneath (:func:`hailstorm.studies.dynamic_study.pad_bundle`,
+A 15 mm pad of the default foam clamped underneath (:func:`studies.dynamic_study.pad_bundle`,
 120 mm square, the default seat's settings: 6 mm, P2, hat loads) and the same pad as an axisymmetric
 disc solved to convergence with the indenter's profile node by node
-(:func:`hailstorm.studies.axisymmetric.press_disc` with the sphere's profile: the contacts follow the
+(:func:`studies.axisymmetric.press_disc` with the sphere's profile: the contacts follow the
 sphere's law, :mod:`hailstorm.runtime.contact.hertz`). The default near field (``"layer"``: :mod:`hailstorm.runtime.contact.layer_kernel`) carries
 the converged force at every site; the half-space kernel alone does not (so the test can fail).
 """
@@ -15,8 +15,8 @@ import pytest
 
 from hailstorm.runtime.contact.hat_defect import hat_defect
 from hailstorm.runtime.contact.near_field import kernel_surface
-from hailstorm.studies.dynamic_study import default_pad, pad_bundle
-from hailstorm.studies.resolution_study import PAD_CASES, SITES, pad_table
+from studies.dynamic_study import default_pad, pad_bundle
+from studies.resolution_study import PAD_CASES, SITES, pad_table
 
 
 @pytest.fixture(scope="module")
@@ -76,7 +76,7 @@ def test_the_storms_inertia_factors_bring_it_to_the_dynamic_peer(pad_gf, R, v):
     within 3 % of the peer (measured: 0.7 % or better), the storm's own quasi-static error."""
     from dataclasses import replace
 
-    from hailstorm.studies.dynamic_study import compare, storm_impact
+    from studies.dynamic_study import compare, storm_impact
 
     pad = replace(default_pad(), density=200.0)
     row = compare(pad, R, v)

@@ -1,4 +1,4 @@
-"""The pad's modes (hailstorm.studies.pad_modes): the eigenproblem, the mode-acceleration form
+"""The pad's modes (studies.pad_modes): the eigenproblem, the mode-acceleration form
 against the full peer, how many modes a fast small stone needs, and the contact as one force."""
 
 from __future__ import annotations
@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from hailstorm.runtime.inertia.pad import pad_mesh, without_contact_mass
-from hailstorm.studies.dynamic_study import default_pad, hertz_estimate, simulate_impact
-from hailstorm.studies.pad_modes import (
+from studies.dynamic_study import default_pad, hertz_estimate, simulate_impact
+from studies.pad_modes import (
     hertz_load,
     main,
     modal_rows,
@@ -89,7 +89,7 @@ def test_main_writes_the_table(tmp_path, capsys):
     text = capsys.readouterr().out
     assert "quasi-static" in text and "20 modes" in text
     lines = out.read_text().splitlines()
-    assert lines[0].startswith("$ python -m hailstorm.studies.pad_modes --radii 0.0125")
+    assert lines[0].startswith("$ python -m studies.pad_modes --radii 0.0125")
     assert "20 modes" in out.read_text()
 
 

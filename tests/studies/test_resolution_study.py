@@ -1,11 +1,11 @@
-"""The block table of hailstorm.studies.resolution_study: the near field against Hertz and against the
+"""The block table of studies.resolution_study: the near field against Hertz and against the
 block's own converged solution (a coarse block, one contact size)."""
 
 from __future__ import annotations
 
 import pytest
 
-from hailstorm.studies.resolution_study import SITES, block_bundle, block_table
+from studies.resolution_study import SITES, block_bundle, block_table
 
 
 def test_block_table_measures_against_hertz_and_the_block(tmp_path):
@@ -30,7 +30,7 @@ def test_depth_at_force_inverts_the_press(tmp_path):
     Hertz's force at Hertz's depth gives back Hertz's depth within the model's error against
     Hertz there (the block table's, a few %)."""
     from hailstorm.runtime.contact.hertz import hertz_force, press_spheres
-    from hailstorm.studies.resolution_study import block_sites, depth_at_force
+    from studies.resolution_study import block_sites, depth_at_force
 
     gf = block_bundle(tmp_path / "block", mesh_size=0.012)
     R, a = 10e-3, 4e-3

@@ -1,11 +1,11 @@
-"""hailstorm.studies.routes_study on coarse seats: the rows it reports are the bundles' own figures."""
+"""studies.routes_study on coarse seats: the rows it reports are the bundles' own figures."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from hailstorm.studies import routes_study
+from studies import routes_study
 
 
 def test_route_rows_on_coarse_seats(tmp_path, monkeypatch):

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from hailstorm.precompute import box_mesh
-from hailstorm.studies import study as S
+from studies import study as S
 
 SIZE = (0.1, 0.1, 0.05)
 ROOT = Path(__file__).resolve().parents[2]

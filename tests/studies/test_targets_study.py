@@ -1,4 +1,4 @@
-"""hailstorm.studies.targets_study's measurements on small settings."""
+"""studies.targets_study's measurements on small settings."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import pytest
 import hailstorm.runtime
 from hailstorm.precompute.hmatrix import compress_bundle
 from hailstorm.runtime.storm.scene import Scene, SeatSettings
-from hailstorm.studies import targets_study
+from studies import targets_study
 
 
 def test_precompute_cost_measures_a_compressed_build_in_a_child(tmp_path, monkeypatch):

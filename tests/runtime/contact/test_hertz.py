@@ -3,9 +3,9 @@
 Reference: a rigid sphere of radius R pressed a depth delta into an elastic
 half-space carries F = (4/3) E* sqrt(R) delta^(3/2) (Johnson, ch. 4).
 
-The block (hailstorm.studies.hertz_study.block_bundle: halfspace_block's defaults, P1,
+The block (studies.hertz_study.block_bundle: halfspace_block's defaults, P1,
 E = 2 MPa, nu = 0.35, R = 10 mm) and its measured force ratios F / F_Hertz at
-delta/R = 0.01 / 0.02 / 0.04 (python -m hailstorm.studies.hertz_study):
+delta/R = 0.01 / 0.02 / 0.04 (python -m studies.hertz_study):
 
 =========  ========================  =======================================
 fine size  press_spheres             the old block (50 mm, 30 % growth, 8 mm)
@@ -35,7 +35,7 @@ pytest.importorskip("gmsh")
 import hailstorm.runtime  # noqa: E402
 from hailstorm.runtime.contact.hertz import hertz_force, hertz_impact, press_spheres, sphere_force  # noqa: E402
 from hailstorm.runtime.contact.weights import sphere_offset, sphere_radius  # noqa: E402
-from hailstorm.studies.hertz_study import (  # noqa: E402
+from studies.hertz_study import (  # noqa: E402
     block_bundle, drop_stone, hertz_depth, origin_contact, rest_stone)
 
 E, NU, R = 2.0e6, 0.35, 0.01
@@ -314,7 +314,7 @@ def test_the_impact_patch_meets_the_spheres_impact():
     from scipy.integrate import quad
     from scipy.optimize import brentq
     from hailstorm.runtime.contact.weights import impact_offset, impact_radius
-    from hailstorm.studies.hertz_study import affine_oscillator
+    from studies.hertz_study import affine_oscillator
 
     e_star = E / (1 - NU**2)
     for Rs, v, soft in ((0.005, 0.4, (0.0, 2e-3)), (0.0025, 9.1, (0.009, 0.013)), (0.0125, 20.4, (0.019, 0.024))):

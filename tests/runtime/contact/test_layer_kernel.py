@@ -20,7 +20,7 @@ from hailstorm.runtime.compiled.near_field import layer_sum
 from hailstorm.runtime.contact.hat_defect import hat_defect
 from hailstorm.runtime.contact.layer_kernel import hat_quadrature, layer_correction, layer_kernel, layer_surface
 from hailstorm.runtime.contact.layer_solve import graded, layer_point_response
-from hailstorm.studies.axisymmetric import axisymmetric_matrices
+from studies.axisymmetric import axisymmetric_matrices
 from hailstorm.runtime.contact.near_field import NearField, halfspace_patch_compliance, kernel_surface
 from hailstorm.runtime.contact.weights import patch_weights
 from helpers import plate_gf

@@ -272,7 +272,7 @@ def test_storm_impacts_below_the_mesh_are_hertz(hat_block):
     tolerance's 1 % of the dead zone). The storm's previous law, Hertz's secant through the
     origin, gave 0.875 of the force and 0.915 of the indentation on an ideal half-space, so
     the test can fail; the force pulse (none in the dead zone) is 0.854 of Hertz's contact."""
-    from hailstorm.studies.resolution_study import impact_table
+    from studies.resolution_study import impact_table
 
     for row in impact_table(hat_block, radii=(2.5e-3, 5e-3), speeds=(5.0,), steps=200):
         assert abs(row["force"]) < 0.05, row

@@ -34,7 +34,7 @@ def test_pad_matrices_are_scikit_fems():
     mass ``rho pi R^2 H`` exactly."""
     from skfem import MeshTri
 
-    from hailstorm.studies.axisymmetric import axisymmetric_matrices
+    from studies.axisymmetric import axisymmetric_matrices
 
     r, z = _grid()
     K, M, nodes = axisymmetric_p1(r, z, NU, 70.0)
@@ -71,7 +71,7 @@ def test_factors_are_the_converged_peers(R, v):
     assembly) against the studies' peer at 12 cells and 300 steps on scikit-fem's, at the
     terminal speeds on the 200 kg/m^3 pad (its largest inertia: peak force x0.85 and x0.82):
     within 1.5 % on each of the four measures."""
-    from hailstorm.studies.dynamic_study import compare, default_pad
+    from studies.dynamic_study import compare, default_pad
 
     got = impact_inertia(R, _stone(R), v, 0.015, E, NU, 200.0)
     row = compare(default_pad(200.0), R, v, cells_per_radius=12, steps_per_contact=300)
