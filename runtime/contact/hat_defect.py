@@ -44,7 +44,11 @@ it gave -1.0 .. -2.7 % against the converged contact where this form gives
 
 from __future__ import annotations
 
+import hashlib
+import json
+import logging
 import weakref
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -61,6 +65,11 @@ __all__ = ["MIN_NEIGHBOURS", "NEIGHBOUR_REACH", "HatDefect", "hat_defect", "patc
 NEIGHBOUR_REACH = 3.0
 #: fewer pairs than this beyond the first ring: no defect is measured (the vertex keeps D as it is)
 MIN_NEIGHBOURS = 6
+#: the measurement's version in its cache file's key: raise it when :func:`hat_defect`'s
+#: measurement changes (its constants above are in the key already)
+CACHE_VERSION = 1
+
+_log = logging.getLogger(__name__)
 
 
 class HatDefect:
@@ -198,8 +207,10 @@ def hat_defect(gf: Any, young: float, poisson: float, surface: tuple[np.ndarray,
     """The bundle's hat-scale defect against the half-space of ``young``, ``poisson`` (module notes),
     or against the layer kernel's (``layer``).
 
-    Measured once per bundle and material (a few hundred milliseconds for the
-    default seat), then cached with the bundle.
+    Measured once per bundle and material (about a second for the default seat),
+    then cached with the bundle in memory and in hailstorm's cache directory
+    (``hat_defect/``, keyed by the bundle's content and the material, written
+    atomically; a file that cannot be read or written is passed by).
 
     Parameters
     ----------
@@ -227,8 +238,58 @@ def hat_defect(gf: Any, young: float, poisson: float, surface: tuple[np.ndarray,
         except TypeError:  # pragma: no cover - not weak-referenceable
             pass
     if key not in cached:
-        cached[key] = _measure(gf, key[0], key[1], surface, key[2])
+        path = _cache_path(gf, *key)
+        found = None if path is None else _read_cached(path, surface[0].shape[0])
+        if found is None:
+            found = _measure(gf, key[0], key[1], surface, key[2])
+            if path is not None:
+                _write_cached(path, found)
+        cached[key] = found
     return cached[key]
+
+
+def _cache_path(gf: Any, young: float, poisson: float, layer: bool) -> Path | None:
+    """The defect's file in hailstorm's cache directory (``hat_defect/<key>.npz``), keyed by the
+    bundle's content (its manifest's hash, which covers every array's) and the material; None
+    for a bundle without one (built in memory)."""
+    from hailstorm.runtime.bundle.stamps import default_cache_dir
+
+    manifest = getattr(gf, "manifest", None) or {}
+    content = manifest.get("manifest_sha256")
+    if not content:
+        return None
+    key = hashlib.sha256(json.dumps({"bundle": content, "young": repr(young), "poisson": repr(poisson),
+                                     "layer": layer, "reach": NEIGHBOUR_REACH, "min": MIN_NEIGHBOURS,
+                                     "version": CACHE_VERSION}, sort_keys=True).encode()).hexdigest()
+    return default_cache_dir() / "hat_defect" / f"{key[:24]}.npz"
+
+
+def _read_cached(path: Path, n: int) -> HatDefect | None:
+    """A cached defect, or None when the file is missing, unreadable or not of this surface."""
+    try:
+        with np.load(path) as f:
+            keys, dn, dt, nv = (np.array(f["keys"], dtype=np.int64), np.array(f["near_normal"], dtype=np.float64),
+                                np.array(f["near_tangential"], dtype=np.float64), int(f["n"]))
+    except (OSError, KeyError, ValueError):
+        return None
+    if nv != n or keys.ndim != 1 or dn.shape != keys.shape or dt.shape != keys.shape \
+            or not (np.all(np.isfinite(dn)) and np.all(np.isfinite(dt))):
+        return None
+    return HatDefect(nv, keys, dn, dt)
+
+
+def _write_cached(path: Path, defect: HatDefect) -> None:
+    """Write the defect atomically; a cache that cannot be written is passed by."""
+    try:
+        from hailstorm.runtime.bundle.atomic import replacing
+
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with replacing(path) as tmp:
+            with open(tmp, "wb") as f:
+                np.savez(f, keys=defect.keys, near_normal=defect.near_normal,
+                         near_tangential=defect.near_tangential, n=np.int64(defect.normal.size))
+    except OSError as exc:
+        _log.debug("could not cache the hat defect (%s)", exc)
 
 
 def patch_defect(defect: HatDefect, verts: np.ndarray, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -27,6 +27,9 @@ import tempfile
 import time
 from pathlib import Path
 
+# the studies (notebooks/studies) are in the repository, not in the package
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "notebooks"))
+
 
 def _scene_file(tmp: Path, inertia: bool) -> Path | None:
     if inertia:
@@ -84,12 +87,13 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--no-inertia", action="store_true", help="run with [validity] inertia = false")
     ap.add_argument("--out", default=None, metavar="FILE",
                     help="also write the printed output to FILE, after a header (command, UTC date, commit, load)")
+    argv = sys.argv[1:] if argv is None else argv
     args = ap.parse_args(argv)
     durations = [float(x) for x in args.durations.split(",")]
     if args.out is None:
         run(durations, not args.no_inertia)
     else:
-        from hailstorm.studies import record
+        from studies import record
 
         record.whole_output(args.out, "python tests/benchmarks/bench_estimate.py", argv,
                             lambda: run(durations, not args.no_inertia))

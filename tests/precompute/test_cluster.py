@@ -12,6 +12,7 @@ import hailstorm.runtime
 from hailstorm.precompute import build_bundle
 from hailstorm.precompute.blocks import BlockStore
 from hailstorm.precompute.cluster import ClusterError
+from hailstorm.runtime.resources import MissingExtra
 
 distributed = pytest.importorskip("distributed")
 
@@ -173,7 +174,7 @@ def test_unreachable_scheduler_is_one_line_before_any_work(tmp_path, monkeypatch
 
 def test_missing_distributed_is_a_clear_error(tmp_path, small_box, monkeypatch):
     monkeypatch.setitem(sys.modules, "distributed", None)  # import fails
-    with pytest.raises(ClusterError, match=r"pip install 'hailstorm\[dask\]'"):
+    with pytest.raises(MissingExtra, match=r"pip install 'hailstorm\[dask\]'"):
         build_bundle(tmp_path / "b", mesh=small_box, workers=2)
     assert not (tmp_path / "b").exists()
 

@@ -113,3 +113,24 @@ def test_the_defect_can_be_left_out(hat_box):
     on = NearField("halfspace", E, NU).mesh_defect(hat_box, verts, w)
     assert not np.any(off[0]) and not np.any(off[1])
     np.testing.assert_array_equal(on[0], patch_defect(hat_defect(hat_box, E, NU, kernel_surface(hat_box)), verts, w)[0])
+
+
+def test_the_defect_is_cached_on_disk_exactly_and_per_material(hat_box, tmp_path, monkeypatch):
+    """Measured once per bundle and material: a second load of the bundle reads the file (the
+    same numbers, bit for bit), another material or a damaged file measures anew."""
+    monkeypatch.setenv("HAILSTORM_CACHE", str(tmp_path / "cache"))
+    fresh_box = hailstorm.runtime.load(hat_box.path)  # not the module's object: its defect may be in memory
+    first = hat_defect(fresh_box, E, NU, kernel_surface(fresh_box))
+    files = sorted((tmp_path / "cache" / "hat_defect").glob("*.npz"))
+    assert len(files) == 1
+    again = hailstorm.runtime.load(hat_box.path)  # a new object: nothing in memory
+    read = hat_defect(again, E, NU, kernel_surface(again))
+    for name in ("keys", "near_normal", "near_tangential", "normal", "tangential"):
+        np.testing.assert_array_equal(getattr(read, name), getattr(first, name))
+    hat_defect(again, 2 * E, NU, kernel_surface(again))  # another material: its own file
+    assert len(list((tmp_path / "cache" / "hat_defect").glob("*.npz"))) == 2
+    files[0].write_bytes(b"not a defect")
+    third = hailstorm.runtime.load(hat_box.path)
+    fresh = hat_defect(third, E, NU, kernel_surface(third))  # measured again, and rewritten
+    np.testing.assert_array_equal(fresh.near_normal, first.near_normal)
+    assert np.load(files[0])["keys"].shape == first.keys.shape
