@@ -7,12 +7,15 @@
   and without (:func:`simulate_impact` -> :class:`ImpactResult`): the dynamic peer;
 * :mod:`~hailstorm.runtime.inertia.factors` -- per impact of a storm, the dynamic over the
   quasi-static impact on the pad under it (:func:`inertia_factors` ->
-  :class:`InertiaFactors`).
+  :class:`InertiaFactors`);
+* :mod:`~hailstorm.runtime.inertia.table` -- those factors tabulated once per material in
+  ``R/h`` and ``v/c`` and interpolated per impact (:func:`inertia_table` -> :class:`InertiaTable`).
 """
 
 from hailstorm.runtime.inertia.factors import InertiaFactors, impact_inertia, inertia_factors
 from hailstorm.runtime.inertia.impact import ImpactResult, PeerResolutionError, simulate_impact
 from hailstorm.runtime.inertia.pad import Pad, PadMesh, pad_mesh
+from hailstorm.runtime.inertia.table import InertiaTable, inertia_table
 
-__all__ = ["ImpactResult", "InertiaFactors", "Pad", "PadMesh", "PeerResolutionError", "impact_inertia",
-           "inertia_factors", "pad_mesh", "simulate_impact"]
+__all__ = ["ImpactResult", "InertiaFactors", "InertiaTable", "Pad", "PadMesh", "PeerResolutionError", "impact_inertia",
+           "inertia_factors", "inertia_table", "pad_mesh", "simulate_impact"]

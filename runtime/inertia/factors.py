@@ -35,6 +35,8 @@ import numpy as np
 
 from hailstorm.runtime.inertia.impact import PeerResolutionError, check_density, impact_mesh, simulate_impact
 from hailstorm.runtime.inertia.pad import Pad
+from hailstorm.runtime.inertia.table import (BUILD_MIN_IMPACTS, InertiaTable, available_table, inertia_table,
+                                             mass_ratio_key, wave_speed)
 
 __all__ = ["PAD_RADIUS", "InertiaFactors", "impact_inertia", "inertia_factors"]
 
@@ -53,12 +55,20 @@ class InertiaFactors:
     force, duration, restitution, dent : (n,) ndarray
         Peak force, contact time, rebound speed and largest dent, dynamic / quasi-static [-]
         (NaN where the impact had no local pad: the ray under it met no boundary).
+    direct : (n,) bool ndarray, optional
+        Which impacts were run on their own pad rather than read from the material's table
+        (:mod:`hailstorm.runtime.inertia.table`: outside its grid, or not tabulated); default all.
     """
 
     force: np.ndarray
     duration: np.ndarray
     restitution: np.ndarray
     dent: np.ndarray
+    direct: np.ndarray | None = None
+
+    def __post_init__(self) -> None:
+        if self.direct is None:
+            object.__setattr__(self, "direct", np.ones(np.shape(self.force), dtype=bool))
 
     @property
     def impacts(self) -> int:
@@ -71,8 +81,14 @@ class InertiaFactors:
         with np.errstate(invalid="ignore"):
             return np.abs(f - 1.0).max(axis=0, initial=0.0) if f.shape[1] else np.zeros(0)
 
+    @property
+    def direct_runs(self) -> int:
+        """How many impacts were run on their own pad (not read from a table)."""
+        return int(np.count_nonzero(self.direct))
+
     def __add__(self, other: InertiaFactors) -> InertiaFactors:
-        return InertiaFactors(*(np.concatenate([a, b]) for a, b in zip(self.astuple(), other.astuple())))
+        return InertiaFactors(*(np.concatenate([a, b]) for a, b in zip(self.astuple(), other.astuple())),
+                              direct=np.concatenate([self.direct, other.direct]))
 
     def astuple(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """(force, duration, restitution, dent)."""
@@ -138,9 +154,10 @@ def impact_inertia(radius: float, mass: float, speed: float, thickness: float, y
 
 
 def inertia_factors(radius: Any, mass: Any, speed: Any, thickness: Any, young: float, poisson: float,
-                    density: float, *, progress: bool | Callable[[int, int], None] = False,
+                    density: float, *, progress: bool | Callable[[int, int], None] = False, table: bool = True,
                     **resolution: Any) -> InertiaFactors:
-    """The inertia factors of many impacts (:func:`impact_inertia` each).
+    """The inertia factors of many impacts: read from the material's table where it holds them,
+    :func:`impact_inertia` for the others.
 
     Parameters
     ----------
@@ -155,8 +172,14 @@ def inertia_factors(radius: Any, mass: Any, speed: Any, thickness: Any, young: f
     density : float
         The pad foam's density [kg/m^3] (> 0).
     progress : bool or callable
-        ``True``: a tqdm bar over the impacts (on stderr); a callable is called as
-        ``progress(done, n)`` after each.
+        ``True``: a tqdm bar over the direct runs (on stderr; and over the table's points the
+        first time a material's table is computed); a callable is called as
+        ``progress(done, n)`` after each direct run.
+    table : bool
+        Interpolate in the material's table of factors (:func:`hailstorm.runtime.inertia.table.inertia_table`:
+        shipped for the default scene's material, else computed once per material and cached,
+        when there are at least ``BUILD_MIN_IMPACTS`` impacts to measure) where the impact lies in
+        its grid; False: every impact directly. A non-default ``resolution`` runs every impact directly.
     **resolution
         ``pad_radius``, ``cells_per_radius``, ``steps_per_contact`` (:func:`impact_inertia`).
 
@@ -165,28 +188,55 @@ def inertia_factors(radius: Any, mass: Any, speed: Any, thickness: Any, young: f
     InertiaFactors
     """
     check_density("pad", density)
+    if not (-1.0 < poisson < 0.5):
+        raise ValueError(f"inertia_factors needs -1 < poisson < 0.5, got {poisson!r}")
     R, m, v, h = (np.asarray(a, dtype=np.float64).ravel() for a in (radius, mass, speed, thickness))
     if not (R.size == m.size == v.size == h.size):
         raise ValueError(f"inertia_factors: radius, mass, speed and thickness differ in length "
                          f"({R.size}, {m.size}, {v.size}, {h.size})")
     out = np.full((4, R.size), np.nan)
+    padded = np.isfinite(h) & (h > 0)
+    direct = padded.copy()
+    if table and not resolution and np.any(padded):
+        tab, of = _tabulated(R, m, h, density, poisson, progress is True)
+        if tab is not None:
+            got = tab.lookup(R[of] / h[of], v[of] / wave_speed(young, density))
+            hit = np.all(np.isfinite(got), axis=0)
+            out[:, of[hit]] = got[:, hit]
+            direct[of[hit]] = False
+    todo = np.flatnonzero(direct)
     bar = None
-    if progress is True and R.size:
+    if progress is True and todo.size:
         from tqdm.auto import tqdm
 
-        bar = tqdm(total=R.size, desc="pad inertia", unit="impact", leave=False)
+        bar = tqdm(total=todo.size, desc="pad inertia", unit="impact", leave=False)
     try:
-        for k in range(R.size):
-            if np.isfinite(h[k]) and h[k] > 0:
-                try:
-                    out[:, k] = impact_inertia(R[k], m[k], v[k], h[k], young, poisson, density, **resolution)
-                except PeerResolutionError:  # a contact the local pad cannot resolve: not measured (NaN)
-                    pass
+        for i, k in enumerate(todo):
+            try:
+                out[:, k] = impact_inertia(R[k], m[k], v[k], h[k], young, poisson, density, **resolution)
+            except PeerResolutionError:  # a contact the local pad cannot resolve: not measured (NaN)
+                pass
             if bar is not None:
                 bar.update(1)
             elif callable(progress):
-                progress(k + 1, R.size)
+                progress(i + 1, todo.size)
     finally:
         if bar is not None:
             bar.close()
-    return InertiaFactors(*out)
+    return InertiaFactors(*out, direct=direct)
+
+
+def _tabulated(R: np.ndarray, m: np.ndarray, h: np.ndarray, density: float, poisson: float,
+               progress: bool) -> tuple[InertiaTable | None, np.ndarray]:
+    """The material's table for the impacts' stones (those of the most common density) and
+    which impacts on a pad it may serve; (None, empty) when no stone density is shared."""
+    rho_s = m / (4.0 / 3.0 * math.pi * R**3)
+    ok = np.isfinite(h) & (h > 0) & np.isfinite(rho_s) & (rho_s > 0)
+    if not np.any(ok):
+        return None, np.zeros(0, dtype=np.int64)
+    ratio = mass_ratio_key(float(np.median(rho_s[ok])) / density)
+    of = np.flatnonzero(ok & np.isclose(rho_s / density, ratio, rtol=1e-6, atol=0.0))
+    tab = available_table(poisson, ratio)
+    if tab is None and of.size >= BUILD_MIN_IMPACTS:  # worth computing once for this material
+        tab = inertia_table(poisson, ratio, progress=progress)
+    return tab, of

@@ -135,6 +135,7 @@ SUMMARY_UNITS: dict[str, str | None] = {
     # the pad's inertia per impact (hailstorm.runtime.inertia)
     "impacts_beyond_inertia_limit": "count", "max_impact_force_N": "N", "max_impact_force_dynamic_N": "N",
     "min_inertia_force_factor": "1", "min_inertia_restitution_factor": "1", "limit_inertia_change": "1",
+    "inertia_direct_runs": "count",
 }
 
 

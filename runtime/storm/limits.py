@@ -458,7 +458,8 @@ def summarise(dh: np.ndarray, aR: np.ndarray, eps: np.ndarray, thickness: np.nda
         ``max_impact_force_dynamic_N`` (the largest impact peak force times its inertia factor),
         ``min_inertia_force_factor``, ``min_inertia_restitution_factor`` (the smallest factors,
         1 without impacts; the three NaN, and the count 0, when there were impacts but no
-        ``inertia``), the limits
+        ``inertia``), ``inertia_direct_runs`` (impacts whose factors were run on their own pad,
+        outside the material's table; 0 without ``inertia``), the limits
         ``limit_indentation_thickness_ratio``, ``limit_contact_radius_ratio``,
         ``limit_strain_ratio``, ``limit_contact_time_ratio``, ``limit_inertia_change`` and ``pad_density``.
     """
@@ -489,6 +490,7 @@ def summarise(dh: np.ndarray, aR: np.ndarray, eps: np.ndarray, thickness: np.nda
         "max_impact_force_dynamic_N": float((F * rF).max(initial=0.0)) if measured else math.nan,
         "min_inertia_force_factor": float(rF.min(initial=1.0)) if measured else math.nan,
         "min_inertia_restitution_factor": float(re.min(initial=1.0)) if measured else math.nan,
+        "inertia_direct_runs": 0 if inertia is None else inertia.direct_runs,
         "limit_indentation_thickness_ratio": float(lim.indentation_thickness),
         "limit_contact_radius_ratio": float(lim.contact_radius),
         "limit_strain_ratio": float(lim.strain),
@@ -508,7 +510,7 @@ IMPACT_COLUMNS = ("stone", "x_m", "y_m", "z_m", "radius_m", "mass_kg", "speed_m_
 VALIDITY_KEYS = tuple(summarise(np.zeros(0), np.zeros(0), np.zeros(0), np.zeros(0)))
 
 
-def validity_warning(stats: Any) -> str | None:
+def validity_warning(stats: Any, *, brief: bool = False) -> str | None:
     """One line naming how many impacts were beyond the validity limits, with the numbers
     (None: none was).
 
@@ -516,10 +518,15 @@ def validity_warning(stats: Any) -> str | None:
     ----------
     stats : mapping
         A storm's statistics (or its ``summary.json``).
+    brief : bool
+        The count and where the numbers are, without them (``hailstorm -q``).
     """
     n = int(stats.get("impacts_beyond_any_limit", 0) or 0)
     if n == 0:
         return None
+    if brief:
+        return (f"{n} of {int(stats['impacts'])} impacts are beyond the model's validity limits "
+                "(summary.json and impacts.csv have the numbers; see docs/validity.md)")
 
     def part(what: str, worst: str, limit: str, count: str) -> str:
         return (f"{what} up to {float(stats[worst]):.3g} (limit {float(stats[limit]):.3g}, "
