@@ -59,9 +59,13 @@ def _parser() -> argparse.ArgumentParser:
         prog="hailstorm",
         description="A hail storm on a bicycle seat: point contacts on a linear elastic solid "
         "through precomputed Green's functions. With no command, runs the default storm.",
+        epilog="With no command, `hailstorm [storm options]` runs the storm: for example "
+        "`hailstorm -q --no-video --duration 1` (-q: no progress bars, info messages or numbers, "
+        "warnings in one line; --no-video: no animation). Every storm option: hailstorm storm --help.",
     )
     common = argparse.ArgumentParser(add_help=False)
-    common.add_argument("-q", "--quiet", action="store_true", help="no progress bars or info messages")
+    common.add_argument("-q", "--quiet", action="store_true",
+                        help="no progress bars, info messages or printed numbers; warnings in one line")
     sub = p.add_subparsers(dest="command")
 
     pre = sub.add_parser("precompute", parents=[common], help="compute a Green's-function bundle for a seat")
@@ -124,7 +128,7 @@ def _parser() -> argparse.ArgumentParser:
     _storm_args(storm)
 
     info = sub.add_parser("info", parents=[common], help="describe and verify a bundle")
-    info.add_argument("bundle", type=Path)
+    info.add_argument("bundle", type=Path, help="a bundle directory (written by hailstorm precompute)")
     return p
 
 
@@ -294,7 +298,7 @@ def _run_storm(args: argparse.Namespace) -> int:
         result = run_storm(gf, scene, progress=not args.quiet, on_frame=sink.add, allow_large=args.allow_large,
                            estimate=estimate)
         paths = sink.finish(result)
-    _warn_validity(result.stats)
+    _warn_validity(result.stats, brief=args.quiet)
     if not args.quiet:
         import json
 
@@ -311,11 +315,12 @@ def _run_storm(args: argparse.Namespace) -> int:
     return 0
 
 
-def _warn_validity(stats: Any) -> None:
-    """Warn once when impacts went beyond the model's validity limits (docs/validity.md)."""
+def _warn_validity(stats: Any, brief: bool = False) -> None:
+    """Warn once when impacts went beyond the model's validity limits (docs/validity.md): with
+    the numbers, or (``brief``, under ``-q``) the count alone."""
     from hailstorm.runtime.storm.limits import validity_warning
 
-    msg = validity_warning(stats)
+    msg = validity_warning(stats, brief=brief)
     if msg is not None:
         logging.getLogger("hailstorm").warning("warning: %s", msg)
 

@@ -10,8 +10,9 @@ the storm's duration (stones retire after their bounce: a default storm holds
 overlap in time cost more each (the contact set grows): by the factor
 ``1 + s / CROWD_CONTACTS`` where ``s`` is the mean number of stones near the seat
 at once. The frames cost ~6 us per surface vertex each (the ParaView series and
-the video) and the pad's inertia, measured impact by impact after the storm,
-:data:`INERTIA_SECONDS_PER_IMPACT` each.
+the video) and the pad's inertia, read impact by impact from the material's table
+after the storm, :data:`INERTIA_SECONDS_PER_IMPACT` each (a material without a table
+computes it once, in about 15-30 s, not counted: it is announced with a progress bar).
 
 How many stones hit: the seat's share of the spawn footprint
 (:func:`hit_fraction`); before the bundle is read, 1 (an upper bound: the
@@ -35,7 +36,7 @@ from hailstorm.runtime.storm.errors import StormTooLarge
 
 __all__ = ["BYTES_PER_STEP", "BYTES_PER_STONE", "CROWD_CONTACTS", "DISK_BYTES_PER_VERTEX", "FLIGHT_SECONDS_PER_STONE_STEP",
            "FRAME_SECONDS_PER_VERTEX", "IMPACT_SECONDS", "INERTIA_SECONDS_PER_IMPACT", "MAX_SECONDS", "MAX_STEPS",
-           "MEMORY_FRACTION", "NEAR_TIME", "STARTUP_SECONDS", "STEP_SECONDS", "STONE_LIFETIME", "VIDEO_SECONDS_PER_FRAME", "StormEstimate", "count_text", "duration_text",
+           "MEMORY_FRACTION", "NEAR_TIME", "STARTUP_SECONDS", "STEP_SECONDS", "STONE_LIFETIME", "VIDEO_FRAMES", "VIDEO_SECONDS_PER_FRAME", "StormEstimate", "count_text", "duration_text",
            "hit_fraction", "size_text"]
 
 
@@ -74,12 +75,17 @@ STONE_LIFETIME = 0.35
 #: wall time of a frame per surface vertex [s] (the ParaView series and the video: ~10 ms a
 #: frame on the default seat)
 FRAME_SECONDS_PER_VERTEX = 6e-6
-#: wall time of the pad's inertia per expected impact [s] when each impact is re-run on its pad
-#: (:mod:`hailstorm.runtime.inertia`; the default storm: 8.1 s for 99 impacts, 93 expected)
-INERTIA_SECONDS_PER_IMPACT = 0.09
+#: wall time of the pad's inertia per expected impact [s], read from the material's table
+#: (:mod:`hailstorm.runtime.inertia.table`; ``bench_inertia_table.py``: ~0.5 ms for 99 impacts,
+#: with the impact records' thickness rays ~1 ms in all; an impact off the table's grid is re-run
+#: on its pad, ~0.08 s, rare in the default scene)
+INERTIA_SECONDS_PER_IMPACT = 2e-5
 #: wall time of rendering one frame of the video [s] (``storm.mp4``, after the storm: the default
 #: storm over 0.5 s, 126 frames in ~5.3 s)
 VIDEO_SECONDS_PER_FRAME = 0.042
+#: the video's frames at most (:func:`hailstorm.runtime.output.render.write_animation`'s ``max_frames``:
+#: a long storm's video is evenly subsampled)
+VIDEO_FRAMES = 100
 #: wall time of a warm start [s]: imports, the bundle, the compiled kernels from numba's cache
 #: (``hailstorm storm --duration 0.001 --no-video``: 3.5 s)
 STARTUP_SECONDS = 3.5
@@ -168,6 +174,9 @@ class StormEstimate:
         The frames are rendered into a video after the storm.
     startup : bool
         Count a warm start (:data:`STARTUP_SECONDS`: what the command line adds).
+    from_rate : bool
+        ``stones`` is the mean of a rate's Poisson count (announced as ``~N stones``: the storm
+        draws its own number), not an exact count.
 
     Notes
     -----
@@ -179,7 +188,7 @@ class StormEstimate:
       stones' flight, ``stones * min(duration, STONE_LIFETIME) / dt *
       FLIGHT_SECONDS_PER_STONE_STEP``;
     * frames: ``frames * n_vertices * FRAME_SECONDS_PER_VERTEX``, and
-      ``frames * VIDEO_SECONDS_PER_FRAME`` with a video;
+      ``min(frames, VIDEO_FRAMES) * VIDEO_SECONDS_PER_FRAME`` with a video;
     * inertia: ``impacts * INERTIA_SECONDS_PER_IMPACT`` when it is measured;
     * with ``startup``, a warm start, :data:`STARTUP_SECONDS`.
 
@@ -199,6 +208,7 @@ class StormEstimate:
     inertia: bool = False
     video: bool = False
     startup: bool = False
+    from_rate: bool = False
 
     @property
     def impacts(self) -> float:
@@ -221,7 +231,7 @@ class StormEstimate:
     def frame_seconds(self) -> float:
         """Estimated wall time of writing the frames [s] (0 when the surface size is not known)."""
         files = 0.0 if self.n_vertices is None else float(self.frames) * self.n_vertices * FRAME_SECONDS_PER_VERTEX
-        return files + (float(self.frames) * VIDEO_SECONDS_PER_FRAME if self.video else 0.0)
+        return files + (float(min(self.frames, VIDEO_FRAMES)) * VIDEO_SECONDS_PER_FRAME if self.video else 0.0)
 
     @property
     def inertia_seconds(self) -> float:
@@ -237,7 +247,8 @@ class StormEstimate:
 
     def describe(self) -> str:
         """One line: steps, stones, frames, memory (and disk), and the estimated time with its parts."""
-        text = (f"{count_text(self.steps)} steps, {count_text(self.stones)} stones, {count_text(self.frames)} frames, "
+        stones = ("~" if self.from_rate else "") + count_text(self.stones)
+        text = (f"{count_text(self.steps)} steps, {stones} stones, {count_text(self.frames)} frames, "
                 f"~{size_text(self.memory_bytes)} of memory")
         if self.disk_bytes is not None:
             text += f", ~{size_text(self.disk_bytes)} on disk"

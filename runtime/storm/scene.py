@@ -621,7 +621,7 @@ class Scene:
         return StormEstimate(steps=steps, stones=int(stones), frames=frames, memory_bytes=int(memory),
                              disk_bytes=disk, duration=float(sc.duration), dt=float(self.time.dt),
                              n_vertices=n_vertices, inertia=bool(self.validity.inertia), video=bool(video),
-                             startup=bool(startup), **extra)
+                             startup=bool(startup), from_rate=sc.stones is None, **extra)
 
     def physical_warnings(self, vertices: Any) -> list[str]:
         """Settings that are valid but make the storm physically meaningless on this seat.

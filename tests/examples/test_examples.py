@@ -90,3 +90,23 @@ def test_speed_vs_accuracy(tmp_path, cache):
     out = run_example("speed_vs_accuracy", tmp_path, cache, "--small", "--out", "plot.png")
     assert out.count("   P1 ") == 3 and out.count("   P2 ") == 3, out
     assert (tmp_path / "plot.png").stat().st_size > 1000
+
+
+def test_the_examples_default_outputs_are_ignored_by_git():
+    """Run from the repository's root, an example writes its default ``--out`` (and
+    read_paraview.py its run) there: git ignores every one of them."""
+    import re
+    import shutil
+    import subprocess
+
+    root = Path(__file__).resolve().parents[2]
+    if shutil.which("git") is None or not (root / ".git").exists():
+        pytest.skip("not a git checkout")
+    names = set()
+    for script in (root / "examples").glob("*.py"):
+        names |= set(re.findall(r'Path\("([^"/]+)"\)', script.read_text()))
+    assert {"compressed-out", "speed_vs_accuracy.png", "read-paraview-out"} <= names
+    paths = [n if "." in n else f"{n}/" for n in names]  # the folders as folders
+    proc = subprocess.run(["git", "check-ignore", "--no-index", *paths], cwd=root, capture_output=True, text=True)
+    ignored = {p.rstrip("/") for p in proc.stdout.split()}
+    assert ignored == names, names - ignored

@@ -69,3 +69,19 @@ def test_the_parts_add_up_and_are_announced():
     # before the bundle is read: every stone counted as an impact, no frame time
     pre = Scene.default().estimate()
     assert pre.hit_fraction == 1.0 and pre.frame_seconds == 0.0
+
+
+def test_the_video_costs_its_subsampled_frames():
+    """The video renders at most ``VIDEO_FRAMES`` frames (the renderer's ``max_frames``), so a
+    30 s storm's video costs what a 10 s storm's does; only the series' files grow."""
+    import inspect
+
+    from hailstorm.runtime.output.render import write_animation
+    from hailstorm.runtime.storm.estimate import FRAME_SECONDS_PER_VERTEX, VIDEO_FRAMES, VIDEO_SECONDS_PER_FRAME
+
+    assert inspect.signature(write_animation).parameters["max_frames"].default == VIDEO_FRAMES
+    e10, e30 = (Scene.default().with_(duration=d).estimate(1659, hit_fraction=0.5, video=True) for d in (10.0, 30.0))
+    video = VIDEO_FRAMES * VIDEO_SECONDS_PER_FRAME
+    assert e10.frame_seconds == pytest.approx(e10.frames * 1659 * FRAME_SECONDS_PER_VERTEX + video, rel=1e-12)
+    assert e30.frame_seconds - e10.frame_seconds == pytest.approx(
+        (e30.frames - e10.frames) * 1659 * FRAME_SECONDS_PER_VERTEX, rel=1e-12)
