@@ -289,6 +289,7 @@ def check_manifest(manifest: Any, m: Path) -> None:
             raise BundleError(f"{m}: manifest entry {k!r} is {manifest[k]!r}, expected an object; the bundle is damaged")
     for k in manifest.get("timings_s", {}):
         need(manifest["timings_s"], k, (int, float), "timings_s.", _is_number, "a number of seconds")
+    _check_version_matches_arrays(manifest, m)
     if manifest.get("format_version") == HMATRIX_FORMAT_VERSION:
         comp = need(manifest, "compliance", dict, "", what="an object describing the compressed D")
         need(comp, "storage", str, "compliance.", lambda v: v == "hmatrix", "'hmatrix'")
@@ -313,6 +314,20 @@ def check_manifest(manifest: Any, m: Path) -> None:
         need(entry, "sha256", str, where, lambda v: len(v) == 64, "a SHA-256 hex digest")
         need(entry, "bytes", int, where, lambda v: v >= 0, "a file size")
     need(manifest, MANIFEST_HASH, str, "", lambda v: len(v) == 64, "a SHA-256 hex digest")
+
+
+def _check_version_matches_arrays(manifest: Mapping[str, Any], m: str) -> None:
+    """A manifest whose arrays are wholly those of the other format version (a compressed bundle
+    labelled 2, a dense one labelled 3): a version mismatch, said as such (not as a missing array)."""
+    arrays, version = manifest.get("arrays"), manifest.get("format_version")
+    if not isinstance(arrays, dict):
+        return
+    other = HMATRIX_FORMAT_VERSION if version == FORMAT_VERSION else FORMAT_VERSION
+    if set(array_specs(version)) <= set(arrays) or not set(array_specs(other)) <= set(arrays):
+        return
+    kind = "a compressed D (hmatrix_*)" if other == HMATRIX_FORMAT_VERSION else "a dense D (compliance)"
+    raise BundleError(f"{m}: format_version {version!r} does not match its arrays, which are version {other}'s "
+                      f"({kind}); the manifest was edited or damaged: re-run `hailstorm precompute`")
 
 
 def compliance_dtype(manifest: Mapping[str, Any]) -> np.dtype:

@@ -298,3 +298,15 @@ def test_an_unwritable_cache_only_costs_the_speed_up(box_bundle, tmp_path, monke
     load(box_bundle)
     load(box_bundle)
     assert len(calls) == 2 * len(ARRAY_SPECS)
+
+
+def test_a_version_that_does_not_match_the_arrays_is_said_so(box_bundle, tmp_path):
+    """A dense bundle whose manifest says 3 (the compressed format; the other way round in
+    tests/contract/test_hmatrix.py): a version mismatch, not a missing array entry."""
+    b = _copy(box_bundle, tmp_path / "b")
+    m = json.loads((b / MANIFEST).read_text())
+    m["format_version"] = 3
+    m[MANIFEST_HASH] = manifest_hash(m)
+    (b / MANIFEST).write_text(json.dumps(m))
+    with pytest.raises(BundleError, match=r"format_version 3 does not match its arrays, which are version 2's"):
+        load(b)

@@ -321,3 +321,21 @@ def test_a_compressed_bundle_of_the_wrong_shape_is_refused_before_it_is_expanded
     with pytest.raises(BundleError, match=r"inconsistent: compliance has shape"):
         load(b)
     assert not calls
+
+
+def test_a_compressed_bundle_labelled_version_2_is_a_version_mismatch(seat_h, tmp_path):
+    """A compressed bundle whose manifest says format version 2 (hash redone): a version mismatch
+    naming both versions, not a missing ``arrays.compliance`` entry."""
+    import json
+
+    from hailstorm.runtime.bundle.format import MANIFEST, manifest_hash
+
+    b = shutil.copytree(seat_h, tmp_path / "b")
+    m = json.loads((b / MANIFEST).read_text())
+    m["format_version"] = 2
+    del m["manifest_sha256"]
+    m["manifest_sha256"] = manifest_hash(m)
+    (b / MANIFEST).write_text(json.dumps(m))
+    with pytest.raises(BundleError, match=r"format_version 2 does not match its arrays, which are version 3's "
+                                          r"\(a compressed D"):
+        load(b)

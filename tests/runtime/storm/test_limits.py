@@ -374,6 +374,7 @@ def test_cli_storm_warns_once_and_the_summary_carries_the_limits(box_gf, tmp_pat
     warned = [r.getMessage() for r in caplog.records if "validity limits" in r.getMessage()]
     if stones:
         assert s["impacts"] > 0 and s["impacts_beyond_any_limit"] > 0  # 1 MPa foam: every stone is beyond
-        assert len(warned) == 1 and warned[0] == "warning: " + validity_warning(s)
+        assert len(warned) == 1 and warned[0] == "warning: " + validity_warning(s, brief=True)  # (-q: one short line)
     else:
         assert s["impacts"] == 0 and s["impacts_beyond_any_limit"] == 0 and warned == []
+        assert s["min_impact_thickness_m"] is None  # no impact, no pad under one (not a pad of 0 m)
