@@ -118,16 +118,27 @@ def tet_volumes(points: np.ndarray, tets: np.ndarray) -> np.ndarray:
     return np.einsum("ij,ij->i", np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0]), p[:, 3] - p[:, 0]) / 6.0
 
 
+#: the largest coordinate a mesh may hold [m] (a thousand kilometres: far beyond any solid this
+#: models, far below where a tetrahedron's volume, a cube of coordinates, overflows)
+MAX_COORDINATE = 1e6
+
+
 def check_mesh(mesh: TetMesh, required=REQUIRED_GROUPS) -> TetMesh:
     """Validate a mesh; raise :class:`MeshError` naming the problem.
 
-    Checks finite coordinates, index ranges, the required groups, and that no
+    Checks finite coordinates within :data:`MAX_COORDINATE` of the origin, index ranges, the
+    required groups, and that no
     tetrahedron is inverted or degenerate (volume <= 1e-9 of the mean edge
     length cubed).
     """
     pts, tets = mesh.points, mesh.tets
     if pts.ndim != 2 or pts.shape[1] != 3 or not np.all(np.isfinite(pts)):
         raise MeshError(f"{mesh.source}: points must be a finite (N, 3) array")
+    far = np.abs(pts).max(axis=1) > MAX_COORDINATE
+    if far.any():
+        k = int(np.flatnonzero(far)[0])
+        raise MeshError(f"{mesh.source}: node {k} lies at {pts[k].tolist()}, beyond {MAX_COORDINATE:g} m of the origin "
+                        f"({int(far.sum())} such nodes): a unit mix-up or a damaged mesh (coordinates are in metres)")
     if tets.ndim != 2 or tets.shape[1] != 4 or tets.shape[0] == 0:
         raise MeshError(f"{mesh.source}: the mesh has no tetrahedra (got cells of shape {tets.shape})")
     if tets.min() < 0 or tets.max() >= pts.shape[0]:

@@ -21,7 +21,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
 
-__all__ = ["probe_writable", "replacing", "write_text_atomic"]
+__all__ = ["probe_writable", "replacing", "sibling_name_problem", "write_text_atomic"]
 
 
 @contextmanager
@@ -99,3 +99,32 @@ def probe_writable(directory: str | os.PathLike) -> Path:
     os.close(fd)
     os.unlink(name)
     return probe
+
+
+#: the random part ``tempfile`` adds to a temporary's name
+_RANDOM_CHARS = 8
+
+
+def sibling_name_problem(path: str | os.PathLike, infix: str) -> str | None:
+    """Why the temporaries hailstorm writes beside ``path`` (``.NAME<infix>XXXXXXXX``) cannot
+    exist in its folder (their name would exceed the file system's limit), or None.
+
+    A name the user may legally give can be too long for its temporary sibling: said at the
+    edge, with the limit, instead of the file system's ``File name too long`` on a name the user
+    never gave.
+    """
+    path = Path(path)
+    probe = path.absolute().parent
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    try:
+        limit = os.pathconf(probe, "PC_NAME_MAX")
+    except (OSError, ValueError, AttributeError):  # pragma: no cover - not POSIX, or no such limit
+        limit = 255
+    extra = len(os.fsencode("." + infix)) + _RANDOM_CHARS
+    size = len(os.fsencode(path.name))
+    if size + extra <= limit:
+        return None
+    name = path.name if len(path.name) <= 60 else f"{path.name[:28]}...{path.name[-28:]}"
+    return (f"the name {name} is {size} bytes long; hailstorm writes beside it under the name plus {extra} "
+            f"(.NAME{infix}XXXXXXXX), so in {probe} it may be at most {limit - extra} bytes long")

@@ -43,7 +43,7 @@ from typing import Any, Iterator, Mapping
 import numpy as np
 
 from hailstorm.runtime.bundle import format as bundle_format
-from hailstorm.runtime.bundle.atomic import probe_writable
+from hailstorm.runtime.bundle.atomic import probe_writable, sibling_name_problem
 from hailstorm.runtime.bundle.format import (
     ARRAY_SPECS,
     BUNDLE_FILES,
@@ -278,9 +278,13 @@ def check_replaceable(out: str | os.PathLike) -> None:
     ``out`` may be missing, an empty directory, or a directory holding exactly
     the files a bundle writer writes with a hailstorm manifest. Anything else
     (a file; a directory with other files, such as the user's notes or results;
-    a manifest alone) is refused, naming what is in the way.
+    a manifest alone) is refused, naming what is in the way; so is a name too long for the
+    writer's temporaries beside it (:func:`~hailstorm.runtime.bundle.atomic.sibling_name_problem`).
     """
     out = Path(out)
+    too_long = sibling_name_problem(out, max(_TMP, _OLD, key=len))
+    if too_long is not None:
+        raise BundleError(f"cannot write --out: {too_long}")
     if not out.exists() and not out.is_symlink():
         return
     if not out.is_dir() or out.is_symlink():

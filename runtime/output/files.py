@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from hailstorm.runtime.bundle.atomic import probe_writable, write_text_atomic
+from hailstorm.runtime.bundle.atomic import probe_writable, sibling_name_problem, write_text_atomic
 from hailstorm.runtime.output.render import shown_displacement as _shown
 from hailstorm.runtime.output.render import write_animation
 from hailstorm.runtime.output.vtu import read_vtu, write_vtu
@@ -447,6 +447,9 @@ def check_storm_out(out: str | os.PathLike) -> None:
         write (named in the message, which is one line).
     """
     out = Path(out)
+    too_long = sibling_name_problem(out, _PARTIAL)
+    if too_long is not None:
+        raise OutputError(f"cannot write --out: {too_long}")
     if out.exists() or out.is_symlink():
         if not out.is_dir():
             raise OutputError(f"--out {out} exists and is not a directory; refusing to overwrite it")

@@ -111,6 +111,10 @@ def _make(kind: str, tmp: Path):
     """Set up the input of one row; returns (extra arguments, files that must survive)."""
     if kind in ("apart", "edge", "duplicate"):
         return ["--geometry", _write_msh(_two_tets(kind), tmp / f"{kind}.msh")], {}
+    if kind == "far-node":  # a node sent to z = 1e308: refused as far, not as a degenerate tetrahedron
+        mesh = _two_tets("face")
+        mesh.points[4, 2] = 1e308
+        return ["--geometry", _write_msh(mesh, tmp / "far.msh")], {}
     if kind == "no-top":
         return ["--geometry", _write_msh(_two_tets("face"), tmp / "notop.msh", groups=("clamp",))], {}
     if kind == "text-msh":
@@ -130,6 +134,8 @@ def _make(kind: str, tmp: Path):
         out.mkdir()
         (out / MANIFEST).write_text('{"format": "hailstorm-greens-bundle"}')
         return [], {out / MANIFEST: '{"format": "hailstorm-greens-bundle"}'}
+    if kind == "long-out":  # a legal name, too long for the writer's temporaries beside it
+        return ["--out", tmp / ("b" * 245)], {}
     if kind == "out-is-file":
         (tmp / "out").write_text("a file")
         return [], {tmp / "out": "a file"}
@@ -145,6 +151,7 @@ PRECOMPUTE_ROWS = [
     ("edge", [], "2 parts connected through shared faces"),
     ("duplicate", [], "duplicated tetrahedra"),
     ("no-top", [], "notop.msh: the mesh has no surface group 'top'"),
+    ("far-node", [], "node 4 lies at [1.0, 1.0, 1e+308], beyond 1e+06 m of the origin"),
     ("text-msh", [], "meshio could not read"),
     ("geometry-dir", [], "is a directory"),
     ("nu-minus-one", ["--poisson", "-1"], "nu <= -1 is not a stable material"),
@@ -154,6 +161,7 @@ PRECOMPUTE_ROWS = [
     ("user-files", [], "(NOTES.txt, results)"),
     ("fake-manifest", [], "not a complete hailstorm bundle"),
     ("out-is-file", [], "is not a directory"),
+    ("long-out", [], "is 245 bytes long; hailstorm writes beside it under the name plus 14"),
     ("out-under-file", [], "is not a directory"),
 ]
 

@@ -69,6 +69,7 @@ ROWS = [
     ("stones-5-million-in-0.1-s", ["--stones", "5000000", "--duration", "0.1"], "impacts expected of 5,000,000 stones"),
     ("duration-1e308", ["--duration", "1e308"], "not a finite number of steps"),
     ("duration-1e300-count-in-scientific-notation", ["--duration", "1e300"], "5e+303 steps"),
+    ("out-name-too-long-for-its-temporary", ["--out", lambda t: t / ("o" * 240)], "is 240 bytes long"),
     ("scene-not-utf8", ["--scene", lambda t: (t / "s.toml").write_bytes(b"[storm]\nduration = 0.1 # \xff\xfe\n")
                         and t / "s.toml"], "s.toml is not a UTF-8 text file"),
 ]
@@ -97,7 +98,7 @@ def test_bad_storm_input_is_one_line_exit_3(seat_bundle, tmp_path, capsys, name,
     assert len(lines[0]) < 400, lines[0]  # no 300-digit numbers
     # nothing the user owns was touched, and no run was left behind
     assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
-    assert not (tmp_path / "out").exists()
+    assert not (tmp_path / "out").exists() and not list(tmp_path.glob(".*"))
 
 
 @pytest.mark.parametrize("reader", ["head -1", "true"])
