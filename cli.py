@@ -150,6 +150,9 @@ def _storm_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scene", type=Path, default=None, help="TOML scene file holding every storm setting")
     p.add_argument("--out", type=Path, default=Path("hailstorm-out"), help="output directory (default ./hailstorm-out)")
     p.add_argument("--no-video", action="store_true", help="skip the animation")
+    p.add_argument("--series", choices=("vtkhdf", "vtu"), default=None,
+                   help="the ParaView time series: one storm.vtkhdf (VTK >= 9.4, ParaView >= 5.13; default when "
+                        "h5py is installed) or storm.pvd with two .vtu files per frame (older readers)")
     p.add_argument("--allow-large", action="store_true",
                    help="run a storm whose estimate exceeds the machine (memory, more than 10 million steps, "
                         "or an estimated hour of stepping)")
@@ -276,6 +279,12 @@ def _run_storm(args: argparse.Namespace) -> int:
         if not args.quiet:
             print(f"note: no animation ({missing} is not installed): pip install 'hailstorm[video]' for storm.mp4, "
                   "or --no-video", file=sys.stderr)
+    series = args.series
+    if series is None and (missing := missing_module("series")) is not None:
+        series = "vtu"
+        if not args.quiet:
+            print(f"note: the ParaView series as .vtu files per frame ({missing} is not installed): "
+                  "pip install 'hailstorm[series]' for one storm.vtkhdf", file=sys.stderr)
     out = args.out
     check_storm_out(out)
     if args.gf is not None:
@@ -294,7 +303,7 @@ def _run_storm(args: argparse.Namespace) -> int:
     estimate = scene.estimate(gf.n_vertices, hit_fraction=hit_fraction(gf.vertices, gf.triangles, scene.storm.margin),
                               video=video, startup=True)  # run_storm checks and logs it
     with StormOutput(out, gf, video=video, disk_bytes=estimate.disk_bytes,
-                     progress=not args.quiet) as sink:
+                     progress=not args.quiet, series=series) as sink:
         result = run_storm(gf, scene, progress=not args.quiet, on_frame=sink.add, allow_large=args.allow_large,
                            estimate=estimate)
         paths = sink.finish(result)

@@ -22,6 +22,7 @@ EXTRAS: dict[str, tuple[str, ...]] = {
     "precompute": ("gmsh", "skfem", "meshio", "pyamg", "cholespy"),
     "video": ("matplotlib", "imageio", "imageio_ffmpeg"),
     "dask": ("distributed",),
+    "series": ("h5py",),
 }
 
 

@@ -33,18 +33,11 @@ from typing import Any, Callable
 
 import numpy as np
 
-from hailstorm.runtime.inertia.impact import PeerResolutionError, check_density, impact_mesh, simulate_impact
-from hailstorm.runtime.inertia.pad import Pad
+from hailstorm.runtime.inertia.impact import PAD_RADIUS, PeerResolutionError, check_density, impact_inertia
 from hailstorm.runtime.inertia.table import (BUILD_MIN_IMPACTS, InertiaTable, available_table, inertia_table,
                                              mass_ratio_key, wave_speed)
 
-__all__ = ["PAD_RADIUS", "InertiaFactors", "impact_inertia", "inertia_factors"]
-
-#: the local pad's radius [m]: about the half-width of a saddle's rear (at least 4 thicknesses)
-PAD_RADIUS = 0.06
-#: the default resolution of the local pad (cells per Hertz contact radius, steps per Hertz contact time)
-CELLS_PER_RADIUS, STEPS_PER_CONTACT = 8.0, 100
-
+__all__ = ["InertiaFactors", "inertia_factors"]
 
 @dataclass(frozen=True)
 class InertiaFactors:
@@ -98,59 +91,6 @@ class InertiaFactors:
     def empty(cls) -> InertiaFactors:
         """No impacts."""
         return cls(*(np.zeros(0) for _ in range(4)))
-
-
-def impact_inertia(radius: float, mass: float, speed: float, thickness: float, young: float, poisson: float,
-                   density: float, *, pad_radius: float = PAD_RADIUS, cells_per_radius: float = CELLS_PER_RADIUS,
-                   steps_per_contact: int = STEPS_PER_CONTACT) -> tuple[float, float, float, float]:
-    """One impact's inertia factors (module docstring): peak force, contact time, rebound
-    speed and largest dent of the dynamic peer over the quasi-static one.
-
-    Parameters
-    ----------
-    radius, mass : float
-        The stone [m], [kg] (> 0).
-    speed : float
-        Its normal speed at onset [m/s] (> 0).
-    thickness : float
-        The local pad's thickness [m] (> 0).
-    young, poisson : float
-        The pad's material [Pa], [-].
-    density : float
-        The pad foam's density [kg/m^3] (> 0).
-    pad_radius : float
-        The local pad's radius [m] (raised to 4 thicknesses).
-    cells_per_radius, steps_per_contact
-        The peer's resolution (doubled, up to twice, where the measured contact is narrower
-        than the peer accepts).
-
-    Returns
-    -------
-    tuple of float
-        (force, duration, restitution, dent) factors.
-    """
-    if not (radius > 0 and mass > 0 and speed > 0 and thickness > 0):
-        raise ValueError(f"impact_inertia needs radius, mass, speed and thickness > 0, got {radius!r}, {mass!r}, "
-                         f"{speed!r}, {thickness!r}")
-    stone = check_density("stone", mass / (4.0 / 3.0 * math.pi * radius**3))
-    pad = Pad(young=float(young), poisson=float(poisson), density=check_density("pad", density),
-              thickness=float(thickness), radius=max(float(pad_radius), 4.0 * float(thickness)))
-    cells = float(cells_per_radius)
-    for attempt in range(3):
-        mesh = impact_mesh(pad, radius, speed, cells, stone)
-        try:
-            dyn = simulate_impact(mesh, radius, speed, dynamic=True, steps_per_contact=steps_per_contact,
-                                  ice_density=stone)
-            qs = simulate_impact(mesh, radius, speed, dynamic=False, steps_per_contact=steps_per_contact,
-                                 ice_density=stone)
-        except PeerResolutionError:
-            if attempt == 2:
-                raise
-            cells *= 2.0
-            continue
-        return (dyn.peak_force / qs.peak_force, dyn.duration / qs.duration, dyn.rebound_speed / qs.rebound_speed,
-                dyn.max_dent / qs.max_dent)
-    raise AssertionError("unreachable")
 
 
 def inertia_factors(radius: Any, mass: Any, speed: Any, thickness: Any, young: float, poisson: float,

@@ -27,13 +27,20 @@ import numpy as np
 from hailstorm.runtime.contact.hertz import HertzImpact, hertz_impact
 from hailstorm.runtime.inertia.pad import Pad, PadMesh, contact_lcp, pad_mesh, without_contact_mass
 
-__all__ = ["ICE_DENSITY", "MIN_CELLS_PER_RADIUS", "MIN_STEPS_PER_CONTACT", "ImpactResult", "PeerResolutionError",
-           "check_density", "hertz_estimate", "impact_mesh", "simulate_impact"]
+__all__ = ["CELLS_PER_RADIUS", "ICE_DENSITY", "MIN_CELLS_PER_RADIUS", "MIN_STEPS_PER_CONTACT", "PAD_RADIUS",
+           "STEPS_PER_CONTACT", "ImpactResult", "PeerResolutionError", "check_density", "hertz_estimate",
+           "impact_inertia", "impact_mesh", "simulate_impact"]
 
 #: ice density [kg/m^3] (the default scene's ``[hail] density``)
 ICE_DENSITY = 917.0
 #: the least steps per contact duration and cells per contact radius a run accepts
 MIN_STEPS_PER_CONTACT, MIN_CELLS_PER_RADIUS = 20, 4.0
+
+
+#: the local pad's radius [m]: about the half-width of a saddle's rear (at least 4 thicknesses)
+PAD_RADIUS = 0.06
+#: the default resolution of the local pad (cells per Hertz contact radius, steps per Hertz contact time)
+CELLS_PER_RADIUS, STEPS_PER_CONTACT = 8.0, 100
 
 
 class PeerResolutionError(ValueError):
@@ -265,3 +272,56 @@ def impact_mesh(pad: Pad, radius: float, speed: float, cells_per_radius: float =
     within 1.5 contact radii of the impact (growing by 1.15 beyond)."""
     a = math.sqrt(radius * hertz_estimate(pad, radius, speed, ice_density).max_depth)
     return pad_mesh(pad, cell=a / cells_per_radius, extent=1.5 * a)
+
+
+def impact_inertia(radius: float, mass: float, speed: float, thickness: float, young: float, poisson: float,
+                   density: float, *, pad_radius: float = PAD_RADIUS, cells_per_radius: float = CELLS_PER_RADIUS,
+                   steps_per_contact: int = STEPS_PER_CONTACT) -> tuple[float, float, float, float]:
+    """One impact's inertia factors (module docstring): peak force, contact time, rebound
+    speed and largest dent of the dynamic peer over the quasi-static one.
+
+    Parameters
+    ----------
+    radius, mass : float
+        The stone [m], [kg] (> 0).
+    speed : float
+        Its normal speed at onset [m/s] (> 0).
+    thickness : float
+        The local pad's thickness [m] (> 0).
+    young, poisson : float
+        The pad's material [Pa], [-].
+    density : float
+        The pad foam's density [kg/m^3] (> 0).
+    pad_radius : float
+        The local pad's radius [m] (raised to 4 thicknesses).
+    cells_per_radius, steps_per_contact
+        The peer's resolution (doubled, up to twice, where the measured contact is narrower
+        than the peer accepts).
+
+    Returns
+    -------
+    tuple of float
+        (force, duration, restitution, dent) factors.
+    """
+    if not (radius > 0 and mass > 0 and speed > 0 and thickness > 0):
+        raise ValueError(f"impact_inertia needs radius, mass, speed and thickness > 0, got {radius!r}, {mass!r}, "
+                         f"{speed!r}, {thickness!r}")
+    stone = check_density("stone", mass / (4.0 / 3.0 * math.pi * radius**3))
+    pad = Pad(young=float(young), poisson=float(poisson), density=check_density("pad", density),
+              thickness=float(thickness), radius=max(float(pad_radius), 4.0 * float(thickness)))
+    cells = float(cells_per_radius)
+    for attempt in range(3):
+        mesh = impact_mesh(pad, radius, speed, cells, stone)
+        try:
+            dyn = simulate_impact(mesh, radius, speed, dynamic=True, steps_per_contact=steps_per_contact,
+                                  ice_density=stone)
+            qs = simulate_impact(mesh, radius, speed, dynamic=False, steps_per_contact=steps_per_contact,
+                                 ice_density=stone)
+        except PeerResolutionError:
+            if attempt == 2:
+                raise
+            cells *= 2.0
+            continue
+        return (dyn.peak_force / qs.peak_force, dyn.duration / qs.duration, dyn.rebound_speed / qs.rebound_speed,
+                dyn.max_dent / qs.max_dent)
+    raise AssertionError("unreachable")

@@ -1,6 +1,6 @@
 """The pad's inertia factors tabulated once per material: an interpolation, not a peer run, per impact.
 
-:func:`~hailstorm.runtime.inertia.factors.impact_inertia` runs a dynamic and a quasi-static
+:func:`~hailstorm.runtime.inertia.impact.impact_inertia` runs a dynamic and a quasi-static
 impact on the local pad (about 0.05-0.1 s an impact): over a storm of thousands of impacts
 that is minutes, ten to a hundred times the storm itself. The factors depend on few groups.
 A rigid sphere of radius ``R`` and density ``rho_s`` hits, at normal speed ``v``, a layer of
@@ -145,7 +145,7 @@ def _grid() -> tuple[np.ndarray, np.ndarray]:
 
 
 def _key(poisson: float, mass_ratio: float, resolution: dict[str, Any]) -> str:
-    from hailstorm.runtime.inertia.factors import CELLS_PER_RADIUS, STEPS_PER_CONTACT
+    from hailstorm.runtime.inertia.impact import CELLS_PER_RADIUS, STEPS_PER_CONTACT
 
     res = {"cells_per_radius": CELLS_PER_RADIUS, "steps_per_contact": STEPS_PER_CONTACT, **resolution}
     spec = {"poisson": repr(float(poisson)), "mass_ratio": repr(float(mass_ratio)),
@@ -169,14 +169,13 @@ def build_inertia_table(poisson: float, mass_ratio: float, *, progress: bool | C
         ``True``: a tqdm bar (on stderr); a callable is called as ``progress(done, n)``.
     **resolution
         ``cells_per_radius``, ``steps_per_contact`` of the peer
-        (:func:`~hailstorm.runtime.inertia.factors.impact_inertia`).
+        (:func:`~hailstorm.runtime.inertia.impact.impact_inertia`).
 
     Returns
     -------
     InertiaTable
     """
-    from hailstorm.runtime.inertia.factors import impact_inertia
-    from hailstorm.runtime.inertia.impact import PeerResolutionError
+    from hailstorm.runtime.inertia.impact import PeerResolutionError, impact_inertia
 
     _check(poisson, mass_ratio)
     ls, lv = _grid()

@@ -40,9 +40,10 @@ from hailstorm.runtime.bundle.atomic import probe_writable, sibling_name_problem
 from hailstorm.runtime.output.render import shown_displacement as _shown
 from hailstorm.runtime.output.render import write_animation
 from hailstorm.runtime.output.vtu import read_vtu, write_vtu
-from hailstorm.runtime.resources import require_extras
+from hailstorm.runtime.resources import missing_module, require_extras
 
 __all__ = [
+    "SERIES_FORMATS",
     "STORM_MANIFEST",
     "SUMMARY_UNITS",
     "FrameSeries",
@@ -63,6 +64,8 @@ _log = logging.getLogger(__name__)
 
 #: the file, in a storm's output directory, that lists every file the storm wrote
 STORM_MANIFEST = "hailstorm-storm.json"
+#: the ParaView time series a storm output may hold: one VTKHDF file, or ``.vtu`` files per frame
+SERIES_FORMATS = ("vtkhdf", "vtu")
 _MANIFEST_FORMAT = "hailstorm-storm-output"
 
 #: bytes per surface vertex of one frame's surface VTU on disk (measured: ~60-65 B on the
@@ -494,10 +497,25 @@ class StormOutput:
         refused up front if the file system has less free space.
     progress : bool
         A tqdm bar while rendering.
+    series : {"vtkhdf", "vtu"}, optional
+        The ParaView time series: one ``storm.vtkhdf`` (:class:`hailstorm.runtime.output.vtkhdf.VTKHDFSeries`,
+        the ``series`` extra) or ``storm.pvd`` with two ``.vtu`` files per frame
+        (:class:`ParaviewSeries`, for readers older than VTK 9.4 / ParaView 5.13); default:
+        ``"vtkhdf"`` when h5py is installed, else ``"vtu"``.
+
+    Raises
+    ------
+    ValueError
+        An unknown ``series``.
     """
 
     def __init__(self, out: str | os.PathLike, gf: Any, *, video: bool = True, disk_bytes: int | None = None,
-                 progress: bool = False) -> None:
+                 progress: bool = False, series: str | None = None) -> None:
+        if series is None:
+            series = "vtkhdf" if missing_module("series") is None else "vtu"
+        if series not in SERIES_FORMATS:
+            raise ValueError(f"unknown series format {series!r}; choose from {', '.join(SERIES_FORMATS)}")
+        self.series_format = series
         self.out = Path(out)
         self.gf = gf
         self.video = video
@@ -530,6 +548,9 @@ class StormOutput:
         """
         if self.video:
             require_extras("video", "the storm's animation", hint="(or skip it: video=False, --no-video)")
+        if self.series_format == "vtkhdf":
+            require_extras("series", "the storm's one-file time series (storm.vtkhdf)",
+                           hint="(or the per-frame files: series='vtu', --series vtu)")
         check_storm_out(self.out)
         parent = self.out.absolute().parent
         try:
@@ -549,7 +570,12 @@ class StormOutput:
             self._lock_fd = _hold_lock(self.staging / _PARTIAL_LOCK)
         except OSError as exc:
             raise OutputError(f"cannot write --out {self.out}: {exc.strerror or exc}") from None
-        self.series = ParaviewSeries(self.gf, self.staging)
+        if self.series_format == "vtkhdf":
+            from hailstorm.runtime.output.vtkhdf import VTKHDFSeries
+
+            self.series = VTKHDFSeries(self.gf, self.staging)
+        else:
+            self.series = ParaviewSeries(self.gf, self.staging)
 
     def add(self, frame: Any) -> None:
         """Write one recorded frame (the storm's ``on_frame`` callback)."""
@@ -565,8 +591,9 @@ class StormOutput:
         Returns
         -------
         dict
-            ``{"summary", "impacts", "paraview", "stones", "video"}`` -> final paths (``video``
-            only when rendered; it may be the GIF fallback).
+            ``{"summary", "impacts", "paraview", "stones", "video"}`` -> final paths
+            (``paraview``: ``storm.vtkhdf`` or ``storm.pvd``; ``stones`` only with the ``.vtu``
+            series, ``video`` only when rendered; it may be the GIF fallback).
         """
         assert self.series is not None and self.staging is not None, "StormOutput.open() first"
         series, staging = self.series, self.staging
@@ -580,15 +607,20 @@ class StormOutput:
         files = [*series.files(), "summary.json", "impacts.csv"]
         video = None
         if self.video:
-            video = write_animation(series.frames(), self.gf, staging / "storm.mp4",
-                                    history=getattr(result, "history", None), progress=self.progress)
+            frames = series.frames()
+            try:
+                video = write_animation(frames, self.gf, staging / "storm.mp4",
+                                        history=getattr(result, "history", None), progress=self.progress)
+            finally:
+                getattr(frames, "close", lambda: None)()  # (the .vtkhdf reader holds its file open)
             files.append(video.name)
         manifest = {"format": _MANIFEST_FORMAT, "version": 1, "files": sorted(files)}
         (staging / STORM_MANIFEST).write_text(json.dumps(manifest, indent=1) + "\n")
         self._commit()
         paths = {"summary": self.out / "summary.json", "impacts": self.out / "impacts.csv",
-                 "paraview": self.out / f"{series.name}.pvd",
-                 "stones": self.out / f"{series.name}_stones.pvd"}
+                 "paraview": self.out / series.files()[0]}
+        if isinstance(series, ParaviewSeries):
+            paths["stones"] = self.out / f"{series.name}_stones.pvd"
         if video is not None:
             paths["video"] = self.out / video.name
         return paths
@@ -630,6 +662,8 @@ class StormOutput:
 
     def abort(self) -> None:
         """Remove the temporary directory (everything in it was written here)."""
+        if self.series is not None and not isinstance(self.series, ParaviewSeries):
+            self.series.close()  # the .vtkhdf file still open in it
         if self.staging is not None:
             shutil.rmtree(self.staging, ignore_errors=True)
             self.staging = None

@@ -423,7 +423,7 @@ class ImpactLimits:
 def summarise(dh: np.ndarray, aR: np.ndarray, eps: np.ndarray, thickness: np.ndarray,
               limits: ValidityLimits | None = None, *, time_ratio: np.ndarray | None = None,
               pad_density: float = PAD_DENSITY, force: np.ndarray | None = None,
-              inertia: InertiaFactors | None = None) -> dict[str, float | int]:
+              inertia: InertiaFactors | None = None) -> dict[str, float | int | None]:
     """The validity keys of a storm's statistics from its impacts' measures.
 
     Parameters
@@ -453,7 +453,7 @@ def summarise(dh: np.ndarray, aR: np.ndarray, eps: np.ndarray, thickness: np.nda
         ``max_indentation_thickness_ratio``, ``max_contact_radius_ratio``,
         ``max_strain_ratio`` (the worst values, 0 without impacts),
         ``min_contact_time_ratio`` (the worst, the smallest; 0 without impacts or none measurable),
-        ``min_impact_thickness_m`` (NaN without impacts: no pad was under one; null in summary.json),
+        ``min_impact_thickness_m`` (None without impacts: no pad was under one; null in summary.json),
         ``max_impact_force_N`` (the largest impact peak force, quasi-static, the storm's),
         ``max_impact_force_dynamic_N`` (the largest impact peak force times its inertia factor),
         ``min_inertia_force_factor``, ``min_inertia_restitution_factor`` (the smallest factors,
@@ -485,7 +485,7 @@ def summarise(dh: np.ndarray, aR: np.ndarray, eps: np.ndarray, thickness: np.nda
         "max_contact_radius_ratio": float(aR.max(initial=0.0)),
         "max_strain_ratio": float(eps.max(initial=0.0)),
         "min_contact_time_ratio": float(tr.min()) if tr.size and np.isfinite(tr.min()) else 0.0,
-        "min_impact_thickness_m": float(thickness.min()) if thickness.size else math.nan,  # (no impact: no pad)
+        "min_impact_thickness_m": float(thickness.min()) if thickness.size else None,  # (no impact: no pad)
         "max_impact_force_N": float(F.max(initial=0.0)),
         "max_impact_force_dynamic_N": float((F * rF).max(initial=0.0)) if measured else math.nan,
         "min_inertia_force_factor": float(rF.min(initial=1.0)) if measured else math.nan,

@@ -67,7 +67,7 @@ def test_a_storm_without_the_video_extra_skips_the_animation_with_one_note(monke
     notes = [line for line in capsys.readouterr().err.splitlines() if "hailstorm[video]" in line]
     assert notes == ["note: no animation (matplotlib is not installed): pip install 'hailstorm[video]' for "
                      "storm.mp4, or --no-video"]
-    assert (out / "summary.json").is_file() and (out / "impacts.csv").is_file() and (out / "storm.pvd").is_file()
+    assert (out / "summary.json").is_file() and (out / "impacts.csv").is_file() and (out / "storm.vtkhdf").is_file()
     assert not (out / "storm.mp4").exists() and not (out / "storm.gif").exists()
 
 
@@ -116,3 +116,20 @@ def test_missing_module_and_require_extras_import_nothing(monkeypatch):
     assert missing_module("precompute") == "pyamg"
     with pytest.raises(MissingExtra, match=r"^x needs the precompute extra \(pyamg is not installed\).* or y$"):
         require_extras("precompute", "x", hint="or y")
+
+
+def test_a_storm_without_the_series_extra_writes_the_vtu_series_with_one_note(monkeypatch, capsys, tmp_path):
+    """No h5py: the per-frame .vtu series, said in one note; asked for by name, the one-file
+    series without h5py is one error line naming the extra, before any work."""
+    _hide(monkeypatch, "h5py")
+    out = tmp_path / "out"
+    args = ["storm", "--gf", str(TINY), "--duration", "0.01", "--stones", "2", "--no-video"]
+    assert main([*args, "--out", str(out)]) == 0
+    notes = [line for line in capsys.readouterr().err.splitlines() if "hailstorm[series]" in line]
+    assert notes == ["note: the ParaView series as .vtu files per frame (h5py is not installed): pip install "
+                     "'hailstorm[series]' for one storm.vtkhdf"]
+    assert (out / "storm.pvd").is_file() and not (out / "storm.vtkhdf").exists()
+    assert main([*args, "--series", "vtkhdf", "--out", str(tmp_path / "other")]) == 3
+    line = _one_error_line(capsys)
+    assert "needs the series extra (h5py is not installed): pip install 'hailstorm[series]'" in line
+    assert not (tmp_path / "other").exists()

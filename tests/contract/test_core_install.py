@@ -27,7 +27,7 @@ ROOT = Path(__file__).resolve().parents[2]
 TINY = ROOT / "tests" / "data" / "tiny-box"
 #: import names of the extras' packages that must not come with the core
 NOT_IN_CORE = ("gmsh", "skfem", "meshio", "pyamg", "cholespy", "matplotlib", "imageio", "imageio_ffmpeg",
-               "distributed")
+               "distributed", "h5py")
 
 #: a contact on the tiny box, solved in both installs (printed as JSON by the core's interpreter)
 CONTACT = """
@@ -93,6 +93,9 @@ def test_the_core_install_has_no_extra_and_runs_a_storm(core_venv, tmp_path):
     # no video extra: one note naming it, and every other output
     notes = [line for line in run.stderr.splitlines() if "hailstorm[video]" in line]
     assert len(notes) == 1 and notes[0].startswith("note: no animation"), run.stderr[-2000:]
+    # no series extra: the per-frame .vtu files, said in one note
+    notes = [line for line in run.stderr.splitlines() if "hailstorm[series]" in line]
+    assert len(notes) == 1 and notes[0].startswith("note: the ParaView series as .vtu"), run.stderr[-2000:]
     summary = json.loads((out / "summary.json").read_text())
     assert summary["hailstones"] == 20 and summary["impacts"] > 0
     assert (out / "impacts.csv").read_text().count("\n") == summary["impacts"] + 1  # a header and a row per impact

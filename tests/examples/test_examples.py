@@ -44,7 +44,7 @@ def test_api_walkthrough(tmp_path, cache):
                  "write_animation:", "StormOutput:", "convert_bundle: D float32"):
         assert step in out, out
     assert (tmp_path / "walkthrough-out" / "summary.json").is_file()
-    assert (tmp_path / "walkthrough-out" / "storm.pvd").is_file()
+    assert (tmp_path / "walkthrough-out" / "storm.vtkhdf").is_file()
 
 
 def test_layered_materials(tmp_path, cache):
@@ -75,8 +75,14 @@ def test_scene_file(tmp_path, cache):
 
 
 def test_read_paraview(tmp_path, cache):
-    out = run_example("read_paraview", tmp_path, cache, "--small")
-    assert "frames of" in out and "the deepest dent" in out
+    """Both series read back, each with its own independent reader (h5py, meshio): the same frames."""
+    one = run_example("read_paraview", tmp_path, cache, "--small")
+    assert "frames of" in one and "the deepest dent" in one
+    (tmp_path / "read-paraview-out").rename(tmp_path / "first")
+    other = run_example("read_paraview", tmp_path, cache, "--small", "--series", "vtu")
+    assert (tmp_path / "read-paraview-out" / "storm.pvd").is_file()
+    assert [ln for ln in one.splitlines() if not ln.startswith("$")] == \
+        [ln for ln in other.splitlines() if not ln.startswith("$")]
 
 
 def test_read_paraview_needs_a_run(tmp_path, cache):

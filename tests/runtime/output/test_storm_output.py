@@ -23,8 +23,9 @@ def _scene(**kw) -> Scene:
     return Scene.from_flat(**{**base, **kw})
 
 
-def _run_into(out: Path, gf, scene: Scene, *, video: bool = False) -> dict:
-    with StormOutput(out, gf, video=video) as sink:
+def _run_into(out: Path, gf, scene: Scene, *, video: bool = False, series: str = "vtu") -> dict:
+    """Run ``scene`` into ``out`` (the per-frame .vtu series unless ``series``: these tests look at its files)."""
+    with StormOutput(out, gf, video=video, series=series) as sink:
         result = run_storm(gf, scene, progress=False, on_frame=sink.add)
         sink.finish(result)
     return json.loads((out / "summary.json").read_text())
@@ -46,7 +47,7 @@ def test_every_file_a_pvd_lists_reads_back_with_meshio(seat_bundle, tmp_path, ca
     import meshio
 
     out = tmp_path / "run"
-    assert main(["storm", "--gf", str(seat_bundle), "--duration", "0.03", "--stones", "3", "--seed", "1",
+    assert main(["storm", "--series", "vtu", "--gf", str(seat_bundle), "--duration", "0.03", "--stones", "3", "--seed", "1",
                  "--out", str(out), "-q"]) == 0
     summary = json.loads((out / "summary.json").read_text())
     files = _pvd_files(out)
@@ -80,14 +81,14 @@ def test_interrupted_run_leaves_nothing_and_keeps_the_previous_output(gf, tmp_pa
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
-        with StormOutput(out, gf, video=False) as sink:
+        with StormOutput(out, gf, video=False, series="vtu") as sink:
             run_storm(gf, _scene(seed=5), progress=False, on_frame=lambda f: (sink.add(f), interrupt(f)))
     assert {f: (out / f).read_bytes() for f in _all_files(out)} == before  # the old run, intact
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
     assert first["frames"] == len(list((out / "frames").glob("surface_*.vtu")))
     # and a first run that is interrupted leaves no directory at all
     with pytest.raises(KeyboardInterrupt):
-        with StormOutput(tmp_path / "new", gf, video=False) as sink:
+        with StormOutput(tmp_path / "new", gf, video=False, series="vtu") as sink:
             calls.clear()
             run_storm(gf, _scene(), progress=False, on_frame=lambda f: (sink.add(f), interrupt(f)))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
