@@ -300,6 +300,10 @@ def check_manifest(manifest: Any, m: Path) -> None:
         error = need(comp, "error", dict, "compliance.", what="an object")
         for k in ("columns", "max", "median"):
             need(error, k, (int, float), "compliance.error.", _is_number, "a finite number")
+        if not 0 <= error["median"] <= error["max"]:  # figures the build measured, read as they say
+            raise BundleError(f"{m}: the compressed D's recorded column errors are inconsistent (max "
+                              f"{error['max']!r} below median {error['median']!r}, or negative); the manifest was "
+                              "edited or damaged: re-run `hailstorm precompute`")
         if "options" in manifest and "dtype" in manifest["options"]:
             raise BundleError(f"{m}: a compressed bundle stores D in float64; its manifest names options.dtype; "
                               "the bundle is damaged")

@@ -339,3 +339,25 @@ def test_a_compressed_bundle_labelled_version_2_is_a_version_mismatch(seat_h, tm
     with pytest.raises(BundleError, match=r"format_version 2 does not match its arrays, which are version 3's "
                                           r"\(a compressed D"):
         load(b)
+
+
+def test_inconsistent_recorded_errors_are_refused_on_load(seat_h, tmp_path, capsys):
+    """A compressed bundle whose manifest says its largest column error is below its median (hash
+    redone, as an edit would): refused on load, and by ``hailstorm info`` in one line, exit 3."""
+    import json
+
+    from hailstorm.cli import main
+    from hailstorm.runtime.bundle.format import MANIFEST, manifest_hash
+
+    b = shutil.copytree(seat_h, tmp_path / "b")
+    m = json.loads((b / MANIFEST).read_text())
+    err = m["compliance"]["error"]
+    err["max"], err["median"] = err["median"] / 10, err["median"]
+    del m["manifest_sha256"]
+    m["manifest_sha256"] = manifest_hash(m)
+    (b / MANIFEST).write_text(json.dumps(m))
+    with pytest.raises(BundleError, match="recorded column errors are inconsistent"):
+        load(b)
+    assert main(["info", str(b)]) == 3
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1 and "recorded column errors are inconsistent" in lines[0]
