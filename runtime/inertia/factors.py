@@ -33,7 +33,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from hailstorm.runtime.inertia.impact import PAD_RADIUS, PeerResolutionError, check_density, impact_inertia
+from hailstorm.runtime.inertia.impact import PeerResolutionError, check_density, impact_inertia
 from hailstorm.runtime.inertia.table import (BUILD_MIN_IMPACTS, InertiaTable, available_table, inertia_table,
                                              mass_ratio_key, wave_speed)
 

@@ -123,7 +123,7 @@ class VTKHDFSeries:
         seat.create_dataset("Points", data=X)
         for topo in _TOPOLOGIES:
             tri_here = topo == "Polygons"
-            _topology(seat, topo, cells=tri if tri_here else np.zeros((0, 3), dtype=np.int64), static=True)
+            _topology(seat, topo, cells=tri if tri_here else np.zeros((0, 3), dtype=np.int64))
         pd_seat = seat.create_group("PointData", track_order=True)
         rows = max(1, self.n)
         for field in ("displacement", "peak_displacement"):
@@ -238,7 +238,7 @@ def _polydata(root: Any, name: str, index: int) -> Any:
     return g
 
 
-def _topology(g: Any, name: str, cells: np.ndarray, static: bool) -> None:
+def _topology(g: Any, name: str, cells: np.ndarray) -> None:
     """A topology group written once (``cells``: (c, nodes) connectivity)."""
     t = g.create_group(name, track_order=True)
     c, w = cells.shape

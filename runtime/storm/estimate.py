@@ -9,10 +9,10 @@ the storm's duration (stones retire after their bounce: a default storm holds
 ~345 stones at a time from ~0.4 s on, whatever its duration). Impacts that
 overlap in time cost more each (the contact set grows): by the factor
 ``1 + s / CROWD_CONTACTS`` where ``s`` is the mean number of stones near the seat
-at once. The frames cost ~6 us per surface vertex each (the ParaView series and
+at once. The frames cost ~0.8 us per surface vertex each (the one-file ParaView series and
 the video) and the pad's inertia, read impact by impact from the material's table
 after the storm, :data:`INERTIA_SECONDS_PER_IMPACT` each (a material without a table
-computes it once, in about 15-30 s, not counted: it is announced with a progress bar).
+computes it once, in about 30-60 s, not counted: it is announced with a progress bar).
 
 How many stones hit: the seat's share of the spawn footprint
 (:func:`hit_fraction`); before the bundle is read, 1 (an upper bound: the
@@ -26,7 +26,6 @@ measured wall time).
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -72,9 +71,10 @@ STEP_SECONDS = 7e-6
 #: how long a stone lives, spawn to retirement [s]: a default storm holds ~345 stones at
 #: 1 000 stones per second from ~0.4 s on
 STONE_LIFETIME = 0.35
-#: wall time of a frame per surface vertex [s] (the ParaView series and the video: ~10 ms a
-#: frame on the default seat)
-FRAME_SECONDS_PER_VERTEX = 6e-6
+#: wall time of a frame per surface vertex [s]: the one-file series (``bench_estimate.py``: 9.9 s for
+#: the 7 501 frames of a 30 s default storm, 1.3 ms a frame; the ``.vtu`` series of ``--series vtu``
+#: costs about 8 ms a frame, ~5e-6 per vertex, not counted)
+FRAME_SECONDS_PER_VERTEX = 0.8e-6
 #: wall time of the pad's inertia per expected impact [s], read from the material's table
 #: (:mod:`hailstorm.runtime.inertia.table`; ``bench_inertia_table.py``: ~0.5 ms for 99 impacts,
 #: with the impact records' thickness rays ~1 ms in all; an impact off the table's grid is re-run
