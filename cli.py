@@ -301,7 +301,7 @@ def _run_storm(args: argparse.Namespace) -> int:
     if args.gf is not None:
         _warn_seat_ignored(args, seat, gf)
     estimate = scene.estimate(gf.n_vertices, hit_fraction=hit_fraction(gf.vertices, gf.triangles, scene.storm.margin),
-                              video=video, startup=True)  # run_storm checks and logs it
+                              video=video, startup=True, series=series or "vtkhdf")  # run_storm checks and logs it
     with StormOutput(out, gf, video=video, disk_bytes=estimate.disk_bytes,
                      progress=not args.quiet, series=series) as sink:
         result = run_storm(gf, scene, progress=not args.quiet, on_frame=sink.add, allow_large=args.allow_large,

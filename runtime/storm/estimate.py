@@ -50,9 +50,11 @@ MEMORY_FRACTION = 0.8
 BYTES_PER_STONE = 512
 #: memory per step [bytes]: the contact-force history (time, force, contacts)
 BYTES_PER_STEP = 24
-#: disk per frame and surface vertex [bytes]: the seat's VTU (measured ~60 on the
-#: default seat, zlib-compressed float64 fields and the triangles), rounded up
-DISK_BYTES_PER_VERTEX = 80
+#: disk per frame and surface vertex [bytes], by ParaView series: ``"vtu"``, the seat's VTU (measured
+#: ~60 on the default seat, zlib-compressed float64 fields and the triangles); ``"vtkhdf"``, the one
+#: file (``bench_series.py``: 22.2 kB a frame of the 30 s default storm, stones included, ~13 per
+#: vertex); rounded up
+DISK_BYTES_PER_VERTEX: dict[str, int] = {"vtu": 80, "vtkhdf": 16}
 #: wall time of one expected impact's stepping [s]: measured 3.0-3.7 ms per impact on the default
 #: seat (the default storm over 1, 3 and 10 s, at dt 0.2 and 0.5 ms, 300 and 2 000 stones per
 #: second), per impact that :func:`hit_fraction` expects (0.47 of the stones; 0.54 hit, the

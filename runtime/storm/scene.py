@@ -588,7 +588,8 @@ class Scene:
         return max(1, int(round(self.storm.duration / self.time.dt)))
 
     def estimate(self, n_vertices: int | None = None, *, keep_frames: bool = False,
-                 hit_fraction: float | None = None, video: bool = False, startup: bool = False) -> StormEstimate:
+                 hit_fraction: float | None = None, video: bool = False, startup: bool = False,
+                 series: str = "vtkhdf") -> StormEstimate:
         """Steps, stones, frames, memory, disk and wall time of this storm, before it runs.
 
         Parameters
@@ -606,7 +607,11 @@ class Scene:
             The frames are rendered into a video after the storm (the command line's default).
         startup : bool
             Count a warm start of the process (the command line's estimate).
+        series : {"vtkhdf", "vtu"}
+            The ParaView series the frames are written as (their disk).
         """
+        if series not in DISK_BYTES_PER_VERTEX:
+            raise ValueError(f"unknown series format {series!r}; choose from {', '.join(DISK_BYTES_PER_VERTEX)}")
         sc = self.storm
         steps = self.n_steps()
         stones = sc.stones if sc.stones is not None else int(round(sc.rate * sc.duration))
@@ -616,7 +621,7 @@ class Scene:
         memory = BYTES_PER_STEP * steps + BYTES_PER_STONE * high
         if keep_frames and n_vertices is not None:
             memory += frames * (24 * n_vertices + 64)  # two float32 fields per vertex
-        disk = None if n_vertices is None else frames * (DISK_BYTES_PER_VERTEX * n_vertices + 4096)
+        disk = None if n_vertices is None else frames * (DISK_BYTES_PER_VERTEX[series] * n_vertices + 4096)
         extra = {} if hit_fraction is None else {"hit_fraction": float(hit_fraction)}
         return StormEstimate(steps=steps, stones=int(stones), frames=frames, memory_bytes=int(memory),
                              disk_bytes=disk, duration=float(sc.duration), dt=float(self.time.dt),

@@ -85,3 +85,17 @@ def test_the_video_costs_its_subsampled_frames():
     assert e10.frame_seconds == pytest.approx(e10.frames * 1659 * FRAME_SECONDS_PER_VERTEX + video, rel=1e-12)
     assert e30.frame_seconds - e10.frame_seconds == pytest.approx(
         (e30.frames - e10.frames) * 1659 * FRAME_SECONDS_PER_VERTEX, rel=1e-12)
+
+
+def test_the_disk_estimate_follows_the_series():
+    """The one-file series takes a fifth of the .vtu pairs' disk per frame (bench_series.py
+    measures both); an unknown series is refused."""
+    from hailstorm.runtime.storm.estimate import DISK_BYTES_PER_VERTEX
+
+    sc = Scene.default().with_(duration=1.0)
+    one, pairs = (sc.estimate(1659, series=s).disk_bytes for s in ("vtkhdf", "vtu"))
+    assert one == sc.estimate(1659).disk_bytes  # the default
+    frames = sc.estimate(1659).frames
+    assert one == frames * (DISK_BYTES_PER_VERTEX["vtkhdf"] * 1659 + 4096) and 4 * one < pairs
+    with pytest.raises(ValueError, match="unknown series format 'pvd'"):
+        sc.estimate(1659, series="pvd")
