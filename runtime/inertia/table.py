@@ -53,9 +53,9 @@ SPEED_RANGE, SPEED_POINTS = (0.002, 0.3), 20
 #: the layer's thickness the table's runs use [m] (any: the factors are scale-free; this one
 #: keeps the peer's default pad radius at four thicknesses)
 REFERENCE_THICKNESS = 0.015
-#: a storm computes a missing table only for at least this many impacts (a quarter of the
-#: table's points: the table then costs at most four times their direct runs, once per material)
-BUILD_MIN_IMPACTS = SIZE_POINTS * SPEED_POINTS // 4
+#: a storm computes a missing table only for at least this many impacts (the table's points: it then
+#: costs no more than their direct runs, and serves every later storm of the material)
+BUILD_MIN_IMPACTS = SIZE_POINTS * SPEED_POINTS
 #: raise when the table's computation changes (the grid and the peer's resolution are in the key already)
 TABLE_VERSION = 1
 #: where the shipped tables live (the default scene's material)

@@ -112,7 +112,7 @@ class VTKHDFSeries:
         X = np.asarray(gf.vertices, dtype=np.float64)
         tri = np.asarray(gf.triangles, dtype=np.int64)
         self.n = X.shape[0]
-        #: per frame: (t, open contacts, largest |shown displacement|) (the renderer's colour scale reads it)
+        #: per frame: (t, open contacts, the shown displacement's largest norm) (the renderer's colour scale reads it)
         self.entries: list[tuple[float, int, float]] = []
         self._file = h5py.File(self.path, "w", track_order=True)  # VTK reads groups in creation order
         root = self._file.create_group("VTKHDF", track_order=True)
