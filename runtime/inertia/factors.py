@@ -39,6 +39,7 @@ from hailstorm.runtime.inertia.table import (BUILD_MIN_IMPACTS, InertiaTable, av
 
 __all__ = ["InertiaFactors", "inertia_factors"]
 
+
 @dataclass(frozen=True)
 class InertiaFactors:
     """Per impact, the dynamic peer over the quasi-static peer on the local pad (:func:`inertia_factors`).

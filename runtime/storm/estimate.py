@@ -33,7 +33,7 @@ import numpy as np
 from hailstorm.runtime.resources import available_memory
 from hailstorm.runtime.storm.errors import StormTooLarge
 
-__all__ = ["BYTES_PER_STEP", "BYTES_PER_STONE", "CROWD_CONTACTS", "DISK_BYTES_PER_VERTEX", "FLIGHT_SECONDS_PER_STONE_STEP",
+__all__ = ["BYTES_PER_STEP", "BYTES_PER_STONE", "CROWD_CONTACTS", "DISK_BYTES_FIXED", "DISK_BYTES_PER_VERTEX", "FLIGHT_SECONDS_PER_STONE_STEP",
            "FRAME_SECONDS_PER_VERTEX", "IMPACT_SECONDS", "INERTIA_SECONDS_PER_IMPACT", "MAX_SECONDS", "MAX_STEPS",
            "MEMORY_FRACTION", "NEAR_TIME", "STARTUP_SECONDS", "STEP_SECONDS", "STONE_LIFETIME", "VIDEO_FRAMES", "VIDEO_SECONDS_PER_FRAME", "StormEstimate", "count_text", "duration_text",
            "hit_fraction", "size_text"]
@@ -55,6 +55,9 @@ BYTES_PER_STEP = 24
 #: file (``bench_series.py``: 22.2 kB a frame of the 30 s default storm, stones included, ~13 per
 #: vertex); rounded up
 DISK_BYTES_PER_VERTEX: dict[str, int] = {"vtu": 80, "vtkhdf": 16}
+#: disk of a storm's outputs whatever its frames [bytes], by series: the one file's fixed part
+#: (its datasets' first chunks; measured ~0.2 MB on a small seat)
+DISK_BYTES_FIXED: dict[str, int] = {"vtu": 0, "vtkhdf": 256 * 1024}
 #: wall time of one expected impact's stepping [s]: measured 3.0-3.7 ms per impact on the default
 #: seat (the default storm over 1, 3 and 10 s, at dt 0.2 and 0.5 ms, 300 and 2 000 stones per
 #: second), per impact that :func:`hit_fraction` expects (0.47 of the stones; 0.54 hit, the

@@ -32,7 +32,8 @@ from hailstorm.runtime.contact.near_field import NEAR_FIELDS
 from hailstorm.runtime.contact.validate import ContactMode, Mode
 from hailstorm.runtime.resources import available_memory  # noqa: F401 (re-exported by the old hailstorm.runtime.scene)
 from hailstorm.runtime.storm.errors import SceneError, StormTooLarge
-from hailstorm.runtime.storm.estimate import BYTES_PER_STEP, BYTES_PER_STONE, DISK_BYTES_PER_VERTEX, StormEstimate
+from hailstorm.runtime.storm.estimate import (BYTES_PER_STEP, BYTES_PER_STONE, DISK_BYTES_FIXED, DISK_BYTES_PER_VERTEX,
+                                              StormEstimate)
 from hailstorm.runtime.storm.hail import GRAVITY, INTEGRATORS, Integrator, SizeDistribution, terminal_velocity
 from hailstorm.runtime.storm.limits import PAD_DENSITY
 
@@ -621,7 +622,8 @@ class Scene:
         memory = BYTES_PER_STEP * steps + BYTES_PER_STONE * high
         if keep_frames and n_vertices is not None:
             memory += frames * (24 * n_vertices + 64)  # two float32 fields per vertex
-        disk = None if n_vertices is None else frames * (DISK_BYTES_PER_VERTEX[series] * n_vertices + 4096)
+        disk = None if n_vertices is None else (frames * (DISK_BYTES_PER_VERTEX[series] * n_vertices + 4096)
+                                                + DISK_BYTES_FIXED[series])
         extra = {} if hit_fraction is None else {"hit_fraction": float(hit_fraction)}
         return StormEstimate(steps=steps, stones=int(stones), frames=frames, memory_bytes=int(memory),
                              disk_bytes=disk, duration=float(sc.duration), dt=float(self.time.dt),

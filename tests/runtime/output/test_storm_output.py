@@ -147,14 +147,15 @@ def test_estimate_matches_the_run(gf):
         assert est.stones == res.stats["hailstones"]
 
 
-def test_disk_estimate_bounds_the_written_output(seat_bundle, tmp_path):
+@pytest.mark.parametrize("series", ["vtkhdf", "vtu"])
+def test_disk_estimate_bounds_the_written_output(seat_bundle, tmp_path, series):
     from hailstorm.runtime.bundle.read import load
 
     g = load(seat_bundle)
     sc = Scene.from_flat(duration=0.04, stones=4, seed=3, spawn_height=0.01)
-    _run_into(tmp_path / "run", g, sc)
+    _run_into(tmp_path / "run", g, sc, series=series)
     written = sum(p.stat().st_size for p in (tmp_path / "run").rglob("*") if p.is_file())
-    est = sc.estimate(g.n_vertices).disk_bytes
+    est = sc.estimate(g.n_vertices, series=series).disk_bytes
     assert written <= est <= 3 * written
 
 

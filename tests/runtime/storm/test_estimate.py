@@ -90,12 +90,13 @@ def test_the_video_costs_its_subsampled_frames():
 def test_the_disk_estimate_follows_the_series():
     """The one-file series takes a fifth of the .vtu pairs' disk per frame (bench_series.py
     measures both); an unknown series is refused."""
-    from hailstorm.runtime.storm.estimate import DISK_BYTES_PER_VERTEX
+    from hailstorm.runtime.storm.estimate import DISK_BYTES_FIXED, DISK_BYTES_PER_VERTEX
 
     sc = Scene.default().with_(duration=1.0)
     one, pairs = (sc.estimate(1659, series=s).disk_bytes for s in ("vtkhdf", "vtu"))
     assert one == sc.estimate(1659).disk_bytes  # the default
     frames = sc.estimate(1659).frames
-    assert one == frames * (DISK_BYTES_PER_VERTEX["vtkhdf"] * 1659 + 4096) and 4 * one < pairs
+    assert one == frames * (DISK_BYTES_PER_VERTEX["vtkhdf"] * 1659 + 4096) + DISK_BYTES_FIXED["vtkhdf"]
+    assert 4 * one < pairs
     with pytest.raises(ValueError, match="unknown series format 'pvd'"):
         sc.estimate(1659, series="pvd")
