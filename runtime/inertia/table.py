@@ -17,7 +17,7 @@ moves no factor by 1e-4). Lengths scale with ``h``, stresses with ``E``, times w
 A table is computed once per machine and material (:func:`inertia_table`: 400 peer runs,
 about 30-60 s, with a progress bar), written to hailstorm's cache directory
 (``inertia_table/<key>.npz``, atomically; a file that cannot be read or written is passed
-by) and kept per process; the default scene's material ships with the package (``tables/``,
+by) and kept per process; the default scene's material ships with the package (``inertia_table_<key>.npz`` beside this module,
 written by ``python -m hailstorm.runtime.inertia.table``), so its first storm does not pay it. A storm of a material without a table computes one only
 when it has at least :data:`BUILD_MIN_IMPACTS` impacts to measure (fewer are cheaper run
 directly, :func:`available_table`).
@@ -58,8 +58,9 @@ REFERENCE_THICKNESS = 0.015
 BUILD_MIN_IMPACTS = SIZE_POINTS * SPEED_POINTS
 #: raise when the table's computation changes (the grid and the peer's resolution are in the key already)
 TABLE_VERSION = 1
-#: where the shipped tables live (the default scene's material)
-SHIPPED = Path(__file__).resolve().parent / "tables"
+#: where the shipped tables live (the default scene's material): beside this module, as
+#: ``inertia_table_<key>.npz``
+SHIPPED = Path(__file__).resolve().parent
 
 
 def mass_ratio_key(ratio: float) -> float:
@@ -266,7 +267,7 @@ def available_table(poisson: float, mass_ratio: float) -> InertiaTable | None:
     key = (float(poisson), mass_ratio_key(mass_ratio))
     if key not in _TABLES:
         name = f"{_key(*key, {})}.npz"
-        for path in (SHIPPED / name, default_cache_dir() / "inertia_table" / name):
+        for path in (SHIPPED / f"inertia_table_{name}", default_cache_dir() / "inertia_table" / name):
             found = _read(path, *key)
             if found is not None:
                 _TABLES[key] = found
@@ -308,7 +309,7 @@ def inertia_table(poisson: float, mass_ratio: float, *, progress: bool = False) 
 
 def shipped_path(poisson: float, mass_ratio: float) -> Path:
     """Where the package's table of a material lives (whether or not it ships one)."""
-    return SHIPPED / f"{_key(poisson, mass_ratio_key(mass_ratio), {})}.npz"
+    return SHIPPED / f"inertia_table_{_key(poisson, mass_ratio_key(mass_ratio), {})}.npz"
 
 
 if __name__ == "__main__":  # pragma: no cover - writes the shipped table of the default scene's material
