@@ -633,6 +633,12 @@ class StormOutput:
             self._release()
             raise OutputError(f"--out {out} was written by another run while this storm ran; not replacing it: "
                               f"this storm's results are in {staging}")
+        for where, what in ((staging.parent, "its folder"), (out, "--out")):
+            if where.exists() and not _writable(where):  # made read-only during the run: nothing is replaced
+                self.staging = None  # kept (the message names it), not removed by abort()
+                self._release()
+                raise OutputError(f"cannot put the results in place: {what} {where} became read-only during the "
+                                  f"run; --out is as it was, and this storm's results are in {staging}")
         (staging / _PARTIAL_LOCK).unlink(missing_ok=True)  # the flock stays on the open descriptor
         umask = os.umask(0)
         os.umask(umask)
@@ -643,12 +649,16 @@ class StormOutput:
                 self._release()
                 raise OutputError(f"--out {out} changed during the run and now holds other files; "
                                   f"the results are in {staging}")
-            old = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=staging.parent))
+            old = Path(tempfile.mkdtemp(prefix=f".{out.name}{_OLD}", dir=staging.parent))
             old.rmdir()
             os.replace(out, old)
             os.replace(staging, out)
             self.committed = True
-            _remove_storm_output(old)
+            try:
+                _remove_storm_output(old)
+            except OSError as exc:  # the new output is in place: the old one's removal is the next run's
+                _log.warning("the storm's outputs are in %s; the output it replaced could not be removed from %s "
+                             "(%s): the next storm beside it removes it", out, old, exc.strerror or exc)
         else:
             os.replace(staging, out)  # a new name, or over an empty directory
             self.committed = True
@@ -672,6 +682,13 @@ class StormOutput:
 
 #: the infix of a storm's temporary output directory, ``.OUT.partial-XXXX``
 _PARTIAL = ".partial-"
+#: the infix of a replaced storm output on its way out, ``.OUT.old-XXXX``
+_OLD = ".old-"
+
+
+def _writable(path: Path) -> bool:
+    """Whether this process may create and remove entries in the directory ``path``."""
+    return os.access(path, os.W_OK | os.X_OK)
 #: a file in that directory that its writer holds an flock on for as long as it runs
 _PARTIAL_LOCK = ".hailstorm-writing"
 
@@ -721,19 +738,33 @@ def _running_partials(out: Path) -> list[Path]:
 def clean_stale_partials(out: str | os.PathLike) -> list[Path]:
     """Remove the temporary directories (``.NAME.partial-*``) that killed storms
     (SIGKILL, a power cut) left beside ``out``, whatever ``--out`` they were writing
-    (as bundle writers clean their whole folder); returns the removed paths.
+    (as bundle writers clean their whole folder), and the replaced outputs
+    (``.NAME.old-*``) a storm could not remove; returns the removed paths.
 
     Only a directory whose writer's lock file is present and not locked is removed
     (its writer is gone); a running storm's, or one without the lock file (not
-    certainly ours), is left alone.
+    certainly ours), is left alone. Of a replaced output only the files its storm
+    manifest lists go (as when it was replaced).
     """
     out = Path(out)
     parent = out.absolute().parent
     removed: list[Path] = []
     try:
         candidates = sorted(parent.glob(f".*{_PARTIAL}*"))
+        replaced = sorted(parent.glob(f".*{_OLD}*"))
     except OSError:
         return removed
+    for d in replaced:
+        if d.is_symlink() or not d.is_dir() or not (d / STORM_MANIFEST).is_file():
+            continue
+        try:
+            _remove_storm_output(d)
+        except OSError as exc:
+            _log.warning("could not remove a replaced storm output %s (%s)", d, exc.strerror or exc)
+            continue
+        if not d.exists():
+            _log.info("removed a replaced storm output %s", d)
+            removed.append(d)
     for d in candidates:
         lock = d / _PARTIAL_LOCK
         if d.is_symlink() or not d.is_dir() or not lock.is_file():

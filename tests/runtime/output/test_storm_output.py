@@ -220,3 +220,47 @@ def test_the_warm_up_covers_the_scenes_kernels_in_announced_tasks(gf, integrator
     point = storm_mod.Storm(gf, _scene(integrator=integrator, patch="none"), warm=False)
     assert point.warm_report is None
     assert "the patch-compliance kernel" in [t.name for t in point.warm_tasks()]
+
+
+def test_an_old_output_that_cannot_be_removed_is_swept_by_the_next_storm(gf, tmp_path, monkeypatch, caplog):
+    """The previous output could not be removed once the new one was in place (read-only files): the
+    storm is complete (no error), warns once naming the leftover, and the next storm beside it
+    removes it (the files its manifest lists)."""
+    import hailstorm.runtime.output.files as files
+
+    out = tmp_path / "run"
+    _run_into(out, gf, _scene())
+    real = files._remove_storm_output
+
+    def denied(path):
+        raise PermissionError(13, "Permission denied", str(path))
+
+    monkeypatch.setattr(files, "_remove_storm_output", denied)
+    with caplog.at_level(logging.WARNING, logger="hailstorm.runtime.output.files"):
+        second = _run_into(out, gf, _scene(seed=7))
+    assert json.loads((out / "summary.json").read_text()) == second
+    left = [p for p in tmp_path.iterdir() if p.name.startswith(".run.old-")]
+    assert len(left) == 1 and (left[0] / STORM_MANIFEST).is_file()
+    assert [r.getMessage() for r in caplog.records if "could not be removed" in r.getMessage()][0].count(str(left[0])) == 1
+    monkeypatch.setattr(files, "_remove_storm_output", real)
+    _run_into(tmp_path / "other", gf, _scene(duration=0.02))  # a storm beside it sweeps it
+    assert not left[0].exists() and sorted(p.name for p in tmp_path.iterdir()) == ["other", "run"]
+
+
+@pytest.mark.parametrize("which", ["parent", "out"])
+def test_an_output_made_read_only_during_the_run_is_left_as_it_was(gf, tmp_path, monkeypatch, which):
+    """--out (or its folder) made read-only while the storm ran: nothing is replaced, the error says
+    where the results are (exit 3 on the command line: the output is not in place), and the
+    results are complete there."""
+    import hailstorm.runtime.output.files as files
+
+    out = tmp_path / "run"
+    first = _run_into(out, gf, _scene())
+    target = out if which == "out" else tmp_path
+    monkeypatch.setattr(files, "_writable", lambda p: Path(p) != target)
+    with pytest.raises(OutputError, match=r"became read-only during the run; --out is as it was, and this storm's "
+                                          r"results are in .*\.run\.partial-") as err:
+        _run_into(out, gf, _scene(seed=7))
+    assert json.loads((out / "summary.json").read_text()) == first  # the old output, untouched
+    kept = Path(str(err.value).rsplit(" ", 1)[-1])
+    assert json.loads((kept / "summary.json").read_text())["hailstones"] == 6
