@@ -604,5 +604,6 @@ def compress_bundle(src: str | os.PathLike, out: str | os.PathLike, tol: float, 
     manifest["compliance"] = compliance_record(c, source_key=gf.manifest["key"])
     arrays: dict[str, Any] = {k: getattr(gf, k) for k in ARRAY_SPECS if k != "compliance"}
     arrays.update(c.H.to_arrays())
-    return write_bundle(out, arrays, manifest)
+    in_place = Path(gf.path).absolute() == out  # replacing its own source: nobody else's bundle
+    return write_bundle(out, arrays, manifest, expect_key=gf.manifest["key"] if in_place else None)
 

@@ -210,6 +210,14 @@ def _debris(parent: Path) -> dict[str, list[Path]]:
     return found
 
 
+def _key_of(out: Path) -> str | None:
+    """The key of the bundle at ``out`` (None: none there, or none readable)."""
+    try:
+        return str(bundle_format.read_manifest(out)["key"]) if bundle_format.is_bundle(out) else None
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
+
+
 def check_writable(directory: str | os.PathLike) -> None:
     """Raise :class:`BundleError` unless a bundle can be created in ``directory``.
 
@@ -347,6 +355,8 @@ def write_bundle(
     out: str | os.PathLike,
     arrays: Mapping[str, np.ndarray | StagedArray],
     manifest: Mapping[str, Any],
+    *,
+    expect_key: str | None = None,
 ) -> Path:
     """Write a bundle atomically.
 
@@ -369,6 +379,10 @@ def write_bundle(
         Metadata (options, material, key, timings...). ``format``,
         ``format_version``, ``arrays`` and ``manifest_sha256`` entries are
         added here.
+    expect_key : str, optional
+        The key of the bundle this one replaces (its source, for a copy written over it):
+        once the lock is held, a bundle at ``out`` with another key than it or this one's
+        was written by another run meanwhile, and is not replaced (:class:`BundleError`).
 
     Returns
     -------
@@ -402,6 +416,12 @@ def write_bundle(
     with bundle_lock(out):
         clean_stale_temporaries(out.parent)
         check_replaceable(out)
+        if expect_key is not None:
+            now = _key_of(out)
+            if now is not None and now not in (expect_key, manifest.get("key")):
+                raise BundleError(f"--out {out} was just written by another run with other inputs (key {now[:12]}) "
+                                  "while this one worked on it; not replacing that run's bundle: choose another "
+                                  "--out, or run again to replace it")
         tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}{_TMP}", dir=out.parent))
         try:
             entries = {}

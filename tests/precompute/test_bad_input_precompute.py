@@ -812,3 +812,30 @@ def test_the_block_example_at_12_mm_p2_builds_with_the_default_solver(tmp_path):
     Da, Db = np.asarray(a.D), np.asarray(b.D)
     assert Da.shape == Db.shape
     assert np.abs(Da - Db).max() <= 1e-8 * np.abs(Db).max()
+
+
+def test_a_compression_that_waited_for_another_tolerance_is_refused(small_box, tmp_path, monkeypatch):
+    """Two precomputes of one --out at two tolerances (--tol 1e-2 and 1e-3) compress the same dense
+    source in place: the one that takes the lock second finds the other's compressed bundle and
+    refuses (one line), as two dense writers with other inputs do; the other's bundle stays. (The
+    other writer's compression is played inside the lock's wait.)"""
+    import contextlib
+
+    import hailstorm.runtime.bundle.write as write
+    from hailstorm.precompute.hmatrix import compress_bundle
+
+    out = build_bundle(tmp_path / "b", mesh=small_box)
+    real_lock = write.bundle_lock
+
+    @contextlib.contextmanager
+    def lock_after_the_other_writer(path, **kw):
+        monkeypatch.setattr(write, "bundle_lock", real_lock)
+        compress_bundle(out, out, 1e-2)  # the other writer, done while we waited
+        with real_lock(path, **kw) as held:
+            yield held
+
+    monkeypatch.setattr(write, "bundle_lock", lock_after_the_other_writer)
+    with pytest.raises(BundleError, match="was just written by another run with other inputs"):
+        compress_bundle(out, out, 1e-3)
+    assert load(out).manifest["compliance"]["tol"] == 1e-2
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".")]
