@@ -135,6 +135,7 @@ def _parser() -> argparse.ArgumentParser:
 def _storm_args(p: argparse.ArgumentParser) -> None:
     from hailstorm.runtime.storm.scene import Scene  # noqa: PLC0415 (the packaged default scene, for the help texts)
     from hailstorm.runtime.storm.hail import INTEGRATORS
+    from hailstorm.runtime.output.files import SERIES_FORMATS
 
     d = Scene.default()
     p.add_argument("--duration", type=_positive_float, default=None,
@@ -150,7 +151,7 @@ def _storm_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scene", type=Path, default=None, help="TOML scene file holding every storm setting")
     p.add_argument("--out", type=Path, default=Path("hailstorm-out"), help="output directory (default ./hailstorm-out)")
     p.add_argument("--no-video", action="store_true", help="skip the animation")
-    p.add_argument("--series", choices=("vtkhdf", "vtu"), default=None,
+    p.add_argument("--series", choices=SERIES_FORMATS, default=None,
                    help="the ParaView time series: one storm.vtkhdf (VTK >= 9.4, ParaView >= 5.13; default when "
                         "h5py is installed) or storm.pvd with two .vtu files per frame (older readers)")
     p.add_argument("--allow-large", action="store_true",

@@ -90,6 +90,7 @@ from hailstorm.runtime.bundle.format import (
     FORMAT_VERSION,
     BundleError,
     RoundedBlock,
+    bundle_key,
     is_bundle,
     read_manifest,
 )
@@ -382,9 +383,9 @@ def build_bundle(
         final_key = streamed_key(key, compress_tol) if stream else compressed_key(key, compress_tol)
     if out is None:
         out = (default_cache_dir() / final_key[:16]).absolute()
-    before = _key_at(out)
+    before = bundle_key(out)
     with bundle_lock(out):  # waits for another writer of `out`
-        now = _key_at(out)  # (before a stranded bundle is put back: that is no other run's fresh result)
+        now = bundle_key(out)  # (before a stranded bundle is put back: that is no other run's fresh result)
         if now is not None and now != before and now not in (key, final_key):
             raise BundleError(f"--out {out} was just written by another run with other inputs (key {now[:12]}) "
                               "while this one waited for it; not replacing that run's bundle: choose another "
@@ -423,14 +424,6 @@ def build_bundle(
         return compress_bundle(out, out, compress_tol, key=final_key, progress=progress)
     except OSError as exc:
         raise BundleError(f"cannot write bundle {out}: {exc.strerror or exc} ({exc.filename or out})") from exc
-
-
-def _key_at(out: Path) -> str | None:
-    """The key of the bundle at ``out``, or None (no bundle, or none readable)."""
-    try:
-        return str(read_manifest(out)["key"]) if is_bundle(out) else None
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
 
 
 #: how often (seconds of solving) a streamed compression checkpoints its state

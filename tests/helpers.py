@@ -14,7 +14,7 @@ from hailstorm.precompute.blocks import BlockStore
 from hailstorm.precompute.greens import ColumnProblem
 from hailstorm.runtime.bundle.read import GreensFunctions
 
-__all__ = ["Interrupt", "count_solves", "interrupt_after", "plate_gf"]
+__all__ = ["Interrupt", "count_solves", "ctrl_c_at_frame", "interrupt_after", "plate_gf"]
 
 
 def plate_gf(n: int = 13, size: float = 0.12, young: float = 2e6, poisson: float = 0.35,
@@ -86,3 +86,15 @@ def interrupt_after(monkeypatch, n):
 
     monkeypatch.setattr(BlockStore, "write", write)
     return written
+
+
+def ctrl_c_at_frame(n):
+    """A storm's ``on_frame`` callback that raises Ctrl-C (KeyboardInterrupt) at its ``n``-th frame."""
+    seen = []
+
+    def on_frame(frame):
+        seen.append(frame.t)
+        if len(seen) == n:
+            raise KeyboardInterrupt
+
+    return on_frame

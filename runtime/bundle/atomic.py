@@ -69,6 +69,14 @@ def write_text_atomic(path: str | os.PathLike, text: str) -> Path:
     return Path(path)
 
 
+def _nearest_existing(path: Path) -> Path:
+    """``path`` (made absolute), or its nearest ancestor that exists."""
+    probe = path.absolute()
+    while not probe.exists() and probe != probe.parent:
+        probe = probe.parent
+    return probe
+
+
 def probe_writable(directory: str | os.PathLike) -> Path:
     """Check that ``directory`` can be written, or created, before any work is done.
 
@@ -90,9 +98,7 @@ def probe_writable(directory: str | os.PathLike) -> Path:
     OSError
         It cannot be written.
     """
-    probe = Path(directory).absolute()
-    while not probe.exists() and probe != probe.parent:
-        probe = probe.parent
+    probe = _nearest_existing(Path(directory))
     if not probe.is_dir():
         raise NotADirectoryError(0, "not a directory", str(probe))
     fd, name = tempfile.mkstemp(prefix=".hailstorm-probe-", dir=probe)
@@ -114,9 +120,7 @@ def sibling_name_problem(path: str | os.PathLike, infix: str) -> str | None:
     never gave.
     """
     path = Path(path)
-    probe = path.absolute().parent
-    while not probe.exists() and probe != probe.parent:
-        probe = probe.parent
+    probe = _nearest_existing(path.absolute().parent)
     try:
         limit = os.pathconf(probe, "PC_NAME_MAX")
     except (OSError, ValueError, AttributeError):  # pragma: no cover - not POSIX, or no such limit

@@ -67,6 +67,7 @@ __all__ = [
     "array_hash",
     "array_specs",
     "bundle_files",
+    "bundle_key",
     "check_compliance_dtype",
     "check_manifest",
     "compliance_dtype",
@@ -241,6 +242,14 @@ def round_block(values: np.ndarray, dtype: str | np.dtype) -> RoundedBlock:
         err = float(np.abs(diff).max())
         del diff
     return RoundedBlock(stored, scale, err)
+
+
+def bundle_key(path: str | os.PathLike) -> str | None:
+    """The key of the bundle at ``path``, or None (no bundle there, or none readable)."""
+    try:
+        return str(read_manifest(path)["key"]) if is_bundle(path) else None
+    except (OSError, ValueError, KeyError, TypeError):
+        return None
 
 
 def is_bundle(path: str | os.PathLike) -> bool:

@@ -57,6 +57,7 @@ from hailstorm.runtime.bundle.format import (
     READ_VERSIONS,
     array_specs,
     bundle_files,
+    bundle_key,
     check_compliance_dtype,
     check_manifest,
     is_bundle,
@@ -208,14 +209,6 @@ def _debris(parent: Path) -> dict[str, list[Path]]:
         if i > 1 and e.is_dir(follow_symlinks=False):
             found.setdefault(n[1:i], []).append(Path(e.path))
     return found
-
-
-def _key_of(out: Path) -> str | None:
-    """The key of the bundle at ``out`` (None: none there, or none readable)."""
-    try:
-        return str(bundle_format.read_manifest(out)["key"]) if bundle_format.is_bundle(out) else None
-    except (OSError, ValueError, KeyError, TypeError):
-        return None
 
 
 def check_writable(directory: str | os.PathLike) -> None:
@@ -417,7 +410,7 @@ def write_bundle(
         clean_stale_temporaries(out.parent)
         check_replaceable(out)
         if expect_key is not None:
-            now = _key_of(out)
+            now = bundle_key(out)
             if now is not None and now not in (expect_key, manifest.get("key")):
                 raise BundleError(f"--out {out} was just written by another run with other inputs (key {now[:12]}) "
                                   "while this one worked on it; not replacing that run's bundle: choose another "

@@ -261,13 +261,10 @@ def available_table(poisson: float, mass_ratio: float) -> InertiaTable | None:
     -------
     InertiaTable or None
     """
-    from hailstorm.runtime.bundle.stamps import default_cache_dir
-
     _check(poisson, mass_ratio)
     key = (float(poisson), mass_ratio_key(mass_ratio))
     if key not in _TABLES:
-        name = f"{_key(*key, {})}.npz"
-        for path in (SHIPPED / f"inertia_table_{name}", default_cache_dir() / "inertia_table" / name):
+        for path in (shipped_path(*key), _cached_path(*key)):
             found = _read(path, *key)
             if found is not None:
                 _TABLES[key] = found
@@ -292,15 +289,13 @@ def inertia_table(poisson: float, mass_ratio: float, *, progress: bool = False) 
     -------
     InertiaTable
     """
-    from hailstorm.runtime.bundle.stamps import default_cache_dir
-
     found = available_table(poisson, mass_ratio)
     if found is not None:
         return found
     key = (float(poisson), mass_ratio_key(mass_ratio))
     table = build_inertia_table(*key, progress=progress)
     try:
-        write_table(default_cache_dir() / "inertia_table" / f"{_key(*key, {})}.npz", table)
+        write_table(_cached_path(*key), table)
     except OSError as exc:
         _log.debug("could not cache the inertia table (%s)", exc)
     _TABLES[key] = table
@@ -310,6 +305,13 @@ def inertia_table(poisson: float, mass_ratio: float, *, progress: bool = False) 
 def shipped_path(poisson: float, mass_ratio: float) -> Path:
     """Where the package's table of a material lives (whether or not it ships one)."""
     return SHIPPED / f"inertia_table_{_key(poisson, mass_ratio_key(mass_ratio), {})}.npz"
+
+
+def _cached_path(poisson: float, mass_ratio: float) -> Path:
+    """Where this machine's table of a material is cached (hailstorm's cache directory)."""
+    from hailstorm.runtime.bundle.stamps import default_cache_dir
+
+    return default_cache_dir() / "inertia_table" / f"{_key(poisson, mass_ratio_key(mass_ratio), {})}.npz"
 
 
 if __name__ == "__main__":  # pragma: no cover - writes the shipped table of the default scene's material

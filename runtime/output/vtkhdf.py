@@ -112,8 +112,8 @@ class VTKHDFSeries:
         X = np.asarray(gf.vertices, dtype=np.float64)
         tri = np.asarray(gf.triangles, dtype=np.int64)
         self.n = X.shape[0]
-        #: per frame: (t, open contacts, the shown displacement's largest norm) (the renderer's colour scale reads it)
-        self.entries: list[tuple[float, int, float]] = []
+        #: frames written (their times, contacts and largest shown displacements are in ``/hailstorm``)
+        self.frames_written = 0
         self._file = h5py.File(self.path, "w", track_order=True)  # VTK reads groups in creation order
         root = self._file.create_group("VTKHDF", track_order=True)
         _type(root, "PartitionedDataSetCollection")
@@ -169,11 +169,11 @@ class VTKHDFSeries:
         self._own = {name: own[name] for name in ("time", "contacts", "peak_norm")}
 
     def __len__(self) -> int:
-        return len(self.entries)
+        return self.frames_written
 
     def add(self, frame: Any) -> None:
         """Append one :class:`hailstorm.runtime.storm.recording.Frame`."""
-        i = len(self.entries)
+        i = self.frames_written
         u = np.asarray(frame.displacement, dtype=np.float32).reshape(self.n, 3)
         peak = np.asarray(shown_displacement(frame), dtype=np.float32).reshape(self.n, 3)
         for ds, field in zip(self._seat_fields, (u, peak)):  # the large rows: written as they come
@@ -205,14 +205,14 @@ class VTKHDFSeries:
         for name, value in (("time", [t]), ("contacts", [int(frame.contacts)]), ("peak_norm", [umax])):
             buf.add(self._own[name], value)
         buf.end_frame()
-        self.entries.append((t, int(frame.contacts), umax))
+        self.frames_written += 1
 
     def close(self) -> Path:
         """Finish and close the file; returns its path."""
         if self._file.id.valid:
             self._buffer.flush()
             for steps in self._steps.values():
-                steps["group"].attrs["NSteps"] = np.int64(len(self.entries))
+                steps["group"].attrs["NSteps"] = np.int64(self.frames_written)
             self._file.close()
         return self.path
 

@@ -88,13 +88,11 @@ def random_points(n: int, rebuild: bool) -> None:
 
 def default_storm(duration: float) -> None:
     import hailstorm.runtime
-    from hailstorm.precompute import build_bundle
+    from studies.resolution_study import seat_bundle
     from hailstorm.runtime.inertia.factors import inertia_factors
     from hailstorm.runtime.storm.scene import Scene, SeatSettings
 
-    seat = SeatSettings.default()
-    gf = hailstorm.runtime.load(build_bundle(None, mesh_size=seat.mesh_size, order=seat.order, load=seat.load,
-                                             young=seat.young, poisson=seat.poisson, progress=False))
+    gf = seat_bundle(SeatSettings.default().mesh_size)
     scene = Scene.default().with_(duration=duration, inertia=False)
     res = hailstorm.runtime.run_storm(gf, scene, progress=False)
     lim = res.stats.validity

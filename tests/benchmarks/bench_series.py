@@ -29,14 +29,12 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "notebooks"))
 
 def run(duration: float) -> None:
     import hailstorm.runtime
-    from hailstorm.precompute import build_bundle
+    from studies.resolution_study import seat_bundle
     from hailstorm.runtime.output.files import ParaviewSeries
     from hailstorm.runtime.output.vtkhdf import VTKHDFSeries, read_vtkhdf_frame
     from hailstorm.runtime.storm.scene import Scene, SeatSettings
 
-    seat = SeatSettings.default()
-    gf = hailstorm.runtime.load(build_bundle(None, mesh_size=seat.mesh_size, order=seat.order, load=seat.load,
-                                             young=seat.young, poisson=seat.poisson, progress=False))
+    gf = seat_bundle(SeatSettings.default().mesh_size)
     scene = Scene.default().with_(duration=duration, inertia=False)
     with tempfile.TemporaryDirectory() as tmp_name:
         tmp = Path(tmp_name)

@@ -12,6 +12,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from helpers import ctrl_c_at_frame
+
 from hailstorm.cli import main
 from hailstorm.runtime.output.files import STORM_MANIFEST, OutputError, StormOutput
 from hailstorm.runtime.storm.scene import Scene
@@ -73,13 +75,7 @@ def test_interrupted_run_leaves_nothing_and_keeps_the_previous_output(gf, tmp_pa
     out = tmp_path / "run"
     first = _run_into(out, gf, _scene())
     before = {f: (out / f).read_bytes() for f in _all_files(out)}
-    calls = []
-
-    def interrupt(frame):
-        calls.append(frame.t)
-        if len(calls) == 3:
-            raise KeyboardInterrupt
-
+    interrupt = ctrl_c_at_frame(3)
     with pytest.raises(KeyboardInterrupt):
         with StormOutput(out, gf, video=False, series="vtu") as sink:
             run_storm(gf, _scene(seed=5), progress=False, on_frame=lambda f: (sink.add(f), interrupt(f)))
@@ -89,7 +85,7 @@ def test_interrupted_run_leaves_nothing_and_keeps_the_previous_output(gf, tmp_pa
     # and a first run that is interrupted leaves no directory at all
     with pytest.raises(KeyboardInterrupt):
         with StormOutput(tmp_path / "new", gf, video=False, series="vtu") as sink:
-            calls.clear()
+            interrupt = ctrl_c_at_frame(3)
             run_storm(gf, _scene(), progress=False, on_frame=lambda f: (sink.add(f), interrupt(f)))
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]
 

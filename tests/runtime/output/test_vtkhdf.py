@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers import ctrl_c_at_frame
 
 from hailstorm.runtime.output.files import STORM_MANIFEST, StormOutput
 from hailstorm.runtime.output.vtkhdf import VTKHDFFrames, read_vtkhdf_frame
@@ -138,13 +139,7 @@ def test_an_interrupted_storm_leaves_no_file(seat_bundle, tmp_path):
     import hailstorm.runtime
 
     gf = hailstorm.runtime.load(seat_bundle)
-    calls = []
-
-    def interrupt(frame):
-        calls.append(frame.t)
-        if len(calls) == 3:
-            raise KeyboardInterrupt
-
+    interrupt = ctrl_c_at_frame(3)
     with pytest.raises(KeyboardInterrupt):
         with StormOutput(tmp_path / "out", gf, video=False, series="vtkhdf") as sink:
             run_storm(gf, _scene(), progress=False, on_frame=lambda f: (sink.add(f), interrupt(f)))
