@@ -121,7 +121,7 @@ SUMMARY_UNITS: dict[str, str | None] = {
     "hailstones": "count", "impacts": "count", "stones_hit": "count", "max_contact_force": "N",
     "max_contact_force_N": "N", "max_indentation_m": "m", "max_simultaneous_contacts": "count",
     "max_penetration_m": "m", "steps": "count", "substeps": "count", "capacitance_rebuilds": "count",
-    "wall_contacts": "count", "retired": "count", "max_penetration_contact_m": "m", "max_penetration_free_m": "m",
+    "wall_contacts": "count", "stone_collisions": "count", "max_stone_collision_force_N": "N", "retired": "count", "max_penetration_contact_m": "m", "max_penetration_free_m": "m",
     "max_penetration_contact_rel": "1", "patch": None, "patch_weights_computed": "count",
     "patch_weights_reused": "count", "patch_resizes": "count", "max_patch_radius_m": "m",
     "mean_penetration_contact_m": "m", "sim_time_s": "s", "wall_time_s": "s", "setup_time_s": "s",

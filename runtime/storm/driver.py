@@ -206,6 +206,7 @@ from hailstorm.runtime.storm.recording import Frame, Recorder, StormResult, Stor
 from hailstorm.runtime.storm.scene import Scene, SceneError
 from hailstorm.runtime.storm.seat import SeatState
 from hailstorm.runtime.storm.soft_contacts import SoftContacts
+from hailstorm.runtime.storm.stone_collisions import StoneCollisions
 from hailstorm.runtime.storm.stones import SpawnPlan, StoneError, Stones, check_stones
 from hailstorm.runtime.storm.warmup import HelperSpec, WarmReport, WarmTask, measured_seconds, warm_up
 
@@ -258,6 +259,8 @@ class Storm:
         self.contacts = SoftContacts(contact, scene.time, sets, self.patches, self.integrator, self.seat, air,
                                      scene.validity.pad_density, scene.validity.inertia)
         self.stats = StormStats(patch=contact.patch)
+        #: collisions between stones (None: off, ``[hail] collisions``)
+        self.stone_collisions = StoneCollisions(contact.restitution) if hail.collisions else None
         self.t = 0.0
         #: stones retired below the seat inside its footprint without ever touching it
         self.fell_through = 0
@@ -275,6 +278,8 @@ class Storm:
             early = (due[:, 0] - self.t)[:, None]
             st.hailstones += stones.add(due[:, 1:4] - early * due[:, 4:7], due[:, 4:7], due[:, 7]).size
         live = stones.live()
+        pairs = self.stone_collisions
+        pos0 = stones.pos.copy() if pairs is not None else None  # (the step's paths start here)
         near, far = self.collision.near_set(stones, live, dt, seat.umax_step) if live.size else (live, live)
         if far.size:
             self.collision.fly(stones, far, dt)
@@ -291,6 +296,8 @@ class Storm:
                 n_sub += 1
         elif seat.loaded:
             self.contacts.release()
+        if pairs is not None and pos0 is not None:
+            pairs.resolve(stones, live, pos0, dt, st)
         gone = self.collision.retired(stones, live) if live.size else live
         if gone.size:
             self.fell_through += self._below_footprint(gone)
@@ -371,6 +378,9 @@ class Storm:
             task(f"the {sc.integrator} integrator's kernels",
                  lambda: self.integrator.warm_up(stones, self._k_tri(), self.g, dt)),
         ]
+        if self.stone_collisions is not None:
+            pairs = self.stone_collisions
+            tasks.append(task("the stone-collision kernels", lambda: pairs.warm_up(stones)))
         if t >= 0:
             tasks.insert(2, task("the contact-set kernels", lambda: self.contacts.sets.warm_up(t)))
             tasks.insert(3, task("the patch kernels" if self.patches.enabled else "the patch-compliance kernel",

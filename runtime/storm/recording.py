@@ -98,6 +98,9 @@ class StormStats(Mapping):
     substeps: int = 0
     capacitance_rebuilds: int = 0
     wall_contacts: int = 0
+    #: collisions between stones (``[hail] collisions``) and the largest force of one [N]
+    stone_collisions: int = 0
+    max_stone_collision_force_N: float = 0.0
     retired: int = 0
     max_penetration_contact_m: float = 0.0
     max_penetration_free_m: float = 0.0

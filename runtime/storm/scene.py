@@ -191,6 +191,10 @@ class HailSettings(_Section):
         Quadratic air drag in flight (stones start at terminal velocity either way).
     cd, rho_air : float
         Drag coefficient and air density.
+    collisions : bool
+        Stones collide with each other: two elastic ice spheres, Hertz in compression and
+        the scene's ``[contact] restitution`` (:mod:`hailstorm.runtime.storm.stone_collisions`;
+        frictionless). Off by default: stones pass through each other.
     """
 
     SECTION: ClassVar[str] = "hail"
@@ -203,11 +207,12 @@ class HailSettings(_Section):
     drag: bool = True
     cd: float = 0.6
     rho_air: float = 1.2
+    collisions: bool = False
 
     def __post_init__(self) -> None:
         _check_types(self)
         _positive(self, ("density", "cd", "rho_air"))
-        _bool(self, ("drag",))
+        _bool(self, ("drag", "collisions"))
         try:
             self.size_distribution()
         except ValueError as exc:

@@ -238,10 +238,11 @@ gf = plate_gf()
 for integ in ("implicit", "exact", "symplectic"):
     for patch in ("hertz", "none"):
         run_storm(gf, Scene.from_flat(duration=0.03, stones=8, seed=3, spawn_height=0.02, r_min=0.003, r_max=0.006,
-                            integrator=integ, patch=patch), progress=False)
+                            integrator=integ, patch=patch, collisions=patch == "none"), progress=False)
+from hailstorm.runtime.compiled import stone_pairs
 many = {}
 for mod in (compiled.flight, compiled.narrow, compiled.patches, compiled.contacts, compiled.integrators,
-            compiled.grid, compiled.modal, compiled.lapack):
+            compiled.grid, compiled.modal, compiled.lapack, stone_pairs):
     for name in dir(mod):
         f = getattr(mod, name)
         if isinstance(f, Dispatcher) and len(f.signatures) > 1:
@@ -251,7 +252,7 @@ assert not many, many
     from pathlib import Path
 
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
-    subprocess.run([sys.executable, "-c", code, str(Path(__file__).parent)], check=True, env=env)
+    subprocess.run([sys.executable, "-c", code, str(Path(__file__).parents[2])], check=True, env=env)
 
 
 @pytest.mark.parametrize("mode", ["frictionless", "sticky"])
