@@ -305,8 +305,14 @@ def _run_storm(args: argparse.Namespace) -> int:
                               video=video, startup=True, series=series or "vtkhdf")  # run_storm checks and logs it
     with StormOutput(out, gf, video=video, disk_bytes=estimate.disk_bytes,
                      progress=not args.quiet, series=series) as sink:
-        result = run_storm(gf, scene, progress=not args.quiet, on_frame=sink.add, allow_large=args.allow_large,
+
+        def add(frame: Any) -> None:
+            _honour_signal()
+            sink.add(frame)
+
+        result = run_storm(gf, scene, progress=not args.quiet, on_frame=add, allow_large=args.allow_large,
                            estimate=estimate)
+        _honour_signal()  # (before anything is put in place)
         paths = sink.finish(result)
     _warn_validity(result.stats, brief=args.quiet)
     if not args.quiet:
@@ -438,12 +444,33 @@ def _raise_terminated(signum: int, frame: object) -> None:
     raise _Terminated()
 
 
+def _honour_signal() -> None:
+    """Raise :class:`_Terminated` again if a termination signal was received and its exception
+    was swallowed on the way (raised inside a callback from C -- numba's compiler, a
+    ctypes callback -- Python prints it as "ignored" and goes on): the command still ends
+    as that signal, and nothing is put in place."""
+    if _RECEIVED:
+        raise _Terminated()
+
+
 def _terminate_as_exception() -> dict[int, Any]:
     """Turn the termination signals into :class:`_Terminated` (only in the main thread);
     returns the previous handlers (empty if none was installed)."""
     if threading.current_thread() is not threading.main_thread():
         return {}
+    if sys.unraisablehook is not _quiet_swallowed_signal:
+        _quiet_swallowed_signal.previous = sys.unraisablehook  # type: ignore[attr-defined]
+        sys.unraisablehook = _quiet_swallowed_signal
     return {signum: signal.signal(signum, _raise_terminated) for signum in _TERMINATING}
+
+
+def _quiet_swallowed_signal(unraisable: Any) -> None:
+    """``sys.unraisablehook``: a :class:`_Terminated` raised where Python cannot propagate it (a
+    callback from C, a finaliser) is not reported -- :func:`_honour_signal` raises it again where
+    it can be -- the rest as before."""
+    if isinstance(unraisable.exc_value, _Terminated):
+        return
+    _quiet_swallowed_signal.previous(unraisable)  # type: ignore[attr-defined]
 
 
 def _one_line(exc: BaseException) -> str:

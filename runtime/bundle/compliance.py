@@ -210,6 +210,9 @@ class DenseReader:
     gf : ComplianceSource
     """
 
+    #: D is dense (:attr:`hailstorm.runtime.bundle.hreader.HMatrixReader.compressed` is True)
+    compressed = False
+
     def __init__(self, gf: ComplianceSource) -> None:
         self.gf = gf
 

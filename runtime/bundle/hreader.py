@@ -41,6 +41,8 @@ class HMatrixReader:
 
     #: no dense ``D.T`` for the fused compiled paths (they step aside)
     kernel_D = None
+    #: D is read from its H-matrix, never expanded (:attr:`DenseReader.compressed` is False)
+    compressed = True
 
     @property
     def kernel_entries(self) -> tuple[np.ndarray, ...]:

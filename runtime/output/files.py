@@ -672,12 +672,16 @@ class StormOutput:
 
     def abort(self) -> None:
         """Remove the temporary directory (everything in it was written here)."""
-        if self.series is not None and not isinstance(self.series, ParaviewSeries):
-            self.series.close()  # the .vtkhdf file still open in it
-        if self.staging is not None:
-            shutil.rmtree(self.staging, ignore_errors=True)
-            self.staging = None
-        self._release()
+        try:
+            if self.series is not None and not isinstance(self.series, ParaviewSeries):
+                self.series.close()  # the .vtkhdf file still open in it
+        except Exception as exc:  # a write cut short by a signal can leave the file unclosable: removed anyway
+            _log.debug("closing the series of an aborted storm failed (%s)", exc)
+        finally:
+            if self.staging is not None:
+                shutil.rmtree(self.staging, ignore_errors=True)
+                self.staging = None
+            self._release()
 
 
 #: the infix of a storm's temporary output directory, ``.OUT.partial-XXXX``

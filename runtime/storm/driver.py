@@ -543,7 +543,8 @@ for _name in ("pos", "vel", "radius", "mass", "alive", "ctri", "cbary", "gap", "
 def _array_kinds(gf: Any) -> list[tuple]:
     """What the kernels' argument types depend on in a bundle's arrays (dtype, layout, writeable, class):
     D's (or, read from its H-matrix, the H-matrix's kernel arrays') and the surface's."""
-    arrays = [("D", a) for a in reader(gf).kernel_entries] if getattr(gf, "reads_hmatrix", False) else [("D", gf.D)]
+    how = reader(gf)
+    arrays = [("D", a) for a in how.kernel_entries] if how.compressed else [("D", gf.D)]
     arrays += [(name, getattr(gf, name)) for name in ("vertices", "triangles", "fixed", "contactable", "areas",
                                                       "column_of")]
     return [(name, a.dtype.str, a.ndim, bool(a.flags.c_contiguous), bool(a.flags.f_contiguous),
@@ -562,7 +563,7 @@ def _helper_spec(gf: Any, scene: Scene) -> HelperSpec | None:
         kinds = _array_kinds(gf)
     except AttributeError:
         return None
-    native = bool(getattr(gf, "reads_hmatrix", False))
+    native = reader(gf).compressed
     return HelperSpec("hailstorm.runtime.storm.driver:warm_up_worker",
                       {"bundle": str(path), "mmap": native or isinstance(gf.D, np.memmap), "kinds": kinds,
                        "expand": None if getattr(gf, "hmatrix", None) is None else not native,

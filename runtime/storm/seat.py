@@ -15,7 +15,7 @@ from typing import Protocol, TYPE_CHECKING
 
 import numpy as np
 
-from hailstorm.runtime.bundle.compliance import DenseReader, reader
+from hailstorm.runtime.bundle.compliance import reader
 
 if TYPE_CHECKING:  # annotations only
     from hailstorm.runtime.bundle.compliance import ComplianceSource
@@ -48,7 +48,7 @@ class SeatState:
         #: how D is read (:func:`hailstorm.runtime.bundle.compliance.reader`): a dense D, or a
         #: compressed bundle's H-matrix (its displacements through the reader's products)
         self.reader = reader(gf)
-        self._dense = isinstance(self.reader, DenseReader)
+        self._dense = not self.reader.compressed
         #: what the kernels read D's entries through (``d_entry``): D (column-major, a plain
         #: ndarray), or the H-matrix's kernel arrays
         self.D = self.reader.kernel_entries

@@ -303,7 +303,7 @@ def test_a_killed_storm_leaves_nothing_behind(seat_bundle, tmp_path, sig):
     if sig != "SIGKILL":
         assert proc.returncode == 128 + getattr(_signal, sig), err
         assert err.strip().splitlines() == [f"hailstorm: terminated ({sig})"], err
-        assert not partial.exists()
+        assert not partial.exists(), sorted(str(p.relative_to(partial)) for p in partial.rglob("*"))
     else:
         assert partial.is_dir()  # nobody could clean up
         assert main(["storm", "--gf", str(seat_bundle), "--out", str(out), *TINY]) == 0
