@@ -16,9 +16,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from hailstorm.precompute.foam.material import Hyperfoam, vol_term
+from hailstorm.precompute.foam.material import Hyperfoam, term_energy
 
 __all__ = ["energy_density", "first_piola", "piola_tangent"]
+
+
+def _T(X: np.ndarray) -> np.ndarray:
+    return np.swapaxes(X, -1, -2)
 
 
 def _shc(x: np.ndarray) -> np.ndarray:
@@ -30,7 +34,7 @@ def _shc(x: np.ndarray) -> np.ndarray:
 
 def _spectral(F: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Eigenvalues ``c`` (..., 3) and vectors ``Q`` (..., 3, 3) of ``C = F^T F``, and ``ln J``."""
-    C = np.einsum("...ki,...kj->...ij", F, F)
+    C = _T(F) @ F
     c, Q = np.linalg.eigh(C)
     with np.errstate(invalid="ignore", divide="ignore"):
         lnJ = np.log(np.linalg.det(F))
@@ -56,9 +60,9 @@ def energy_density(foam: Hyperfoam, F: np.ndarray) -> np.ndarray:
     c, _, lnJ = _spectral(np.asarray(F, dtype=np.float64))
     out = np.zeros_like(lnJ)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        lnc = np.log(np.maximum(c, 1e-300))
+        lnl = 0.5 * np.log(np.maximum(c, 1e-300))
         for m, a, b in zip(foam.mu, foam.alpha, foam.beta):
-            out += 2.0 * m / a**2 * (np.exp(0.5 * a * lnc).sum(axis=-1) - 3.0 + vol_term(lnJ, a, b))
+            out += 2.0 * m / a**2 * term_energy(lnl, lnJ, a, b)
     return np.where(np.isfinite(lnJ) & np.isfinite(out), out, np.inf)
 
 
@@ -67,8 +71,7 @@ def first_piola(foam: Hyperfoam, F: np.ndarray) -> np.ndarray:
     F = np.asarray(F, dtype=np.float64)
     c, Q, lnJ = _spectral(F)
     two_fp, g, _ = _stress_parts(foam, c, lnJ)
-    s = two_fp + g[..., None] / c
-    S = np.einsum("...ia,...a,...ja->...ij", Q, s, Q)
+    S = (Q * (two_fp + g[..., None] / c)[..., None, :]) @ _T(Q)
     return F @ S
 
 
@@ -89,17 +92,16 @@ def piola_tangent(foam: Hyperfoam, F: np.ndarray, dF: np.ndarray) -> np.ndarray:
     F = np.asarray(F, dtype=np.float64)
     c, Q, lnJ = _spectral(F)
     two_fp, g, Jgp = _stress_parts(foam, c, lnJ)
-    S = np.einsum("...ia,...a,...ja->...ij", Q, two_fp + g[..., None] / c, Q)
+    S = (Q * (two_fp + g[..., None] / c)[..., None, :]) @ _T(Q)
     D = _divided(foam, c)
     inv_cc = 1.0 / (c[..., :, None] * c[..., None, :])
     out = []
     for d in np.asarray(dF, dtype=np.float64):
-        dC = np.einsum("...ki,...kj->...ij", d, F)
-        dC = dC + np.swapaxes(dC, -1, -2)
-        H = np.einsum("...ia,...ij,...jb->...ab", Q, dC, Q)
-        tr = np.einsum("...aa,...a->...", H, 1.0 / c)
+        dC = _T(d) @ F
+        H = _T(Q) @ (dC + _T(dC)) @ Q
+        tr = (np.diagonal(H, axis1=-2, axis2=-1) / c).sum(axis=-1)
         dSp = (D - g[..., None, None] * inv_cc) * H
         dSp = dSp + (0.5 * Jgp * tr)[..., None, None] * np.eye(3) / c[..., None, :]
-        dS = np.einsum("...ia,...ab,...jb->...ij", Q, dSp, Q)
+        dS = Q @ dSp @ _T(Q)
         out.append(d @ S + F @ dS)
     return np.stack(out)

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["FoamStabilityError", "Hyperfoam", "vol_term"]
+__all__ = ["FoamStabilityError", "Hyperfoam", "term_energy", "vol_term"]
 
 
 class FoamStabilityError(ValueError):
@@ -33,6 +33,25 @@ class FoamStabilityError(ValueError):
 def vol_term(lnJ: np.ndarray, a: float, b: float) -> np.ndarray:
     """``(J^(-a b) - 1) / b`` from ``ln J``; its limit ``-a ln J`` at ``b = 0``."""
     return -a * lnJ if b == 0.0 else np.expm1(-a * b * lnJ) / b
+
+
+def _phi(y: np.ndarray) -> np.ndarray:
+    """``exp(y) - 1 - y``, accurate to round-off of its own size (a series below 1e-3)."""
+    y = np.asarray(y, dtype=np.float64)
+    small = np.abs(y) < 1e-3
+    ys = np.where(small, y, 0.0)
+    series = ys * ys * (0.5 + ys * (1.0 / 6.0 + ys * (1.0 / 24.0 + ys / 120.0)))
+    with np.errstate(over="ignore"):
+        return np.where(small, series, np.expm1(np.where(small, 0.0, y)) - y)
+
+
+def term_energy(lnl: np.ndarray, lnJ: np.ndarray, a: float, b: float) -> np.ndarray:
+    """One term's ``l1^a + l2^a + l3^a - 3 + (J^(-a b) - 1) / b`` from ``ln l_a`` (..., 3) and ``ln J``,
+    as ``sum_a phi(a ln l_a) + phi(-a b ln J) / b`` (``phi(y) = e^y - 1 - y``): the first-order parts,
+    which cancel at small strain, are never formed (the energy to round-off of its own size, which a
+    line search needs)."""
+    vol = np.zeros_like(lnJ) if b == 0.0 else _phi(-a * b * lnJ) / b
+    return _phi(a * lnl).sum(axis=-1) + vol + a * (lnl.sum(axis=-1) - lnJ)
 
 
 @dataclass(frozen=True)
@@ -127,14 +146,15 @@ class Hyperfoam:
     # -- large strain -------------------------------------------------------------------------
     def energy(self, l1: Any, l2: Any, l3: Any) -> np.ndarray:
         """``W`` at principal stretches [J/m^3] (broadcast; NaN where ``J <= 0``)."""
-        l1, l2, l3 = (np.asarray(x, dtype=np.float64) for x in (l1, l2, l3))
-        J = l1 * l2 * l3
+        lam = np.stack(np.broadcast_arrays(*(np.asarray(x, dtype=np.float64) for x in (l1, l2, l3))), axis=-1)
+        J = lam.prod(axis=-1)
         with np.errstate(invalid="ignore", divide="ignore"):
-            out = np.zeros(np.broadcast(l1, l2, l3).shape)
+            lnl = np.log(lam)
+            lnJ = lnl.sum(axis=-1)
+            out = np.zeros(J.shape)
             for m, a, b in zip(self.mu, self.alpha, self.beta):
-                vol = vol_term(np.log(J), a, b)
-                out = out + 2.0 * m / a**2 * (l1**a + l2**a + l3**a - 3.0 + vol)
-        return np.where(J > 0, out, np.nan)
+                out = out + 2.0 * m / a**2 * term_energy(lnl, lnJ, a, b)
+        return np.where(np.all(lam > 0, axis=-1), out, np.nan)
 
     def kirchhoff(self, l1: Any, l2: Any, l3: Any) -> np.ndarray:
         """Principal Kirchhoff stresses ``tau_a = l_a dW/dl_a = sum 2 mu_i / a_i (l_a^a_i - J^(-a_i b_i))`` [Pa], (..., 3)."""

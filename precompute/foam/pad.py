@@ -74,6 +74,9 @@ class PadModel:
         Grid lines [m], ascending, ``r[0] = 0``, ``r[-1] = pad.radius``, ``z[0] = 0``, ``z[-1] = pad.thickness``.
     order : {1, 2}
         Lagrange order of the triangles.
+    bonded : bool
+        The base holds ``u_r`` too (True: bonded, the pad's case); False: a frictionless base
+        (``u_z = 0`` only), for homogeneous tests.
 
     Attributes
     ----------
@@ -91,7 +94,7 @@ class PadModel:
         The smallest cell's size [m].
     """
 
-    def __init__(self, pad: FoamPad, r: np.ndarray, z: np.ndarray, order: int = 2) -> None:
+    def __init__(self, pad: FoamPad, r: np.ndarray, z: np.ndarray, order: int = 2, *, bonded: bool = True) -> None:
         from skfem import Basis, ElementTriP1, ElementTriP2, ElementVector, MeshTri
 
         r, z = np.asarray(r, dtype=np.float64), np.asarray(z, dtype=np.float64)
@@ -118,7 +121,9 @@ class PadModel:
         self.edofs = b.element_dofs  # (nloc, nel)
         loc = b.doflocs
         h = pad.thickness
-        fixed = np.flatnonzero(np.isclose(loc[1], 0.0))  # the base: both components
+        fixed = np.flatnonzero(np.isclose(loc[1], 0.0))  # the base: both components (bonded) or u_z
+        if not bonded:
+            fixed = fixed[fixed % 2 == 1]
         axis = np.flatnonzero(np.isclose(loc[0], 0.0))
         fixed = np.union1d(fixed, axis[axis % 2 == 0])  # u_r on the axis
         self.free = np.setdiff1d(np.arange(b.N), fixed)
