@@ -59,7 +59,7 @@ def energy_density(foam: Hyperfoam, F: np.ndarray) -> np.ndarray:
     """``W(F)`` [J/m^3], (...); ``inf`` where ``det F <= 0`` (a line search's barrier)."""
     c, _, lnJ = _spectral(np.asarray(F, dtype=np.float64))
     out = np.zeros_like(lnJ)
-    with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+    with np.errstate(all="ignore"):
         lnl = 0.5 * np.log(np.maximum(c, 1e-300))
         for m, a, b in zip(foam.mu, foam.alpha, foam.beta):
             out += 2.0 * m / a**2 * term_energy(lnl, lnJ, a, b)

@@ -109,14 +109,14 @@ class PadModel:
         scalar = ElementTriP2() if order == 2 else ElementTriP1()
         self.basis = Basis(self.mesh, ElementVector(scalar), intorder=2 * order + 1)
         b = self.basis
-        rq = b.global_coordinates().value[0]
+        rq = np.asarray(b.global_coordinates())[0]
         self.dx = b.dx * 2.0 * np.pi * rq  # (nel, nqp)
         nloc = len(b.basis)
         B = np.zeros((nloc, 5) + rq.shape)
         for i in range(nloc):
             phi = b.basis[i][0]
             B[i, 0], B[i, 1], B[i, 2], B[i, 3] = phi.grad[0, 0], phi.grad[0, 1], phi.grad[1, 0], phi.grad[1, 1]
-            B[i, 4] = phi.value[0] / rq
+            B[i, 4] = np.asarray(phi)[0] / rq
         self.B = B
         self.edofs = b.element_dofs  # (nloc, nel)
         loc = b.doflocs
@@ -152,7 +152,8 @@ class PadModel:
 
     def energy(self, u: np.ndarray) -> float:
         """Stored energy [J] (``inf`` if any ``det F <= 0``)."""
-        return float((self.dx * energy_density(self.pad.foam, self.gradient(u))).sum())
+        with np.errstate(invalid="ignore", over="ignore"):
+            return float((self.dx * energy_density(self.pad.foam, self.gradient(u))).sum())
 
     def residual(self, u: np.ndarray) -> np.ndarray:
         """Internal force ``dE/du`` [N], (ndofs,)."""
