@@ -22,17 +22,12 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["FoamStabilityError", "Hyperfoam", "term_energy", "vol_term"]
+__all__ = ["FoamStabilityError", "Hyperfoam", "term_energy"]
 
 
 class FoamStabilityError(ValueError):
     """Foam parameters whose energy is non-convex or whose tangent loses definiteness in the
     checked strain range (the message names the principal strains where it first fails)."""
-
-
-def vol_term(lnJ: np.ndarray, a: float, b: float) -> np.ndarray:
-    """``(J^(-a b) - 1) / b`` from ``ln J``; its limit ``-a ln J`` at ``b = 0``."""
-    return -a * lnJ if b == 0.0 else np.expm1(-a * b * lnJ) / b
 
 
 def _phi(y: np.ndarray) -> np.ndarray:
