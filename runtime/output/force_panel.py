@@ -73,7 +73,7 @@ class ForcePanel:
         self._totals: list[tuple[float, float]] = []
         fig = Figure(figsize=(w / dpi, h / dpi), dpi=dpi, facecolor="white")
         self.fig, self.canvas = fig, FigureCanvasAgg(fig)
-        ax = fig.add_axes((0.065, 0.25, 0.90, 0.62))
+        ax = fig.add_axes((0.065, 0.25, 0.90, 0.58))
         ax.set_xlim(0.0, max(float(duration), 1e-9) * 1e3)
         top = max(float(self.history[:, 1].max()) if self.history is not None else 0.0,
                   float(self.impact_force.max(initial=0.0)))
@@ -91,7 +91,9 @@ class ForcePanel:
         ax.legend(handles=[Line2D([], [], color=_LINE, lw=1.1, label="total contact force on the seat (all stones)"),
                            Line2D([], [], ls="", marker="v", color=_PEAK, mec="k", mew=0.4,
                                   label="each impact's peak force (impacts.csv peak_force_N)")],
-                  loc="upper right", fontsize="small", framealpha=0.85, ncol=2)
+                  loc="lower right", bbox_to_anchor=(1.0, 1.0), fontsize="small", frameon=False, ncol=2,
+                  borderaxespad=0.1)
+        ax.set_title("force on the seat", loc="left", fontsize="medium")
         self.ax = ax
         self._dynamic = [self.line, self.markers, self.now]
         self._background: Any = None
