@@ -151,6 +151,12 @@ def _storm_args(p: argparse.ArgumentParser) -> None:
     p.add_argument("--scene", type=Path, default=None, help="TOML scene file holding every storm setting")
     p.add_argument("--out", type=Path, default=Path("hailstorm-out"), help="output directory (default ./hailstorm-out)")
     p.add_argument("--no-video", action="store_true", help="skip the animation")
+    p.add_argument("--video-style", choices=("auto", "3d", "2d"), default="auto",
+                   help="storm.mp4 in 3-D (VTK off-screen; auto: where it can be drawn, else 2-D) or the 2-D map "
+                        "from above")
+    p.add_argument("--video-dents", choices=("now", "peak"), default="now",
+                   help="the 3-D video's seat at each frame's instant (now) or its largest displacement since the "
+                        "previous frame (peak)")
     p.add_argument("--series", choices=SERIES_FORMATS, default=None,
                    help="the ParaView time series: one storm.vtkhdf (VTK >= 9.4, ParaView >= 5.13; default when "
                         "h5py is installed) or storm.pvd with two .vtu files per frame (older readers)")
@@ -304,7 +310,8 @@ def _run_storm(args: argparse.Namespace) -> int:
     estimate = scene.estimate(gf.n_vertices, hit_fraction=hit_fraction(gf.vertices, gf.triangles, scene.storm.margin),
                               video=video, startup=True, series=series or "vtkhdf")  # run_storm checks and logs it
     with StormOutput(out, gf, video=video, disk_bytes=estimate.disk_bytes,
-                     progress=not args.quiet, series=series) as sink:
+                     progress=not args.quiet, series=series,
+                     video_options={"style": args.video_style, "dents": args.video_dents}) as sink:
 
         def add(frame: Any) -> None:
             _honour_signal()

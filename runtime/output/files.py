@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from hailstorm.runtime.bundle.atomic import probe_writable, sibling_name_problem, write_text_atomic
+from hailstorm.runtime.output.impacts import read_impacts
 from hailstorm.runtime.output.render import shown_displacement as _shown
 from hailstorm.runtime.output.render import write_animation
 from hailstorm.runtime.output.vtu import read_vtu, write_vtu
@@ -502,6 +503,9 @@ class StormOutput:
         the ``series`` extra) or ``storm.pvd`` with two ``.vtu`` files per frame
         (:class:`ParaviewSeries`, for readers older than VTK 9.4 / ParaView 5.13); default:
         ``"vtkhdf"`` when h5py is installed, else ``"vtu"``.
+    video_options : dict, optional
+        Keywords of :func:`write_animation` (``style``, ``dents``, ``max_frames``, ``size``, ...);
+        its ``impacts`` are the ``impacts.csv`` written beside it.
 
     Raises
     ------
@@ -510,7 +514,8 @@ class StormOutput:
     """
 
     def __init__(self, out: str | os.PathLike, gf: Any, *, video: bool = True, disk_bytes: int | None = None,
-                 progress: bool = False, series: str | None = None) -> None:
+                 progress: bool = False, series: str | None = None,
+                 video_options: dict[str, Any] | None = None) -> None:
         if series is None:
             series = "vtkhdf" if missing_module("series") is None else "vtu"
         if series not in SERIES_FORMATS:
@@ -519,6 +524,7 @@ class StormOutput:
         self.out = Path(out)
         self.gf = gf
         self.video = video
+        self.video_options = dict(video_options or {})
         self.disk_bytes = disk_bytes
         self.progress = progress
         self.staging: Path | None = None
@@ -610,7 +616,8 @@ class StormOutput:
             frames = series.frames()
             try:
                 video = write_animation(frames, self.gf, staging / "storm.mp4",
-                                        history=getattr(result, "history", None), progress=self.progress)
+                                        history=getattr(result, "history", None), progress=self.progress,
+                                        impacts=read_impacts(staging / "impacts.csv"), **self.video_options)
             finally:
                 getattr(frames, "close", lambda: None)()  # (the .vtkhdf reader holds its file open)
             files.append(video.name)

@@ -583,8 +583,13 @@ def write_animation(
     dpi: float = 100.0,
     history: np.ndarray | None = None,
     progress: bool = False,
+    style: str = "auto",
+    dents: str = "now",
+    impacts: dict[str, np.ndarray] | None = None,
 ) -> Path:
-    """Render the storm to a video (see :class:`StormRenderer` for what a frame shows).
+    """Render the storm to a video: in 3-D (:class:`hailstorm.runtime.output.video3d.Storm3DRenderer`)
+    where VTK draws off-screen, else the 2-D map of :class:`StormRenderer` (with a warning
+    saying why).
 
     Frames are rendered and appended to the file one at a time (at most
     ``max_frames`` are read, each once, plus once more for the colour scale
@@ -614,6 +619,17 @@ def write_animation(
         default ``result.history`` when ``result`` has one.
     progress : bool
         tqdm bar over frames.
+    style : {"auto", "3d", "2d"}
+        ``"3d"``: the 3-D video (raises
+        :class:`~hailstorm.runtime.output.offscreen.ThreeDUnavailable` without VTK or an
+        off-screen OpenGL); ``"2d"``: the map from above and the side view; ``"auto"``: 3-D
+        where it can be drawn, else 2-D.
+    dents : {"now", "peak"}
+        The 3-D video's seat: the displacement at each frame's instant, or the largest since
+        the previous frame (the 2-D video always shows the latter).
+    impacts : dict, optional
+        The columns of ``impacts.csv`` (:func:`hailstorm.runtime.output.impacts.read_impacts`):
+        the 3-D video's force panel marks each impact's peak force.
 
     Returns
     -------
@@ -630,7 +646,27 @@ def write_animation(
             history = None
     path.parent.mkdir(parents=True, exist_ok=True)
     idx = np.unique(np.linspace(0, len(frames) - 1, min(max_frames, len(frames))).round().astype(int))
-    renderer = StormRenderer.for_frames(frames, gf, history=history, which=idx, size=size, dpi=dpi)
+    if style not in ("auto", "3d", "2d"):
+        raise ValueError(f"style must be 'auto', '3d' or '2d', not {style!r}")
+    renderer: Any = None
+    if style != "2d":
+        from hailstorm.runtime.output.offscreen import ThreeDUnavailable, three_d_available
+
+        if style == "3d" or three_d_available() is not None:
+            from hailstorm.runtime.output.video3d import Storm3DRenderer
+
+            try:
+                renderer = Storm3DRenderer.for_frames(frames, gf, history=history, which=idx, impacts=impacts,
+                                                      size=size, dents=dents)
+            except ThreeDUnavailable as exc:
+                if style == "3d":
+                    raise
+                _log.warning("the 2-D video instead of the 3-D one: %s", exc)
+        else:
+            _log.warning("the 2-D video instead of the 3-D one: no VTK with an off-screen OpenGL "
+                         "(pip install 'hailstorm[video]'; on Linux also libegl1 or libosmesa6)")
+    if renderer is None:
+        renderer = StormRenderer.for_frames(frames, gf, history=history, which=idx, size=size, dpi=dpi)
     video = _VideoWriter(path, fps)
     it: Any = idx
     if progress:
@@ -643,4 +679,5 @@ def write_animation(
         slow = playback_slowdown(np.array([t_prev, float(frame.t)]), fps)[1]  # the time scale on screen
         video.append(renderer.render(frame, alpha=True, slowdown=float(slow)))
         t_prev = float(frame.t)
+    getattr(renderer, "close", lambda: None)()
     return video.close()
