@@ -32,24 +32,39 @@ function num(i, key) {
 const IMPACT_POINT = ROWS.map((_, i) => [num(i, 'x_m'), num(i, 'y_m'), num(i, 'z_m')]);
 
 // ---- colours ------------------------------------------------------------------------------
-// light grey at rest, through yellow and orange to dark red at the largest displacement
-const STOPS = [[0, '#cfd6de'], [0.08, '#fff3b0'], [0.3, '#fdae61'], [0.55, '#f46d43'], [0.8, '#d73027'], [1, '#7f0000']];
+// |u| on a colour scale fixed for the whole storm: logarithmic over two decades below the
+// largest |u| (grey below that: the dents of one storm span more than a decade), or linear from 0
+const GREY = '#cfd6de';
+const RAMP = [[0, '#fff3b0'], [0.3, '#fdae61'], [0.55, '#f46d43'], [0.8, '#d73027'], [1, '#7f0000']];
+const SCALES_OF_COLOUR = {
+  log: { stops: RAMP, below: GREY, decades: 2 },
+  linear: { stops: [[0, GREY], [0.08, '#fff3b0'], ...RAMP.slice(1)], below: GREY, decades: 0 },
+};
 const LUT_N = 256;
-const LUT = new Float32Array(LUT_N * 3); // linear RGB
-(function buildLut() {
+function buildLut(stops) {
+  const lut = new Float32Array(LUT_N * 3); // linear RGB
   const c0 = new THREE.Color(), c1 = new THREE.Color(), c = new THREE.Color();
   for (let i = 0; i < LUT_N; i++) {
     const x = i / (LUT_N - 1);
     let k = 0;
-    while (k < STOPS.length - 2 && x > STOPS[k + 1][0]) k++;
-    const [x0, s0] = STOPS[k], [x1, s1] = STOPS[k + 1];
-    c0.set(s0); c1.set(s1); // (THREE.Color.set takes sRGB hex and stores linear)
+    while (k < stops.length - 2 && x > stops[k + 1][0]) k++;
+    const [x0, s0] = stops[k], [x1, s1] = stops[k + 1];
+    c0.set(s0); c1.set(s1); // (THREE.Color.set takes sRGB and stores linear)
     c.copy(c0).lerp(c1, Math.min(1, Math.max(0, (x - x0) / (x1 - x0))));
-    LUT.set([c.r, c.g, c.b], 3 * i);
+    lut.set([c.r, c.g, c.b], 3 * i);
   }
-})();
-document.getElementById('hs-bar').style.background =
-  'linear-gradient(to top, ' + STOPS.map(([x, s]) => `${s} ${(100 * x).toFixed(0)}%`).join(', ') + ')';
+  return lut;
+}
+const LUTS = { log: buildLut(SCALES_OF_COLOUR.log.stops), linear: buildLut(SCALES_OF_COLOUR.linear.stops) };
+const BELOW = new THREE.Color(GREY);
+/** the colour-scale position of |u| = m in [0, 1], or -1 below the scale (grey) */
+function colourPosition(m, top, kind) {
+  if (!(top > 0)) return -1;
+  if (kind === 'linear') return Math.min(1, m / top);
+  if (m <= 0) return -1;
+  const x = 1 + Math.log10(m / top) / SCALES_OF_COLOUR.log.decades;
+  return x < 0 ? -1 : Math.min(1, x);
+}
 
 // ---- the scene ----------------------------------------------------------------------------
 const canvas = document.getElementById('hs-canvas');
@@ -76,7 +91,7 @@ const controls = new OrbitControls(camera, canvas);
 controls.addEventListener('change', requestRender);
 function homeView() {
   const dir = new THREE.Vector3(0.75, -1.0, 0.85).normalize(); // three-quarter view from above
-  const dist = (0.5 * L) / Math.tan(THREE.MathUtils.degToRad(camera.fov / 2));
+  const dist = (0.62 * L) / Math.tan(THREE.MathUtils.degToRad(camera.fov / 2));
   camera.position.copy(center).addScaledVector(dir, dist);
   controls.target.copy(center);
   controls.update();
@@ -106,7 +121,8 @@ scene.add(stones);
 
 // the chosen impact's marker: a ring around its dent
 const marker = new THREE.Mesh(new THREE.TorusGeometry(1, 0.07, 8, 48),
-  new THREE.MeshBasicMaterial({ color: 0x00e5ff }));
+  new THREE.MeshBasicMaterial({ color: 0x00e5ff, depthTest: false, transparent: true, opacity: 0.9 }));
+marker.renderOrder = 10; // drawn over the surface it lies on
 marker.visible = false;
 scene.add(marker);
 
@@ -114,6 +130,7 @@ scene.add(marker);
 const state = {
   frame: 0,
   field: meta.default_field,
+  colours: 'log',
   scaleIndex: meta.scales.indexOf(meta.default_scale),
   playing: false,
   fps: meta.default_fps,
@@ -123,6 +140,8 @@ const scale = () => meta.scales[state.scaleIndex];
 
 const el = (id) => document.getElementById(id);
 const frameInput = el('hs-frame'), scaleInput = el('hs-scale'), fieldInput = el('hs-field'), fpsInput = el('hs-fps');
+const colourInput = el('hs-colours');
+colourInput.value = state.colours;
 frameInput.max = String(F - 1);
 scaleInput.max = String(meta.scales.length - 1);
 scaleInput.value = String(state.scaleIndex);
@@ -132,10 +151,16 @@ fpsInput.value = String(state.fps);
 function mm(v) { return (1e3 * v).toPrecision(3); }
 function updateColourBar() {
   const top = meta.u_max[state.field];
+  const kind = SCALES_OF_COLOUR[state.colours];
+  el('hs-bar').style.background = 'linear-gradient(to top, ' +
+    kind.stops.map(([x, c]) => `${c} ${(100 * x).toFixed(0)}%`).join(', ') + ')';
+  const log = state.colours === 'log';
   el('hs-bar-top').textContent = mm(top);
-  el('hs-bar-mid').textContent = mm(top / 2);
-  el('hs-bar-label').textContent = state.field === 'peak'
-    ? '|u| peak since the previous frame (mm)' : '|u| at the frame\'s time (mm)';
+  el('hs-bar-mid').textContent = mm(log ? top / 10 : top / 2);
+  el('hs-bar-bottom').textContent = log ? mm(top / 100) : '0';
+  el('hs-bar-label').textContent = (state.field === 'peak'
+    ? '|u| peak since the previous frame (mm)' : '|u| at the frame\'s time (mm)') +
+    (log ? `; log scale, grey below ${mm(top / 100)}` : '; linear scale');
 }
 
 function showFrame(i) {
@@ -144,16 +169,21 @@ function showFrame(i) {
   const q = U[state.field];
   const qs = meta.quant[state.field][i]; // metres per int16 step of this frame
   const s = scale();
-  const top = meta.u_max[state.field] || 1;
+  const top = meta.u_max[state.field];
+  const lut = LUTS[state.colours];
   const base = 3 * n * i;
   for (let v = 0; v < n; v++) {
     const ux = q[base + 3 * v] * qs, uy = q[base + 3 * v + 1] * qs, uz = q[base + 3 * v + 2] * qs;
     pos[3 * v] = X[3 * v] + s * ux;
     pos[3 * v + 1] = X[3 * v + 1] + s * uy;
     pos[3 * v + 2] = X[3 * v + 2] + s * uz;
-    const m = Math.sqrt(ux * ux + uy * uy + uz * uz) / top;
-    const k = 3 * Math.min(LUT_N - 1, Math.max(0, Math.round(m * (LUT_N - 1))));
-    colour[3 * v] = LUT[k]; colour[3 * v + 1] = LUT[k + 1]; colour[3 * v + 2] = LUT[k + 2];
+    const x = colourPosition(Math.sqrt(ux * ux + uy * uy + uz * uz), top, state.colours);
+    if (x < 0) {
+      colour[3 * v] = BELOW.r; colour[3 * v + 1] = BELOW.g; colour[3 * v + 2] = BELOW.b;
+    } else {
+      const k = 3 * Math.round(x * (LUT_N - 1));
+      colour[3 * v] = lut[k]; colour[3 * v + 1] = lut[k + 1]; colour[3 * v + 2] = lut[k + 2];
+    }
   }
   seatGeom.attributes.position.needsUpdate = true;
   seatGeom.attributes.color.needsUpdate = true;
@@ -414,6 +444,7 @@ el('hs-play').addEventListener('click', () => setPlaying(!state.playing));
 frameInput.addEventListener('input', () => { setPlaying(false); showFrame(Number(frameInput.value)); });
 scaleInput.addEventListener('input', () => { state.scaleIndex = Number(scaleInput.value); showFrame(state.frame); });
 fieldInput.addEventListener('change', () => { state.field = fieldInput.value; updateColourBar(); showFrame(state.frame); });
+colourInput.addEventListener('change', () => { state.colours = colourInput.value; updateColourBar(); showFrame(state.frame); });
 fpsInput.addEventListener('change', () => { state.fps = Number(fpsInput.value); });
 el('hs-home').addEventListener('click', () => { homeView(); requestRender(); });
 el('hs-info-close').addEventListener('click', () => { el('hs-info').hidden = true; state.selected = null; updateMarker(); requestRender(); });
