@@ -231,7 +231,10 @@ def _frames(storm: StormOut, held: list[int], stride: int) -> dict[str, Any]:
     table = storm.impact_table()
     n_imp = len(storm.impact_lines)
     pts = np.column_stack([table["x_m"], table["y_m"], table["z_m"]]) if n_imp else np.zeros((0, 3))
-    vert = cKDTree(storm.vertices).query(pts)[1] if n_imp and n else np.zeros(0, dtype=np.int64)
+    # the vertices around each impact point (the nearest alone may be clamped, at the seat's edge)
+    near = min(4, n)
+    vert = (cKDTree(storm.vertices).query(pts, k=near)[1].reshape(n_imp, near) if n_imp and n
+            else np.zeros((n_imp, 1), dtype=np.int64))
     stone_of = table["stone"].astype(np.int64) if n_imp else np.zeros(0, dtype=np.int64)
     by_stone: dict[int, list[int]] = {}
     for i, sid in enumerate(stone_of):
@@ -264,12 +267,12 @@ def _frames(storm: StormOut, held: list[int], stride: int) -> dict[str, Any]:
         if n_imp:  # the frame each impact shows in: its stone is about, the seat under it most displaced
             live = np.union1d(fr.ids, prev_ids)
             cand = [i for sid in live for i in by_stone.get(int(sid), ())]
-            v_all = pnorm[vert]
+            v_all = pnorm[vert].max(axis=1)
             better_any = v_all > any_val * 1.01
             any_val[better_any], any_frame[better_any] = v_all[better_any], g
             if cand:
                 c = np.asarray(cand)
-                v = pnorm[vert[c]]
+                v = pnorm[vert[c]].max(axis=1)
                 up = v > best_val[c] * 1.01
                 best_val[c[up]] = v[up]
                 best_frame[c[up]] = g
