@@ -67,6 +67,8 @@ class StormOut:
     #: impacts.csv: its header (column names) and its data lines, verbatim
     impact_columns: list[str]
     impact_lines: list[str]
+    #: live stones per frame where the series says so without reading the frames (VTKHDF), else None
+    stone_counts: np.ndarray | None = None
     _vtu: list[tuple[str, str]] = field(default_factory=list, repr=False)
 
     @property
@@ -188,8 +190,9 @@ def open_storm_out(path: str | os.PathLike) -> StormOut:
     except (OSError, ValueError) as exc:
         raise ViewerInputError(f"{out / 'summary.json'} cannot be read ({_one_line(exc)}); cut short?") from None
     columns, lines = _read_impacts(out / "impacts.csv")
+    counts = None
     if "storm.vtkhdf" in listed:
-        series, X, tri, times, vtu = "vtkhdf", *_vtkhdf_head(out / "storm.vtkhdf"), []
+        series, X, tri, times, counts, vtu = "vtkhdf", *_vtkhdf_head(out / "storm.vtkhdf"), []
     elif "storm.pvd" in listed:
         series, (X, tri, times, vtu) = "vtu", _vtu_head(out)
     else:
@@ -206,7 +209,7 @@ def open_storm_out(path: str | os.PathLike) -> StormOut:
         raise ViewerInputError(f"{out / 'impacts.csv'} holds {len(lines)} impacts where summary.json counts "
                                f"{n_imp}; cut short?")
     return StormOut(path=out, series=series, vertices=X, triangles=tri, times=times, summary=summary,
-                    impact_columns=columns, impact_lines=lines, _vtu=vtu)
+                    impact_columns=columns, impact_lines=lines, stone_counts=counts, _vtu=vtu)
 
 
 #: the columns the viewer reads from impacts.csv (a file without them is not a storm's)
@@ -234,7 +237,7 @@ def _read_impacts(path: Path) -> tuple[list[str], list[str]]:
     return columns, rows
 
 
-def _vtkhdf_head(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _vtkhdf_head(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     from hailstorm.runtime.output.vtkhdf import _h5py  # the series extra's h5py, with its install hint
 
     h5py = _h5py()
@@ -245,12 +248,15 @@ def _vtkhdf_head(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
             tri = np.asarray(seat["Polygons"]["Connectivity"][:], dtype=np.int64).reshape(-1, 3)
             times = np.asarray(f["hailstorm"]["time"][:], dtype=np.float64)
             n_disp = seat["PointData"]["displacement"].shape[0]
+            counts = np.asarray(f["VTKHDF"]["stones"]["NumberOfPoints"][:], dtype=np.int64)
     except (OSError, KeyError, ValueError) as exc:
         raise ViewerInputError(f"{path} cannot be read ({_one_line(exc)}); cut short or damaged?") from None
     if n_disp < times.size * X.shape[0]:
         raise ViewerInputError(f"{path} holds the displacement of {n_disp // max(X.shape[0], 1)} frames for "
                                f"{times.size} times; cut short?")
-    return X, tri, times
+    if counts.size < times.size:
+        raise ViewerInputError(f"{path} holds the stones of {counts.size} frames for {times.size} times; cut short?")
+    return X, tri, times, counts
 
 
 def _vtu_head(out: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[tuple[str, str]]]:
