@@ -35,14 +35,16 @@
     }
     const dec = new TextDecoder();
     const meta = JSON.parse(text('hs-meta'));
-    const [buffer, core, module, orbit, app] = await Promise.all(
-      ['hs-data', 'hs-three-core', 'hs-three-module', 'hs-three-orbit', 'hs-app'].map(inflate));
+    const [buffer, impacts, core, module, orbit, app] = await Promise.all(
+      ['hs-data', 'hs-impacts', 'hs-three-core', 'hs-three-module', 'hs-three-orbit', 'hs-app'].map(inflate));
     const coreUrl = moduleUrl(dec.decode(core));
     const threeUrl = moduleUrl(replaceAll(dec.decode(module), "'./three.core.js'", JSON.stringify(coreUrl), 2));
     const orbitUrl = moduleUrl(replaceAll(dec.decode(orbit), "from 'three'", 'from ' + JSON.stringify(threeUrl), 1));
     let appSource = replaceAll(dec.decode(app), "from 'three'", 'from ' + JSON.stringify(threeUrl), 1);
     appSource = replaceAll(appSource, "from 'three/addons/controls/OrbitControls.js'",
       'from ' + JSON.stringify(orbitUrl), 1);
+    const lines = dec.decode(impacts);
+    meta.impacts.lines = meta.impacts.count ? lines.split('\n') : [];
     window.__hailstorm = { meta: meta, buffer: buffer };
     await import(moduleUrl(appSource));
   }

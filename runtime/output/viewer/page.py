@@ -4,8 +4,8 @@
 shows into it: the seat's surface (float32 points, uint32 triangles), per frame the displacement
 at the frame's time and the peak since the previous frame (int16, each frame and field scaled
 by its own largest component: the error is at most 1/65534 of that), the live stones (position,
-radius, id, force), and ``impacts.csv`` verbatim with the frame each impact shows in. The arrays are
-zlib-compressed and base64-encoded into the page, as are the vendored three.js modules
+radius, id, force), and ``impacts.csv``'s lines verbatim with the frame each impact shows in. The arrays
+and the lines are zlib-compressed and base64-encoded into the page, as are the vendored three.js modules
 (``vendor/three/``, the npm package's files unmodified) and the viewer's own module
 (``app.js``); the browser inflates them (``DecompressionStream``). Nothing is fetched when the page
 is viewed, from a file or from :func:`serve`.
@@ -189,7 +189,7 @@ def build_page(out: str | os.PathLike, *, stride: int | None = None, budget: int
         "scales": list(SCALES), "default_scale": _nice_scale(max(data["n_peak"], default=0.0), length),
         "default_field": "peak", "default_fps": 10,
         "limits": limits,
-        "impacts": {"columns": storm.impact_columns, "lines": storm.impact_lines, "frame": data["impact_frames"]},
+        "impacts": {"columns": storm.impact_columns, "count": len(storm.impact_lines), "frame": data["impact_frames"]},
         "arrays": arrays.places, "series": storm.series,
     }
     meta_text = json.dumps(meta, separators=(",", ":"), allow_nan=False).replace("</", "<\\/").replace("<!--", "<\\!--")
@@ -199,6 +199,7 @@ def build_page(out: str | os.PathLike, *, stride: int | None = None, budget: int
         raise AssertionError("boot.js must not hold '</script'")
     fields = {"VERSION": _version(), "TITLE": html.escape(meta["title"]), "CSS": _asset("page.css"),
               "META": meta_text, "DATA": _pack(arrays.bytes()), "THREE_VERSION": THREE_VERSION,
+              "IMPACTS": _pack("\n".join(storm.impact_lines).encode("utf-8")),
               "APP": _pack(app.encode("utf-8")), "BOOT": boot, **_vendored()}
     page = re.sub(r"\{\{([A-Z_]+)\}\}", lambda m: fields[m.group(1)], _asset("page.html"))
     facts = {"frames": len(held), "frames_total": M, "stride": stride, "impacts": len(storm.impact_lines)}

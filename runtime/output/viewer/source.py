@@ -238,9 +238,9 @@ def _read_impacts(path: Path) -> tuple[list[str], list[str]]:
 
 
 def _vtkhdf_head(path: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    from hailstorm.runtime.output.vtkhdf import _h5py  # the series extra's h5py, with its install hint
+    from hailstorm.runtime.resources import require_extra
 
-    h5py = _h5py()
+    h5py = require_extra("h5py", "series", "reading the storm's one-file time series (storm.vtkhdf)")
     try:
         with h5py.File(path, "r") as f:
             seat = f["VTKHDF"]["seat"]
@@ -287,16 +287,7 @@ def _vtu_head(out: Path) -> tuple[np.ndarray, np.ndarray, np.ndarray, list[tuple
 
 def _vtu_triangles(path: Path) -> tuple[np.ndarray, np.ndarray]:
     """The points and triangles of a surface ``.vtu`` the series wrote."""
-    from hailstorm.runtime.output import vtu
+    from hailstorm.runtime.output.vtu import read_vtu, read_vtu_cells
 
-    root = ET.parse(path).getroot()
-    header = vtu._NUMPY_TYPES[root.get("header_type", "UInt32")]
-    order = "<" if root.get("byte_order", vtu._BYTE_ORDER) == "LittleEndian" else ">"
-    compressed = root.get("compressor") is not None
-    piece = root.find("UnstructuredGrid/Piece")
-    if piece is None:
-        raise ValueError("no piece")
-    conn = next(el for el in piece.findall("Cells/DataArray") if el.get("Name") == "connectivity")
-    pts = vtu._decode(piece.find("Points/DataArray"), header.newbyteorder(order), compressed, order)  # type: ignore[arg-type]
-    tri = vtu._decode(conn, header.newbyteorder(order), compressed, order)
-    return np.asarray(pts, dtype=np.float64).reshape(-1, 3), np.asarray(tri, dtype=np.int64).reshape(-1, 3)
+    points, _ = read_vtu(path)
+    return np.asarray(points, dtype=np.float64).reshape(-1, 3), read_vtu_cells(path, 3)

@@ -42,6 +42,9 @@ def decode(page: str) -> tuple[dict, dict[str, np.ndarray]]:
     dt = {"float32": "<f4", "int16": "<i2", "int32": "<i4", "uint32": "<u4"}
     arrays = {name: np.frombuffer(raw, dtype=dt[a["dtype"]], count=a["length"], offset=a["offset"])
               for name, a in meta["arrays"].items()}
+    b64 = re.search(r'<script type="application/octet-stream" id="hs-impacts">(.*?)</script>', page, re.S).group(1)
+    text = zlib.decompress(base64.b64decode("".join(b64.split()))).decode()
+    meta["impacts"]["lines"] = text.split("\n") if meta["impacts"]["count"] else []
     return meta, arrays
 
 
