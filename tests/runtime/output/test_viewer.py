@@ -282,7 +282,7 @@ def test_serve_serves_the_page_on_localhost(out_copy, tmp_path):
             if m:
                 url = m.group(1)
                 break
-        assert url is not None, proc.stderr.read()
+        assert url is not None, f"no address printed (exit {proc.poll()})"
         with urllib.request.urlopen(url, timeout=30) as r:
             assert r.status == 200 and r.headers["Content-Type"].startswith("text/html")
             assert r.read() == html.read_bytes()
@@ -291,8 +291,8 @@ def test_serve_serves_the_page_on_localhost(out_copy, tmp_path):
         assert e.value.code == 404
     finally:
         proc.terminate()
-        proc.wait(timeout=30)
-    assert proc.returncode in (0, 143, -15)
+        _, err = proc.communicate(timeout=60)
+    assert proc.returncode in (0, 143, -15), err
 
 
 @pytest.mark.slow
