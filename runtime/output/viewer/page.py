@@ -384,8 +384,19 @@ def serve(path: str | os.PathLike, *, host: str = "127.0.0.1", port: int = 8000,
         def log_message(self, format: str, *args: Any) -> None:  # quiet
             pass
 
+    import threading
+
     with ThreadingHTTPServer((host, port), Handler) as httpd:
         url = f"http://{host}:{httpd.server_address[1]}/"
-        if ready is not None:
-            ready(url)
-        httpd.serve_forever()
+        # the server in a thread of its own, this thread waiting: a signal's exception (Ctrl-C, the
+        # CLI's SIGTERM) then ends the wait here, where socketserver's handler of a request's
+        # errors cannot swallow it
+        server = threading.Thread(target=httpd.serve_forever, name="hailstorm-view", daemon=True)
+        server.start()
+        try:
+            if ready is not None:
+                ready(url)
+            while server.is_alive():
+                server.join(0.5)
+        finally:
+            httpd.shutdown()
