@@ -4,6 +4,7 @@
 ``hailstorm storm [options]``      run a storm (bundle built and cached on first use)
 ``hailstorm precompute [options]`` compute a Green's-function bundle
 ``hailstorm info DIR``             describe and verify a bundle
+``hailstorm view OUT [--serve]``   the storm in OUT as one HTML page (served on localhost)
 
 All printing and exit codes live here; the library raises exceptions.
 """
@@ -21,7 +22,7 @@ from typing import Any
 
 EXIT_USAGE = 2
 EXIT_INPUT = 3
-COMMANDS = ("precompute", "storm", "info")
+COMMANDS = ("precompute", "storm", "info", "view")
 
 
 def _positive_float(text: str) -> float:
@@ -129,7 +130,44 @@ def _parser() -> argparse.ArgumentParser:
 
     info = sub.add_parser("info", parents=[common], help="describe and verify a bundle")
     info.add_argument("bundle", type=Path, help="a bundle directory (written by hailstorm precompute)")
+    _view_args(sub.add_parser("view", parents=[common], help="the storm as one HTML page (--serve: on localhost)"))
     return p
+
+
+def _view_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("out", type=Path, help="a storm's output folder (hailstorm storm --out)")
+    p.add_argument("-o", "--output", type=Path, default=None, metavar="HTML",
+                   help="the page to write (default OUT/viewer.html, listed in the storm's manifest)")
+    p.add_argument("--stride", type=_positive_int, default=None, metavar="N",
+                   help="hold every N-th frame (default: every frame while the page stays under about 20 MB; "
+                        "a longer storm is subsampled and the page says by what stride)")
+    p.add_argument("--serve", action="store_true", help="then serve the page on http://127.0.0.1:PORT/ until Ctrl-C")
+    p.add_argument("--port", type=int, default=8000, help="the port of --serve (default 8000; 0: any free port)")
+
+
+def _run_view(args: argparse.Namespace) -> int:
+    """``hailstorm view``: write the storm's page, then (--serve) serve it on localhost."""
+    from hailstorm.runtime.output.viewer import ViewerInputError, serve, write_page
+
+    info = write_page(args.out, args.output, stride=args.stride)
+    if not args.quiet:
+        held = f"{info.frames} frames" if info.stride == 1 else \
+            f"{info.frames} of {info.frames_total} frames (every {info.stride}th)"
+        print(f"viewer   {info.path} ({info.bytes / 1e6:.1f} MB: {held}, {info.impacts} impacts)")
+    if not args.serve:
+        return 0
+
+    def ready(url: str) -> None:
+        print(f"serving  {url} (Ctrl-C stops)", flush=True)
+
+    try:
+        serve(info.path, port=args.port, ready=ready)
+    except KeyboardInterrupt:
+        return 0
+    except OSError as exc:
+        raise ViewerInputError(f"cannot serve on 127.0.0.1:{args.port}: {exc.strerror or exc} "
+                               "(choose another --port)") from None
+    return 0
 
 
 def _storm_args(p: argparse.ArgumentParser) -> None:
@@ -390,6 +428,8 @@ def main(argv: list[str] | None = None) -> int:
             rc = _run_precompute(args)
         elif args.command == "info":
             rc = _run_info(args)
+        elif args.command == "view":
+            rc = _run_view(args)
         else:
             rc = _run_storm(args)
         sys.stdout.flush()  # a closed pipe shows here, not in the interpreter's exit

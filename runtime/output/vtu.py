@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["VTK_CELL_TYPES", "read_vtu", "write_vtu"]
+__all__ = ["VTK_CELL_TYPES", "read_vtu", "read_vtu_cells", "write_vtu"]
 
 #: cell name -> (VTK cell type, nodes per cell)
 VTK_CELL_TYPES: dict[str, tuple[int, int]] = {"vertex": (1, 1), "triangle": (5, 3)}
@@ -165,3 +165,27 @@ def read_vtu(path: str | os.PathLike) -> tuple[np.ndarray, dict[str, np.ndarray]
     data = {el.get("Name", ""): _decode(el, header, compressor is not None, order)
             for el in piece.findall("PointData/DataArray")}
     return points.reshape(-1, 3), data
+
+
+def read_vtu_cells(path: str | os.PathLike, nodes: int) -> np.ndarray:
+    """The cells of a ``.vtu`` file of one cell type with ``nodes`` points each, as a (C, nodes)
+    int64 array of point indices (what :func:`write_vtu` wrote; the viewer reads the seat's
+    triangles with it).
+
+    Raises
+    ------
+    ValueError
+        Not an unstructured grid this reader understands, or its connectivity is not ``nodes`` per cell.
+    """
+    root = ET.parse(path).getroot()
+    if root.get("type") != "UnstructuredGrid":
+        raise ValueError(f"{path}: not a VTK unstructured grid")
+    header = _NUMPY_TYPES[root.get("header_type", "UInt32")]
+    order = "<" if root.get("byte_order", _BYTE_ORDER) == "LittleEndian" else ">"
+    conn = [el for el in root.iterfind("UnstructuredGrid/Piece/Cells/DataArray") if el.get("Name") == "connectivity"]
+    if not conn:
+        raise ValueError(f"{path}: no cells")
+    ids = _decode(conn[0], header.newbyteorder(order), root.get("compressor") is not None, order)
+    if ids.size % nodes:
+        raise ValueError(f"{path}: {ids.size} connectivity entries are not cells of {nodes} points")
+    return np.asarray(ids, dtype=np.int64).reshape(-1, nodes)
