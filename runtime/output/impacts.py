@@ -1,9 +1,10 @@
 """The impacts of ``impacts.csv`` on the video's time axis.
 
 ``impacts.csv`` (:func:`hailstorm.runtime.output.files.impacts_csv`) gives each impact's
-stone, its contact point at onset, its normal speed and its peak force, but not *when* it
-happened. The video's force panel marks each impact's peak force at its time, so
-:func:`impact_times` places them: the stone's gap to the onset point in the last
+stone, when its contact opened and when it peaked (``t_onset_s``, ``t_peak_s``), its contact
+point at onset, its normal speed and its peak force. The video's force panel marks each
+impact's peak force at its time, :func:`impact_times`: the file's ``t_peak_s``. A file
+written before the storm recorded the times has none; for it the times are estimated: the stone's gap to the onset point in the last
 recorded frame before it touched, crossed at the impact's speed, gives the onset; the
 peak is the largest total force of the storm's per-step history in the contact's first
 :data:`PEAK_WINDOW` seconds after it (where no history is given: the onset). An impact
@@ -61,14 +62,14 @@ def read_impacts(path: str | os.PathLike) -> dict[str, np.ndarray]:
 
 def impact_times(impacts: dict[str, np.ndarray], frames: Sequence[Any],
                  history: np.ndarray | None = None) -> np.ndarray:
-    """When each impact of ``impacts`` peaked [s] (estimated; see the module notes).
+    """When each impact of ``impacts`` peaked [s] (the file's ``t_peak_s``, else estimated: the module notes).
 
     Parameters
     ----------
     impacts : dict
         Columns of ``impacts.csv`` (:func:`read_impacts`): ``stone``, ``x_m``, ``y_m``,
-        ``z_m``, ``radius_m``, ``speed_m_s``, ``peak_force_N``; a ``t_s`` column, where
-        present, is taken as the times themselves.
+        ``z_m``, ``radius_m``, ``speed_m_s``, ``peak_force_N``; a ``t_peak_s`` column (the storm
+        records it), where present, is taken as the times themselves.
     frames : sequence of Frame
         The storm's recorded frames (``t``, ``ids``, ``positions``), in time order.
     history : (m, 3) ndarray, optional
@@ -79,8 +80,8 @@ def impact_times(impacts: dict[str, np.ndarray], frames: Sequence[Any],
     (n,) ndarray
         One time per impact [s], in the file's order.
     """
-    if "t_s" in impacts:
-        return np.asarray(impacts["t_s"], dtype=np.float64)
+    if "t_peak_s" in impacts:
+        return np.asarray(impacts["t_peak_s"], dtype=np.float64)
     n = len(impacts.get("stone", ()))
     if n == 0:
         return np.zeros(0)

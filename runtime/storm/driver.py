@@ -292,7 +292,7 @@ class Storm:
                 h = self.integrator.substep_size(stones, near, t_left, self.contacts.current, self._k_tri(), self.g)
                 if n_sub >= 4 * self.scene.time.max_substeps:
                     h = t_left  # safety net: never stall
-                t_left -= self._substep(near, h)
+                t_left -= self._substep(near, h, self.t + (dt - t_left))
                 n_sub += 1
         elif seat.loaded:
             self.contacts.release()
@@ -331,7 +331,7 @@ class Storm:
         """The triangles' point stiffness when the integrator sizes sub-steps by it (computed once)."""
         return self.patches.k_tri if self.integrator.sizes_substeps else None
 
-    def _substep(self, near: np.ndarray, h: float) -> float:
+    def _substep(self, near: np.ndarray, h: float, t0: float = 0.0) -> float:
         """Advance the near stones by at most ``h``; returns the time actually taken
         (shorter when a stone is about to touch the seat: time of impact): the free
         phase (closest points, time of impact, contacts that open, hard walls), then the
@@ -347,7 +347,7 @@ class Storm:
         soft = near[in_contact]
         free = near[~in_contact] if soft.size else near
         if soft.size:
-            self.contacts.advance(stones, near, soft, was_open, h, self.stats)
+            self.contacts.advance(stones, near, soft, was_open, h, self.stats, t0)
         else:
             self.contacts.release()
         if free.size:

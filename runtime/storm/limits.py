@@ -266,6 +266,10 @@ class ImpactLimits:
         self.where: list[tuple[int, list[float]]] = []
         self.indentation: list[float] = []
         self.force: list[float] = []
+        #: per impact: the start of the sub-step its contact opened in, and the end of the sub-step
+        #: that held its peak force [s]
+        self.t_onset: list[float] = []
+        self.t_peak: list[float] = []
         self._thickness = np.zeros(0)
         self._inertia: InertiaFactors | None = None  # of the impacts so far, computed when first read
         self._changes = 0  # bumped by every change of a record (the summary's cache key)
@@ -286,8 +290,8 @@ class ImpactLimits:
 
     def observe(self, soft: list[int], radius: list[float], mass: list[float], tris: list[int], bary: list[list[float]],
                 opening: list[bool], vin: list[float] | None, touched: list[bool], indentation: list[float],
-                force: list[float]) -> None:
-        """Record one contact sub-step of the stones ``soft`` (sequences of length s).
+                force: list[float], t: float = 0.0, h: float = 0.0) -> None:
+        """Record one contact sub-step ``[t, t + h]`` of the stones ``soft`` (sequences of length s).
 
         Parameters
         ----------
@@ -301,6 +305,7 @@ class ImpactLimits:
         touched : the contact carried force within the sub-step
         indentation : largest normal contact displacement within the sub-step [m]
         force : largest contact force magnitude within the sub-step [N]
+        t, h : the sub-step's start and length [s] (the records' times, ``t_onset_s`` and ``t_peak_s``)
         """
         rec_of = self.record_of
         self._changes += 1
@@ -318,12 +323,15 @@ class ImpactLimits:
                     self.speed.append(-float(vin[i]))
                     self.indentation.append(0.0)
                     self.force.append(0.0)
+                    self.t_onset.append(float(t))
+                    self.t_peak.append(float(t + h))
             k = rec_of.get(j)
             if k is not None:
                 if indentation[i] > self.indentation[k]:
                     self.indentation[k] = float(indentation[i])
                 if force[i] > self.force[k]:
                     self.force[k] = float(force[i])
+                    self.t_peak[k] = float(t + h)
 
     @property
     def thickness(self) -> np.ndarray:
@@ -373,7 +381,9 @@ class ImpactLimits:
     def table(self) -> dict[str, np.ndarray]:
         """Every impact so far, one entry per column, (n,) each (``impacts.csv``).
 
-        Columns: ``stone`` (its id), ``x_m``, ``y_m``, ``z_m`` (the contact point at onset, on
+        Columns: ``stone`` (its id), ``t_onset_s`` (the start of the sub-step its contact opened
+        in), ``t_peak_s`` (the end of the sub-step that held its peak force: the peak lies at most
+        one sub-step before), ``x_m``, ``y_m``, ``z_m`` (the contact point at onset, on
         the undeformed surface), ``radius_m``, ``mass_kg``, ``speed_m_s`` (normal, at onset),
         ``thickness_m`` (the pad under it), ``peak_force_N`` (the storm's), ``peak_force_dynamic_N``
         (times the inertia factor; NaN where not measured), ``indentation_m``, ``indentation_thickness_ratio``,
@@ -398,7 +408,8 @@ class ImpactLimits:
                     "strain": eps > lim.strain, "contact_time": tr < lim.contact_time,
                     "inertia": f.largest_change() > lim.inertia if f is not None else np.zeros(n, dtype=bool)}
         beyond = np.array([";".join(k for k, v in over.items() if v[i]) for i in range(n)], dtype=object)
-        table = {"stone": np.array(self.stone, dtype=np.int64), "x_m": X[:, 0], "y_m": X[:, 1], "z_m": X[:, 2],
+        table = {"stone": np.array(self.stone, dtype=np.int64), "t_onset_s": np.array(self.t_onset, dtype=np.float64),
+                 "t_peak_s": np.array(self.t_peak, dtype=np.float64), "x_m": X[:, 0], "y_m": X[:, 1], "z_m": X[:, 2],
                  "radius_m": np.array(self.radius, dtype=np.float64), "mass_kg": np.array(self.mass, dtype=np.float64),
                  "speed_m_s": np.array(self.speed, dtype=np.float64), "thickness_m": self.thickness.copy(),
                  "peak_force_N": F, "peak_force_dynamic_N": F * fac[0],
@@ -501,7 +512,7 @@ def summarise(dh: np.ndarray, aR: np.ndarray, eps: np.ndarray, thickness: np.nda
 
 
 #: the columns of :meth:`ImpactLimits.table` (``impacts.csv``), in their order
-IMPACT_COLUMNS = ("stone", "x_m", "y_m", "z_m", "radius_m", "mass_kg", "speed_m_s", "thickness_m", "peak_force_N",
+IMPACT_COLUMNS = ("stone", "t_onset_s", "t_peak_s", "x_m", "y_m", "z_m", "radius_m", "mass_kg", "speed_m_s", "thickness_m", "peak_force_N",
                   "peak_force_dynamic_N", "indentation_m", "indentation_thickness_ratio", "contact_radius_ratio",
                   "strain_ratio", "contact_time_ratio", "inertia_force", "inertia_duration", "inertia_restitution",
                   "inertia_dent", "beyond")

@@ -83,11 +83,11 @@ class SoftContacts:
         self.seat.set_forces(None, self.lam)
 
     def advance(self, stones: Stones, near: np.ndarray, soft: np.ndarray, was_open: np.ndarray, h: float,
-                stats: StormStats) -> None:
+                stats: StormStats, t: float = 0.0) -> None:
         """Advance the stones in soft contact ``soft`` (of the ``near`` stones, whose contacts
         were open at the sub-step's start where ``was_open``) by ``h`` through the
         capacitance of their contact set, with unilateral release; update the seat's
-        forces and the statistics."""
+        forces and the statistics (``t``: the sub-step's start, for the impacts' records)."""
         tris = stones.ctri[soft]
         key: tuple[Any, ...]
         cc = self.current
@@ -126,7 +126,7 @@ class SoftContacts:
             q, a, vq, gq, res.q, res.v, res.active, res.seat_force, res.peak_seat_force, res.peak_ubar,
             self.contact.sticky, exact, h, self.time.rest_speed)
         stats.impacts += int(impacts)
-        self._observe_limits(cc, soft, stones.radius[soft], stones.mass[soft], ~open_before, vin, res, stats)
+        self._observe_limits(cc, soft, stones.radius[soft], stones.mass[soft], ~open_before, vin, res, stats, t, h)
         self.lam = res.seat_force
         self.seat.set_forces(cc, res.seat_force, res.peak_seat_force)
         stats.max_contact_force = max(stats.max_contact_force, float(fmax))
@@ -205,7 +205,8 @@ class SoftContacts:
         return h
 
     def _observe_limits(self, cc: ContactSet, soft: np.ndarray, radius: np.ndarray, mass: np.ndarray,
-                        opening: np.ndarray, vin: np.ndarray | None, res: Any, stats: StormStats) -> None:
+                        opening: np.ndarray, vin: np.ndarray | None, res: Any, stats: StormStats, t: float,
+                        h: float) -> None:
         """Hand the sub-step's per-contact peaks to the validity measures (:class:`ImpactLimits`),
         with the touched rule of :func:`hailstorm.runtime.compiled.contact_post`."""
         stats.validity = self.limits
@@ -226,7 +227,7 @@ class SoftContacts:
             indent = (cc.offset - res.peak_ubar).tolist()
             force = [max(abs(f), abs(p)) for f, p in zip(seat, peak)]
         self.limits.observe(ids, radius.tolist(), mass.tolist(), cc.tris.tolist(), cc.bary.tolist(), opening.tolist(),
-                            None if vin is None else vin.tolist(), touched, indent, force)
+                            None if vin is None else vin.tolist(), touched, indent, force, t, h)
 
     def forces(self, ctri: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Stone ids in soft contact and the forces they apply to the seat, (s,), (s, 3)

@@ -65,7 +65,7 @@ def test_every_file_a_pvd_lists_reads_back_with_meshio(seat_bundle, tmp_path, ca
     assert sorted(f.name for f in (out / "frames").iterdir()) == sorted(f.name for f in files)
     assert {"storm.pvd", "storm_stones.pvd", "summary.json", "impacts.csv"} <= set(manifest["files"])
     lines = (out / "impacts.csv").read_text().splitlines()  # a header, then one line per impact
-    assert lines[0].startswith("stone,x_m,y_m,z_m,radius_m") and len(lines) == 1 + summary["impacts"]
+    assert lines[0].startswith("stone,t_onset_s,t_peak_s,x_m,y_m,z_m,radius_m") and len(lines) == 1 + summary["impacts"]
     assert any(f.startswith("storm.") and f.endswith((".mp4", ".gif")) for f in manifest["files"])
     # no temporary directory left beside it
     assert sorted(p.name for p in tmp_path.iterdir()) == ["run"]

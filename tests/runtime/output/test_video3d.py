@@ -207,7 +207,7 @@ def test_the_force_panel_shows_the_impacts_numbers_and_the_frames_totals(box_sto
 
 def test_impact_times_from_a_stone_falling_straight(plate):
     """A stone falling at 5 m/s from 20 mm above the onset point: onset 4 ms after the frame
-    (gravity adds 0.08 mm); a t_s column is taken as it is."""
+    (gravity adds 0.08 mm); a t_peak_s column is taken as it is."""
     r = 0.004
     point = np.array([0.05, 0.05, 0.02])
     frames = []
@@ -218,7 +218,7 @@ def test_impact_times_from_a_stone_falling_straight(plate):
            "speed_m_s": np.array([5.0]), "peak_force_N": np.array([10.0])}
     t = impact_times(imp, frames)
     assert t[0] == pytest.approx(0.004, abs=5e-5)
-    assert impact_times({**imp, "t_s": np.array([0.5])}, frames)[0] == 0.5
+    assert impact_times({**imp, "t_peak_s": np.array([0.5])}, frames)[0] == 0.5
 
 
 @pytest.mark.parametrize("dents", ["now", "peak"])

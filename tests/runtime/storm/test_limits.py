@@ -242,9 +242,22 @@ def test_a_drop_on_the_box_records_its_impact(box_gf, integrator, mode, patch):
     st = Storm(box_gf, sc, spawn=False)
     R = 0.004
     st.add_stones(np.array([[0.047, 0.037, H + R + 1e-3]]), np.array([[0.0, 0.0, -4.0]]), np.array([R]))
+    force = []  # (step end, the stone's contact force then)
     for _ in range(int(0.03 / 2e-4)):
         st.step()
+        f = st.contact_forces()[1]
+        force.append((st.t, float(np.linalg.norm(f, axis=1).sum()) if len(f) else 0.0))
     S, lim = st.stats, st.contacts.limits
+    # its times: the onset when the stone, falling 1 mm at 4 m/s under gravity, reaches the surface (a
+    # patch's contact surface lies its sphere's offset, ~0.1 mm, deeper: ~25 us later, within a step);
+    # the peak at the step ends nearest the largest force of the first impact, within one step
+    table = lim.table()
+    t_touch = (-4.0 + np.sqrt(16.0 + 2 * 9.81 * 1e-3)) / 9.81
+    assert t_touch - 1e-9 <= table["t_onset_s"][0] <= t_touch + 2e-4
+    t, fs = np.array(force).T
+    first = (t > table["t_onset_s"][0]) & (t < (table["t_onset_s"][1] if lim.n > 1 else np.inf))
+    assert abs(table["t_peak_s"][0] - t[first][np.argmax(fs[first])]) <= 2e-4 + 1e-12
+    assert np.all(table["t_onset_s"] < table["t_peak_s"])
     assert S["impacts"] >= 1 and lim.n == S["impacts"]
     assert max(lim.indentation) == S["max_indentation_m"]
     np.testing.assert_allclose(lim.thickness, H, rtol=1e-12)
