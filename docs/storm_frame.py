@@ -8,10 +8,13 @@ Usage::
 
 Runs the packaged default scene (``Scene.default()``, optionally shortened with
 ``--duration``) on the default seat (the bundle ``hailstorm`` builds and caches),
-keeps its frames, and renders with the video's own renderer
-(:class:`hailstorm.runtime.output.render.StormRenderer`, colour scale set over
-all frames as in ``storm.mp4``) the frame with the most stones in contact, ties
-broken by the deepest dent shown. Prints the frame's time and what it shows.
+keeps its frames, and renders with the video's own 3-D renderer
+(:class:`hailstorm.runtime.output.video3d.Storm3DRenderer`: the seat's state at the
+frame's instant, colour scale set over all frames and the impacts' markers at their
+``t_peak_s``, as in ``storm.mp4``, with 4x multisampling for the still) the frame
+with the deepest dent at its instant, ties broken by the most stones in contact.
+Prints the frame's time and what it shows. Without an off-screen OpenGL (VTK's EGL or
+OSMesa) it falls back to the 2-D renderer.
 """
 
 from __future__ import annotations
@@ -23,7 +26,6 @@ import numpy as np
 
 from hailstorm.precompute import build_bundle
 from hailstorm.runtime import Scene, SeatSettings, load, run_storm
-from hailstorm.runtime.output.render import StormRenderer, shown_displacement
 
 
 def default_seat():
@@ -34,10 +36,10 @@ def default_seat():
 
 
 def pick_frame(frames) -> int:
-    """Index of the frame with the most contacts, then the deepest shown dent."""
-    def score(i: int) -> tuple[int, float]:
-        dent = float(np.linalg.norm(shown_displacement(frames[i]), axis=1).max(initial=0.0))
-        return int(frames[i].contacts), dent
+    """Index of the frame with the deepest dent at its instant, then the most contacts."""
+    def score(i: int) -> tuple[float, int]:
+        dent = float(np.linalg.norm(np.asarray(frames[i].displacement), axis=1).max(initial=0.0))
+        return dent, int(frames[i].contacts)
     return max(range(len(frames)), key=score)
 
 
@@ -56,15 +58,30 @@ def main(argv: list[str] | None = None) -> int:
     result = run_storm(gf, scene, progress=False, keep_frames=True)
     frames = result.frames
     i = pick_frame(frames)
-    renderer = StormRenderer.for_frames(frames, gf, history=result.history, size=tuple(args.size))
+    from hailstorm.runtime.output.offscreen import three_d_available
+
+    if three_d_available() is not None:
+        from hailstorm.runtime.output.video3d import Storm3DRenderer
+        from hailstorm.runtime.storm.limits import IMPACT_COLUMNS
+
+        rec = result.stats.validity
+        impacts = rec.table() if rec is not None else {k: np.zeros(0) for k in IMPACT_COLUMNS}
+        renderer = Storm3DRenderer.for_frames(frames, gf, history=result.history, impacts=impacts,
+                                              size=tuple(args.size), samples=4)
+        what = "3-D"
+    else:
+        from hailstorm.runtime.output.render import StormRenderer
+
+        renderer = StormRenderer.for_frames(frames, gf, history=result.history, size=tuple(args.size))
+        what = "2-D (no off-screen OpenGL here)"
     image = renderer.render(frames[i])
     args.out.parent.mkdir(parents=True, exist_ok=True)
     import matplotlib.image
 
     matplotlib.image.imsave(args.out, image)
-    dent = float(np.linalg.norm(shown_displacement(frames[i]), axis=1).max(initial=0.0))
-    print(f"{args.out}: frame {i} of {len(frames)} at t = {frames[i].t * 1e3:.1f} ms, "
-          f"{int(frames[i].contacts)} stone(s) in contact, deepest dent shown {dent * 1e3:.2f} mm")
+    dent = float(np.linalg.norm(np.asarray(frames[i].displacement), axis=1).max(initial=0.0))
+    print(f"{args.out}: {what} frame {i} of {len(frames)} at t = {frames[i].t * 1e3:.1f} ms, "
+          f"{int(frames[i].contacts)} stone(s) in contact, deepest dent {dent * 1e3:.2f} mm")
     return 0
 
 
