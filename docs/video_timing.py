@@ -7,7 +7,7 @@ Usage::
 
 Runs the default storm once (frames kept; the storm's own wall time is reported too), then
 alternates the two renderers ``--rounds`` times: per frame, the render alone (median over
-the frames), and the whole :func:`~hailstorm.runtime.output.render.write_animation` (render
+the frames), and the whole :func:`~hailstorm.runtime.output.animation.write_animation` (render
 and encode). The minimum over the rounds is the figure (the machine's other load only adds).
 """
 
@@ -27,7 +27,8 @@ from hailstorm.runtime import Scene, SeatSettings, load, run_storm
 from hailstorm.runtime.output.files import impacts_csv
 from hailstorm.runtime.output.impacts import read_impacts
 from hailstorm.runtime.output.offscreen import three_d_available
-from hailstorm.runtime.output.render import StormRenderer, write_animation
+from hailstorm.runtime.output.animation import write_animation
+from hailstorm.runtime.output.render import StormRenderer
 from hailstorm.runtime.output.video3d import Storm3DRenderer
 
 

@@ -22,7 +22,7 @@ from threadpoolctl import threadpool_limits
 from hailstorm import precompute, runtime
 from hailstorm.runtime.bundle.write import convert_bundle
 from hailstorm.runtime.output.files import StormOutput
-from hailstorm.runtime.output.render import write_animation
+from hailstorm.runtime.output.animation import write_animation
 
 BLOCK = Path(__file__).resolve().parent / "geometries" / "block.geo"
 

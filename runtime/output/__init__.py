@@ -8,6 +8,6 @@
 """
 
 from hailstorm.runtime.output.files import OutputError, StormOutput, summary, write_paraview, write_summary
-from hailstorm.runtime.output.render import write_animation
+from hailstorm.runtime.output.animation import write_animation
 
 __all__ = ["OutputError", "StormOutput", "summary", "write_animation", "write_paraview", "write_summary"]

@@ -15,7 +15,7 @@ Use::
         result = hailstorm.runtime.run_storm(gf, scene, on_frame=out.add)
         out.finish(result)                         # pvd, summary.json, storm.mp4: then in place
 
-The animation is :mod:`hailstorm.runtime.output.render`'s (:func:`write_animation`
+The animation is :mod:`hailstorm.runtime.output.animation`'s (:func:`write_animation`
 is re-exported here); it needs the ``video`` extra (matplotlib, imageio), imported
 inside the writers. The ParaView series is written with numpy alone
 (:mod:`hailstorm.runtime.output.vtu`): the core install writes everything but the animation.
@@ -39,7 +39,7 @@ import numpy as np
 from hailstorm.runtime.bundle.atomic import probe_writable, sibling_name_problem, write_text_atomic
 from hailstorm.runtime.output.impacts import read_impacts
 from hailstorm.runtime.output.render import shown_displacement as _shown
-from hailstorm.runtime.output.render import write_animation
+from hailstorm.runtime.output.animation import write_animation
 from hailstorm.runtime.output.vtu import read_vtu, write_vtu
 from hailstorm.runtime.resources import missing_module, require_extras
 
@@ -535,7 +535,11 @@ class StormOutput:
         self._before: tuple | None = None
 
     def __enter__(self) -> "StormOutput":
-        self.open()
+        try:
+            self.open()
+        except BaseException:  # (a signal inside open(): __exit__ would not run)
+            self.abort()
+            raise
         return self
 
     def __exit__(self, *exc: Any) -> None:

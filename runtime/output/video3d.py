@@ -18,7 +18,7 @@ Each frame (:class:`Storm3DRenderer`, 1280 x 720 pixels by default) shows
   total contact force on the seat and each impact's peak (``impacts.csv``).
 
 It needs VTK with an off-screen OpenGL (:func:`hailstorm.runtime.output.offscreen.three_d_available`);
-:func:`hailstorm.runtime.output.render.write_animation` falls back to the 2-D renderer without.
+:func:`hailstorm.runtime.output.animation.write_animation` falls back to the 2-D renderer without.
 """
 
 from __future__ import annotations

@@ -88,7 +88,7 @@ INERTIA_SECONDS_PER_IMPACT = 2e-5
 #: wall time of rendering one frame of the video [s] (``storm.mp4``, after the storm: the default
 #: storm over 0.5 s, 126 frames in ~5.3 s)
 VIDEO_SECONDS_PER_FRAME = 0.042
-#: the video's frames at most (:func:`hailstorm.runtime.output.render.write_animation`'s ``max_frames``:
+#: the video's frames at most (:func:`hailstorm.runtime.output.animation.write_animation`'s ``max_frames``:
 #: a long storm's video is evenly subsampled)
 VIDEO_FRAMES = 100
 #: wall time of a warm start [s]: imports, the bundle, the compiled kernels from numba's cache

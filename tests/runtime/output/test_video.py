@@ -5,7 +5,8 @@ import numpy as np
 import pytest
 
 from hailstorm.runtime.bundle.read import load
-from hailstorm.runtime.output.render import FRAME_SIZE, StormRenderer, write_animation
+from hailstorm.runtime.output.animation import write_animation
+from hailstorm.runtime.output.render import FRAME_SIZE, StormRenderer
 from hailstorm.runtime.storm.scene import Scene
 from hailstorm.runtime.storm.driver import Frame, Storm, run_storm
 

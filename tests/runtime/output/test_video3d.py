@@ -249,7 +249,7 @@ def test_write_animation_is_3d_and_falls_back_to_2d(box_storm, tmp_path, monkeyp
     import imageio.v2 as imageio
 
     import hailstorm.runtime.output.offscreen as offscreen
-    from hailstorm.runtime.output.render import write_animation
+    from hailstorm.runtime.output.animation import write_animation
 
     gf, res, imp = box_storm
     out = write_animation(res, gf, tmp_path / "a.mp4", max_frames=3, size=SIZE, impacts=imp)

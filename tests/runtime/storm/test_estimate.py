@@ -76,7 +76,7 @@ def test_the_video_costs_its_subsampled_frames():
     30 s storm's video costs what a 10 s storm's does; only the series' files grow."""
     import inspect
 
-    from hailstorm.runtime.output.render import write_animation
+    from hailstorm.runtime.output.animation import write_animation
     from hailstorm.runtime.storm.estimate import FRAME_SECONDS_PER_VERTEX, VIDEO_FRAMES, VIDEO_SECONDS_PER_FRAME
 
     assert inspect.signature(write_animation).parameters["max_frames"].default == VIDEO_FRAMES
