@@ -313,7 +313,7 @@ def _run_storm(args: argparse.Namespace) -> int:
         import json
 
         s = json.loads(paths["summary"].read_text())
-        keys = ("hailstones", "impacts", "max_contact_force_N", "max_impact_force_dynamic_N", "max_indentation_m",
+        keys = ("hailstones", "impacts", "max_contact_force", "max_impact_force_dynamic_N", "max_indentation_m",
                 "max_simultaneous_contacts",
                 "steps", "frames", "sim_time_s", "wall_time_s", "real_time_factor", "compile_time_s", "setup_time_s",
                 "backend")

@@ -345,6 +345,10 @@ def _measure(gmsh, names: dict) -> tuple[float, float, float, float]:
     return area_top, area_all, volume, float(ext.min())
 
 
+#: a geometry whose estimated surface has more vertices than this is announced before it is
+#: meshed (meshing it takes a while); smaller ones are meshed silently
+ANNOUNCE_SURFACE_VERTICES = 20_000
+
 #: distance between the points at which gmsh samples ``top`` for the distance field, in
 #: units of the mesh size: the farthest surface point from a sample is then ~0.35 of it, inside
 #: the band (0.5 of it) where the field asks for the mesh size itself. gmsh's own default
@@ -454,9 +458,9 @@ def mesh_geometry(path: str | os.PathLike, mesh_size: float, *, coarsening: floa
         if mesh_size > smallest:
             log.warning("%s: mesh size %g m is larger than the body's smallest extent (%.3g m): the mesh cannot "
                         "resolve the body, and its Green's functions mean little", path.name, mesh_size, smallest)
-        check_fits(estimate_geometry(area_top, area_all, volume, mesh_size, order, coarsening,
-                                     volume_size=volume_size),
-                   f"{path.name} at mesh size {mesh_size:g} m", allow_large=allow_large)
+        estimate = estimate_geometry(area_top, area_all, volume, mesh_size, order, coarsening,
+                                     volume_size=volume_size)
+        check_fits(estimate, f"{path.name} at mesh size {mesh_size:g} m", allow_large=allow_large)
         fine = []
         if "top" in names:
             fine = list(gmsh.model.getEntitiesForPhysicalGroup(*names["top"]))
@@ -487,7 +491,11 @@ def mesh_geometry(path: str | os.PathLike, mesh_size: float, *, coarsening: floa
             gmsh.model.mesh.field.setNumbers(f_min, "FieldsList", extra)
             gmsh.model.mesh.field.setAsBackgroundMesh(f_min)
         gmsh.option.setNumber("Mesh.ElementOrder", 1)
-        log.info("meshing %s at %g m ...", path.name, mesh_size)
+        # announced ahead only when it takes a while (build_bundle reports a mesh it computes
+        # a bundle for; a warm run meshes only to find its bundle's key, and says nothing of it)
+        log.log(logging.INFO if estimate.n_surface > ANNOUNCE_SURFACE_VERTICES else logging.DEBUG,
+                "meshing %s at %g m (about %s surface vertices) ...", path.name, mesh_size,
+                f"{estimate.n_surface:,}")
         try:
             with _interruptible():
                 gmsh.model.mesh.generate(3)

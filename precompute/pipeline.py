@@ -448,6 +448,8 @@ def _compute(out: Path, mesh: TetMesh, surface: Surface, options: dict, key: str
     with ``stream_tol``, D compressed as it is solved (:func:`_stream_hmatrix`), under ``final_key``."""
     order, young, poisson = options["order"], options["young"], options["poisson"]
     solver, load = options["solver"], options["load"]
+    log.info("mesh %s: %d points, %d tetrahedra (%.1f s)", mesh.source, mesh.points.shape[0], mesh.tets.shape[0],
+             t_mesh)
     t1 = time.perf_counter()
     basis = elasticity_basis(mesh, order)
     K = stiffness_matrix(basis, young, poisson) if len(mats.names) == 1 else \
