@@ -69,7 +69,7 @@ def _parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command")
 
     pre = sub.add_parser("precompute", parents=[common], help="compute a Green's-function bundle for a seat")
-    from hailstorm.runtime.storm.scene import SeatSettings
+    from hailstorm.runtime.seat_settings import SeatSettings
 
     seat = SeatSettings.default()
     pre.add_argument("--mesh-size", type=_positive_float, default=seat.mesh_size,
@@ -249,7 +249,8 @@ def _run_storm(args: argparse.Namespace) -> int:
     from hailstorm.runtime.bundle.read import load
     from hailstorm.runtime.output.files import StormOutput, check_storm_out
     from hailstorm.runtime.resources import missing_module, require_extras
-    from hailstorm.runtime.storm.scene import Scene, SeatSettings
+    from hailstorm.runtime.seat_settings import SeatSettings
+    from hailstorm.runtime.storm.scene import Scene
     from hailstorm.runtime.storm.driver import run_storm
     from hailstorm.runtime.storm.estimate import hit_fraction
 

@@ -20,7 +20,7 @@ from hailstorm.runtime.resources import require_extra
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from hailstorm.precompute.geometry import TetMesh
+from hailstorm.precompute.tetmesh import TetMesh
 
 #: Defaults for a padded saddle treated as one homogeneous solid (see the docs, "Choosing settings").
 DEFAULT_YOUNG = 2.0e6

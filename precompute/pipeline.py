@@ -38,7 +38,7 @@ from hailstorm.precompute.fem import (
     stiffness_matrix,
     vertex_dofs,
 )
-from hailstorm.precompute.geometry import DEFAULT_MESH_SIZE, TetMesh, check_mesh, load_seat
+from hailstorm.precompute.geometry import DEFAULT_MESH_SIZE, load_seat
 from hailstorm.precompute.blocks import remove_work_dir, work_dir
 from hailstorm.precompute.hmatrix import compliance_record, compress_bundle
 from hailstorm.precompute.greens import ColumnProblem, column_problem, hat_load_matrix
@@ -53,6 +53,7 @@ from hailstorm.precompute.materials import (
 from hailstorm.precompute.settings import LOADS, BuildSettings, RunSettings, settings_from_keywords
 from hailstorm.precompute.solve_loops import CHECKPOINT_SECONDS, solve_dense, solve_streamed
 from hailstorm.precompute.surface import Surface, extract_surface
+from hailstorm.precompute.tetmesh import TetMesh, check_mesh
 from hailstorm.runtime.bundle.format import FORMAT_VERSION, BundleError, bundle_key, is_bundle, read_manifest
 from hailstorm.runtime.bundle.write import (
     bundle_lock,

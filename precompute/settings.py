@@ -24,12 +24,12 @@ from typing import Any
 
 import numpy as np
 
-from hailstorm.precompute.geometry import DEFAULT_COARSENING, DEFAULT_MESH_SIZE, TetMesh, check_coarsening, \
-    check_volume_size
+from hailstorm.precompute.geometry import DEFAULT_COARSENING, DEFAULT_MESH_SIZE, check_coarsening, check_volume_size
 from hailstorm.precompute.greens import DEFAULT_STORE_BYTES, SolverSpec, solver_spec
 from hailstorm.precompute.hmatrix import check_tol, compressed_key
 from hailstorm.precompute.hstream import streamed_key
 from hailstorm.precompute.materials import check_material_input
+from hailstorm.precompute.tetmesh import TetMesh
 from hailstorm.runtime.bundle.format import COMPLIANCE_DTYPES
 
 __all__ = ["LOADS", "BuildSettings", "RunSettings", "settings_from_keywords"]

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from hailstorm.precompute.geometry import MeshError, TetMesh, boundary_triangles
+from hailstorm.precompute.tetmesh import MeshError, TetMesh, boundary_triangles
 from hailstorm.precompute.greens import lumped_areas
 
 __all__ = ["Surface", "extract_surface"]
