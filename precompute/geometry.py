@@ -272,35 +272,7 @@ def mesh_geometry(path: str | os.PathLike, mesh_size: float, *, coarsening: floa
         estimate = estimate_geometry(area_top, area_all, volume, mesh_size, order, coarsening,
                                      volume_size=volume_size)
         check_fits(estimate, f"{path.name} at mesh size {mesh_size:g} m", allow_large=allow_large)
-        fine = []
-        if "top" in names:
-            fine = list(gmsh.model.getEntitiesForPhysicalGroup(*names["top"]))
-        gmsh.option.setNumber("Mesh.MeshSizeFromPoints", 0)
-        gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", 0)
-        gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 0)
-        gmsh.option.setNumber("Mesh.MeshSizeMax", coarsening * mesh_size)
-        smallest_size = min([0.25 * mesh_size, volume_size or mesh_size] + [r.size for r in refine])
-        gmsh.option.setNumber("Mesh.MeshSizeMin", smallest_size)
-        extra = _grading_fields(gmsh, volume_size, refine)
-        if fine:
-            f_dist = gmsh.model.mesh.field.add("Distance")
-            gmsh.model.mesh.field.setNumbers(f_dist, "SurfacesList", fine)
-            gmsh.model.mesh.field.setNumber(f_dist, "Sampling", distance_sampling(gmsh, fine, mesh_size))
-            f_thr = gmsh.model.mesh.field.add("Threshold")
-            gmsh.model.mesh.field.setNumber(f_thr, "InField", f_dist)
-            gmsh.model.mesh.field.setNumber(f_thr, "SizeMin", mesh_size)
-            gmsh.model.mesh.field.setNumber(f_thr, "SizeMax", coarsening * mesh_size)
-            gmsh.model.mesh.field.setNumber(f_thr, "DistMin", 0.5 * mesh_size)
-            gmsh.model.mesh.field.setNumber(f_thr, "DistMax", (0.5 + (coarsening - 1.0) / GRADING_SLOPE) * mesh_size)
-            extra.append(f_thr)
-        else:
-            gmsh.option.setNumber("Mesh.MeshSizeMax", mesh_size)
-        if len(extra) == 1:
-            gmsh.model.mesh.field.setAsBackgroundMesh(extra[0])
-        elif extra:
-            f_min = gmsh.model.mesh.field.add("Min")
-            gmsh.model.mesh.field.setNumbers(f_min, "FieldsList", extra)
-            gmsh.model.mesh.field.setAsBackgroundMesh(f_min)
+        _set_sizes(gmsh, names, mesh_size, coarsening, volume_size, refine)
         gmsh.option.setNumber("Mesh.ElementOrder", 1)
         # announced ahead only when it takes a while (build_bundle reports a mesh it computes
         # a bundle for; a warm run meshes only to find its bundle's key, and says nothing of it)
@@ -318,6 +290,42 @@ def mesh_geometry(path: str | os.PathLike, mesh_size: float, *, coarsening: floa
         return _mesh_from_gmsh(gmsh, names, source=tag)
     finally:
         gmsh.finalize()
+
+
+def _set_sizes(gmsh, names: dict, mesh_size: float, coarsening: float, volume_size: float | None,
+               refine: tuple[Refinement, ...]) -> None:
+    """gmsh's element sizes for :func:`mesh_geometry`: ``mesh_size`` on ``top``, growing to
+    ``coarsening * mesh_size`` away from it (:data:`GRADING_SLOPE`), the volume grading and the
+    refinements (:func:`_grading_fields`), the smallest of them where they meet."""
+    fine = []
+    if "top" in names:
+        fine = list(gmsh.model.getEntitiesForPhysicalGroup(*names["top"]))
+    gmsh.option.setNumber("Mesh.MeshSizeFromPoints", 0)
+    gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", 0)
+    gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 0)
+    gmsh.option.setNumber("Mesh.MeshSizeMax", coarsening * mesh_size)
+    smallest_size = min([0.25 * mesh_size, volume_size or mesh_size] + [r.size for r in refine])
+    gmsh.option.setNumber("Mesh.MeshSizeMin", smallest_size)
+    extra = _grading_fields(gmsh, volume_size, refine)
+    if fine:
+        f_dist = gmsh.model.mesh.field.add("Distance")
+        gmsh.model.mesh.field.setNumbers(f_dist, "SurfacesList", fine)
+        gmsh.model.mesh.field.setNumber(f_dist, "Sampling", distance_sampling(gmsh, fine, mesh_size))
+        f_thr = gmsh.model.mesh.field.add("Threshold")
+        gmsh.model.mesh.field.setNumber(f_thr, "InField", f_dist)
+        gmsh.model.mesh.field.setNumber(f_thr, "SizeMin", mesh_size)
+        gmsh.model.mesh.field.setNumber(f_thr, "SizeMax", coarsening * mesh_size)
+        gmsh.model.mesh.field.setNumber(f_thr, "DistMin", 0.5 * mesh_size)
+        gmsh.model.mesh.field.setNumber(f_thr, "DistMax", (0.5 + (coarsening - 1.0) / GRADING_SLOPE) * mesh_size)
+        extra.append(f_thr)
+    else:
+        gmsh.option.setNumber("Mesh.MeshSizeMax", mesh_size)
+    if len(extra) == 1:
+        gmsh.model.mesh.field.setAsBackgroundMesh(extra[0])
+    elif extra:
+        f_min = gmsh.model.mesh.field.add("Min")
+        gmsh.model.mesh.field.setNumbers(f_min, "FieldsList", extra)
+        gmsh.model.mesh.field.setAsBackgroundMesh(f_min)
 
 
 def distance_sampling(gmsh, surfaces: list[int], mesh_size: float) -> int:

@@ -287,7 +287,7 @@ def _compute(job: _Job) -> Path:
         D, stats, (scale, err) = solve_dense(out, problem, job.key, job.run, settings.dtype, what)
     timings = {"mesh": seat.t_mesh, "assemble": t_assemble, "solve": time.perf_counter() - t2}
     manifest = _manifest(job, n_dofs, timings, stats)
-    if settings.dtype != "float64":  # what the rounding of each block to D's storage type cost, as convert_bundle records
+    if settings.dtype != "float64":  # what rounding each block to D's storage type cost, as convert_bundle records
         float64_options = {k: v for k, v in job.key_options.items() if k != "dtype"}
         manifest["dtype_cast"] = dtype_cast_record(cache_key(mesh, float64_options), "float64", err, scale)
     arrays = {
