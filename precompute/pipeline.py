@@ -88,7 +88,7 @@ def _code_version() -> str:
 
 def build_bundle(out: str | os.PathLike | None = None, settings: BuildSettings | None = None, *,
                  run: RunSettings | None = None, **options: Any) -> Path:
-    """Compute the Green's functions of a seat and write them as a bundle.
+    r"""Compute the Green's functions of a seat and write them as a bundle.
 
     Parameters
     ----------
@@ -107,20 +107,10 @@ def build_bundle(out: str | os.PathLike | None = None, settings: BuildSettings |
         How it is computed (:class:`~hailstorm.precompute.settings.RunSettings`: reuse,
         progress, the memory check, the Dask cluster, the block size). Default:
         ``RunSettings()``.
-    **options
+    \*\*options
         Any field of either record by name (``mesh_size=0.004, order=2, workers=4``...),
         replacing that of ``settings`` or ``run``: the keyword call of earlier versions.
         An unknown name raises TypeError; a bad value ValueError, before any work.
-
-    D is streamed to ``.NAME.work/`` beside ``out`` block by block, each
-    block durable and tagged with the cache key when it is written; a run
-    that is killed or interrupted leaves it there, and the same call resumes
-    it, computing only the missing blocks. It becomes the bundle's
-    ``compliance.npy`` unchanged (and the work directory goes). With
-    ``compress_tol`` the dense bundle is computed first (and reused if ``out``
-    holds it), then replaced by its compressed copy; with ``stream`` too, D is
-    compressed as it is solved, never whole (its state checkpointed every
-    :data:`CHECKPOINT_SECONDS` to ``.NAME.work/stream.npz``, from which the same call resumes).
 
     Returns
     -------
@@ -136,6 +126,18 @@ def build_bundle(out: str | os.PathLike | None = None, settings: BuildSettings |
         The run would not fit in memory or on disk (unless ``allow_large``).
     hailstorm.runtime.bundle.format.BundleError
         ``out`` is in the way, not writable, or was just written by another run with other inputs.
+
+    Notes
+    -----
+    D is streamed to ``.NAME.work/`` beside ``out`` block by block, each
+    block durable and tagged with the cache key when it is written; a run
+    that is killed or interrupted leaves it there, and the same call resumes
+    it, computing only the missing blocks. It becomes the bundle's
+    ``compliance.npy`` unchanged (and the work directory goes). With
+    ``compress_tol`` the dense bundle is computed first (and reused if ``out``
+    holds it), then replaced by its compressed copy; with ``stream`` too, D is
+    compressed as it is solved, never whole (its state checkpointed every
+    :data:`CHECKPOINT_SECONDS` to ``.NAME.work/stream.npz``, from which the same call resumes).
     """
     settings, run = settings_from_keywords(settings, run, **options)
     out = _check_out(out)  # an occupied or unwritable place is refused before any work

@@ -44,8 +44,32 @@ CHECKPOINT_SECONDS = 120.0
 def solve_dense(out: Path, problem: ColumnProblem, key: str, run: RunSettings, dtype: str,
                 what: str) -> tuple[StagedArray, dict, tuple[float, float]]:
     """Solve D block by block into the work directory beside ``out``, resuming what a
-    previous run of the same key left; return the finished D (staged), the run's statistics
-    and (largest |entry|, largest rounding error) of the cast to D's storage type."""
+    previous run of the same key left.
+
+    Parameters
+    ----------
+    out : pathlib.Path
+        The bundle directory (its work directory is ``.NAME.work/`` beside it).
+    problem : ColumnProblem
+        The stiffness, loads and rows of D (:func:`hailstorm.precompute.greens.column_problem`).
+    key : str
+        The dense bundle's cache key: each block is tagged with it.
+    run : RunSettings
+        Block size, progress, the disk check, the Dask cluster.
+    dtype : {"float64", "float32"}
+        D's storage type (blocks are solved in float64 and rounded as they are written).
+    what : str
+        The solve, for the progress bar's label.
+
+    Returns
+    -------
+    D : StagedArray
+        The finished D, staged for :func:`hailstorm.runtime.bundle.write.write_bundle`.
+    stats : dict
+        The manifest's ``solve_stats`` (:func:`solve_record`, with nnz(L) and the flop counts when known).
+    rounding : tuple of float
+        (largest |entry|, largest rounding error) of the cast to ``dtype``.
+    """
     n_rows, ncols = problem.shape
     blocks = column_blocks(n_rows, ncols, run.block_bytes, problem.batch)
     store = BlockStore(work_dir(out), key, (n_rows, ncols), blocks, dtype)
@@ -121,14 +145,46 @@ def solve_dense(out: Path, problem: ColumnProblem, key: str, run: RunSettings, d
 
 def solve_streamed(out: Path, problem: ColumnProblem, vertices: np.ndarray, contact_vertices: np.ndarray,
                    tol: float, key: str, run: RunSettings, what: str) -> tuple[Compressed, dict]:
-    """Solve D's columns in the column tree's order and compress them as they come
-    (:class:`hailstorm.precompute.hstream.StreamedH`, far blocks to ``tol / 2`` each); measure the
-    result on :data:`hailstorm.precompute.hmatrix.ERROR_COLUMNS` exact columns drawn at random (seed 0)
-    before the solve. Raises ValueError naming the error reached if it exceeds ``tol``.
+    """Solve D's columns in the column tree's order and compress them as they come.
 
-    The state is checkpointed beside ``out`` (``.NAME.work/stream.npz``) every
-    :data:`CHECKPOINT_SECONDS` of solving and when the solve stops on an error or an
-    interruption; a run with the same key, tolerance and blocks resumes from it."""
+    The far blocks are truncated to ``tol / 2`` each
+    (:class:`hailstorm.precompute.hstream.StreamedH`); the result is measured on
+    :data:`hailstorm.precompute.hmatrix.ERROR_COLUMNS` exact columns drawn at random
+    (seed 0) before the solve. The state is checkpointed beside ``out``
+    (``.NAME.work/stream.npz``) every :data:`CHECKPOINT_SECONDS` of solving and when the
+    solve stops on an error or an interruption; a run with the same key, tolerance and
+    blocks resumes from it.
+
+    Parameters
+    ----------
+    out : pathlib.Path
+        The bundle directory (its work directory is beside it).
+    problem : ColumnProblem
+        The stiffness, loads and rows of D.
+    vertices : (n, 3) ndarray
+        The surface vertices (D's rows); ``contact_vertices`` (its columns) index them.
+    contact_vertices : (m,) ndarray of int
+    tol : float
+        The compression's target column error.
+    key : str
+        The dense source's cache key (the checkpoint is tagged with it).
+    run : RunSettings
+        Block size, progress, the Dask cluster.
+    what : str
+        The solve, for the progress bar's label.
+
+    Returns
+    -------
+    compressed : Compressed
+        The H-matrix, its tolerances and its measured column error.
+    stats : dict
+        The manifest's ``solve_stats`` (:func:`solve_record`).
+
+    Raises
+    ------
+    ValueError
+        The measured column error exceeds ``tol`` (naming the error reached).
+    """
     t0 = time.perf_counter()
     V = np.asarray(vertices, dtype=np.float64)
     rows, cols = cluster_tree(V, leaf=DEFAULT_LEAF), cluster_tree(V[contact_vertices], leaf=DEFAULT_LEAF)

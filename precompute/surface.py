@@ -36,10 +36,24 @@ class Surface:
 
 
 def extract_surface(mesh: TetMesh, contact_group: str = "top") -> Surface:
-    """Surface vertices, triangles, areas and the fixed/contactable masks.
+    """Surface vertices, triangles, areas and the fixed/contactable masks of ``mesh``.
 
-    Contactable vertices are those of ``contact_group`` that are not clamped
-    (``contact_group="all"``: every unclamped surface vertex).
+    Parameters
+    ----------
+    mesh : TetMesh
+        A checked mesh with a ``clamp`` group.
+    contact_group : str
+        The surface group hail can reach: its vertices that are not clamped are
+        contactable (``"all"``: every unclamped surface vertex).
+
+    Returns
+    -------
+    Surface
+
+    Raises
+    ------
+    MeshError
+        No vertex is contactable (the group lies entirely on the clamp).
     """
     tris = boundary_triangles(mesh.tets)
     nodes, local = np.unique(tris, return_inverse=True)
