@@ -70,7 +70,7 @@ def _parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command")
 
     pre = sub.add_parser("precompute", parents=[common], help="compute a Green's-function bundle for a seat")
-    from hailstorm.runtime.storm.scene import SeatSettings
+    from hailstorm.runtime.seat_settings import SeatSettings
 
     seat = SeatSettings.default()
     pre.add_argument("--mesh-size", type=_positive_float, default=seat.mesh_size,
@@ -293,7 +293,8 @@ def _run_storm(args: argparse.Namespace) -> int:
     from hailstorm.runtime.bundle.read import load
     from hailstorm.runtime.output.files import StormOutput, check_storm_out
     from hailstorm.runtime.resources import missing_module, require_extras
-    from hailstorm.runtime.storm.scene import Scene, SeatSettings
+    from hailstorm.runtime.seat_settings import SeatSettings
+    from hailstorm.runtime.storm.scene import Scene
     from hailstorm.runtime.storm.driver import run_storm
     from hailstorm.runtime.storm.estimate import hit_fraction
 
@@ -364,7 +365,7 @@ def _run_storm(args: argparse.Namespace) -> int:
         import json
 
         s = json.loads(paths["summary"].read_text())
-        keys = ("hailstones", "impacts", "max_contact_force_N", "max_impact_force_dynamic_N", "max_indentation_m",
+        keys = ("hailstones", "impacts", "max_contact_force", "max_impact_force_dynamic_N", "max_indentation_m",
                 "max_simultaneous_contacts",
                 "steps", "frames", "sim_time_s", "wall_time_s", "real_time_factor", "compile_time_s", "setup_time_s",
                 "backend")

@@ -20,7 +20,7 @@ from hailstorm.runtime.resources import require_extra
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from hailstorm.precompute.geometry import TetMesh
+from hailstorm.precompute.tetmesh import TetMesh
 
 #: Defaults for a padded saddle treated as one homogeneous solid (see the docs, "Choosing settings").
 DEFAULT_YOUNG = 2.0e6
@@ -180,3 +180,16 @@ def rigid_body_modes(points: np.ndarray) -> np.ndarray:
     modes[:, 1, 4], modes[:, 2, 4] = -z, y  # rotation about x
     modes[:, 0, 5], modes[:, 2, 5] = z, -x  # rotation about y
     return modes.reshape(3 * n, 6)
+
+
+def rigid_modes_on_dofs(basis) -> np.ndarray:
+    """The six rigid-body modes at every dof of ``basis`` (a scikit-fem vector basis), in its dof
+    order: (n_dofs, 6), the near null space an algebraic multigrid solver takes."""
+    locs = basis.doflocs.T  # (n_dofs, 3)
+    comp = np.empty(locs.shape[0], dtype=np.int64)
+    for d in range(3):
+        comp[basis.nodal_dofs[d]] = d
+        if basis.edge_dofs.size:
+            comp[basis.edge_dofs[d]] = d
+    modes = rigid_body_modes(locs)  # (3 n_dofs, 6): rows 3k+c = component c at location k
+    return modes.reshape(-1, 3, 6)[np.arange(locs.shape[0]), comp]

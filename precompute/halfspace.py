@@ -30,7 +30,7 @@ from __future__ import annotations
 import tempfile
 from pathlib import Path
 
-from hailstorm.precompute.geometry import MeshError, TetMesh, read_mesh
+from hailstorm.precompute.tetmesh import MeshError, TetMesh, read_mesh
 from hailstorm.runtime.resources import require_extra
 
 __all__ = ["halfspace_block"]

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from hailstorm.precompute.fem import DEFAULT_POISSON, DEFAULT_YOUNG, check_material
-from hailstorm.precompute.geometry import TetMesh, boundary_triangles, tet_volumes
+from hailstorm.precompute.tetmesh import TetMesh, boundary_triangles, tet_volumes
 
 log = logging.getLogger(__name__)
 

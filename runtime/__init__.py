@@ -33,13 +33,13 @@ from hailstorm.runtime.contact import (
 )
 from hailstorm.runtime.contact.hertz import (HertzImpact, SphereContacts, hertz_force, hertz_impact, press_spheres,
                                              sphere_force, sphere_impact)
+from hailstorm.runtime.seat_settings import SeatSettings
 from hailstorm.runtime.storm.scene import (
     ContactSettings,
     HailSettings,
     OutputSettings,
     Scene,
     SceneError,
-    SeatSettings,
     StormSettings,
     TimeSettings,
     ValiditySettings,

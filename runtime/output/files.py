@@ -120,7 +120,7 @@ def _seat_of(gf: Any) -> dict[str, Any] | None:
 #: ``"count"`` for counts, ``"1"`` for dimensionless ratios, None for text and settings
 SUMMARY_UNITS: dict[str, str | None] = {
     "hailstones": "count", "impacts": "count", "stones_hit": "count", "max_contact_force": "N",
-    "max_contact_force_N": "N", "max_indentation_m": "m", "max_simultaneous_contacts": "count",
+    "max_indentation_m": "m", "max_simultaneous_contacts": "count",
     "max_penetration_m": "m", "steps": "count", "substeps": "count", "capacitance_rebuilds": "count",
     "wall_contacts": "count", "stone_collisions": "count", "max_stone_collision_force_N": "N", "retired": "count", "max_penetration_contact_m": "m", "max_penetration_free_m": "m",
     "max_penetration_contact_rel": "1", "patch": None, "patch_weights_computed": "count",
@@ -149,7 +149,9 @@ def summary(result: Any, gf: Any = None) -> dict[str, Any]:
     Keys (every key and its unit is listed in the documentation, "Outputs"):
     ``hailstones`` (spawned), ``impacts`` (contact onsets faster than
     the scene's ``time.rest_speed``), ``stones_hit`` (stones that touched the seat
-    at least once, slow touches included), ``max_contact_force`` [N],
+    at least once, slow touches included), ``max_contact_force`` [N] (the contract's key: the
+    largest force any contact carried in any sub-step, impacts, slow touches and resting stones
+    alike; ``max_impact_force_N`` below is the largest impact's alone, never more),
     ``max_indentation_m`` (largest normal contact displacement),
     ``max_simultaneous_contacts``, ``max_penetration_m`` (deepest overlap of a
     stone with the deformed surface), ``steps``, ``substeps``,
@@ -162,8 +164,7 @@ def summary(result: Any, gf: Any = None) -> dict[str, Any]:
     loading the compiled kernels), ``compile_time_s`` (the one-time compile of
     the kernels, the first run after an install; 0 when they were loaded),
     ``backend``, ``seed``, ``dt``, ``integrator``, ``mode``, and the scene;
-    ``max_contact_force_N`` (the same figure as ``max_contact_force``, its unit
-    in its name) and ``units``, each key's unit (:data:`SUMMARY_UNITS`). The validity limits
+    ``units``, each key's unit (:data:`SUMMARY_UNITS`). The validity limits
     (:mod:`hailstorm.runtime.storm.limits`, docs/validity.md):
     ``impacts_beyond_indentation_limit``, ``impacts_beyond_radius_limit``,
     ``impacts_beyond_strain_limit``, ``impacts_beyond_any_limit`` (impacts whose
@@ -190,8 +191,6 @@ def summary(result: Any, gf: Any = None) -> dict[str, Any]:
         path and key. Without it the scene has no ``[seat]``.
     """
     d = dict(result.stats)
-    if "max_contact_force" in d:
-        d["max_contact_force_N"] = d["max_contact_force"]  # the old key stays (the contract), this one names its unit
     d["units"] = {k: SUMMARY_UNITS.get(k) for k in d}
     d["scene"] = result.scene.to_dict()
     seat = _seat_of(gf) if gf is not None else None

@@ -19,9 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
-import tomllib
 from dataclasses import dataclass
-from importlib import resources
 from pathlib import Path
 from typing import Any, ClassVar, Mapping
 
@@ -31,6 +29,10 @@ from hailstorm.runtime.bundle.atomic import write_text_atomic
 from hailstorm.runtime.contact.near_field import NEAR_FIELDS
 from hailstorm.runtime.contact.validate import ContactMode, Mode
 from hailstorm.runtime.resources import available_memory  # noqa: F401 (re-exported by the old hailstorm.runtime.scene)
+from hailstorm.runtime.seat_settings import SeatSettings  # (re-exported: it lived here)
+from hailstorm.runtime.sections import (Section as _Section, check_bool as _bool, check_positive as _positive,
+                                        check_types as _check_types, packaged_toml as _packaged_toml,
+                                        read_toml as _read_toml)
 from hailstorm.runtime.storm.errors import SceneError, StormTooLarge
 from hailstorm.runtime.storm.estimate import (BYTES_PER_STEP, BYTES_PER_STONE, DISK_BYTES_FIXED, DISK_BYTES_PER_VERTEX,
                                               StormEstimate)
@@ -39,89 +41,6 @@ from hailstorm.runtime.storm.limits import PAD_DENSITY
 
 __all__ = ["ContactSettings", "HailSettings", "OutputSettings", "Scene", "SceneError", "SeatSettings", "StormEstimate",
            "StormSettings", "StormTooLarge", "TimeSettings", "ValiditySettings"]
-
-
-#: Python types a scene value may have, per field annotation
-_TYPES: dict[str, tuple[type, ...]] = {
-    "float": (int, float), "int": (int,), "bool": (bool,), "str": (str,), "Mode": (str,), "Integrator": (str,),
-    "int | None": (int, type(None)), "float | None": (int, float, type(None)),
-}
-
-
-def _check_types(record: Any) -> None:
-    """Raise :class:`SceneError` for a field whose value has the wrong Python type."""
-    for f in dataclasses.fields(record):
-        types = _TYPES.get(str(f.type))
-        v = getattr(record, f.name)
-        if types is not None and isinstance(v, np.integer) and int in types:  # numpy integers are integers
-            v = int(v)
-            object.__setattr__(record, f.name, v)
-        if str(f.type) in ("float", "float | None") and isinstance(v, (int, np.floating)) and not isinstance(v, bool):
-            v = float(v)  # a number field holds a float: the parts pass it to the kernels as it is
-            object.__setattr__(record, f.name, v)
-        if types is not None and (not isinstance(v, types) or (isinstance(v, bool) and bool not in types)):
-            kind = {"float": "a number", "int": "an integer", "bool": "true or false",
-                    "int | None": "an integer", "float | None": "a number"}.get(str(f.type), "a string")
-            raise SceneError(f"{f.name} must be {kind}, got {v!r}")
-
-
-def _positive(record: Any, names: tuple[str, ...], allow_zero: bool = False) -> None:
-    """Raise :class:`SceneError` unless every named field is a finite positive
-    (or, with ``allow_zero``, non-negative) number."""
-    for name in names:
-        v = getattr(record, name)
-        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) or (v < 0 or (v == 0 and not allow_zero)):
-            raise SceneError(f"{name} must be a {'non-negative' if allow_zero else 'positive'} number, got {v!r}")
-
-
-def _bool(record: Any, names: tuple[str, ...]) -> None:
-    for name in names:
-        if not isinstance(getattr(record, name), bool):
-            raise SceneError(f"{name} must be true or false, got {getattr(record, name)!r}")
-
-
-class _Section:
-    """TOML layout of a settings record (one ``[section]`` of the scene file)."""
-
-    #: the record's TOML section
-    SECTION: ClassVar[str] = ""
-
-    @classmethod
-    def keys(cls) -> tuple[str, ...]:
-        """The record's keys (its fields), in TOML order."""
-        return tuple(f.name for f in dataclasses.fields(cls))  # type: ignore[arg-type]
-
-    def to_dict(self) -> dict[str, Any]:
-        """``{key: value}`` as in the TOML section (None values omitted, tuples as lists)."""
-        out = {}
-        for k in self.keys():
-            v = getattr(self, k)
-            if v is not None:
-                out[k] = list(v) if isinstance(v, tuple) else v
-        return out
-
-    @classmethod
-    def from_dict(cls, body: Any, *, source: str = "scene") -> Any:
-        """Build from the TOML section's ``{key: value}`` (integers accepted for numbers).
-
-        Raises
-        ------
-        SceneError
-            On an unknown key or a bad value (the message names ``source``).
-        """
-        if not isinstance(body, Mapping):
-            raise SceneError(f"{source}: [{cls.SECTION}] must be a table")
-        kinds = {f.name: str(f.type) for f in dataclasses.fields(cls)}  # type: ignore[arg-type]
-        kwargs: dict[str, Any] = {}
-        for k, v in body.items():
-            if k not in kinds:
-                raise SceneError(f"{source}: unknown key {k!r} in [{cls.SECTION}]; known keys: {', '.join(kinds)}")
-            # users write 1 for 1.0
-            kwargs[k] = float(v) if kinds[k] == "float" and isinstance(v, int) and not isinstance(v, bool) else v
-        try:
-            return cls(**kwargs)
-        except (SceneError, TypeError) as exc:
-            raise SceneError(f"{source}: {exc}") from None
 
 
 @dataclass(frozen=True)
@@ -401,80 +320,6 @@ class ValiditySettings(_Section):
         _positive(self, ("pad_density",))
 
 
-@dataclass(frozen=True)
-class SeatSettings(_Section):
-    """``[seat]``: the default seat's precompute settings, used when no bundle
-    is given (``hailstorm storm`` without ``--gf`` builds, or reuses from the
-    cache, the default saddle's Green's functions with them). Not part of the
-    :class:`Scene`: a storm runs on whatever bundle it is given.
-
-    Attributes
-    ----------
-    mesh_size : float
-        Element size on the top [m].
-    order : {1, 2}
-        Element order.
-    load : {"point", "hat"}
-        What a column of D answers (``hailstorm precompute --load``).
-    volume_size : float or None
-        Volume grading [m]: tetrahedra inside the pad at most this size under
-        the same surface mesh (``hailstorm precompute --volume-size``; at most
-        ``mesh_size``). None (the key left out): no grading.
-    coarsening : float
-        How far the volume's elements grow away from the top, in mesh sizes
-        (``hailstorm precompute --coarsening``; at least 1, default 2.5).
-    young, poisson : float
-        Material [Pa], [-].
-    """
-
-    SECTION: ClassVar[str] = "seat"
-
-    mesh_size: float = 0.006
-    order: int = 2
-    load: str = "hat"
-    volume_size: float | None = None
-    coarsening: float = 2.5
-    young: float = 2.0e6
-    poisson: float = 0.35
-
-    def __post_init__(self) -> None:
-        _check_types(self)
-        _positive(self, ("mesh_size", "young"))
-        if self.order not in (1, 2) or isinstance(self.order, bool):
-            raise SceneError(f"order must be 1 or 2, got {self.order!r}")
-        if self.load not in ("point", "hat"):
-            raise SceneError(f"load must be 'point' or 'hat', got {self.load!r}")
-        if self.volume_size is not None:
-            _positive(self, ("volume_size",))
-            if self.volume_size > self.mesh_size:
-                raise SceneError(f"volume_size ({self.volume_size!r} m) must not exceed mesh_size "
-                                 f"({self.mesh_size!r} m): it refines the volume under the same surface")
-        if not self.coarsening >= 1 or not math.isfinite(self.coarsening):
-            raise SceneError(f"coarsening must be a number of mesh sizes of at least 1, "
-                             f"got {self.coarsening!r}")
-        if isinstance(self.poisson, bool) or not isinstance(self.poisson, (int, float)) or not -1.0 < self.poisson < 0.5:
-            raise SceneError(f"poisson must satisfy -1 < poisson < 0.5, got {self.poisson!r}")
-
-    @classmethod
-    def default(cls) -> "SeatSettings":
-        """The packaged default scene file's ``[seat]``."""
-        return cls.from_dict(_packaged_toml().get("seat", {}), source="default_scene.toml")
-
-    @classmethod
-    def from_toml(cls, path: str | Path) -> "SeatSettings":
-        """The ``[seat]`` of a scene file; keys it does not set take the packaged defaults.
-
-        Raises
-        ------
-        SceneError
-            The file cannot be read, is not TOML, or its ``[seat]`` is invalid.
-        """
-        body = _read_toml(Path(path)).get("seat", {})
-        if not isinstance(body, Mapping):
-            raise SceneError(f"{path}: [seat] must be a table")
-        return cls.from_dict({**cls.default().to_dict(), **body}, source=str(path))
-
-
 #: the records of a :class:`Scene`, by TOML section
 _RECORDS: dict[str, type[_Section]] = {
     "storm": StormSettings, "hail": HailSettings, "contact": ContactSettings, "time": TimeSettings,
@@ -482,22 +327,6 @@ _RECORDS: dict[str, type[_Section]] = {
 }
 #: section of every flat key (:meth:`Scene.from_flat`, :meth:`Scene.with_`)
 _SECTION_OF: dict[str, str] = {k: sec for sec, rec in _RECORDS.items() for k in rec.keys()}
-
-
-def _read_toml(path: Path) -> dict[str, Any]:
-    try:
-        return tomllib.loads(path.read_text(encoding="utf-8"))
-    except UnicodeDecodeError as exc:
-        raise SceneError(f"{path} is not a UTF-8 text file (a TOML scene): byte {exc.start} is "
-                         f"{exc.object[exc.start:exc.start + 1]!r}") from None
-    except OSError as exc:
-        raise SceneError(f"cannot read scene file {path}: {exc}") from None
-    except tomllib.TOMLDecodeError as exc:
-        raise SceneError(f"{path} is not valid TOML: {exc}") from None
-
-
-def _packaged_toml() -> dict[str, Any]:
-    return tomllib.loads(resources.files("hailstorm.meshes").joinpath("default_scene.toml").read_text())
 
 
 @dataclass(frozen=True)

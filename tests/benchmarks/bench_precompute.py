@@ -123,10 +123,10 @@ def _one(method: str, mesh_size: float, order: int, queue) -> None:
         D = _pardiso(K, fixed, load, read)
     else:
         from hailstorm.precompute.greens import compliance_matrix
-        from hailstorm.precompute.pipeline import _rigid_modes_on_dofs
+        from hailstorm.precompute.fem import rigid_modes_on_dofs
 
         solver, _, workers = method.partition("-")
-        nn = _rigid_modes_on_dofs(basis) if solver == "amg" else None
+        nn = rigid_modes_on_dofs(basis) if solver == "amg" else None
         D = compliance_matrix(K, fixed, load, read, solver=solver, near_null=nn, tol=1e-8,
                               workers=int(workers) if workers else None)
     dt = time.perf_counter() - t0

@@ -149,13 +149,13 @@ def test_build_bundle_stream_resumes_after_a_failure(small_box, tmp_path, monkey
     previous block's checkpoint, which is resumed the same way."""
     import logging
 
-    from hailstorm.precompute import hstream, pipeline
+    from hailstorm.precompute import hstream, solve_loops
 
     opts = dict(mesh=small_box, order=1, compress_tol=1e-3, stream=True, block_bytes=8 * 1000 * 6)
     ref = load(build_bundle(tmp_path / "ref", **opts))
     n_blocks = ref.manifest["solve_stats"]["blocks"]
     assert n_blocks >= 6
-    monkeypatch.setattr(pipeline, "CHECKPOINT_SECONDS", 0.0)
+    monkeypatch.setattr(solve_loops, "CHECKPOINT_SECONDS", 0.0)
     for where, kept in (("after", 3), ("inside", 2)):
         name = "add" if where == "after" else "_add"  # add(): between blocks; _add(): within one
         real = getattr(hstream.StreamedH, name)

@@ -8,7 +8,8 @@ import hailstorm.runtime
 from hailstorm.precompute.fem import clamp_dofs, elasticity_basis, stiffness_matrix, vertex_dofs
 from hailstorm.precompute.geometry import box_mesh
 from hailstorm.precompute.greens import area_matrix, compliance_matrix, traction_greens_function
-from hailstorm.precompute.pipeline import _rigid_modes_on_dofs, build_bundle
+from hailstorm.precompute.fem import rigid_modes_on_dofs
+from hailstorm.precompute.pipeline import build_bundle
 
 
 def _direct_column(mesh, order, E, nu, node, direction):
@@ -109,7 +110,7 @@ def test_amg_path_matches_direct(box_system):
     load = box_system.load[:30]  # ten vertices
     D_direct = compliance_matrix(K, fixed, load, read, solver="cholmod")
     D_splu = compliance_matrix(K, fixed, load, read, solver="splu")
-    D_amg = compliance_matrix(K, fixed, load, read, solver="amg", near_null=_rigid_modes_on_dofs(basis), tol=1e-10)
+    D_amg = compliance_matrix(K, fixed, load, read, solver="amg", near_null=rigid_modes_on_dofs(basis), tol=1e-10)
     scale = np.linalg.norm(D_direct)
     assert np.linalg.norm(D_splu - D_direct) <= 1e-12 * scale
     assert np.linalg.norm(D_amg - D_direct) <= 1e-7 * scale
@@ -211,7 +212,7 @@ def test_solver_registry_drives_factorize_batches_and_the_cli(box_system):
     K, fixed = box_system.K, box_system.fixed
     free = free_dofs(K.shape[0], fixed)
     Kff = sp.csr_matrix(K)[free][:, free]
-    nn = _rigid_modes_on_dofs(box_system.basis)[free]
+    nn = rigid_modes_on_dofs(box_system.basis)[free]
     b = np.random.default_rng(3).normal(size=(Kff.shape[0], 2))
     for name, spec in SOLVER_SPECS.items():
         assert spec.name == name and solver_spec(name) is spec
@@ -220,7 +221,7 @@ def test_solver_registry_drives_factorize_batches_and_the_cli(box_system):
         # direct solvers: backward stable (residual ~ eps cond); AMG: solved to tol = 1e-12
         assert np.linalg.norm(Kff @ x - b) <= 1e-9 * np.linalg.norm(b), name
         problem = column_problem(K, fixed, box_system.load[:3], box_system.read, solver=name,
-                                 near_null=_rigid_modes_on_dofs(box_system.basis) if spec.needs_near_null else None)
+                                 near_null=rigid_modes_on_dofs(box_system.basis) if spec.needs_near_null else None)
         assert problem.batch == spec.batch and problem.spec is spec
     assert SOLVERS == tuple(SOLVER_SPECS)
     pre = next(a for a in _parser()._subparsers._group_actions[0].choices["precompute"]._actions
