@@ -39,10 +39,12 @@ from hailstorm.precompute.foam.indent import FORCE_TOL, PENALTY, STEP_TOL
 from hailstorm.precompute.foam.newton import minimise
 from hailstorm.precompute.foam.pad import PadModel
 
-__all__ = ["GAP_TOL", "FoamImpact", "strike"]
+__all__ = ["GAP_TOL", "RELEASE_BISECTIONS", "FoamImpact", "strike"]
 
 #: the contact's tolerance per step: every touching node's gap within this share of the largest approach so far
 GAP_TOL = 1e-5
+#: the release is located within the step that opened the contact by this many halvings of the step
+RELEASE_BISECTIONS = 10
 
 
 @dataclass
@@ -60,8 +62,9 @@ class FoamImpact:
     peak_force : float
         The largest contact force [N] (the parabola through the largest step and its neighbours).
     contact_time : float
-        ``t = 0`` to release [s]: the release located in its step by Hertz's law near release
-        (``F^(2/3)`` linear in time, carried from the last two touching steps).
+        ``t = 0`` to the last release [s]: located within the step that opened the contact by
+        :data:`RELEASE_BISECTIONS` halvings of that step (re-solved from its start), so that it is
+        the discrete trajectory's, not a step's multiple.
     rebound_speed : float
         The sphere's speed away from the pad once released [m/s].
     max_approach : float
@@ -117,12 +120,67 @@ def _peak(t: np.ndarray, f: np.ndarray) -> float:
     return float(f1 - 0.125 * (f2 - f0) ** 2 / den)
 
 
-def _release(t_last: float, before: float, last: float, dt: float) -> float:
-    """The release's time: ``F^(2/3)`` carried linearly from the last two touching steps to zero (within a step)."""
-    g0, g1 = before ** (2.0 / 3.0), last ** (2.0 / 3.0)
-    if not g0 > g1:
-        return t_last + 0.5 * dt
-    return t_last + min(dt, dt * g1 / (g0 - g1))
+class _Stepper:
+    """One Newmark step of the pad and the sphere (module notes); the state is ``(x, v, a)`` with ``x = [u, d]``."""
+
+    def __init__(self, model: PadModel, radius: float, mass: float, density: float | None, gap_tol: float,
+                 max_uzawa: int, energy_scale: float) -> None:
+        import scipy.sparse as sp
+
+        self.model, self.radius, self.gap_tol, self.max_uzawa = model, radius, gap_tol, max_uzawa
+        self.n = n = model.ndofs
+        M = model.mass(density).tolil()
+        under = model.top[model.top_r < radius]
+        for dof in np.concatenate([2 * under, 2 * under + 1]):  # no inertia on the contact nodes (module notes)
+            M[dof, :] = 0.0
+            M[:, dof] = 0.0
+        self.M = M.tocsr()
+        self.Mx = sp.block_diag([self.M, sp.csr_matrix([[mass]])], format="csr")
+        self.free = np.append(model.free, n)
+        E0, h = model.pad.foam.young, model.pad.thickness
+        self.eps = PENALTY * E0 * model.top_area / model.cell
+        self.force_tol, self.step_tol, self.energy_scale = FORCE_TOL * E0 * h * h, STEP_TOL * h, energy_scale
+
+    def energy(self, x: np.ndarray, v: np.ndarray) -> float:
+        """Strain plus kinetic energy of the pad and the sphere [J]."""
+        return self.model.energy(x[: self.n]) + 0.5 * float(v @ (self.Mx @ v))
+
+    def step(self, x: np.ndarray, v: np.ndarray, a: np.ndarray, lam: np.ndarray, dt: float, d_top: float
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, SphereContact, np.ndarray, int, int]:
+        """The state after ``dt`` from ``(x, v, a)``; the last pass's contact term (its force is the one in
+        equilibrium with the pad) and the updated multipliers; Newton iterations and Uzawa updates."""
+        import scipy.sparse as sp
+
+        model, n, Mx = self.model, self.n, self.Mx
+        c_dt = 4.0 / (dt * dt)
+        x_hat = x + dt * v + 0.25 * dt * dt * a
+        guess = x_hat if np.isfinite(model.energy(x_hat[:n])) else x.copy()
+        newton = 0
+        for k in range(1, self.max_uzawa + 1):
+            c = SphereContact(model, self.radius, lam, self.eps, sphere_dof=n)
+
+            def value(y: np.ndarray, c: SphereContact = c) -> float:
+                dy = y - x_hat
+                return model.energy(y[:n]) + 0.5 * c_dt * float(dy @ (Mx @ dy)) + c.value(y)
+
+            def grad_hess(y: np.ndarray, c: SphereContact = c) -> tuple[np.ndarray, object]:
+                r, K = model.tangent(y[:n])
+                g = np.append(r, 0.0) + c_dt * (Mx @ (y - x_hat))
+                K = sp.block_diag([K, sp.csr_matrix((1, 1))], format="csr") + c_dt * Mx
+                return c.add(y, g, K)
+
+            guess, stats = minimise(value, grad_hess, guess, self.free, force_tol=self.force_tol,
+                                    step_tol=self.step_tol, energy_scale=self.energy_scale)
+            newton += stats.iterations
+            gap, _, _, tn = c.state(guess)
+            lam = tn
+            scale = self.gap_tol * max(d_top, float(guess[n]), 1e-6 * model.pad.thickness)
+            if float(np.abs(gap[tn > 0]).max(initial=0.0)) <= scale:
+                break
+        else:
+            raise RuntimeError(f"strike: the contact's multipliers did not converge in {self.max_uzawa} updates")
+        a_new = c_dt * (guess - x_hat)
+        return guess, v + 0.5 * dt * (a + a_new), a_new, c, lam, newton, k
 
 
 def strike(model: PadModel, radius: float, mass: float, speed: float, dt: float, *, density: float | None = None,
@@ -158,87 +216,48 @@ def strike(model: PadModel, radius: float, mass: float, speed: float, dt: float,
     RuntimeError
         The multipliers did not converge, or no release within ``max_steps``.
     """
-    import scipy.sparse as sp
-
     for name, value in (("radius", radius), ("mass", mass), ("speed", speed), ("dt", dt)):
         if not (math.isfinite(value) and value > 0):
             raise ValueError(f"strike needs a positive {name}, got {value!r}")
-    n, h = model.ndofs, model.pad.thickness
-    E0 = model.pad.foam.young
-    M = model.mass(density).tolil()
-    under = model.top[model.top_r < radius]
-    for dof in np.concatenate([2 * under, 2 * under + 1]):  # no inertia on the contact nodes (module notes)
-        M[dof, :] = 0.0
-        M[:, dof] = 0.0
-    M = M.tocsr()
-    rho = model.pad.foam.density if density is None else float(density)
-    k_dof = n
-    free = np.append(model.free, k_dof)
-    eps = PENALTY * E0 * model.top_area / model.cell
-    lam = np.zeros(model.top.size)
-    c_dt = 4.0 / (dt * dt)
-    x, v, a = np.zeros(n + 1), np.zeros(n + 1), np.zeros(n + 1)
-    v[k_dof] = speed
+    n = model.ndofs
     kinetic0 = 0.5 * mass * speed**2
+    stepper = _Stepper(model, radius, mass, density, gap_tol, max_uzawa, kinetic0)
+    rho = model.pad.foam.density if density is None else float(density)
+    lam = np.zeros(model.top.size)
+    x, v, a = np.zeros(n + 1), np.zeros(n + 1), np.zeros(n + 1)
+    v[n] = speed
     hist = [(0.0, 0.0, 0.0, 0.0, 0.0)]
     drift, d_top, newton, uzawa = 0.0, 0.0, 0, 0
-    t, released_at, last_touch, before_last = 0.0, None, None, (0.0, 0.0)
-    Mx = sp.block_diag([M, sp.csr_matrix([[mass]])], format="csr")
+    released_at, release = None, None
     for step in range(1, max_steps + 1):
         t = step * dt
-        x_hat = x + dt * v + 0.25 * dt * dt * a
-        guess = x_hat if np.isfinite(model.energy(x_hat[:n])) else x.copy()
-
-        for k in range(1, max_uzawa + 1):
-            c = SphereContact(model, radius, lam, eps, sphere_dof=k_dof)
-
-            def value(y: np.ndarray, c: SphereContact = c, x_hat: np.ndarray = x_hat) -> float:
-                e = model.energy(y[:n])
-                dy = y - x_hat
-                return e + 0.5 * c_dt * float(dy @ (Mx @ dy)) + c.value(y)
-
-            def grad_hess(y: np.ndarray, c: SphereContact = c, x_hat: np.ndarray = x_hat) -> tuple[np.ndarray, object]:
-                r, K = model.tangent(y[:n])
-                g = np.append(r, 0.0) + c_dt * (Mx @ (y - x_hat))
-                K = sp.block_diag([K, sp.csr_matrix((1, 1))], format="csr") + c_dt * Mx
-                return c.add(y, g, K)
-
-            guess, stats = minimise(value, grad_hess, guess, free, force_tol=FORCE_TOL * E0 * h * h,
-                                    step_tol=STEP_TOL * h, energy_scale=kinetic0)
-            newton += stats.iterations
-            gap, _, _, tn = c.state(guess)
-            lam = tn
-            scale = gap_tol * max(d_top, float(guess[k_dof]), 1e-6 * h)
-            if float(np.abs(gap[tn > 0]).max(initial=0.0)) <= scale:
-                break
-        else:
-            raise RuntimeError(f"strike: the contact's multipliers did not converge in {max_uzawa} updates at "
-                               f"t = {t:.4g} s")
-        uzawa += k
-        a_new = c_dt * (guess - x_hat)
-        v = v + 0.5 * dt * (a + a_new)
-        x, a = guess, a_new
+        prev = (x, v, a, lam)
+        x, v, a, c, lam, it, k = stepper.step(x, v, a, lam, dt, d_top)
+        newton, uzawa = newton + it, uzawa + k
         force = c.force(x)
-        d_top = max(d_top, float(x[k_dof]))
-        touching = tn > 0
-        r_c = float(model.top_r[touching].max(initial=0.0))
-        hist.append((t, force, float(x[k_dof]), float(-x[2 * model.top[0] + 1]), r_c))
-        total = model.energy(x[:n]) + 0.5 * float(v @ (Mx @ v))
-        drift = max(drift, abs(total - kinetic0))
+        d_top = max(d_top, float(x[n]))
+        r_c = float(model.top_r[lam > 0].max(initial=0.0))
+        hist.append((t, force, float(x[n]), float(-x[2 * model.top[0] + 1]), r_c))
+        drift = max(drift, abs(stepper.energy(x, v) - kinetic0))
         if force > 0:
-            before_last, last_touch = (hist[-2][1], force), t
             released_at = None
-        elif last_touch is not None and v[k_dof] < 0:
-            if released_at is None:
-                released_at = t
-            if t - released_at >= 0.1 * last_touch:  # away, and no touch for a tenth of the contact
-                break
+        elif hist[-2][1] > 0:  # released in this step: locate it by bisecting the step's length
+            lo, hi = 0.0, dt
+            for _ in range(RELEASE_BISECTIONS):
+                mid = 0.5 * (lo + hi)
+                xs, _, _, cs, _, it, k = stepper.step(*prev, mid, d_top)
+                newton, uzawa = newton + it, uzawa + k
+                lo, hi = (mid, hi) if cs.force(xs) > 0 else (lo, mid)
+            release = t - dt + 0.5 * (lo + hi)
+            released_at = t
+        if released_at is not None and v[n] < 0 and t - released_at >= 0.1 * release:
+            break  # away, and no touch for a tenth of the contact
     else:
         raise RuntimeError(f"strike: no release within {max_steps} steps of {dt:.3g} s")
     H = np.array(hist)
-    pad_energy = model.energy(x[:n]) + 0.5 * float(v[:n] @ (M @ v[:n]))
+    pad_energy = model.energy(x[:n]) + 0.5 * float(v[:n] @ (stepper.M @ v[:n]))
     return FoamImpact(speed=float(speed), mass=float(mass), radius=float(radius), density=rho, dt=float(dt),
-                      peak_force=_peak(H[:, 0], H[:, 1]), contact_time=_release(last_touch, *before_last, dt),
-                      rebound_speed=float(-v[k_dof]), max_approach=float(H[:, 2].max()), max_dent=float(H[:, 3].max()),
+                      peak_force=_peak(H[:, 0], H[:, 1]), contact_time=float(release),
+                      rebound_speed=float(-v[n]), max_approach=float(H[:, 2].max()), max_dent=float(H[:, 3].max()),
                       max_contact_radius=float(H[:, 4].max()), pad_energy=float(pad_energy), energy_drift=float(drift),
                       steps=len(hist) - 1, newton=newton, uzawa=uzawa, history=H)
