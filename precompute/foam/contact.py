@@ -75,7 +75,8 @@ class SphereContact:
         np.add.at(g, self.ir, -t * n[0])
         np.add.at(g, self.iz, -t * n[1])
         on = (t > 0).astype(float)
-        blocks = [[self.eps * on * n[a] * n[b] - t * ((a == b) - n[a] * n[b]) / rho for b in range(2)] for a in range(2)]
+        blocks = [[self.eps * on * n[a] * n[b] - t * ((a == b) - n[a] * n[b]) / rho for b in range(2)]
+                  for a in range(2)]
         idx = [self.ir, self.iz]
         pairs = [(a, b) for a in range(2) for b in range(2)]
         if self.sphere_dof is not None:  # d enters as u_z of every node: its rows and columns are the z ones

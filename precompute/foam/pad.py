@@ -3,9 +3,9 @@
 * :class:`FoamPad` -- the foam, thickness and radius;
 * :class:`PadModel` -- its (r, z) mesh (scikit-fem's :class:`~skfem.MeshTri` on graded grid lines,
   P1 or P2 vector elements) and the energy, residual and exact tangent of a displacement
-  (``u_r, u_z``; its consistent mass by :meth:`PadModel.mass`; ``F = [[1 + u_r,r, u_r,z, 0], [u_z,r, 1 + u_z,z, 0], [0, 0, 1 + u_r / r]]``,
+  (``u_r, u_z``; ``F = [[1 + u_r,r, u_r,z, 0], [u_z,r, 1 + u_z,z, 0], [0, 0, 1 + u_r / r]]``,
   integrated over ``2 pi r dr dz``: total, not per radian). Base bonded (``u = 0`` at ``z = 0``),
-  ``u_r = 0`` on the axis, rim and top free.
+  ``u_r = 0`` on the axis, rim and top free; its consistent mass by :meth:`PadModel.mass`.
 
 The kinematic operator is built once from scikit-fem's basis (total Lagrangian: the reference
 configuration does not move); each Newton step evaluates the foam at every quadrature point

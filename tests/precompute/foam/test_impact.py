@@ -112,7 +112,8 @@ def test_energy_account_with_the_pad_waves(model):
     4 h / c (0.25 s), so the pad keeps a large part of the energy as vibration (measured 60.0 %; restitution
     0.632). Newmark without contact damping loses nothing else: the stone's rebound energy plus the pad's
     strain and kinetic energy after release is the impact energy within 0.1 % (measured -0.034 % at 100
-    steps per contact, -0.24 % at 50), and the drift over the run stays < 0.1 % (measured 0.05 %; 0.29 % at 50 steps)."""
+    steps per contact, -0.24 % at 50), and the drift over the run stays < 0.1 % (measured 0.05 %; 0.29 %
+    at 50 steps)."""
     mass = 1.0
     v = _speed(mass, 0.02)
     kinetic = 0.5 * mass * v * v
