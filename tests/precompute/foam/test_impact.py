@@ -130,9 +130,9 @@ def test_time_step_convergence_is_second_order(model):
     approach's history (at the 10-step run's instants; max error over the largest approach) and the
     contact time converge at Newmark's second order, asserted > 1.7. Measured errors: history 2.0e-2,
     4.5e-3, 1.1e-3, 2.2e-4 (rates 2.17, 2.07, 2.27); contact time 6.3e-3, 1.5e-3, 3.6e-4, 7.1e-5 (rates
-    2.09, 2.03, 2.34). The peak force is within 5e-4 of the finest from 20 steps on (1.1 % at 10) but not
-    monotone (the contact's nodes enter one by one: a kinked force history, which the peak's parabola
-    does not resolve at second order)."""
+    2.09, 2.03, 2.34). The peak force is within 5e-4 of the finest from 20 steps on (measured 4.6e-4 at
+    20, 1.1 % at 10; asserted 1e-3) but not monotone (the contact's nodes enter one by one: a kinked
+    force history, which the peak's parabola does not resolve at second order)."""
     mass = 1.0
     v = _speed(mass, 0.2)
     t_c = 2.94 * 0.2 / v  # Hertz's estimate: the runs' steps are its fractions, so that their instants nest
@@ -149,4 +149,4 @@ def test_time_step_convergence_is_second_order(model):
         rates = np.log2(np.array(err[:-1]) / np.array(err[1:]))
         assert np.all(rates > 1.7), (err, rates)
     peaks = np.array([r.peak_force for r in runs])
-    assert np.abs(peaks[1:] / peaks[-1] - 1).max() < 5e-4
+    assert np.abs(peaks[1:] / peaks[-1] - 1).max() < 1e-3
