@@ -28,6 +28,18 @@ What is verified and what is not (read from a public excerpt of the book, not th
 Mills & Gilchrist (Modelling the indentation of low density polymer foams, Cellular Polymers
 19 (2000) 389) fitted the same energy to open-cell PU foams with ``nu = 0``; their numbers were
 not available to verify here, so they are not used.
+
+A firmer foam (a seat or saddle foam, ``E0`` of order 0.1-1 MPa, with its density from the same
+source) was searched for and not found in a readable form: Silber & Then's Table 4.2 (their
+high-resilience "HR" foam, fitted beside the VE foam), Petre, Erdemir & Cavanagh (Comput. Methods
+Biomech. Biomed. Eng. 9 (2006) 231, insole foams), Briody et al. (Comput. Mater. Sci. 2012,
+wheelchair seating foam), Kossa & Berezvai (Polym. Test. 2016) and Li et al. (BioResources 18
+(2023) 7731, seat foundation foams) name such fits, but their tables were not in the excerpts at
+hand. No parameter is entered without its table, so the VE foam stays the default. It is ~160
+times softer than the linear seat's 2 MPa and has no densification to speak of (its volumetric
+exponents ``alpha_i beta_i`` are 0.004 and 0.08): under terminal-speed hail the pad bottoms out
+(measured: a 3.9 mm stone at its terminal 11.4 m/s on a 15 mm pad reaches 0.74 ``h`` at 2.1 N, where
+:func:`~hailstorm.precompute.foam.impact.strike` stops with a NewtonError).
 """
 
 from __future__ import annotations

@@ -23,6 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from hailstorm.precompute.foam.contact import SphereContact
 from hailstorm.precompute.foam.newton import minimise
 from hailstorm.precompute.foam.pad import PadModel
 
@@ -65,42 +66,6 @@ class IndentPoint:
     penetration: float
     newton: int
     uzawa: int
-
-
-class _Contact:
-    """The augmented-Lagrangian term of one sphere position."""
-
-    def __init__(self, model: PadModel, radius: float, approach: float, lam: np.ndarray, eps: np.ndarray) -> None:
-        self.m, self.R, self.lam, self.eps = model, radius, lam, eps
-        self.cz = model.pad.thickness + radius - approach
-        self.ir, self.iz = 2 * model.top, 2 * model.top + 1
-
-    def state(self, u: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Gap, normal (2, t), distance to the centre and ``t = <lam - eps g>_+``."""
-        xr = self.m.top_r + u[self.ir]
-        xz = self.m.pad.thickness + u[self.iz] - self.cz
-        rho = np.hypot(xr, xz)
-        g = rho - self.R
-        return g, np.stack([xr, xz]) / rho, rho, np.maximum(self.lam - self.eps * g, 0.0)
-
-    def value(self, u: np.ndarray) -> float:
-        _, _, _, t = self.state(u)
-        return float(((t * t - self.lam * self.lam) / (2.0 * self.eps)).sum())
-
-    def add(self, u: np.ndarray, g: np.ndarray, K: "object") -> tuple[np.ndarray, object]:
-        import scipy.sparse as sp
-
-        _, n, rho, t = self.state(u)
-        g = g.copy()
-        np.add.at(g, self.ir, -t * n[0])
-        np.add.at(g, self.iz, -t * n[1])
-        on = (t > 0).astype(float)
-        blocks = [[self.eps * on * n[a] * n[b] - t * ((a == b) - n[a] * n[b]) / rho for b in range(2)] for a in range(2)]
-        idx = (self.ir, self.iz)
-        rows = np.concatenate([idx[a] for a in range(2) for b in range(2)])
-        cols = np.concatenate([idx[b] for a in range(2) for b in range(2)])
-        vals = np.concatenate([blocks[a][b] for a in range(2) for b in range(2)])
-        return g, K + sp.coo_matrix((vals, (rows, cols)), shape=K.shape).tocsr()
 
 
 def press(model: PadModel, radius: float, approaches: np.ndarray, *, max_uzawa: int = 30
@@ -150,12 +115,12 @@ def press(model: PadModel, radius: float, approaches: np.ndarray, *, max_uzawa: 
             guess = u
         newton = 0
         for k in range(1, max_uzawa + 1):
-            c = _Contact(model, radius, d, lam, eps)
+            c = SphereContact(model, radius, lam, eps, approach=float(d))
 
-            def value(v: np.ndarray, c: _Contact = c) -> float:
+            def value(v: np.ndarray, c: SphereContact = c) -> float:
                 return model.energy(v) + c.value(v)
 
-            def grad_hess(v: np.ndarray, c: _Contact = c) -> tuple[np.ndarray, object]:
+            def grad_hess(v: np.ndarray, c: SphereContact = c) -> tuple[np.ndarray, object]:
                 r, K = model.tangent(v)
                 return c.add(v, r, K)
 

@@ -46,11 +46,14 @@ class NewtonStats:
 
 
 def minimise(value: Callable[[np.ndarray], float], grad_hess: Callable[[np.ndarray], tuple[np.ndarray, Any]],
-             u: np.ndarray, free: np.ndarray, *, force_tol: float, step_tol: float, max_iter: int = 60
-             ) -> tuple[np.ndarray, NewtonStats]:
+             u: np.ndarray, free: np.ndarray, *, force_tol: float, step_tol: float, max_iter: int = 60,
+             energy_scale: float = 0.0) -> tuple[np.ndarray, NewtonStats]:
     """Newton on ``Pi`` over ``free`` dofs from ``u`` (fixed dofs kept).
 
     Converged when ``max |grad| <= force_tol`` [N] and the last step's ``max |du| <= step_tol`` [m].
+    ``energy_scale`` [J]: the size of ``Pi``'s parts where ``Pi`` itself is a small difference of
+    them (an impact step's inertia and contact terms): a full step that raises ``Pi`` by less than
+    :data:`ROUNDOFF` of ``max(|Pi|, energy_scale)`` is taken.
 
     Raises
     ------
@@ -81,7 +84,7 @@ def minimise(value: Callable[[np.ndarray], float], grad_hess: Callable[[np.ndarr
             trial = value(u + s * du)
             if trial <= Pi + 1e-4 * s * slope:
                 break
-            if s == 1.0 and trial - Pi <= ROUNDOFF * abs(Pi):
+            if s == 1.0 and trial - Pi <= ROUNDOFF * max(abs(Pi), energy_scale):
                 break  # an energy change the line search cannot judge: the full Newton step
             s *= 0.5
             halvings += 1

@@ -5,7 +5,7 @@
   P1 or P2 vector elements) and the energy, residual and exact tangent of a displacement
   (``u_r, u_z``; ``F = [[1 + u_r,r, u_r,z, 0], [u_z,r, 1 + u_z,z, 0], [0, 0, 1 + u_r / r]]``,
   integrated over ``2 pi r dr dz``: total, not per radian). Base bonded (``u = 0`` at ``z = 0``),
-  ``u_r = 0`` on the axis, rim and top free.
+  ``u_r = 0`` on the axis, rim and top free; its consistent mass by :meth:`PadModel.mass`.
 
 The kinematic operator is built once from scikit-fem's basis (total Lagrangian: the reference
 configuration does not move); each Newton step evaluates the foam at every quadrature point
@@ -136,6 +136,23 @@ class PadModel:
         right = np.concatenate([np.diff(rt) * (2.0 * rt[:-1] + rt[1:]), [0.0]]) / 6.0
         self.top_area = 2.0 * np.pi * (left + right)
         self.cell = float(min(r[1] - r[0], z[-1] - z[-2]))
+
+    def mass(self, density: float | None = None) -> Any:
+        """The consistent mass matrix ``int rho phi_i . phi_j 2 pi r dr dz`` [kg], scipy CSR.
+
+        ``density`` [kg/m^3] (>= 0; default the foam's): 0 gives the massless (quasi-static) pad."""
+        from skfem import BilinearForm
+        from skfem.helpers import dot
+
+        rho = self.pad.foam.density if density is None else float(density)
+        if not (math.isfinite(rho) and rho >= 0):
+            raise ValueError(f"pad density must be finite and >= 0, got {density!r}")
+
+        @BilinearForm
+        def form(u: Any, v: Any, w: Any) -> Any:
+            return rho * dot(u, v) * 2.0 * np.pi * w.x[0]
+
+        return form.assemble(self.basis).tocsr()
 
     @property
     def ndofs(self) -> int:
