@@ -14,9 +14,14 @@ through repeated eigenvalues, where the principal-stretch formulas divide by zer
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 import numpy as np
 
-from hailstorm.precompute.foam.material import Hyperfoam, term_energy
+from hailstorm.precompute.foam.ogden import term_energy
+
+if TYPE_CHECKING:  # annotations only (the material's check at construction imports this module)
+    from hailstorm.precompute.foam.material import Hyperfoam
 
 __all__ = ["energy_density", "first_piola", "piola_tangent"]
 

@@ -22,31 +22,10 @@ from typing import Any
 
 import numpy as np
 
+from hailstorm.precompute.foam.ogden import FoamStabilityError, term_energy  # (re-exported: they lived here)
+
 __all__ = ["FoamStabilityError", "Hyperfoam", "term_energy"]
 
-
-class FoamStabilityError(ValueError):
-    """Foam parameters whose energy is non-convex or whose tangent loses definiteness in the
-    checked strain range (the message names the principal strains where it first fails)."""
-
-
-def _phi(y: np.ndarray) -> np.ndarray:
-    """``exp(y) - 1 - y``, accurate to round-off of its own size (a series below 1e-3)."""
-    y = np.asarray(y, dtype=np.float64)
-    small = np.abs(y) < 1e-3
-    ys = np.where(small, y, 0.0)
-    series = ys * ys * (0.5 + ys * (1.0 / 6.0 + ys * (1.0 / 24.0 + ys / 120.0)))
-    with np.errstate(over="ignore"):
-        return np.where(small, series, np.expm1(np.where(small, 0.0, y)) - y)
-
-
-def term_energy(lnl: np.ndarray, lnJ: np.ndarray, a: float, b: float) -> np.ndarray:
-    """One term's ``l1^a + l2^a + l3^a - 3 + (J^(-a b) - 1) / b`` from ``ln l_a`` (..., 3) and ``ln J``,
-    as ``sum_a phi(a ln l_a) + phi(-a b ln J) / b`` (``phi(y) = e^y - 1 - y``): the first-order parts,
-    which cancel at small strain, are never formed (the energy to round-off of its own size, which a
-    line search needs)."""
-    vol = np.zeros_like(lnJ) if b == 0.0 else _phi(-a * b * lnJ) / b
-    return _phi(a * lnl).sum(axis=-1) + vol + a * (lnl.sum(axis=-1) - lnJ)
 
 
 @dataclass(frozen=True)

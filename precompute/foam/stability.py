@@ -60,7 +60,7 @@ def _points(lo: float, hi: float) -> np.ndarray:
 
 
 def _fail(what: str, e: np.ndarray, detail: str) -> None:
-    from hailstorm.precompute.foam.material import FoamStabilityError
+    from hailstorm.precompute.foam.ogden import FoamStabilityError
 
     strains = ", ".join(f"{x:+.3g}" for x in e)
     raise FoamStabilityError(f"foam refused: {what} fails at principal strains ({strains}) ({detail})")
