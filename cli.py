@@ -173,7 +173,7 @@ def _run_view(args: argparse.Namespace) -> int:
 def _storm_args(p: argparse.ArgumentParser) -> None:
     from hailstorm.runtime.storm.scene import Scene  # noqa: PLC0415 (the packaged default scene, for the help texts)
     from hailstorm.runtime.storm.hail import INTEGRATORS
-    from hailstorm.runtime.output.files import SERIES_FORMATS
+    from hailstorm.runtime.output.storm_output import SERIES_FORMATS
 
     d = Scene.default()
     p.add_argument("--duration", type=_positive_float, default=None,
@@ -291,7 +291,7 @@ def _print_bundle(path: Path, rehash: bool = True) -> None:
 
 def _run_storm(args: argparse.Namespace) -> int:
     from hailstorm.runtime.bundle.read import load
-    from hailstorm.runtime.output.files import StormOutput, check_storm_out
+    from hailstorm.runtime.output.storm_output import StormOutput, check_storm_out
     from hailstorm.runtime.resources import missing_module, require_extras
     from hailstorm.runtime.seat_settings import SeatSettings
     from hailstorm.runtime.storm.scene import Scene

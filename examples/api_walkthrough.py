@@ -21,7 +21,7 @@ from threadpoolctl import threadpool_limits
 
 from hailstorm import precompute, runtime
 from hailstorm.runtime.bundle.write import convert_bundle
-from hailstorm.runtime.output.files import StormOutput
+from hailstorm.runtime.output.storm_output import StormOutput
 from hailstorm.runtime.output.animation import write_animation
 
 BLOCK = Path(__file__).resolve().parent / "geometries" / "block.geo"

@@ -18,7 +18,7 @@ Beside VTK's group the file holds ``/hailstorm`` (the frames' open contacts and 
 shown displacement: what :class:`VTKHDFFrames` and the renderer read without decoding a
 frame). Frames are appended as the storm records them (HDF5 datasets that grow: the seat's fields
 frame by frame, the small per-frame records every 64 frames); the storm's output directory is put in place only when the file is closed
-(:class:`hailstorm.runtime.output.files.StormOutput`).
+(:class:`hailstorm.runtime.output.storm_output.StormOutput`).
 
 h5py comes with the ``series`` extra (in ``all``); without it the storm writes the
 ``.vtu`` series (:class:`hailstorm.runtime.output.files.ParaviewSeries`).

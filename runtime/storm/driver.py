@@ -612,7 +612,7 @@ def run_storm(
         callable is called as ``progress(t, duration)`` after every step.
     on_frame : callable, optional
         Called with each :class:`Frame` as it is recorded, e.g.
-        :meth:`hailstorm.runtime.output.files.StormOutput.add`, which streams the frames to
+        :meth:`hailstorm.runtime.output.storm_output.StormOutput.add`, which streams the frames to
         disk.
     keep_frames : bool, optional
         Keep the frames in :attr:`StormResult.frames` (memory grows with the

@@ -73,7 +73,7 @@ def test_a_storm_without_the_video_extra_skips_the_animation_with_one_note(monke
 
 def test_the_api_refuses_a_video_without_the_extra_before_writing(monkeypatch, tmp_path):
     from hailstorm.runtime import load
-    from hailstorm.runtime.output.files import StormOutput
+    from hailstorm.runtime.output.storm_output import StormOutput
 
     _hide(monkeypatch, "imageio_ffmpeg")
     with pytest.raises(MissingExtra, match=r"the storm's animation needs the video extra \(imageio_ffmpeg is not "

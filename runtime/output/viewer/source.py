@@ -23,7 +23,7 @@ import numpy as np
 
 __all__ = ["FrameData", "StormOut", "ViewerInputError", "open_storm_out"]
 
-#: the storm's manifest (:data:`hailstorm.runtime.output.files.STORM_MANIFEST`; kept literal so
+#: the storm's manifest (:data:`hailstorm.runtime.output.storm_output.STORM_MANIFEST`; kept literal so
 #: that reading an output folder imports no writer)
 MANIFEST = "hailstorm-storm.json"
 _MANIFEST_FORMAT = "hailstorm-storm-output"

@@ -15,7 +15,7 @@ import pytest
 from helpers import ctrl_c_at_frame
 
 from hailstorm.cli import main
-from hailstorm.runtime.output.files import STORM_MANIFEST, OutputError, StormOutput
+from hailstorm.runtime.output.storm_output import STORM_MANIFEST, OutputError, StormOutput
 from hailstorm.runtime.storm.scene import Scene
 from hailstorm.runtime.storm.driver import run_storm
 
@@ -227,7 +227,7 @@ def test_an_old_output_that_cannot_be_removed_is_swept_by_the_next_storm(gf, tmp
     """The previous output could not be removed once the new one was in place (read-only files): the
     storm is complete (no error), warns once naming the leftover, and the next storm beside it
     removes it (the files its manifest lists)."""
-    import hailstorm.runtime.output.files as files
+    import hailstorm.runtime.output.storm_output as files
 
     out = tmp_path / "run"
     _run_into(out, gf, _scene())
@@ -237,7 +237,7 @@ def test_an_old_output_that_cannot_be_removed_is_swept_by_the_next_storm(gf, tmp
         raise PermissionError(13, "Permission denied", str(path))
 
     monkeypatch.setattr(files, "_remove_storm_output", denied)
-    with caplog.at_level(logging.WARNING, logger="hailstorm.runtime.output.files"):
+    with caplog.at_level(logging.WARNING, logger="hailstorm.runtime.output.storm_output"):
         second = _run_into(out, gf, _scene(seed=7))
     assert json.loads((out / "summary.json").read_text()) == second
     left = [p for p in tmp_path.iterdir() if p.name.startswith(".run.old-")]
@@ -253,7 +253,7 @@ def test_an_output_made_read_only_during_the_run_is_left_as_it_was(gf, tmp_path,
     """--out (or its folder) made read-only while the storm ran: nothing is replaced, the error says
     where the results are (exit 3 on the command line: the output is not in place), and the
     results are complete there."""
-    import hailstorm.runtime.output.files as files
+    import hailstorm.runtime.output.storm_output as files
 
     out = tmp_path / "run"
     first = _run_into(out, gf, _scene())

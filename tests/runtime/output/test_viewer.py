@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 
 from hailstorm.cli import main
-from hailstorm.runtime.output.files import check_storm_out
+from hailstorm.runtime.output.storm_output import check_storm_out
 from hailstorm.runtime.output.viewer import FRAME_BYTES, ViewerInputError, build_page, write_page
 from hailstorm.runtime.output.viewer.page import THREE_VERSION
 from hailstorm.runtime.output.vtkhdf import VTKHDFFrames

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 from helpers import ctrl_c_at_frame
 
-from hailstorm.runtime.output.files import STORM_MANIFEST, StormOutput
+from hailstorm.runtime.output.storm_output import STORM_MANIFEST, StormOutput
 from hailstorm.runtime.output.vtkhdf import VTKHDFFrames, read_vtkhdf_frame
 from hailstorm.runtime.storm.driver import run_storm
 from hailstorm.runtime.storm.scene import Scene

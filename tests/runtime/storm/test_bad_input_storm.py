@@ -171,7 +171,7 @@ def test_out_holding_a_big_foreign_tree_is_refused_after_a_bounded_scan(tmp_path
     check walked all 12 000 and then compared every folder with every file)."""
     import json
 
-    from hailstorm.runtime.output.files import STORM_MANIFEST, OutputError, check_storm_out
+    from hailstorm.runtime.output.storm_output import STORM_MANIFEST, OutputError, check_storm_out
 
     root = _big_tree(tmp_path / "home")
     if with_manifest:
@@ -192,7 +192,7 @@ def test_bounded_scan_still_accepts_a_previous_storm_output_and_spots_one_stray_
     extra file deep in its frames folder, or an extra empty folder, is named."""
     import json
 
-    from hailstorm.runtime.output.files import STORM_MANIFEST, OutputError, check_storm_out
+    from hailstorm.runtime.output.storm_output import STORM_MANIFEST, OutputError, check_storm_out
 
     out = tmp_path / "run"
     (out / "frames").mkdir(parents=True)
@@ -291,7 +291,7 @@ def test_a_killed_storm_leaves_nothing_behind(seat_bundle, tmp_path, sig):
     --out removes the dead one's directory (its lock is free) -- but never a running storm's."""
     import signal as _signal
 
-    from hailstorm.runtime.output.files import clean_stale_partials
+    from hailstorm.runtime.output.storm_output import clean_stale_partials
 
     out = tmp_path / "out"
     proc = subprocess.Popen(_storm_cmd(seat_bundle, out), stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -315,7 +315,7 @@ def test_a_killed_storm_leaves_nothing_behind(seat_bundle, tmp_path, sig):
 def test_a_killed_storms_partial_is_cleaned_by_a_storm_into_another_out(tmp_path):
     """A killed storm's temporary directory (its lock file present, not held) beside another
     --out is removed too, as bundle writers clean their folder."""
-    from hailstorm.runtime.output.files import clean_stale_partials
+    from hailstorm.runtime.output.storm_output import clean_stale_partials
 
     dead = tmp_path / ".first.partial-abc"
     dead.mkdir()
@@ -326,7 +326,7 @@ def test_a_killed_storms_partial_is_cleaned_by_a_storm_into_another_out(tmp_path
 
 
 def test_a_partial_without_our_lock_file_is_left_alone(tmp_path):
-    from hailstorm.runtime.output.files import clean_stale_partials
+    from hailstorm.runtime.output.storm_output import clean_stale_partials
 
     stranger = tmp_path / ".out.partial-abc"
     stranger.mkdir()
@@ -432,8 +432,8 @@ def test_disk_full_refusal_states_sizes_in_adaptive_units(tmp_path, monkeypatch)
 
     from helpers import plate_gf
 
-    import hailstorm.runtime.output.files as files
-    from hailstorm.runtime.output.files import OutputError, StormOutput
+    import hailstorm.runtime.output.storm_output as files
+    from hailstorm.runtime.output.storm_output import OutputError, StormOutput
 
     usage = collections.namedtuple("usage", "total used free")
     monkeypatch.setattr(files.shutil, "disk_usage", lambda p: usage(10**6, 10**6, 300))
@@ -448,7 +448,7 @@ def test_disk_full_refusal_states_sizes_in_adaptive_units(tmp_path, monkeypatch)
 def test_a_second_storm_into_a_running_storms_out_is_refused(tmp_path):
     from helpers import plate_gf
 
-    from hailstorm.runtime.output.files import OutputError, StormOutput
+    from hailstorm.runtime.output.storm_output import OutputError, StormOutput
 
     gf = plate_gf()
     first = StormOutput(tmp_path / "out", gf, video=False)
@@ -468,7 +468,7 @@ def test_a_storm_whose_out_was_written_meanwhile_keeps_both(seat_bundle, tmp_pat
     import json
 
     from hailstorm.runtime.bundle.read import load
-    from hailstorm.runtime.output.files import STORM_MANIFEST, OutputError, StormOutput
+    from hailstorm.runtime.output.storm_output import STORM_MANIFEST, OutputError, StormOutput
     from hailstorm.runtime.storm.scene import Scene
     from hailstorm.runtime.storm.driver import run_storm
 
@@ -495,7 +495,7 @@ def test_file_too_large_names_the_output(seat_bundle, tmp_path, capsys, monkeypa
     """A write's EFBIG carries no file name: the one line names --out (and the limit)."""
     import errno
 
-    import hailstorm.runtime.output.files as files
+    import hailstorm.runtime.output.storm_output as files
 
     def too_large(self, frame):
         raise OSError(errno.EFBIG, os.strerror(errno.EFBIG))
