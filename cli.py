@@ -422,6 +422,7 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv[:1] + leading + argv[1:])
     logging.basicConfig(level=logging.WARNING if args.quiet else logging.INFO, format="%(message)s")
     logging.getLogger("skfem").setLevel(logging.WARNING)
+    hook = sys.unraisablehook
     previous = _terminate_as_exception()
     _RECEIVED.clear()
     try:
@@ -448,6 +449,7 @@ def main(argv: list[str] | None = None) -> int:
     finally:
         for signum, handler in previous.items():
             signal.signal(signum, handler)
+        sys.unraisablehook = hook
 
 
 def _user_error(exc: BaseException, out: Any) -> int | None:

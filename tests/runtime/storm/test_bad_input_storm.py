@@ -586,3 +586,34 @@ def test_a_scene_file_and_the_command_line_are_checked_together(tmp_path, seat_b
     assert main(["storm", "--gf", str(seat_bundle), "--scene", str(path), "--duration", "2", "--stones", "3",
                  "--no-video", "-q", "--out", str(out)]) == 0
     assert json.loads((out / "summary.json").read_text())["sim_time_s"] == pytest.approx(2.0)
+
+
+def test_a_swallowed_signal_still_ends_the_storm(seat_bundle, tmp_path, monkeypatch, capsys):
+    """A termination signal whose exception Python swallowed (raised inside a callback from C,
+    numba's compiler's: only the handler's record of it survives) still ends the storm as that
+    signal at its next frame: one line, exit 128 + its number, nothing put in place, and the
+    unraisable hook as it was."""
+    import signal as _signal
+
+    import hailstorm.cli as cli
+    from hailstorm.runtime.output.storm_output import StormOutput
+
+    real_add = StormOutput.add
+    seen = []
+
+    def add(self, frame):
+        seen.append(frame.t)
+        if len(seen) == 2:  # the handler ran, its exception was lost on the way
+            cli._RECEIVED.append(int(_signal.SIGTERM))
+        return real_add(self, frame)
+
+    monkeypatch.setattr(StormOutput, "add", add)
+    hook = sys.unraisablehook
+    out = tmp_path / "out"
+    rc = main(["storm", "--gf", str(seat_bundle), "--out", str(out), "--duration", "0.05", "--stones", "2",
+               "--no-video", "-q"])
+    assert rc == 128 + int(_signal.SIGTERM)
+    assert capsys.readouterr().err.strip().splitlines() == ["hailstorm: terminated (SIGTERM)"]
+    assert len(seen) == 2  # ended at the frame after
+    assert not out.exists() and list(tmp_path.iterdir()) == []
+    assert sys.unraisablehook is hook
