@@ -49,9 +49,9 @@ import sys
 from studies import record
 
 
-def run_default_storm(gf_path: str | None = None):
-    """The default storm (the packaged scene) on ``gf_path`` (default: the default seat's bundle,
-    built or reused from the cache like ``hailstorm storm`` does); its result."""
+def run_default_storm(gf_path: str | None = None, duration: float | None = None):
+    """The default storm (the packaged scene; ``duration``: shortened) on ``gf_path`` (default: the
+    default seat's bundle, built or reused from the cache like ``hailstorm storm`` does); its result."""
     import hailstorm.runtime
     from hailstorm.runtime.storm.scene import Scene, SeatSettings
 
@@ -61,7 +61,8 @@ def run_default_storm(gf_path: str | None = None):
         seat = SeatSettings.default()
         gf_path = build_bundle(None, mesh_size=seat.mesh_size, order=seat.order, load=seat.load,
                                volume_size=seat.volume_size, young=seat.young, poisson=seat.poisson, progress=False)
-    return hailstorm.runtime.run_storm(hailstorm.runtime.load(gf_path), Scene.default(), progress=False)
+    scene = Scene.default() if duration is None else Scene.default().with_(duration=duration)
+    return hailstorm.runtime.run_storm(hailstorm.runtime.load(gf_path), scene, progress=False)
 
 
 def _validity_keys(stats) -> dict:
@@ -145,6 +146,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-storm", action="store_true", help="skip the default storm's validity counts")
     ap.add_argument("--no-table", action="store_true", help="skip the peer's table (the default storm's counts only)")
     ap.add_argument("--gf", default=None, help="bundle directory of the storm (default: the default seat's)")
+    ap.add_argument("--duration", type=float, default=None, help="the storm's simulated time [s] (default: the scene's)")
     ap.add_argument("--plot", default=None, metavar="PATH", help="chart the table's rows into PATH (PNG)")
     ap.add_argument("--corrections", action="store_true",
                     help="also what a one-number correction matched to the peak force would predict")
@@ -173,7 +175,7 @@ def _run(args: argparse.Namespace) -> int:
     if not args.no_storm:
         from hailstorm.runtime.storm.limits import validity_warning
 
-        stats = run_default_storm(args.gf).stats
+        stats = run_default_storm(args.gf, args.duration).stats
         v = _validity_keys(stats)
         seat = "the default seat" if args.gf is None else f"the bundle {args.gf}"
         print(f"\ndefault storm (hailstorm storm's scene, on {seat}): validity keys of summary.json")
