@@ -16,9 +16,13 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import sys
 import tempfile
 import time
 from pathlib import Path
+
+# the studies' run records (notebooks/studies: in the repository, not in the package)
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "notebooks"))
 
 import numpy as np
 
@@ -28,22 +32,9 @@ from hailstorm.runtime.output.files import impacts_csv
 from hailstorm.runtime.output.impacts import read_impacts
 from hailstorm.runtime.output.offscreen import three_d_available
 from hailstorm.runtime.output.animation import write_animation
+from studies.record import stamp
 from hailstorm.runtime.output.render import StormRenderer
 from hailstorm.runtime.output.video3d import Storm3DRenderer
-
-
-def _stamp() -> str:
-    """The run's UTC date, the repository's commit (where git knows it) and the load average."""
-    import datetime
-    import subprocess
-
-    try:
-        commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
-                                cwd=Path(__file__).parent, check=True).stdout.strip()
-    except (OSError, subprocess.CalledProcessError):
-        commit = "unknown"
-    when = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")
-    return f"{when}, git {commit}, load average before: {' '.join(f'{x:.2f}' for x in os.getloadavg())}"
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -81,7 +72,7 @@ def main(argv: list[str] | None = None) -> int:
                                 impacts=impacts, size=size)
                 times[f"{style} write_animation"].append(time.perf_counter() - t0)
     lines = [f"# python docs/video_timing.py --rounds {args.rounds} --size {size[0]} {size[1]}",
-             f"# {_stamp()}",
+             stamp(),
              f"# {platform.platform()}, {os.cpu_count()} cores, 3-D window: {three_d_available()}",
              f"# the default storm: {len(frames)} frames, {result.stats['sim_time_s']:g} s simulated, "
              f"storm wall time {result.stats['wall_time_s']:.2f} s",

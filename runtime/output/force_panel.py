@@ -22,19 +22,10 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["ForcePanel", "total_force"]
+__all__ = ["ForcePanel"]
 
 _LINE = "#1f4e79"
 _PEAK = "#e8590c"
-
-
-def total_force(frame: Any) -> float | None:
-    """The total contact force on the seat at a frame's instant [N]: the sum of the magnitudes
-    of the forces its stones apply (None when the frame has no ``forces``)."""
-    f = getattr(frame, "forces", None)
-    if f is None:
-        return None
-    return float(np.linalg.norm(np.asarray(f, dtype=np.float64).reshape(-1, 3), axis=1).sum())
 
 
 class ForcePanel:

@@ -53,6 +53,7 @@ __all__ = [
     "playback_slowdown",
     "seen_from_above",
     "shown_displacement",
+    "slowdown_text",
     "total_force",
     "view_box",
 ]
@@ -431,7 +432,7 @@ class StormRenderer:
         self.force_title.set_text("total contact force: not recorded" if now is None
                                   else f"total contact force  {now:7.2f} N")
         self.caption.set_text(f"t = {frame.t * 1e3:7.1f} ms    stones in view {self.n_in_view:3d}    "
-                              f"in contact {int(frame.contacts):3d}" + _slowdown_text(slowdown))
+                              f"in contact {int(frame.contacts):3d}" + slowdown_text(slowdown))
         if self._background is None:
             self.canvas.draw()  # the static parts (animated artists are skipped)
             self._background = self.canvas.copy_from_bbox(self.fig.bbox)
@@ -454,13 +455,15 @@ def playback_slowdown(times: np.ndarray, fps: float) -> np.ndarray:
     return np.where(ok, 1.0 / (float(fps) * np.where(ok, gap, 1.0)), np.nan)
 
 
-def _slowdown_text(slowdown: float | None) -> str:
-    """The caption's time scale: ``"    12.5x slower than real time"`` (empty when unknown)."""
+def slowdown_text(slowdown: float | None, indent: int = 4) -> str:
+    """The caption's time scale after ``indent`` spaces: ``"    playback 12.5x slower than real
+    time"`` (empty when unknown)."""
     if slowdown is None or not np.isfinite(slowdown):
         return ""
+    pad = " " * indent
     if slowdown >= 1.0:
-        return f"    playback {slowdown:.3g}x slower than real time"
-    return f"    playback {1.0 / slowdown:.3g}x faster than real time"
+        return f"{pad}playback {slowdown:.3g}x slower than real time"
+    return f"{pad}playback {1.0 / slowdown:.3g}x faster than real time"
 
 
 def seen_from_above(vertices: np.ndarray, triangles: np.ndarray, lo: np.ndarray, hi: np.ndarray, nx: int,

@@ -28,9 +28,9 @@ from typing import Any
 
 import numpy as np
 
-from hailstorm.runtime.output.force_panel import ForcePanel, total_force
+from hailstorm.runtime.output.force_panel import ForcePanel
 from hailstorm.runtime.output.impacts import impact_times
-from hailstorm.runtime.output.render import in_view, shown_displacement, view_box
+from hailstorm.runtime.output.render import in_view, shown_displacement, slowdown_text, total_force, view_box
 from hailstorm.runtime.output.seat_view import SeatView, displacement_scale
 
 __all__ = ["DENTS", "PANEL_FRACTION", "Storm3DRenderer", "dents_of"]
@@ -49,14 +49,6 @@ def dents_of(frame: Any, dents: str = "now") -> np.ndarray:
     if dents not in DENTS:
         raise ValueError(f"dents must be one of {DENTS}, not {dents!r}")
     return np.asarray(frame.displacement if dents == "now" else shown_displacement(frame))
-
-
-def _slowdown_text(slowdown: float | None) -> str:
-    if slowdown is None or not np.isfinite(slowdown):
-        return ""
-    if slowdown >= 1.0:
-        return f"   playback {slowdown:.3g}x slower than real time"
-    return f"   playback {1.0 / slowdown:.3g}x faster than real time"
 
 
 class Storm3DRenderer:
@@ -214,7 +206,7 @@ class Storm3DRenderer:
             total = float(np.interp(float(frame.t), self.panel.history[:, 0], self.panel.history[:, 1]))
         n_imp = int((self.panel.impact_t <= float(frame.t) + 1e-12).sum())
         self.caption = (f"t = {frame.t * 1e3:7.1f} ms   stones in view {self.n_in_view:3d}   in contact "
-                        f"{int(frame.contacts):2d}{_slowdown_text(slowdown)}\n"
+                        f"{int(frame.contacts):2d}{slowdown_text(slowdown, 3)}\n"
                         "force on the seat now " + ("(not recorded)" if total is None else f"{total:7.2f} N")
                         + f"   impacts so far {n_imp:3d}\n"
                         f"shape: displacement drawn x{self.scale:g}; colour: true |u|"
