@@ -13,7 +13,7 @@ import numpy as np
 from hailstorm.runtime.compiled.jit import kernel
 from hailstorm.runtime.compiled.grid import SampleGrid, nearest_sample
 
-__all__ = ["flight", "near_set", "retired"]
+__all__ = ["flight", "near_mask", "near_set", "retired"]
 
 
 @kernel
@@ -47,8 +47,10 @@ def drag_dot(i, vel, radius, nrm, g, wind, drag_coef):  # pragma: no cover (comp
 
 
 @kernel
-def _near_set(live, pos, vel, radius, ctri, budget, bud_u, U, dt, g, lo, hi, sr,
+def near_mask(live, pos, vel, radius, ctri, budget, bud_u, U, dt, g, lo, hi, sr,
               glo, h, dims, start, items, spts):  # pragma: no cover (compiled)
+    """:func:`near_set`'s kernel, its grid's arrays unpacked (``lo``, ``hi``: the seat's bounding
+    box; ``sr``: the sample radius; ``glo`` ... ``spts``: :class:`SampleGrid`'s arrays)."""
     n = live.size
     near = np.zeros(n, np.bool_)
     for q in range(n):
@@ -91,7 +93,7 @@ def near_set(grid: SampleGrid, sample_radius: float, bbox: tuple[np.ndarray, np.
     it the budget shrinks by the difference); flying stones spend it by what they can
     travel in a step, and only when it runs out is the distance re-measured (the
     bounding box, else the nearest sample). Stones in contact are near."""
-    return _near_set(live, pos, vel, radius, ctri, budget, bud_u, float(U), float(dt), float(gravity),
+    return near_mask(live, pos, vel, radius, ctri, budget, bud_u, float(U), float(dt), float(gravity),
                      bbox[0], bbox[1], float(sample_radius), grid.lo, grid.h, grid.dims, grid.start,
                      grid.items, grid.points)
 

@@ -200,6 +200,7 @@ from hailstorm.runtime.bundle.compliance import ElasticSource, reader
 from hailstorm.runtime.storm.contact_set import ContactSet, ContactSets
 from hailstorm.runtime.storm.hail import GRAVITY, Air
 from hailstorm.runtime.storm.estimate import StormEstimate, hit_fraction
+from hailstorm.runtime.storm.free_run import FreeResult, FreeRun
 from hailstorm.runtime.storm.integrators import ContactIntegrator
 from hailstorm.runtime.storm.patches import Patches
 from hailstorm.runtime.storm.recording import Frame, Recorder, StormResult, StormStats
@@ -266,10 +267,31 @@ class Storm:
         self.fell_through = 0
         self.plan = SpawnPlan(scene.storm, hail, self.collision.lo, self.collision.hi,
                               np.random.default_rng(scene.storm.seed)) if spawn else SpawnPlan.empty()
+        #: the compiled run of the steps without soft contacts (:meth:`run_free`; None: every step
+        #: through :meth:`step`, as with stones that collide with each other)
+        self.free: FreeRun | None = None
+        self._pending: FreeResult | None = None
+        if self.stone_collisions is None:
+            self.free = FreeRun(scene, self.collision, self.integrator, self._k_tri(), self.plan, self.stones)
         self.warm_report: WarmReport | None = self.warm_up() if warm else None
 
     def step(self) -> None:
-        """Advance the storm by one step ``dt``."""
+        """Advance the storm by one step ``dt`` (or finish the step :meth:`run_free` left half done)."""
+        pending, self._pending = self._pending, None
+        if pending is not None:
+            self._finish_free(pending)
+            return
+        live, pos0, near = self._begin_step()
+        if near.size:
+            self._substeps(near, self.scene.time.dt, 0)
+        elif self.seat.loaded:
+            self.contacts.release()
+        self._end_step(live, pos0)
+
+    def _begin_step(self) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+        """A step's spawning, broad phase, far stones' flight and penetration statistics;
+        returns the live stones, their positions at the step's start (for the stone pairs,
+        else None) and the near stones."""
         dt, st, stones, seat = self.scene.time.dt, self.stats, self.stones, self.seat
         due = self.plan.due(self.t + dt)
         if due is not None:  # the plan's stones start above the seat: Stones.add's check is the one they need
@@ -278,8 +300,7 @@ class Storm:
             early = (due[:, 0] - self.t)[:, None]
             st.hailstones += stones.add(due[:, 1:4] - early * due[:, 4:7], due[:, 4:7], due[:, 7]).size
         live = stones.live()
-        pairs = self.stone_collisions
-        pos0 = stones.pos.copy() if pairs is not None else None  # (the step's paths start here)
+        pos0 = stones.pos.copy() if self.stone_collisions is not None else None  # (the step's paths start here)
         near, far = self.collision.near_set(stones, live, dt, seat.umax_step) if live.size else (live, live)
         if far.size:
             self.collision.fly(stones, far, dt)
@@ -287,26 +308,65 @@ class Storm:
             stones.offset[far] = 0.0  # (far from the seat: any engagement is over)
         if near.size:
             self.collision.penetration(stones, near, dt, seat, st)
-            t_left, n_sub = dt, 0
-            while t_left > 1e-12 * dt:
-                h = self.integrator.substep_size(stones, near, t_left, self.contacts.current, self._k_tri(), self.g)
-                if n_sub >= 4 * self.scene.time.max_substeps:
-                    h = t_left  # safety net: never stall
-                t_left -= self._substep(near, h, self.t + (dt - t_left))
-                n_sub += 1
-        elif seat.loaded:
-            self.contacts.release()
+        return live, pos0, near
+
+    def _substeps(self, near: np.ndarray, t_left: float, n_sub: int) -> None:
+        """The near stones' sub-steps over the ``t_left`` left of the step (``n_sub`` taken)."""
+        dt = self.scene.time.dt
+        while t_left > 1e-12 * dt:
+            h = self.integrator.substep_size(self.stones, near, t_left, self.contacts.current, self._k_tri(), self.g)
+            if n_sub >= 4 * self.scene.time.max_substeps:
+                h = t_left  # safety net: never stall
+            t_left -= self._substep(near, h, self.t + (dt - t_left))
+            n_sub += 1
+
+    def _end_step(self, live: np.ndarray, pos0: np.ndarray | None) -> None:
+        """A step's stone pairs, retirement and clock."""
+        st, stones = self.stats, self.stones
+        pairs = self.stone_collisions
         if pairs is not None and pos0 is not None:
-            pairs.resolve(stones, live, pos0, dt, st)
+            pairs.resolve(stones, live, pos0, self.scene.time.dt, st)
         gone = self.collision.retired(stones, live) if live.size else live
         if gone.size:
             self.fell_through += self._below_footprint(gone)
             stones.retire(gone)
             self.patches.forget(gone.tolist())
             st.retired += int(gone.size)
-        seat.end_step()
-        self.t += dt
+        self.seat.end_step()
+        self.t += self.scene.time.dt
         st.steps += 1
+
+    def run_free(self, n_max: int, i0: int, n_steps: int, next_frame: float, history: np.ndarray) -> tuple[int, bool]:
+        """Run up to ``n_max`` steps in compiled code while no stone presses the seat
+        (:class:`~hailstorm.runtime.storm.free_run.FreeRun`): the same steps as :meth:`step`.
+
+        ``i0`` is the next step's index of ``n_steps``; ``next_frame`` the frame clock (the run
+        stops after a step at whose end a frame is due) and ``history`` the force history
+        (:class:`~hailstorm.runtime.storm.recording.Recorder`), whose rows of the steps run
+        here are written. Returns the steps completed, and whether the next one is left half
+        done (a contact opened in its free phase: the next :meth:`step` finishes it).
+        ``(0, False)``: nothing done (a stone presses the seat, stones collide with each
+        other, or a step is half done: :meth:`step`).
+        """
+        if self.free is None or self._pending is not None or self.contacts.current is not None or self.seat.loaded:
+            return 0, False
+        res = self.free.run(self.t, n_max, i0, n_steps, next_frame, history, self.stones, self.seat, self.stats)
+        self.t = res.t
+        self.fell_through += res.fell_through
+        if res.retired.size:
+            self.patches.forget(res.retired.tolist())
+        if res.opened:
+            self._pending = res
+        return res.steps, res.opened
+
+    def _finish_free(self, res: FreeResult) -> None:
+        """The step :meth:`run_free` left half done: its contact step, the sub-steps left and its
+        end, as in :meth:`step`."""
+        dt = self.scene.time.dt
+        was_open = np.zeros(res.near.size, dtype=bool)  # (no contact was open in a compiled step)
+        t_left = res.t_left - self._after_free_phase(res.near, res.h, was_open, self.t + (dt - res.t_left))
+        self._substeps(res.near, t_left, res.n_sub + 1)
+        self._end_step(res.live, None)
 
     def _below_footprint(self, ids: np.ndarray) -> int:
         """How many of the stones ``ids`` never touched the seat yet are below it,
@@ -336,9 +396,14 @@ class Storm:
         (shorter when a stone is about to touch the seat: time of impact): the free
         phase (closest points, time of impact, contacts that open, hard walls), then the
         soft contacts through their capacitance and free flight of the others."""
+        was_open = self.stones.ctri[near] >= 0
+        h = self.collision.free_phase(self.stones, near, h, self.seat, self.stats)
+        return self._after_free_phase(near, h, was_open, t0)
+
+    def _after_free_phase(self, near: np.ndarray, h: float, was_open: np.ndarray, t0: float) -> float:
+        """A sub-step's contacts after its free phase (which took ``h``; ``was_open``: the near
+        stones' contacts open before it): engagement, the soft contacts' step, flight."""
         stones = self.stones
-        was_open = stones.ctri[near] >= 0
-        h = self.collision.free_phase(stones, near, h, self.seat, self.stats)
         in_contact = stones.ctri[near] >= 0
         opened = in_contact & ~was_open
         if self.patches.enabled and opened.any():
@@ -378,6 +443,9 @@ class Storm:
             task(f"the {sc.integrator} integrator's kernels",
                  lambda: self.integrator.warm_up(stones, self._k_tri(), self.g, dt)),
         ]
+        free = self.free
+        if free is not None:
+            tasks.append(task("the free-steps kernel", lambda: free.warm_up(self.stones, self.seat, self.stats)))
         if self.stone_collisions is not None:
             pairs = self.stone_collisions
             tasks.append(task("the stone-collision kernels", lambda: pairs.warm_up(stones)))
@@ -609,7 +677,8 @@ def run_storm(
         Default: :meth:`Scene.default`.
     progress : bool or callable
         ``True``: a tqdm progress bar over the simulated time (on stderr); a
-        callable is called as ``progress(t, duration)`` after every step.
+        callable is called as ``progress(t, duration)`` as the storm advances (after each step
+        or run of compiled steps).
     on_frame : callable, optional
         Called with each :class:`Frame` as it is recorded, e.g.
         :meth:`hailstorm.runtime.output.storm_output.StormOutput.add`, which streams the frames to
@@ -664,13 +733,22 @@ def run_storm(
     wall0, sink0 = time.perf_counter(), rec.sink_time
     shown = 0.0
     try:
-        for i in range(rec.n_steps):
-            storm.step()
-            rec.forces(i, storm.t, storm.contact_forces()[1])
-            if rec.frame_due(storm.t, i):
-                rec.record(storm.frame())
+        i = 0
+        while i < rec.n_steps:
+            # the steps without soft contacts in compiled code, many per call; then one step here
+            k, half_done = storm.run_free(rec.n_steps - i, i, rec.n_steps, rec.next_frame, rec.history)
+            if k:
+                i += k
+                if rec.frame_due(storm.t, i - 1):
+                    rec.record(storm.frame())
+            if half_done or k == 0:
+                storm.step()  # (finishes the half-done step)
+                rec.forces(i, storm.t, storm.contact_forces()[1])
+                if rec.frame_due(storm.t, i):
+                    rec.record(storm.frame())
+                i += 1
             if bar is not None:
-                if storm.t - shown >= 0.002 * duration or i == rec.n_steps - 1:
+                if storm.t - shown >= 0.002 * duration or i == rec.n_steps:
                     bar.update(min(storm.t, duration) - shown)
                     shown = min(storm.t, duration)
             elif callable(progress):

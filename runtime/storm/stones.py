@@ -184,14 +184,7 @@ class Stones:
         k = pos.shape[0]
         n = self.pos.shape[0]
         ids = np.arange(n, n + k)
-        if n + k > self._capacity:  # grow the per-stone buffers (doubling: O(1) per stone)
-            cap = max(2 * self._capacity, n + k, 64)
-            for name, _ in FIELDS:
-                old = getattr(self, name)
-                buf = np.empty((cap,) + old.shape[1:], dtype=old.dtype)
-                buf[:n] = old
-                self._buffers[name] = buf
-            self._capacity = cap
+        self.reserve(k)
         for name, new in FIELDS:
             arr = self._buffers[name][:n + k]
             setattr(self, name, arr)
@@ -203,6 +196,33 @@ class Stones:
         self.mass[n:] = stone_mass(radius, self.density)
         self._live = None
         return ids
+
+    def reserve(self, k: int) -> None:
+        """Room for ``k`` more stones in the per-stone buffers (grown by doubling: O(1) per stone)."""
+        n = self.pos.shape[0]
+        if n + k <= self._capacity:
+            return
+        cap = max(2 * self._capacity, n + k, 64)
+        for name, _ in FIELDS:
+            old = getattr(self, name)
+            buf = np.empty((cap,) + old.shape[1:], dtype=old.dtype)
+            buf[:n] = old
+            self._buffers[name] = buf
+        self._capacity = cap
+        self.resize(n)
+
+    def buffers(self) -> tuple[np.ndarray, ...]:
+        """The per-stone buffers at their full capacity, in the order of :data:`FIELDS` (for a
+        kernel that adds stones in place: :func:`hailstorm.runtime.compiled.free_steps.free_steps`;
+        then :meth:`resize`)."""
+        return tuple(self._buffers[name] for name, _ in FIELDS)
+
+    def resize(self, n: int) -> None:
+        """The stones are the first ``n`` rows of the buffers (after a kernel wrote new ones or
+        retired some: the live ids are recomputed)."""
+        for name, _ in FIELDS:
+            setattr(self, name, self._buffers[name][:n])
+        self._live = None
 
     def contact_radius(self) -> np.ndarray:
         """Radius of each stone's contact surface, ``radius - offset`` (k,) [m]: what the
@@ -262,6 +282,15 @@ class SpawnPlan:
         plan = cls.__new__(cls)
         plan.rows, plan._next, plan._t = np.zeros((0, 8)), 0, []
         return plan
+
+    @property
+    def next_row(self) -> int:
+        """The first row not handed out yet."""
+        return self._next
+
+    def handed_out(self, j: int) -> None:
+        """Rows up to ``j`` (excluded) were handed out (by a kernel that spawns them itself)."""
+        self._next = int(j)
 
     def due(self, t_end: float) -> np.ndarray | None:
         """Rows of the stones due before ``t_end`` not handed out yet (None: none)."""
