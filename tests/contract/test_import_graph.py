@@ -130,6 +130,20 @@ def test_the_runtime_never_imports_the_offline_stage_or_the_cli():
     assert "hailstorm.runtime.storm.scene" in graph
 
 
+def test_the_settings_records_import_nothing_of_the_storm():
+    """The settings' ground (``runtime/sections.py``, its ``SceneError`` too) and the default seat's
+    record (``runtime/seat_settings.py``) import nothing of ``hailstorm.runtime.storm``: the storm's
+    scene builds on them, so an import the other way would run back up (issue: a lean house)."""
+    graph = _graph()
+    for m in ("hailstorm.runtime.sections", "hailstorm.runtime.seat_settings"):
+        assert m in graph
+        assert not sorted(d for d in graph[m] if d.startswith("hailstorm.runtime.storm")), m
+    from hailstorm.runtime.sections import SceneError
+    from hailstorm.runtime.storm.errors import SceneError as reexported, StormTooLarge
+
+    assert reexported is SceneError and issubclass(StormTooLarge, SceneError)
+
+
 def test_the_old_scene_path_warns_and_still_imports():
     import importlib
     import sys
