@@ -7,6 +7,8 @@ import ast
 import re
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[2]
 #: import name -> folder (pyproject's package-dir mapping)
 PACKAGES = {"hailstorm.runtime": ROOT / "runtime", "hailstorm.precompute": ROOT / "precompute",
@@ -144,20 +146,20 @@ def test_the_settings_records_import_nothing_of_the_storm():
     assert reexported is SceneError and issubclass(StormTooLarge, SceneError)
 
 
-def test_the_old_scene_path_warns_and_still_imports():
+def test_the_old_scene_path_is_gone():
+    """``hailstorm.runtime.scene`` (a deprecated shim since the scene moved to the storm's folder)
+    is removed (issue: a lean house); the scene is ``hailstorm.runtime.Scene``."""
     import importlib
     import sys
-    import warnings
 
     sys.modules.pop("hailstorm.runtime.scene", None)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        old = importlib.import_module("hailstorm.runtime.scene")
-    assert any(issubclass(w.category, DeprecationWarning) and "hailstorm.runtime.storm.scene" in str(w.message)
-               for w in caught)
+    assert not (ROOT / "runtime" / "scene.py").exists()
+    with pytest.raises(ModuleNotFoundError):
+        importlib.import_module("hailstorm.runtime.scene")
     from hailstorm.runtime import Scene
+    from hailstorm.runtime.storm.scene import Scene as where
 
-    assert old.Scene is Scene
+    assert Scene is where
 
 
 def _module_level_imports(path: Path) -> set[str]:
