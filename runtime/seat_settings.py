@@ -18,8 +18,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import ClassVar, Mapping
 
-from hailstorm.runtime.sections import Section, check_positive, check_types, packaged_toml, read_toml
-from hailstorm.runtime.storm.errors import SceneError
+from hailstorm.runtime.sections import SceneError, Section, check_positive, check_types, packaged_toml, read_toml
 
 __all__ = ["SeatSettings"]
 

@@ -3,7 +3,7 @@
 A record is a frozen dataclass deriving from :class:`Section`: its fields are the
 keys of its ``[section]``, its ``__post_init__`` checks them with
 :func:`check_types`, :func:`check_positive` and :func:`check_bool` (a bad value
-raises :class:`~hailstorm.runtime.storm.errors.SceneError` naming the key), and
+raises :class:`SceneError` naming the key), and
 :meth:`Section.from_dict` / :meth:`Section.to_dict` map it to and from the TOML
 section. The storm's records (:mod:`hailstorm.runtime.storm.scene`) and the default
 seat's (:mod:`hailstorm.runtime.seat_settings`) are built on it; neither imports the other's.
@@ -20,9 +20,15 @@ from typing import Any, ClassVar, Mapping
 
 import numpy as np
 
-from hailstorm.runtime.storm.errors import SceneError
+__all__ = ["TYPES", "SceneError", "Section", "check_bool", "check_positive", "check_types", "packaged_toml", "read_toml"]
 
-__all__ = ["TYPES", "Section", "check_bool", "check_positive", "check_types", "packaged_toml", "read_toml"]
+
+class SceneError(ValueError):
+    """A scene file or value is invalid (a settings record's key named in the message).
+
+    Defined here, with the records it checks, so that the settings (this module, the storm's
+    scene and the default seat's :mod:`hailstorm.runtime.seat_settings`) import nothing of the
+    storm; :mod:`hailstorm.runtime.storm.errors` re-exports it beside :class:`StormTooLarge`."""
 
 
 #: Python types a scene value may have, per field annotation (``Mode`` and ``Integrator``:

@@ -14,14 +14,9 @@ through repeated eigenvalues, where the principal-stretch formulas divide by zer
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
-
 import numpy as np
 
-from hailstorm.precompute.foam.ogden import term_energy
-
-if TYPE_CHECKING:  # annotations only (the material's check at construction imports this module)
-    from hailstorm.precompute.foam.material import Hyperfoam
+from hailstorm.precompute.foam.ogden import OgdenTerms, term_energy
 
 __all__ = ["energy_density", "first_piola", "piola_tangent"]
 
@@ -46,7 +41,7 @@ def _spectral(F: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return c, Q, lnJ
 
 
-def _stress_parts(foam: Hyperfoam, c: np.ndarray, lnJ: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _stress_parts(foam: OgdenTerms, c: np.ndarray, lnJ: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``2 f'(c_a)`` (..., 3), ``g(J)`` and ``J g'(J)`` (...)."""
     two_fp = np.zeros_like(c)
     g = np.zeros_like(lnJ)
@@ -60,7 +55,7 @@ def _stress_parts(foam: Hyperfoam, c: np.ndarray, lnJ: np.ndarray) -> tuple[np.n
     return two_fp, g, Jgp
 
 
-def energy_density(foam: Hyperfoam, F: np.ndarray) -> np.ndarray:
+def energy_density(foam: OgdenTerms, F: np.ndarray) -> np.ndarray:
     """``W(F)`` [J/m^3], (...); ``inf`` where ``det F <= 0`` (a line search's barrier)."""
     c, _, lnJ = _spectral(np.asarray(F, dtype=np.float64))
     out = np.zeros_like(lnJ)
@@ -71,7 +66,7 @@ def energy_density(foam: Hyperfoam, F: np.ndarray) -> np.ndarray:
     return np.where(np.isfinite(lnJ) & np.isfinite(out), out, np.inf)
 
 
-def first_piola(foam: Hyperfoam, F: np.ndarray) -> np.ndarray:
+def first_piola(foam: OgdenTerms, F: np.ndarray) -> np.ndarray:
     """``P = F S`` [Pa], (..., 3, 3); needs ``det F > 0``."""
     F = np.asarray(F, dtype=np.float64)
     c, Q, lnJ = _spectral(F)
@@ -80,7 +75,7 @@ def first_piola(foam: Hyperfoam, F: np.ndarray) -> np.ndarray:
     return F @ S
 
 
-def _divided(foam: Hyperfoam, c: np.ndarray) -> np.ndarray:
+def _divided(foam: OgdenTerms, c: np.ndarray) -> np.ndarray:
     """``2 (f'(c_a) - f'(c_b)) / (c_a - c_b)`` (``2 f''(c_a)`` on the diagonal), (..., 3, 3)."""
     x = np.log(c)
     mid = 0.5 * (x[..., :, None] + x[..., None, :])
@@ -92,7 +87,7 @@ def _divided(foam: Hyperfoam, c: np.ndarray) -> np.ndarray:
     return out
 
 
-def piola_tangent(foam: Hyperfoam, F: np.ndarray, dF: np.ndarray) -> np.ndarray:
+def piola_tangent(foam: OgdenTerms, F: np.ndarray, dF: np.ndarray) -> np.ndarray:
     """``dP[dF]`` for each direction: ``F`` (..., 3, 3), ``dF`` (k, ..., 3, 3) -> (k, ..., 3, 3) [Pa]."""
     F = np.asarray(F, dtype=np.float64)
     c, Q, lnJ = _spectral(F)

@@ -3,13 +3,31 @@
 The module the foam's other modules share (:mod:`~hailstorm.precompute.foam.material`,
 :mod:`~hailstorm.precompute.foam.constitutive`, :mod:`~hailstorm.precompute.foam.stability`),
 so that the material's check at construction imports no module that imports the material.
+:class:`OgdenTerms` is what the stress and the checks read of a foam (the material's terms), so
+that they name no material, even for type checking.
 """
 
 from __future__ import annotations
 
+from typing import Protocol
+
 import numpy as np
 
-__all__ = ["FoamStabilityError", "phi", "term_energy"]
+__all__ = ["FoamStabilityError", "OgdenTerms", "phi", "term_energy"]
+
+
+class OgdenTerms(Protocol):
+    """The terms of an Ogden-Storåkers energy, as the stress and the checks read them
+    (:class:`~hailstorm.precompute.foam.material.Hyperfoam` is one): ``mu_i``, ``alpha_i``, ``beta_i``."""
+
+    @property
+    def mu(self) -> tuple[float, ...]: ...
+
+    @property
+    def alpha(self) -> tuple[float, ...]: ...
+
+    @property
+    def beta(self) -> tuple[float, ...]: ...
 
 
 class FoamStabilityError(ValueError):

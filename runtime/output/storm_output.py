@@ -327,14 +327,12 @@ class StormOutput:
         staging, out = self.staging, self.out
         assert staging is not None
         if _state(out) != self._before:  # another storm (or the user) wrote --out during the run
-            self.staging = None  # kept, and named: never silently replaced, never lost
-            self._release()
+            self._keep()  # kept, and named: never silently replaced, never lost
             raise OutputError(f"--out {out} was written by another run while this storm ran; not replacing it: "
                               f"this storm's results are in {staging}")
         for where, what in ((staging.parent, "its folder"), (out, "--out")):
             if where.exists() and not _writable(where):  # made read-only during the run: nothing is replaced
-                self.staging = None  # kept (the message names it), not removed by abort()
-                self._release()
+                self._keep()
                 raise OutputError(f"cannot put the results in place: {what} {where} became read-only during the "
                                   f"run; --out is as it was, and this storm's results are in {staging}")
         (staging / _PARTIAL_LOCK).unlink(missing_ok=True)  # the flock stays on the open descriptor
@@ -343,8 +341,7 @@ class StormOutput:
         os.chmod(staging, 0o777 & ~umask)  # mkdtemp's directory is private; a plain mkdir's is not
         if out.is_dir() and any(out.iterdir()):
             if _foreign(out):  # someone wrote into it during the run: keep both
-                self.staging = None  # kept (the message names it), not removed by abort()
-                self._release()
+                self._keep()
                 raise OutputError(f"--out {out} changed during the run and now holds other files; "
                                   f"the results are in {staging}")
             old = Path(tempfile.mkdtemp(prefix=f".{out.name}{_OLD}", dir=staging.parent))
@@ -360,6 +357,20 @@ class StormOutput:
         else:
             os.replace(staging, out)  # a new name, or over an empty directory
             self.committed = True
+        self.staging = None
+        self._release()
+
+    def _keep(self) -> None:
+        """The results stay in the temporary directory, which the error names: not removed by
+        :meth:`abort`, and without its lock file, so that the next storm's sweep
+        (:func:`clean_stale_partials`) leaves them to the user instead of taking them for a
+        killed storm's."""
+        assert self.staging is not None
+        try:
+            (self.staging / _PARTIAL_LOCK).unlink(missing_ok=True)  # the flock stays on the open descriptor
+        except OSError as exc:  # pragma: no cover - the directory itself made read-only
+            _log.warning("could not mark %s as kept (%s): the next storm beside it may remove it",
+                         self.staging, exc.strerror or exc)
         self.staging = None
         self._release()
 

@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
+from hailstorm.runtime.sections import SceneError  # (re-exported: the settings records' error)
+
 __all__ = ["SceneError", "StormTooLarge"]
-
-
-class SceneError(ValueError):
-    """A scene file or value is invalid."""
 
 
 class StormTooLarge(SceneError):

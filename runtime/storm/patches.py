@@ -241,7 +241,7 @@ class Patches:
                     verts: np.ndarray, w: np.ndarray, centres: np.ndarray, normals: np.ndarray) -> np.ndarray:
         """The near-field blocks (s, p, p) of patch contacts (:meth:`NearField.blocks`), cached per
         stone with the same key as its weights (triangle, beta and normal, radius); the new ones in one call."""
-        p = 3 if self.contact.sticky else 1
+        p = self.contact.contact_mode.dofs
         blocks = np.zeros((ids.size, p, p))
         keys = [(t, _point(bary[i], normals[i]), a) for i, (t, a) in enumerate(zip(tris.tolist(), radius.tolist()))]
         todo = []

@@ -28,7 +28,6 @@ import numpy as np
 from hailstorm.runtime.bundle.atomic import write_text_atomic
 from hailstorm.runtime.contact.near_field import NEAR_FIELDS
 from hailstorm.runtime.contact.validate import ContactMode, Mode
-from hailstorm.runtime.resources import available_memory  # noqa: F401 (re-exported by the old hailstorm.runtime.scene)
 from hailstorm.runtime.seat_settings import SeatSettings  # (re-exported: it lived here)
 from hailstorm.runtime.sections import (Section as _Section, check_bool as _bool, check_positive as _positive,
                                         check_types as _check_types, packaged_toml as _packaged_toml,

@@ -7,6 +7,8 @@ import ast
 import re
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[2]
 #: import name -> folder (pyproject's package-dir mapping)
 PACKAGES = {"hailstorm.runtime": ROOT / "runtime", "hailstorm.precompute": ROOT / "precompute",
@@ -29,13 +31,14 @@ def _is_type_checking(node: ast.If) -> bool:
         isinstance(t, ast.Attribute) and t.attr == "TYPE_CHECKING")
 
 
-def _imports(path: Path, mods: dict[str, Path]) -> set[str]:
-    """The package modules a module imports (at any depth of its code, type-checking blocks aside)."""
+def _imports(path: Path, mods: dict[str, Path], *, typing: bool = False) -> set[str]:
+    """The package modules a module imports (at any depth of its code, type-checking blocks aside
+    unless ``typing``)."""
     out: set[str] = set()
     todo: list[ast.AST] = [ast.parse(path.read_text())]
     while todo:
         node = todo.pop()
-        if isinstance(node, ast.If) and _is_type_checking(node):
+        if isinstance(node, ast.If) and _is_type_checking(node) and not typing:
             todo.extend(node.orelse)
             continue
         if isinstance(node, ast.Import):
@@ -51,13 +54,16 @@ def _imports(path: Path, mods: dict[str, Path]) -> set[str]:
     return out
 
 
-def _graph() -> dict[str, set[str]]:
+def _graph(*, typing: bool = False) -> dict[str, set[str]]:
     mods = _modules()
-    return {m: _imports(p, mods) - {m} for m, p in mods.items()}
+    return {m: _imports(p, mods, typing=typing) - {m} for m, p in mods.items()}
 
 
-def test_the_import_graph_has_no_cycles():
-    graph = _graph()
+@pytest.mark.parametrize("typing", [False, True], ids=["run-time", "with-type-checking-imports"])
+def test_the_import_graph_has_no_cycles(typing):
+    """No cycle, not even through an import made for type checking alone (a circle a reader of
+    the imports still sees: issue 45, 0 circles)."""
+    graph = _graph(typing=typing)
     assert "hailstorm.runtime.compiled.flight" in graph and graph["hailstorm.runtime.storm.driver"]  # the scan sees them
     state: dict[str, int] = {}  # 1: on the path, 2: done
     path: list[str] = []
@@ -130,20 +136,34 @@ def test_the_runtime_never_imports_the_offline_stage_or_the_cli():
     assert "hailstorm.runtime.storm.scene" in graph
 
 
-def test_the_old_scene_path_warns_and_still_imports():
+def test_the_settings_records_import_nothing_of_the_storm():
+    """The settings' ground (``runtime/sections.py``, its ``SceneError`` too) and the default seat's
+    record (``runtime/seat_settings.py``) import nothing of ``hailstorm.runtime.storm``: the storm's
+    scene builds on them, so an import the other way would run back up (issue: a lean house)."""
+    graph = _graph()
+    for m in ("hailstorm.runtime.sections", "hailstorm.runtime.seat_settings"):
+        assert m in graph
+        assert not sorted(d for d in graph[m] if d.startswith("hailstorm.runtime.storm")), m
+    from hailstorm.runtime.sections import SceneError
+    from hailstorm.runtime.storm.errors import SceneError as reexported, StormTooLarge
+
+    assert reexported is SceneError and issubclass(StormTooLarge, SceneError)
+
+
+def test_the_old_scene_path_is_gone():
+    """``hailstorm.runtime.scene`` (a deprecated shim since the scene moved to the storm's folder)
+    is removed (issue: a lean house); the scene is ``hailstorm.runtime.Scene``."""
     import importlib
     import sys
-    import warnings
 
     sys.modules.pop("hailstorm.runtime.scene", None)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        old = importlib.import_module("hailstorm.runtime.scene")
-    assert any(issubclass(w.category, DeprecationWarning) and "hailstorm.runtime.storm.scene" in str(w.message)
-               for w in caught)
+    assert not (ROOT / "runtime" / "scene.py").exists()
+    with pytest.raises(ModuleNotFoundError):
+        importlib.import_module("hailstorm.runtime.scene")
     from hailstorm.runtime import Scene
+    from hailstorm.runtime.storm.scene import Scene as where
 
-    assert old.Scene is Scene
+    assert Scene is where
 
 
 def _module_level_imports(path: Path) -> set[str]:

@@ -20,7 +20,7 @@ ROOT = Path(__file__).resolve().parents[2]
 DOCS = ROOT / "docs"
 
 PAGES = ["index", "getting-started", "cli", "scenes", "outputs", "examples", "api", "how-it-works",
-         "bundle-format", "verification", "validity", "choosing-settings", "performance", "scale"]
+         "architecture", "bundle-format", "verification", "validity", "choosing-settings", "performance", "scale"]
 
 needs_sphinx = pytest.mark.skipif(
     importlib.util.find_spec("sphinx") is None or importlib.util.find_spec("myst_parser") is None,

@@ -265,3 +265,21 @@ def test_an_output_made_read_only_during_the_run_is_left_as_it_was(gf, tmp_path,
     assert json.loads((out / "summary.json").read_text()) == first  # the old output, untouched
     kept = Path(str(err.value).rsplit(" ", 1)[-1])
     assert json.loads((kept / "summary.json").read_text())["hailstones"] == 6
+
+
+def test_results_kept_after_a_refused_commit_survive_the_next_storm(gf, tmp_path, monkeypatch):
+    """The results an error names (``this storm's results are in .run.partial-*``: --out became
+    read-only) are the user's now, not a killed storm's temporary: the next storm beside them,
+    once the folder is writable again, leaves them where the message said."""
+    import hailstorm.runtime.output.storm_output as files
+
+    out = tmp_path / "run"
+    _run_into(out, gf, _scene())
+    real = files._writable
+    monkeypatch.setattr(files, "_writable", lambda p: Path(p) != out)
+    with pytest.raises(OutputError, match="became read-only during the run") as err:
+        _run_into(out, gf, _scene(seed=7))
+    kept = Path(str(err.value).rsplit(" ", 1)[-1])
+    monkeypatch.setattr(files, "_writable", real)
+    _run_into(out, gf, _scene(seed=8))  # writable again: a storm into the same --out
+    assert json.loads((kept / "summary.json").read_text())["hailstones"] == 6
