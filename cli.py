@@ -295,7 +295,7 @@ def _run_storm(args: argparse.Namespace) -> int:
     from hailstorm.runtime.resources import missing_module, require_extras
     from hailstorm.runtime.seat_settings import SeatSettings
     from hailstorm.runtime.storm.scene import Scene
-    from hailstorm.runtime.storm.driver import run_storm
+    from hailstorm.runtime.storm.run import run_storm
     from hailstorm.runtime.storm.estimate import hit_fraction
 
     overrides: dict[str, dict[str, Any]] = {}

@@ -44,7 +44,8 @@ from hailstorm.runtime.storm.scene import (
     TimeSettings,
     ValiditySettings,
 )
-from hailstorm.runtime.storm.driver import Storm, StormResult, run_storm
+from hailstorm.runtime.storm.driver import Storm, StormResult
+from hailstorm.runtime.storm.run import run_storm
 
 __all__ = [
     "BundleError",

@@ -17,7 +17,10 @@ Siblings, each a part the driver composes (none imports the driver):
   -- the contact step of a sub-step;
 * :mod:`~hailstorm.runtime.storm.recording` -- frames, statistics, :class:`StormResult`;
 * :mod:`~hailstorm.runtime.storm.warmup` -- the first run's compile;
-* :mod:`~hailstorm.runtime.storm.driver` -- :class:`Storm` and :func:`run_storm`.
+* :mod:`~hailstorm.runtime.storm.free_run` -- the steps without soft contacts, many per call in
+  compiled code;
+* :mod:`~hailstorm.runtime.storm.driver` -- :class:`Storm`, the parts composed into a step;
+* :mod:`~hailstorm.runtime.storm.run` -- :func:`run_storm`, a storm from start to end.
 
 The driver's names are imported on first use (PEP 562), so that a part (the
 scene, which the command line and the offline stage's estimates read) does
@@ -33,7 +36,10 @@ __all__ = ["Storm", "StormResult", "run_storm"]
 
 def __getattr__(name: str) -> Any:
     if name in __all__:
-        from hailstorm.runtime.storm import driver
+        from hailstorm.runtime.storm import driver, run
+
+        if name == "run_storm":
+            return run.run_storm
 
         return getattr(driver, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

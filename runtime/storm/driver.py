@@ -1,11 +1,5 @@
-"""The hail storm driver: stones falling on the seat, contacts through the capacitance.
-
-Use::
-
-    from hailstorm.runtime import Scene, load, run_storm
-    gf = load("bundle/")
-    scene = Scene.from_toml("scene.toml")      # or Scene.default(), Scene.from_flat(duration=0.2, ...)
-    result = run_storm(gf, scene, progress=True)
+"""The hail storm driver: stones falling on the seat, contacts through the capacitance
+(:class:`Storm`; a storm from start to end: :func:`hailstorm.runtime.storm.run.run_storm`).
 
 Algorithm of one step (``dt`` = ``scene.time.dt``)
 -------------------------------------------------
@@ -176,42 +170,38 @@ Compiled kernels
 ----------------
 A step's arithmetic is small; as numpy calls its cost would be the per-call
 overhead of a few hundred calls on arrays of a handful of stones. Each phase
-runs once, in compiled kernels (:mod:`hailstorm.runtime.compiled`, numba): the
-broad phase and free flight, the queries on a uniform grid of the triangles'
-samples, phases a-c of a sub-step in one kernel, the patch sizing and weights,
-the capacitance blocks and the integrators' steps; the orchestration stays in
-this module. The tests hold the kernels to plain statements of the same rules
-(``tests/reference/``) and to independent oracles (brute-force closest points
-over all triangles, analytic bounces). ``NUMBA_DISABLE_JIT=1`` runs them as
-Python, for debugging.
+runs once, in compiled kernels (:mod:`hailstorm.runtime.compiled`, numba); the steps
+without soft contacts run many per call (:meth:`Storm.run_free`), the others phase by
+phase from this module. The tests hold the kernels to plain statements of the same
+rules (``tests/reference/``) and to independent oracles (brute-force closest points,
+analytic bounces). ``NUMBA_DISABLE_JIT=1`` runs them as Python, for debugging.
 """
 
 from __future__ import annotations
 
 import logging
-import time
-from typing import Any, Callable
+from typing import Callable
 
 import numpy as np
 
 from hailstorm.runtime.storm.collide import Collision, SurfaceIndex
-from hailstorm.runtime.compiled import KERNELS, closest_points
-from hailstorm.runtime.bundle.compliance import ElasticSource, reader
+from hailstorm.runtime.compiled import closest_points
+from hailstorm.runtime.bundle.compliance import ElasticSource
 from hailstorm.runtime.storm.contact_set import ContactSet, ContactSets
 from hailstorm.runtime.storm.hail import GRAVITY, Air
-from hailstorm.runtime.storm.estimate import StormEstimate, hit_fraction
 from hailstorm.runtime.storm.free_run import FreeResult, FreeRun
 from hailstorm.runtime.storm.integrators import ContactIntegrator
 from hailstorm.runtime.storm.patches import Patches
-from hailstorm.runtime.storm.recording import Frame, Recorder, StormResult, StormStats
+from hailstorm.runtime.storm.recording import Frame, StormResult, StormStats
 from hailstorm.runtime.storm.scene import Scene, SceneError
 from hailstorm.runtime.storm.seat import SeatState
 from hailstorm.runtime.storm.soft_contacts import SoftContacts
 from hailstorm.runtime.storm.stone_collisions import StoneCollisions
 from hailstorm.runtime.storm.stones import SpawnPlan, StoneError, Stones, check_stones
-from hailstorm.runtime.storm.warmup import HelperSpec, WarmReport, WarmTask, measured_seconds, warm_up
+from hailstorm.runtime.storm.warm_helper import helper_spec
+from hailstorm.runtime.storm.warmup import WarmReport, WarmTask, measured_seconds, warm_up
 
-__all__ = ["Frame", "Scene", "SceneError", "Storm", "StormResult", "StormStats", "run_storm", "warm_up_worker"]
+__all__ = ["Frame", "Scene", "SceneError", "Storm", "StormResult", "StormStats"]
 
 _log = logging.getLogger(__name__)
 
@@ -462,7 +452,7 @@ class Storm:
         machine code on disk). A task that compiles says so in one INFO line; when one
         does, a helper process compiles part of the tasks in parallel
         (:func:`hailstorm.runtime.storm.warmup.warm_up`; the helper rebuilds this storm from the
-        bundle's directory, :func:`warm_up_worker`).
+        bundle's directory, :func:`hailstorm.runtime.storm.run.warm_up_worker`).
 
         Parameters
         ----------
@@ -472,7 +462,7 @@ class Storm:
         tasks = self.warm_tasks()
         if names is not None:
             tasks = [task for task in tasks if task.name in names]
-        helper = None if names is not None else _helper_spec(self.gf, self.scene)
+        helper = None if names is not None else helper_spec(self.gf, self.scene)
         report = warm_up(tasks, helper) if helper is not None else warm_up(tasks, None, workers=1)
         if report.compiled:
             _log.info("storm kernels compiled in %.1f s (%s); later runs load them", report.wall,
@@ -606,176 +596,3 @@ def _stone_array(name: str) -> property:
 
 for _name in ("pos", "vel", "radius", "mass", "alive", "ctri", "cbary", "gap", "hit", "near_tri", "crad", "budget"):
     setattr(Storm, _name, _stone_array(_name))
-
-
-def _array_kinds(gf: Any) -> list[tuple]:
-    """What the kernels' argument types depend on in a bundle's arrays (dtype, layout, writeable, class):
-    D's (or, read from its H-matrix, the H-matrix's kernel arrays') and the surface's."""
-    how = reader(gf)
-    arrays = [("D", a) for a in how.kernel_entries] if how.compressed else [("D", gf.D)]
-    arrays += [(name, getattr(gf, name)) for name in ("vertices", "triangles", "fixed", "contactable", "areas",
-                                                      "column_of")]
-    return [(name, a.dtype.str, a.ndim, bool(a.flags.c_contiguous), bool(a.flags.f_contiguous),
-             bool(a.flags.writeable), type(a).__name__) for name, a in arrays]
-
-
-def _helper_spec(gf: Any, scene: Scene) -> HelperSpec | None:
-    """How a compile helper rebuilds this storm: from the bundle's directory (None if ``gf`` is
-    not a bundle on disk, e.g. built in memory)."""
-    from hailstorm.runtime.bundle.format import is_bundle
-
-    path = getattr(gf, "path", None)
-    if path is None or not is_bundle(path):
-        return None
-    try:
-        kinds = _array_kinds(gf)
-    except AttributeError:
-        return None
-    native = reader(gf).compressed
-    return HelperSpec("hailstorm.runtime.storm.driver:warm_up_worker",
-                      {"bundle": str(path), "mmap": native or isinstance(gf.D, np.memmap), "kinds": kinds,
-                       "expand": None if getattr(gf, "hmatrix", None) is None else not native,
-                       "scene": scene.to_dict()})
-
-
-def warm_up_worker(payload: dict[str, Any], names: list[str]) -> None:
-    """A compile helper's body (:mod:`hailstorm.runtime.storm.warmup`): rebuild the storm of
-    ``payload`` (bundle directory, memory-mapped or not, the scene's dict) and warm up
-    the tasks ``names``.
-
-    Raises
-    ------
-    RuntimeError
-        The bundle's arrays differ in type or layout from the caller's (the kernels
-        would get other argument types).
-    """
-    from hailstorm.runtime.bundle.read import load
-
-    gf = load(payload["bundle"], verify=False, mmap=bool(payload["mmap"]), expand=payload.get("expand"))
-    if [list(k) for k in _array_kinds(gf)] != [list(k) for k in payload["kinds"]]:
-        raise RuntimeError("the bundle's arrays differ from the caller's")
-    Storm(gf, Scene.from_dict(payload["scene"]), spawn=False, warm=False).warm_up(names)
-
-
-def run_storm(
-    gf: ElasticSource,
-    scene: Scene | None = None,
-    *,
-    progress: bool | Callable[[float, float], None] = True,
-    on_frame: Callable[[Frame], None] | None = None,
-    keep_frames: bool | None = None,
-    allow_large: bool = False,
-    estimate: StormEstimate | None = None,
-) -> StormResult:
-    """Run a hail storm on the seat.
-
-    Parameters
-    ----------
-    gf : ElasticSource
-        The bundle (:func:`hailstorm.runtime.bundle.read.load`).
-    scene : Scene, optional
-        Default: :meth:`Scene.default`.
-    progress : bool or callable
-        ``True``: a tqdm progress bar over the simulated time (on stderr); a
-        callable is called as ``progress(t, duration)`` as the storm advances (after each step
-        or run of compiled steps).
-    on_frame : callable, optional
-        Called with each :class:`Frame` as it is recorded, e.g.
-        :meth:`hailstorm.runtime.output.storm_output.StormOutput.add`, which streams the frames to
-        disk.
-    keep_frames : bool, optional
-        Keep the frames in :attr:`StormResult.frames` (memory grows with the
-        duration: ~24 bytes per surface vertex and frame). Default: kept when
-        no ``on_frame`` is given, else not.
-    allow_large : bool
-        Run even a storm whose estimate (:meth:`Scene.estimate`) exceeds the
-        machine; otherwise it is refused before anything runs.
-    estimate : StormEstimate, optional
-        The estimate to check and announce (the command line's counts its video
-        and start-up); default: the scene's on this bundle
-        (:meth:`Scene.estimate` with the seat's share of the footprint).
-
-    Returns
-    -------
-    StormResult
-        Frames at ``scene.output.fps`` (plus the first and last instants; empty
-        unless kept) and statistics (see :func:`hailstorm.runtime.output.files.summary`).
-
-    Raises
-    ------
-    hailstorm.runtime.storm.scene.StormTooLarge
-        The estimate exceeds the machine and ``allow_large`` is not set.
-    """
-    scene = Scene.default() if scene is None else scene
-    keep = on_frame is None if keep_frames is None else bool(keep_frames)
-    if estimate is None:
-        estimate = scene.estimate(int(np.asarray(gf.vertices).shape[0]), keep_frames=keep,
-                                  hit_fraction=hit_fraction(gf.vertices, gf.triangles, scene.storm.margin))
-    estimate.check(allow_large=allow_large)
-    _log.info("storm: %s", estimate.describe())
-    for warning in scene.physical_warnings(gf.vertices):
-        _log.warning("warning: %s", warning)
-    setup0 = time.perf_counter()
-    storm = Storm(gf, scene)
-    setup = time.perf_counter() - setup0
-    rec = Recorder(scene.n_steps(), scene.output.fps, on_frame, keep)
-    rec.record(storm.frame())
-    bar = None
-    duration = scene.storm.duration
-    if progress is True:
-        from tqdm.auto import tqdm
-
-        bar = tqdm(total=float(duration), desc="hail storm", unit="s sim", leave=False,
-                   bar_format="{l_bar}{bar}| {n:.3g}/{total:.3g} s simulated [{elapsed}<{remaining}]")
-    from threadpoolctl import threadpool_limits
-
-    limiter = threadpool_limits(1)  # small dense solves: threaded BLAS only adds overhead
-    wall0, sink0 = time.perf_counter(), rec.sink_time
-    shown = 0.0
-    try:
-        i = 0
-        while i < rec.n_steps:
-            # the steps without soft contacts in compiled code, many per call; then one step here
-            k, half_done = storm.run_free(rec.n_steps - i, i, rec.n_steps, rec.next_frame, rec.history)
-            if k:
-                i += k
-                if rec.frame_due(storm.t, i - 1):
-                    rec.record(storm.frame())
-            if half_done or k == 0:
-                storm.step()  # (finishes the half-done step)
-                rec.forces(i, storm.t, storm.contact_forces()[1])
-                if rec.frame_due(storm.t, i):
-                    rec.record(storm.frame())
-                i += 1
-            if bar is not None:
-                if storm.t - shown >= 0.002 * duration or i == rec.n_steps:
-                    bar.update(min(storm.t, duration) - shown)
-                    shown = min(storm.t, duration)
-            elif callable(progress):
-                progress(storm.t, duration)
-    finally:
-        wall = time.perf_counter() - wall0 - (rec.sink_time - sink0)
-        limiter.restore_original_limits()
-        if bar is not None:
-            bar.close()
-    st, stones = storm.stats, storm.stones
-    inertia0 = time.perf_counter()
-    if st.validity is not None and st.validity.measure_inertia:  # the pad's inertia per impact (a local peer each)
-        st.validity.inertia(progress=progress is True)
-    st.inertia_time_s = time.perf_counter() - inertia0
-    through = storm.passed_through_warning()
-    if through is not None:
-        _log.warning("warning: %s", through)
-    st.stones_hit = int(stones.hit.sum())
-    # the one-time compile (a warm-up that compiled: the first run after an install) apart from the setup
-    warm = storm.warm_report
-    compile_s = float(warm.wall) if warm is not None and warm.compiled else 0.0
-    st.sim_time_s, st.wall_time_s, st.backend = float(storm.t), float(wall), KERNELS
-    st.setup_time_s, st.compile_time_s = max(float(setup) - compile_s, 0.0), compile_s
-    st.real_time_factor = float(storm.t / wall) if wall > 0 else float("inf")
-    st.seed, st.dt, st.integrator = scene.storm.seed, scene.time.dt, scene.time.integrator
-    st.mode, st.restitution = scene.contact.mode, scene.contact.restitution
-    st.n_vertices, st.n_triangles = int(storm.n), int(len(gf.triangles))
-    st.resting_at_end = int((stones.ctri[stones.alive] >= 0).sum())
-    st.frames, st.output_time_s = rec.n_frames, float(rec.sink_time)
-    return StormResult(scene=scene, frames=rec.frames, stats=st, history=rec.history)

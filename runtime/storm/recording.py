@@ -2,12 +2,12 @@
 
 * :class:`Frame` -- one recorded instant (surface displacement, stones);
 * :class:`StormStats` -- the statistics as a typed record, updated by the storm's
-  parts while it runs and completed by :func:`hailstorm.runtime.storm.driver.run_storm`;
+  parts while it runs and completed by :func:`hailstorm.runtime.storm.run.run_storm`;
   it reads like the mapping it replaces (``stats["impacts"]``, ``dict(stats)``,
   the keys of ``hailstorm-storm.json`` and ``summary.json``);
 * :class:`Recorder` -- frames at the scene's rate (kept and/or streamed) and the
   per-step force history;
-* :class:`StormResult` -- what :func:`~hailstorm.runtime.storm.driver.run_storm` returns.
+* :class:`StormResult` -- what :func:`~hailstorm.runtime.storm.run.run_storm` returns.
 """
 
 from __future__ import annotations

@@ -418,7 +418,7 @@ class Scene:
 
     # -- helpers ---------------------------------------------------------------
     def n_steps(self) -> int:
-        """Time steps of the storm (as :func:`hailstorm.runtime.storm.driver.run_storm` takes them)."""
+        """Time steps of the storm (as :func:`hailstorm.runtime.storm.run.run_storm` takes them)."""
         return max(1, int(round(self.storm.duration / self.time.dt)))
 
     def estimate(self, n_vertices: int | None = None, *, keep_frames: bool = False,

@@ -98,10 +98,11 @@ class KernelClock:
 
 
 def one_run(gf: Any, scene: Any) -> dict[str, Any]:
-    """One storm run by :func:`~hailstorm.runtime.storm.driver.run_storm` (its loop, frames and
+    """One storm run by :func:`~hailstorm.runtime.storm.run.run_storm` (its loop, frames and
     force history as always), each :meth:`Storm.step` classed and its wall and compiled time
     summed per class; ``loop``: the run's own wall time of the loop."""
-    from hailstorm.runtime.storm.driver import Storm, run_storm
+    from hailstorm.runtime.storm.driver import Storm
+    from hailstorm.runtime.storm.run import run_storm
 
     clock = KernelClock()
     wall = defaultdict(float)

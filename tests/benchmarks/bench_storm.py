@@ -124,7 +124,8 @@ def run(args: argparse.Namespace) -> None:
     """The configurations of ``args``, one line each, and the notes."""
 
     import hailstorm.runtime
-    from hailstorm.runtime.storm.driver import Scene, run_storm
+    from hailstorm.runtime.storm.driver import Scene
+    from hailstorm.runtime.storm.run import run_storm
 
     from hailstorm.precompute import build_bundle
     from hailstorm.runtime.storm.scene import SeatSettings

@@ -233,7 +233,7 @@ sys.path.insert(0, sys.argv[1])
 from helpers import plate_gf
 from hailstorm.runtime import compiled
 from hailstorm.runtime.storm.scene import Scene
-from hailstorm.runtime.storm.driver import run_storm
+from hailstorm.runtime.storm.run import run_storm
 gf = plate_gf()
 for integ in ("implicit", "exact", "symplectic"):
     for patch in ("hertz", "none"):

@@ -6,7 +6,7 @@ import pytest
 def _storm_out(out, gf_path, series: str, duration: float = 0.1):
     from hailstorm.runtime.bundle.read import load
     from hailstorm.runtime.output.storm_output import StormOutput
-    from hailstorm.runtime.storm.driver import run_storm
+    from hailstorm.runtime.storm.run import run_storm
     from hailstorm.runtime.storm.scene import Scene
 
     gf = load(gf_path)

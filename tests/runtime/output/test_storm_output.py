@@ -17,7 +17,7 @@ from helpers import ctrl_c_at_frame
 from hailstorm.cli import main
 from hailstorm.runtime.output.storm_output import STORM_MANIFEST, OutputError, StormOutput
 from hailstorm.runtime.storm.scene import Scene
-from hailstorm.runtime.storm.driver import run_storm
+from hailstorm.runtime.storm.run import run_storm
 
 
 def _scene(**kw) -> Scene:

@@ -7,7 +7,8 @@ import pytest
 
 from hailstorm.runtime.output.files import SUMMARY_UNITS, summary
 from hailstorm.runtime.storm.scene import Scene
-from hailstorm.runtime.storm.driver import Storm, run_storm
+from hailstorm.runtime.storm.driver import Storm
+from hailstorm.runtime.storm.run import run_storm
 from hailstorm.runtime.storm.warmup import WarmReport
 
 SCENE = dict(duration=0.02, stones=4, seed=1, spawn_height=0.02, r_min=0.003, r_max=0.006)

@@ -8,7 +8,8 @@ from hailstorm.runtime.bundle.read import load
 from hailstorm.runtime.output.animation import write_animation
 from hailstorm.runtime.output.render import FRAME_SIZE, StormRenderer
 from hailstorm.runtime.storm.scene import Scene
-from hailstorm.runtime.storm.driver import Frame, Storm, run_storm
+from hailstorm.runtime.storm.driver import Frame, Storm
+from hailstorm.runtime.storm.run import run_storm
 
 ICE = 917.0  # the default scene's ice density [kg/m^3]
 G = 9.81

@@ -22,7 +22,8 @@ from hailstorm.runtime.output.files import impacts_csv  # noqa: E402
 from hailstorm.runtime.output.impacts import impact_times, read_impacts  # noqa: E402
 from hailstorm.runtime.output.seat_view import SeatView, dent_colours, displacement_scale  # noqa: E402
 from hailstorm.runtime.output.video3d import Storm3DRenderer  # noqa: E402
-from hailstorm.runtime.storm.driver import Frame, run_storm  # noqa: E402
+from hailstorm.runtime.storm.driver import Frame  # noqa: E402
+from hailstorm.runtime.storm.run import run_storm
 from hailstorm.runtime.storm.scene import Scene  # noqa: E402
 
 SIZE = (480, 320)  # small frames: the tests stay fast

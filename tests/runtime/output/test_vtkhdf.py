@@ -12,7 +12,7 @@ from helpers import ctrl_c_at_frame
 
 from hailstorm.runtime.output.storm_output import STORM_MANIFEST, StormOutput
 from hailstorm.runtime.output.vtkhdf import VTKHDFFrames, read_vtkhdf_frame
-from hailstorm.runtime.storm.driver import run_storm
+from hailstorm.runtime.storm.run import run_storm
 from hailstorm.runtime.storm.scene import Scene
 
 h5py = pytest.importorskip("h5py")

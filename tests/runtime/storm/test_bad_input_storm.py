@@ -403,7 +403,7 @@ def test_stones_through_the_footprint_without_a_hit_warn(caplog, name, settings,
     from helpers import plate_gf
 
     from hailstorm.runtime.storm.scene import Scene
-    from hailstorm.runtime.storm.driver import run_storm
+    from hailstorm.runtime.storm.run import run_storm
 
     with caplog.at_level(logging.WARNING):
         result = run_storm(plate_gf(), Scene.from_flat(**settings), progress=False)
@@ -418,7 +418,7 @@ def test_a_storm_with_impacts_does_not_warn_of_passing_through(caplog):
     from helpers import plate_gf
 
     from hailstorm.runtime.storm.scene import Scene
-    from hailstorm.runtime.storm.driver import run_storm
+    from hailstorm.runtime.storm.run import run_storm
 
     with caplog.at_level(logging.WARNING):
         result = run_storm(plate_gf(), Scene.from_flat(duration=0.2, stones=50), progress=False)
@@ -470,7 +470,7 @@ def test_a_storm_whose_out_was_written_meanwhile_keeps_both(seat_bundle, tmp_pat
     from hailstorm.runtime.bundle.read import load
     from hailstorm.runtime.output.storm_output import STORM_MANIFEST, OutputError, StormOutput
     from hailstorm.runtime.storm.scene import Scene
-    from hailstorm.runtime.storm.driver import run_storm
+    from hailstorm.runtime.storm.run import run_storm
 
     gf = load(seat_bundle)
     out = tmp_path / "out"

@@ -12,7 +12,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hailstorm.runtime.storm.driver import Storm, run_storm
+from hailstorm.runtime.storm.driver import Storm
+from hailstorm.runtime.storm.run import run_storm
 from hailstorm.runtime.storm.free_run import FreeRun
 from hailstorm.runtime.storm.scene import Scene
 

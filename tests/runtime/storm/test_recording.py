@@ -15,7 +15,8 @@ import time
 import numpy as np
 import pytest
 
-from hailstorm.runtime.storm.driver import Storm, run_storm
+from hailstorm.runtime.storm.driver import Storm
+from hailstorm.runtime.storm.run import run_storm
 from hailstorm.runtime.storm.limits import VALIDITY_KEYS, ValidityLimits
 from hailstorm.runtime.storm.recording import Frame, Recorder, StormResult, StormStats
 from hailstorm.runtime.storm.scene import Scene

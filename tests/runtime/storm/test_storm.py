@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from hailstorm.runtime.storm.scene import Scene, SceneError
-from hailstorm.runtime.storm.driver import Storm, run_storm
+from hailstorm.runtime.storm.driver import Storm
+from hailstorm.runtime.storm.run import run_storm
 
 
 @pytest.fixture(scope="module")
