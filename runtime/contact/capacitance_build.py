@@ -1,4 +1,4 @@
-"""The builders of a capacitance: from contacts (:func:`capacitance`, :func:`build`) or their weights (:func:`from_weights`).
+"""The builders of a capacitance: from contacts (:func:`capacitance`, :func:`build`) or from their weights.
 
 :func:`capacitance` is the contact API's (validated input, :class:`Capacitance` out);
 :func:`build` takes contacts already checked (:mod:`hailstorm.runtime.contact.validate`),
@@ -92,9 +92,19 @@ def capacitance(
 def resolve_near_field(gf: ComplianceSource, near: str | NearField | None) -> NearField | None:
     """A near-field choice as its object, with the bundle's material (None: the mesh alone).
 
-    ``"auto"``: the layer kernel (the half-space's plus the regular part of the pad on its
-    rigid base, :mod:`hailstorm.runtime.contact.layer_kernel`) if the bundle's columns answer
-    hat loads (``options.load == "hat"``, the loads the kernel's subtraction needs), else none.
+    Parameters
+    ----------
+    gf : ComplianceSource
+        The bundle (its ``young``, ``poisson`` and manifest options are read).
+    near : {"auto", "layer", "halfspace", "none"}, NearField or None
+        ``"auto"``: the layer kernel (the half-space's plus the regular part of the pad on
+        its rigid base, :mod:`hailstorm.runtime.contact.layer_kernel`) if the bundle's
+        columns answer hat loads (``options.load == "hat"``, the loads the kernel's
+        subtraction needs), else none. A NearField or None is returned as it is.
+
+    Returns
+    -------
+    NearField or None
     """
     if near is None or isinstance(near, NearField):
         return near
@@ -108,9 +118,29 @@ def build(gf: ComplianceSource, t: np.ndarray, b: np.ndarray, n: np.ndarray | No
           a: np.ndarray | None = None, profile: str = "hertz", near: NearField | None = None) -> Capacitance:
     """The capacitance of validated contacts (:mod:`hailstorm.runtime.contact.validate`).
 
-    ``n`` may be None only for sticky point contacts (which never look at the
-    normals; they are then stored as zeros and :meth:`Capacitance.solve`
-    refuses unilateral contact).
+    Parameters
+    ----------
+    gf : ComplianceSource
+        The bundle.
+    t, b : (s,) int / (s, 3) float ndarrays
+        Contacted triangles and barycentric coordinates.
+    n : (s, 3) float ndarray or None
+        Outward unit normals. None only for sticky point contacts (which never
+        look at the normals; they are then stored as zeros and
+        :meth:`Capacitance.solve` refuses unilateral contact).
+    mode : {"sticky", "frictionless"}
+    a : (s,) float ndarray, optional
+        Patch radii [m] (None: point contacts).
+    profile : {"hertz", "uniform"}
+        Pressure profile of the patches.
+    near : NearField, optional
+        The near field (:func:`resolve_near_field`); None: the mesh alone.
+
+    Returns
+    -------
+    Capacitance
+        From :func:`from_weights`, with the weights of
+        :func:`~hailstorm.runtime.contact.capacitance_blocks.contact_weights`.
     """
     if n is None:
         if not ContactMode(mode).sticky or a is not None:

@@ -43,10 +43,10 @@ class Capacitance(LowRankUpdates, Readouts):
     """The capacitance (effective contact stiffness) of a set of point or patch contacts.
 
     Build with :func:`~hailstorm.runtime.contact.capacitance_build.capacitance` (the
-    constructor's own arguments are those of
-    :func:`~hailstorm.runtime.contact.capacitance_build.from_weights`). All arrays refer to the contacts in the
-    order given (after :meth:`add` the new contact is last; :meth:`remove`
-    keeps the order of the rest).
+    constructor itself is called by
+    :func:`~hailstorm.runtime.contact.capacitance_build.from_weights` alone). All arrays
+    refer to the contacts in the order given (after :meth:`add` the new contact is last;
+    :meth:`remove` keeps the order of the rest).
 
     Attributes
     ----------
