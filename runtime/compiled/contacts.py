@@ -7,7 +7,7 @@
   contact step around the integrator.
 
 A storm contact set's blocks of D are the contact API's
-(:func:`hailstorm.runtime.contact.contact_capacitance.from_weights`).
+(:func:`hailstorm.runtime.contact.capacitance_build.from_weights`).
 """
 
 from __future__ import annotations

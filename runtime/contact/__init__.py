@@ -16,10 +16,16 @@ Modules, one seam each:
   surface element: the half-space near field added to W's diagonal
   (:class:`NearField`, :func:`near_field`);
 * :mod:`~hailstorm.runtime.contact.validate` -- input checks;
-* :mod:`~hailstorm.runtime.contact.contact_capacitance` -- :class:`Capacitance` /
-  :func:`capacitance` (``W``, its factorisation, low-rank
-  :meth:`~Capacitance.add` / :meth:`~Capacitance.remove`, the active-set
-  :meth:`~Capacitance.solve`);
+* :mod:`~hailstorm.runtime.contact.contact_capacitance` -- :class:`Capacitance`
+  (``W``, its factorisation, ``K``, the :meth:`~Capacitance.solve`), assembled from
+  :mod:`~hailstorm.runtime.contact.capacitance_update` (the low-rank
+  :meth:`~Capacitance.add` / :meth:`~Capacitance.remove`),
+  :mod:`~hailstorm.runtime.contact.capacitance_readout` (the displacement read-outs) and
+  :mod:`~hailstorm.runtime.contact.active_set` (the unilateral solve: block pivoting, the
+  convex QP, :class:`ActiveSet`); :mod:`~hailstorm.runtime.contact.capacitance_blocks`
+  holds the blocks W is built from;
+* :mod:`~hailstorm.runtime.contact.capacitance_build` -- :func:`capacitance` and the
+  builders under it (``build``, ``from_weights``, ``resolve_near_field``);
 * :mod:`~hailstorm.runtime.contact.solve` -- :func:`solve_contacts` and
   :class:`ContactSolution`.
 
@@ -84,7 +90,9 @@ Degenerate cases (documented choices)
   is symmetric; a hat-load D is not, docs/verification.md, "reciprocity".)
 """
 
-from hailstorm.runtime.contact.contact_capacitance import ActiveSet, Capacitance, capacitance
+from hailstorm.runtime.contact.active_set import ActiveSet
+from hailstorm.runtime.contact.capacitance_build import capacitance
+from hailstorm.runtime.contact.contact_capacitance import Capacitance
 from hailstorm.runtime.bundle.compliance import ComplianceSource
 from hailstorm.runtime.contact.policy import COND_LIMIT, PINV_RCOND, SPDFactor, spd_inverse
 from hailstorm.runtime.contact.solve import ContactSolution, solve_contacts

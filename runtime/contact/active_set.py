@@ -1,19 +1,27 @@
-"""The active set of a unilateral contact solve: its result and the convex QP it falls back to.
+"""The active set of a unilateral contact solve: its result, block pivoting, and the convex QP it falls back to.
 
 A set of frictionless unilateral contacts on the capacitance's ``W`` is a linear
-complementarity problem: block pivoting (in
-:meth:`hailstorm.runtime.contact.contact_capacitance.Capacitance.solve`) solves it in a few
+complementarity problem: block pivoting (:func:`unilateral_solve`, which
+:meth:`hailstorm.runtime.contact.contact_capacitance.Capacitance.solve` runs) solves it in a few
 rounds, and where it cycles or ``W`` is singular, :func:`nonnegative_qp` (a projected Newton
-method on ``min 1/2 x^T W x + q^T x, x >= 0``) does.
+method on ``min 1/2 x^T W x + q^T x, x >= 0``) does. Each round's re-solve with some contacts
+released reuses the capacitance's factor where that is cheaper (a Schur complement).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-__all__ = ["ACTIVE_SET_TOL", "BLOCK_PIVOT_ROUNDS", "NEWTON_SHIFT", "QP_SHIFT", "ActiveSet", "nonnegative_qp"]
+from hailstorm.runtime.contact.policy import SUBSET_REUSE_FROM, SPDFactor
+
+if TYPE_CHECKING:
+    from hailstorm.runtime.contact.contact_capacitance import Capacitance
+
+__all__ = ["ACTIVE_SET_TOL", "BLOCK_PIVOT_ROUNDS", "NEWTON_SHIFT", "QP_SHIFT", "ActiveSet", "nonnegative_qp",
+           "unilateral_solve"]
 
 #: The active set releases a contact whose normal force pulls by more than this
 #: fraction of the largest, and re-activates one the seat penetrates by more
@@ -162,3 +170,160 @@ def nonnegative_qp(W: np.ndarray, q: np.ndarray, x0: np.ndarray | None = None, *
                 raise RuntimeError(f"nonnegative_qp: no progress at iteration {it} (W singular to working precision)")
         y = z
     raise RuntimeError(f"nonnegative_qp did not converge in {max_iter} iterations")
+
+
+def _subset_multipliers(cap: Capacitance, c: np.ndarray, act: np.ndarray) -> np.ndarray:
+    """Multipliers (m,) with only the (non-rigid) contacts ``act`` constrained: ``W[a, a] x = c[a]``.
+
+    While few live components are released (``r``), the factor of ``W[live, live]``
+    serves: with ``K = W^-1`` over the live components, ``W_aa^-1 = K_aa - K_ar
+    K_rr^-1 K_ra`` (the inverse of a principal block by its Schur complement), so
+    ``x = y_a - K_ar K_rr^-1 y_r`` for ``y = K [c_a; 0]``: ``|r| + 1`` solves with the
+    kept factor (or columns of an explicit ``K``) and an ``|r| x |r|`` factor, no
+    ``O(|a|^3)`` re-factorisation. ``W_aa`` is a principal block of an SPD ``W``,
+    no worse conditioned. Many released, few active (below
+    :data:`~hailstorm.runtime.contact.policy.SUBSET_REUSE_FROM`), a pseudo-inverse,
+    or an ill-conditioned ``K_rr``: a fresh factorisation of ``W[a, a]`` (the one
+    policy, :class:`SPDFactor`).
+    """
+    p = cap.per_contact
+    dofs = (p * np.flatnonzero(act)[:, None] + np.arange(p)).ravel()
+    lam = np.zeros(cap.W.shape[0])
+    if dofs.size == 0:
+        return lam
+    live = cap.live_dofs
+    na, nl = dofs.size, live.size
+    nr = nl - na
+    # reuse when its solves (~2 nl^2 flops per column, 3x potrf's rate) cost less than the factor
+    if cap.exact and 0 < nr and na >= SUBSET_REUSE_FROM and 6 * (nr + 1) * nl * nl + nr ** 3 < na ** 3:
+        keep = np.zeros(nl, bool)
+        keep[np.searchsorted(live, dofs)] = True  # act's components among the live ones
+        r = np.flatnonzero(~keep)
+        z = np.zeros(nl)
+        z[keep] = c[dofs]
+        y = cap.solve_live(z)
+        Kr = cap.live_columns(r)
+        Frr = SPDFactor(Kr[r], symmetric=False)
+        if Frr.exact:
+            x = y - Kr @ Frr.solve(y[r])
+            lam[dofs] = x[keep]
+            return lam
+    W_aa = cap.W.take(dofs, axis=0).take(dofs, axis=1)
+    lam[dofs] = SPDFactor(W_aa, symmetric=True).solve(c[dofs])
+    return lam
+
+
+def _unilateral_qp(cap: Capacitance, c: np.ndarray, lam: np.ndarray, limit: int,
+                   cn: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """The frictionless unilateral solve as the convex QP :func:`nonnegative_qp` over
+    the live contacts (``x = -lambda``: ``min 1/2 x^T W x + c^T x``, ``x >= 0``), from
+    the block-pivoting iterate; then the set it finds re-solved exactly
+    (:func:`_subset_multipliers`, as block pivoting ends) when that meets the same
+    tolerances, else the QP's own multipliers. Returns ``(lam, active, iterations)``."""
+    live = np.flatnonzero(~cap.rigid)
+    W = cap.W[np.ix_(live, live)]
+    x0 = np.maximum(-lam[live], 0.0)
+    if not cap.exact and live.size:  # singular (more contacts than the seat's vertices can tell
+        # apart): a contact compliance of QP_SHIFT of the mean one makes the minimiser unique; the
+        # pseudo-inverse's multipliers are no useful start
+        W = W + QP_SHIFT * float(np.diag(W).mean()) * np.eye(live.size)
+        x0 = None
+    x, iters = nonnegative_qp(W, c[live], x0, tol=ACTIVE_SET_TOL, max_iter=limit)
+    active = np.zeros(cap.s, bool)
+    active[live[x > 0]] = True
+    exact = _subset_multipliers(cap, c, active)
+    un2 = cap.W @ exact
+    fscale = max(float(np.abs(exact).max(initial=0.0)), np.finfo(float).tiny)
+    uscale = max(float(np.abs(cn).max(initial=0.0)), float(np.abs(un2).max(initial=0.0)), np.finfo(float).tiny)
+    ok = not (active & (exact > ACTIVE_SET_TOL * fscale)).any() and \
+        not (~active & ~cap.rigid & (un2 - cn > ACTIVE_SET_TOL * uscale)).any()
+    if ok:
+        return exact, active, iters
+    lam = np.zeros(cap.s)
+    lam[live] = -x
+    return lam, active, iters
+
+
+def unilateral_solve(cap: Capacitance, ubar: np.ndarray, c: np.ndarray, lam: np.ndarray,
+                     max_iter: int | None) -> tuple[np.ndarray, np.ndarray, int]:
+    """The active set of unilateral contacts on a capacitance: contacts may only push.
+
+    A contact whose force would pull (``f . n > 0``) is released and the rest
+    re-solved; a released contact is re-activated if the seat would penetrate the
+    prescribed position (``(u - ubar) . n > 0``). Block pivoting; frictionless, once
+    a set repeats, after :data:`BLOCK_PIVOT_ROUNDS` rounds, or at once for a ``W``
+    singular to working precision (then with a contact compliance of
+    :data:`QP_SHIFT`), the convex QP's projected Newton method (:func:`nonnegative_qp`);
+    sticky, one flip per iteration once a set repeats (a sticky contact is released
+    as a whole).
+
+    Parameters
+    ----------
+    cap : Capacitance
+        The contacts (their normals are needed).
+    ubar : (s, 3) float ndarray
+        Prescribed contact-point displacements [m], checked.
+    c : (m,) float ndarray
+        ``ubar`` as constrained components.
+    lam : (m,) float ndarray
+        The bilateral multipliers of ``c`` (every live contact active): the first round's.
+    max_iter : int or None
+        Bound on the rounds (default ``2 s + 10``).
+
+    Returns
+    -------
+    lam : (m,) float ndarray
+        The multipliers (not yet zeroed at released contacts).
+    active : (s,) bool ndarray
+        The contacts that carry force.
+    iterations : int
+        Rounds of block pivoting, plus the QP's iterations if it took over.
+
+    Raises
+    ------
+    ValueError
+        The contacts have no normals.
+    RuntimeError
+        The active set did not settle within ``max_iter`` rounds.
+    """
+    s = cap.s
+    rigid = cap.rigid
+    active = ~rigid
+    n = cap.normals
+    if s and not np.any(n, axis=1).all():
+        raise ValueError("unilateral contact needs the contact normals")
+    p = cap.per_contact
+    cn = np.einsum("ki,ki->k", ubar, n)
+    seen: set[bytes] = set()
+    limit = 2 * s + 10 if max_iter is None else int(max_iter)
+    single = False
+    for it in range(1, limit + 1):
+        if it > 1:
+            lam = _subset_multipliers(cap, c, active)
+        fn = np.einsum("ki,ki->k", cap.multiplier_forces(lam), n)
+        wl = cap.W @ lam  # constrained components of the contact displacement
+        un = np.einsum("ki,ki->k", wl.reshape(s, 3), n) if p == 3 else wl
+        fscale = max(float(np.abs(fn).max(initial=0.0)), np.finfo(float).tiny)
+        uscale = max(float(np.abs(cn).max(initial=0.0)), float(np.abs(un).max(initial=0.0)),
+                     np.finfo(float).tiny)
+        pull = active & (fn > ACTIVE_SET_TOL * fscale)
+        pen = ~active & ~rigid & (un - cn > ACTIVE_SET_TOL * uscale)
+        viol = np.flatnonzero(pull | pen)
+        if viol.size == 0:
+            break
+        key = active.tobytes()
+        if p == 1 and (key in seen or it >= BLOCK_PIVOT_ROUNDS or not cap.exact):
+            # frictionless: the convex QP's solver, which cannot cycle, from here
+            lam, active, extra = _unilateral_qp(cap, c, lam, limit, cn)
+            it += extra
+            break
+        if key in seen:
+            single = True  # block pivoting cycled: one flip per iteration
+        seen.add(key)
+        if single:
+            viol = viol[-1:]
+        active = active.copy()
+        active[viol] = ~active[viol]
+    else:
+        raise RuntimeError(f"unilateral contact: active set did not settle in {limit} iterations")
+    return lam, active, it

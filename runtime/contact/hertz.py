@@ -45,7 +45,7 @@ import numpy as np
 from hailstorm.runtime.contact import ContactSolution, solve_contacts
 from hailstorm.runtime.bundle.compliance import ElasticSource
 from hailstorm.runtime.compiled.sphere import sphere_q, sphere_qs, sphere_x_of_depth, sphere_xs_of_depth
-from hailstorm.runtime.contact.contact_capacitance import resolve_near_field
+from hailstorm.runtime.contact.capacitance_build import resolve_near_field
 from hailstorm.runtime.contact.weights import (
     contact_points,
     patch_weights,

@@ -200,7 +200,7 @@ def near_field(kind: str | None, young: float, poisson: float) -> NearField | No
     ----------
     kind : {"halfspace", "layer", "none"} or None
         The kernel (``"auto"`` is resolved against a bundle by
-        :func:`hailstorm.runtime.contact.contact_capacitance.resolve_near_field`); ``"none"``/None keeps the discrete model (the patch's
+        :func:`hailstorm.runtime.contact.capacitance_build.resolve_near_field`); ``"none"``/None keeps the discrete model (the patch's
         compliance is the mesh's, whatever its size).
     young, poisson : float
         The material under the contacts [Pa], [-].

@@ -12,7 +12,7 @@ import numpy as np
 
 from hailstorm.runtime.compiled import blocks as kernels
 from hailstorm.runtime.contact import policy
-from hailstorm.runtime.contact.contact_capacitance import build, resolve_near_field
+from hailstorm.runtime.contact.capacitance_build import build, resolve_near_field
 from hailstorm.runtime.contact.near_field import NearField
 from hailstorm.runtime.bundle.compliance import ComplianceSource, apply_columns, reader
 from hailstorm.runtime.contact.validate import ContactMode, Mode, check_contacts, check_mode, check_patch

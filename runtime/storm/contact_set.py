@@ -2,7 +2,7 @@
 
 :class:`ContactSet` holds the capacitance of a set of (stone, triangle[, patch
 radius]) -- W = Bᵀ D B and K = W⁻¹ from the one constructor
-:func:`hailstorm.runtime.contact.contact_capacitance.from_weights`, under the contact
+:func:`hailstorm.runtime.contact.capacitance_build.from_weights`, under the contact
 core's one SPD policy (:class:`hailstorm.runtime.contact.policy.SPDFactor`) --
 with what the storm adds: the stones, their reference points and anchors (the
 sphere's offset over a patch) and the integrators' cached damping and modes. It is
@@ -34,7 +34,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from hailstorm.runtime.contact.contact_capacitance import from_weights, resolve_near_field
+from hailstorm.runtime.contact.capacitance_build import from_weights, resolve_near_field
 from hailstorm.runtime.contact.weights import contact_points, impact_offset, resolved_fraction
 
 if TYPE_CHECKING:  # annotations only

@@ -460,19 +460,19 @@ def test_add_equals_fresh_build_on_a_hat_load_bundle(tmp_path, mode):
 
 @pytest.mark.parametrize("pos", [[0, 1, 2, 6, 7, 8], [3, 4, 5, 9, 10, 11, 12, 13, 14], [1, 2, 3], [0, 2, 4, 6]])
 def test_embed_block_copies(pos, monkeypatch):
-    import hailstorm.runtime.contact.contact_capacitance as rc
-    from hailstorm.runtime.contact.contact_capacitance import _embed
+    import hailstorm.runtime.contact.capacitance_update as rc
+    from hailstorm.runtime.contact.capacitance_update import embed
 
     monkeypatch.setattr(rc, "EMBED_BLOCKS_FROM", 0)
     pos = np.array(pos)
     M = np.random.default_rng(0).normal(size=(pos.size, pos.size))
-    out = _embed(M, pos, int(pos.max()) + 2)
+    out = embed(M, pos, int(pos.max()) + 2)
     np.testing.assert_array_equal(out[np.ix_(pos, pos)], M)
 
 
 def test_add_remove_block_copy_path(box, monkeypatch):
     """Same as a fresh build when D_VV is grown by block copies."""
-    import hailstorm.runtime.contact.contact_capacitance as rc
+    import hailstorm.runtime.contact.capacitance_update as rc
 
     monkeypatch.setattr(rc, "EMBED_BLOCKS_FROM", 0)
     gf = box["gf"]

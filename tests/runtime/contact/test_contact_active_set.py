@@ -10,7 +10,7 @@ import pytest
 import hailstorm.runtime
 from hailstorm.runtime.bundle.read import load
 from hailstorm.runtime.contact import capacitance, solve_contacts, triangle_normals
-from hailstorm.runtime.contact import contact_capacitance
+from hailstorm.runtime.contact import active_set
 from hailstorm.runtime.contact.policy import SPDFactor
 
 precompute = pytest.importorskip("hailstorm.precompute")
@@ -114,8 +114,8 @@ def test_active_set_reuses_the_first_factor(box, mode, explicit_K, monkeypatch):
     cap = capacitance(gf, tri, bary, mode=mode, normals=triangle_normals(gf.vertices, gf.triangles[tri]))
     if explicit_K:
         cap.K  # formed once: the re-solve reads its columns
-    monkeypatch.setattr(contact_capacitance, "SUBSET_REUSE_FROM", 1)
-    monkeypatch.setattr(contact_capacitance, "SPDFactor", CountingFactor)
+    monkeypatch.setattr(active_set, "SUBSET_REUSE_FROM", 1)
+    monkeypatch.setattr(active_set, "SPDFactor", CountingFactor)
     CountingFactor.sizes = []
     sol = cap.solve(ubar, unilateral=True)
     keep, dofs, lam = released_solution(cap, sol, ubar, out)
@@ -140,8 +140,8 @@ def test_active_set_many_released_refactors(box, mode, monkeypatch):
     out = np.arange(0, s, 2)
     ubar = pulled(gf, tri, bary, out, rng)
     cap = capacitance(gf, tri, bary, mode=mode, normals=triangle_normals(gf.vertices, gf.triangles[tri]))
-    monkeypatch.setattr(contact_capacitance, "SUBSET_REUSE_FROM", 1)
-    monkeypatch.setattr(contact_capacitance, "SPDFactor", CountingFactor)
+    monkeypatch.setattr(active_set, "SUBSET_REUSE_FROM", 1)
+    monkeypatch.setattr(active_set, "SPDFactor", CountingFactor)
     CountingFactor.sizes = []
     sol = cap.solve(ubar, unilateral=True)
     keep, dofs, lam = released_solution(cap, sol, ubar, out)

@@ -12,7 +12,7 @@ import math
 import numpy as np
 import pytest
 
-from hailstorm.runtime.contact.contact_capacitance import capacitance, resolve_near_field
+from hailstorm.runtime.contact.capacitance_build import capacitance, resolve_near_field
 from hailstorm.runtime.contact.hertz import hertz_force, press_spheres
 from hailstorm.runtime.compiled.near_field import hat_compliance, hat_potential
 from hailstorm.runtime.contact.near_field import (

@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hailstorm.runtime.contact import capacitance, contact_capacitance, solve_contacts, triangle_normals
-from hailstorm.runtime.contact.contact_capacitance import ACTIVE_SET_TOL, nonnegative_qp
+from hailstorm.runtime.contact import active_set, capacitance, solve_contacts, triangle_normals
+from hailstorm.runtime.contact.active_set import ACTIVE_SET_TOL, nonnegative_qp
 
 
 def block_pivoting(W, q, limit):
@@ -108,7 +108,7 @@ def test_qp_path_gives_todays_answers_on_small_cases(box, monkeypatch, seed):
     n = triangle_normals(gf.vertices, gf.triangles[tri])
     ubar = rng.normal(0.0, 1e-4, (s, 3))
     before = solve_contacts(gf, tri, bary, ubar, mode="frictionless", unilateral=True, normals=n, rows=None)
-    monkeypatch.setattr(contact_capacitance, "BLOCK_PIVOT_ROUNDS", 1)
+    monkeypatch.setattr(active_set, "BLOCK_PIVOT_ROUNDS", 1)
     after = solve_contacts(gf, tri, bary, ubar, mode="frictionless", unilateral=True, normals=n, rows=None)
     np.testing.assert_array_equal(after.active, before.active)
     scale = np.abs(before.forces).max()

@@ -203,7 +203,7 @@ def test_contact_blocks_match_dense_algebra(gf, s, patch):
     B N) to rounding, both modes; constraint_rows is weighted_rows of vertex_block exactly; weighted_rows over D.T is the full-surface response
     D[:, V] B; columns_times is D[:, cols] g."""
     from hailstorm.runtime.bundle.compliance import column_dofs, dof3, response_columns, vertex_block
-    from hailstorm.runtime.contact.contact_capacitance import contact_compliance
+    from hailstorm.runtime.contact.capacitance_blocks import contact_compliance
     from hailstorm.runtime.contact.weights import dense_B
 
     gf = dataclasses.replace(gf, D=np.asfortranarray(gf.D))
@@ -292,7 +292,8 @@ def test_contact_api_calls_the_kernels(gf, monkeypatch):
     kernels (also for a row-major D, read through a column-major copy); the two paths agree
     to rounding with each other and with a dense solve of W."""
     import hailstorm.runtime.bundle.compliance
-    import hailstorm.runtime.contact.contact_capacitance
+    import hailstorm.runtime.contact.capacitance_blocks
+    import hailstorm.runtime.contact.capacitance_build
     import hailstorm.runtime.contact.solve
     from hailstorm.runtime.contact import capacitance, policy, solve_contacts
     from hailstorm.runtime.bundle.compliance import column_dofs, dof3
@@ -305,8 +306,8 @@ def test_contact_api_calls_the_kernels(gf, monkeypatch):
             calls.append(name)
             return getattr(C.blocks, name)
 
-    for mod in (hailstorm.runtime.contact.solve, hailstorm.runtime.contact.contact_capacitance,
-                hailstorm.runtime.bundle.compliance):
+    for mod in (hailstorm.runtime.contact.solve, hailstorm.runtime.contact.capacitance_build,
+                hailstorm.runtime.contact.capacitance_blocks, hailstorm.runtime.bundle.compliance):
         monkeypatch.setattr(mod, "kernels", Spy())
     rng = np.random.default_rng(5)
     t, b, n, a, V, loc, w = _contact_lists(gf, rng, 6, False)
