@@ -96,16 +96,15 @@ class FreeRun:
         grid = ix.grid
         self._broad = (ix.bbox[0], ix.bbox[1], ix.sample_radius, grid.lo, grid.h, grid.dims, grid.start, grid.items,
                        grid.points)
-        none = np.zeros(0, dtype=np.int64)
-        e3 = np.zeros((0, 3))
-        e = np.zeros(0)
-        sizes = bool(integrator.sizes_substeps and k_tri is not None)
         self._narrow = (c.surface, c.toi, c.TOI_TOL, c.hmin, ix.normals, ix.corner_normals, ix.sharp_edges,
                         ix.sharp_vertices, c.soft, c.fixed, c.rigid_weight)
-        self._rest = (GRAVITY, c.air.wind, c.air.drag_coef, c.restitution, c.margin, sizes,
-                      int(scene.time.max_substeps), k_tri if sizes else e, scene.time.approach_fraction,
-                      scene.time.rest_speed, integrator.omega_dt, integrator.kind.explicit, none, e,
-                      scene.contact.sticky, e3, np.array([0.0, 0.0, -GRAVITY]))
+        self._air = (GRAVITY, c.air.wind, c.air.drag_coef, c.restitution)
+        self._margin = c.margin
+        e = np.zeros(0)
+        sizes = bool(integrator.sizes_substeps and k_tri is not None)
+        self._sizing = (sizes, int(scene.time.max_substeps), k_tri if sizes else e, scene.time.approach_fraction,
+                        scene.time.rest_speed, integrator.omega_dt, integrator.kind.explicit, np.zeros(0, dtype=np.int64),
+                        e, scene.contact.sticky, np.zeros((0, 3)), np.array([0.0, 0.0, -GRAVITY]))
         self._scratch_size = -1
 
     def _scratch(self, capacity: int) -> tuple[np.ndarray, ...]:
@@ -125,13 +124,13 @@ class FreeRun:
         """
         stones.reserve(len(self.plan.rows) - self.plan.next_row)  # room for the plan's stones still to come
         buffers = stones.buffers()
-        live, near, gone, cr = self._scratch(buffers[0].shape[0])
+        live, near, gone, cr = scratch = self._scratch(buffers[0].shape[0])
         acc = np.array([float(getattr(stats, name)) if name in STATS else 0.0 for name in ACC_FIELDS])
         use_u, cols, forces = seat.kernel_load()
         status, steps, t_end, j, n, n_live, n_near, n_gone, h, t_left, n_sub = free_steps(
             int(n_max), float(t), self.dt, int(i0), int(n_steps), float(next_frame), history, self.plan.rows,
-            self.plan_mass, self.plan.next_row, len(stones), live, near, gone, cr, *buffers, seat.umax_step,
-            *self._broad, *self._narrow, seat.umax, use_u, seat.D, cols, forces, *self._rest, acc)
+            self.plan_mass, self.plan.next_row, len(stones), scratch, buffers, seat.umax_step, self._broad,
+            self._narrow, self._air, self._margin, self._sizing, (seat.umax, use_u, seat.D, cols, forces), acc)
         for name, value in zip(ACC_FIELDS, acc.tolist()):
             if name in STATS:
                 setattr(stats, name, type(getattr(stats, name))(value))
