@@ -613,7 +613,7 @@ def point_contacts(Dt, column_of, contactable, fixed, triangles, vertices, tri, 
     V = np.sort(lst[:nV])
     for i in range(nV):
         pos[V[i]] = i
-    # normals (frictionless), from the triangles as hailstorm.runtime.contact.weights.triangle_normals
+    # normals (frictionless), from the triangles as hailstorm.runtime.contact.normals.triangle_normals
     nrm = np.zeros((s, 3))
     if not sticky:
         for k in range(s):

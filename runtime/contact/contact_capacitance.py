@@ -843,7 +843,8 @@ def capacitance(
         triangle's vertices with the barycentric weights). A radius ``a > 0``
         [m] spreads each contact's force over the disc of radius ``a`` around
         the contact point with the pressure ``patch_profile`` (see
-        :mod:`hailstorm.runtime.contact.weights`; :func:`hertz_radius` gives the physical
+        :mod:`hailstorm.runtime.contact.weights`;
+        :func:`~hailstorm.runtime.contact.sphere_patch.hertz_radius` gives the physical
         radius for a load). A scalar is also the radius :meth:`Capacitance.add`
         uses by default.
     patch_profile : {"hertz", "uniform"}

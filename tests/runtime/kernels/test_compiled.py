@@ -177,7 +177,8 @@ def test_substep_contacts_and_damping_match_the_reference(integrator):
 # ---------------------------------------------------------------------------
 def _contact_lists(gf, rng, s, patch):
     """s random contacts on the plate (some on the clamp): vertex lists, weights, normals."""
-    from hailstorm.runtime.contact.weights import locate, patch_weights, triangle_normals
+    from hailstorm.runtime.contact.normals import triangle_normals
+    from hailstorm.runtime.contact.weights import locate, patch_weights
 
     usable = np.flatnonzero((gf.contactable | gf.fixed)[gf.triangles].all(axis=1))
     t = rng.choice(usable, s)
