@@ -6,7 +6,8 @@ The unilateral solve's own parts (the result :class:`ActiveSet`, the convex QP
 See :mod:`hailstorm.runtime.contact` for the notation, sign conventions and the
 documented degenerate cases; the tolerances are in
 :mod:`hailstorm.runtime.contact.policy`. The blocks of D and the contact
-compliance are the compiled kernels of :mod:`hailstorm.runtime.compiled.blocks`.
+compliance are the compiled kernels of :mod:`hailstorm.runtime.compiled.blocks` and
+:mod:`hailstorm.runtime.compiled.wmatrix`.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from hailstorm.runtime.compiled import blocks as kernels
+from hailstorm.runtime.compiled import wmatrix as w_kernels
 from hailstorm.runtime.contact.active_set import (ACTIVE_SET_TOL, BLOCK_PIVOT_ROUNDS, QP_SHIFT, ActiveSet,
                                                   nonnegative_qp)
 from hailstorm.runtime.bundle.compliance import (
@@ -75,7 +77,7 @@ def contact_compliance(D_VV: np.ndarray, loc: np.ndarray, w: np.ndarray, normals
     # G^T D_VV^T G = W^T: the kernels read the C-contiguous one of D_VV and its transpose
     M = D_VV.T if D_VV.flags.f_contiguous and not D_VV.flags.c_contiguous else np.ascontiguousarray(D_VV)
     Y = _constraint_rows(M, loc, w, normals, mode)
-    return kernels.contact_compliance(Y, np.ascontiguousarray(loc, dtype=np.intp),
+    return w_kernels.contact_compliance(Y, np.ascontiguousarray(loc, dtype=np.intp),
                                       np.ascontiguousarray(w, dtype=np.float64),
                                       np.ascontiguousarray(normals, dtype=np.float64), ContactMode(mode).sticky)
 
@@ -968,7 +970,7 @@ def from_weights(gf: ComplianceSource, t: np.ndarray, b: np.ndarray, n: np.ndarr
     n = np.ascontiguousarray(n, dtype=np.float64)
     mode = ContactMode(mode)
     Y = constraint_rows(gf, V, loc, w, n, mode.sticky)  # (D_VV G)^T
-    W = kernels.contact_compliance(Y, loc, w, n, mode.sticky)
+    W = w_kernels.contact_compliance(Y, loc, w, n, mode.sticky)
     rigid = is_rigid(gf.fixed, pv, w)
     p = mode.dofs
     if local is not None:

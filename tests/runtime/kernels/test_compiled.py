@@ -173,7 +173,8 @@ def test_substep_contacts_and_damping_match_the_reference(integrator):
 
 
 # ---------------------------------------------------------------------------
-# the contact core's block kernels (hailstorm.runtime.compiled.blocks), against dense algebra on D
+# the contact core's block kernels (hailstorm.runtime.compiled.blocks, .wmatrix, .point_solve), against dense
+# algebra on D
 # ---------------------------------------------------------------------------
 def _contact_lists(gf, rng, s, patch):
     """s random contacts on the plate (some on the clamp): vertex lists, weights, normals."""
@@ -301,14 +302,20 @@ def test_contact_api_calls_the_kernels(gf, monkeypatch):
 
     calls = []
 
-    class Spy:  # the modules' handle on the kernels, recording which are fetched
+    class Spy:  # a module's handle on a kernel module, recording which kernels are fetched
+        def __init__(self, kernels):
+            self.kernels = kernels
+
         def __getattr__(self, name):
             calls.append(name)
-            return getattr(C.blocks, name)
+            return getattr(self.kernels, name)
 
-    for mod in (hailstorm.runtime.contact.solve, hailstorm.runtime.contact.contact_capacitance,
-                hailstorm.runtime.bundle.compliance):
-        monkeypatch.setattr(mod, "kernels", Spy())
+    for mod, handle, kernels in ((hailstorm.runtime.contact.solve, "kernels", C.point_solve),
+                                 (hailstorm.runtime.contact.contact_capacitance, "kernels", C.blocks),
+                                 (hailstorm.runtime.contact.contact_capacitance, "w_kernels", C.wmatrix),
+                                 (hailstorm.runtime.bundle.compliance, "kernels", C.blocks)):
+        assert getattr(mod, handle) is kernels
+        monkeypatch.setattr(mod, handle, Spy(kernels))
     rng = np.random.default_rng(5)
     t, b, n, a, V, loc, w = _contact_lists(gf, rng, 6, False)
     t = np.where(gf.fixed[gf.triangles[t]].all(axis=1), t[0], t)  # no rigid contact: the fast path takes all
