@@ -263,7 +263,7 @@ def contact_stiffness_vs_mesh(
     patch_radius
         Fixed physical patch radius [m]; default the Hertz radius of a rigid
         sphere of ``stone_radius`` pressed with ``load`` on the material
-        (:func:`hailstorm.runtime.contact.weights.hertz_radius`).
+        (:func:`hailstorm.runtime.contact.sphere_patch.hertz_radius`).
     order
         Element order of the bundles.
     mesh

@@ -77,7 +77,8 @@ from hailstorm.precompute.geometry import (
 from hailstorm.precompute.greens import factorize, hat_load_matrix
 from hailstorm.precompute.pipeline import build_bundle, extract_surface
 from hailstorm.runtime.bundle.atomic import replacing
-from hailstorm.runtime.contact.weights import patch_weights, triangle_normals
+from hailstorm.runtime.contact.normals import triangle_normals
+from hailstorm.runtime.contact.weights import patch_weights
 from hailstorm.runtime.storm.hail import stone_mass, terminal_velocity
 from hailstorm.runtime.contact.hertz import hertz_impact
 from studies.seat_study import SITES

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from hailstorm.runtime.storm.hail import GRAVITY
-from hailstorm.runtime.contact.weights import hertz_radius
+from hailstorm.runtime.contact.sphere_patch import hertz_radius
 from hailstorm.runtime.contact.hertz import HertzImpact, hertz_force, hertz_impact, press_spheres
 
 __all__ = ["BLOCK", "DropResult", "block_bundle", "drop_stone", "force_ratios", "hertz_depth", "origin_contact",

@@ -21,9 +21,10 @@ Modules, in the order of a storm step:
 * :mod:`~hailstorm.runtime.compiled.patches` — patch weights, a patch's compliance and
   the patch sizing of the storm's contacts (with :mod:`~hailstorm.runtime.compiled.sphere`,
   the rigid sphere's contact law at any contact radius);
-* :mod:`~hailstorm.runtime.compiled.blocks` — blocks of D (D_VV, D_VV G, W, D[:, V] g)
-  and one-call point-contact solves: the contact API's kernels
-  (:func:`hailstorm.runtime.contact.solve_contacts`), also used by the storm;
+* :mod:`~hailstorm.runtime.compiled.blocks` — blocks of D (D_VV, D_VV G, D[:, V] g),
+  :mod:`~hailstorm.runtime.compiled.wmatrix` — the contact compliance W from them, and
+  :mod:`~hailstorm.runtime.compiled.point_solve` — one-call point-contact solves: the
+  contact API's kernels (:func:`hailstorm.runtime.contact.solve_contacts`), also used by the storm;
 * :mod:`~hailstorm.runtime.compiled.hblocks` — a compressed D's H-matrix: its product with
   a vector, its entries, and ``d_entry``, through which the storm's kernels read an entry of
   a dense D or of an H-matrix (a compressed bundle read without expanding D);
@@ -45,7 +46,7 @@ for debugging.
 from __future__ import annotations
 
 from hailstorm.runtime.compiled.jit import KERNELS
-from hailstorm.runtime.compiled.blocks import columns_times, contact_compliance, point_contacts, vertex_block, weighted_rows
+from hailstorm.runtime.compiled.blocks import columns_times, vertex_block, weighted_rows
 from hailstorm.runtime.compiled.contacts import contact_post, contact_prep, inv_spd
 from hailstorm.runtime.compiled.flight import flight, near_set, retired
 from hailstorm.runtime.compiled.grid import SampleGrid, closest_points
@@ -59,6 +60,8 @@ from hailstorm.runtime.compiled.integrators import (
 )
 from hailstorm.runtime.compiled.narrow import free_phase, penetration
 from hailstorm.runtime.compiled.patches import patch_compliance, patch_one, patch_radii
+from hailstorm.runtime.compiled.point_solve import point_contacts
+from hailstorm.runtime.compiled.wmatrix import contact_compliance
 
 __all__ = [
     "KERNELS",

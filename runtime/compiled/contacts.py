@@ -16,7 +16,7 @@ import math
 
 import numpy as np
 
-from hailstorm.runtime.compiled.blocks import symmetrise
+from hailstorm.runtime.compiled.wmatrix import symmetrise
 from hailstorm.runtime.compiled.jit import kernel
 from hailstorm.runtime.compiled.lapack import cholesky, eigh, gram, inverse
 

@@ -14,7 +14,7 @@ depth is 2.8 % stiffer than the sphere, at 0.8 9.7 %.
 :func:`sphere_radius_of` inverts ``F(a)`` (Newton from Hertz's radius, which lies
 above the sphere's: ``q(x) >= 4 x^3 / 3``, and ``q`` is convex, so the iterates
 fall monotonically); :func:`sphere_radii` is the same over arrays. The contact
-API's numpy face is :func:`hailstorm.runtime.contact.weights.sphere_radius`.
+API's numpy face is :func:`hailstorm.runtime.contact.sphere_patch.sphere_radius`.
 
 An impact needs the law's work as well: ``W = E* R^3 w(x)``, ``w(x) = int_0^x q dt``
 with ``t = delta / R`` (:func:`sphere_w`; no elementary closed form, so Gauss-Legendre

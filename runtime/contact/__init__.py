@@ -7,7 +7,11 @@ Modules, one seam each:
   indices, blocks of D and products with its columns (compiled kernels of
   :mod:`hailstorm.runtime.compiled.blocks`);
 * :mod:`~hailstorm.runtime.contact.weights` -- the force-distribution weights
-  B of point and patch contacts, :func:`hertz_radius`, :func:`sphere_radius`, :func:`impact_radius`;
+  B of point and patch contacts (:func:`barycentric_matrix`, :func:`patch_weights`);
+* :mod:`~hailstorm.runtime.contact.normals` -- the surface's normals: a triangle's
+  own (:func:`triangle_normals`) and the smooth normal across its facets;
+* :mod:`~hailstorm.runtime.contact.sphere_patch` -- a sphere's contact patch, its
+  radius and offset: :func:`hertz_radius`, :func:`sphere_radius`, :func:`impact_radius`;
 * :mod:`~hailstorm.runtime.contact.policy` -- the numerical policy: the
   constants (condition limit, pseudo-inverse cut-off, rigid threshold,
   fast-path size), named once, and the one SPD factorisation
@@ -98,16 +102,9 @@ from hailstorm.runtime.contact.policy import COND_LIMIT, PINV_RCOND, SPDFactor, 
 from hailstorm.runtime.contact.solve import ContactSolution, solve_contacts
 from hailstorm.runtime.contact.near_field import NearField, near_field
 from hailstorm.runtime.contact.validate import Mode
-from hailstorm.runtime.contact.weights import (
-    barycentric_matrix,
-    contact_points,
-    hertz_radius,
-    impact_radius,
-    patch_matrix,
-    patch_weights,
-    sphere_radius,
-    triangle_normals,
-)
+from hailstorm.runtime.contact.normals import triangle_normals
+from hailstorm.runtime.contact.sphere_patch import hertz_radius, impact_radius, sphere_radius
+from hailstorm.runtime.contact.weights import barycentric_matrix, contact_points, patch_matrix, patch_weights
 
 __all__ = [
     "COND_LIMIT",

@@ -11,22 +11,40 @@ released reuses the capacitance's factor where that is cheaper (a Schur compleme
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
 from hailstorm.runtime.contact.policy import SUBSET_REUSE_FROM, SPDFactor
 
-if TYPE_CHECKING:
-    from hailstorm.runtime.contact.contact_capacitance import Capacitance
-
-__all__ = ["ACTIVE_SET_TOL", "BLOCK_PIVOT_ROUNDS", "NEWTON_SHIFT", "QP_SHIFT", "ActiveSet", "nonnegative_qp",
-           "unilateral_solve"]
+__all__ = ["ACTIVE_SET_TOL", "BLOCK_PIVOT_ROUNDS", "NEWTON_SHIFT", "QP_SHIFT", "ActiveSet", "ContactSetSolver",
+           "nonnegative_qp", "unilateral_solve"]
 
 #: The active set releases a contact whose normal force pulls by more than this
 #: fraction of the largest, and re-activates one the seat penetrates by more
 #: than this fraction of the largest normal displacement.
 ACTIVE_SET_TOL: float = 1e-10
+
+
+class ContactSetSolver(Protocol):
+    """What the unilateral solve reads of a contact set
+    (:class:`hailstorm.runtime.contact.contact_capacitance.Capacitance`; a protocol, so that this
+    module does not import the class built on it)."""
+
+    W: np.ndarray
+    rigid: np.ndarray
+    normals: np.ndarray
+    exact: bool
+
+    @property
+    def s(self) -> int: ...
+    @property
+    def per_contact(self) -> int: ...
+    @property
+    def live_dofs(self) -> np.ndarray: ...
+    def solve_live(self, c: np.ndarray) -> np.ndarray: ...
+    def live_columns(self, rows: np.ndarray) -> np.ndarray: ...
+    def multiplier_forces(self, lam: np.ndarray) -> np.ndarray: ...
 
 
 @dataclass
@@ -172,7 +190,7 @@ def nonnegative_qp(W: np.ndarray, q: np.ndarray, x0: np.ndarray | None = None, *
     raise RuntimeError(f"nonnegative_qp did not converge in {max_iter} iterations")
 
 
-def _subset_multipliers(cap: Capacitance, c: np.ndarray, act: np.ndarray) -> np.ndarray:
+def _subset_multipliers(cap: ContactSetSolver, c: np.ndarray, act: np.ndarray) -> np.ndarray:
     """Multipliers (m,) with only the (non-rigid) contacts ``act`` constrained: ``W[a, a] x = c[a]``.
 
     While few live components are released (``r``), the factor of ``W[live, live]``
@@ -213,7 +231,7 @@ def _subset_multipliers(cap: Capacitance, c: np.ndarray, act: np.ndarray) -> np.
     return lam
 
 
-def _unilateral_qp(cap: Capacitance, c: np.ndarray, lam: np.ndarray, limit: int,
+def _unilateral_qp(cap: ContactSetSolver, c: np.ndarray, lam: np.ndarray, limit: int,
                    cn: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
     """The frictionless unilateral solve as the convex QP :func:`nonnegative_qp` over
     the live contacts (``x = -lambda``: ``min 1/2 x^T W x + c^T x``, ``x >= 0``), from
@@ -244,7 +262,7 @@ def _unilateral_qp(cap: Capacitance, c: np.ndarray, lam: np.ndarray, limit: int,
     return lam, active, iters
 
 
-def unilateral_solve(cap: Capacitance, ubar: np.ndarray, c: np.ndarray, lam: np.ndarray,
+def unilateral_solve(cap: ContactSetSolver, ubar: np.ndarray, c: np.ndarray, lam: np.ndarray,
                      max_iter: int | None) -> tuple[np.ndarray, np.ndarray, int]:
     """The active set of unilateral contacts on a capacitance: contacts may only push.
 
@@ -259,7 +277,8 @@ def unilateral_solve(cap: Capacitance, ubar: np.ndarray, c: np.ndarray, lam: np.
 
     Parameters
     ----------
-    cap : Capacitance
+    cap : ContactSetSolver
+        The contact set (:class:`~hailstorm.runtime.contact.contact_capacitance.Capacitance`).
         The contacts (their normals are needed).
     ubar : (s, 3) float ndarray
         Prescribed contact-point displacements [m], checked.

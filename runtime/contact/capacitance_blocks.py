@@ -14,6 +14,7 @@ import numpy as np
 
 from hailstorm.runtime.bundle.compliance import ComplianceSource
 from hailstorm.runtime.compiled import blocks as kernels
+from hailstorm.runtime.compiled import wmatrix as w_kernels
 from hailstorm.runtime.contact.near_field import NearField
 from hailstorm.runtime.contact.validate import ContactMode, Mode
 from hailstorm.runtime.contact.weights import contact_points, patch_weights
@@ -66,7 +67,7 @@ def contact_compliance(D_VV: np.ndarray, loc: np.ndarray, w: np.ndarray, normals
     # G^T D_VV^T G = W^T: the kernels read the C-contiguous one of D_VV and its transpose
     M = D_VV.T if D_VV.flags.f_contiguous and not D_VV.flags.c_contiguous else np.ascontiguousarray(D_VV)
     Y = constrained_rows(M, loc, w, normals, mode)
-    return kernels.contact_compliance(Y, np.ascontiguousarray(loc, dtype=np.intp),
+    return w_kernels.contact_compliance(Y, np.ascontiguousarray(loc, dtype=np.intp),
                                       np.ascontiguousarray(w, dtype=np.float64),
                                       np.ascontiguousarray(normals, dtype=np.float64), ContactMode(mode).sticky)
 

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from hailstorm.runtime.bundle.compliance import ComplianceSource, column_dofs, constraint_rows
-from hailstorm.runtime.compiled import blocks as kernels
+from hailstorm.runtime.compiled import wmatrix as w_kernels
 from hailstorm.runtime.contact.capacitance_blocks import contact_weights, near_blocks
 from hailstorm.runtime.contact.contact_capacitance import Capacitance
 from hailstorm.runtime.contact.near_field import NearField, near_field
@@ -58,7 +58,8 @@ def capacitance(
         triangle's vertices with the barycentric weights). A radius ``a > 0``
         [m] spreads each contact's force over the disc of radius ``a`` around
         the contact point with the pressure ``patch_profile`` (see
-        :mod:`hailstorm.runtime.contact.weights`; :func:`hertz_radius` gives the physical
+        :mod:`hailstorm.runtime.contact.weights`;
+        :func:`~hailstorm.runtime.contact.sphere_patch.hertz_radius` gives the physical
         radius for a load). A scalar is also the radius :meth:`Capacitance.add`
         uses by default.
     patch_profile : {"hertz", "uniform"}
@@ -195,7 +196,7 @@ def from_weights(gf: ComplianceSource, t: np.ndarray, b: np.ndarray, n: np.ndarr
     n = np.ascontiguousarray(n, dtype=np.float64)
     mode = ContactMode(mode)
     Y = constraint_rows(gf, V, loc, w, n, mode.sticky)  # (D_VV G)^T
-    W = kernels.contact_compliance(Y, loc, w, n, mode.sticky)
+    W = w_kernels.contact_compliance(Y, loc, w, n, mode.sticky)
     rigid = is_rigid(gf.fixed, pv, w)
     p = mode.dofs
     if local is not None:

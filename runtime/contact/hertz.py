@@ -23,13 +23,13 @@ iterations reach ``tol``.
 
 Hertz's paraboloid holds for ``a << R``; the hail's contacts reach ``a/R`` 0.8. So the
 radius and the offset are the sphere's own (Sneddon 1965): the radius
-:func:`hailstorm.runtime.contact.weights.sphere_radius` and the offset
-:func:`hailstorm.runtime.contact.weights.sphere_offset`, ``delta(a) - 3 F(a) / (5 a E*)``, which
+:func:`hailstorm.runtime.contact.sphere_patch.sphere_radius` and the offset
+:func:`hailstorm.runtime.contact.sphere_patch.sphere_offset`, ``delta(a) - 3 F(a) / (5 a E*)``, which
 makes a patch whose disc compliance is Hertz's carry the sphere's force at its depth on a
 half-space at every ``a/R``; both are Hertz's to ``O((a/R)^2)``. (Hertz's law at the
 sphere's depth is 2.8 % stiffer than the sphere at ``a/R`` 0.5, 9.7 % at 0.8.)
 
-:func:`hailstorm.runtime.contact.weights.sphere_mean_offset` is that offset as far as the
+:func:`hailstorm.runtime.contact.sphere_patch.sphere_mean_offset` is that offset as far as the
 surface mesh resolves the patch (a patch inside one triangle sees a plane:
 no offset); the storm's patch contacts use the same functions.
 """
@@ -46,14 +46,9 @@ from hailstorm.runtime.contact import ContactSolution, solve_contacts
 from hailstorm.runtime.bundle.compliance import ElasticSource
 from hailstorm.runtime.compiled.sphere import sphere_q, sphere_qs, sphere_x_of_depth, sphere_xs_of_depth
 from hailstorm.runtime.contact.capacitance_build import resolve_near_field
-from hailstorm.runtime.contact.weights import (
-    contact_points,
-    patch_weights,
-    smooth_normals,
-    sphere_mean_offset,
-    sphere_offset,
-    sphere_radius,
-)
+from hailstorm.runtime.contact.normals import smooth_normals
+from hailstorm.runtime.contact.sphere_patch import sphere_mean_offset, sphere_offset, sphere_radius
+from hailstorm.runtime.contact.weights import contact_points, patch_weights
 
 __all__ = ["HertzImpact", "SphereContacts", "hertz_force", "hertz_impact", "press_spheres", "sphere_force",
            "sphere_impact"]
@@ -258,7 +253,7 @@ def press_spheres(
         Sphere radii ``R`` [m] (> 0).
     normals : (s, 3) float array_like, optional
         Outward normals along which each sphere presses (default: the surface's smooth normal at
-        the point, :func:`hailstorm.runtime.contact.weights.smooth_normals`; a triangle's own
+        the point, :func:`hailstorm.runtime.contact.normals.smooth_normals`; a triangle's own
         normal jumps between facets, and a sphere on a vertex of the 6 mm seat pressed along
         one facet's normal, 11 degrees off, came out 7.5 % softer than on a 3 mm seat).
     rows : "all", None or (r,) int array_like

@@ -39,7 +39,7 @@ RIGID_WEIGHT: float = 1e-12
 BARY_SUM_TOL: float = 1e-6
 BARY_NEG_TOL: float = 1e-9
 #: Up to this many bilateral point contacts, ``solve_contacts`` takes the
-#: one-call compiled solve (:func:`hailstorm.runtime.compiled.blocks.point_contacts`);
+#: one-call compiled solve (:func:`hailstorm.runtime.compiled.point_solve.point_contacts`);
 #: above it the block kernels, which win from s = 64-80 on (measured on the default seat).
 #: The one-call path is kept because at s <= 10 the general path is 4-8x slower (0.16-0.33
 #: against 0.02-0.04 ms per fresh solve; ``tests/benchmarks/bench_contacts.py`` prints the

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from hailstorm.runtime.compiled import blocks as kernels
+from hailstorm.runtime.compiled import point_solve as kernels
 from hailstorm.runtime.contact import policy
 from hailstorm.runtime.contact.capacitance_build import build, resolve_near_field
 from hailstorm.runtime.contact.near_field import NearField
@@ -63,7 +63,7 @@ class ContactSolution:
 def _point_contacts(gf: ComplianceSource, triangles: Any, barycentric: Any, displacements: Any, mode: Mode,
                     want_u: bool) -> ContactSolution | None:
     """:func:`solve_contacts` for bilateral point contacts in one compiled call
-    (:func:`hailstorm.runtime.compiled.blocks.point_contacts`: the same validation, blocks,
+    (:func:`hailstorm.runtime.compiled.point_solve.point_contacts`: the same validation, blocks,
     factorisation policy and products fused), or None where the general path must
     decide: malformed input (it raises the error), rigid contacts, coincident
     contacts (pseudo-inverse), no contacts, more than
@@ -156,7 +156,7 @@ def solve_contacts(
     Notes
     -----
     The blocks of D are read by the compiled kernels of
-    :mod:`hailstorm.runtime.compiled.blocks`; up to
+    :mod:`hailstorm.runtime.compiled.blocks` (W: :mod:`hailstorm.runtime.compiled.wmatrix`); up to
     :data:`~hailstorm.runtime.contact.policy.POINT_FAST_MAX` bilateral point
     contacts with ``normals=None`` and ``rows`` "all" or None are solved in
     one compiled call of the same algorithm. The first call in a process loads

@@ -9,7 +9,8 @@ import numpy as np
 
 from hailstorm.runtime.bundle.compliance import ComplianceSource
 from hailstorm.runtime.contact.policy import BARY_NEG_TOL, BARY_SUM_TOL
-from hailstorm.runtime.contact.weights import PATCH_PROFILES, triangle_normals
+from hailstorm.runtime.contact.normals import triangle_normals
+from hailstorm.runtime.contact.weights import PATCH_PROFILES
 
 __all__ = ["ContactMode", "Mode", "check_contacts", "check_mode", "check_patch"]
 

@@ -29,7 +29,7 @@ from hailstorm.runtime.compiled import SampleGrid, flight, free_phase, near_set,
 from hailstorm.runtime.compiled.grid import surface_arrays
 from hailstorm.runtime.contact import policy
 from hailstorm.runtime.storm.hail import GRAVITY
-from hailstorm.runtime.contact.weights import CREASE_ANGLE, corner_normals
+from hailstorm.runtime.contact.normals import CREASE_ANGLE, corner_normals
 from hailstorm.runtime.storm.recording import StormStats
 
 if TYPE_CHECKING:  # annotations only

@@ -35,7 +35,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from hailstorm.runtime.contact.capacitance_build import from_weights, resolve_near_field
-from hailstorm.runtime.contact.weights import contact_points, impact_offset, resolved_fraction
+from hailstorm.runtime.contact.sphere_patch import impact_offset, resolved_fraction
+from hailstorm.runtime.contact.weights import contact_points
 
 if TYPE_CHECKING:  # annotations only
     from hailstorm.runtime.contact.contact_capacitance import Capacitance

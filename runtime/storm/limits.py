@@ -79,7 +79,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from hailstorm.runtime.bundle.thickness import PadThickness
-from hailstorm.runtime.contact.weights import sphere_radius
+from hailstorm.runtime.contact.sphere_patch import sphere_radius
 from hailstorm.runtime.inertia.pad import PAD_DENSITY
 
 if TYPE_CHECKING:  # (imported when first measured: the local pad's assembly is not needed to start a storm)

@@ -553,7 +553,7 @@ def print_phases(gf, tri: np.ndarray, bary: np.ndarray, ubar: np.ndarray, refs: 
     :func:`solve_contacts`; min / median / max of each, beside the floor term it is to be
     compared with (``print_floor``'s medians).
     """
-    from hailstorm.runtime.compiled import blocks
+    from hailstorm.runtime.compiled import blocks, wmatrix
     from hailstorm.runtime.bundle.compliance import apply_columns, column_dofs, kernel_columns
     from hailstorm.runtime.contact.policy import POINT_FAST_MAX, SPDFactor, is_rigid
     from hailstorm.runtime.contact.validate import check_contacts, check_mode, check_patch
@@ -582,7 +582,7 @@ def print_phases(gf, tri: np.ndarray, bary: np.ndarray, ubar: np.ndarray, refs: 
         t.append(clock())
         Y = blocks.constraint_rows(kernel_columns(gf), gf.column_of, V, loc, w, nrm, True)
         t.append(clock())
-        W = blocks.contact_compliance(Y, loc, w, nrm, True)
+        W = wmatrix.contact_compliance(Y, loc, w, nrm, True)
         t.append(clock())
         is_rigid(gf.fixed, pv, w).any()
         t.append(clock())

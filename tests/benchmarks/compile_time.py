@@ -115,7 +115,8 @@ def main() -> None:
 
     spec = {}
     for mod in (compiled.flight, compiled.narrow, compiled.patches, compiled.contacts, compiled.integrators,
-                compiled.grid, compiled.blocks, compiled.modal, compiled.lapack):
+                compiled.grid, compiled.blocks, compiled.wmatrix, compiled.point_solve, compiled.modal,
+                compiled.lapack):
         for name in dir(mod):
             f = getattr(mod, name)
             if isinstance(f, Dispatcher) and f.signatures:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
+from hailstorm.runtime.contact.normals import triangle_normals
 from hailstorm.runtime.contact.weights import (
     PATCH_DROP,
     PATCH_FACING,
@@ -19,7 +20,6 @@ from hailstorm.runtime.contact.weights import (
     disc_rule,
     radial_points,
     triangle_index,
-    triangle_normals,
 )
 
 

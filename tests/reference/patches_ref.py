@@ -17,7 +17,7 @@ from typing import Callable
 
 import numpy as np
 
-from hailstorm.runtime.contact.weights import sphere_radius
+from hailstorm.runtime.contact.sphere_patch import sphere_radius
 from reference.sphere_ref import impact_patch_ref
 from hailstorm.runtime.compiled.patches import REST_TOLERANCE
 

@@ -8,7 +8,8 @@ import pytest
 from hailstorm.precompute import build_bundle, mesh_geometry
 from hailstorm.precompute.geometry import Refinement
 from hailstorm.runtime import load
-from hailstorm.runtime.contact.weights import patch_weights, triangle_normals
+from hailstorm.runtime.contact.normals import triangle_normals
+from hailstorm.runtime.contact.weights import patch_weights
 from hailstorm.runtime.storm.hail import stone_mass, terminal_velocity
 from hailstorm.runtime.storm.scene import SeatSettings
 from studies import defaults_study as ds

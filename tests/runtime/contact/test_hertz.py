@@ -34,7 +34,7 @@ pytest.importorskip("gmsh")
 
 import hailstorm.runtime  # noqa: E402
 from hailstorm.runtime.contact.hertz import hertz_force, hertz_impact, press_spheres, sphere_force  # noqa: E402
-from hailstorm.runtime.contact.weights import sphere_offset, sphere_radius  # noqa: E402
+from hailstorm.runtime.contact.sphere_patch import sphere_offset, sphere_radius  # noqa: E402
 from studies.hertz_study import (  # noqa: E402
     block_bundle, drop_stone, hertz_depth, origin_contact, rest_stone)
 
@@ -147,7 +147,7 @@ def test_smooth_normals_are_continuous_and_press_spheres_presses_along_them(seat
     area-weighted vertex normal; on every triangle it is a unit vector within 45 degrees of the
     facet's; and ``press_spheres`` without normals presses along it."""
     from hailstorm.runtime.bundle.read import vertex_normals
-    from hailstorm.runtime.contact.weights import corner_normals, smooth_normals, triangle_normals
+    from hailstorm.runtime.contact.normals import corner_normals, smooth_normals, triangle_normals
 
     gf = hailstorm.runtime.load(seat_bundle)
     V, T = np.asarray(gf.vertices), np.asarray(gf.triangles)
@@ -313,7 +313,7 @@ def test_the_impact_patch_meets_the_spheres_impact():
     +5.4 % and -1.3 ... -2.5 %)."""
     from scipy.integrate import quad
     from scipy.optimize import brentq
-    from hailstorm.runtime.contact.weights import impact_offset, impact_radius
+    from hailstorm.runtime.contact.sphere_patch import impact_offset, impact_radius
     from studies.hertz_study import affine_oscillator
 
     e_star = E / (1 - NU**2)
@@ -344,7 +344,7 @@ def test_the_impact_patch_kernels_against_their_reference():
     sphere_offset); the public faces' clipping and errors."""
     from reference.sphere_ref import impact_offset_ref, impact_patch_ref, w_ref
     from hailstorm.runtime.compiled.sphere import impact_offset_of_patch, impact_patch_x, sphere_w
-    from hailstorm.runtime.contact.weights import impact_offset, impact_radius
+    from hailstorm.runtime.contact.sphere_patch import impact_offset, impact_radius
 
     for x in (0.02, 0.1, 0.3, 0.5, 0.7, 0.8, 0.9, 0.99, 0.999):
         assert sphere_w(x) == pytest.approx(w_ref(x), rel=1e-10)
@@ -458,7 +458,7 @@ def test_storm_drop_against_hertz_impact(coarse_block):
     dr = drop_stone(coarse_block, stone_radius=0.01, speed=0.4, dt=2e-5)
     s, h, law = dr.storm, dr.hertz, dr.affine
     assert dr.rebound == pytest.approx(1.0, abs=2e-3)  # restitution 1: no energy lost
-    from hailstorm.runtime.contact.weights import impact_offset
+    from hailstorm.runtime.contact.sphere_patch import impact_offset
 
     assert dr.offset == pytest.approx(impact_offset(dr.patch_radius, 0.01), rel=0.05)  # the patch resolves the sphere
     for got, want in ((s.max_depth, law.max_depth), (s.max_force, law.max_force), (s.duration, law.duration)):

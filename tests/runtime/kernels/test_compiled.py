@@ -173,11 +173,13 @@ def test_substep_contacts_and_damping_match_the_reference(integrator):
 
 
 # ---------------------------------------------------------------------------
-# the contact core's block kernels (hailstorm.runtime.compiled.blocks), against dense algebra on D
+# the contact core's block kernels (hailstorm.runtime.compiled.blocks, .wmatrix, .point_solve), against dense
+# algebra on D
 # ---------------------------------------------------------------------------
 def _contact_lists(gf, rng, s, patch):
     """s random contacts on the plate (some on the clamp): vertex lists, weights, normals."""
-    from hailstorm.runtime.contact.weights import locate, patch_weights, triangle_normals
+    from hailstorm.runtime.contact.normals import triangle_normals
+    from hailstorm.runtime.contact.weights import locate, patch_weights
 
     usable = np.flatnonzero((gf.contactable | gf.fixed)[gf.triangles].all(axis=1))
     t = rng.choice(usable, s)
@@ -301,14 +303,21 @@ def test_contact_api_calls_the_kernels(gf, monkeypatch):
 
     calls = []
 
-    class Spy:  # the modules' handle on the kernels, recording which are fetched
+    class Spy:  # a module's handle on a kernel module, recording which kernels are fetched
+        def __init__(self, kernels):
+            self.kernels = kernels
+
         def __getattr__(self, name):
             calls.append(name)
-            return getattr(C.blocks, name)
+            return getattr(self.kernels, name)
 
-    for mod in (hailstorm.runtime.contact.solve, hailstorm.runtime.contact.capacitance_build,
-                hailstorm.runtime.contact.capacitance_blocks, hailstorm.runtime.bundle.compliance):
-        monkeypatch.setattr(mod, "kernels", Spy())
+    for mod, handle, kernels in ((hailstorm.runtime.contact.solve, "kernels", C.point_solve),
+                                 (hailstorm.runtime.contact.capacitance_build, "w_kernels", C.wmatrix),
+                                 (hailstorm.runtime.contact.capacitance_blocks, "kernels", C.blocks),
+                                 (hailstorm.runtime.contact.capacitance_blocks, "w_kernels", C.wmatrix),
+                                 (hailstorm.runtime.bundle.compliance, "kernels", C.blocks)):
+        assert getattr(mod, handle) is kernels
+        monkeypatch.setattr(mod, handle, Spy(kernels))
     rng = np.random.default_rng(5)
     t, b, n, a, V, loc, w = _contact_lists(gf, rng, 6, False)
     t = np.where(gf.fixed[gf.triangles[t]].all(axis=1), t[0], t)  # no rigid contact: the fast path takes all

@@ -18,7 +18,8 @@ from helpers import plate_gf
 
 from hailstorm.runtime.contact import Capacitance
 from hailstorm.runtime.contact.near_field import near_field
-from hailstorm.runtime.contact.weights import patch_weights, triangle_normals
+from hailstorm.runtime.contact.normals import triangle_normals
+from hailstorm.runtime.contact.weights import patch_weights
 from hailstorm.runtime.storm.contact_set import ContactSets
 from hailstorm.runtime.storm.hail import Air
 from hailstorm.runtime.storm.integrators import ContactIntegrator

@@ -1,6 +1,6 @@
 """A contact across an edge of the faceted surface. Its normal (``Stones.cnormal``) is the
 surface's read as a smooth one: the normals at its triangle's corners interpolated at the contact
-point (:func:`hailstorm.runtime.contact.weights.corner_normals`,
+point (:func:`hailstorm.runtime.contact.normals.corner_normals`,
 :func:`hailstorm.runtime.compiled.narrow.contact_normal`), so that it turns continuously across an
 edge instead of jumping from one face's normal to the next, and two contacts at one point have
 one normal; a sharp edge (beyond ``CREASE_ANGLE``) keeps each side's. Its spring measures the
@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 from helpers import plate_gf
 
-from hailstorm.runtime.contact.weights import CREASE_ANGLE, corner_normals
+from hailstorm.runtime.contact.normals import CREASE_ANGLE, corner_normals
 from hailstorm.runtime.storm.collide import Collision, sharp_features
 from hailstorm.runtime.storm.driver import Storm
 from hailstorm.runtime.storm.hail import Air

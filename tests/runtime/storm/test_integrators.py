@@ -18,7 +18,7 @@ import pytest
 from helpers import plate_gf
 from scipy.linalg import expm
 
-from hailstorm.runtime.contact.weights import triangle_normals
+from hailstorm.runtime.contact.normals import triangle_normals
 from hailstorm.runtime.storm.contact_set import ContactSets
 from hailstorm.runtime.storm.hail import GRAVITY, Air
 from hailstorm.runtime.storm.integrators import ContactIntegrator

@@ -11,7 +11,7 @@ import pytest
 
 from hailstorm.precompute.geometry import box_mesh, boundary_triangles
 from hailstorm.runtime.contact.hertz import hertz_impact
-from hailstorm.runtime.contact.weights import sphere_radius
+from hailstorm.runtime.contact.sphere_patch import sphere_radius
 from hailstorm.runtime.storm.scene import Scene
 from hailstorm.runtime.storm.driver import Storm
 from hailstorm.runtime.bundle.thickness import PadThickness, RayCaster, surface_thickness

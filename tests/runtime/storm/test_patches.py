@@ -16,7 +16,9 @@ import pytest
 from helpers import plate_gf
 
 from hailstorm.runtime.contact.near_field import near_field
-from hailstorm.runtime.contact.weights import hertz_radius, impact_offset, impact_radius, patch_weights, triangle_normals
+from hailstorm.runtime.contact.normals import triangle_normals
+from hailstorm.runtime.contact.sphere_patch import hertz_radius, impact_offset, impact_radius
+from hailstorm.runtime.contact.weights import patch_weights
 from hailstorm.runtime.storm.scene import Scene
 from hailstorm.runtime.storm.hail import GRAVITY, Air
 from hailstorm.runtime.storm.patches import Patches, peak_radius

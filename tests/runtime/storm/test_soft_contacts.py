@@ -19,7 +19,9 @@ from helpers import plate_gf
 
 from hailstorm.runtime.contact.hertz import sphere_force
 from hailstorm.runtime.contact.near_field import near_field
-from hailstorm.runtime.contact.weights import patch_weights, sphere_offset, triangle_normals
+from hailstorm.runtime.contact.normals import triangle_normals
+from hailstorm.runtime.contact.sphere_patch import sphere_offset
+from hailstorm.runtime.contact.weights import patch_weights
 from hailstorm.runtime.storm.contact_set import ContactSets
 from hailstorm.runtime.storm.hail import GRAVITY, Air
 from hailstorm.runtime.storm.integrators import ContactIntegrator

@@ -348,7 +348,7 @@ def test_resting_stone_reuses_its_patch(gf):
     assert S["patch_weights_computed"] <= 4  # 300 steps in contact: the weights are not recomputed
     assert S["capacitance_rebuilds"] <= 4  # nor the capacitance (the key does not change)
     # at rest the radius is the impact patch of the stone's weight (floored): the sphere's radius there
-    from hailstorm.runtime.contact.weights import impact_radius
+    from hailstorm.runtime.contact.sphere_patch import impact_radius
 
     a_rest = float(impact_radius(st.mass[0] * 9.81, 0.005, gf.young, gf.poisson, a_min=sc.contact.patch_min_radius))
     assert st.crad[0] == pytest.approx(a_rest, rel=sc.contact.patch_tolerance + 0.01)
