@@ -18,6 +18,8 @@ Modules, in the order of a storm step:
 * :mod:`~hailstorm.runtime.compiled.narrow` — the free part of a sub-step
   (:func:`free_phase`: closest points, time of impact, contacts that open,
   hard walls) and the penetration statistics;
+* :mod:`~hailstorm.runtime.compiled.free_steps` — many steps without soft contacts in one call
+  (spawning, the phases above, retirement);
 * :mod:`~hailstorm.runtime.compiled.patches` — patch weights, a patch's compliance and
   the patch sizing of the storm's contacts (with :mod:`~hailstorm.runtime.compiled.sphere`,
   the rigid sphere's contact law at any contact radius);
@@ -30,7 +32,8 @@ Modules, in the order of a storm step:
   a dense D or of an H-matrix (a compressed bundle read without expanding D);
 * :mod:`~hailstorm.runtime.compiled.contacts` — the SPD policy inside the compiled steps
   and the constrained coordinates around a contact step;
-* :mod:`~hailstorm.runtime.compiled.integrators` — the exact, implicit and symplectic
+* :mod:`~hailstorm.runtime.compiled.exact` — the exact contact step (closed form, split at its
+  events); :mod:`~hailstorm.runtime.compiled.integrators` — the implicit and symplectic
   contact steps, the sub-step sizing and the dashpot (with :mod:`~hailstorm.runtime.compiled.modal`,
   the modal algebra, :mod:`~hailstorm.runtime.compiled.expm`, the matrix exponential
   of a (nearly) defective set, and :mod:`~hailstorm.runtime.compiled.lapack`, a dense
@@ -50,8 +53,8 @@ from hailstorm.runtime.compiled.blocks import columns_times, vertex_block, weigh
 from hailstorm.runtime.compiled.contacts import contact_post, contact_prep, inv_spd
 from hailstorm.runtime.compiled.flight import flight, near_set, retired
 from hailstorm.runtime.compiled.grid import SampleGrid, closest_points
+from hailstorm.runtime.compiled.exact import exact_step
 from hailstorm.runtime.compiled.integrators import (
-    exact_step,
     explicit_modes,
     modal_stiffness,
     substep_contacts,

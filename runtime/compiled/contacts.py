@@ -20,7 +20,7 @@ from hailstorm.runtime.compiled.wmatrix import symmetrise
 from hailstorm.runtime.compiled.jit import kernel
 from hailstorm.runtime.compiled.lapack import cholesky, eigh, gram, inverse
 
-__all__ = ["contact_post", "contact_prep", "inv_spd"]
+__all__ = ["contact_post", "contact_prep", "inv_spd", "submatrix"]
 
 
 @kernel
@@ -188,3 +188,13 @@ def contact_post(soft, pos, vel, ctri, hit, was_open, nk, acc, q, a, vq, gq, rq,
         if not act:
             ctri[j] = -1
     return impacts, fmax, indent, n_active
+
+
+@kernel
+def submatrix(M, idx):  # pragma: no cover (compiled)
+    """``M[idx][:, idx]`` as a new C-contiguous (k, k) array (the integrators' active subsets)."""
+    out = np.empty((idx.size, idx.size))
+    for r in range(idx.size):
+        for c in range(idx.size):
+            out[r, c] = M[idx[r], idx[c]]
+    return out

@@ -139,6 +139,193 @@ def contact_normal(p, t, bary, X, T, tri_normals, corner, sharp_edge, sharp_vert
 
 
 @kernel
+def _closest_phase(near, h, pos, vel, radius, offset, shift, ctri, cbary, cnormal, gap, near_tri, surf, tri_normals,
+                   corner, sharp_edge, sharp_vertex, umax, use_u, undeformed, D, fcols, fv, X, T, done, Y, done0, Y0,
+                   in_contact, dist, tri, bary, point, gp, bt, nrm):  # pragma: no cover (compiled)
+    """:func:`free_phase`'s closest points, in place: an open contact keeps its ``(t, beta)`` or
+    moves to the closest point of the undeformed surface; a free stone queries the deformed
+    surface (its gap ``gp``; an engagement whose sphere is clear ends). Returns whether any
+    free stone was queried."""
+    k = near.size
+    queried = False
+    for j in range(k):
+        i = near[j]
+        if ctri[i] >= 0:
+            in_contact[j] = True
+            # the closest point of the undeformed surface: the contact keeps its (t, beta) while
+            # that point lies on t (inside it or on its boundary), else moves there (module notes);
+            # asked only once the centre no longer projects onto t (a nearer plane inside t's prism,
+            # past a concave edge's bisector, is taken up by the shift when the contact moves)
+            t = ctri[i]
+            if _over_triangle(pos[i], t, X, T, tri_normals):
+                gap[i] = 0.0
+                continue
+            tt, dd = closest_one(pos[i], 2.0 * radius[i] + umax + 1e-3, 0.0, undeformed, surf, D, fcols, fv,
+                                  done0, Y0, bary[j], point[j])
+            moved = False
+            if tt < 0:  # (nothing within reach: the contact is gone)
+                ctri[i] = -1
+                shift[i] = 0.0
+                tri[j] = tt
+                dist[j] = dd
+            elif tt != t:
+                a = T[t, 0]; b = T[t, 1]; c = T[t, 2]
+                moved = triangle_distance(pos[i], X[a], X[b], X[c], bt) > dd + 1e-9 * radius[i]
+            if moved:  # to the closest point; the spring's length carried over if it would shorten
+                before = _plane_distance(i, t, pos, cbary, cnormal, X, T) + shift[i]
+                ctri[i] = tt
+                for e in range(3):
+                    cbary[i, e] = bary[j, e]
+                contact_normal(pos[i], tt, cbary[i], X, T, tri_normals, corner, sharp_edge, sharp_vertex, bt, nrm)
+                for e in range(3):
+                    cnormal[i, e] = nrm[e]
+                tri[j] = tt
+                dist[j] = dd
+                shift[i] = max(before - _plane_distance(i, tt, pos, cbary, cnormal, X, T), 0.0)
+        else:
+            queried = True
+            sp = math.sqrt(vel[i, 0] ** 2 + vel[i, 1] ** 2 + vel[i, 2] ** 2)
+            tt, dd = closest_one(pos[i], radius[i] + sp * h + 1e-3, umax if use_u else 0.0, use_u, surf, D,
+                                  fcols, fv, done, Y, bary[j], point[j])
+            tri[j] = tt
+            dist[j] = dd
+            near_tri[i] = tt
+            gp[j] = dd - (radius[i] - offset[i])
+            if offset[i] > 0.0 and gp[j] > offset[i]:  # its sphere is clear: the engagement is over
+                gp[j] -= offset[i]
+                offset[i] = 0.0
+        gap[i] = gp[j]
+    return queried
+
+
+@kernel
+def _time_of_impact(near, h, hmin, toi_tol, pos, vel, radius, offset, in_contact, gp, point, dvec, nrm, g, wind,
+                    drag_coef):  # pragma: no cover (compiled)
+    """:func:`free_phase`'s time of impact: the sub-step ``h`` shortened to when the first
+    approaching stone reaches its tangent plane (one in a patch's dead zone moves at most
+    :data:`DEAD_ZONE_REACH` radii), at least ``hmin``."""
+    k = near.size
+    tmin = np.inf
+    for j in range(k):
+        i = near[j]
+        if in_contact[j] or not np.isfinite(gp[j]) or not gp[j] > _opening(toi_tol, radius[i], offset[i]):
+            continue
+        for e in range(3):
+            dvec[e] = pos[i, e] - point[j, e]
+        _unit(dvec, nrm)
+        w = -(vel[i, 0] * nrm[0] + vel[i, 1] * nrm[1] + vel[i, 2] * nrm[2])
+        an = -drag_dot(i, vel, radius, nrm, g, wind, drag_coef)
+        if w > 0.0 and gp[j] < w * h + 0.5 * abs(an) * h * h:
+            disc = math.sqrt(max(w * w + 2.0 * an * gp[j], 0.0))
+            tmin = min(tmin, 2.0 * gp[j] / max(w + disc, 1e-12))
+        if offset[i] > 0.0 and w > 0.0:  # approaching in a patch's dead zone: the tangent plane holds only so far
+            tmin = min(tmin, DEAD_ZONE_REACH * radius[i] / max(math.sqrt(
+                vel[i, 0] ** 2 + vel[i, 1] ** 2 + vel[i, 2] ** 2), 1e-12))
+    if tmin < np.inf:
+        h = min(h, max(tmin, hmin))
+    return h
+
+
+@kernel
+def _open_contacts(near, timing, toi_tol, pos, vel, radius, offset, shift, ctri, cbary, cnormal, gap, X, T, tri_normals,
+                   corner, sharp_edge, sharp_vertex, in_contact, dist, tri, bary, point, gp, bt, nrm,
+                   dvec):  # pragma: no cover (compiled)
+    """:func:`free_phase`'s contacts that open, at their closest points: the stone put on the
+    surface along the contact's normal, its anchor out by the normal's tilt."""
+    k = near.size
+    for j in range(k):
+        i = near[j]
+        if in_contact[j] or tri[j] < 0:
+            continue
+        eps = _opening(toi_tol, radius[i], offset[i])
+        if timing:
+            if not gp[j] < eps:
+                continue
+            for e in range(3):
+                dvec[e] = pos[i, e] - point[j, e]
+            _unit(dvec, nrm)
+            vn = vel[i, 0] * nrm[0] + vel[i, 1] * nrm[1] + vel[i, 2] * nrm[2]
+            if not (vn < 0.0 or gp[j] < -eps):
+                continue
+            if vn >= 0.0 and offset[i] > 0.0 and gp[j] >= -(offset[i] + RELEASE_OVERLAP * (radius[i] - offset[i])):
+                # receding in its engagement, inside its contact surface by little: a contact released
+                # on the tangent plane it kept while the stone slid (a frictionless contact keeps its
+                # point and normal) meets the surface's own curvature, or a ridge, under the slide.
+                # The stone is leaving: it is put back on its contact surface, its velocity kept.
+                # Opening a contact here cost it the dashpot's damping for one sub-step at a fine dt
+                # and nothing at a coarse one (measured: 1 % of the rebound speed across a ridge at
+                # dt 0.02 ms, not at 0.5 ms)
+                for e in range(3):
+                    pos[i, e] -= gp[j] * nrm[e]
+                gap[i] = 0.0
+                continue
+        elif not dist[j] < radius[i] - offset[i]:
+            continue
+        t = tri[j]
+        ctri[i] = t
+        for e in range(3):
+            cbary[i, e] = bary[j, e]
+        # put on the surface along the contact's normal, its contact surface at the (deformed)
+        # closest point: out by the overlap (in by a gap within the tolerance); where the normal
+        # is not the direction from that point to the centre (the smooth surface's normal, tilted
+        # from the facet's, or an edge's side), the anchor lies out by the difference, so that
+        # the spring starts at its rest length (or compressed by the overlap of a stone that is
+        # not approaching, without the time of impact)
+        contact_normal(pos[i], t, cbary[i], X, T, tri_normals, corner, sharp_edge, sharp_vertex, bt, nrm)
+        dn = 0.0
+        for e in range(3):
+            cnormal[i, e] = nrm[e]
+            dn += nrm[e] * (pos[i, e] - point[j, e])
+        push = (radius[i] - offset[i]) - dist[j]
+        if not timing:
+            vn = vel[i, 0] * nrm[0] + vel[i, 1] * nrm[1] + vel[i, 2] * nrm[2]
+            push = max(push, 0.0) if vn < 0.0 else 0.0
+        for e in range(3):
+            pos[i, e] += push * nrm[e]
+        shift[i] = max(dist[j] - dn, 0.0)
+
+
+@kernel
+def _hard_walls(near, pos, vel, radius, ctri, cbary, T, tri_normals, soft, fixed, rigid_weight, point, dvec, nrm,
+                restitution):  # pragma: no cover (compiled)
+    """:func:`free_phase`'s hard walls: a contact on a triangle that cannot deform (or on its
+    clamped edge or corner) is out of the wall at once, bounces with ``restitution`` and
+    closes. Returns the impacts on walls."""
+    k = near.size
+    walls = 0
+    for j in range(k):
+        i = near[j]
+        t = ctri[i]
+        if t < 0:
+            continue
+        if soft[t]:
+            free_w = 0.0
+            for m in range(3):
+                if not fixed[T[t, m]]:
+                    free_w += cbary[i, m]
+            if free_w > rigid_weight:
+                continue
+        for e in range(3):
+            dvec[e] = pos[i, e] - point[j, e]
+        dw = math.sqrt(dvec[0] ** 2 + dvec[1] ** 2 + dvec[2] ** 2)
+        if dw > 1e-12:
+            for e in range(3):
+                nrm[e] = dvec[e] / dw
+        else:
+            for e in range(3):
+                nrm[e] = tri_normals[t, e]
+        push = max(radius[i] - dw, 0.0)
+        vn = vel[i, 0] * nrm[0] + vel[i, 1] * nrm[1] + vel[i, 2] * nrm[2]
+        if vn < 0.0:
+            walls += 1
+        for e in range(3):
+            pos[i, e] += push * nrm[e]
+            vel[i, e] -= (1.0 + restitution) * min(vn, 0.0) * nrm[e]
+        ctri[i] = -1
+    return walls
+
+
+@kernel
 def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, offset, shift, ctri, cbary, cnormal, gap, near_tri, surf,
                tri_normals, corner, sharp_edge, sharp_vertex, soft, fixed, rigid_weight, umax, use_u, D, fcols, fv, g, wind, drag_coef,
                restitution):  # pragma: no cover
@@ -199,157 +386,17 @@ def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, offset, shift, ctr
     bt = np.empty(3)
     nrm = np.empty(3)
     dvec = np.empty(3)
-    queried = False
-    for j in range(k):
-        i = near[j]
-        if ctri[i] >= 0:
-            in_contact[j] = True
-            # the closest point of the undeformed surface: the contact keeps its (t, beta) while
-            # that point lies on t (inside it or on its boundary), else moves there (module notes);
-            # asked only once the centre no longer projects onto t (a nearer plane inside t's prism,
-            # past a concave edge's bisector, is taken up by the shift when the contact moves)
-            t = ctri[i]
-            if _over_triangle(pos[i], t, X, T, tri_normals):
-                gap[i] = 0.0
-                continue
-            tt, dd = closest_one(pos[i], 2.0 * radius[i] + umax + 1e-3, 0.0, undeformed, surf, D, fcols, fv,
-                                  done0, Y0, bary[j], point[j])
-            moved = False
-            if tt < 0:  # (nothing within reach: the contact is gone)
-                ctri[i] = -1
-                shift[i] = 0.0
-                tri[j] = tt
-                dist[j] = dd
-            elif tt != t:
-                a = T[t, 0]; b = T[t, 1]; c = T[t, 2]
-                moved = triangle_distance(pos[i], X[a], X[b], X[c], bt) > dd + 1e-9 * radius[i]
-            if moved:  # to the closest point; the spring's length carried over if it would shorten
-                before = _plane_distance(i, t, pos, cbary, cnormal, X, T) + shift[i]
-                ctri[i] = tt
-                for e in range(3):
-                    cbary[i, e] = bary[j, e]
-                contact_normal(pos[i], tt, cbary[i], X, T, tri_normals, corner, sharp_edge, sharp_vertex, bt, nrm)
-                for e in range(3):
-                    cnormal[i, e] = nrm[e]
-                tri[j] = tt
-                dist[j] = dd
-                shift[i] = max(before - _plane_distance(i, tt, pos, cbary, cnormal, X, T), 0.0)
-        else:
-            queried = True
-            sp = math.sqrt(vel[i, 0] ** 2 + vel[i, 1] ** 2 + vel[i, 2] ** 2)
-            tt, dd = closest_one(pos[i], radius[i] + sp * h + 1e-3, umax if use_u else 0.0, use_u, surf, D,
-                                  fcols, fv, done, Y, bary[j], point[j])
-            tri[j] = tt
-            dist[j] = dd
-            near_tri[i] = tt
-            gp[j] = dd - (radius[i] - offset[i])
-            if offset[i] > 0.0 and gp[j] > offset[i]:  # its sphere is clear: the engagement is over
-                gp[j] -= offset[i]
-                offset[i] = 0.0
-        gap[i] = gp[j]
+    queried = _closest_phase(near, h, pos, vel, radius, offset, shift, ctri, cbary, cnormal, gap, near_tri, surf,
+                             tri_normals, corner, sharp_edge, sharp_vertex, umax, use_u, undeformed, D, fcols, fv, X, T,
+                             done, Y, done0, Y0, in_contact, dist, tri, bary, point, gp, bt, nrm)
     timing = toi and queried
-    # time of impact: the first approaching stone to reach its tangent plane
     if timing:
-        tmin = np.inf
-        for j in range(k):
-            i = near[j]
-            if in_contact[j] or not np.isfinite(gp[j]) or not gp[j] > _opening(toi_tol, radius[i], offset[i]):
-                continue
-            for e in range(3):
-                dvec[e] = pos[i, e] - point[j, e]
-            _unit(dvec, nrm)
-            w = -(vel[i, 0] * nrm[0] + vel[i, 1] * nrm[1] + vel[i, 2] * nrm[2])
-            an = -drag_dot(i, vel, radius, nrm, g, wind, drag_coef)
-            if w > 0.0 and gp[j] < w * h + 0.5 * abs(an) * h * h:
-                disc = math.sqrt(max(w * w + 2.0 * an * gp[j], 0.0))
-                tmin = min(tmin, 2.0 * gp[j] / max(w + disc, 1e-12))
-            if offset[i] > 0.0 and w > 0.0:  # approaching in a patch's dead zone: the tangent plane holds only so far
-                tmin = min(tmin, DEAD_ZONE_REACH * radius[i] / max(math.sqrt(
-                    vel[i, 0] ** 2 + vel[i, 1] ** 2 + vel[i, 2] ** 2), 1e-12))
-        if tmin < np.inf:
-            h = min(h, max(tmin, hmin))
-    # contacts that open, at their closest points
-    for j in range(k):
-        i = near[j]
-        if in_contact[j] or tri[j] < 0:
-            continue
-        eps = _opening(toi_tol, radius[i], offset[i])
-        if timing:
-            if not gp[j] < eps:
-                continue
-            for e in range(3):
-                dvec[e] = pos[i, e] - point[j, e]
-            _unit(dvec, nrm)
-            vn = vel[i, 0] * nrm[0] + vel[i, 1] * nrm[1] + vel[i, 2] * nrm[2]
-            if not (vn < 0.0 or gp[j] < -eps):
-                continue
-            if vn >= 0.0 and offset[i] > 0.0 and gp[j] >= -(offset[i] + RELEASE_OVERLAP * (radius[i] - offset[i])):
-                # receding in its engagement, inside its contact surface by little: a contact released
-                # on the tangent plane it kept while the stone slid (a frictionless contact keeps its
-                # point and normal) meets the surface's own curvature, or a ridge, under the slide.
-                # The stone is leaving: it is put back on its contact surface, its velocity kept.
-                # Opening a contact here cost it the dashpot's damping for one sub-step at a fine dt
-                # and nothing at a coarse one (measured: 1 % of the rebound speed across a ridge at
-                # dt 0.02 ms, not at 0.5 ms)
-                for e in range(3):
-                    pos[i, e] -= gp[j] * nrm[e]
-                gap[i] = 0.0
-                continue
-        elif not dist[j] < radius[i] - offset[i]:
-            continue
-        t = tri[j]
-        ctri[i] = t
-        for e in range(3):
-            cbary[i, e] = bary[j, e]
-        # put on the surface along the contact's normal, its contact surface at the (deformed)
-        # closest point: out by the overlap (in by a gap within the tolerance); where the normal
-        # is not the direction from that point to the centre (the smooth surface's normal, tilted
-        # from the facet's, or an edge's side), the anchor lies out by the difference, so that
-        # the spring starts at its rest length (or compressed by the overlap of a stone that is
-        # not approaching, without the time of impact)
-        contact_normal(pos[i], t, cbary[i], X, T, tri_normals, corner, sharp_edge, sharp_vertex, bt, nrm)
-        dn = 0.0
-        for e in range(3):
-            cnormal[i, e] = nrm[e]
-            dn += nrm[e] * (pos[i, e] - point[j, e])
-        push = (radius[i] - offset[i]) - dist[j]
-        if not timing:
-            vn = vel[i, 0] * nrm[0] + vel[i, 1] * nrm[1] + vel[i, 2] * nrm[2]
-            push = max(push, 0.0) if vn < 0.0 else 0.0
-        for e in range(3):
-            pos[i, e] += push * nrm[e]
-        shift[i] = max(dist[j] - dn, 0.0)
-    # hard walls: out of the wall, restitution bounce, the contact closes
-    walls = 0
-    for j in range(k):
-        i = near[j]
-        t = ctri[i]
-        if t < 0:
-            continue
-        if soft[t]:
-            free_w = 0.0
-            for m in range(3):
-                if not fixed[T[t, m]]:
-                    free_w += cbary[i, m]
-            if free_w > rigid_weight:
-                continue
-        for e in range(3):
-            dvec[e] = pos[i, e] - point[j, e]
-        dw = math.sqrt(dvec[0] ** 2 + dvec[1] ** 2 + dvec[2] ** 2)
-        if dw > 1e-12:
-            for e in range(3):
-                nrm[e] = dvec[e] / dw
-        else:
-            for e in range(3):
-                nrm[e] = tri_normals[t, e]
-        push = max(radius[i] - dw, 0.0)
-        vn = vel[i, 0] * nrm[0] + vel[i, 1] * nrm[1] + vel[i, 2] * nrm[2]
-        if vn < 0.0:
-            walls += 1
-        for e in range(3):
-            pos[i, e] += push * nrm[e]
-            vel[i, e] -= (1.0 + restitution) * min(vn, 0.0) * nrm[e]
-        ctri[i] = -1
+        h = _time_of_impact(near, h, hmin, toi_tol, pos, vel, radius, offset, in_contact, gp, point, dvec, nrm, g, wind,
+                            drag_coef)
+    _open_contacts(near, timing, toi_tol, pos, vel, radius, offset, shift, ctri, cbary, cnormal, gap, X, T, tri_normals,
+                   corner, sharp_edge, sharp_vertex, in_contact, dist, tri, bary, point, gp, bt, nrm, dvec)
+    walls = _hard_walls(near, pos, vel, radius, ctri, cbary, T, tri_normals, soft, fixed, rigid_weight, point, dvec, nrm,
+                        restitution)
     return h, walls
 
 

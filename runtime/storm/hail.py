@@ -63,7 +63,8 @@ from enum import StrEnum
 
 import numpy as np
 
-from hailstorm.runtime.compiled.integrators import exact_step, substep_contacts
+from hailstorm.runtime.compiled.exact import exact_step
+from hailstorm.runtime.compiled.integrators import substep_contacts
 from hailstorm.runtime.compiled.modal import explicit_modes_py as _explicit_modes
 from hailstorm.runtime.compiled.modal import modal_damping_py as _modal_damping
 from hailstorm.runtime.contact import policy

@@ -239,10 +239,10 @@ for integ in ("implicit", "exact", "symplectic"):
     for patch in ("hertz", "none"):
         run_storm(gf, Scene.from_flat(duration=0.03, stones=8, seed=3, spawn_height=0.02, r_min=0.003, r_max=0.006,
                             integrator=integ, patch=patch, collisions=patch == "none"), progress=False)
-from hailstorm.runtime.compiled import free_steps, stone_pairs
+from hailstorm.runtime.compiled import exact, free_steps, stone_pairs
 many = {}
 for mod in (compiled.flight, compiled.narrow, compiled.patches, compiled.contacts, compiled.integrators,
-            compiled.grid, compiled.modal, compiled.lapack, stone_pairs, free_steps):
+            compiled.grid, compiled.modal, compiled.lapack, stone_pairs, free_steps, exact):
     for name in dir(mod):
         f = getattr(mod, name)
         if isinstance(f, Dispatcher) and len(f.signatures) > 1:
