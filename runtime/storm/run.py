@@ -19,7 +19,7 @@ from hailstorm.runtime.bundle.compliance import ElasticSource
 from hailstorm.runtime.compiled import KERNELS
 from hailstorm.runtime.storm.driver import Storm
 from hailstorm.runtime.storm.estimate import StormEstimate, hit_fraction
-from hailstorm.runtime.storm.recording import Frame, Recorder, StormResult
+from hailstorm.runtime.storm.recording import Frame, Recorder, StormResult, StormStats
 from hailstorm.runtime.storm.scene import Scene
 from hailstorm.runtime.storm.warm_helper import array_kinds
 
@@ -110,8 +110,15 @@ def run_storm(
     setup = time.perf_counter() - setup0
     rec = Recorder(scene.n_steps(), scene.output.fps, on_frame, keep)
     rec.record(storm.frame())
+    wall = _step_all(storm, rec, progress, scene.storm.duration)
+    st = _finish(storm, gf, scene, rec, wall, setup, progress is True)
+    return StormResult(scene=scene, frames=rec.frames, stats=st, history=rec.history)
+
+
+def _step_all(storm: Storm, rec: Recorder, progress: bool | Callable[[float, float], None], duration: float) -> float:
+    """:func:`run_storm`'s loop: every step of ``storm``, its frames and force history into
+    ``rec``, the progress shown; returns the loop's wall time (the frames' sink excluded)."""
     bar = None
-    duration = scene.storm.duration
     if progress is True:
         from tqdm.auto import tqdm
 
@@ -148,10 +155,17 @@ def run_storm(
         limiter.restore_original_limits()
         if bar is not None:
             bar.close()
+    return wall
+
+
+def _finish(storm: Storm, gf: ElasticSource, scene: Scene, rec: Recorder, wall: float, setup: float,
+            bar: bool) -> StormStats:
+    """:func:`run_storm`'s end: the inertia pass (``bar``: with a progress bar), the warning of
+    stones that passed through, and the statistics completed."""
     st, stones = storm.stats, storm.stones
     inertia0 = time.perf_counter()
     if st.validity is not None and st.validity.measure_inertia:  # the pad's inertia per impact (a local peer each)
-        st.validity.inertia(progress=progress is True)
+        st.validity.inertia(progress=bar)
     st.inertia_time_s = time.perf_counter() - inertia0
     through = storm.passed_through_warning()
     if through is not None:
@@ -168,4 +182,4 @@ def run_storm(
     st.n_vertices, st.n_triangles = int(storm.n), int(len(gf.triangles))
     st.resting_at_end = int((stones.ctri[stones.alive] >= 0).sum())
     st.frames, st.output_time_s = rec.n_frames, float(rec.sink_time)
-    return StormResult(scene=scene, frames=rec.frames, stats=st, history=rec.history)
+    return st

@@ -2,20 +2,20 @@
 
 numba compiles a kernel on its first call and caches the machine code on disk
 (``cache=True``), so every later process only loads it (milliseconds). The first
-run after an install compiles them all: about 90-100 s of CPU for the default storm (its exact
-integrator's kernels are over half of it; 35-44 s with the implicit integrator),
-nearly all in numba's own single-threaded compiler. :func:`warm_up` runs a list
+run after an install compiles them all: about 50 s of CPU for the default storm (its exact
+integrator's kernels about half of it; measured by ``tests/benchmarks/compile_time.py`` on
+2026-12-06: 54 s, the exact integrator's 27 s, the compiled free steps' 6 s), nearly all in
+numba's own single-threaded compiler. :func:`warm_up` runs a list
 of :class:`WarmTask` (each loads or compiles a few kernels with the storm loop's
 argument types) and, as soon as a task turns out to compile (numba's
 ``numba:compile`` event: a cache miss), starts helper processes that compile the
 tasks planned for them while this process compiles its own; it then waits for
 them and runs their tasks itself, which now only load what the helpers cached.
 Tasks that share kernels (:attr:`WarmTask.shares`) stay in one process so that those
-compile once. Measured (``tests/benchmarks/compile_helper.py``, docs/performance.md): a
-cold default storm took 67.4 s of wall time with the helper against 95.8 s in one process
-(medians of three pairs on two cores, ratio 0.64-0.74; 13 % more CPU in all), the exact
-integrator's task alone setting the helper's time (with the implicit integrator: 20.9
-against 35.5 s, ratio 0.52-0.67).
+compile once. Measured when the compile was about twice as long (``tests/benchmarks/compile_helper.py``,
+docs/performance.md): a cold default storm took 67.4 s of wall time with the helper against
+95.8 s in one process (medians of three pairs on two cores, ratio 0.64-0.74; 13 % more CPU
+in all), the exact integrator's task alone setting the helper's time.
 
 A helper rebuilds the same storm from the bundle's directory and the scene (so
 that its kernels get exactly this process's argument types) through the
