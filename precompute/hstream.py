@@ -39,7 +39,8 @@ from typing import Any
 
 import numpy as np
 
-from hailstorm.precompute.hmatrix import ClusterTree, Partition, block_slices, dofs, low_rank, svd
+from hailstorm.precompute.hmatrix import low_rank, svd
+from hailstorm.precompute.htree import ClusterTree, Partition, block_slices, dofs
 from hailstorm.runtime.bundle.atomic import replacing
 from hailstorm.runtime.bundle.format import RoundedBlock
 from hailstorm.runtime.bundle.hmatrix import HMatrix
@@ -58,7 +59,7 @@ def streamed_key(key: str, tol: float) -> str:
 
 def tree_order(problem: Any, cols: ClusterTree) -> Any:
     """``problem`` (a :class:`hailstorm.precompute.greens.ColumnProblem`) with its columns in the
-    order of the column tree ``cols`` (its dofs, :func:`~hailstorm.precompute.hmatrix.dofs`): column
+    order of the column tree ``cols`` (its dofs, :func:`~hailstorm.precompute.htree.dofs`): column
     ``j`` of the result is column ``dofs(cols.perm)[j]`` of D."""
     cd = dofs(cols.perm)
     if problem.loads is not None:
@@ -129,7 +130,7 @@ class StreamedH:
     rows, cols : ClusterTree
         Rows over every surface vertex, columns over the contactable ones (D's vertex-major dofs).
     part : Partition
-        :func:`hailstorm.precompute.hmatrix.admissible_blocks` of ``rows``, ``cols``.
+        :func:`hailstorm.precompute.htree.admissible_blocks` of ``rows``, ``cols``.
     tol : float
         Each far block ``B`` ends within ``tol ||B||_F`` of itself (as ``compress``'s).
     blocks : sequence of (int, int)

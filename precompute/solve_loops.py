@@ -25,9 +25,9 @@ import numpy as np
 from hailstorm.precompute.blocks import CHECKPOINT, BlockStore, remove_work_dir, work_dir
 from hailstorm.precompute.cluster import SolveStats, cluster_client, solve_blocks
 from hailstorm.precompute.greens import ColumnProblem, cholesky_nnz, column_blocks
-from hailstorm.precompute.hmatrix import DEFAULT_ETA, DEFAULT_LEAF, ERROR_COLUMNS, Compressed, admissible_blocks, \
-    cluster_tree
+from hailstorm.precompute.hmatrix import DEFAULT_ETA, DEFAULT_LEAF, ERROR_COLUMNS, Compressed
 from hailstorm.precompute.hstream import StreamedH, tree_order
+from hailstorm.precompute.htree import admissible_blocks, cluster_tree
 from hailstorm.precompute.resources import BASE_BYTES, TooLargeError, available_memory, check_disk, estimate_memory, gib
 from hailstorm.precompute.settings import RunSettings
 from hailstorm.runtime.bundle.format import BundleError, RoundedBlock

@@ -34,12 +34,11 @@ from hailstorm.runtime.contact import (
 from hailstorm.runtime.contact.hertz import (HertzImpact, SphereContacts, hertz_force, hertz_impact, press_spheres,
                                              sphere_force, sphere_impact)
 from hailstorm.runtime.seat_settings import SeatSettings
-from hailstorm.runtime.storm.scene import (
+from hailstorm.runtime.storm.scene import Scene, SceneError
+from hailstorm.runtime.storm.scene_sections import (
     ContactSettings,
     HailSettings,
     OutputSettings,
-    Scene,
-    SceneError,
     StormSettings,
     TimeSettings,
     ValiditySettings,

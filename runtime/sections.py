@@ -5,7 +5,7 @@ keys of its ``[section]``, its ``__post_init__`` checks them with
 :func:`check_types`, :func:`check_positive` and :func:`check_bool` (a bad value
 raises :class:`SceneError` naming the key), and
 :meth:`Section.from_dict` / :meth:`Section.to_dict` map it to and from the TOML
-section. The storm's records (:mod:`hailstorm.runtime.storm.scene`) and the default
+section. The storm's records (:mod:`hailstorm.runtime.storm.scene_sections`) and the default
 seat's (:mod:`hailstorm.runtime.seat_settings`) are built on it; neither imports the other's.
 """
 

@@ -47,7 +47,8 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
-from hailstorm.precompute.hmatrix import (
+from hailstorm.precompute.hmatrix import compress, svd
+from hailstorm.precompute.htree import (
     Cluster,
     ClusterTree,
     Partition,
@@ -55,10 +56,8 @@ from hailstorm.precompute.hmatrix import (
     admissible_blocks,
     block_slices,
     cluster_tree,
-    compress,
     dofs,
     permuted,
-    svd,
 )
 from studies import record
 

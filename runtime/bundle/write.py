@@ -383,29 +383,7 @@ def write_bundle(
         The bundle directory.
     """
     out = Path(out).absolute()
-    version = HMATRIX_FORMAT_VERSION if "compliance" not in arrays and "hmatrix_data" in arrays else FORMAT_VERSION
-    specs = array_specs(version)
-    missing = set(specs) - set(arrays)
-    if missing:
-        raise BundleError(f"cannot write bundle: arrays missing: {sorted(missing)}")
-    if version == FORMAT_VERSION:
-        d_in = arrays["compliance"]
-        # before any hashing: D's storage type and the manifest agree (a staged D names its own)
-        dtype = np.dtype(d_in.dtype) if isinstance(d_in, StagedArray) else np.asarray(d_in).dtype
-        check_compliance_dtype({"options": manifest.get("options") or {},
-                                "arrays": {"compliance": {"dtype": dtype.str}}}, dtype, out)
-    prepared = {}
-    for name in specs:
-        if isinstance(arrays[name], StagedArray):
-            prepared[name] = (arrays[name], arrays[name].sha256)
-            continue
-        a = np.asarray(arrays[name])
-        if not (a.flags.c_contiguous or a.flags.f_contiguous):
-            a = np.ascontiguousarray(a)
-        digest, bad = bundle_format.scan_array(a)
-        if bad:
-            raise BundleError(f"cannot write bundle {out}: {name} holds {bad} non-finite (NaN or inf) values")
-        prepared[name] = (a, digest)
+    version, prepared = _prepared(out, arrays, manifest)
     with bundle_lock(out):
         clean_stale_temporaries(out.parent)
         check_replaceable(out)
@@ -466,6 +444,36 @@ def write_bundle(
             shutil.rmtree(tmp, ignore_errors=True)
             raise
     return out
+
+
+def _prepared(out: Path, arrays: Mapping[str, np.ndarray | StagedArray],
+              manifest: Mapping[str, Any]) -> tuple[int, dict[str, tuple[Any, str]]]:
+    """:func:`write_bundle`'s checks before the lock: the format version the arrays make (all there),
+    D's storage type against the manifest, and each array (or :class:`StagedArray`) with its hash."""
+    version = HMATRIX_FORMAT_VERSION if "compliance" not in arrays and "hmatrix_data" in arrays else FORMAT_VERSION
+    specs = array_specs(version)
+    missing = set(specs) - set(arrays)
+    if missing:
+        raise BundleError(f"cannot write bundle: arrays missing: {sorted(missing)}")
+    if version == FORMAT_VERSION:
+        d_in = arrays["compliance"]
+        # before any hashing: D's storage type and the manifest agree (a staged D names its own)
+        dtype = np.dtype(d_in.dtype) if isinstance(d_in, StagedArray) else np.asarray(d_in).dtype
+        check_compliance_dtype({"options": manifest.get("options") or {},
+                                "arrays": {"compliance": {"dtype": dtype.str}}}, dtype, out)
+    prepared: dict[str, tuple[Any, str]] = {}
+    for name in specs:
+        if isinstance(arrays[name], StagedArray):
+            prepared[name] = (arrays[name], arrays[name].sha256)
+            continue
+        a = np.asarray(arrays[name])
+        if not (a.flags.c_contiguous or a.flags.f_contiguous):
+            a = np.ascontiguousarray(a)
+        digest, bad = bundle_format.scan_array(a)
+        if bad:
+            raise BundleError(f"cannot write bundle {out}: {name} holds {bad} non-finite (NaN or inf) values")
+        prepared[name] = (a, digest)
+    return version, prepared
 
 
 def _discard_old_copy(old: Path, out: Path) -> None:

@@ -189,24 +189,42 @@ def solve_contacts(
     t, b, n = check_contacts(gf, triangles, barycentric, normals,
                              need_normals=unilateral or not mode.sticky or patch_radius is not None)
     a = check_patch(patch_radius, t.size, patch_profile)
-    s = t.size
+    ubar = _prescribed(displacements, t.size)
+    rows_arr, want_u = _rows(rows)
+    cap = build(gf, t, b, n, mode, a, patch_profile, resolve_near_field(gf, near_field))
+    return _solution(gf, cap, cap.solve(ubar, unilateral=unilateral, max_iter=max_iter), rows_arr, want_u)
+
+
+def _prescribed(displacements: Any, s: int) -> np.ndarray:
+    """The prescribed contact-point displacements as (s, 3) float64, or ValueError (wrong
+    shape, NaN or infinity)."""
     ubar = np.asarray(displacements, dtype=np.float64)
     if ubar.shape != (s, 3):
         raise ValueError(f"displacements must have shape ({s}, 3) to match triangles, got {ubar.shape}")
     if not np.isfinite(ubar).all():
         raise ValueError("displacements contain NaN or infinity")
+    return ubar
+
+
+def _rows(rows: Any) -> tuple[np.ndarray | None, bool]:
+    """:func:`solve_contacts`'s ``rows`` read: the rows to evaluate (None: every vertex) and
+    whether to evaluate the surface displacement at all; ValueError for a string other than "all"."""
     if isinstance(rows, str):
         if rows != "all":
             raise ValueError(f"rows must be 'all', None or an index array, got {rows!r}")
-        rows_arr: np.ndarray | None = None
-        want_u = True
-    elif rows is None:
-        rows_arr, want_u = None, False
-    else:
-        rows_arr, want_u = np.asarray(rows), True
+        return None, True
+    if rows is None:
+        return None, False
+    return np.asarray(rows), True
 
-    cap = build(gf, t, b, n, mode, a, patch_profile, resolve_near_field(gf, near_field))
-    sol = cap.solve(ubar, unilateral=unilateral, max_iter=max_iter)
+
+def _solution(gf: ComplianceSource, cap: Any, sol: Any, rows_arr: np.ndarray | None,
+              want_u: bool) -> ContactSolution:
+    """The :class:`ContactSolution` of the contact set ``cap`` (its capacitance,
+    :func:`~hailstorm.runtime.contact.contact_capacitance.build`) and its solve ``sol``: the
+    vertex forces, the surface displacement at ``rows_arr`` (when ``want_u``), and the contact
+    points' displacement (from that field when it covers every vertex, else from the contact
+    set's own columns; with the near field)."""
     f = sol.forces
     g = vertex_forces(cap.V.size, cap.loc, cap.weights, f)
     gflat = g.reshape(-1)

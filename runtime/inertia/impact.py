@@ -173,8 +173,6 @@ def simulate_impact(mesh: PadMesh, radius: float, speed: float, *, dynamic: bool
         than :data:`MIN_CELLS_PER_RADIUS` cells per contact radius (Hertz's estimates
         before the run, the measured ones after).
     """
-    from scipy.sparse.linalg import splu
-
     rho_ice = check_density("ice", ice_density)
     if not (radius > 0 and speed > 0):
         raise ValueError(f"the sphere needs radius > 0 and speed > 0, got {radius!r}, {speed!r}")
@@ -190,25 +188,9 @@ def simulate_impact(mesh: PadMesh, radius: float, speed: float, *, dynamic: bool
     C = mesh.top_uz[cand]  # u_z dofs of the candidate nodes (indices into the free dofs)
     if modes is not None and not dynamic:
         raise ValueError("simulate_impact: modes need dynamic=True")
-    modal = modes is not None
-    full = dynamic and not modal  # Newmark on every dof
-    M = without_contact_mass(mesh.M, C) if full else None
-    K_eff = mesh.K + M / (beta * dt * dt) if full else mesh.K
-    # symmetric: a minimum-degree order of A^T + A (a third fewer factor entries than COLAMD's here)
-    lu = splu(K_eff.tocsc(), permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True})
-    n = K_eff.shape[0]
-    E = np.zeros((n, C.size))
-    E[C, np.arange(C.size)] = 1.0
-    G = lu.solve(E)  # K_eff^-1 C^T
+    body = _PadResponse(mesh, C, dt, dynamic=dynamic, modes=modes, beta=beta, gamma=gamma)
     c = beta * dt * dt / m
-    S_pad = G[C]  # C K_eff^-1 C^T
-    if modal:  # the retained modes' share of the static compliance, as far as a step lets them move
-        PC, w2 = modes.shapes[C], modes.omega2
-        lag = 1.0 / (1.0 + beta * dt * dt * w2)
-        S_pad = S_pad - (PC * (lag / w2)) @ PC.T
-        eta, eta_v, eta_a = np.zeros(w2.size), np.zeros(w2.size), np.zeros(w2.size)
-    S = S_pad + c  # ... + c 1 1^T: the sphere's own Newmark equation
-    u, v, acc = np.zeros(n), np.zeros(n), np.zeros(n)
+    S = body.S_pad + c  # ... + c 1 1^T: the sphere's own Newmark equation
     x, xv, xa = 0.0, float(speed), 0.0
     active = np.zeros(C.size, dtype=bool)
     centre = mesh.top_uz[0]
@@ -218,37 +200,16 @@ def simulate_impact(mesh: PadMesh, radius: float, speed: float, *, dynamic: bool
     while t < t_end:
         t += dt
         x_hat = x + dt * xv + (0.5 - beta) * dt * dt * xa
-        if full:
-            u_hat = u + dt * v + (0.5 - beta) * dt * dt * acc
-            u_free = lu.solve(M @ u_hat) / (beta * dt * dt)
-            u_free_C = u_free[C]
-        elif modal:
-            eta_hat = eta + dt * eta_v + (0.5 - beta) * dt * dt * eta_a
-            u_free_C = PC @ (eta_hat * lag)
-        else:
-            u_free_C = np.zeros(C.size)
+        u_free_C = body.free()
         q = phi - x_hat - u_free_C
         lam, active = contact_lcp(S, q, active)
         F = float(lam.sum())
         x_new = x_hat - c * F
         xa_new = -F / m
-        if modal:  # the contact nodes alone: the dent at the axis is the first candidate's
-            f_m = -(PC.T @ lam)
-            eta_new = (eta_hat + beta * dt * dt * f_m) * lag
-            eta_a_new = f_m - w2 * eta_new
-            eta_v = eta_v + dt * ((1 - gamma) * eta_a + gamma * eta_a_new)
-            eta, eta_a = eta_new, eta_a_new
-            u[centre] = u_free_C[0] - S_pad[0] @ lam
-        else:
-            u_new = (u_free if full else 0.0) - G @ lam
-            if full:
-                acc_new = (u_new - u_hat) / (beta * dt * dt)
-                v = v + dt * ((1 - gamma) * acc + gamma * acc_new)
-                acc = acc_new
-            u = u_new
+        body.respond(lam, centre)
         xv = xv + dt * ((1 - gamma) * xa + gamma * xa_new)
         x, xa = x_new, xa_new
-        hist.append((t, F, x, -u[centre]))
+        hist.append((t, F, x, -body.u[centre]))
         if F > 0:
             last_touch, release = t, (F_prev, F)
             max_r = max(max_r, float(r_c[lam > 0].max()))
@@ -261,9 +222,102 @@ def simulate_impact(mesh: PadMesh, radius: float, speed: float, *, dynamic: bool
     duration = last_touch + _release_lag(*release, dt) if last_touch > 0 else 0.0
     res = ImpactResult(dynamic=dynamic, speed=float(speed), peak_force=float(H[:, 1].max()), duration=duration,
                        rebound_speed=float(-xv), max_dent=float(H[:, 3].max()), max_contact_radius=max_r, dt=dt,
-                       steps=len(hist), history=H, modes=modes.count if modal else None)
+                       steps=len(hist), history=H, modes=modes.count if body.modal else None)
     _check_resolution(mesh.cell, max_r if max_r > 0 else a_ref, dt, max(duration, dt), "as measured")
     return res
+
+
+class _PadResponse:
+    """The pad's side of :func:`simulate_impact`'s Newmark step at the candidate contact dofs ``C``.
+
+    One of three forms: every dof with its mass (``dynamic`` without ``modes``; no mass on ``C``,
+    :func:`~hailstorm.runtime.inertia.pad.without_contact_mass`), the retained ``modes`` over the
+    static response (the mode-acceleration form), or the static response alone
+    (``dynamic=False``). Each step, :meth:`free` predicts the displacement of ``C`` without
+    contact forces, then :meth:`respond` takes the step's forces and advances the state.
+
+    Parameters
+    ----------
+    mesh : PadMesh
+    C : (k,) int ndarray
+        The candidate nodes' ``u_z`` dofs (indices into the free dofs).
+    dt : float
+        Time step [s].
+    dynamic : bool
+    modes : object or None
+        As :func:`simulate_impact`'s.
+    beta, gamma : float
+        Newmark's parameters.
+
+    Attributes
+    ----------
+    S_pad : (k, k) ndarray
+        The step's compliance of ``C``: the displacement of ``C`` per unit forces on ``C`` within
+        a step (``C K_eff^-1 C^T``, less the retained modes' lagging share in the modal form).
+    u : (n,) ndarray
+        The pad's displacement on the free dofs (in the modal form only the axis dof is kept).
+    modal, full : bool
+        The modal form; Newmark on every dof.
+    """
+
+    def __init__(self, mesh: PadMesh, C: np.ndarray, dt: float, *, dynamic: bool, modes: Any, beta: float,
+                 gamma: float) -> None:
+        from scipy.sparse.linalg import splu
+
+        self.C, self.dt, self.beta, self.gamma = C, dt, beta, gamma
+        self.modal = modal = modes is not None
+        self.full = full = dynamic and not modal  # Newmark on every dof
+        M = without_contact_mass(mesh.M, C) if full else None
+        K_eff = mesh.K + M / (beta * dt * dt) if full else mesh.K
+        # symmetric: a minimum-degree order of A^T + A (a third fewer factor entries than COLAMD's here)
+        self.lu = splu(K_eff.tocsc(), permc_spec="MMD_AT_PLUS_A", options={"SymmetricMode": True})
+        self.M = M
+        n = K_eff.shape[0]
+        E = np.zeros((n, C.size))
+        E[C, np.arange(C.size)] = 1.0
+        self.G = self.lu.solve(E)  # K_eff^-1 C^T
+        S_pad = self.G[C]  # C K_eff^-1 C^T
+        if modal:  # the retained modes' share of the static compliance, as far as a step lets them move
+            self.PC, self.w2 = modes.shapes[C], modes.omega2
+            self.lag = 1.0 / (1.0 + beta * dt * dt * self.w2)
+            S_pad = S_pad - (self.PC * (self.lag / self.w2)) @ self.PC.T
+            self.eta, self.eta_v, self.eta_a = np.zeros(self.w2.size), np.zeros(self.w2.size), np.zeros(self.w2.size)
+        self.S_pad = S_pad
+        self.u, self.v, self.acc = np.zeros(n), np.zeros(n), np.zeros(n)
+
+    def free(self) -> np.ndarray:
+        """The predicted displacement of ``C`` at the end of the next step without contact forces (k,) [m]."""
+        dt, beta = self.dt, self.beta
+        if self.full:
+            self.u_hat = self.u + dt * self.v + (0.5 - beta) * dt * dt * self.acc
+            self.u_free = self.lu.solve(self.M @ self.u_hat) / (beta * dt * dt)
+            self.u_free_C = self.u_free[self.C]
+        elif self.modal:
+            self.eta_hat = self.eta + dt * self.eta_v + (0.5 - beta) * dt * dt * self.eta_a
+            self.u_free_C = self.PC @ (self.eta_hat * self.lag)
+        else:
+            self.u_free_C = np.zeros(self.C.size)
+        return self.u_free_C
+
+    def respond(self, lam: np.ndarray, centre: int) -> None:
+        """End the step :meth:`free` began under the contact forces ``lam`` (k,) [N] on ``C``: the
+        new displacement ``u`` (in the modal form, at the axis dof ``centre`` alone, the first
+        candidate's) and the dynamic state."""
+        dt, beta, gamma = self.dt, self.beta, self.gamma
+        if self.modal:  # the contact nodes alone: the dent at the axis is the first candidate's
+            f_m = -(self.PC.T @ lam)
+            eta_new = (self.eta_hat + beta * dt * dt * f_m) * self.lag
+            eta_a_new = f_m - self.w2 * eta_new
+            self.eta_v = self.eta_v + dt * ((1 - gamma) * self.eta_a + gamma * eta_a_new)
+            self.eta, self.eta_a = eta_new, eta_a_new
+            self.u[centre] = self.u_free_C[0] - self.S_pad[0] @ lam
+        else:
+            u_new = (self.u_free if self.full else 0.0) - self.G @ lam
+            if self.full:
+                acc_new = (u_new - self.u_hat) / (beta * dt * dt)
+                self.v = self.v + dt * ((1 - gamma) * self.acc + gamma * acc_new)
+                self.acc = acc_new
+            self.u = u_new
 
 
 def impact_mesh(pad: Pad, radius: float, speed: float, cells_per_radius: float = 8.0,

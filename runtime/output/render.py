@@ -179,10 +179,8 @@ class StormRenderer:
         require_extra("matplotlib", "video", "the animation (matplotlib)")
         from matplotlib import colormaps, colors
         from matplotlib.backends.backend_agg import FigureCanvasAgg
-        from matplotlib.cm import ScalarMappable
-        from matplotlib.collections import PolyCollection
         from matplotlib.figure import Figure
-        from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+        from matplotlib.ticker import FuncFormatter
 
         w, h = int(size[0]), int(size[1])
         if w < 320 or h < 240:
@@ -216,11 +214,56 @@ class StormRenderer:
         def frac(x: float, y: float, ww: float, hh: float) -> list[float]:
             return [x / w, y / h, ww / w, hh / h]
 
-        ax = fig.add_axes(frac(x0, plan_y, pw, ph), facecolor=_SKY)
+        mm = FuncFormatter(lambda v, _: f"{v * 1e3:.0f}")
+        p = X[tri]
+        overlays = self._add_plan_view(X, tri, frac(x0, plan_y, pw, ph), (pw, ph), mm)
+        self._add_side_view(p, frac(x0, side_y, pw, sh), mm)
+        cx = x0 + pw + 0.012 * w
+        self._add_colour_bar(frac(cx, plan_y, 0.012 * w, ph), peak_shown)
+        fx = cx + 0.012 * w + 0.13 * w
+        self._add_force_panel(frac(fx, bottom_pad, w - fx - 0.03 * w, h - top_pad - bottom_pad))
+
+        self.caption = fig.text(x0 / w, 1.0 - 0.02, "", fontsize="large", va="top", family="monospace")
+        #: the stones' circle collections of the last rendered frame (plan view, side view)
+        self.stones_drawn: list[Any] = []
+        # what changes from frame to frame, in drawing order (over the seat's image: its contours);
+        # the rest is drawn once and restored for each frame (blitting: the axes, ticks and
+        # labels cost more to draw than everything else)
+        self._dynamic = [self.surface, *overlays, self.force_line, self.force_now, self.force_title, self.caption]
+        for a in self._dynamic:
+            a.set_animated(True)
+        self._background: Any = None
+        #: stones in view in the last rendered frame (the number on screen)
+        self.n_in_view = 0
+
+    def _add_plan_view(self, X: np.ndarray, tri: np.ndarray, rect: list[float], pixels: tuple[float, float],
+                       mm: Any) -> list[Any]:
+        """The seat seen from above (``self.ax_plan``): its image (``self.surface``, one sample per
+        pixel, coloured by :meth:`render`), its height contours every 5 mm and its outline.
+
+        Parameters
+        ----------
+        X : (n, 3) ndarray
+            The seat's vertices [m].
+        tri : (m, 3) int ndarray
+            Its triangles.
+        rect : list of float
+            The axes' place in the figure (left, bottom, width, height as fractions).
+        pixels : (float, float)
+            The axes' width and height [pixels].
+        mm : matplotlib.ticker.Formatter
+            The tick labels in mm.
+
+        Returns
+        -------
+        list
+            The contour sets drawn over the image (redrawn over it each frame).
+        """
+        span = self.hi - self.lo
+        ax = self.fig.add_axes(rect, facecolor=_SKY)
         ax.set_xlim(self.lo[0], self.hi[0])
         ax.set_ylim(self.lo[1], self.hi[1])
         ax.set_aspect("equal", adjustable="box")
-        mm = FuncFormatter(lambda v, _: f"{v * 1e3:.0f}")
         ax.xaxis.set_major_formatter(mm)
         ax.yaxis.set_major_formatter(mm)
         ax.set_ylabel("y [mm]")
@@ -231,7 +274,7 @@ class StormRenderer:
         # colour scale is a clean contour, not the jagged run of triangles Gouraud blending draws)
         p = X[tri]
         fn = np.cross(p[:, 1] - p[:, 0], p[:, 2] - p[:, 0])
-        nx, ny = max(int(round(pw)), 2), max(int(round(ph)), 2)
+        nx, ny = max(int(round(pixels[0])), 2), max(int(round(pixels[1])), 2)
         self._interp = seen_from_above(X, tri[fn[:, 2] > 0], self.lo[:2], self.hi[:2], nx, ny)
         M, inside, shape = self._interp
         # the image is coloured here (an RGBA array, one sample per screen pixel): cheaper than
@@ -255,8 +298,14 @@ class StormRenderer:
                                            linewidths=0.4, alpha=0.35, zorder=2))
             overlays.append(ax.contour(xs, ys, np.isfinite(height).astype(float), levels=[0.5], colors="k",
                                        linewidths=0.7, alpha=0.7, zorder=2))
+        return overlays
 
-        ax2 = fig.add_axes(frac(x0, side_y, pw, sh), facecolor=_SKY)
+    def _add_side_view(self, p: np.ndarray, rect: list[float], mm: Any) -> None:
+        """The seat seen from the side (``self.ax_side``): its triangles ``p`` (m, 3, 3) [m]
+        projected on x-z, at ``rect`` in the figure, ticks labelled by ``mm``."""
+        from matplotlib.collections import PolyCollection
+
+        ax2 = self.fig.add_axes(rect, facecolor=_SKY)
         ax2.set_xlim(self.lo[0], self.hi[0])
         ax2.set_ylim(self.lo[2], self.hi[2])
         ax2.set_aspect("equal", adjustable="box")
@@ -268,18 +317,25 @@ class StormRenderer:
         ax2.add_collection(PolyCollection(p[:, :, [0, 2]], facecolors=_SEAT, edgecolors=_SEAT, linewidths=0.3))
         self.ax_side = ax2
 
-        cx = x0 + pw + 0.012 * w
-        cax = fig.add_axes(frac(cx, plan_y, 0.012 * w, ph))
+    def _add_colour_bar(self, rect: list[float], peak_shown: bool) -> None:
+        """The colour bar (``self.colorbar``) of ``self.norm`` and ``self.cmap`` at ``rect``, its
+        label naming the quantity (the peak since the previous frame when ``peak_shown``) and unit."""
+        from matplotlib.cm import ScalarMappable
+        from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+
+        cax = self.fig.add_axes(rect)
         what = "peak |u| since the previous frame" if peak_shown else "|u|"
-        self.colorbar = fig.colorbar(ScalarMappable(norm=self.norm, cmap=self.cmap), cax=cax, extend="min")
+        self.colorbar = self.fig.colorbar(ScalarMappable(norm=self.norm, cmap=self.cmap), cax=cax, extend="min")
         self.colorbar.ax.yaxis.set_major_locator(LogLocator(subs=(1.0, 2.0, 5.0)))
         self.colorbar.ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _: f"{v:g}"))
         self.colorbar.ax.yaxis.set_minor_formatter(NullFormatter())
         self.colorbar.set_label(f"{what} [{self.unit}], log scale\n(grey: below {self.norm.vmin:.3g} {self.unit})"
                                 if self.peak > 0 else f"{what}: the seat did not move")
 
-        fx = cx + 0.012 * w + 0.13 * w
-        axf = fig.add_axes(frac(fx, bottom_pad, w - fx - 0.03 * w, h - top_pad - bottom_pad), facecolor="white")
+    def _add_force_panel(self, rect: list[float]) -> None:
+        """The force panel (``self.ax_force``) at ``rect``: time axis to ``self.duration``, force
+        axis to the history's largest total, with the force line, the frame's point and a title."""
+        axf = self.fig.add_axes(rect, facecolor="white")
         axf.set_xlim(0.0, max(self.duration, 1e-9) * 1e3)
         fmax = float(self.history[:, 1].max()) if self.history is not None and len(self.history) else 0.0
         self._fmax = fmax
@@ -291,19 +347,6 @@ class StormRenderer:
         (self.force_now,) = axf.plot([], [], "o", color=_PRESS, ms=5)
         self.ax_force = axf
         self.force_title = axf.set_title("", fontsize="medium", loc="left")
-
-        self.caption = fig.text(x0 / w, 1.0 - 0.02, "", fontsize="large", va="top", family="monospace")
-        #: the stones' circle collections of the last rendered frame (plan view, side view)
-        self.stones_drawn: list[Any] = []
-        # what changes from frame to frame, in drawing order (over the seat's image: its contours);
-        # the rest is drawn once and restored for each frame (blitting: the axes, ticks and
-        # labels cost more to draw than everything else)
-        self._dynamic = [self.surface, *overlays, self.force_line, self.force_now, self.force_title, self.caption]
-        for a in self._dynamic:
-            a.set_animated(True)
-        self._background: Any = None
-        #: stones in view in the last rendered frame (the number on screen)
-        self.n_in_view = 0
 
     @classmethod
     def for_frames(cls, frames: Any, gf: Any, *, history: np.ndarray | None = None, which: Any = None,

@@ -154,13 +154,8 @@ class SeatView:
 
     def __init__(self, vertices: np.ndarray, triangles: np.ndarray, *, size: tuple[int, int], top: float,
                  scale: float = 1.0, label: str = "|u|", inset: bool = True, samples: int = -1) -> None:
-        from vtkmodules.util.numpy_support import numpy_to_vtk, numpy_to_vtkIdTypeArray
-        from vtkmodules.vtkCommonCore import vtkLookupTable, vtkPoints
-        from vtkmodules.vtkCommonDataModel import vtkCellArray, vtkPolyData
-        from vtkmodules.vtkFiltersSources import vtkSphereSource
-        from vtkmodules.vtkRenderingAnnotation import vtkScalarBarActor
-        from vtkmodules.vtkRenderingCore import (vtkActor, vtkCoordinate, vtkGlyph3DMapper, vtkLight,
-                                                 vtkPolyDataMapper, vtkRenderer, vtkTextActor)
+        from vtkmodules.util.numpy_support import numpy_to_vtk
+        from vtkmodules.vtkRenderingCore import vtkCoordinate
 
         self.width, self.height = int(size[0]), int(size[1])
         self.X = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
@@ -169,6 +164,34 @@ class SeatView:
         self.scale = float(scale)
         self.rw = offscreen_window((self.width, self.height), samples=max(int(samples), 0))
         self._np = numpy_to_vtk
+        seat = self._seat_actor()
+        stones = self._stones_actor()
+        lights = self._main_renderer(seat, stones, inset=inset, samples=samples)
+        fs = max(10, int(round(self.height * 0.030)))  # the text's size follows the picture's
+        self._add_caption(fs)
+        self._add_colour_bar(label, fs)
+        self.inset: Any = None
+        if inset:
+            self._add_inset(seat, stones, lights, samples=samples, font_size=fs)
+        self._coord = vtkCoordinate()
+        self._coord.SetCoordinateSystemToWorld()
+        self._px = None
+        self.focus: np.ndarray | None = None
+
+    def _seat_actor(self) -> Any:
+        """The seat's actor: its mesh over arrays the view owns (points, normals and ``|u|`` [mm],
+        refilled in place each frame), coloured through the lookup table ``self.lut`` (the dent
+        colours on the square-root scale), Phong-shaded.
+
+        Returns
+        -------
+        vtkActor
+        """
+        from vtkmodules.util.numpy_support import numpy_to_vtk, numpy_to_vtkIdTypeArray
+        from vtkmodules.vtkCommonCore import vtkLookupTable, vtkPoints
+        from vtkmodules.vtkCommonDataModel import vtkCellArray, vtkPolyData
+        from vtkmodules.vtkRenderingCore import vtkActor, vtkPolyDataMapper
+
         n = self.X.shape[0]
         # the seat: points, normals and |u| [mm] are arrays the view owns, refilled in place each frame
         self._pts = self.X.copy()
@@ -215,6 +238,20 @@ class SeatView:
         prop.SetDiffuse(0.85)
         prop.SetSpecular(0.25)
         prop.SetSpecularPower(30.0)
+        return seat
+
+    def _stones_actor(self) -> Any:
+        """The stones' actor: one sphere glyph per point of ``self._spd`` (filled by
+        :meth:`set_stones`), scaled by its ``diameter`` array and coloured by its ``colour`` array.
+
+        Returns
+        -------
+        vtkActor
+        """
+        from vtkmodules.vtkCommonDataModel import vtkPolyData
+        from vtkmodules.vtkFiltersSources import vtkSphereSource
+        from vtkmodules.vtkRenderingCore import vtkActor, vtkGlyph3DMapper
+
         # the stones: one sphere glyph per stone, scaled by its diameter, coloured per stone
         self._spd = vtkPolyData()
         sphere = vtkSphereSource()
@@ -238,6 +275,26 @@ class SeatView:
         sp.SetAmbient(0.15)
         self._glyphs = glyphs
         self.n_stones_drawn = 0
+        return stones
+
+    def _main_renderer(self, seat: Any, stones: Any, *, inset: bool, samples: int) -> list[Any]:
+        """The main view (``self.renderer``): the sky, the seat and the stones, two lights, and the
+        three-quarter camera framing the seat between the inset (when drawn) and the colour bar.
+
+        Parameters
+        ----------
+        seat, stones : vtkActor
+        inset : bool
+            Leave room for the inset on the left.
+        samples : int
+            As the class parameter (0: FXAA).
+
+        Returns
+        -------
+        list of vtkLight
+            The lights, for the inset to share.
+        """
+        from vtkmodules.vtkRenderingCore import vtkLight, vtkRenderer
 
         ren = vtkRenderer()
         ren.GradientBackgroundOn()
@@ -270,18 +327,27 @@ class SeatView:
         cam.SetWindowCenter(1.0 - x0 - x1, 0.0)  # the focal point at the middle of [x0, x1]
         ren.ResetCameraClippingRange(*self._bounds(0.2))
         self.renderer = ren
+        return lights
 
-        fs = max(10, int(round(self.height * 0.030)))  # the text's size follows the picture's
+    def _add_caption(self, font_size: int) -> None:
+        """The caption (``self.caption``): text at the main view's top left, set by :meth:`draw`."""
+        from vtkmodules.vtkRenderingCore import vtkTextActor
+
         self.caption = vtkTextActor()
-        self.caption.GetTextProperty().SetFontSize(fs)
+        self.caption.GetTextProperty().SetFontSize(font_size)
         self.caption.GetTextProperty().SetColor(0.05, 0.05, 0.08)
         self.caption.GetTextProperty().SetFontFamilyToCourier()
         self.caption.GetTextProperty().SetVerticalJustificationToTop()
         self.caption.SetDisplayPosition(int(0.012 * self.width), int(self.height - 0.015 * self.height))
-        ren.AddViewProp(self.caption)
+        self.renderer.AddViewProp(self.caption)
+
+    def _add_colour_bar(self, label: str, font_size: int) -> None:
+        """The colour bar (``self.colour_bar``) of ``self.lut`` at the main view's right, titled
+        ``label`` [mm]."""
+        from vtkmodules.vtkRenderingAnnotation import vtkScalarBarActor
 
         bar = vtkScalarBarActor()
-        bar.SetLookupTable(lut)
+        bar.SetLookupTable(self.lut)
         bar.SetTitle(f"{label} [mm]")
         bar.SetNumberOfLabels(6)
         bar.SetLabelFormat("%.2g")
@@ -289,7 +355,7 @@ class SeatView:
         bar.UnconstrainedFontSizeOn()
         for tp in (bar.GetTitleTextProperty(), bar.GetLabelTextProperty()):
             tp.SetColor(0.05, 0.05, 0.08)
-            tp.SetFontSize(fs)
+            tp.SetFontSize(font_size)
             tp.ItalicOff()
             tp.ShadowOff()
             tp.BoldOff()
@@ -298,37 +364,36 @@ class SeatView:
         bar.SetPosition(0.905, 0.05)
         bar.SetWidth(0.09)
         bar.SetHeight(0.42)
-        ren.AddViewProp(bar)
+        self.renderer.AddViewProp(bar)
         self.colour_bar = bar
 
-        self.inset: Any = None
-        if inset:
-            ins = vtkRenderer()
-            ins.SetViewport(*INSET_VIEWPORT)
-            ins.SetBackground(*_SKY_BOTTOM)
-            ins.SetBackground2(*_SKY_TOP)
-            ins.GradientBackgroundOn()
-            ins.AddActor(seat)
-            ins.AddActor(stones)
-            if samples == 0:
-                ins.UseFXAAOn()
-            for light in lights:
-                ins.AddLight(light)
-            ins.GetActiveCamera().SetViewAngle(30.0)
-            self.inset_label = vtkTextActor()
-            self.inset_label.GetTextProperty().SetFontSize(max(9, int(fs * 0.85)))
-            self.inset_label.GetTextProperty().SetColor(0.05, 0.05, 0.08)
-            self.inset_label.GetTextProperty().SetVerticalJustificationToTop()
-            where = self.inset_label.GetPositionCoordinate()
-            where.SetCoordinateSystemToNormalizedViewport()
-            where.SetValue(0.02, 0.97)
-            ins.AddViewProp(self.inset_label)
-            self.rw.AddRenderer(ins)
-            self.inset = ins
-        self._coord = vtkCoordinate()
-        self._coord.SetCoordinateSystemToWorld()
-        self._px = None
-        self.focus: np.ndarray | None = None
+    def _add_inset(self, seat: Any, stones: Any, lights: list[Any], *, samples: int, font_size: int) -> None:
+        """The inset (``self.inset``, at :data:`INSET_VIEWPORT`): the same actors and lights as the
+        main view, its camera aimed by :meth:`set_focus`, with a label (``self.inset_label``)."""
+        from vtkmodules.vtkRenderingCore import vtkRenderer, vtkTextActor
+
+        ins = vtkRenderer()
+        ins.SetViewport(*INSET_VIEWPORT)
+        ins.SetBackground(*_SKY_BOTTOM)
+        ins.SetBackground2(*_SKY_TOP)
+        ins.GradientBackgroundOn()
+        ins.AddActor(seat)
+        ins.AddActor(stones)
+        if samples == 0:
+            ins.UseFXAAOn()
+        for light in lights:
+            ins.AddLight(light)
+        ins.GetActiveCamera().SetViewAngle(30.0)
+        self.inset_label = vtkTextActor()
+        self.inset_label.GetTextProperty().SetFontSize(max(9, int(font_size * 0.85)))
+        self.inset_label.GetTextProperty().SetColor(0.05, 0.05, 0.08)
+        self.inset_label.GetTextProperty().SetVerticalJustificationToTop()
+        where = self.inset_label.GetPositionCoordinate()
+        where.SetCoordinateSystemToNormalizedViewport()
+        where.SetValue(0.02, 0.97)
+        ins.AddViewProp(self.inset_label)
+        self.rw.AddRenderer(ins)
+        self.inset = ins
 
     def _bounds(self, grow: float) -> list[float]:
         lo, hi = self.X.min(axis=0), self.X.max(axis=0)

@@ -2,9 +2,9 @@
 
 Siblings, each a part the driver composes (none imports the driver):
 
-* :mod:`~hailstorm.runtime.storm.scene` -- the scene: :class:`Scene` and its
-  settings sections (TOML), the pre-flight estimate, the default seat's
-  ``[seat]`` settings;
+* :mod:`~hailstorm.runtime.storm.scene` -- the scene: :class:`Scene` (TOML), the
+  pre-flight estimate, the default seat's ``[seat]`` settings; its settings
+  sections in :mod:`~hailstorm.runtime.storm.scene_sections`;
 * :mod:`~hailstorm.runtime.storm.hail` -- hailstone physics: sizes, drag,
   terminal speed, the dashpot and the contact step's integrators;
 * :mod:`~hailstorm.runtime.storm.stones` -- the stones in flight and their spawning;

@@ -43,7 +43,7 @@ if TYPE_CHECKING:  # annotations only
     from hailstorm.runtime.storm.patches import Patches
     from hailstorm.runtime.storm.recording import StormStats
     from hailstorm.runtime.bundle.compliance import ElasticSource
-    from hailstorm.runtime.storm.scene import ContactSettings
+    from hailstorm.runtime.storm.scene_sections import ContactSettings
 
 __all__ = ["ContactSet", "ContactSets"]
 

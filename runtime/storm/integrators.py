@@ -28,7 +28,7 @@ from hailstorm.runtime.storm.hail import X_GRID, Z_GRID, ContactStep, Integrator
 
 if TYPE_CHECKING:  # annotations only
     from hailstorm.runtime.storm.contact_set import ContactSet
-    from hailstorm.runtime.storm.scene import ContactSettings, TimeSettings
+    from hailstorm.runtime.storm.scene_sections import ContactSettings, TimeSettings
     from hailstorm.runtime.storm.stones import Stones
 
 __all__ = ["ContactIntegrator"]

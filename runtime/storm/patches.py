@@ -26,7 +26,7 @@ from hailstorm.runtime.contact.weights import (PATCH_DROP, PATCH_FACING, contact
 
 if TYPE_CHECKING:  # annotations only
     from hailstorm.runtime.storm.hail import Air
-    from hailstorm.runtime.storm.scene import ContactSettings, TimeSettings
+    from hailstorm.runtime.storm.scene_sections import ContactSettings, TimeSettings
     from hailstorm.runtime.storm.seat import SeatState
     from hailstorm.runtime.storm.stones import Stones
     from hailstorm.runtime.bundle.compliance import ElasticSource

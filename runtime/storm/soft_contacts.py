@@ -27,7 +27,7 @@ if TYPE_CHECKING:  # annotations only
     from hailstorm.runtime.storm.integrators import ContactIntegrator
     from hailstorm.runtime.storm.patches import Patches
     from hailstorm.runtime.storm.recording import StormStats
-    from hailstorm.runtime.storm.scene import ContactSettings, TimeSettings
+    from hailstorm.runtime.storm.scene_sections import ContactSettings, TimeSettings
     from hailstorm.runtime.storm.seat import SeatState
     from hailstorm.runtime.storm.stones import Stones
 

@@ -17,7 +17,7 @@ import numpy as np
 from hailstorm.runtime.storm.hail import stone_mass, terminal_velocity
 
 if TYPE_CHECKING:  # annotations only
-    from hailstorm.runtime.storm.scene import HailSettings, StormSettings
+    from hailstorm.runtime.storm.scene_sections import HailSettings, StormSettings
 
 __all__ = ["SpawnPlan", "StoneError", "Stones", "check_stones"]
 

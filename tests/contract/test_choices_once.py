@@ -66,10 +66,10 @@ def test_the_grep_finds_what_it_forbids(tmp_path):
 
 
 def test_the_minimum_sub_step_is_computed_once():
-    """``dt / max_substeps`` is :attr:`TimeSettings.min_substep` (runtime/storm/scene.py), read
+    """``dt / max_substeps`` is :attr:`TimeSettings.min_substep` (runtime/storm/scene_sections.py), read
     everywhere else, never computed again."""
     found = [f"{p.relative_to(ROOT)}:{i}: {text.strip()}" for p in LIBRARY for i, text in _code_lines(p)
-             if MIN_SUBSTEP.search(text) and p != ROOT / "runtime" / "storm" / "scene.py"]
+             if MIN_SUBSTEP.search(text) and p != ROOT / "runtime" / "storm" / "scene_sections.py"]
     assert not found, "the minimum sub-step computed again (use TimeSettings.min_substep):\n" + "\n".join(found)
 
 

@@ -9,13 +9,11 @@ from hailstorm.precompute import build_bundle
 from hailstorm.precompute import hmatrix as construct
 from hailstorm.precompute.hmatrix import (
     ERROR_COLUMNS,
-    admissible_blocks,
     check_tol,
-    cluster_tree,
     compress,
     compress_bundle,
-    dofs,
 )
+from hailstorm.precompute.htree import admissible_blocks, cluster_tree, dofs
 from hailstorm.runtime.bundle import format as bundle_format
 from hailstorm.runtime.bundle.format import BundleError
 from hailstorm.runtime.bundle.hmatrix import HMatrix

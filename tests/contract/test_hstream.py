@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from hailstorm.precompute import build_bundle
-from hailstorm.precompute.hmatrix import admissible_blocks, block_slices, cluster_tree, compress, dofs
+from hailstorm.precompute.hmatrix import compress
+from hailstorm.precompute.htree import admissible_blocks, block_slices, cluster_tree, dofs
 from hailstorm.precompute.hstream import StreamedH, streamed_key, tree_order
 from hailstorm.runtime.bundle.read import load
 

@@ -80,7 +80,7 @@ def test_the_arrows_it_draws_are_the_codes():
 @pytest.mark.parametrize("module, names", [
     ("hailstorm.runtime.contact.validate", ["ContactMode"]),
     ("hailstorm.runtime.storm.hail", ["Integrator", "INTEGRATORS"]),
-    ("hailstorm.runtime.storm.scene", ["TimeSettings.min_substep", "ContactSettings.contact_mode"]),
+    ("hailstorm.runtime.storm.scene_sections", ["TimeSettings.min_substep", "ContactSettings.contact_mode"]),
     ("hailstorm.runtime.bundle.read", ["load", "EXPAND_UP_TO"]),
     ("hailstorm.runtime.bundle.compliance", ["reader", "DenseReader.compressed"]),
     ("hailstorm.runtime.bundle.hreader", ["HMatrixReader.compressed"]),

@@ -22,7 +22,8 @@ from hailstorm.runtime.contact.near_field import (
     kernel_surface,
 )
 from hailstorm.runtime.contact.solve import solve_contacts
-from hailstorm.runtime.storm.scene import ContactSettings, SceneError
+from hailstorm.runtime.storm.errors import SceneError
+from hailstorm.runtime.storm.scene_sections import ContactSettings
 from reference.near_field_ref import hat_halfspace_block_ref, hat_potential_ref
 
 E, NU = 2.0e6, 0.35

@@ -8,13 +8,11 @@ from importlib import resources
 
 import pytest
 
-from hailstorm.runtime.storm.scene import (
+from hailstorm.runtime.storm.scene import Scene, SceneError, SeatSettings
+from hailstorm.runtime.storm.scene_sections import (
     ContactSettings,
     HailSettings,
     OutputSettings,
-    Scene,
-    SceneError,
-    SeatSettings,
     StormSettings,
     TimeSettings,
     ValiditySettings,
