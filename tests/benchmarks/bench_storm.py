@@ -97,6 +97,8 @@ def seat_drop(gf, integrator: str, adaptive: bool, dt: float, r: float = 0.005, 
 
 
 def main(argv: list[str] | None = None) -> None:
+    from studies import record
+
     argv = sys.argv[1:] if argv is None else list(argv)
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--gf", help="bundle directory (default: the default seat of the scene's [seat], built or reused from the cache)")
@@ -109,15 +111,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--configs", default="exact-point,exact,baseline-point,baseline")
     ap.add_argument("--baseline-duration", type=float, default=0.2)
-    ap.add_argument("--out", default=None, metavar="FILE",
-                    help="also write the printed output to FILE, after a header (command, UTC date, commit, load)")
+    record.add_out_option(ap)
     args = ap.parse_args(argv)
-    if args.out is None:
-        run(args)
-    else:
-        from studies import record
-
-        record.whole_output(args.out, "python tests/benchmarks/bench_storm.py", argv, lambda: run(args))
+    record.run_or_record(args.out, "python tests/benchmarks/bench_storm.py", argv, lambda: run(args))
 
 
 def run(args: argparse.Namespace) -> None:
