@@ -14,7 +14,7 @@ from hailstorm.precompute.blocks import BlockStore
 from hailstorm.precompute.greens import ColumnProblem
 from hailstorm.runtime.bundle.read import GreensFunctions
 
-__all__ = ["Interrupt", "count_solves", "ctrl_c_at_frame", "interrupt_after", "plate_gf"]
+__all__ = ["Interrupt", "count_solves", "ctrl_c_at_frame", "drop_on_seat_top", "interrupt_after", "plate_gf"]
 
 
 def plate_gf(n: int = 13, size: float = 0.12, young: float = 2e6, poisson: float = 0.35,
@@ -54,6 +54,45 @@ def plate_gf(n: int = 13, size: float = 0.12, young: float = 2e6, poisson: float
         volume_points=V, volume_tets=np.zeros((0, 4), dtype=np.intp), surface_nodes=np.arange(n * n),
         D=D, column_of=column_of,
     )
+
+
+def drop_on_seat_top(gf, scene, steps: int, *, r: float = 0.005, v0: float = 9.0, at_vertex: bool = True):
+    """One stone of radius ``r`` dropped at ``v0`` along the inward normal onto the top of the
+    seat (its highest soft vertex, or the centre of a soft triangle there), 2 mm above it, in a
+    storm of ``scene`` without spawning; stepped until it has left the seat, at most ``steps``
+    steps (used by tests/runtime/storm/test_storm.py and tests/benchmarks/bench_storm.py).
+
+    Returns ``(storm, v_in, v_out, in_one_step)``: the normal speeds into and out of the impact
+    (None where not seen), and whether the whole impact fell inside one step's sub-steps (a
+    stiff seat: no contact at a step's end, the normal velocity reversed over the step; the
+    speeds are the step's, gravity changing them by ``g dt``).
+    """
+    from hailstorm.runtime.storm.driver import Storm
+
+    st = Storm(gf, scene, spawn=False)
+    soft_v = np.unique(gf.triangles[st.soft])
+    top = soft_v[np.argmax(gf.vertices[soft_v, 2])]
+    if at_vertex:
+        x, nrm = gf.vertices[top], gf.vertex_normals()[top]
+    else:
+        t = int(np.flatnonzero(st.soft & (gf.triangles == top).any(axis=1))[0])
+        x, nrm = gf.vertices[gf.triangles[t]].mean(axis=0), st.index.normals[t]
+    st.add_stones(x + (r + 2e-3) * nrm, -v0 * nrm, r)
+    v_in = v_out = None
+    was = False
+    for _ in range(steps):
+        vb = st.vel[0].copy()
+        st.step()
+        now = st.ctri[0] >= 0
+        if now and not was and v_in is None:
+            v_in = float(-vb @ nrm)
+        if was and not now and v_in is not None:
+            v_out = float(st.vel[0] @ nrm)
+            break
+        if not was and not now and vb @ nrm < 0 < st.vel[0] @ nrm:
+            return st, float(-vb @ nrm), float(st.vel[0] @ nrm), True
+        was = now
+    return st, v_in, v_out, False
 
 
 class Interrupt(KeyboardInterrupt):

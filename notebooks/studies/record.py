@@ -7,6 +7,7 @@ load average), then what it printed; :func:`write` puts it in place atomically.
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import io
 import os
@@ -16,12 +17,15 @@ import sys
 import time
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 from hailstorm.runtime.bundle.atomic import replacing, write_text_atomic
 
-__all__ = ["Tee", "command", "commit", "load_average", "min_median_max", "stamp", "whole_output", "without_out", "write",
-           "write_run"]
+__all__ = ["OUT_HELP", "Tee", "add_out_option", "command", "commit", "load_average", "min_median_max", "run_or_record",
+           "stamp", "whole_output", "without_out", "write", "write_run"]
+
+#: the help of a script's ``--out FILE`` (:func:`add_out_option`)
+OUT_HELP = "also write the printed output to FILE, after a header (command, UTC date, commit, load)"
 
 #: the repository the measurements describe
 ROOT = Path(__file__).resolve().parents[2]
@@ -142,3 +146,40 @@ def whole_output(path: str | os.PathLike, prog: str, argv: list[str], run) -> An
     print(footer)
     write(path, [*header, tee.copy.getvalue().rstrip("\n"), footer])
     return result
+
+
+def add_out_option(ap: argparse.ArgumentParser) -> None:
+    """Give a script's parser ``--out FILE`` (default None; :data:`OUT_HELP`), which
+    :func:`run_or_record` reads.
+
+    Parameters
+    ----------
+    ap : argparse.ArgumentParser
+        The script's parser.
+    """
+    ap.add_argument("--out", default=None, metavar="FILE", help=OUT_HELP)
+
+
+def run_or_record(out: str | os.PathLike | None, prog: str, argv: list[str], run: Callable[[], Any]) -> Any:
+    """A script's run as its ``--out`` asks: ``run()`` alone (``out`` None), or through
+    :func:`whole_output` to ``out``.
+
+    Parameters
+    ----------
+    out : path or None
+        The ``--out`` file.
+    prog : str
+        The command that runs the script (the ``$`` line).
+    argv : list of str
+        The script's arguments.
+    run : callable
+        The script's work, called without arguments.
+
+    Returns
+    -------
+    object
+        What ``run`` returns.
+    """
+    if out is None:
+        return run()
+    return whole_output(out, prog, argv, run)

@@ -53,11 +53,8 @@ def contact_compliance(D_VV: np.ndarray, loc: np.ndarray, w: np.ndarray, normals
     ----------
     D_VV : (3|V|, 3|V|) float ndarray
         The block of D (:func:`hailstorm.runtime.bundle.compliance.vertex_block`).
-    loc, w : (s, P) int / float ndarrays
-        Position in V and weight of each contact's vertices.
-    normals : (s, 3) float ndarray
-        Unit normals (read by frictionless contacts).
-    mode : {"sticky", "frictionless"}
+    loc, w, normals, mode
+        As in :func:`constrained_rows`.
 
     Returns
     -------

@@ -165,12 +165,9 @@ def from_weights(gf: ComplianceSource, t: np.ndarray, b: np.ndarray, n: np.ndarr
 
     Parameters
     ----------
-    gf : ComplianceSource
-        The bundle.
-    t : (s,) int ndarray
-        Contacted triangles.
-    b : (s, 3) float ndarray
-        Barycentric coordinates of the contact points (patch centres).
+    gf, t, b
+        The bundle, contacted triangles and barycentric coordinates of the contact points
+        (as :func:`~hailstorm.runtime.contact.capacitance_blocks.contact_weights`).
     n : (s, 3) float ndarray
         Outward unit contact normals.
     mode : {"sticky", "frictionless"}

@@ -162,10 +162,8 @@ def build_inertia_table(poisson: float, mass_ratio: float, *, progress: bool | C
 
     Parameters
     ----------
-    poisson : float
-        The pad's Poisson ratio, in (-1, 0.5).
-    mass_ratio : float
-        Stone density over the pad's (> 0).
+    poisson, mass_ratio : float
+        The material, as in :func:`inertia_table`.
     progress : bool or callable
         ``True``: a tqdm bar (on stderr); a callable is called as ``progress(done, n)``.
     **resolution
@@ -252,10 +250,8 @@ def available_table(poisson: float, mass_ratio: float) -> InertiaTable | None:
 
     Parameters
     ----------
-    poisson : float
-        The pad's Poisson ratio, in (-1, 0.5).
-    mass_ratio : float
-        Stone density over the pad's (> 0).
+    poisson, mass_ratio : float
+        The material, as in :func:`inertia_table`.
 
     Returns
     -------

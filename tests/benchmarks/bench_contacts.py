@@ -138,6 +138,8 @@ def direct_fem_solve(gf, ref, tri, bary, ubar):
 
 
 def main(argv=None) -> int:
+    from studies import record
+
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--gf", help="bundle directory (default: build the default seat)")
     ap.add_argument("--mesh-size", type=float, default=0.01)
@@ -153,15 +155,10 @@ def main(argv=None) -> int:
     ap.add_argument("--dtype-only", action="store_true", help="only the float32 against float64 section")
     ap.add_argument("--threads", type=int, default=1,
                     help="BLAS threads (default 1: the dense systems are small; 0 = library default)")
-    ap.add_argument("--out", default=None, metavar="FILE",
-                    help="also write the printed output to FILE, after a header (command, UTC date, commit, load)")
+    record.add_out_option(ap)
     args = ap.parse_args(argv)
-    if args.out is not None:
-        from studies import record
-
-        return record.whole_output(args.out, "python tests/benchmarks/bench_contacts.py",
-                                   sys.argv[1:] if argv is None else list(argv), lambda: run(args))
-    return run(args)
+    return record.run_or_record(args.out, "python tests/benchmarks/bench_contacts.py",
+                                sys.argv[1:] if argv is None else list(argv), lambda: run(args))
 
 
 def run(args: argparse.Namespace) -> int:

@@ -82,21 +82,17 @@ def run(durations: list[float], inertia: bool) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
+    from studies import record
+
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--durations", default="1,10,30", help="simulated durations [s], comma-separated")
     ap.add_argument("--no-inertia", action="store_true", help="run with [validity] inertia = false")
-    ap.add_argument("--out", default=None, metavar="FILE",
-                    help="also write the printed output to FILE, after a header (command, UTC date, commit, load)")
+    record.add_out_option(ap)
     argv = sys.argv[1:] if argv is None else argv
     args = ap.parse_args(argv)
     durations = [float(x) for x in args.durations.split(",")]
-    if args.out is None:
-        run(durations, not args.no_inertia)
-    else:
-        from studies import record
-
-        record.whole_output(args.out, "python tests/benchmarks/bench_estimate.py", argv,
-                            lambda: run(durations, not args.no_inertia))
+    record.run_or_record(args.out, "python tests/benchmarks/bench_estimate.py", argv,
+                         lambda: run(durations, not args.no_inertia))
 
 
 if __name__ == "__main__":

@@ -114,12 +114,13 @@ def default_storm(duration: float) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
+    from studies import record
+
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--points", type=int, default=200, help="random points of the grid's range (default 200)")
     ap.add_argument("--duration", type=float, default=0.2, help="the default storm's duration [s] (default 0.2)")
     ap.add_argument("--rebuild", action="store_true", help="compute the table afresh (and time it)")
-    ap.add_argument("--out", default=None, metavar="FILE",
-                    help="also write the printed output to FILE, after a header (command, UTC date, commit, load)")
+    record.add_out_option(ap)
     argv = sys.argv[1:] if argv is None else argv
     args = ap.parse_args(argv)
 
@@ -128,12 +129,7 @@ def main(argv: list[str] | None = None) -> None:
         if args.duration > 0:
             default_storm(args.duration)
 
-    if args.out is None:
-        run()
-    else:
-        from studies import record
-
-        record.whole_output(args.out, "python tests/benchmarks/bench_inertia_table.py", argv, run)
+    record.run_or_record(args.out, "python tests/benchmarks/bench_inertia_table.py", argv, run)
 
 
 if __name__ == "__main__":

@@ -69,18 +69,14 @@ def run(duration: float) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
+    from studies import record
+
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--duration", type=float, default=30.0, help="simulated time [s] (default 30)")
-    ap.add_argument("--out", default=None, metavar="FILE",
-                    help="also write the printed output to FILE, after a header (command, UTC date, commit, load)")
+    record.add_out_option(ap)
     argv = sys.argv[1:] if argv is None else argv
     args = ap.parse_args(argv)
-    if args.out is None:
-        run(args.duration)
-    else:
-        from studies import record
-
-        record.whole_output(args.out, "python tests/benchmarks/bench_series.py", argv, lambda: run(args.duration))
+    record.run_or_record(args.out, "python tests/benchmarks/bench_series.py", argv, lambda: run(args.duration))
 
 
 if __name__ == "__main__":

@@ -163,20 +163,16 @@ def one_run(gf: Any, scene: Any) -> dict[str, Any]:
 
 
 def main(argv: list[str] | None = None) -> None:
+    from studies import record
+
     argv = sys.argv[1:] if argv is None else list(argv)
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--gf", help="bundle directory (default: the default seat, built or reused from the cache)")
     ap.add_argument("--duration", type=float, default=0.4)
     ap.add_argument("--repeat", type=int, default=3)
-    ap.add_argument("--out", default=None, metavar="FILE",
-                    help="also write the printed output to FILE, after a header (command, UTC date, commit, load)")
+    record.add_out_option(ap)
     args = ap.parse_args(argv)
-    if args.out is None:
-        run(args)
-    else:
-        from studies import record
-
-        record.whole_output(args.out, "python tests/benchmarks/bench_step_floor.py", argv, lambda: run(args))
+    record.run_or_record(args.out, "python tests/benchmarks/bench_step_floor.py", argv, lambda: run(args))
 
 
 def run(args: argparse.Namespace) -> None:

@@ -38,8 +38,9 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-# the studies (notebooks/studies) are in the repository, not in the package
+# the studies (notebooks/studies) are in the repository, not in the package; the tests' helpers
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "notebooks"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import argparse
 import os
@@ -71,32 +72,21 @@ def seat_drop(gf, integrator: str, adaptive: bool, dt: float, r: float = 0.005, 
               patch: str = "hertz") -> dict:
     """One stone (no drag) hits the seat's top at v0: achieved restitution (normal exit /
     impact speed, target 0.5) and the largest penetration of that impact."""
-    from hailstorm.runtime.storm.driver import Scene, Storm
+    from hailstorm.runtime.storm.driver import Scene
+    from helpers import drop_on_seat_top
 
     sc = Scene.from_flat(duration=0.05, stones=0, drag=False, dt=dt, integrator=integrator, adaptive=adaptive, restitution=0.5,
                patch=patch)
-    st = Storm(gf, sc, spawn=False)
-    soft_v = np.unique(gf.triangles[st.soft])
-    top = soft_v[np.argmax(gf.vertices[soft_v, 2])]
-    nrm = gf.vertex_normals()[top]
-    st.add_stones(gf.vertices[top] + (r + 2e-3) * nrm, -v0 * nrm, r)
-    v_in = v_out = None
-    was = False
-    for _ in range(int(0.02 / dt)):
-        v_before = st.vel[0].copy()
-        st.step()
-        now = st.ctri[0] >= 0
-        if now and not was and v_in is None:
-            v_in = float(-v_before @ nrm)
-        if was and not now and v_in is not None:
-            v_out = float(st.vel[0] @ nrm)
-            break
-        was = now
+    st, v_in, v_out, in_one_step = drop_on_seat_top(gf, sc, int(0.02 / dt), r=r, v0=v0)
+    if in_one_step:  # not measured here: no contact at a step's end
+        v_in = v_out = None
     e = (v_out / v_in) if (v_in and v_out is not None) else float("nan")
     return dict(e=e, pen=st.stats["max_penetration_m"])
 
 
 def main(argv: list[str] | None = None) -> None:
+    from studies import record
+
     argv = sys.argv[1:] if argv is None else list(argv)
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--gf", help="bundle directory (default: the default seat of the scene's [seat], built or reused from the cache)")
@@ -109,15 +99,9 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--configs", default="exact-point,exact,baseline-point,baseline")
     ap.add_argument("--baseline-duration", type=float, default=0.2)
-    ap.add_argument("--out", default=None, metavar="FILE",
-                    help="also write the printed output to FILE, after a header (command, UTC date, commit, load)")
+    record.add_out_option(ap)
     args = ap.parse_args(argv)
-    if args.out is None:
-        run(args)
-    else:
-        from studies import record
-
-        record.whole_output(args.out, "python tests/benchmarks/bench_storm.py", argv, lambda: run(args))
+    record.run_or_record(args.out, "python tests/benchmarks/bench_storm.py", argv, lambda: run(args))
 
 
 def run(args: argparse.Namespace) -> None:

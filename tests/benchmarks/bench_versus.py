@@ -104,6 +104,8 @@ def run(args: argparse.Namespace) -> None:
 
 
 def main(argv: list[str] | None = None) -> None:
+    from studies import record
+
     argv = sys.argv[1:] if argv is None else list(argv)
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--baseline", required=True, help="the baseline tree (a git worktree of the commit to compare)")
@@ -112,17 +114,11 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--rate", type=float, default=None, help="stones per second (default: the scene's)")
     ap.add_argument("--dt", type=float, default=None, help="the step [s] (default: the scene's)")
     ap.add_argument("--rounds", type=int, default=5)
-    ap.add_argument("--out", default=None, metavar="FILE",
-                    help="also write the printed output to FILE, after a header (command, UTC date, commit, load)")
+    record.add_out_option(ap)
     args = ap.parse_args(argv)
     if not (Path(args.baseline) / "__init__.py").is_file():
         ap.error(f"--baseline {args.baseline} is not a hailstorm tree (no __init__.py)")
-    if args.out is None:
-        run(args)
-    else:
-        from studies import record
-
-        record.whole_output(args.out, "python tests/benchmarks/bench_versus.py", argv, lambda: run(args))
+    record.run_or_record(args.out, "python tests/benchmarks/bench_versus.py", argv, lambda: run(args))
 
 
 if __name__ == "__main__":

@@ -150,15 +150,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--plot", default=None, metavar="PATH", help="chart the table's rows into PATH (PNG)")
     ap.add_argument("--corrections", action="store_true",
                     help="also what a one-number correction matched to the peak force would predict")
-    ap.add_argument("--out", default=None, metavar="FILE",
-                    help="also write the printed output to FILE, after a header (command, UTC date, commit, load)")
+    record.add_out_option(ap)
     args = ap.parse_args(argv)
     if args.no_table and args.no_storm:
         ap.error("--no-table and --no-storm leave nothing to run")
 
-    if args.out is None:
-        return _run(args)
-    return record.whole_output(args.out, "python tests/benchmarks/dynamic_peer.py", argv, lambda: _run(args))
+    return record.run_or_record(args.out, "python tests/benchmarks/dynamic_peer.py", argv, lambda: _run(args))
 
 
 def _run(args: argparse.Namespace) -> int:

@@ -24,6 +24,16 @@ def _same(a, b, rtol=1e-12):
     return a.shape == b.shape and np.abs(a - b).max() <= rtol * np.abs(b).max()
 
 
+def _interrupted_build(out, mesh, monkeypatch, blocks=3):
+    """A streamed build of ``mesh`` to ``out`` stopped (KeyboardInterrupt) after ``blocks`` blocks:
+    the indices of the blocks written."""
+    with monkeypatch.context() as m:
+        written = interrupt_after(m, blocks)
+        with pytest.raises(KeyboardInterrupt):
+            build_bundle(out, mesh=mesh, young=1e6, poisson=0.3, block_bytes=BLOCK)
+    return written
+
+
 def test_blocks_cover_the_columns_in_batches():
     blocks = column_blocks(1000, 1000, block_bytes=8 * 1000 * 100, batch=32)
     assert blocks[0] == (0, 96) and blocks[-1][1] == 1000
@@ -43,10 +53,7 @@ def test_streamed_bundle_equals_in_memory_D_and_its_hash(tmp_path, small_box, bo
 
 def test_interrupted_run_resumes_computing_only_the_missing_blocks(tmp_path, small_box, monkeypatch, caplog):
     out = tmp_path / "b"
-    with monkeypatch.context() as m:
-        written = interrupt_after(m, 3)
-        with pytest.raises(KeyboardInterrupt):
-            build_bundle(out, mesh=small_box, young=1e6, poisson=0.3, block_bytes=BLOCK)
+    written = _interrupted_build(out, small_box, monkeypatch)
     assert written == [0, 1, 2] and not out.exists()
     assert len(list((work_dir(out) / "blocks").iterdir())) == 3
     calls = count_solves(monkeypatch)
@@ -61,10 +68,7 @@ def test_interrupted_run_resumes_computing_only_the_missing_blocks(tmp_path, sma
 
 def test_blocks_of_another_material_are_never_used(tmp_path, small_box, monkeypatch, caplog):
     out = tmp_path / "b"
-    with monkeypatch.context() as m:
-        interrupt_after(m, 3)
-        with pytest.raises(KeyboardInterrupt):
-            build_bundle(out, mesh=small_box, young=1e6, poisson=0.3, block_bytes=BLOCK)
+    _interrupted_build(out, small_box, monkeypatch)
     calls = count_solves(monkeypatch)
     with caplog.at_level(logging.INFO):
         gf = hailstorm.runtime.load(build_bundle(out, mesh=small_box, young=2e6, poisson=0.3, block_bytes=BLOCK))
@@ -76,10 +80,7 @@ def test_blocks_of_another_material_are_never_used(tmp_path, small_box, monkeypa
 
 def test_a_block_tagged_with_another_key_or_damaged_is_computed_again(tmp_path, small_box, monkeypatch, caplog):
     out = tmp_path / "b"
-    with monkeypatch.context() as m:
-        interrupt_after(m, 3)
-        with pytest.raises(KeyboardInterrupt):
-            build_bundle(out, mesh=small_box, young=1e6, poisson=0.3, block_bytes=BLOCK)
+    _interrupted_build(out, small_box, monkeypatch)
     work = work_dir(out)
     rec = work / "blocks" / "000001.json"
     r = json.loads(rec.read_text())

@@ -142,18 +142,6 @@ def test_plot(study, tmp_path):
     assert out.stat().st_size < 150_000
 
 
-def test_committed_figure_is_small():
-    fig = ROOT / "notebooks" / "figures" / "mesh_dependence.png"
-    if not fig.exists():
-        pytest.skip("figure not generated")
-    assert fig.stat().st_size <= 150 * 1024
-
-
-def test_notebook_runs_small(run_notebook):
-    text = run_notebook("mesh_dependence.ipynb")
-    assert "SMALL = True" in text
-
-
 # --------------------------------------------------------------------------
 # stability of the contact integrators
 # --------------------------------------------------------------------------
@@ -236,14 +224,20 @@ def test_plot_stability_map(small_maps, box_bundle, tmp_path):
     assert 0 < out.stat().st_size < 150_000
 
 
-def test_committed_stability_figure_is_small():
-    fig = ROOT / "notebooks" / "figures" / "stability.png"
+# --------------------------------------------------------------------------
+# the studies' committed figures and notebooks
+# --------------------------------------------------------------------------
+@pytest.mark.parametrize("name", ["mesh_dependence.png", "stability.png"])
+def test_committed_figure_is_small(name):
+    fig = ROOT / "notebooks" / "figures" / name
     if not fig.exists():
         pytest.skip("figure not generated")
     assert fig.stat().st_size <= 150 * 1024
 
 
-def test_stability_notebook_runs_small(run_notebook):
-    text = run_notebook("stability.ipynb")
+@pytest.mark.parametrize("name, interpretations", [("mesh_dependence.ipynb", 0), ("stability.ipynb", 4)])
+def test_notebook_runs_small(run_notebook, name, interpretations):
+    """The notebook runs on small settings (and the stability one interprets its four results)."""
+    text = run_notebook(name)
     assert "SMALL = True" in text
-    assert text.count("Interpretation:") >= 4
+    assert text.count("Interpretation:") >= interpretations

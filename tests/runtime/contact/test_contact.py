@@ -115,6 +115,18 @@ def random_contacts(box, s, rng, *, same_triangle=True):
     return tri, bary
 
 
+def one_pulled_out(box, s, pulled, *, seed):
+    """s random contacts on distinct triangles (:func:`random_contacts`) pressed 1 mm in along
+    their normals, all but contact ``pulled``, which is pulled 2 mm outward: tri, bary, normals, ubar."""
+    gf = box["gf"]
+    rng = np.random.default_rng(seed)
+    tri, bary = random_contacts(box, s, rng, same_triangle=False)
+    n = triangle_normals(gf.vertices, gf.triangles[tri])
+    ubar = -1e-3 * n  # everyone presses in...
+    ubar[pulled] = +2e-3 * n[pulled]  # ...but one is pulled outward
+    return tri, bary, n, ubar
+
+
 def rel(a, b):
     return np.abs(a - b).max() / max(np.abs(b).max(), 1e-300)
 
@@ -261,11 +273,7 @@ def test_exported_from_runtime():
 @pytest.mark.parametrize("mode", ["sticky", "frictionless"])
 def test_unilateral_releases_pulling_contact(box, mode):
     gf = box["gf"]
-    rng = np.random.default_rng(11)
-    tri, bary = random_contacts(box, 7, rng, same_triangle=False)
-    n = triangle_normals(gf.vertices, gf.triangles[tri])
-    ubar = -1e-3 * n  # everyone presses in...
-    ubar[4] = +2e-3 * n[4]  # ...but contact 4 is pulled outward
+    tri, bary, n, ubar = one_pulled_out(box, 7, 4, seed=11)
     bil = solve_contacts(gf, tri, bary, ubar, mode=mode)
     assert bil.forces[4] @ n[4] > 0  # a bilateral contact would pull
     uni = solve_contacts(gf, tri, bary, ubar, mode=mode, unilateral=True)
@@ -641,11 +649,7 @@ def test_patch_matches_direct_fem(box, mode, s, radius):
 @pytest.mark.parametrize("mode", ["sticky", "frictionless"])
 def test_patch_unilateral_matches_direct_fem(box, mode):
     gf = box["gf"]
-    rng = np.random.default_rng(17)
-    tri, bary = random_contacts(box, 5, rng, same_triangle=False)
-    n = triangle_normals(gf.vertices, gf.triangles[tri])
-    ubar = -1e-3 * n
-    ubar[2] = 2e-3 * n[2]  # pulled out: released
+    tri, bary, n, ubar = one_pulled_out(box, 5, 2, seed=17)  # contact 2 released
     sol = solve_contacts(gf, tri, bary, ubar, mode=mode, unilateral=True, patch_radius=0.02)
     assert not sol.active[2] and sol.active.sum() == 4
     keep = np.arange(5) != 2

@@ -10,6 +10,7 @@ import pytest
 from hailstorm.runtime.storm.scene import Scene, SceneError
 from hailstorm.runtime.storm.driver import Storm
 from hailstorm.runtime.storm.run import run_storm
+from helpers import drop_on_seat_top
 
 
 @pytest.fixture(scope="module")
@@ -262,32 +263,9 @@ def test_short_storm_on_the_seat(seat_bundle):
 def _drop(gf, patch, r=0.005, v0=9.0, integrator="exact", dt=5e-4, at_vertex=True):
     """One stone (no drag) onto the seat's top: (storm, restitution)."""
     sc = Scene.from_flat(duration=0.05, stones=0, drag=False, dt=dt, integrator=integrator, restitution=0.5, patch=patch)
-    st = Storm(gf, sc, spawn=False)
-    soft_v = np.unique(gf.triangles[st.soft])
-    top = soft_v[np.argmax(gf.vertices[soft_v, 2])]
-    if at_vertex:
-        x, nrm = gf.vertices[top], gf.vertex_normals()[top]
-    else:
-        t = int(np.flatnonzero(st.soft & (gf.triangles == top).any(axis=1))[0])
-        x, nrm = gf.vertices[gf.triangles[t]].mean(axis=0), st.index.normals[t]
-    st.add_stones(x + (r + 2e-3) * nrm, -v0 * nrm, r)
-    v_in = v_out = None
-    was = False
-    for _ in range(int(0.03 / dt)):
-        vb = st.vel[0].copy()
-        st.step()
-        now = st.ctri[0] >= 0
-        if now and not was and v_in is None:
-            v_in = float(-vb @ nrm)
-        if was and not now and v_in is not None:
-            v_out = float(st.vel[0] @ nrm)
-            break
-        if not was and not now and vb @ nrm < 0 < st.vel[0] @ nrm:
-            # the whole impact inside one step's sub-steps (a stiff seat): in and out of it
-            # (gravity over one step changes the speeds by g dt, < 0.1 % of them)
-            v_in, v_out = float(-vb @ nrm), float(st.vel[0] @ nrm)
-            break
-        was = now
+    # an impact inside one step's sub-steps (a stiff seat) counts: gravity over one step changes
+    # the speeds by g dt, < 0.1 % of them
+    st, v_in, v_out, _ = drop_on_seat_top(gf, sc, int(0.03 / dt), r=r, v0=v0, at_vertex=at_vertex)
     assert v_in is not None and v_out is not None, "the stone did not bounce"
     return st, v_out / v_in
 
