@@ -21,7 +21,7 @@ from hailstorm.runtime.compiled.expm import expm
 from hailstorm.runtime.compiled.jit import kernel
 from hailstorm.runtime.compiled.modal import scalar_exact_py
 
-__all__ = ["EXACT_GRID", "EXACT_MAX_SEGMENTS", "EXACT_REFINE", "exact_step"]
+__all__ = ["exact_step"]
 
 
 #: the closed-form single contact of the exact integrator: the one definition in :mod:`hailstorm.runtime.compiled.modal`, compiled
@@ -175,181 +175,6 @@ def _track(idx, Ka, ub, ncol, group, wts, ng, pk2, pk_f, dmin, dmin_u):  # pragm
                         dmin_u[idx[r]] = ub[r, col]
 
 
-#: :func:`exact_step`'s search of an event: samples per bracket, refinements, segments per step
-EXACT_GRID = 32
-EXACT_REFINE = 2
-EXACT_MAX_SEGMENTS = 12
-
-
-@kernel
-def _release_pulling(q, v, a, K, W, Cn, active, damp_g, group, wts, ng, ident, always, unilateral, cond_limit,
-                     rcond):  # pragma: no cover (compiled)
-    """:func:`exact_step`'s active set at a segment's start: release the contacts that pull and
-    do not approach (in place in ``active``), until none does. Returns the active components and
-    their capacitance."""
-    n = q.size
-    while True:
-        idx = np.flatnonzero(active)
-        Ka = inv_spd(submatrix(W, idx), cond_limit, rcond) if idx.size < n else K
-        if not unilateral or idx.size == 0:
-            return idx, Ka
-        f = np.zeros(n)
-        fa = -(Ka @ (q[idx] - a[idx]))
-        ce = _dashpot(idx, Cn, damp_g, group, always)
-        fd = ce @ v[idx]
-        for r in range(idx.size):
-            f[idx[r]] = fa[r] - fd[r]
-        fn = _gsum(f.reshape(n, 1), group, wts, ng, ident)[:, 0]
-        vn = _gsum(v.reshape(n, 1), group, wts, ng, ident)[:, 0]
-        gact = np.zeros(ng, np.bool_)
-        for i in range(n):
-            if active[i]:
-                gact[group[i]] = True
-        pull = (fn < 0.0) & (vn >= 0.0) & gact
-        if not pull.any():
-            return idx, Ka
-        for i in range(n):
-            if pull[group[i]]:
-                active[i] = False
-    return np.flatnonzero(active), K  # (not reached)
-
-
-@kernel
-def _find_event(h, ok, lam, V, Vi, A, z0, ngrid, gi, wi, ng, ident_a, Ka, off_eq, ce, off_mask, on_mask, sw_on,
-                unilateral, idx, group, wts, pk2, pk_f, dmin, dmin_u):  # pragma: no cover (compiled)
-    """:func:`exact_step`'s next event within a segment of length ``h`` (a dashpot switching, a
-    contact releasing), located on the closed-form trajectory: :data:`EXACT_GRID` samples, refined
-    :data:`EXACT_REFINE` times; the peaks tracked up to it. Returns ``(found, t_e, ze, evg)``: an
-    event found, its time, the state then and the groups whose pattern changes."""
-    na = idx.size
-    zlo = z0  # (defective basis: the state at the bracket's left end)
-    lo = 0.0
-    hi = h
-    tau = h * np.arange(1, EXACT_GRID + 1) / EXACT_GRID
-    t_e = h
-    ze = np.empty(2 * na)
-    evg = np.zeros(ng, np.bool_)
-    found = False
-    for ref in range(EXACT_REFINE + 1):
-        if ok:
-            Z = _modal_at(lam, V, Vi, z0, tau)
-        else:
-            Z = _expm_states(A, zlo, (hi - lo) / EXACT_GRID, ngrid)
-        y = Z[:na]
-        vv = Z[na:]
-        vng = _gsum(np.ascontiguousarray(vv), gi, wi, ng, ident_a)
-        fl = -(Ka @ (y + off_eq.reshape(na, 1))) - ce @ np.ascontiguousarray(vv)
-        fng = _gsum(fl, gi, wi, ng, ident_a)
-        j = -1
-        for col in range(tau.size):
-            for gg in range(ng):
-                e = (off_mask[gg] and vng[gg, col] >= 0.0) or (on_mask[gg] and vng[gg, col] < 0.0) or (
-                    unilateral and sw_on[gg] and fng[gg, col] < 0.0 and vng[gg, col] >= 0.0)
-                if e:
-                    j = col
-                    break
-            if j >= 0:
-                break
-        if ref == 0 and j < 0:
-            ze[:] = Z[:, -1]
-            _track(idx, Ka, y + off_eq.reshape(na, 1), tau.size, group, wts, ng, pk2, pk_f, dmin, dmin_u)
-            break
-        if j < 0:  # (the bracket's right end had an event; rounding aside, it still does)
-            j = 0
-        # the states up to the event (after it: another pattern)
-        _track(idx, Ka, y + off_eq.reshape(na, 1), j + 1, group, wts, ng, pk2, pk_f, dmin, dmin_u)
-        found = True
-        if j:
-            zlo = np.ascontiguousarray(Z[:, j - 1])
-        lo, hi = (tau[j - 1] if j else lo), tau[j]
-        ze[:] = Z[:, j]
-        for gg in range(ng):
-            evg[gg] = (off_mask[gg] and vng[gg, j] >= 0.0) or (on_mask[gg] and vng[gg, j] < 0.0) or (
-                unilateral and sw_on[gg] and fng[gg, j] < 0.0 and vng[gg, j] >= 0.0)
-        t_e = hi
-        if ref < EXACT_REFINE:
-            tau = lo + (hi - lo) * np.arange(1, EXACT_GRID + 1) / EXACT_GRID
-    return found, t_e, ze, evg
-
-
-@kernel
-def _after_event(q, v, aa, idx, Ka, ce, group, wts, ng, ident, evg, sw_on, unilateral, damp_g,
-                 active):  # pragma: no cover (compiled)
-    """:func:`exact_step`'s pattern after an event: a group whose event it was switches its
-    dashpot (compressing or not), or is released (it pulls and does not approach), in place."""
-    n = q.size
-    na = idx.size
-    vng1 = _gsum(v.reshape(n, 1), group, wts, ng, ident)[:, 0]
-    f = np.zeros(n)
-    fa = -(Ka @ (q[idx] - aa)) - ce @ v[idx]
-    for r in range(na):
-        f[idx[r]] = fa[r]
-    fng1 = _gsum(f.reshape(n, 1), group, wts, ng, ident)[:, 0]
-    for gg in range(ng):
-        ea = evg[gg] and sw_on[gg]
-        rel = unilateral and ea and fng1[gg] < 0.0 and vng1[gg] >= 0.0
-        if ea and not rel:
-            damp_g[gg] = vng1[gg] < 0.0
-        if rel:
-            for i in range(n):
-                if group[i] == gg:
-                    active[i] = False
-
-
-@kernel
-def _finish_frozen(h, q, v, a, m, g, K, W, Cn, Ka, active, damp_g, group, wts, ng, always, one, pk2, pk_f, dmin, dmin_u,
-                   cond_limit, rcond):  # pragma: no cover (compiled)
-    """:func:`exact_step` after too many events in one step: the ``h`` left with the pattern
-    frozen (rare). Returns the capacitance of the contacts left active."""
-    n = q.size
-    if not h > 0:
-        return Ka
-    idx = np.flatnonzero(active)
-    free = np.flatnonzero(~active)
-    ze = np.zeros(0)
-    q_eq = np.zeros(0)
-    if idx.size:
-        # (the last segment may have released contacts: the capacitance of those left)
-        Ka = inv_spd(submatrix(W, idx), cond_limit, rcond) if idx.size < n else K
-        ce = _dashpot(idx, Cn, damp_g, group, always)
-        q_eq = a[idx] + submatrix(W, idx) @ (m[idx] * g[idx])
-        A = _state_matrix(Ka, m[idx], ce)
-        lam, V, Vi, ok = _modal(A)
-        z0 = np.concatenate((q[idx] - q_eq, v[idx]))
-        if ok:
-            ze = np.ascontiguousarray(_modal_at(lam, V, Vi, z0, np.array([h]))[:, 0])
-        else:
-            ze = np.ascontiguousarray(_expm_states(A, z0, h, one)[:, 0])
-    _advance(q, v, g, idx, ze, q_eq, free, h)
-    if idx.size:
-        _track(idx, Ka, (q[idx] - a[idx]).reshape(idx.size, 1), one, group, wts, ng, pk2, pk_f, dmin, dmin_u)
-    return Ka
-
-
-@kernel
-def _step_result(q, v, v0, a, m, g, dt, K, W, Ka, active, group, dmin, dmin_u, pk_f, cond_limit,
-                 rcond):  # pragma: no cover (compiled)
-    """:func:`exact_step`'s result: the forces over the step, the seat's at its end, the peaks."""
-    n = q.size
-    force = np.zeros(n)
-    seat = np.zeros(n)
-    idx = np.flatnonzero(active)
-    for i in idx:
-        force[i] = m[i] * ((v[i] - v0[i]) / dt - g[i])
-    if idx.size:
-        if Ka.shape[0] != idx.size:  # released at the last event
-            Ka = inv_spd(submatrix(W, idx), cond_limit, rcond) if idx.size < n else K
-        sa = Ka @ (q[idx] - a[idx])
-        for r in range(idx.size):
-            seat[idx[r]] = sa[r]
-    for i in range(n):
-        if not np.isfinite(dmin[group[i]]):
-            dmin_u[i] = q[i] - a[i]
-    return q, v, active, force, seat, pk_f, dmin_u
-
-
-
-
 @kernel
 def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond_limit,
                rcond):  # pragma: no cover (compiled)
@@ -368,7 +193,16 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond
 
     Returns ``(q, v, active, force, seat_force, peak_seat_force, peak_ubar)``
     (see :class:`hailstorm.runtime.storm.hail.ContactStep`).
+
+    One kernel over two hundred lines, on purpose: split into its steps (the active set at a
+    segment's start, the next event, the pattern after it, the frozen finish, the result) as
+    separate kernels it compiled in 30.6 s of CPU instead of 23.8 s on a first run
+    (``tests/benchmarks/compile_time.py``, 2026-12-06, load 0.8), the same arithmetic; the
+    first run's compile is what issue #44 asks to shorten. Its steps are marked by comments.
     """
+    GRID = 32
+    REFINE = 2
+    MAX_SEGMENTS = 12
     n = q.size
     ng = np.int64(0)  # (not the literal 0: a literal argument is a second specialisation of _gsum, _track)
     for i in range(n):
@@ -398,7 +232,7 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond
     # (kernels called with one type each: a literal 1 or a strided view as an argument
     # would compile a second specialisation of _track / _advance / _gsum on a first run)
     one = np.int64(1)
-    ngrid = np.int64(EXACT_GRID)  # (not the literal: one specialisation of _expm_states)
+    ngrid = np.int64(GRID)  # (not the literal: one specialisation of _expm_states)
     ident = ng == n
     for i in range(n):
         if group[i] != i or wts[i] != 1.0:
@@ -410,10 +244,31 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond
     pk_f = np.zeros(n)
     dmin = np.full(ng, np.inf)
     dmin_u = q - a
-    for _seg in range(EXACT_MAX_SEGMENTS):
+    for _seg in range(MAX_SEGMENTS):
         # unilateral: release contacts that pull now and do not approach (active-set iteration)
-        idx, Ka = _release_pulling(q, v, a, K, W, Cn, active, damp_g, group, wts, ng, ident, always, unilateral,
-                                   cond_limit, rcond)
+        while True:
+            idx = np.flatnonzero(active)
+            Ka = inv_spd(submatrix(W, idx), cond_limit, rcond) if idx.size < n else K
+            if not unilateral or idx.size == 0:
+                break
+            f = np.zeros(n)
+            fa = -(Ka @ (q[idx] - a[idx]))
+            ce = _dashpot(idx, Cn, damp_g, group, always)
+            fd = ce @ v[idx]
+            for r in range(idx.size):
+                f[idx[r]] = fa[r] - fd[r]
+            fn = _gsum(f.reshape(n, 1), group, wts, ng, ident)[:, 0]
+            vn = _gsum(v.reshape(n, 1), group, wts, ng, ident)[:, 0]
+            gact = np.zeros(ng, np.bool_)
+            for i in range(n):
+                if active[i]:
+                    gact[group[i]] = True
+            pull = (fn < 0.0) & (vn >= 0.0) & gact
+            if not pull.any():
+                break
+            for i in range(n):
+                if pull[group[i]]:
+                    active[i] = False
         if _seg == 0:
             ia = np.flatnonzero(active)
             if ia.size:
@@ -438,6 +293,7 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond
         A = _state_matrix(Ka, ma, ce)
         lam, V, Vi, ok = _modal(A)
         z0 = np.concatenate((q[idx] - q_eq, v[idx]))
+        zlo = z0  # (defective basis: the state at the bracket's left end)
         gi = group[idx]
         wi = wts[idx]
         ident_a = ident and na == n
@@ -452,15 +308,106 @@ def exact_step(q, v, a, m, g, dt, K, W, Cn, unilateral, group, wts, always, cond
         off_mask = switchable & damp_g
         on_mask = switchable & ~damp_g
         off_eq = q_eq - aa
-        found, t_e, ze, evg = _find_event(h, ok, lam, V, Vi, A, z0, ngrid, gi, wi, ng, ident_a, Ka, off_eq, ce, off_mask,
-                                          on_mask, sw_on, unilateral, idx, group, wts, pk2, pk_f, dmin, dmin_u)
+        lo = 0.0
+        hi = h
+        tau = h * np.arange(1, GRID + 1) / GRID
+        t_e = h
+        ze = np.empty(2 * na)
+        evg = np.zeros(ng, np.bool_)
+        found = False
+        for ref in range(REFINE + 1):
+            if ok:
+                Z = _modal_at(lam, V, Vi, z0, tau)
+            else:
+                Z = _expm_states(A, zlo, (hi - lo) / GRID, ngrid)
+            y = Z[:na]
+            vv = Z[na:]
+            vng = _gsum(np.ascontiguousarray(vv), gi, wi, ng, ident_a)
+            fl = -(Ka @ (y + off_eq.reshape(na, 1))) - ce @ np.ascontiguousarray(vv)
+            fng = _gsum(fl, gi, wi, ng, ident_a)
+            j = -1
+            for col in range(tau.size):
+                for gg in range(ng):
+                    e = (off_mask[gg] and vng[gg, col] >= 0.0) or (on_mask[gg] and vng[gg, col] < 0.0) or (
+                        unilateral and sw_on[gg] and fng[gg, col] < 0.0 and vng[gg, col] >= 0.0)
+                    if e:
+                        j = col
+                        break
+                if j >= 0:
+                    break
+            if ref == 0 and j < 0:
+                ze[:] = Z[:, -1]
+                _track(idx, Ka, y + off_eq.reshape(na, 1), tau.size, group, wts, ng, pk2, pk_f, dmin, dmin_u)
+                break
+            if j < 0:  # (the bracket's right end had an event; rounding aside, it still does)
+                j = 0
+            # the states up to the event (after it: another pattern)
+            _track(idx, Ka, y + off_eq.reshape(na, 1), j + 1, group, wts, ng, pk2, pk_f, dmin, dmin_u)
+            found = True
+            if j:
+                zlo = np.ascontiguousarray(Z[:, j - 1])
+            lo, hi = (tau[j - 1] if j else lo), tau[j]
+            ze[:] = Z[:, j]
+            for gg in range(ng):
+                evg[gg] = (off_mask[gg] and vng[gg, j] >= 0.0) or (on_mask[gg] and vng[gg, j] < 0.0) or (
+                    unilateral and sw_on[gg] and fng[gg, j] < 0.0 and vng[gg, j] >= 0.0)
+            t_e = hi
+            if ref < REFINE:
+                tau = lo + (hi - lo) * np.arange(1, GRID + 1) / GRID
         _advance(q, v, g, idx, ze, q_eq, free, t_e)
         t += t_e
         if not found:
             break
-        _after_event(q, v, aa, idx, Ka, ce, group, wts, ng, ident, evg, sw_on, unilateral, damp_g, active)
+        vng1 = _gsum(v.reshape(n, 1), group, wts, ng, ident)[:, 0]
+        f = np.zeros(n)
+        fa = -(Ka @ (q[idx] - aa)) - ce @ v[idx]
+        for r in range(na):
+            f[idx[r]] = fa[r]
+        fng1 = _gsum(f.reshape(n, 1), group, wts, ng, ident)[:, 0]
+        for gg in range(ng):
+            ea = evg[gg] and sw_on[gg]
+            rel = unilateral and ea and fng1[gg] < 0.0 and vng1[gg] >= 0.0
+            if ea and not rel:
+                damp_g[gg] = vng1[gg] < 0.0
+            if rel:
+                for i in range(n):
+                    if group[i] == gg:
+                        active[i] = False
     else:
         # too many events in one step: finish it with the pattern frozen (rare)
-        Ka = _finish_frozen(dt - t, q, v, a, m, g, K, W, Cn, Ka, active, damp_g, group, wts, ng, always, one, pk2, pk_f,
-                            dmin, dmin_u, cond_limit, rcond)
-    return _step_result(q, v, v0, a, m, g, dt, K, W, Ka, active, group, dmin, dmin_u, pk_f, cond_limit, rcond)
+        h = dt - t
+        if h > 0:
+            idx = np.flatnonzero(active)
+            free = np.flatnonzero(~active)
+            ze = np.zeros(0)
+            q_eq = np.zeros(0)
+            if idx.size:
+                # (the last segment may have released contacts: the capacitance of those left)
+                Ka = inv_spd(submatrix(W, idx), cond_limit, rcond) if idx.size < n else K
+                ce = _dashpot(idx, Cn, damp_g, group, always)
+                q_eq = a[idx] + submatrix(W, idx) @ (m[idx] * g[idx])
+                A = _state_matrix(Ka, m[idx], ce)
+                lam, V, Vi, ok = _modal(A)
+                z0 = np.concatenate((q[idx] - q_eq, v[idx]))
+                if ok:
+                    ze = np.ascontiguousarray(_modal_at(lam, V, Vi, z0, np.array([h]))[:, 0])
+                else:
+                    ze = np.ascontiguousarray(_expm_states(A, z0, h, one)[:, 0])
+            _advance(q, v, g, idx, ze, q_eq, free, h)
+            if idx.size:
+                _track(idx, Ka, (q[idx] - a[idx]).reshape(idx.size, 1), one, group, wts, ng, pk2, pk_f, dmin, dmin_u)
+    force = np.zeros(n)
+    seat = np.zeros(n)
+    idx = np.flatnonzero(active)
+    for i in idx:
+        force[i] = m[i] * ((v[i] - v0[i]) / dt - g[i])
+    if idx.size:
+        if Ka.shape[0] != idx.size:  # released at the last event
+            Ka = inv_spd(submatrix(W, idx), cond_limit, rcond) if idx.size < n else K
+        sa = Ka @ (q[idx] - a[idx])
+        for r in range(idx.size):
+            seat[idx[r]] = sa[r]
+    for i in range(n):
+        if not np.isfinite(dmin[group[i]]):
+            dmin_u[i] = q[i] - a[i]
+    return q, v, active, force, seat, pk_f, dmin_u

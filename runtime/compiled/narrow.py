@@ -139,14 +139,74 @@ def contact_normal(p, t, bary, X, T, tri_normals, corner, sharp_edge, sharp_vert
 
 
 @kernel
-def _closest_phase(near, h, pos, vel, radius, offset, shift, ctri, cbary, cnormal, gap, near_tri, surf, tri_normals,
-                   corner, sharp_edge, sharp_vertex, umax, use_u, undeformed, D, fcols, fv, X, T, done, Y, done0, Y0,
-                   in_contact, dist, tri, bary, point, gp, bt, nrm):  # pragma: no cover (compiled)
-    """:func:`free_phase`'s closest points, in place: an open contact keeps its ``(t, beta)`` or
-    moves to the closest point of the undeformed surface; a free stone queries the deformed
-    surface (its gap ``gp``; an engagement whose sphere is clear ends). Returns whether any
-    free stone was queried."""
+def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, offset, shift, ctri, cbary, cnormal, gap, near_tri, surf,
+               tri_normals, corner, sharp_edge, sharp_vertex, soft, fixed, rigid_weight, umax, use_u, D, fcols, fv, g, wind, drag_coef,
+               restitution):  # pragma: no cover
+    """The first phases of one storm sub-step for the near stones, in place: closest
+    points, time of impact, contacts that open, hard walls.
+
+    A stone's contact surface is the sphere of radius ``radius - offset``
+    (:meth:`hailstorm.runtime.storm.stones.Stones.contact_radius`; the queries reach its
+    whole sphere). Stones without a contact query the deformed surface; an open contact
+    keeps its ``(t, beta)`` while the closest point of the undeformed surface lies on that
+    triangle (inside it or on its boundary), else moves to it; its anchor lies ``shift`` out
+    along its normal ``cnormal`` (:func:`contact_normal` of the corners' normals ``corner`` and
+    the sharp edges and corners ``sharp_edge``, ``sharp_vertex``, set where the contact opens or
+    moves;
+    :attr:`hailstorm.runtime.storm.stones.Stones.shift`; the module
+    notes of :mod:`hailstorm.runtime.storm.driver`, "Facets"). With ``toi`` the sub-step ends when the
+    first approaching stone reaches the tangent plane at its closest point (one
+    approaching in a patch's dead zone moves at most ``DEAD_ZONE_REACH`` radii); contacts
+    open within ``toi_tol`` radii (approaching or overlapping; ``toi_tol`` of the offset in
+    a patch's dead zone), the stone put on the surface along the contact's normal (its
+    contact surface at the closest point; the anchor out by the normal's tilt from the
+    direction to that point). A free stone whose sphere is
+    clear of the surface ends its engagement (``offset`` set to 0, in place). Contacts on
+    hard triangles (or on the clamped edge or corner of a soft one: at most
+    ``rigid_weight`` of the closest point's barycentric weight on free vertices,
+    :data:`hailstorm.runtime.contact.policy.RIGID_WEIGHT`) bounce at once.
+
+    Returns
+    -------
+    h : float
+        The sub-step actually taken.
+    walls : int
+        Impacts on hard triangles.
+
+    Notes
+    -----
+    One kernel over two hundred lines, on purpose: split into its four phases (closest
+    points, time of impact, contacts that open, hard walls) as separate kernels it compiled in
+    7.6 s of CPU instead of 6.0 s on a first run (``tests/benchmarks/compile_time.py``,
+    2026-12-06, load 0.8), the same arithmetic; the first run's compile is what issue #44 asks
+    to shorten. The phases are marked by comments.
+    """
+    X = surf[8]
+    T = surf[9]
     k = near.size
+    nv = X.shape[0]
+    done = np.zeros(nv if use_u else 0, np.bool_)
+    Y = np.empty((nv if use_u else 0, 3))
+    done0 = np.zeros(0, np.bool_)
+    Y0 = np.empty((0, 3))
+    # a bool variable, not the literal False: a literal argument compiles a second
+    # specialisation of closest_one (~4 s of a first run)
+    undeformed = use_u and not use_u
+    in_contact = np.zeros(k, np.bool_)
+    # (filled by a loop, not np.full: its three specialisations cost ~0.7 s of a first run)
+    dist = np.empty(k)
+    tri = np.empty(k, np.int64)
+    bary = np.zeros((k, 3))
+    point = np.empty((k, 3))
+    for j in range(k):
+        dist[j] = np.inf
+        tri[j] = -1
+        for e in range(3):
+            point[j, e] = np.nan
+    gp = np.zeros(k)
+    bt = np.empty(3)
+    nrm = np.empty(3)
+    dvec = np.empty(3)
     queried = False
     for j in range(k):
         i = near[j]
@@ -195,44 +255,28 @@ def _closest_phase(near, h, pos, vel, radius, offset, shift, ctri, cbary, cnorma
                 gp[j] -= offset[i]
                 offset[i] = 0.0
         gap[i] = gp[j]
-    return queried
-
-
-@kernel
-def _time_of_impact(near, h, hmin, toi_tol, pos, vel, radius, offset, in_contact, gp, point, dvec, nrm, g, wind,
-                    drag_coef):  # pragma: no cover (compiled)
-    """:func:`free_phase`'s time of impact: the sub-step ``h`` shortened to when the first
-    approaching stone reaches its tangent plane (one in a patch's dead zone moves at most
-    :data:`DEAD_ZONE_REACH` radii), at least ``hmin``."""
-    k = near.size
-    tmin = np.inf
-    for j in range(k):
-        i = near[j]
-        if in_contact[j] or not np.isfinite(gp[j]) or not gp[j] > _opening(toi_tol, radius[i], offset[i]):
-            continue
-        for e in range(3):
-            dvec[e] = pos[i, e] - point[j, e]
-        _unit(dvec, nrm)
-        w = -(vel[i, 0] * nrm[0] + vel[i, 1] * nrm[1] + vel[i, 2] * nrm[2])
-        an = -drag_dot(i, vel, radius, nrm, g, wind, drag_coef)
-        if w > 0.0 and gp[j] < w * h + 0.5 * abs(an) * h * h:
-            disc = math.sqrt(max(w * w + 2.0 * an * gp[j], 0.0))
-            tmin = min(tmin, 2.0 * gp[j] / max(w + disc, 1e-12))
-        if offset[i] > 0.0 and w > 0.0:  # approaching in a patch's dead zone: the tangent plane holds only so far
-            tmin = min(tmin, DEAD_ZONE_REACH * radius[i] / max(math.sqrt(
-                vel[i, 0] ** 2 + vel[i, 1] ** 2 + vel[i, 2] ** 2), 1e-12))
-    if tmin < np.inf:
-        h = min(h, max(tmin, hmin))
-    return h
-
-
-@kernel
-def _open_contacts(near, timing, toi_tol, pos, vel, radius, offset, shift, ctri, cbary, cnormal, gap, X, T, tri_normals,
-                   corner, sharp_edge, sharp_vertex, in_contact, dist, tri, bary, point, gp, bt, nrm,
-                   dvec):  # pragma: no cover (compiled)
-    """:func:`free_phase`'s contacts that open, at their closest points: the stone put on the
-    surface along the contact's normal, its anchor out by the normal's tilt."""
-    k = near.size
+    timing = toi and queried
+    # time of impact: the first approaching stone to reach its tangent plane
+    if timing:
+        tmin = np.inf
+        for j in range(k):
+            i = near[j]
+            if in_contact[j] or not np.isfinite(gp[j]) or not gp[j] > _opening(toi_tol, radius[i], offset[i]):
+                continue
+            for e in range(3):
+                dvec[e] = pos[i, e] - point[j, e]
+            _unit(dvec, nrm)
+            w = -(vel[i, 0] * nrm[0] + vel[i, 1] * nrm[1] + vel[i, 2] * nrm[2])
+            an = -drag_dot(i, vel, radius, nrm, g, wind, drag_coef)
+            if w > 0.0 and gp[j] < w * h + 0.5 * abs(an) * h * h:
+                disc = math.sqrt(max(w * w + 2.0 * an * gp[j], 0.0))
+                tmin = min(tmin, 2.0 * gp[j] / max(w + disc, 1e-12))
+            if offset[i] > 0.0 and w > 0.0:  # approaching in a patch's dead zone: the tangent plane holds only so far
+                tmin = min(tmin, DEAD_ZONE_REACH * radius[i] / max(math.sqrt(
+                    vel[i, 0] ** 2 + vel[i, 1] ** 2 + vel[i, 2] ** 2), 1e-12))
+        if tmin < np.inf:
+            h = min(h, max(tmin, hmin))
+    # contacts that open, at their closest points
     for j in range(k):
         i = near[j]
         if in_contact[j] or tri[j] < 0:
@@ -283,15 +327,7 @@ def _open_contacts(near, timing, toi_tol, pos, vel, radius, offset, shift, ctri,
         for e in range(3):
             pos[i, e] += push * nrm[e]
         shift[i] = max(dist[j] - dn, 0.0)
-
-
-@kernel
-def _hard_walls(near, pos, vel, radius, ctri, cbary, T, tri_normals, soft, fixed, rigid_weight, point, dvec, nrm,
-                restitution):  # pragma: no cover (compiled)
-    """:func:`free_phase`'s hard walls: a contact on a triangle that cannot deform (or on its
-    clamped edge or corner) is out of the wall at once, bounces with ``restitution`` and
-    closes. Returns the impacts on walls."""
-    k = near.size
+    # hard walls: out of the wall, restitution bounce, the contact closes
     walls = 0
     for j in range(k):
         i = near[j]
@@ -322,81 +358,6 @@ def _hard_walls(near, pos, vel, radius, ctri, cbary, T, tri_normals, soft, fixed
             pos[i, e] += push * nrm[e]
             vel[i, e] -= (1.0 + restitution) * min(vn, 0.0) * nrm[e]
         ctri[i] = -1
-    return walls
-
-
-@kernel
-def free_phase(near, h, toi, toi_tol, hmin, pos, vel, radius, offset, shift, ctri, cbary, cnormal, gap, near_tri, surf,
-               tri_normals, corner, sharp_edge, sharp_vertex, soft, fixed, rigid_weight, umax, use_u, D, fcols, fv, g, wind, drag_coef,
-               restitution):  # pragma: no cover
-    """The first phases of one storm sub-step for the near stones, in place: closest
-    points, time of impact, contacts that open, hard walls.
-
-    A stone's contact surface is the sphere of radius ``radius - offset``
-    (:meth:`hailstorm.runtime.storm.stones.Stones.contact_radius`; the queries reach its
-    whole sphere). Stones without a contact query the deformed surface; an open contact
-    keeps its ``(t, beta)`` while the closest point of the undeformed surface lies on that
-    triangle (inside it or on its boundary), else moves to it; its anchor lies ``shift`` out
-    along its normal ``cnormal`` (:func:`contact_normal` of the corners' normals ``corner`` and
-    the sharp edges and corners ``sharp_edge``, ``sharp_vertex``, set where the contact opens or
-    moves;
-    :attr:`hailstorm.runtime.storm.stones.Stones.shift`; the module
-    notes of :mod:`hailstorm.runtime.storm.driver`, "Facets"). With ``toi`` the sub-step ends when the
-    first approaching stone reaches the tangent plane at its closest point (one
-    approaching in a patch's dead zone moves at most ``DEAD_ZONE_REACH`` radii); contacts
-    open within ``toi_tol`` radii (approaching or overlapping; ``toi_tol`` of the offset in
-    a patch's dead zone), the stone put on the surface along the contact's normal (its
-    contact surface at the closest point; the anchor out by the normal's tilt from the
-    direction to that point). A free stone whose sphere is
-    clear of the surface ends its engagement (``offset`` set to 0, in place). Contacts on
-    hard triangles (or on the clamped edge or corner of a soft one: at most
-    ``rigid_weight`` of the closest point's barycentric weight on free vertices,
-    :data:`hailstorm.runtime.contact.policy.RIGID_WEIGHT`) bounce at once.
-
-    Returns
-    -------
-    h : float
-        The sub-step actually taken.
-    walls : int
-        Impacts on hard triangles.
-    """
-    X = surf[8]
-    T = surf[9]
-    k = near.size
-    nv = X.shape[0]
-    done = np.zeros(nv if use_u else 0, np.bool_)
-    Y = np.empty((nv if use_u else 0, 3))
-    done0 = np.zeros(0, np.bool_)
-    Y0 = np.empty((0, 3))
-    # a bool variable, not the literal False: a literal argument compiles a second
-    # specialisation of closest_one (~4 s of a first run)
-    undeformed = use_u and not use_u
-    in_contact = np.zeros(k, np.bool_)
-    # (filled by a loop, not np.full: its three specialisations cost ~0.7 s of a first run)
-    dist = np.empty(k)
-    tri = np.empty(k, np.int64)
-    bary = np.zeros((k, 3))
-    point = np.empty((k, 3))
-    for j in range(k):
-        dist[j] = np.inf
-        tri[j] = -1
-        for e in range(3):
-            point[j, e] = np.nan
-    gp = np.zeros(k)
-    bt = np.empty(3)
-    nrm = np.empty(3)
-    dvec = np.empty(3)
-    queried = _closest_phase(near, h, pos, vel, radius, offset, shift, ctri, cbary, cnormal, gap, near_tri, surf,
-                             tri_normals, corner, sharp_edge, sharp_vertex, umax, use_u, undeformed, D, fcols, fv, X, T,
-                             done, Y, done0, Y0, in_contact, dist, tri, bary, point, gp, bt, nrm)
-    timing = toi and queried
-    if timing:
-        h = _time_of_impact(near, h, hmin, toi_tol, pos, vel, radius, offset, in_contact, gp, point, dvec, nrm, g, wind,
-                            drag_coef)
-    _open_contacts(near, timing, toi_tol, pos, vel, radius, offset, shift, ctri, cbary, cnormal, gap, X, T, tri_normals,
-                   corner, sharp_edge, sharp_vertex, in_contact, dist, tri, bary, point, gp, bt, nrm, dvec)
-    walls = _hard_walls(near, pos, vel, radius, ctri, cbary, T, tri_normals, soft, fixed, rigid_weight, point, dvec, nrm,
-                        restitution)
     return h, walls
 
 

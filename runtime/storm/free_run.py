@@ -103,11 +103,13 @@ class FreeRun:
         e = np.zeros(0)
         sizes = bool(integrator.sizes_substeps and k_tri is not None)
         self._sizing = (sizes, int(scene.time.max_substeps), k_tri if sizes else e, scene.time.approach_fraction,
-                        scene.time.rest_speed, integrator.omega_dt, integrator.kind.explicit, np.zeros(0, dtype=np.int64),
-                        e, scene.contact.sticky, np.zeros((0, 3)), np.array([0.0, 0.0, -GRAVITY]))
+                        scene.time.rest_speed, integrator.omega_dt, integrator.kind.explicit,
+                        np.zeros(0, dtype=np.int64), e, scene.contact.sticky, np.zeros((0, 3)),
+                        np.array([0.0, 0.0, -GRAVITY]))
         self._scratch_size = -1
 
     def _scratch(self, capacity: int) -> tuple[np.ndarray, ...]:
+        """The kernel's scratch arrays for ``capacity`` stones (kept while it does not change)."""
         if capacity != self._scratch_size:
             self._scratch_arrays = (np.empty(capacity, np.int64), np.empty(capacity, np.int64),
                                     np.empty(capacity, np.int64), np.empty(capacity))
@@ -124,7 +126,7 @@ class FreeRun:
         """
         stones.reserve(len(self.plan.rows) - self.plan.next_row)  # room for the plan's stones still to come
         buffers = stones.buffers()
-        live, near, gone, cr = scratch = self._scratch(buffers[0].shape[0])
+        live, near, gone, _ = scratch = self._scratch(buffers[0].shape[0])
         acc = np.array([float(getattr(stats, name)) if name in STATS else 0.0 for name in ACC_FIELDS])
         use_u, cols, forces = seat.kernel_load()
         status, steps, t_end, j, n, n_live, n_near, n_gone, h, t_left, n_sub = free_steps(
@@ -139,7 +141,8 @@ class FreeRun:
         if steps:
             seat.end_step()
         opened = status == OPENED
-        return FreeResult(steps=int(steps), t=float(t_end), opened=opened, live=live[:n_live].copy() if opened else live[:0],
+        return FreeResult(steps=int(steps), t=float(t_end), opened=opened,
+                          live=live[:n_live].copy() if opened else live[:0],
                           near=near[:n_near].copy() if opened else near[:0], h=float(h), t_left=float(t_left),
                           n_sub=int(n_sub), retired=gone[:n_gone].copy(),
                           fell_through=int(acc[ACC_FIELDS.index("fell_through")]))
