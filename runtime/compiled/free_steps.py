@@ -183,21 +183,27 @@ def free_steps(n_max, t, dt, i0, n_steps, next_frame, history, plan, plan_mass, 
     live, near_out, gone, cr = scratch
     radius, ctri, offset = stones[2], stones[5], stones[12]
     lo, hi, sr, glo, gh, dims, start, items, spts = broad
-    n_gone = 0
-    n_live = 0
+    alive = stones[4]
+    n_gone = np.int64(0)  # (not the literal 0: a literal argument is a second specialisation of retire_left)
     n_near = 0
     steps = 0
+    # the live stones, in increasing order (as Stones.live): scanned once, then kept up to
+    # date (spawned stones appended, retired ones dropped), so that a step costs what its
+    # live stones do, not every stone the storm has had
+    n_live = 0
+    for i in range(n):
+        if alive[i]:
+            if ctri[i] >= 0:
+                return NOT_FREE, steps, t, j, n, 0, 0, n_gone, 0.0, 0.0, 0
+            live[n_live] = i
+            n_live += 1
     while steps < n_max:
         j, n1 = spawn_due(t, t + dt, plan, plan_mass, j, n, stones)
         acc[0] += n1 - n
+        for i in range(n, n1):
+            live[n_live] = i
+            n_live += 1
         n = n1
-        n_live = 0
-        for i in range(n):
-            if stones[4][i]:
-                if ctri[i] >= 0:
-                    return NOT_FREE, steps, t, j, n, 0, 0, n_gone, 0.0, 0.0, 0
-                live[n_live] = i
-                n_live += 1
         lv = live[:n_live].copy()
         m = near_mask(lv, stones[0], stones[1], radius, ctri, stones[14], stones[15], 1.5 * u_bound, dt, air[0], lo, hi,
                       sr, glo, gh, dims, start, items, spts)
@@ -224,7 +230,15 @@ def free_steps(n_max, t, dt, i0, n_steps, next_frame, history, plan, plan_mass, 
             opened, h, t_left, n_sub = free_substeps(near, dt, stones, narrow, air, sizing, seat, acc)
             if opened:
                 return OPENED, steps, t, j, n, n_live, n_near, n_gone, h, t_left, n_sub
+        n_gone0 = n_gone
         n_gone = retire_left(lv, lo, hi, margin, stones, gone, n_gone, acc)
+        if n_gone > n_gone0:
+            kept = 0
+            for q in range(n_live):
+                if alive[live[q]]:
+                    live[kept] = live[q]
+                    kept += 1
+            n_live = kept
         u_bound = 0.0  # the seat stays unloaded (SeatState.end_step)
         t += dt
         acc[11] += 1.0

@@ -27,7 +27,11 @@ if TYPE_CHECKING:  # annotations only
     from hailstorm.runtime.storm.seat import SeatState
     from hailstorm.runtime.storm.stones import SpawnPlan, Stones
 
-__all__ = ["FreeResult", "FreeRun"]
+__all__ = ["STEPS_PER_CALL", "FreeResult", "FreeRun"]
+
+#: steps per compiled call at most: a signal is acted on between calls (a free step of the
+#: default storm costs ~30 us; a storm of many stones in flight, more)
+STEPS_PER_CALL = 1000
 
 #: the kernel's accumulators that are :class:`StormStats` fields (``fell_through`` is the storm's)
 STATS = frozenset(ACC_FIELDS) - {"fell_through"}
@@ -118,8 +122,9 @@ class FreeRun:
 
     def run(self, t: float, n_max: int, i0: int, n_steps: int, next_frame: float, history: np.ndarray,
             stones: Stones, seat: SeatState, stats: StormStats) -> FreeResult:
-        """Run up to ``n_max`` steps from time ``t`` (step ``i0`` of ``n_steps``; the frame clock
-        ``next_frame``, the force ``history``), in place on ``stones`` and ``stats``.
+        """Run up to ``n_max`` steps (at most :data:`STEPS_PER_CALL`) from time ``t`` (step ``i0`` of
+        ``n_steps``; the frame clock ``next_frame``, the force ``history``), in place on ``stones``
+        and ``stats``.
 
         The caller has checked that no stone presses the seat (:attr:`SeatState.loaded` false,
         no contact set); the stones' new count and the plan's next row are written back here.
@@ -130,8 +135,8 @@ class FreeRun:
         acc = np.array([float(getattr(stats, name)) if name in STATS else 0.0 for name in ACC_FIELDS])
         use_u, cols, forces = seat.kernel_load()
         status, steps, t_end, j, n, n_live, n_near, n_gone, h, t_left, n_sub = free_steps(
-            int(n_max), float(t), self.dt, int(i0), int(n_steps), float(next_frame), history, self.plan.rows,
-            self.plan_mass, self.plan.next_row, len(stones), scratch, buffers, seat.umax_step, self._broad,
+            int(min(n_max, STEPS_PER_CALL)), float(t), self.dt, int(i0), int(n_steps), float(next_frame), history,
+            self.plan.rows, self.plan_mass, self.plan.next_row, len(stones), scratch, buffers, seat.umax_step, self._broad,
             self._narrow, self._air, self._margin, self._sizing, (seat.umax, use_u, seat.D, cols, forces), acc)
         for name, value in zip(ACC_FIELDS, acc.tolist()):
             if name in STATS:
