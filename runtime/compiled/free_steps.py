@@ -10,7 +10,10 @@ the same arithmetic: the storms' fingerprints are unchanged), until
 * a stone's contact with the seat opens (the step is left half done, right after its free
   phase: the caller finishes it with the contact step, :data:`OPENED`);
 * a frame is due after the step, or ``n_max`` steps are done (:data:`DONE`);
-* a step starts with a stone in contact (:data:`NOT_FREE`; nothing done).
+* a step starts with a stone in contact (:data:`NOT_FREE`; nothing done);
+* with ``stop_near`` (a contact set the caller still holds, all its contacts released), a
+  stone is near the seat: the step is left after its broad phase and the far stones' flight
+  (:data:`NEAR`), for the caller's contact step, which reads that set.
 
 Its arguments come in tuples (``stones``: the per-stone arrays in the order of
 :data:`hailstorm.runtime.storm.stones.FIELDS`; ``broad``, ``narrow``, ``air``, ``sizing``: the
@@ -27,7 +30,7 @@ from hailstorm.runtime.compiled.integrators import substep_size
 from hailstorm.runtime.compiled.jit import kernel
 from hailstorm.runtime.compiled.narrow import free_phase, penetration
 
-__all__ = ["ACC_FIELDS", "DONE", "NOT_FREE", "OPENED", "free_steps", "free_substeps", "retire_left", "spawn_due"]
+__all__ = ["ACC_FIELDS", "DONE", "NEAR", "NOT_FREE", "OPENED", "free_steps", "free_substeps", "retire_left", "spawn_due"]
 
 #: :func:`free_steps` ran its steps (to ``n_max``, or to a step after which a frame is due)
 DONE = 0
@@ -35,6 +38,8 @@ DONE = 0
 OPENED = 1
 #: the next step starts with a stone in contact: nothing done
 NOT_FREE = 2
+#: (``stop_near``) stones are near the seat: the step is left after its broad phase and far flight
+NEAR = 3
 
 #: the statistics :func:`free_steps` accumulates, in the order of its ``acc`` array
 ACC_FIELDS: tuple[str, ...] = (
@@ -135,7 +140,7 @@ def retire_left(lv, lo, hi, margin, stones, gone, n_gone, acc):  # pragma: no co
 
 @kernel
 def free_steps(n_max, t, dt, i0, n_steps, next_frame, history, plan, plan_mass, j, n, scratch, stones, u_bound, broad,
-               narrow, air, margin, sizing, seat, acc):  # pragma: no cover (compiled)
+               narrow, air, margin, sizing, seat, stop_near, acc):  # pragma: no cover (compiled)
     """Storm steps without soft contacts, from time ``t`` (step index ``i0`` of ``n_steps``).
 
     Parameters
@@ -169,13 +174,15 @@ def free_steps(n_max, t, dt, i0, n_steps, next_frame, history, plan, plan_mass, 
     sizing : tuple
         ``sizes, max_substeps, k_tri, approach_fraction, rest_speed, omega_dt, symplectic, cs, kd,
         sticky, e3, g3``: the adaptive integrators' ``substep_size`` with no contact set.
+    stop_near : bool
+        Leave the first step with near stones after its broad phase (:data:`NEAR`).
     acc : (len(ACC_FIELDS),) float ndarray
         The statistics, accumulated in place.
 
     Returns
     -------
     status, steps, t, j, n, n_live, n_near, n_gone, h, t_left, n_sub
-        :data:`DONE`, :data:`OPENED` or :data:`NOT_FREE`; the steps completed and the time
+        :data:`DONE`, :data:`OPENED`, :data:`NOT_FREE` or :data:`NEAR`; the steps completed and the time
         at their end (an :data:`OPENED` step's start); the plan's next row, the stones'
         count; the entries of the scratch arrays; an :data:`OPENED` step's sub-step after its
         free phase, the time left of the step before it and its sub-steps before it.
@@ -216,6 +223,8 @@ def free_steps(n_max, t, dt, i0, n_steps, next_frame, history, plan, plan_mass, 
             for q in range(far.size):
                 stones[8][far[q]] = np.inf
                 offset[far[q]] = 0.0
+        if n_near and stop_near:
+            return NEAR, steps, t, j, n, n_live, n_near, n_gone, 0.0, dt, 0
         if n_near:
             for q in range(n_near):
                 cr[near[q]] = radius[near[q]] - offset[near[q]]  # (Stones.contact_radius)

@@ -236,6 +236,14 @@ class Collision:
         """The live stones that left the seat's region."""
         return live[retired(live, stones.pos, stones.radius, self.lo, self.hi, self.margin)]
 
+    def fell_through(self, stones: Stones, ids: np.ndarray) -> int:
+        """How many of the stones ``ids`` never touched the seat yet are below it, inside its
+        footprint: they passed through it (a step or a speed too large)."""
+        p = stones.pos[ids]
+        lo, hi = self.lo, self.hi
+        below = (p[:, 2] < lo[2]) & ((p[:, :2] >= lo[:2]) & (p[:, :2] <= hi[:2])).all(axis=1)
+        return int((below & ~stones.hit[ids]).sum())
+
     def warm_up(self, stones: Stones, seat: SeatState, dt: float) -> None:
         """Load (or compile) the kernels with the storm loop's argument types."""
         self.warm_up_flight(stones, dt)

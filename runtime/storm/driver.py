@@ -318,7 +318,7 @@ class Storm:
             pairs.resolve(stones, live, pos0, self.scene.time.dt, st)
         gone = self.collision.retired(stones, live) if live.size else live
         if gone.size:
-            self.fell_through += self._below_footprint(gone)
+            self.fell_through += self.collision.fell_through(stones, gone)
             stones.retire(gone)
             self.patches.forget(gone.tolist())
             st.retired += int(gone.size)
@@ -334,37 +334,37 @@ class Storm:
         stops after a step at whose end a frame is due) and ``history`` the force history
         (:class:`~hailstorm.runtime.storm.recording.Recorder`), whose rows of the steps run
         here are written. Returns the steps completed, and whether the next one is left half
-        done (a contact opened in its free phase: the next :meth:`step` finishes it).
-        ``(0, False)``: nothing done (a stone presses the seat, stones collide with each
+        done (a contact opened in its free phase; or, while the contact set whose contacts were
+        all released is still held, stones came near the seat: the next :meth:`step` finishes
+        it). ``(0, False)``: nothing done (a stone presses the seat, stones collide with each
         other, or a step is half done: :meth:`step`).
         """
-        if self.free is None or self._pending is not None or self.contacts.current is not None or self.seat.loaded:
+        if self.free is None or self._pending is not None or self.seat.loaded:
             return 0, False
-        res = self.free.run(self.t, n_max, i0, n_steps, next_frame, history, self.stones, self.seat, self.stats)
+        res = self.free.run(self.t, n_max, i0, n_steps, next_frame, history, self.stones, self.seat, self.stats,
+                            stop_near=self.contacts.current is not None)  # (a released set, still held)
         self.t = res.t
         self.fell_through += res.fell_through
         if res.retired.size:
             self.patches.forget(res.retired.tolist())
-        if res.opened:
+        half = res.opened or res.near_first
+        if half:
             self._pending = res
-        return res.steps, res.opened
+        return res.steps, half
 
     def _finish_free(self, res: FreeResult) -> None:
-        """The step :meth:`run_free` left half done: its contact step, the sub-steps left and its
-        end, as in :meth:`step`."""
+        """The step :meth:`run_free` left half done, finished as :meth:`step` would (from its
+        contact step, or from its penetration statistics)."""
         dt = self.scene.time.dt
+        if res.near_first:
+            self.collision.penetration(self.stones, res.near, dt, self.seat, self.stats)
+            self._substeps(res.near, dt, 0)
+            self._end_step(res.live, None)
+            return
         was_open = np.zeros(res.near.size, dtype=bool)  # (no contact was open in a compiled step)
         t_left = res.t_left - self._after_free_phase(res.near, res.h, was_open, self.t + (dt - res.t_left))
         self._substeps(res.near, t_left, res.n_sub + 1)
         self._end_step(res.live, None)
-
-    def _below_footprint(self, ids: np.ndarray) -> int:
-        """How many of the stones ``ids`` never touched the seat yet are below it,
-        inside its footprint: they passed through it (a step or a speed too large)."""
-        lo, hi = self.collision.lo, self.collision.hi
-        p = self.stones.pos[ids]
-        below = (p[:, 2] < lo[2]) & ((p[:, :2] >= lo[:2]) & (p[:, :2] <= hi[:2])).all(axis=1)
-        return int((below & ~self.stones.hit[ids]).sum())
 
     def passed_through_warning(self) -> str | None:
         """A sentence when stones passed through the seat's footprint and none touched

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from hailstorm.runtime.compiled.free_steps import ACC_FIELDS, OPENED, free_steps
+from hailstorm.runtime.compiled.free_steps import ACC_FIELDS, NEAR, OPENED, free_steps
 from hailstorm.runtime.storm.hail import GRAVITY, stone_mass
 
 if TYPE_CHECKING:  # annotations only
@@ -49,8 +49,11 @@ class FreeResult:
         The time at their end (the half-done step's start).
     opened : bool
         A contact opened in the next step's free phase: that step is half done.
+    near_first : bool
+        (``stop_near``) Stones are near the seat in the next step: it is left after its broad
+        phase and the far stones' flight.
     live, near : (k,) int ndarray
-        ``opened``: the half-done step's live and near stones.
+        ``opened`` or ``near_first``: the half-done step's live and near stones.
     h, t_left : float
         ``opened``: its sub-step after the free phase, and the time of the step left before it.
     n_sub : int
@@ -64,6 +67,7 @@ class FreeResult:
     steps: int
     t: float
     opened: bool
+    near_first: bool
     live: np.ndarray
     near: np.ndarray
     h: float
@@ -121,13 +125,15 @@ class FreeRun:
         return self._scratch_arrays
 
     def run(self, t: float, n_max: int, i0: int, n_steps: int, next_frame: float, history: np.ndarray,
-            stones: Stones, seat: SeatState, stats: StormStats) -> FreeResult:
+            stones: Stones, seat: SeatState, stats: StormStats, stop_near: bool = False) -> FreeResult:
         """Run up to ``n_max`` steps (at most :data:`STEPS_PER_CALL`) from time ``t`` (step ``i0`` of
         ``n_steps``; the frame clock ``next_frame``, the force ``history``), in place on ``stones``
         and ``stats``.
 
         The caller has checked that no stone presses the seat (:attr:`SeatState.loaded` false,
-        no contact set); the stones' new count and the plan's next row are written back here.
+        no contact set, or, with ``stop_near``, one whose contacts were all released: the run
+        stops at the first step with stones near the seat); the stones' new count and the
+        plan's next row are written back here.
         """
         stones.reserve(len(self.plan.rows) - self.plan.next_row)  # room for the plan's stones still to come
         buffers = stones.buffers()
@@ -137,7 +143,8 @@ class FreeRun:
         status, steps, t_end, j, n, n_live, n_near, n_gone, h, t_left, n_sub = free_steps(
             int(min(n_max, STEPS_PER_CALL)), float(t), self.dt, int(i0), int(n_steps), float(next_frame), history,
             self.plan.rows, self.plan_mass, self.plan.next_row, len(stones), scratch, buffers, seat.umax_step, self._broad,
-            self._narrow, self._air, self._margin, self._sizing, (seat.umax, use_u, seat.D, cols, forces), acc)
+            self._narrow, self._air, self._margin, self._sizing, (seat.umax, use_u, seat.D, cols, forces),
+            bool(stop_near), acc)
         for name, value in zip(ACC_FIELDS, acc.tolist()):
             if name in STATS:
                 setattr(stats, name, type(getattr(stats, name))(value))
@@ -145,10 +152,11 @@ class FreeRun:
         stones.resize(n)
         if steps:
             seat.end_step()
-        opened = status == OPENED
-        return FreeResult(steps=int(steps), t=float(t_end), opened=opened,
-                          live=live[:n_live].copy() if opened else live[:0],
-                          near=near[:n_near].copy() if opened else near[:0], h=float(h), t_left=float(t_left),
+        opened, near_first = status == OPENED, status == NEAR
+        half = opened or near_first
+        return FreeResult(steps=int(steps), t=float(t_end), opened=opened, near_first=near_first,
+                          live=live[:n_live].copy() if half else live[:0],
+                          near=near[:n_near].copy() if half else near[:0], h=float(h), t_left=float(t_left),
                           n_sub=int(n_sub), retired=gone[:n_gone].copy(),
                           fell_through=int(acc[ACC_FIELDS.index("fell_through")]))
 
