@@ -11,9 +11,11 @@ the same arithmetic: the storms' fingerprints are unchanged), until
   phase: the caller finishes it with the contact step, :data:`OPENED`);
 * a frame is due after the step, or ``n_max`` steps are done (:data:`DONE`);
 * a step starts with a stone in contact (:data:`NOT_FREE`; nothing done);
-* with ``stop_near`` (a contact set the caller still holds, all its contacts released), a
-  stone is near the seat: the step is left after its broad phase and the far stones' flight
-  (:data:`NEAR`), for the caller's contact step, which reads that set.
+* with ``stop_near`` (a contact set the caller still holds, all its contacts released, which
+  the caller's sub-step sizing reads), a stone is near the seat: the step is left after its
+  broad phase and the far stones' flight (:data:`NEAR`). Without it, a held set (``held[0]``)
+  is dropped where the caller's step drops it, at the first sub-step of near stones in
+  which no contact opens: ``held[0]`` is set false and the caller releases its set.
 
 Its arguments come in tuples (``stones``: the per-stone arrays in the order of
 :data:`hailstorm.runtime.storm.stones.FIELDS`; ``broad``, ``narrow``, ``air``, ``sizing``: the
@@ -140,7 +142,7 @@ def retire_left(lv, lo, hi, margin, stones, gone, n_gone, acc):  # pragma: no co
 
 @kernel
 def free_steps(n_max, t, dt, i0, n_steps, next_frame, history, plan, plan_mass, j, n, scratch, stones, u_bound, broad,
-               narrow, air, margin, sizing, seat, stop_near, acc):  # pragma: no cover (compiled)
+               narrow, air, margin, sizing, seat, stop_near, held, acc):  # pragma: no cover (compiled)
     """Storm steps without soft contacts, from time ``t`` (step index ``i0`` of ``n_steps``).
 
     Parameters
@@ -176,6 +178,8 @@ def free_steps(n_max, t, dt, i0, n_steps, next_frame, history, plan, plan_mass, 
         sticky, e3, g3``: the adaptive integrators' ``substep_size`` with no contact set.
     stop_near : bool
         Leave the first step with near stones after its broad phase (:data:`NEAR`).
+    held : (1,) bool ndarray
+        The caller holds a released contact set; set false where its step would drop it.
     acc : (len(ACC_FIELDS),) float ndarray
         The statistics, accumulated in place.
 
@@ -237,6 +241,8 @@ def free_steps(n_max, t, dt, i0, n_steps, next_frame, history, plan, plan_mass, 
             acc[5] += spc
             acc[6] += npc
             opened, h, t_left, n_sub = free_substeps(near, dt, stones, narrow, air, sizing, seat, acc)
+            if held[0] and (not opened or n_sub > 0):  # (a sub-step without an opening: the set is dropped)
+                held[0] = False
             if opened:
                 return OPENED, steps, t, j, n, n_live, n_near, n_gone, h, t_left, n_sub
         n_gone0 = n_gone

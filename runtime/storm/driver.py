@@ -334,15 +334,17 @@ class Storm:
         stops after a step at whose end a frame is due) and ``history`` the force history
         (:class:`~hailstorm.runtime.storm.recording.Recorder`), whose rows of the steps run
         here are written. Returns the steps completed, and whether the next one is left half
-        done (a contact opened in its free phase; or, while the contact set whose contacts were
-        all released is still held, stones came near the seat: the next :meth:`step` finishes
-        it). ``(0, False)``: nothing done (a stone presses the seat, stones collide with each
+        done for :meth:`step` to finish (:class:`~hailstorm.runtime.storm.free_run.FreeResult`).
+        ``(0, False)``: nothing done (a stone presses the seat, stones collide with each
         other, or a step is half done: :meth:`step`).
         """
         if self.free is None or self._pending is not None or self.seat.loaded:
             return 0, False
+        held = self.contacts.current is not None  # (a released set: dropped where the step would)
         res = self.free.run(self.t, n_max, i0, n_steps, next_frame, history, self.stones, self.seat, self.stats,
-                            stop_near=self.contacts.current is not None)  # (a released set, still held)
+                            held=held, stop_near=held and self.integrator.sizes_substeps)
+        if res.dropped:
+            self.contacts.release()
         self.t = res.t
         self.fell_through += res.fell_through
         if res.retired.size:

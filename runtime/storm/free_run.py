@@ -52,6 +52,8 @@ class FreeResult:
     near_first : bool
         (``stop_near``) Stones are near the seat in the next step: it is left after its broad
         phase and the far stones' flight.
+    dropped : bool
+        (``held``) The steps run dropped the released contact set the caller held: it releases it.
     live, near : (k,) int ndarray
         ``opened`` or ``near_first``: the half-done step's live and near stones.
     h, t_left : float
@@ -68,6 +70,7 @@ class FreeResult:
     t: float
     opened: bool
     near_first: bool
+    dropped: bool
     live: np.ndarray
     near: np.ndarray
     h: float
@@ -125,26 +128,29 @@ class FreeRun:
         return self._scratch_arrays
 
     def run(self, t: float, n_max: int, i0: int, n_steps: int, next_frame: float, history: np.ndarray,
-            stones: Stones, seat: SeatState, stats: StormStats, stop_near: bool = False) -> FreeResult:
+            stones: Stones, seat: SeatState, stats: StormStats, held: bool = False,
+            stop_near: bool = False) -> FreeResult:
         """Run up to ``n_max`` steps (at most :data:`STEPS_PER_CALL`) from time ``t`` (step ``i0`` of
         ``n_steps``; the frame clock ``next_frame``, the force ``history``), in place on ``stones``
         and ``stats``.
 
         The caller has checked that no stone presses the seat (:attr:`SeatState.loaded` false,
-        no contact set, or, with ``stop_near``, one whose contacts were all released: the run
-        stops at the first step with stones near the seat); the stones' new count and the
-        plan's next row are written back here.
+        no contact set, or one whose contacts were all released, ``held``: the run drops it
+        where the step would, :attr:`FreeResult.dropped`; with ``stop_near`` it stops instead
+        at the first step with stones near the seat); the stones' new count and the plan's
+        next row are written back here.
         """
         stones.reserve(len(self.plan.rows) - self.plan.next_row)  # room for the plan's stones still to come
         buffers = stones.buffers()
         live, near, gone, _ = scratch = self._scratch(buffers[0].shape[0])
         acc = np.array([float(getattr(stats, name)) if name in STATS else 0.0 for name in ACC_FIELDS])
         use_u, cols, forces = seat.kernel_load()
+        hold = np.array([bool(held)])
         status, steps, t_end, j, n, n_live, n_near, n_gone, h, t_left, n_sub = free_steps(
             int(min(n_max, STEPS_PER_CALL)), float(t), self.dt, int(i0), int(n_steps), float(next_frame), history,
             self.plan.rows, self.plan_mass, self.plan.next_row, len(stones), scratch, buffers, seat.umax_step, self._broad,
             self._narrow, self._air, self._margin, self._sizing, (seat.umax, use_u, seat.D, cols, forces),
-            bool(stop_near), acc)
+            bool(stop_near), hold, acc)
         for name, value in zip(ACC_FIELDS, acc.tolist()):
             if name in STATS:
                 setattr(stats, name, type(getattr(stats, name))(value))
@@ -155,6 +161,7 @@ class FreeRun:
         opened, near_first = status == OPENED, status == NEAR
         half = opened or near_first
         return FreeResult(steps=int(steps), t=float(t_end), opened=opened, near_first=near_first,
+                          dropped=bool(held) and not bool(hold[0]),
                           live=live[:n_live].copy() if half else live[:0],
                           near=near[:n_near].copy() if half else near[:0], h=float(h), t_left=float(t_left),
                           n_sub=int(n_sub), retired=gone[:n_gone].copy(),
