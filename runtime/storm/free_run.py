@@ -94,7 +94,7 @@ class FreeRun:
         The triangles' point stiffness (where the integrator sizes sub-steps by it).
     plan : SpawnPlan
     stones : Stones
-        Given room for every stone of the plan.
+        Their density (:meth:`run` gives them room for the plan's stones).
     """
 
     def __init__(self, scene: Scene, collision: Collision, integrator: ContactIntegrator, k_tri: np.ndarray | None,
@@ -102,7 +102,6 @@ class FreeRun:
         self.plan = plan
         self.dt = float(scene.time.dt)
         self.plan_mass = stone_mass(plan.rows[:, 7].copy(), stones.density) if len(plan.rows) else np.zeros(0)
-        stones.reserve(len(plan.rows))
         ix, c = collision.index, collision
         grid = ix.grid
         self._broad = (ix.bbox[0], ix.bbox[1], ix.sample_radius, grid.lo, grid.h, grid.dims, grid.start, grid.items,

@@ -111,7 +111,7 @@ def run_storm(
     rec = Recorder(scene.n_steps(), scene.output.fps, on_frame, keep)
     rec.record(storm.frame())
     wall = _step_all(storm, rec, progress, scene.storm.duration)
-    st = _finish(storm, gf, scene, rec, wall, setup, progress is True)
+    st = _finish(storm, gf, scene, rec, wall, setup, show_progress=progress is True)
     return StormResult(scene=scene, frames=rec.frames, stats=st, history=rec.history)
 
 
@@ -159,13 +159,13 @@ def _step_all(storm: Storm, rec: Recorder, progress: bool | Callable[[float, flo
 
 
 def _finish(storm: Storm, gf: ElasticSource, scene: Scene, rec: Recorder, wall: float, setup: float,
-            bar: bool) -> StormStats:
-    """:func:`run_storm`'s end: the inertia pass (``bar``: with a progress bar), the warning of
+            show_progress: bool) -> StormStats:
+    """:func:`run_storm`'s end: the inertia pass (with a progress bar if ``show_progress``), the warning of
     stones that passed through, and the statistics completed."""
     st, stones = storm.stats, storm.stones
     inertia0 = time.perf_counter()
     if st.validity is not None and st.validity.measure_inertia:  # the pad's inertia per impact (a local peer each)
-        st.validity.inertia(progress=bar)
+        st.validity.inertia(progress=show_progress)
     st.inertia_time_s = time.perf_counter() - inertia0
     through = storm.passed_through_warning()
     if through is not None:

@@ -185,16 +185,14 @@ class Stones:
         n = self.pos.shape[0]
         ids = np.arange(n, n + k)
         self.reserve(k)
+        self.resize(n + k)
         for name, new in FIELDS:
-            arr = self._buffers[name][:n + k]
-            setattr(self, name, arr)
             if new is not None:
-                arr[n:] = new
+                getattr(self, name)[n:] = new
         self.pos[n:] = pos
         self.vel[n:] = vel
         self.radius[n:] = radius
         self.mass[n:] = stone_mass(radius, self.density)
-        self._live = None
         return ids
 
     def reserve(self, k: int) -> None:
